@@ -1,0 +1,1 @@
+//! quadrature (to be written)

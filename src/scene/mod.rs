@@ -1,0 +1,3 @@
+//! Scene files (TOML): parsing and validation into [`Scene`].
+mod types;
+pub use types::*;

@@ -1,0 +1,125 @@
+//! The typed scene: what `Scene::load` produces after validation. Every value here has been checked
+//! (finite, in range), so the solver never re-validates.
+
+use glam::DVec3;
+use std::path::PathBuf;
+
+/// A whole job description: the medium volume, its optical properties, the lights, the solver
+/// settings and an optional camera.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Scene {
+    /// The file the scene was read from (used in messages and to resolve relative paths).
+    pub path: PathBuf,
+    pub volume: Volume,
+    pub medium: Medium,
+    pub lights: Vec<Light>,
+    pub solver: SolverSettings,
+    /// `None`: the renderer picks a default view of the whole volume.
+    pub camera: Option<Camera>,
+}
+
+/// The density grid: dims in voxels, the voxel edge in world units, and where densities come from.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Volume {
+    pub source: VolumeSource,
+    /// Voxels along x, y, z; each in 1..=65536 and the product below 2^40.
+    pub dims: [u32; 3],
+    /// World units per voxel edge (> 0).
+    pub voxel_size: f64,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub enum VolumeSource {
+    Procedural { shape: Shape, seed: u64 },
+    /// Little-endian f32, x fastest, then y, then z; an absolute path (resolved against the scene file).
+    Raw { path: PathBuf },
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Shape {
+    /// Density 1 inside a ball of radius 0.4·min(dims) voxels centred in the volume, 0 outside.
+    Sphere,
+    /// Density 1 everywhere.
+    Box,
+    /// Seeded fBm noise cloud, density in [0, 1], mostly empty near the border.
+    Cloud,
+}
+
+/// Optical properties at density 1 (scaled linearly by the voxel density).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Medium {
+    /// Extinction per world unit at density 1, per channel (≥ 0).
+    pub sigma_t: [f64; 3],
+    /// Single-scattering albedo per channel, in [0, 1].
+    pub albedo: [f64; 3],
+    /// Henyey–Greenstein anisotropy, in (−1, 1).
+    pub g: f64,
+    /// Emitted radiance Le per channel (≥ 0); the source term is σa·Le.
+    pub emission: [f64; 3],
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub enum Light {
+    /// Uniform radiance arriving from every direction outside the volume.
+    Sky { radiance: [f64; 3] },
+    /// Directional light. `direction` is unit length and points toward the sun; `irradiance` is
+    /// measured on a plane perpendicular to the beam.
+    Sun { direction: DVec3, irradiance: [f64; 3] },
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct SolverSettings {
+    /// k: k×k propagation directions per cube face (6k² in all), 1..=32.
+    pub directions_per_face: u32,
+    /// Storage directions per face for anisotropic media (k_s×k_s per face, k_s ≤ k). `None`: the
+    /// plan chooses (1 storage direction in all when the medium is isotropic).
+    pub storage_directions_per_face: Option<u32>,
+    /// Cap on the number of scattering orders propagated (≥ 1).
+    pub max_orders: u32,
+    /// Stop when the newest order's scattered power is below this fraction of the total (in (0, 1)).
+    pub tolerance: f64,
+    /// Device memory budget in bytes; `None`: a safe fraction of the device's heap.
+    pub device_memory_budget: Option<u64>,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct Camera {
+    pub projection: Projection,
+    /// World-space position of the eye (pinhole) or of the image centre (orthographic).
+    pub position: DVec3,
+    pub look_at: DVec3,
+    pub up: DVec3,
+    /// Image size in pixels (1..=16384 each).
+    pub width: u32,
+    pub height: u32,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Projection {
+    /// Vertical field of view in degrees, in (0, 180).
+    Pinhole { fov_y_degrees: f64 },
+    /// Height of the view in world units (> 0).
+    Orthographic { height: f64 },
+}
+
+impl Medium {
+    /// True when every channel has the same σt, albedo and emission.
+    pub fn is_grey(&self) -> bool {
+        let same = |v: &[f64; 3]| v[0] == v[1] && v[1] == v[2];
+        same(&self.sigma_t) && same(&self.albedo) && same(&self.emission)
+    }
+    pub fn has_emission(&self) -> bool {
+        self.emission.iter().any(|&e| e > 0.0)
+    }
+}
+
+impl Light {
+    /// True when the light has the same value in every channel.
+    pub fn is_grey(&self) -> bool {
+        let v = match self {
+            Light::Sky { radiance } => radiance,
+            Light::Sun { irradiance, .. } => irradiance,
+        };
+        v[0] == v[1] && v[1] == v[2]
+    }
+}

@@ -1,0 +1,1 @@
+//! vk (to be written)
