@@ -1,1 +1,2 @@
-//! solver (to be written)
+//! solver
+pub mod segment;
