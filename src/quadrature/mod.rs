@@ -22,6 +22,11 @@ pub mod phase;
 
 pub use cube_face::{cell_solid_angle, Face, FACES};
 
+/// The face (0..6) a direction of travel belongs to (its dominant axis and sign).
+pub fn cube_face_of(omega: DVec3) -> usize {
+    cube_face::project(omega).0
+}
+
 use glam::DVec3;
 
 /// One propagation direction (a cell of a cube face).

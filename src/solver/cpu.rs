@@ -1,0 +1,185 @@
+//! The CPU twin: the GPU kernels' discretisation in plain Rust and f64, the reference the GPU is
+//! tested against, selectable with `--backend cpu`.
+//!
+//! It walks exactly the voxels the GPU walks (same offset tables, same wrap rule, same segment
+//! formulas) but keeps every field in memory, so it is meant for volumes that fit in RAM. Its loops
+//! read like the two kernels: `sweep` is `glsl/propagate.comp` and the deposit inside it is
+//! `glsl/collect.comp` applied one direction at a time.
+
+use super::energy::Tallies;
+use super::orders::Backend;
+use super::plan::{Plan, SweepDirection};
+use super::segment::segment;
+use super::sweep::{column, FaceSweep};
+use super::SolveError;
+
+pub struct CpuTwin<'a> {
+    plan: &'a Plan,
+    /// Density per voxel, x fastest.
+    density: Vec<f64>,
+    /// Sources per voxel, `[voxel][d·C + ch]`.
+    j_prev: Vec<f64>,
+    j_next: Vec<f64>,
+    j_total: Vec<f64>,
+    /// Fluence per voxel, `[voxel][ch]`.
+    fluence: Vec<f64>,
+}
+
+impl<'a> CpuTwin<'a> {
+    /// `density(v)` gives the density of voxel v = (x, y, z).
+    pub fn new(plan: &'a Plan, density: impl Fn([u32; 3]) -> f32) -> Result<Self, SolveError> {
+        let [nx, ny, nz] = plan.dims;
+        let voxels = nx as usize * ny as usize * nz as usize;
+        let comps = plan.source_components() as usize;
+        let bytes = voxels as u128 * (3 * comps + plan.channels as usize + 1) as u128 * 8;
+        if bytes > 16 << 30 {
+            return Err(SolveError::TooLargeForCpu { bytes: bytes as u64 });
+        }
+        let mut values = Vec::with_capacity(voxels);
+        for z in 0..nz {
+            for y in 0..ny {
+                for x in 0..nx {
+                    values.push(density([x, y, z]) as f64);
+                }
+            }
+        }
+        Ok(CpuTwin {
+            plan,
+            density: values,
+            j_prev: vec![0.0; voxels * comps],
+            j_next: vec![0.0; voxels * comps],
+            j_total: vec![0.0; voxels * comps],
+            fluence: vec![0.0; voxels * plan.channels as usize],
+        })
+    }
+
+    fn index(&self, v: [u32; 3]) -> usize {
+        let [nx, ny, _] = self.plan.dims;
+        v[0] as usize + nx as usize * (v[1] as usize + ny as usize * v[2] as usize)
+    }
+
+    /// Fluence of voxel v, channel ch.
+    pub fn fluence(&self, v: [u32; 3], ch: usize) -> f64 {
+        self.fluence[self.index(v) * self.plan.channels as usize + ch]
+    }
+
+    /// Summed in-scattered source of voxel v, component d·C + ch.
+    pub fn source(&self, v: [u32; 3], component: usize) -> f64 {
+        self.j_total[self.index(v) * self.plan.source_components() as usize + component]
+    }
+
+    /// Marches every ray of one direction through the whole volume, depositing fluence and the next
+    /// order's source. `boundary`: rays are born carrying the direction's boundary radiance (else
+    /// zero); `gain`: rays gain the previous order's source (and the emission when `emit`).
+    fn sweep(&mut self, dir: &SweepDirection, boundary: bool, gain: bool, emit: bool) -> Tallies {
+        let plan = self.plan;
+        let c = plan.channels as usize;
+        let comps = plan.source_components() as usize;
+        let sweep = FaceSweep::new(dir.face, plan.dims);
+        let [na, nb, nc] = sweep.n;
+        let birth: [f64; 3] = if boundary { dir.boundary } else { [0.0; 3] };
+        let coeffs: Vec<(f64, f64, f64)> = (0..c).map(|ch| plan.coefficients(ch)).collect();
+        let mut tallies = Tallies::default();
+        let (mut born, mut left) = ([0.0; 3], [0.0; 3]);
+        for q in 0..nc {
+            for p in 0..nb {
+                let mut l = birth;
+                let mut wrap = [0, 0];
+                (0..c).for_each(|ch| born[ch] += birth[ch]);
+                for t in 0..na {
+                    let o = dir.offsets[t as usize];
+                    let (vb, wb) = column(p, o[0], nb);
+                    let (vc, wc) = column(q, o[1], nc);
+                    if t > 0 && [wb, wc] != wrap {
+                        // The ray left through a side: a new one enters from the opposite side.
+                        for ch in 0..c {
+                            left[ch] += l[ch];
+                            l[ch] = birth[ch];
+                            born[ch] += birth[ch];
+                        }
+                    }
+                    wrap = [wb, wc];
+                    let v = self.index(sweep.voxel(t, vb, vc));
+                    let rho = self.density[v];
+                    for ch in 0..c {
+                        let (st, ss, sa) = coeffs[ch];
+                        let mut j = 0.0;
+                        if gain {
+                            j = self.j_prev[v * comps + dir.gain_storage as usize * c + ch];
+                            if emit {
+                                j += rho * sa * plan.medium.emission[ch];
+                            }
+                        }
+                        let (out, avg) = segment(l[ch], j, rho * st, dir.path_length);
+                        l[ch] = out;
+                        self.fluence[v * c + ch] += dir.fluence_weight * avg;
+                        let sigma_s = rho * ss;
+                        if sigma_s > 0.0 {
+                            for (d, m) in dir.collect_row.iter().enumerate() {
+                                self.j_next[v * comps + d * c + ch] += sigma_s * m * avg;
+                            }
+                        }
+                    }
+                }
+                (0..c).for_each(|ch| left[ch] += l[ch]);
+            }
+        }
+        for ch in 0..c {
+            tallies.boundary_in[ch] = born[ch] * dir.power_per_radiance;
+            tallies.boundary_out[ch] = left[ch] * dir.power_per_radiance;
+        }
+        tallies
+    }
+}
+
+impl Backend for CpuTwin<'_> {
+    fn propagate_order(&mut self, order: u32) -> Result<Tallies, SolveError> {
+        let plan = self.plan;
+        let mut tallies = Tallies::default();
+        if order == 0 {
+            for beam in &plan.beams {
+                tallies.add(&self.sweep(beam, true, false, false));
+            }
+        }
+        for face in &plan.faces {
+            for dir in face {
+                tallies.add(&self.sweep(dir, order == 0, true, order == 0 && plan.emission));
+            }
+        }
+        Ok(tallies)
+    }
+
+    fn finish_order(&mut self) -> Result<[f64; 3], SolveError> {
+        let c = self.plan.channels as usize;
+        let comps = self.plan.source_components() as usize;
+        let h3 = self.plan.voxel_size.powi(3);
+        let mut power = [0.0; 3];
+        for (v, chunk) in self.j_next.chunks(comps).enumerate() {
+            for (k, &j) in chunk.iter().enumerate() {
+                power[k % c] += self.plan.storage.solid_angle[k / c] * j * h3;
+                self.j_total[v * comps + k] += j;
+            }
+        }
+        std::mem::swap(&mut self.j_prev, &mut self.j_next);
+        self.j_next.iter_mut().for_each(|j| *j = 0.0);
+        Ok(power)
+    }
+
+    fn emitted_and_absorbed(&mut self) -> Result<([f64; 3], [f64; 3]), SolveError> {
+        let plan = self.plan;
+        let c = plan.channels as usize;
+        let h3 = plan.voxel_size.powi(3);
+        let four_pi: f64 = plan.storage.solid_angle.iter().sum();
+        let (mut emitted, mut absorbed) = ([0.0; 3], [0.0; 3]);
+        for (v, &rho) in self.density.iter().enumerate() {
+            for ch in 0..c {
+                let sa = rho * plan.coefficients(ch).2;
+                if plan.emission {
+                    emitted[ch] += four_pi * sa * plan.medium.emission[ch] * h3;
+                }
+                absorbed[ch] += sa * self.fluence[v * c + ch] * h3;
+            }
+        }
+        Ok((emitted, absorbed))
+    }
+}
