@@ -183,3 +183,32 @@ impl Backend for CpuTwin<'_> {
         Ok((emitted, absorbed))
     }
 }
+
+impl CpuTwin<'_> {
+    /// Writes the fluence and the summed source into the store's fields (as f32).
+    pub fn write_into(&self, store: &crate::store::BrickStore, fields: &mut super::fields::StoreFields) {
+        let c = self.plan.channels as usize;
+        let comps = self.plan.source_components() as usize;
+        let [nx, ny, nz] = self.plan.dims;
+        let grid = *store.grid();
+        for z in 0..nz {
+            for y in 0..ny {
+                for x in 0..nx {
+                    let v = [x, y, z];
+                    let i = self.index(v);
+                    let (brick, local) = grid.locate(v);
+                    if let Some(dst) = fields.fluence.brick_mut(brick) {
+                        for ch in 0..c {
+                            dst[ch * crate::store::BRICK_VOXELS + local] = self.fluence[i * c + ch] as f32;
+                        }
+                    }
+                    if let Some(dst) = fields.source_total.brick_mut(brick) {
+                        for k in 0..comps {
+                            dst[k * crate::store::BRICK_VOXELS + local] = self.j_total[i * comps + k] as f32;
+                        }
+                    }
+                }
+            }
+        }
+    }
+}

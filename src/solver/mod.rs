@@ -1,16 +1,133 @@
 //! The solver: the plan, the discretisation shared by both backends, the CPU twin, the GPU driver
 //! and the order loop.
+//!
+//! - [`plan`] decides what the scene needs and derives the per-direction tables;
+//! - [`sweep`] and [`segment`] are the discretisation (voxels walked, exact segment solution);
+//! - [`cpu`] is the f64 twin of the GPU kernels, [`gpu`] the Vulkan driver;
+//! - [`orders`] runs scattering orders to the tolerance, [`energy`] keeps the books;
+//! - [`fields`] holds the solver's fields in the brick store and the host passes over them.
+
 pub mod cpu;
 pub mod energy;
+pub mod fields;
+pub mod gpu;
 pub mod orders;
 pub mod plan;
 pub mod segment;
 pub mod sweep;
 
+use crate::scene::{Scene, VolumeSource};
+use crate::store::{import, BrickStore, StoreError};
+use crate::vk::{Context, ContextOptions, VkError};
+use fields::StoreFields;
+use orders::OrderOutcome;
+use plan::Plan;
+use std::path::Path;
+use std::time::Instant;
 use thiserror::Error;
 
 #[derive(Debug, Error)]
 pub enum SolveError {
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    #[error(transparent)]
+    Vulkan(#[from] VkError),
     #[error("the CPU backend keeps the whole volume in memory and would need {} MiB; use the GPU backend", bytes >> 20)]
     TooLargeForCpu { bytes: u64 },
+    #[error("{what} needs {bytes} bytes in one buffer, but this device binds at most {limit} bytes per storage buffer")]
+    DeviceLimit { what: String, bytes: u64, limit: u64 },
+    #[error("internal error: {0}")]
+    Internal(&'static str),
+}
+
+/// Which implementation runs the sweeps.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BackendKind {
+    Gpu,
+    Cpu,
+}
+
+/// What a solve reports besides its fields.
+#[derive(Debug)]
+pub struct SolveRun {
+    pub plan: Plan,
+    pub outcome: OrderOutcome,
+    /// The Vulkan device used, or "CPU twin (f64)".
+    pub device: String,
+    /// Peak device memory allocated by the solver's allocator (0 for the CPU backend).
+    pub peak_device_bytes: u64,
+    /// Seconds spent per phase, in order.
+    pub phases: Vec<(String, f64)>,
+}
+
+/// Builds the brick store for the scene's volume in `dir`.
+pub fn build_store(scene: &Scene, dir: &Path) -> Result<BrickStore, SolveError> {
+    let dims = scene.volume.dims;
+    let h = scene.volume.voxel_size;
+    let store = match &scene.volume.source {
+        VolumeSource::Procedural { shape, seed } => {
+            let (shape, seed) = (*shape, *seed);
+            BrickStore::create_with(dir, dims, h, move |brick, out| {
+                crate::scene::procedural::fill_brick(shape, seed, dims, brick, out);
+                Ok(())
+            })?
+        }
+        VolumeSource::Raw { path } => {
+            let raw = import::raw_density(path, dims)?;
+            BrickStore::create_with(dir, dims, h, |brick, out| raw.fill_brick(brick, out))?
+        }
+    };
+    Ok(store)
+}
+
+/// Solves `scene` over `store`: plans, runs the orders on the chosen backend, and leaves the
+/// fluence and the summed source in the returned fields.
+pub fn solve(
+    scene: &Scene,
+    store: &BrickStore,
+    backend: BackendKind,
+    vk_options: ContextOptions,
+    mut progress: impl FnMut(u32, f64),
+) -> Result<(SolveRun, StoreFields), SolveError> {
+    let mut phases = Vec::new();
+    let t = Instant::now();
+    let total = store.grid().brick_count();
+    let plan = Plan::new(scene, total, total - store.occupied_count());
+    let mut fields = StoreFields::create(store, &plan)?;
+    phases.push(("plan".to_string(), t.elapsed().as_secs_f64()));
+    for reason in &plan.reasons {
+        tracing::info!("plan: {reason}");
+    }
+    let (outcome, device, peak) = match backend {
+        BackendKind::Cpu => {
+            let t = Instant::now();
+            let mut twin = cpu::CpuTwin::new(&plan, |v| store.density_at(v))?;
+            phases.push(("setup".to_string(), t.elapsed().as_secs_f64()));
+            let t = Instant::now();
+            let outcome = orders::run_orders(&plan, &mut twin, &mut progress)?;
+            phases.push(("orders".to_string(), t.elapsed().as_secs_f64()));
+            twin.write_into(store, &mut fields);
+            (outcome, "CPU twin (f64)".to_string(), 0)
+        }
+        BackendKind::Gpu => {
+            let t = Instant::now();
+            let ctx = Context::new(vk_options)?;
+            let device = format!("{} ({})", ctx.device_name(), ctx.driver_description());
+            let mut gpu = gpu::GpuBackend::new(ctx.clone(), &plan, store, &mut fields)?;
+            phases.push(("setup".to_string(), t.elapsed().as_secs_f64()));
+            let t = Instant::now();
+            let outcome = orders::run_orders(&plan, &mut gpu, &mut progress)?;
+            phases.push(("orders".to_string(), t.elapsed().as_secs_f64()));
+            drop(gpu);
+            let peak = ctx.peak_allocated_bytes();
+            let messages = ctx.validation_messages();
+            if !messages.is_empty() {
+                tracing::error!("{} Vulkan validation error(s); first: {}", messages.len(), messages[0]);
+            }
+            (outcome, device, peak)
+        }
+    };
+    fields.fluence.flush()?;
+    fields.source_total.flush()?;
+    Ok((SolveRun { plan, outcome, device, peak_device_bytes: peak, phases }, fields))
 }

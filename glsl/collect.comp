@@ -1,0 +1,54 @@
+#version 450
+// Collect: one thread per voxel of the slice. Sums the segment-average radiance every direction of
+// the dispatch deposited in T into the fluence (weighted by the direction's solid angle) and, where
+// the medium scatters, into the next order's source (J^d += σs·Σ_i M[i][d]·L̄_i). Summation order is
+// fixed, so results are bitwise reproducible. CPU twin: the deposit in CpuTwin::sweep.
+#extension GL_GOOGLE_include_directive : require
+#include "common.glsl"
+
+layout(local_size_x = 16, local_size_y = 4, local_size_z = 1) in;
+
+layout(std430, binding = 0) readonly buffer Directions { Direction dirs[]; };
+layout(std430, binding = 1) readonly buffer CollectRows { float rows[]; };       // [dir][storage]
+layout(std430, binding = 2) readonly buffer SlotTable { int medium_slot[]; };
+layout(std430, binding = 3) readonly buffer Density { float density[]; };
+layout(std430, binding = 4) readonly buffer Deposit { float deposit[]; };        // [dispatch dir][ch][plane][vc][vb]
+layout(std430, binding = 5) buffer SourceNext { float j_next[]; };               // [slot][d·C+ch][4096]
+layout(std430, binding = 6) buffer Fluence { float fluence[]; };                 // [slice brick][ch][4096]
+
+void main() {
+    uint vb = gl_GlobalInvocationID.x;
+    uint vc = gl_GlobalInvocationID.y;
+    uint tt = gl_GlobalInvocationID.z;
+    uint planes = pc.t1 - pc.t0;
+    if (vb >= pc.nb || vc >= pc.nc || tt >= planes) return;
+
+    uint rays = pc.nb * pc.nc;
+    uint C = pc.channels;
+    uvec3 v = voxel_of(pc.t0 + tt, vb, vc);
+    uint brick = slice_brick(vb, vc);
+    uint local = local_index(v);
+    int slot = medium_slot[brick];
+    float rho = slot >= 0 ? density[uint(slot) * BRICK_VOXELS + local] : 0.0;
+    uint cell = (tt * pc.nc + vc) * pc.nb + vb;
+
+    for (uint ch = 0u; ch < C; ++ch) {
+        float phi = 0.0;
+        for (uint di = 0u; di < pc.dir_count; ++di) {
+            phi += dirs[pc.dir_base + di].fluence_weight * deposit[(di * C + ch) * planes * rays + cell];
+        }
+        fluence[(brick * C + ch) * BRICK_VOXELS + local] += phi;
+
+        float sigma_s = rho * pc.sigma_s[ch];
+        if (slot >= 0 && sigma_s > 0.0) {
+            uint comps = pc.storage * C;
+            for (uint d = 0u; d < pc.storage; ++d) {
+                float acc = 0.0;
+                for (uint di = 0u; di < pc.dir_count; ++di) {
+                    acc += rows[(pc.dir_base + di) * pc.storage + d] * deposit[(di * C + ch) * planes * rays + cell];
+                }
+                j_next[(uint(slot) * comps + d * C + ch) * BRICK_VOXELS + local] += sigma_s * acc;
+            }
+        }
+    }
+}

@@ -1,0 +1,94 @@
+// Shared by propagate.comp and collect.comp.
+//
+// Push constants: keep in sync with `SweepPush` in src/solver/gpu/layout.rs (size asserted there).
+layout(push_constant) uniform Push {
+    uint na;            // planes along the sweep axis (real dims)
+    uint nb;            // rays / voxels along lateral axis b
+    uint nc;            // rays / voxels along lateral axis c
+    uint t0;            // first plane of this slice (sweep order)
+    uint t1;            // one past the last plane of this slice
+    uint axis_sign;     // bits 0-1: sweep axis a; bit 2: 1 when the sweep runs toward −a
+    uint lateral;       // bits 0-1: axis b, bits 2-3: axis c
+    uint bricks_b;      // bricks of the slice along b
+    uint bricks_c;      // bricks of the slice along c
+    uint dir_count;     // directions in this dispatch (the face's, or 1 beam)
+    uint channels;      // 1 or 3
+    uint storage;       // storage directions of the source
+    uint flags;         // FLAG_*
+    uint dir_base;      // first direction of this dispatch within the sweep's tables
+    uint pad1;
+    uint pad2;
+    vec4 sigma_t;       // extinction per unit density, rgb
+    vec4 sigma_s;       // scattering per unit density, rgb
+    vec4 emission;      // σa·Le per unit density, rgb
+} pc;
+
+const uint FLAG_BOUNDARY = 1u;   // rays are born with the boundary radiance (else zero)
+const uint FLAG_GAIN = 2u;       // rays gain the previous order's source
+const uint FLAG_EMIT = 4u;       // rays gain the emission σa·Le
+const uint FLAG_LAST_SLICE = 8u; // the slice ends the sweep: every ray leaves
+
+const uint BRICK_VOXELS = 4096u;
+
+// Keep in sync with `GpuDirection` in src/solver/gpu/layout.rs.
+struct Direction {
+    vec4 boundary;      // rgb radiance of a ray born at the boundary
+    float path_length;  // h / |ω_a|
+    float fluence_weight;
+    uint gain_storage;
+    uint pad;
+};
+
+int floor_div(int a, int n) { return (a >= 0) ? a / n : -((-a + n - 1) / n); }
+int wrap_mod(int a, int n) { return a - floor_div(a, n) * n; }
+
+// Voxel coordinates (x, y, z) of plane t, lateral column (vb, vc).
+uvec3 voxel_of(uint t, uint vb, uint vc) {
+    uint a = pc.axis_sign & 3u;
+    bool negative = (pc.axis_sign & 4u) != 0u;
+    uint va = negative ? pc.na - 1u - t : t;
+    uvec3 v;
+    v[a] = va;
+    v[pc.lateral & 3u] = vb;
+    v[(pc.lateral >> 2) & 3u] = vc;
+    return v;
+}
+
+// The brick of the slice holding lateral column (vb, vc), and the voxel's index inside its brick.
+uint slice_brick(uint vb, uint vc) { return (vc / 16u) * pc.bricks_b + (vb / 16u); }
+uint local_index(uvec3 v) { return (v.x & 15u) + 16u * (v.y & 15u) + 256u * (v.z & 15u); }
+
+// Segment functions: keep in sync with src/solver/segment.rs.
+// E1(x) = (1 − e^{−x})/x, E2(x) = (x − 1 + e^{−x})/x², series below x = 1 (no cancellation).
+float seg_e1(float x) {
+    if (x < 1.0) {
+        float r = 1.0 / 39916800.0;                  // 1/11!
+        r = 1.0 / 3628800.0 - x * r;
+        r = 1.0 / 362880.0 - x * r;
+        r = 1.0 / 40320.0 - x * r;
+        r = 1.0 / 5040.0 - x * r;
+        r = 1.0 / 720.0 - x * r;
+        r = 1.0 / 120.0 - x * r;
+        r = 1.0 / 24.0 - x * r;
+        r = 1.0 / 6.0 - x * r;
+        r = 0.5 - x * r;
+        return 1.0 - x * r;
+    }
+    return (1.0 - exp(-x)) / x;
+}
+float seg_e2(float x) {
+    if (x < 1.0) {
+        float r = 1.0 / 479001600.0;                 // 1/12!
+        r = 1.0 / 39916800.0 - x * r;
+        r = 1.0 / 3628800.0 - x * r;
+        r = 1.0 / 362880.0 - x * r;
+        r = 1.0 / 40320.0 - x * r;
+        r = 1.0 / 5040.0 - x * r;
+        r = 1.0 / 720.0 - x * r;
+        r = 1.0 / 120.0 - x * r;
+        r = 1.0 / 24.0 - x * r;
+        r = 1.0 / 6.0 - x * r;
+        return 0.5 - x * r;
+    }
+    return (1.0 - seg_e1(x)) / x;
+}

@@ -1,0 +1,96 @@
+#version 450
+// Propagate: one thread per ray per direction. Each thread marches its ray through the planes of
+// the slice, writes its segment-average radiance for every voxel it crosses into T, and carries the
+// ray's radiance to the next slice in the ray buffer. The rays of one direction occupy distinct
+// voxels in every plane (see src/solver/sweep.rs), so no two threads write the same T entry.
+// CPU twin: CpuTwin::sweep in src/solver/cpu.rs.
+#extension GL_GOOGLE_include_directive : require
+#include "common.glsl"
+
+layout(local_size_x = 16, local_size_y = 4, local_size_z = 1) in;
+
+layout(std430, binding = 0) readonly buffer Directions { Direction dirs[]; };
+layout(std430, binding = 1) readonly buffer Offsets { ivec2 offsets[]; };        // [dir][na]
+layout(std430, binding = 2) readonly buffer SlotTable { int medium_slot[]; };    // [slice brick] → slot or −1
+layout(std430, binding = 3) readonly buffer Density { float density[]; };        // [slot][4096]
+layout(std430, binding = 4) readonly buffer SourcePrev { float j_prev[]; };      // [slot][d·C+ch][4096]
+layout(std430, binding = 5) buffer Rays { float ray_l[]; };                      // [dir][ch][ray]
+layout(std430, binding = 6) buffer RaysIn { float ray_in[]; };                   // [dir][ch][ray]
+layout(std430, binding = 7) buffer RaysOut { float ray_out[]; };                 // [dir][ch][ray]
+layout(std430, binding = 8) writeonly buffer Deposit { float deposit[]; };       // [dispatch dir][ch][plane][vc][vb]
+
+void main() {
+    uint p = gl_GlobalInvocationID.x;
+    uint q = gl_GlobalInvocationID.y;
+    uint local_dir = gl_GlobalInvocationID.z;
+    if (p >= pc.nb || q >= pc.nc || local_dir >= pc.dir_count) return;
+    uint di = pc.dir_base + local_dir;   // index into the sweep's tables and ray buffers
+
+    uint rays = pc.nb * pc.nc;
+    uint ray = q * pc.nb + p;
+    uint C = pc.channels;
+    Direction dir = dirs[di];
+    bool boundary = (pc.flags & FLAG_BOUNDARY) != 0u;
+    vec3 birth = boundary ? dir.boundary.rgb : vec3(0.0);
+
+    vec3 l = vec3(0.0), tin = vec3(0.0), tout = vec3(0.0);
+    for (uint ch = 0u; ch < C; ++ch) {
+        uint r = (di * C + ch) * rays + ray;
+        l[ch] = ray_l[r];
+        tin[ch] = ray_in[r];
+        tout[ch] = ray_out[r];
+    }
+
+    uint planes = pc.t1 - pc.t0;
+    for (uint t = pc.t0; t < pc.t1; ++t) {
+        ivec2 o = offsets[di * pc.na + t];
+        int ub = int(p) + o.x;
+        int uc = int(q) + o.y;
+        ivec2 wrap = ivec2(floor_div(ub, int(pc.nb)), floor_div(uc, int(pc.nc)));
+        bool born = (t == 0u);
+        if (t > 0u) {
+            ivec2 po = offsets[di * pc.na + t - 1u];
+            ivec2 prev = ivec2(floor_div(int(p) + po.x, int(pc.nb)), floor_div(int(q) + po.y, int(pc.nc)));
+            if (prev != wrap) {
+                // The ray left through a side: a new one enters from the opposite side.
+                tout += l;
+                born = true;
+            }
+        }
+        if (born) {
+            l = birth;
+            tin += birth;
+        }
+        uint vb = uint(wrap_mod(ub, int(pc.nb)));
+        uint vc = uint(wrap_mod(uc, int(pc.nc)));
+        uvec3 v = voxel_of(t, vb, vc);
+        int slot = medium_slot[slice_brick(vb, vc)];
+        uint local = local_index(v);
+        float rho = slot >= 0 ? density[uint(slot) * BRICK_VOXELS + local] : 0.0;
+        uint cell = ((t - pc.t0) * pc.nc + vc) * pc.nb + vb;
+        for (uint ch = 0u; ch < C; ++ch) {
+            float j = 0.0;
+            if (slot >= 0 && (pc.flags & FLAG_GAIN) != 0u) {
+                uint comps = pc.storage * C;
+                j = j_prev[(uint(slot) * comps + dir.gain_storage * C + ch) * BRICK_VOXELS + local];
+                if ((pc.flags & FLAG_EMIT) != 0u) j += rho * pc.emission[ch];
+            }
+            float s = dir.path_length;
+            float x = rho * pc.sigma_t[ch] * s;
+            float e1 = seg_e1(x);
+            float avg = l[ch] * e1 + j * s * seg_e2(x);
+            l[ch] = exp(-x) * l[ch] + j * s * e1;
+            deposit[(local_dir * C + ch) * planes * rays + cell] = avg;
+        }
+    }
+    if ((pc.flags & FLAG_LAST_SLICE) != 0u) {
+        tout += l;
+        l = vec3(0.0);
+    }
+    for (uint ch = 0u; ch < C; ++ch) {
+        uint r = (di * C + ch) * rays + ray;
+        ray_l[r] = l[ch];
+        ray_in[r] = tin[ch];
+        ray_out[r] = tout[ch];
+    }
+}

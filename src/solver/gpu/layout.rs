@@ -1,0 +1,50 @@
+//! Host structs shared with the shaders. Keep each in sync with its GLSL twin in
+//! `glsl/common.glsl`; the size asserts catch a field added on one side only.
+
+use bytemuck::{Pod, Zeroable};
+
+pub const FLAG_BOUNDARY: u32 = 1;
+pub const FLAG_GAIN: u32 = 2;
+pub const FLAG_EMIT: u32 = 4;
+pub const FLAG_LAST_SLICE: u32 = 8;
+
+/// Push constants of `propagate.comp` and `collect.comp`. Keep in sync with `Push` in
+/// glsl/common.glsl.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct SweepPush {
+    pub na: u32,
+    pub nb: u32,
+    pub nc: u32,
+    pub t0: u32,
+    pub t1: u32,
+    /// Bits 0–1: sweep axis; bit 2: the sweep runs toward −axis.
+    pub axis_sign: u32,
+    /// Bits 0–1: lateral axis b; bits 2–3: lateral axis c.
+    pub lateral: u32,
+    pub bricks_b: u32,
+    pub bricks_c: u32,
+    pub dir_count: u32,
+    pub channels: u32,
+    pub storage: u32,
+    pub flags: u32,
+    pub dir_base: u32,
+    pub pad1: u32,
+    pub pad2: u32,
+    pub sigma_t: [f32; 4],
+    pub sigma_s: [f32; 4],
+    pub emission: [f32; 4],
+}
+const _: () = assert!(std::mem::size_of::<SweepPush>() == 112);
+
+/// One swept direction. Keep in sync with `Direction` in glsl/common.glsl (std430).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct GpuDirection {
+    pub boundary: [f32; 4],
+    pub path_length: f32,
+    pub fluence_weight: f32,
+    pub gain_storage: u32,
+    pub pad: u32,
+}
+const _: () = assert!(std::mem::size_of::<GpuDirection>() == 32);

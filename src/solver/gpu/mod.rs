@@ -1,0 +1,564 @@
+//! The GPU driver: sweeps the faces slice of bricks by slice of bricks on Vulkan.
+//!
+//! For every sweep (a sun beam, or the k² directions of one face in one order) the ray state of all
+//! its directions stays on the device from the first slice to the last. Each slice goes through the
+//! same steps: its bricks are gathered from the store into a host-visible staging buffer (medium,
+//! previous source, the new source and fluence accumulated so far), copied to device buffers,
+//! `propagate.comp` marches the rays through the slice's planes writing segment averages into the
+//! deposit buffer, `collect.comp` folds them into fluence and the next source, and the two
+//! accumulators are copied back and scattered into the store. A face's directions are dispatched in
+//! groups small enough that the deposit buffer respects `maxStorageBufferRange`.
+//!
+//! This driver runs the steps of a slice one after another on the compute queue, waiting on a
+//! timeline value before touching the staging memory again; the pipelined form overlaps them.
+
+mod layout;
+mod tables;
+
+use super::energy::Tallies;
+use super::fields::StoreFields;
+use super::orders::Backend;
+use super::plan::{Plan, SweepDirection};
+use super::sweep::{FaceSweep, SliceRange};
+use super::SolveError;
+use crate::store::{BrickStore, BRICK_EDGE, BRICK_VOXELS};
+use crate::vk::{Buffer, BufferRange, ComputePipeline, Context, Recorder, TimelineSemaphore};
+use ash::vk;
+use gpu_allocator::MemoryLocation;
+use layout::*;
+use std::sync::Arc;
+use tables::SweepTables;
+
+const PROPAGATE_SPV: &[u8] = include_bytes!("../../../spirv/propagate.spv");
+const COLLECT_SPV: &[u8] = include_bytes!("../../../spirv/collect.spv");
+const BRICK_BYTES: u64 = BRICK_VOXELS as u64 * 4;
+const WAIT_FOREVER: u64 = u64::MAX;
+
+/// Device buffers sized for the largest slice of any face.
+struct DeviceBuffers {
+    slot_table: Buffer,
+    density: Buffer,
+    source_prev: Buffer,
+    source_next: Buffer,
+    fluence: Buffer,
+    rays: Buffer,
+    rays_in: Buffer,
+    rays_out: Buffer,
+    deposit: Buffer,
+    upload: Buffer,
+    download: Buffer,
+}
+
+impl DeviceBuffers {
+    fn all(self) -> [Buffer; 11] {
+        [
+            self.slot_table,
+            self.density,
+            self.source_prev,
+            self.source_next,
+            self.fluence,
+            self.rays,
+            self.rays_in,
+            self.rays_out,
+            self.deposit,
+            self.upload,
+            self.download,
+        ]
+    }
+}
+
+/// Sizes that bound every slice.
+#[derive(Clone, Copy, Debug)]
+struct Capacity {
+    /// Bricks in the largest slice.
+    slice_bricks: u64,
+    /// Rays in the largest face map.
+    rays: u64,
+    /// Directions per dispatch group.
+    group: u32,
+}
+
+pub struct GpuBackend<'a> {
+    ctx: Arc<Context>,
+    plan: &'a Plan,
+    store: &'a BrickStore,
+    fields: &'a mut StoreFields,
+    propagate: Option<ComputePipeline>,
+    collect: Option<ComputePipeline>,
+    timeline: Option<TimelineSemaphore>,
+    timeline_value: u64,
+    buffers: Option<DeviceBuffers>,
+    face_tables: Vec<SweepTables>,
+    beam_tables: Vec<SweepTables>,
+    capacity: Capacity,
+}
+
+impl<'a> GpuBackend<'a> {
+    /// Prepares the device for `plan`; the solve accumulates into `fields` (in `store`).
+    pub fn new(
+        ctx: Arc<Context>,
+        plan: &'a Plan,
+        store: &'a BrickStore,
+        fields: &'a mut StoreFields,
+    ) -> Result<Self, SolveError> {
+        let limits = ctx.limits();
+        let grid = *store.grid();
+        let c = plan.channels as u64;
+        let comps = plan.source_components() as u64;
+        let per_face = plan.propagation.per_face() as u64;
+        let slice_bricks = (0..6)
+            .map(|f| {
+                let face = crate::quadrature::FACES[f];
+                grid.bricks[face.lateral[0]] as u64 * grid.bricks[face.lateral[1]] as u64
+            })
+            .max()
+            .unwrap_or(1);
+        let rays = (0..6).map(|f| FaceSweep::new(f, plan.dims).rays() as u64).max().unwrap_or(1);
+        let max_range = limits.max_storage_buffer_range;
+        let deposit_per_dir = c * BRICK_EDGE as u64 * rays * 4;
+        let group = (max_range / deposit_per_dir).min(per_face) as u32;
+        let need = |what: &str, bytes: u64| -> Result<u64, SolveError> {
+            if bytes > max_range {
+                Err(SolveError::DeviceLimit {
+                    what: what.to_string(),
+                    bytes,
+                    limit: max_range,
+                })
+            } else {
+                Ok(bytes.max(4))
+            }
+        };
+        if group == 0 {
+            need("the deposit buffer of one direction", deposit_per_dir)?;
+        }
+        let capacity = Capacity { slice_bricks, rays, group };
+        let device = MemoryLocation::GpuOnly;
+        let storage = vk::BufferUsageFlags::STORAGE_BUFFER
+            | vk::BufferUsageFlags::TRANSFER_DST
+            | vk::BufferUsageFlags::TRANSFER_SRC;
+        let sizes = [
+            ("slot table", need("the slice slot table", slice_bricks * 4)?),
+            ("density", need("the slice density", slice_bricks * BRICK_BYTES)?),
+            ("source prev", need("the slice source", slice_bricks * comps * BRICK_BYTES)?),
+            ("source next", need("the slice source", slice_bricks * comps * BRICK_BYTES)?),
+            ("fluence", need("the slice fluence", slice_bricks * c * BRICK_BYTES)?),
+            ("rays", need("the ray state", per_face * c * rays * 4)?),
+            ("rays in", need("the ray tallies", per_face * c * rays * 4)?),
+            ("rays out", need("the ray tallies", per_face * c * rays * 4)?),
+            ("deposit", need("the deposit buffer", group as u64 * deposit_per_dir)?),
+        ];
+        let mut made = Vec::new();
+        for (name, size) in sizes {
+            made.push(ctx.create_buffer(name, size, storage, device)?);
+        }
+        let upload_bytes = slice_bricks * 4 + slice_bricks * BRICK_BYTES * (1 + 2 * comps + c);
+        let download_bytes = (slice_bricks * BRICK_BYTES * (comps + c)).max(2 * per_face * c * rays * 4);
+        let upload = ctx.create_buffer(
+            "upload staging",
+            upload_bytes,
+            vk::BufferUsageFlags::TRANSFER_SRC,
+            MemoryLocation::CpuToGpu,
+        )?;
+        let download = ctx.create_buffer(
+            "download staging",
+            download_bytes,
+            vk::BufferUsageFlags::TRANSFER_DST,
+            MemoryLocation::GpuToCpu,
+        )?;
+        let mut it = made.into_iter();
+        let mut next = || it.next().ok_or(SolveError::Internal("buffer list"));
+        let buffers = DeviceBuffers {
+            slot_table: next()?,
+            density: next()?,
+            source_prev: next()?,
+            source_next: next()?,
+            fluence: next()?,
+            rays: next()?,
+            rays_in: next()?,
+            rays_out: next()?,
+            deposit: next()?,
+            upload,
+            download,
+        };
+        let propagate = ctx.create_compute_pipeline("propagate", PROPAGATE_SPV, 9, std::mem::size_of::<SweepPush>() as u32)?;
+        let collect = ctx.create_compute_pipeline("collect", COLLECT_SPV, 7, std::mem::size_of::<SweepPush>() as u32)?;
+        let timeline = ctx.create_timeline("solver", 0)?;
+        let mut backend = GpuBackend {
+            ctx,
+            plan,
+            store,
+            fields,
+            propagate: Some(propagate),
+            collect: Some(collect),
+            timeline: Some(timeline),
+            timeline_value: 0,
+            buffers: Some(buffers),
+            face_tables: Vec::new(),
+            beam_tables: Vec::new(),
+            capacity,
+        };
+        for face in &plan.faces {
+            let t = SweepTables::upload(&mut backend, face)?;
+            backend.face_tables.push(t);
+        }
+        for beam in &plan.beams {
+            let t = SweepTables::upload(&mut backend, std::slice::from_ref(beam))?;
+            backend.beam_tables.push(t);
+        }
+        tracing::info!(
+            device = backend.ctx.device_name(),
+            slice_bricks,
+            rays,
+            group,
+            "GPU backend ready"
+        );
+        Ok(backend)
+    }
+
+    /// The Vulkan context the backend runs on.
+    pub fn context(&self) -> &Arc<Context> {
+        &self.ctx
+    }
+
+    fn buffers(&self) -> Result<&DeviceBuffers, SolveError> {
+        self.buffers.as_ref().ok_or(SolveError::Internal("device buffers already released"))
+    }
+
+    fn timeline(&self) -> Result<&TimelineSemaphore, SolveError> {
+        self.timeline.as_ref().ok_or(SolveError::Internal("timeline already released"))
+    }
+
+    /// Submits a recorded command buffer on the compute queue and waits for it on the timeline.
+    fn submit_and_wait(&mut self, rec: Recorder) -> Result<(), SolveError> {
+        self.timeline_value += 1;
+        let value = self.timeline_value;
+        let timeline = self.timeline()?;
+        rec.submit(self.ctx.compute_queue(), &[], (timeline, value))?;
+        timeline.wait(&self.ctx, value, WAIT_FOREVER)?;
+        self.ctx.collect_garbage()?;
+        Ok(())
+    }
+
+    /// One sweep: every slice of the face, in sweep order.
+    fn sweep(&mut self, tables: &SweepTables, dirs: &[SweepDirection], flags: u32) -> Result<Tallies, SolveError> {
+        let plan = self.plan;
+        let face = dirs[0].face;
+        let sweep = FaceSweep::new(face, plan.dims);
+        let slices = sweep.slices(BRICK_EDGE);
+        let count = slices.len();
+        for (i, slice) in slices.iter().enumerate() {
+            let last = i + 1 == count;
+            self.slice(tables, &sweep, slice, dirs.len() as u32, flags, i == 0, last)?;
+        }
+        self.read_tallies(&sweep, dirs)
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn slice(
+        &mut self,
+        tables: &SweepTables,
+        sweep: &FaceSweep,
+        slice: &SliceRange,
+        dir_count: u32,
+        flags: u32,
+        first: bool,
+        last: bool,
+    ) -> Result<(), SolveError> {
+        let plan = self.plan;
+        let grid = *self.store.grid();
+        let face = sweep.geometry();
+        let bricks_b = grid.bricks[face.lateral[0]];
+        let bricks_c = grid.bricks[face.lateral[1]];
+        let c = plan.channels as u64;
+        let comps = plan.source_components() as u64;
+        let gain = flags & FLAG_GAIN != 0;
+
+        // The slice's bricks in slice order (c slowest) and their medium slots.
+        let mut bricks = Vec::with_capacity((bricks_b * bricks_c) as usize);
+        for bc in 0..bricks_c {
+            for bb in 0..bricks_b {
+                let mut b = [0; 3];
+                b[face.axis] = slice.brick_a;
+                b[face.lateral[0]] = bb;
+                b[face.lateral[1]] = bc;
+                bricks.push(grid.brick_index(b));
+            }
+        }
+        let mut slots = Vec::with_capacity(bricks.len());
+        let mut occupied = Vec::new();
+        for &b in &bricks {
+            if self.store.slot(b).is_some() {
+                slots.push(occupied.len() as i32);
+                occupied.push(b);
+            } else {
+                slots.push(-1);
+            }
+        }
+        let n_dense = bricks.len() as u64;
+        let n_occ = occupied.len() as u64;
+
+        // Gather into the upload staging buffer: slot table, density, prev source, next source, fluence.
+        let off_density = (n_dense * 4).next_multiple_of(16);
+        let off_prev = off_density + n_occ * BRICK_BYTES;
+        let off_next = off_prev + if gain { n_occ * comps * BRICK_BYTES } else { 0 };
+        let off_fluence = off_next + n_occ * comps * BRICK_BYTES;
+        let upload_end = off_fluence + n_dense * c * BRICK_BYTES;
+        {
+            let store = self.store;
+            let fields = &*self.fields;
+            let buffers = self.buffers.as_mut().ok_or(SolveError::Internal("device buffers released"))?;
+            let staging = buffers.upload.mapped_mut().ok_or(SolveError::Internal("upload staging is not mapped"))?;
+            let staging = &mut staging[..upload_end as usize];
+            put(staging, 0, bytemuck::cast_slice(&slots));
+            for (i, &b) in occupied.iter().enumerate() {
+                let o = off_density as usize + i * BRICK_BYTES as usize;
+                put(staging, o, bytemuck::cast_slice(store.density_brick(b).unwrap_or(&[])));
+                let block = (comps * BRICK_BYTES) as usize;
+                if gain {
+                    let src = fields.source_prev.brick(b).unwrap_or(&[]);
+                    put(staging, off_prev as usize + i * block, bytemuck::cast_slice(src));
+                }
+                let src = fields.source_next.brick(b).unwrap_or(&[]);
+                put(staging, off_next as usize + i * block, bytemuck::cast_slice(src));
+            }
+            for (i, &b) in bricks.iter().enumerate() {
+                let block = (c * BRICK_BYTES) as usize;
+                let src = fields.fluence.brick(b).unwrap_or(&[]);
+                put(staging, off_fluence as usize + i * block, bytemuck::cast_slice(src));
+            }
+        }
+
+        let buffers = self.buffers()?;
+        let propagate = self.propagate.as_ref().ok_or(SolveError::Internal("pipeline released"))?;
+        let collect = self.collect.as_ref().ok_or(SolveError::Internal("pipeline released"))?;
+        let mut rec = Recorder::begin(&self.ctx, self.ctx.compute_queue().family(), "slice")?;
+        if first {
+            for b in [&buffers.rays, &buffers.rays_in, &buffers.rays_out] {
+                rec.fill_buffer(b, 0, vk::WHOLE_SIZE, 0);
+            }
+        }
+        let copy = |src: u64, dst: u64, size: u64| vk::BufferCopy { src_offset: src, dst_offset: dst, size };
+        rec.copy_buffer(&buffers.upload, &buffers.slot_table, &[copy(0, 0, n_dense * 4)]);
+        if n_occ > 0 {
+            rec.copy_buffer(&buffers.upload, &buffers.density, &[copy(off_density, 0, n_occ * BRICK_BYTES)]);
+            if gain {
+                rec.copy_buffer(&buffers.upload, &buffers.source_prev, &[copy(off_prev, 0, n_occ * comps * BRICK_BYTES)]);
+            }
+            rec.copy_buffer(&buffers.upload, &buffers.source_next, &[copy(off_next, 0, n_occ * comps * BRICK_BYTES)]);
+        }
+        rec.copy_buffer(&buffers.upload, &buffers.fluence, &[copy(off_fluence, 0, n_dense * c * BRICK_BYTES)]);
+        rec.transfer_to_compute();
+
+        let (st, ss, emit) = (0..3).fold(([0f32; 4], [0f32; 4], [0f32; 4]), |(mut st, mut ss, mut em), ch| {
+            let (t, s, a) = plan.coefficients(ch.min(plan.channels as usize - 1));
+            st[ch] = t as f32;
+            ss[ch] = s as f32;
+            em[ch] = (a * plan.medium.emission[ch]) as f32;
+            (st, ss, em)
+        });
+        let mut push = SweepPush {
+            na: sweep.n[0],
+            nb: sweep.n[1],
+            nc: sweep.n[2],
+            t0: slice.t0,
+            t1: slice.t1,
+            axis_sign: face.axis as u32 | if face.sign < 0.0 { 4 } else { 0 },
+            lateral: face.lateral[0] as u32 | (face.lateral[1] as u32) << 2,
+            bricks_b,
+            bricks_c,
+            dir_count: 0,
+            channels: plan.channels,
+            storage: plan.storage.len() as u32,
+            flags: flags | if last { FLAG_LAST_SLICE } else { 0 },
+            dir_base: 0,
+            pad1: 0,
+            pad2: 0,
+            sigma_t: st,
+            sigma_s: ss,
+            emission: emit,
+        };
+        let planes = slice.t1 - slice.t0;
+        let group = self.capacity.group;
+        let mut base = 0;
+        while base < dir_count {
+            let n = group.min(dir_count - base);
+            push.dir_base = base;
+            push.dir_count = n;
+            rec.dispatch(
+                propagate,
+                &[
+                    BufferRange::from(&tables.directions),
+                    BufferRange::from(&tables.offsets),
+                    BufferRange::from(&buffers.slot_table),
+                    BufferRange::from(&buffers.density),
+                    BufferRange::from(&buffers.source_prev),
+                    BufferRange::from(&buffers.rays),
+                    BufferRange::from(&buffers.rays_in),
+                    BufferRange::from(&buffers.rays_out),
+                    BufferRange::from(&buffers.deposit),
+                ],
+                bytemuck::bytes_of(&push),
+                [sweep.n[1].div_ceil(16), sweep.n[2].div_ceil(4), n],
+            )?;
+            rec.compute_to_compute();
+            rec.dispatch(
+                collect,
+                &[
+                    BufferRange::from(&tables.directions),
+                    BufferRange::from(&tables.rows),
+                    BufferRange::from(&buffers.slot_table),
+                    BufferRange::from(&buffers.density),
+                    BufferRange::from(&buffers.deposit),
+                    BufferRange::from(&buffers.source_next),
+                    BufferRange::from(&buffers.fluence),
+                ],
+                bytemuck::bytes_of(&push),
+                [sweep.n[1].div_ceil(16), sweep.n[2].div_ceil(4), planes],
+            )?;
+            rec.compute_to_compute();
+            base += n;
+        }
+        rec.compute_to_transfer();
+        let next_bytes = n_occ * comps * BRICK_BYTES;
+        if n_occ > 0 {
+            rec.copy_buffer(&buffers.source_next, &buffers.download, &[copy(0, 0, next_bytes)]);
+        }
+        rec.copy_buffer(&buffers.fluence, &buffers.download, &[copy(0, next_bytes, n_dense * c * BRICK_BYTES)]);
+        rec.transfer_to_host();
+        self.submit_and_wait(rec)?;
+
+        // Scatter the accumulators back into the store.
+        let buffers = self.buffers()?;
+        let staging = buffers.download.mapped().ok_or(SolveError::Internal("download staging is not mapped"))?;
+        let fields = &mut *self.fields;
+        for (i, &b) in occupied.iter().enumerate() {
+            let block = (comps * BRICK_BYTES) as usize;
+            if let Some(dst) = fields.source_next.brick_mut(b) {
+                dst.copy_from_slice(bytemuck::cast_slice(&staging[i * block..(i + 1) * block]));
+            }
+        }
+        for (i, &b) in bricks.iter().enumerate() {
+            let block = (c * BRICK_BYTES) as usize;
+            let o = next_bytes as usize + i * block;
+            if let Some(dst) = fields.fluence.brick_mut(b) {
+                dst.copy_from_slice(bytemuck::cast_slice(&staging[o..o + block]));
+            }
+        }
+        Ok(())
+    }
+
+    /// Downloads the rays' birth and exit tallies of the sweep just finished, as powers.
+    fn read_tallies(&mut self, sweep: &FaceSweep, dirs: &[SweepDirection]) -> Result<Tallies, SolveError> {
+        let c = self.plan.channels as usize;
+        let rays = sweep.rays();
+        let bytes = (dirs.len() * c * rays * 4) as u64;
+        let buffers = self.buffers()?;
+        let mut rec = Recorder::begin(&self.ctx, self.ctx.compute_queue().family(), "tallies")?;
+        rec.compute_to_transfer();
+        let region = |dst| [vk::BufferCopy { src_offset: 0, dst_offset: dst, size: bytes }];
+        rec.copy_buffer(&buffers.rays_in, &buffers.download, &region(0));
+        rec.copy_buffer(&buffers.rays_out, &buffers.download, &region(bytes));
+        rec.transfer_to_host();
+        self.submit_and_wait(rec)?;
+        let staging = self.buffers()?.download.mapped().ok_or(SolveError::Internal("download staging is not mapped"))?;
+        let values: &[f32] = bytemuck::cast_slice(&staging[..2 * bytes as usize]);
+        let (born, left) = values.split_at(values.len() / 2);
+        let mut tallies = Tallies::default();
+        for (d, dir) in dirs.iter().enumerate() {
+            for ch in 0..c {
+                let range = (d * c + ch) * rays..(d * c + ch + 1) * rays;
+                let sum_in: f64 = born[range.clone()].iter().map(|&v| v as f64).sum();
+                let sum_out: f64 = left[range].iter().map(|&v| v as f64).sum();
+                tallies.boundary_in[ch] += sum_in * dir.power_per_radiance;
+                tallies.boundary_out[ch] += sum_out * dir.power_per_radiance;
+            }
+        }
+        Ok(tallies)
+    }
+
+    /// Frees every device resource (waits for the last submission first).
+    fn release(&mut self) {
+        if let Some(timeline) = self.timeline.as_ref() {
+            if let Err(e) = timeline.wait(&self.ctx, self.timeline_value, WAIT_FOREVER) {
+                tracing::warn!("waiting for the last submission failed: {e}");
+            }
+        }
+        for tables in self.face_tables.drain(..).chain(self.beam_tables.drain(..)) {
+            tables.destroy(&self.ctx);
+        }
+        if let Some(buffers) = self.buffers.take() {
+            for b in buffers.all() {
+                self.ctx.destroy_buffer(b);
+            }
+        }
+        if let Some(p) = self.propagate.take() {
+            self.ctx.destroy_pipeline(p);
+        }
+        if let Some(p) = self.collect.take() {
+            self.ctx.destroy_pipeline(p);
+        }
+        if let Some(t) = self.timeline.take() {
+            self.ctx.destroy_timeline(t);
+        }
+    }
+}
+
+impl Drop for GpuBackend<'_> {
+    fn drop(&mut self) {
+        self.release();
+    }
+}
+
+/// Copies `bytes` into `staging` at `offset`.
+fn put(staging: &mut [u8], offset: usize, bytes: &[u8]) {
+    staging[offset..offset + bytes.len()].copy_from_slice(bytes);
+}
+
+impl Backend for GpuBackend<'_> {
+    fn propagate_order(&mut self, order: u32) -> Result<Tallies, SolveError> {
+        let plan = self.plan;
+        let mut tallies = Tallies::default();
+        if order == 0 {
+            let beams = std::mem::take(&mut self.beam_tables);
+            for (tables, beam) in beams.iter().zip(&plan.beams) {
+                let r = self.sweep(tables, std::slice::from_ref(beam), FLAG_BOUNDARY);
+                match r {
+                    Ok(t) => tallies.add(&t),
+                    Err(e) => {
+                        self.beam_tables = beams;
+                        return Err(e);
+                    }
+                }
+            }
+            self.beam_tables = beams;
+        }
+        let mut flags = FLAG_GAIN;
+        if order == 0 {
+            flags |= FLAG_BOUNDARY;
+            if plan.emission {
+                flags |= FLAG_EMIT;
+            }
+        }
+        let faces = std::mem::take(&mut self.face_tables);
+        let mut result = Ok(());
+        for (tables, dirs) in faces.iter().zip(&plan.faces) {
+            match self.sweep(tables, dirs, flags) {
+                Ok(t) => tallies.add(&t),
+                Err(e) => {
+                    result = Err(e);
+                    break;
+                }
+            }
+        }
+        self.face_tables = faces;
+        result.map(|_| tallies)
+    }
+
+    fn finish_order(&mut self) -> Result<[f64; 3], SolveError> {
+        Ok(self.fields.finish_order(self.plan))
+    }
+
+    fn emitted_and_absorbed(&mut self) -> Result<([f64; 3], [f64; 3]), SolveError> {
+        Ok(self.fields.emitted_and_absorbed(self.store, self.plan))
+    }
+}
