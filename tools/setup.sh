@@ -1,0 +1,22 @@
+#!/usr/bin/env bash
+# Installs the system packages lpm needs, only those missing: the Vulkan loader, Mesa's lavapipe
+# (a CPU Vulkan driver, so everything runs without a GPU), the Khronos validation layer, and
+# glslang/spirv-tools to compile the shaders. Sourced by demo.sh and test.sh.
+set -euo pipefail
+
+packages=(libvulkan1 mesa-vulkan-drivers vulkan-validationlayers glslang-tools spirv-tools)
+missing=()
+for p in "${packages[@]}"; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if ((${#missing[@]})); then
+    echo "lpm setup: installing ${missing[*]}"
+    sudo=""
+    if [ "$(id -u)" -ne 0 ]; then
+        command -v sudo >/dev/null || { echo "lpm setup: need root or sudo to install ${missing[*]}" >&2; exit 1; }
+        sudo="sudo"
+    fi
+    $sudo apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+command -v cargo >/dev/null || { echo "lpm setup: cargo not found; install Rust (https://rustup.rs)" >&2; exit 1; }
