@@ -1,1 +1,179 @@
-fn main() {}
+//! The `lpm` command line: a thin layer over the library that reports errors in plain words.
+
+use anyhow::{bail, Context as _, Result};
+use clap::{Parser, Subcommand, ValueEnum};
+use lpm::job::{self, SolveJob};
+use lpm::solver::BackendKind;
+use lpm::vk::ContextOptions;
+use std::io::IsTerminal;
+use std::path::PathBuf;
+
+#[derive(Parser)]
+#[command(
+    name = "lpm",
+    version,
+    about = "Light transport in participating media: Light Propagation Maps streamed out of core on Vulkan",
+    long_about = "Solves multiple scattering of light in a voxel volume of smoke, cloud or fog lit by a sky \
+                  and suns, and renders it. See README.md for the scene format and the outputs."
+)]
+struct Cli {
+    /// Log detail: error, warn, info, debug or trace (RUST_LOG overrides).
+    #[arg(long, global = true, default_value = "info", env = "LPM_LOG")]
+    log: String,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Solve a scene: writes fluence.*, source.*, image.exr, image.png and report.json to --out.
+    Solve {
+        /// The scene file (TOML).
+        scene: PathBuf,
+        /// Output directory (created if missing; existing outputs are replaced atomically).
+        #[arg(long, short)]
+        out: PathBuf,
+        /// Where the sweeps run: the Vulkan device, or the f64 CPU twin (a reference for small volumes).
+        #[arg(long, value_enum, default_value_t = Backend::Gpu)]
+        backend: Backend,
+        /// Vulkan physical device index (default: the first discrete GPU, else the best available).
+        #[arg(long, env = "LPM_DEVICE")]
+        device: Option<usize>,
+        /// Enable the Khronos validation layer with synchronization validation.
+        #[arg(long, env = "LPM_VALIDATION", value_parser = clap::builder::BoolishValueParser::new())]
+        validation: Option<bool>,
+        /// Keep the brick store (medium and solver fields) in OUT/store.
+        #[arg(long)]
+        keep_store: bool,
+        /// Do not render image.exr / image.png.
+        #[arg(long)]
+        no_image: bool,
+    },
+    /// Print what a solve wrote to DIR: the plan, orders, residual, energy balance and the fields.
+    Info {
+        /// An output directory of `lpm solve`.
+        dir: PathBuf,
+        /// Print report.json as it is instead of a summary.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum Backend {
+    Gpu,
+    Cpu,
+}
+
+fn main() {
+    let cli = Cli::parse();
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(format!("lpm={}", cli.log)));
+    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).init();
+    if let Err(e) = run(cli) {
+        eprintln!("lpm: {e:#}");
+        std::process::exit(1);
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Solve { scene, out, backend, device, validation, keep_store, no_image } => {
+            let mut vk = ContextOptions::default();
+            if let Some(v) = validation {
+                vk.validation = v;
+            }
+            if device.is_some() {
+                vk.device_index = device;
+            }
+            let job = SolveJob {
+                scene,
+                out: out.clone(),
+                backend: match backend {
+                    Backend::Gpu => BackendKind::Gpu,
+                    Backend::Cpu => BackendKind::Cpu,
+                },
+                vk,
+                keep_store,
+                no_image,
+            };
+            let bar = std::io::stderr().is_terminal().then(|| {
+                let bar = indicatif::ProgressBar::new_spinner();
+                bar.set_message("building the brick store");
+                bar.enable_steady_tick(std::time::Duration::from_millis(200));
+                bar
+            });
+            let report = job::run(&job, |order, residual| {
+                let msg = format!("order {order} done, residual {residual:.3e}");
+                match &bar {
+                    Some(bar) => bar.set_message(msg),
+                    None => tracing::info!("{msg}"),
+                }
+            });
+            if let Some(bar) = &bar {
+                bar.finish_and_clear();
+            }
+            let report = report?;
+            println!(
+                "solved {} in {} orders ({}), residual {:.3e}, energy imbalance {:.1e}; outputs in {}",
+                report.scene,
+                report.orders,
+                if report.converged { "converged" } else { "order cap reached" },
+                report.final_residual,
+                report.energy.relative_imbalance,
+                out.display()
+            );
+            Ok(())
+        }
+        Command::Info { dir, json } => info(&dir, json),
+    }
+}
+
+fn info(dir: &std::path::Path, json: bool) -> Result<()> {
+    let path = dir.join("report.json");
+    let text = std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
+    if json {
+        println!("{text}");
+        return Ok(());
+    }
+    let r: serde_json::Value = serde_json::from_str(&text).with_context(|| format!("{} is not valid JSON", path.display()))?;
+    let Some(plan) = r.get("plan") else { bail!("{}: no plan in the report", path.display()) };
+    println!("scene     {}", r["scene"].as_str().unwrap_or("?"));
+    println!("backend   {} on {}", r["backend"].as_str().unwrap_or("?"), r["device"].as_str().unwrap_or("?"));
+    println!("volume    {} voxels of {}, {} of {} bricks empty", plan["dims"], plan["voxel_size"], plan["bricks_empty"], plan["bricks_total"]);
+    println!(
+        "plan      {} channel(s), {} propagation and {} storage direction(s)",
+        plan["channels"], plan["propagation_directions"], plan["storage_directions"]
+    );
+    if let Some(reasons) = plan["reasons"].as_array() {
+        for reason in reasons {
+            println!("          - {}", reason.as_str().unwrap_or(""));
+        }
+    }
+    println!(
+        "orders    {} ({}), final residual {} (tolerance {})",
+        r["orders"],
+        if r["converged"].as_bool() == Some(true) { "converged" } else { "cap reached" },
+        r["final_residual"],
+        r["tolerance"]
+    );
+    println!("energy    relative imbalance {}", r["energy"]["relative_imbalance"]);
+    println!("device    peak allocation {} bytes", r["peak_device_bytes"]);
+    if let Some(phases) = r["seconds"].as_array() {
+        let line: Vec<String> = phases.iter().map(|p| format!("{} {:.3}s", p["phase"].as_str().unwrap_or("?"), p["seconds"].as_f64().unwrap_or(0.0))).collect();
+        println!("time      {}", line.join(", "));
+    }
+    for base in ["fluence", "source"] {
+        match lpm::output::read_field_json(&dir.join(format!("{base}.json"))) {
+            Ok(info) => println!("{base:<9} {info}"),
+            Err(e) => println!("{base:<9} missing or unreadable: {e}"),
+        }
+    }
+    for image in ["image.exr", "image.png"] {
+        let p = dir.join(image);
+        if p.exists() {
+            println!("image     {}", p.display());
+        }
+    }
+    Ok(())
+}

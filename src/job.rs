@@ -1,0 +1,197 @@
+//! A solve job from start to finish: read the scene, build the brick store, solve, export the
+//! fields, render the image, write the report. The CLI and the tests both run jobs through here.
+//!
+//! Nothing is left half-written: the scene is validated before anything is created, the store is
+//! built in a temporary directory inside the output directory and removed at the end (or on
+//! failure), and every output file is written under a temporary name and renamed when complete.
+
+use crate::output::{self, FieldMeta, OutputError};
+use crate::render::{self, RenderInputs};
+use crate::scene::{Light, Scene, SceneError};
+use crate::solver::{self, BackendKind, SolveError, SolveRun};
+use crate::vk::ContextOptions;
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+use thiserror::Error;
+
+#[derive(Debug, Error)]
+pub enum JobError {
+    #[error(transparent)]
+    Scene(#[from] SceneError),
+    #[error(transparent)]
+    Solve(#[from] SolveError),
+    #[error(transparent)]
+    Output(#[from] OutputError),
+    #[error("cannot create output directory {path}: {source}")]
+    OutputDir { path: PathBuf, source: std::io::Error },
+}
+
+#[derive(Clone, Debug)]
+pub struct SolveJob {
+    pub scene: PathBuf,
+    pub out: PathBuf,
+    pub backend: BackendKind,
+    pub vk: ContextOptions,
+    /// Keep the brick store (medium and solver fields) in `out/store` after the solve.
+    pub keep_store: bool,
+    /// Skip rendering the image.
+    pub no_image: bool,
+}
+
+/// `report.json`.
+#[derive(Debug, Serialize)]
+pub struct Report {
+    pub lpm_version: &'static str,
+    pub scene: String,
+    pub backend: &'static str,
+    pub device: String,
+    pub plan: solver::plan::PlanSummary,
+    pub orders: u32,
+    pub converged: bool,
+    /// Scattered power of the last order over the total: what is left of the series, relatively.
+    pub final_residual: f64,
+    pub tolerance: f64,
+    pub history: Vec<solver::orders::OrderRecord>,
+    pub energy: solver::energy::EnergyBalance,
+    /// Wall-clock seconds per phase, in order.
+    pub seconds: Vec<Phase>,
+    pub peak_device_bytes: u64,
+    pub outputs: Vec<String>,
+}
+
+#[derive(Debug, Serialize)]
+pub struct Phase {
+    pub phase: String,
+    pub seconds: f64,
+}
+
+/// Runs the job; `progress(order, residual)` is called after each order.
+pub fn run(job: &SolveJob, progress: impl FnMut(u32, f64)) -> Result<Report, JobError> {
+    let scene = Scene::load(&job.scene)?;
+    let created_out = !job.out.exists();
+    std::fs::create_dir_all(&job.out).map_err(|source| JobError::OutputDir { path: job.out.clone(), source })?;
+    let work = job.out.join(format!(".store.tmp-{}", std::process::id()));
+    let result = run_in(job, &scene, &work, progress);
+    // The store is scratch unless asked for; on failure nothing of this job stays behind.
+    match (&result, job.keep_store) {
+        (Ok(_), true) => {
+            let keep = job.out.join("store");
+            let _ = std::fs::remove_dir_all(&keep);
+            let _ = std::fs::rename(&work, &keep);
+        }
+        _ => {
+            let _ = std::fs::remove_dir_all(&work);
+        }
+    }
+    if result.is_err() && created_out {
+        let _ = std::fs::remove_dir(&job.out);
+    }
+    result
+}
+
+fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, f64)) -> Result<Report, JobError> {
+    let t = Instant::now();
+    let store = solver::build_store(scene, work)?;
+    let store_seconds = t.elapsed().as_secs_f64();
+    let (run, fields) = solver::solve(scene, &store, job.backend, job.vk.clone(), progress)?;
+    let SolveRun { plan, outcome, device, peak_device_bytes, mut phases } = run;
+    phases.insert(0, ("store".to_string(), store_seconds));
+
+    let t = Instant::now();
+    let channel_names: Vec<String> = if plan.channels == 1 {
+        vec!["grey".into()]
+    } else {
+        ["r", "g", "b"].iter().map(|s| s.to_string()).collect()
+    };
+    let mut outputs = Vec::new();
+    output::export_field(
+        &fields.fluence,
+        &store,
+        &job.out,
+        "fluence",
+        &FieldMeta {
+            quantity: "fluence".into(),
+            units: "radiance units × sr (W/m² for radiance in W/m²/sr)".into(),
+            components: channel_names.clone(),
+            description: "fluence φ = ∫L dω over all scattering orders, per voxel".into(),
+        },
+    )?;
+    outputs.extend(["fluence.raw", "fluence.json", "fluence.nhdr"].map(String::from));
+    let source_names: Vec<String> = if plan.storage.is_isotropic() {
+        channel_names.clone()
+    } else {
+        (0..plan.storage.len()).flat_map(|d| channel_names.iter().map(move |c| format!("d{d}.{c}"))).collect()
+    };
+    output::export_field(
+        &fields.source_total,
+        &store,
+        &job.out,
+        "source",
+        &FieldMeta {
+            quantity: "in-scattered source".into(),
+            units: "radiance per unit length".into(),
+            components: source_names,
+            description: if plan.storage.is_isotropic() {
+                "in-scattered source J = σs∫p·L dω' summed over orders (isotropic: one value per channel)".into()
+            } else {
+                format!(
+                    "in-scattered source J per storage direction summed over orders; {} storage directions ({}×{} cube-face cells per face), component = direction·channels + channel",
+                    plan.storage.len(),
+                    plan.storage.per_face,
+                    plan.storage.per_face
+                )
+            },
+        },
+    )?;
+    outputs.extend(["source.raw", "source.json", "source.nhdr"].map(String::from));
+    phases.push(("export".to_string(), t.elapsed().as_secs_f64()));
+
+    if !job.no_image {
+        let t = Instant::now();
+        let camera = scene.camera.clone().unwrap_or_else(|| render::default_camera(plan.dims, plan.voxel_size));
+        let mut background = [0.0; 3];
+        for light in &scene.lights {
+            if let Light::Sky { radiance } = light {
+                (0..3).for_each(|c| background[c] += radiance[c]);
+            }
+        }
+        let lookup = |omega: glam::DVec3| plan.storage.owner[plan.propagation.containing(omega)] as usize;
+        let image = render::render(&RenderInputs {
+            store: &store,
+            source: &fields.source_total,
+            channels: plan.channels,
+            storage_dirs: plan.storage.len() as u32,
+            storage_lookup: &lookup,
+            medium: &scene.medium,
+            background,
+            camera: &camera,
+        });
+        render::write_exr(&job.out.join("image.exr"), &image)?;
+        render::write_png(&job.out.join("image.png"), &image, 1.0)?;
+        outputs.extend(["image.exr", "image.png"].map(String::from));
+        phases.push(("render".to_string(), t.elapsed().as_secs_f64()));
+    }
+    outputs.push("report.json".into());
+    let report = Report {
+        lpm_version: env!("CARGO_PKG_VERSION"),
+        scene: job.scene.display().to_string(),
+        backend: match job.backend {
+            BackendKind::Gpu => "gpu",
+            BackendKind::Cpu => "cpu",
+        },
+        device,
+        plan: plan.summary(),
+        orders: outcome.orders,
+        converged: outcome.converged,
+        final_residual: outcome.residual,
+        tolerance: plan.tolerance,
+        history: outcome.history,
+        energy: outcome.energy,
+        seconds: phases.into_iter().map(|(phase, seconds)| Phase { phase, seconds }).collect(),
+        peak_device_bytes,
+        outputs,
+    };
+    output::write_json_atomic(&job.out.join("report.json"), &report)?;
+    Ok(report)
+}
