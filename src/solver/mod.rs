@@ -36,6 +36,8 @@ pub enum SolveError {
     TooLargeForCpu { bytes: u64 },
     #[error("{what} needs {bytes} bytes in one buffer, but this device binds at most {limit} bytes per storage buffer")]
     DeviceLimit { what: String, bytes: u64, limit: u64 },
+    #[error("Vulkan validation reported {} error(s); the first: {}", .0.len(), .0.first().map(String::as_str).unwrap_or(""))]
+    Validation(Vec<String>),
     #[error("internal error: {0}")]
     Internal(&'static str),
 }
@@ -120,9 +122,11 @@ pub fn solve(
             phases.push(("orders".to_string(), t.elapsed().as_secs_f64()));
             drop(gpu);
             let peak = ctx.peak_allocated_bytes();
+            // With validation on, any error it reported fails the solve: a clean run is part of
+            // the contract (tests rely on this).
             let messages = ctx.validation_messages();
             if !messages.is_empty() {
-                tracing::error!("{} Vulkan validation error(s); first: {}", messages.len(), messages[0]);
+                return Err(SolveError::Validation(messages));
             }
             (outcome, device, peak)
         }
