@@ -1,0 +1,167 @@
+//! Turning a byte offset reported by the TOML parser into a line, a column and the dotted key
+//! written there. `toml` reports the span of the offending key (unknown keys) or value (type
+//! errors) but keeps its key path private, so the key is recovered from the text: the innermost
+//! `[table]` / `[[array]]` header above the offset, then the `key =` the offset belongs to.
+//! This is a best effort for messages only; it never affects what is accepted.
+
+/// 1-based line and column (in characters) of `offset` in `text`.
+pub(crate) fn line_column(text: &str, offset: usize) -> (usize, usize) {
+    let offset = floor_char_boundary(text, offset.min(text.len()));
+    let before = &text[..offset];
+    let line = before.matches('\n').count() + 1;
+    let line_start = before.rfind('\n').map_or(0, |i| i + 1);
+    let column = before[line_start..].chars().count() + 1;
+    (line, column)
+}
+
+fn floor_char_boundary(text: &str, mut i: usize) -> usize {
+    while i > 0 && !text.is_char_boundary(i) {
+        i -= 1;
+    }
+    i
+}
+
+/// The dotted key at `offset`, e.g. `volume.dims`, `lights[1].direction`, or the table itself
+/// (`lights[1]`) when the offset is on a header line. `None` when nothing sensible is found.
+pub(crate) fn key_at(text: &str, offset: usize) -> Option<String> {
+    let offset = floor_char_boundary(text, offset.min(text.len()));
+    let lines: Vec<&str> = text.split('\n').collect();
+    let (target_line, _) = line_column(text, offset);
+    let target = target_line - 1;
+
+    // Walk the headers down to the target line.
+    let mut table: Option<String> = None;
+    let mut header_line: Option<usize> = None;
+    let mut array_counts: Vec<(String, usize)> = Vec::new();
+    for (i, line) in lines.iter().enumerate().take(target + 1) {
+        if let Some(h) = parse_header(line) {
+            let name = match h {
+                Header::Table(name) => name,
+                Header::Array(name) => {
+                    let n = match array_counts.iter_mut().find(|(k, _)| *k == name) {
+                        Some((_, n)) => {
+                            *n += 1;
+                            *n
+                        }
+                        None => {
+                            array_counts.push((name.clone(), 0));
+                            0
+                        }
+                    };
+                    format!("{name}[{n}]")
+                }
+            };
+            table = Some(name);
+            header_line = Some(i);
+        }
+    }
+    if header_line == Some(target) {
+        return table;
+    }
+
+    // The nearest `key =` at or above the target line, below the header.
+    let first = header_line.map_or(0, |h| h + 1);
+    for i in (first..=target).rev() {
+        if let Some(key) = parse_key(lines[i]) {
+            return Some(match table {
+                Some(t) => format!("{t}.{key}"),
+                None => key,
+            });
+        }
+    }
+    table
+}
+
+enum Header {
+    Table(String),
+    Array(String),
+}
+
+fn parse_header(line: &str) -> Option<Header> {
+    let t = line.trim_start();
+    if let Some(rest) = t.strip_prefix("[[") {
+        let end = rest.find("]]")?;
+        Some(Header::Array(normalise_key(&rest[..end])))
+    } else if let Some(rest) = t.strip_prefix('[') {
+        let end = rest.find(']')?;
+        Some(Header::Table(normalise_key(&rest[..end])))
+    } else {
+        None
+    }
+}
+
+/// `key = ...` at the start of a line: the key, normalised; `None` for other lines.
+fn parse_key(line: &str) -> Option<String> {
+    let t = line.trim_start();
+    let first = t.chars().next()?;
+    if !(first.is_ascii_alphanumeric()
+        || first == '_'
+        || first == '-'
+        || first == '"'
+        || first == '\'')
+    {
+        return None;
+    }
+    let eq = t.find('=')?;
+    let key = &t[..eq];
+    let ok = key
+        .chars()
+        .all(|c| c.is_ascii_alphanumeric() || "_-.\"' \t".contains(c));
+    if !ok {
+        return None;
+    }
+    Some(normalise_key(key))
+}
+
+fn normalise_key(key: &str) -> String {
+    key.split('.')
+        .map(|part| part.trim().trim_matches(|c| c == '"' || c == '\''))
+        .collect::<Vec<_>>()
+        .join(".")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const TEXT: &str = "top = 1\n[volume]\ndims = [1,\n  2, 3]\n[[lights]]\nkind = \"sky\"\n[[lights]]\n kind = \"sun\"\n \"dir\" = 3\n";
+
+    fn offset_of(needle: &str, nth: usize) -> usize {
+        TEXT.match_indices(needle)
+            .nth(nth)
+            .map(|(i, _)| i)
+            .unwrap_or(usize::MAX)
+    }
+
+    #[test]
+    fn keys_and_tables() {
+        assert_eq!(key_at(TEXT, 0).as_deref(), Some("top"));
+        assert_eq!(
+            key_at(TEXT, offset_of("[volume]", 0)).as_deref(),
+            Some("volume")
+        );
+        assert_eq!(
+            key_at(TEXT, offset_of("2, 3", 0)).as_deref(),
+            Some("volume.dims")
+        );
+        assert_eq!(
+            key_at(TEXT, offset_of("\"sky\"", 0)).as_deref(),
+            Some("lights[0].kind")
+        );
+        assert_eq!(
+            key_at(TEXT, offset_of("\"sun\"", 0)).as_deref(),
+            Some("lights[1].kind")
+        );
+        assert_eq!(
+            key_at(TEXT, offset_of("3\n", 1)).as_deref(),
+            Some("lights[1].dir")
+        );
+    }
+
+    #[test]
+    fn lines_and_columns() {
+        assert_eq!(line_column(TEXT, 0), (1, 1));
+        assert_eq!(line_column(TEXT, offset_of("dims", 0) + 2), (3, 3));
+        assert_eq!(line_column("é=1", 2), (1, 2));
+    }
+}

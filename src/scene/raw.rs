@@ -1,0 +1,150 @@
+//! Stage one: the scene file exactly as written, deserialised by serde. Nothing here is checked
+//! beyond TOML syntax, types and key names (`deny_unknown_fields` everywhere); ranges, consistency
+//! and defaults are the business of [`super::validate`]. Integers are read as `i64` (TOML's integer
+//! type) so that out-of-range values get our own message with the key, rather than serde's.
+
+use serde::de::{self, Deserializer, SeqAccess, Visitor};
+use serde::Deserialize;
+use std::fmt;
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawScene {
+    pub volume: RawVolume,
+    pub medium: RawMedium,
+    #[serde(default)]
+    pub lights: Vec<RawLight>,
+    pub solver: Option<RawSolver>,
+    pub camera: Option<RawCamera>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawVolume {
+    pub procedural: Option<String>,
+    pub raw: Option<String>,
+    pub dims: [i64; 3],
+    pub voxel_size: Option<f64>,
+    pub seed: Option<i64>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawMedium {
+    pub sigma_t: Channels,
+    pub albedo: Channels,
+    pub g: Option<f64>,
+    pub emission: Option<Channels>,
+}
+
+/// One `[[lights]]` entry. Kept flat (rather than a serde-tagged enum) so that an unknown `kind`
+/// or a key that belongs to the other kind is reported with its exact key by the validator;
+/// serde's internally tagged enums buffer their content and lose the position.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawLight {
+    pub kind: String,
+    pub radiance: Option<Channels>,
+    pub direction: Option<[f64; 3]>,
+    pub irradiance: Option<Channels>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawSolver {
+    pub directions_per_face: Option<i64>,
+    pub storage_directions_per_face: Option<i64>,
+    pub max_orders: Option<i64>,
+    pub tolerance: Option<f64>,
+    pub device_memory_budget: Option<ByteSize>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawCamera {
+    pub projection: Option<String>,
+    /// Pinhole only: vertical field of view in degrees.
+    pub fov_y: Option<f64>,
+    /// Orthographic only: height of the view in world units.
+    pub view_height: Option<f64>,
+    pub position: [f64; 3],
+    pub look_at: [f64; 3],
+    pub up: Option<[f64; 3]>,
+    pub width: Option<i64>,
+    pub height: Option<i64>,
+}
+
+/// A per-channel quantity written either as one number (grey) or as `[r, g, b]`. The form is kept
+/// so that messages can name `medium.albedo` or `medium.albedo[1]` as written.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) enum Channels {
+    Scalar(f64),
+    Rgb([f64; 3]),
+}
+
+impl<'de> Deserialize<'de> for Channels {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl<'de> Visitor<'de> for V {
+            type Value = Channels;
+            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                f.write_str("a number or an [r, g, b] array of 3 numbers")
+            }
+            fn visit_f64<E: de::Error>(self, v: f64) -> Result<Channels, E> {
+                Ok(Channels::Scalar(v))
+            }
+            fn visit_i64<E: de::Error>(self, v: i64) -> Result<Channels, E> {
+                Ok(Channels::Scalar(v as f64))
+            }
+            fn visit_u64<E: de::Error>(self, v: u64) -> Result<Channels, E> {
+                Ok(Channels::Scalar(v as f64))
+            }
+            fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Channels, A::Error> {
+                let mut rgb = [0.0; 3];
+                for (i, c) in rgb.iter_mut().enumerate() {
+                    *c = seq
+                        .next_element::<f64>()?
+                        .ok_or_else(|| de::Error::invalid_length(i, &self))?;
+                }
+                let mut extra = 0;
+                while seq.next_element::<de::IgnoredAny>()?.is_some() {
+                    extra += 1;
+                }
+                if extra > 0 {
+                    return Err(de::Error::invalid_length(3 + extra, &self));
+                }
+                Ok(Channels::Rgb(rgb))
+            }
+        }
+        d.deserialize_any(V)
+    }
+}
+
+/// `device_memory_budget`: an integer number of bytes or a string such as `"256M"`.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) enum ByteSize {
+    Int(i64),
+    Text(String),
+}
+
+impl<'de> Deserialize<'de> for ByteSize {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl<'de> Visitor<'de> for V {
+            type Value = ByteSize;
+            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                f.write_str("an integer number of bytes or a string such as \"256M\"")
+            }
+            fn visit_i64<E: de::Error>(self, v: i64) -> Result<ByteSize, E> {
+                Ok(ByteSize::Int(v))
+            }
+            fn visit_u64<E: de::Error>(self, v: u64) -> Result<ByteSize, E> {
+                Ok(ByteSize::Int(i64::try_from(v).unwrap_or(i64::MAX)))
+            }
+            fn visit_str<E: de::Error>(self, v: &str) -> Result<ByteSize, E> {
+                Ok(ByteSize::Text(v.to_string()))
+            }
+        }
+        d.deserialize_any(V)
+    }
+}

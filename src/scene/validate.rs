@@ -1,0 +1,559 @@
+//! Stage two: raw serde structs → typed, checked [`Scene`] values. Every check names the dotted key
+//! of the value it rejects; defaults are applied here (and only here).
+
+use super::raw::{
+    ByteSize, Channels, RawCamera, RawLight, RawMedium, RawScene, RawSolver, RawVolume,
+};
+use super::{
+    Camera, Light, Medium, Projection, Scene, SceneError, Shape, SolverSettings, Volume,
+    VolumeSource,
+};
+use glam::DVec3;
+use std::path::{Path, PathBuf};
+
+/// Largest voxel count accepted (product of dims).
+pub const MAX_VOXELS: u64 = 1 << 40;
+/// Largest size of one dimension, in voxels.
+pub const MAX_DIM: u32 = 65536;
+/// Largest image width or height, in pixels.
+pub const MAX_IMAGE_SIZE: u32 = 16384;
+/// Upper bound for σt and voxel_size: anything larger is certainly a unit mistake.
+pub const MAX_MAGNITUDE: f64 = 1e12;
+
+pub const DEFAULT_DIRECTIONS_PER_FACE: u32 = 5;
+pub const MAX_DIRECTIONS_PER_FACE: u32 = 32;
+pub const DEFAULT_MAX_ORDERS: u32 = 64;
+pub const MAX_MAX_ORDERS: u32 = 100_000;
+pub const DEFAULT_TOLERANCE: f64 = 1e-4;
+pub const DEFAULT_FOV_Y_DEGREES: f64 = 40.0;
+pub const DEFAULT_IMAGE_SIZE: u32 = 512;
+pub const DEFAULT_SEED: u64 = 1;
+
+const SHAPES: &str = "\"sphere\", \"box\", \"cloud\"";
+const LIGHT_KINDS: &str = "\"sky\", \"sun\"";
+const PROJECTIONS: &str = "\"pinhole\", \"orthographic\"";
+
+pub(crate) struct Validator<'a> {
+    pub path: &'a Path,
+}
+
+type R<T> = Result<T, SceneError>;
+
+impl Validator<'_> {
+    fn err(&self, key: impl Into<String>, problem: impl Into<String>) -> SceneError {
+        SceneError::Invalid {
+            path: self.path.to_path_buf(),
+            key: key.into(),
+            problem: problem.into(),
+        }
+    }
+
+    pub fn scene(&self, raw: RawScene) -> R<Scene> {
+        let volume = self.volume(raw.volume)?;
+        let medium = self.medium(raw.medium)?;
+        let lights = raw
+            .lights
+            .into_iter()
+            .enumerate()
+            .map(|(i, l)| self.light(i, l))
+            .collect::<R<Vec<_>>>()?;
+        let solver = self.solver(raw.solver)?;
+        let camera = raw.camera.map(|c| self.camera(c, &volume)).transpose()?;
+        Ok(Scene {
+            path: self.path.to_path_buf(),
+            volume,
+            medium,
+            lights,
+            solver,
+            camera,
+        })
+    }
+
+    // ---- scalar helpers -------------------------------------------------------------------
+
+    fn finite(&self, key: &str, v: f64) -> R<f64> {
+        if v.is_finite() {
+            Ok(v)
+        } else {
+            Err(self.err(key, format!("must be a finite number, got {v}")))
+        }
+    }
+
+    /// Finite, ≥ 0 and (when given) ≤ `max`.
+    fn non_negative(&self, key: &str, v: f64, max: Option<f64>) -> R<f64> {
+        let v = self.finite(key, v)?;
+        if v < 0.0 {
+            return Err(self.err(key, format!("must be ≥ 0, got {v}")));
+        }
+        if let Some(m) = max {
+            if v > m {
+                return Err(self.err(key, format!("must be ≤ {m:e}, got {v}")));
+            }
+        }
+        Ok(v)
+    }
+
+    fn positive(&self, key: &str, v: f64, max: f64) -> R<f64> {
+        let v = self.finite(key, v)?;
+        if v <= 0.0 {
+            return Err(self.err(key, format!("must be > 0, got {v}")));
+        }
+        if v > max {
+            return Err(self.err(key, format!("must be ≤ {max:e}, got {v}")));
+        }
+        Ok(v)
+    }
+
+    fn int_range(&self, key: &str, v: i64, lo: u32, hi: u32) -> R<u32> {
+        if v < i64::from(lo) || v > i64::from(hi) {
+            return Err(self.err(key, format!("must be in {lo}..={hi}, got {v}")));
+        }
+        // In range, so the conversion cannot fail.
+        u32::try_from(v).map_err(|_| self.err(key, format!("must be in {lo}..={hi}, got {v}")))
+    }
+
+    /// Applies `check` to each channel, naming `key` (scalar) or `key[i]` (rgb) on failure.
+    fn channels(&self, key: &str, c: Channels, check: impl Fn(&str, f64) -> R<f64>) -> R<[f64; 3]> {
+        match c {
+            Channels::Scalar(v) => {
+                let v = check(key, v)?;
+                Ok([v; 3])
+            }
+            Channels::Rgb(rgb) => {
+                let mut out = [0.0; 3];
+                for i in 0..3 {
+                    out[i] = check(&format!("{key}[{i}]"), rgb[i])?;
+                }
+                Ok(out)
+            }
+        }
+    }
+
+    fn vec3(&self, key: &str, v: [f64; 3]) -> R<DVec3> {
+        for (i, c) in v.iter().enumerate() {
+            self.finite(&format!("{key}[{i}]"), *c)?;
+        }
+        Ok(DVec3::from_array(v))
+    }
+
+    // ---- sections -------------------------------------------------------------------------
+
+    fn volume(&self, v: RawVolume) -> R<Volume> {
+        let mut dims = [0u32; 3];
+        for i in 0..3 {
+            dims[i] = self.int_range(&format!("volume.dims[{i}]"), v.dims[i], 1, MAX_DIM)?;
+        }
+        let voxels = dims.iter().map(|&d| u64::from(d)).product::<u64>();
+        if voxels > MAX_VOXELS {
+            return Err(self.err(
+                "volume.dims",
+                format!(
+                    "{} × {} × {} = {voxels} voxels is more than the limit of 2^40 = {MAX_VOXELS}",
+                    dims[0], dims[1], dims[2]
+                ),
+            ));
+        }
+        let voxel_size = match v.voxel_size {
+            Some(s) => self.positive("volume.voxel_size", s, MAX_MAGNITUDE)?,
+            None => 1.0,
+        };
+        let source = match (v.procedural, v.raw) {
+            (Some(_), Some(_)) => {
+                return Err(self.err(
+                    "volume",
+                    "set exactly one of `procedural` and `raw`, but both are set",
+                ))
+            }
+            (None, None) => {
+                return Err(self.err(
+                    "volume",
+                    "set exactly one of `procedural` and `raw`, but neither is set",
+                ))
+            }
+            (Some(name), None) => {
+                let shape = match name.as_str() {
+                    "sphere" => Shape::Sphere,
+                    "box" => Shape::Box,
+                    "cloud" => Shape::Cloud,
+                    other => {
+                        return Err(self.err(
+                            "volume.procedural",
+                            format!("unknown shape \"{other}\", expected one of {SHAPES}"),
+                        ))
+                    }
+                };
+                let seed = match v.seed {
+                    None => DEFAULT_SEED,
+                    Some(s) => u64::try_from(s)
+                        .map_err(|_| self.err("volume.seed", format!("must be ≥ 0, got {s}")))?,
+                };
+                VolumeSource::Procedural { shape, seed }
+            }
+            (None, Some(raw)) => {
+                if v.seed.is_some() {
+                    return Err(self.err(
+                        "volume.seed",
+                        "only applies to a procedural volume, not to `raw`",
+                    ));
+                }
+                VolumeSource::Raw {
+                    path: self.raw_file(&raw, dims, voxels)?,
+                }
+            }
+        };
+        Ok(Volume {
+            source,
+            dims,
+            voxel_size,
+        })
+    }
+
+    /// Resolves `raw` against the scene file's directory and checks the file's size.
+    fn raw_file(&self, raw: &str, dims: [u32; 3], voxels: u64) -> R<PathBuf> {
+        let key = "volume.raw";
+        if raw.trim().is_empty() {
+            return Err(self.err(key, "must name a file, got an empty string"));
+        }
+        let base = self.path.parent().unwrap_or_else(|| Path::new(""));
+        let joined = base.join(raw);
+        let resolved = std::path::absolute(&joined).unwrap_or(joined);
+        let meta = std::fs::metadata(&resolved).map_err(|source| SceneError::RawFile {
+            path: self.path.to_path_buf(),
+            key: key.into(),
+            raw_path: resolved.clone(),
+            source,
+        })?;
+        if !meta.is_file() {
+            return Err(self.err(key, format!("{} is not a regular file", resolved.display())));
+        }
+        let expected = voxels * 4;
+        if meta.len() != expected {
+            return Err(SceneError::RawSize {
+                path: self.path.to_path_buf(),
+                key: key.into(),
+                raw_path: resolved,
+                dims,
+                expected,
+                actual: meta.len(),
+            });
+        }
+        Ok(resolved)
+    }
+
+    fn medium(&self, m: RawMedium) -> R<Medium> {
+        let sigma_t = self.channels("medium.sigma_t", m.sigma_t, |k, v| {
+            self.non_negative(k, v, Some(MAX_MAGNITUDE))
+        })?;
+        let albedo = self.channels("medium.albedo", m.albedo, |k, v| {
+            let v = self.finite(k, v)?;
+            if (0.0..=1.0).contains(&v) {
+                Ok(v)
+            } else {
+                Err(self.err(k, format!("must be in [0, 1], got {v}")))
+            }
+        })?;
+        let g = match m.g {
+            None => 0.0,
+            Some(g) => {
+                let g = self.finite("medium.g", g)?;
+                if g <= -1.0 || g >= 1.0 {
+                    return Err(self.err("medium.g", format!("must be in (-1, 1), got {g}")));
+                }
+                g
+            }
+        };
+        let emission = match m.emission {
+            None => [0.0; 3],
+            Some(e) => self.channels("medium.emission", e, |k, v| self.non_negative(k, v, None))?,
+        };
+        Ok(Medium {
+            sigma_t,
+            albedo,
+            g,
+            emission,
+        })
+    }
+
+    fn light(&self, i: usize, l: RawLight) -> R<Light> {
+        let key = |name: &str| format!("lights[{i}].{name}");
+        let reject_extra = |name: &str, present: bool, kind: &str| -> R<()> {
+            if present {
+                Err(self.err(key(name), format!("does not apply to a {kind} light")))
+            } else {
+                Ok(())
+            }
+        };
+        let missing =
+            |name: &str, kind: &str| self.err(key(name), format!("is required for a {kind} light"));
+        match l.kind.as_str() {
+            "sky" => {
+                reject_extra("direction", l.direction.is_some(), "sky")?;
+                reject_extra("irradiance", l.irradiance.is_some(), "sky")?;
+                let radiance = l.radiance.ok_or_else(|| missing("radiance", "sky"))?;
+                let radiance = self.channels(&key("radiance"), radiance, |k, v| {
+                    self.non_negative(k, v, None)
+                })?;
+                Ok(Light::Sky { radiance })
+            }
+            "sun" => {
+                reject_extra("radiance", l.radiance.is_some(), "sun")?;
+                let direction = l.direction.ok_or_else(|| missing("direction", "sun"))?;
+                let dkey = key("direction");
+                let d = self.vec3(&dkey, direction)?;
+                let len = d.length();
+                if len == 0.0 {
+                    return Err(self.err(
+                        dkey,
+                        "must not be the zero vector (it points toward the sun)",
+                    ));
+                }
+                let direction = d / len;
+                if !direction.is_finite() {
+                    return Err(self.err(dkey, format!("cannot be normalised, got {d}")));
+                }
+                let irradiance = l.irradiance.ok_or_else(|| missing("irradiance", "sun"))?;
+                let irradiance = self.channels(&key("irradiance"), irradiance, |k, v| {
+                    self.non_negative(k, v, None)
+                })?;
+                Ok(Light::Sun {
+                    direction,
+                    irradiance,
+                })
+            }
+            other => Err(self.err(
+                key("kind"),
+                format!("unknown light kind \"{other}\", expected one of {LIGHT_KINDS}"),
+            )),
+        }
+    }
+
+    fn solver(&self, s: Option<RawSolver>) -> R<SolverSettings> {
+        let Some(s) = s else {
+            return Ok(SolverSettings {
+                directions_per_face: DEFAULT_DIRECTIONS_PER_FACE,
+                storage_directions_per_face: None,
+                max_orders: DEFAULT_MAX_ORDERS,
+                tolerance: DEFAULT_TOLERANCE,
+                device_memory_budget: None,
+            });
+        };
+        let k = match s.directions_per_face {
+            None => DEFAULT_DIRECTIONS_PER_FACE,
+            Some(k) => {
+                self.int_range("solver.directions_per_face", k, 1, MAX_DIRECTIONS_PER_FACE)?
+            }
+        };
+        let ks = match s.storage_directions_per_face {
+            None => None,
+            Some(ks) => {
+                if ks > i64::from(k) {
+                    return Err(self.err(
+                        "solver.storage_directions_per_face",
+                        format!("must be ≤ solver.directions_per_face = {k}, got {ks}"),
+                    ));
+                }
+                Some(self.int_range("solver.storage_directions_per_face", ks, 1, k)?)
+            }
+        };
+        let max_orders = match s.max_orders {
+            None => DEFAULT_MAX_ORDERS,
+            Some(n) => self.int_range("solver.max_orders", n, 1, MAX_MAX_ORDERS)?,
+        };
+        let tolerance = match s.tolerance {
+            None => DEFAULT_TOLERANCE,
+            Some(t) => {
+                let t = self.finite("solver.tolerance", t)?;
+                if t <= 0.0 || t >= 1.0 {
+                    return Err(self.err("solver.tolerance", format!("must be in (0, 1), got {t}")));
+                }
+                t
+            }
+        };
+        let device_memory_budget = match s.device_memory_budget {
+            None => None,
+            Some(b) => Some(self.byte_size("solver.device_memory_budget", &b)?),
+        };
+        Ok(SolverSettings {
+            directions_per_face: k,
+            storage_directions_per_face: ks,
+            max_orders,
+            tolerance,
+            device_memory_budget,
+        })
+    }
+
+    fn byte_size(&self, key: &str, b: &ByteSize) -> R<u64> {
+        match b {
+            ByteSize::Int(n) => {
+                if *n <= 0 {
+                    Err(self.err(key, format!("must be > 0 bytes, got {n}")))
+                } else {
+                    Ok(n.unsigned_abs())
+                }
+            }
+            ByteSize::Text(s) => parse_byte_size(s).map_err(|why| {
+                self.err(
+                    key,
+                    format!(
+                        "invalid byte size \"{s}\" ({why}): expected a positive byte count such as \
+                         1073741824, \"512M\" or \"4G\" (suffixes K, M, G, T are powers of 1024)"
+                    ),
+                )
+            }),
+        }
+    }
+
+    fn camera(&self, c: RawCamera, volume: &Volume) -> R<Camera> {
+        let projection = match c.projection.as_deref().unwrap_or("pinhole") {
+            "pinhole" => {
+                if c.view_height.is_some() {
+                    return Err(self.err(
+                        "camera.view_height",
+                        "only applies to an orthographic camera",
+                    ));
+                }
+                let fov = match c.fov_y {
+                    None => DEFAULT_FOV_Y_DEGREES,
+                    Some(f) => {
+                        let f = self.finite("camera.fov_y", f)?;
+                        if f <= 0.0 || f >= 180.0 {
+                            return Err(self.err(
+                                "camera.fov_y",
+                                format!("must be in (0, 180) degrees, got {f}"),
+                            ));
+                        }
+                        f
+                    }
+                };
+                Projection::Pinhole { fov_y_degrees: fov }
+            }
+            "orthographic" => {
+                if c.fov_y.is_some() {
+                    return Err(self.err("camera.fov_y", "only applies to a pinhole camera"));
+                }
+                let height = match c.view_height {
+                    Some(h) => self.positive("camera.view_height", h, MAX_MAGNITUDE)?,
+                    None => default_orthographic_height(volume),
+                };
+                Projection::Orthographic { height }
+            }
+            other => {
+                return Err(self.err(
+                    "camera.projection",
+                    format!("unknown projection \"{other}\", expected one of {PROJECTIONS}"),
+                ))
+            }
+        };
+        let position = self.vec3("camera.position", c.position)?;
+        let look_at = self.vec3("camera.look_at", c.look_at)?;
+        let up = match c.up {
+            None => DVec3::Z,
+            Some(u) => self.vec3("camera.up", u)?,
+        };
+        let view = look_at - position;
+        if view.length_squared() == 0.0 || !view.is_finite() {
+            return Err(self.err(
+                "camera.look_at",
+                format!("must differ from camera.position, both are {position}"),
+            ));
+        }
+        if up.length_squared() == 0.0 {
+            return Err(self.err("camera.up", "must not be the zero vector"));
+        }
+        let sin = view.normalize().cross(up.normalize()).length();
+        if !(sin > 1e-6) {
+            return Err(self.err(
+                "camera.up",
+                format!("must not be parallel to the view direction (look_at − position = {view}), got {up}"),
+            ));
+        }
+        let width = match c.width {
+            None => DEFAULT_IMAGE_SIZE,
+            Some(w) => self.int_range("camera.width", w, 1, MAX_IMAGE_SIZE)?,
+        };
+        let height = match c.height {
+            None => DEFAULT_IMAGE_SIZE,
+            Some(h) => self.int_range("camera.height", h, 1, MAX_IMAGE_SIZE)?,
+        };
+        Ok(Camera {
+            projection,
+            position,
+            look_at,
+            up,
+            width,
+            height,
+        })
+    }
+}
+
+/// The orthographic view height that fits the whole volume whatever the view direction: the
+/// length of the volume's diagonal in world units.
+pub fn default_orthographic_height(volume: &Volume) -> f64 {
+    let d = DVec3::new(
+        f64::from(volume.dims[0]),
+        f64::from(volume.dims[1]),
+        f64::from(volume.dims[2]),
+    );
+    d.length() * volume.voxel_size
+}
+
+/// Parses `"256M"`, `"1.5G"`, `"4GiB"`, `"512 KB"`, `"1048576"` into bytes (K/M/G/T = powers of
+/// 1024, case-insensitive, optional `B`/`iB`). Fractions are rounded down to whole bytes.
+pub fn parse_byte_size(text: &str) -> Result<u64, String> {
+    let s = text.trim();
+    let split = s
+        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .unwrap_or(s.len());
+    let (number, suffix) = s.split_at(split);
+    if number.is_empty() {
+        return Err("no number".into());
+    }
+    let suffix = suffix.trim().to_ascii_uppercase();
+    let shift = match suffix.as_str() {
+        "" | "B" => 0,
+        "K" | "KB" | "KIB" => 10,
+        "M" | "MB" | "MIB" => 20,
+        "G" | "GB" | "GIB" => 30,
+        "T" | "TB" | "TIB" => 40,
+        _ => return Err(format!("unknown suffix \"{}\"", suffix)),
+    };
+    let bytes = if number.contains('.') {
+        let v: f64 = number
+            .parse()
+            .map_err(|_| format!("\"{number}\" is not a number"))?;
+        let b = v * (1u64 << shift) as f64;
+        if !(b < u64::MAX as f64) {
+            return Err("too large".into());
+        }
+        b.floor() as u64
+    } else {
+        let v: u64 = number.parse().map_err(|_| "too large".to_string())?;
+        v.checked_mul(1u64 << shift)
+            .ok_or_else(|| "too large".to_string())?
+    };
+    if bytes == 0 {
+        return Err("must be > 0".into());
+    }
+    Ok(bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn byte_sizes() {
+        assert_eq!(parse_byte_size("256M"), Ok(256 << 20));
+        assert_eq!(parse_byte_size("4g"), Ok(4 << 30));
+        assert_eq!(parse_byte_size("1.5G"), Ok(3 << 29));
+        assert_eq!(parse_byte_size(" 2 TiB "), Ok(2 << 40));
+        assert_eq!(parse_byte_size("512KB"), Ok(512 << 10));
+        assert_eq!(parse_byte_size("1000"), Ok(1000));
+        assert!(parse_byte_size("0M").is_err());
+        assert!(parse_byte_size("lots").is_err());
+        assert!(parse_byte_size("12Q").is_err());
+        assert!(parse_byte_size("1.2.3M").is_err());
+        assert!(parse_byte_size("99999999999T").is_err());
+        assert!(parse_byte_size("").is_err());
+    }
+}
