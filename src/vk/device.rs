@@ -1,0 +1,521 @@
+//! Physical device choice, queue families, and the logical device.
+//!
+//! lpm needs Vulkan ≥ 1.2 with `timelineSemaphore` (all ordering between submissions is by timeline
+//! values) and `synchronization2` (core in 1.3, `VK_KHR_synchronization2` on 1.2 devices).
+//! It uses one compute queue, and when the device has one, a second queue for transfers so uploads
+//! of the next slice overlap the sweep of the current one.
+
+use std::ffi::CStr;
+use std::sync::{Mutex, MutexGuard};
+
+use ash::vk;
+
+use super::error::{VkError, VkResultExt};
+use super::instance::{version_string, Instance};
+use super::lock;
+
+/// A device queue. Vulkan requires external synchronisation of `vkQueueSubmit*` on one queue, so
+/// every submission takes `lock`.
+pub struct Queue {
+    raw: vk::Queue,
+    family: u32,
+    index: u32,
+    lock: Mutex<()>,
+}
+
+impl Queue {
+    /// The queue family index (what command pools and ownership transfers are keyed by).
+    pub fn family(&self) -> u32 {
+        self.family
+    }
+    /// The index of this queue inside its family.
+    pub fn index(&self) -> u32 {
+        self.index
+    }
+    /// The raw handle. Submitting to it directly bypasses the lock this layer takes around
+    /// `vkQueueSubmit2`; use [`super::Recorder::submit`].
+    pub fn raw(&self) -> vk::Queue {
+        self.raw
+    }
+    /// Holds the queue for a submission (or a queue-level wait).
+    pub(crate) fn lock(&self) -> MutexGuard<'_, ()> {
+        lock(&self.lock)
+    }
+}
+
+/// The device numbers the solver plans with.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Limits {
+    /// Largest range one storage-buffer binding may cover (lavapipe: 128 MiB).
+    pub max_storage_buffer_range: u64,
+    /// Largest dispatch, per dimension, in workgroups.
+    pub max_workgroup_count: [u32; 3],
+    /// Largest number of invocations in one workgroup.
+    pub max_workgroup_invocations: u32,
+    /// The default subgroup size (8 on lavapipe, 32 on NVIDIA): never assume a value.
+    pub subgroup_size: u32,
+    /// Nanoseconds per timestamp tick.
+    pub timestamp_period_ns: f32,
+    /// Whether compute queues can write timestamps (`timestampComputeAndGraphics`).
+    pub timestamps_supported: bool,
+    /// Total size of the DEVICE_LOCAL memory heaps.
+    pub device_local_heap_bytes: u64,
+    /// A CPU implementation (lavapipe, SwiftShader): memory is host memory, "GPU-only" is a fiction.
+    pub is_cpu: bool,
+    /// Required alignment of a storage-buffer binding's offset.
+    pub min_storage_buffer_offset_alignment: u64,
+    /// Largest push-constant block in bytes.
+    pub max_push_constants_size: u32,
+}
+
+/// synchronization2 is reached through core 1.3 entry points or the KHR extension's; the rest of the
+/// layer calls these and does not care which.
+pub(crate) enum Sync2 {
+    Core,
+    Khr(ash::khr::synchronization2::Device),
+}
+
+impl Sync2 {
+    /// # Safety
+    /// As `vkCmdPipelineBarrier2`.
+    pub(crate) unsafe fn cmd_pipeline_barrier2(
+        &self,
+        device: &ash::Device,
+        cb: vk::CommandBuffer,
+        info: &vk::DependencyInfo<'_>,
+    ) {
+        match self {
+            Sync2::Core => unsafe { device.cmd_pipeline_barrier2(cb, info) },
+            Sync2::Khr(k) => unsafe { k.cmd_pipeline_barrier2(cb, info) },
+        }
+    }
+    /// # Safety
+    /// As `vkCmdWriteTimestamp2`.
+    pub(crate) unsafe fn cmd_write_timestamp2(
+        &self,
+        device: &ash::Device,
+        cb: vk::CommandBuffer,
+        stage: vk::PipelineStageFlags2,
+        pool: vk::QueryPool,
+        query: u32,
+    ) {
+        match self {
+            Sync2::Core => unsafe { device.cmd_write_timestamp2(cb, stage, pool, query) },
+            Sync2::Khr(k) => unsafe { k.cmd_write_timestamp2(cb, stage, pool, query) },
+        }
+    }
+    /// # Safety
+    /// As `vkQueueSubmit2`; the caller holds the queue's lock.
+    pub(crate) unsafe fn queue_submit2(
+        &self,
+        device: &ash::Device,
+        queue: vk::Queue,
+        submits: &[vk::SubmitInfo2<'_>],
+    ) -> Result<(), vk::Result> {
+        match self {
+            Sync2::Core => unsafe { device.queue_submit2(queue, submits, vk::Fence::null()) },
+            Sync2::Khr(k) => unsafe { k.queue_submit2(queue, submits, vk::Fence::null()) },
+        }
+    }
+}
+
+/// What device selection produced; Context takes ownership of every part.
+pub(crate) struct DeviceParts {
+    pub(crate) physical: vk::PhysicalDevice,
+    pub(crate) device: ash::Device,
+    pub(crate) compute: Queue,
+    pub(crate) transfer: Option<Queue>,
+    pub(crate) sync2: Sync2,
+    pub(crate) name: String,
+    pub(crate) driver_description: String,
+    pub(crate) driver_id: vk::DriverId,
+    pub(crate) limits: Limits,
+}
+
+/// Everything we look at to decide whether and how to use a physical device.
+struct Candidate {
+    physical: vk::PhysicalDevice,
+    name: String,
+    device_type: vk::PhysicalDeviceType,
+    api_version: u32,
+}
+
+fn type_rank(t: vk::PhysicalDeviceType) -> u32 {
+    match t {
+        vk::PhysicalDeviceType::DISCRETE_GPU => 0,
+        vk::PhysicalDeviceType::INTEGRATED_GPU => 1,
+        vk::PhysicalDeviceType::VIRTUAL_GPU => 2,
+        vk::PhysicalDeviceType::CPU => 3,
+        _ => 4,
+    }
+}
+
+/// Picks a physical device (`device_index` if given, else the best type that is usable), then creates
+/// the logical device and fetches the queues.
+pub(crate) fn create(
+    instance: &Instance,
+    device_index: Option<usize>,
+    force_single_queue: bool,
+) -> Result<DeviceParts, VkError> {
+    let inst = &instance.raw;
+    // SAFETY: plain query on a live instance.
+    let physicals =
+        unsafe { inst.enumerate_physical_devices() }.op("listing the Vulkan devices")?;
+    if physicals.is_empty() {
+        return Err(VkError::NoDevice(
+            "the loader found no Vulkan device; install `mesa-vulkan-drivers` for the CPU device (lavapipe) or your GPU's driver".into(),
+        ));
+    }
+    let candidates: Vec<Candidate> = physicals
+        .iter()
+        .map(|&physical| {
+            // SAFETY: `physical` came from this instance.
+            let props = unsafe { inst.get_physical_device_properties(physical) };
+            Candidate {
+                physical,
+                name: props
+                    .device_name_as_c_str()
+                    .map(|c| c.to_string_lossy().into_owned())
+                    .unwrap_or_default(),
+                device_type: props.device_type,
+                api_version: props.api_version,
+            }
+        })
+        .collect();
+    for (i, c) in candidates.iter().enumerate() {
+        tracing::debug!(index = i, name = %c.name, kind = ?c.device_type, api = %version_string(c.api_version), "Vulkan device found");
+    }
+
+    let chosen = match device_index {
+        Some(i) => {
+            let c = candidates.get(i).ok_or_else(|| {
+                let names: Vec<String> = candidates
+                    .iter()
+                    .enumerate()
+                    .map(|(i, c)| format!("{i}: {}", c.name))
+                    .collect();
+                VkError::NoDevice(format!(
+                    "LPM_DEVICE={i} but there are only {} devices ({})",
+                    candidates.len(),
+                    names.join(", ")
+                ))
+            })?;
+            // An explicit choice that cannot work is an error, not a silent fallback.
+            check_support(instance, c)?;
+            c
+        }
+        None => {
+            let mut order: Vec<&Candidate> = candidates.iter().collect();
+            order.sort_by_key(|c| type_rank(c.device_type));
+            let mut reasons = Vec::new();
+            let mut found = None;
+            for c in order {
+                match check_support(instance, c) {
+                    Ok(()) => {
+                        found = Some(c);
+                        break;
+                    }
+                    Err(e) => reasons.push(e.to_string()),
+                }
+            }
+            found.ok_or_else(|| VkError::NoDevice(reasons.join("; ")))?
+        }
+    };
+    tracing::info!(name = %chosen.name, kind = ?chosen.device_type, explicit = device_index.is_some(), "Vulkan device chosen");
+    open(instance, chosen, force_single_queue)
+}
+
+/// The effective API version (device's, capped by the instance's).
+fn effective_api(instance: &Instance, c: &Candidate) -> u32 {
+    c.api_version.min(instance.api_version)
+}
+
+fn device_extensions(
+    instance: &Instance,
+    physical: vk::PhysicalDevice,
+) -> Result<Vec<String>, VkError> {
+    // SAFETY: plain query.
+    let exts = unsafe { instance.raw.enumerate_device_extension_properties(physical) }
+        .op("listing device extensions")?;
+    Ok(exts
+        .iter()
+        .filter_map(|e| {
+            e.extension_name_as_c_str()
+                .ok()
+                .map(|n| n.to_string_lossy().into_owned())
+        })
+        .collect())
+}
+
+fn has_ext(exts: &[String], name: &CStr) -> bool {
+    let name = name.to_string_lossy();
+    exts.iter().any(|e| *e == name)
+}
+
+fn check_support(instance: &Instance, c: &Candidate) -> Result<(), VkError> {
+    let unsupported = |reason: String| VkError::Unsupported {
+        device: c.name.clone(),
+        reason,
+    };
+    let api = effective_api(instance, c);
+    if api < vk::API_VERSION_1_2 {
+        return Err(unsupported(format!(
+            "it supports Vulkan {} only; lpm needs 1.2 or newer",
+            version_string(c.api_version)
+        )));
+    }
+    if api < vk::API_VERSION_1_3
+        && !has_ext(
+            &device_extensions(instance, c.physical)?,
+            ash::khr::synchronization2::NAME,
+        )
+    {
+        return Err(unsupported(
+            "it has neither Vulkan 1.3 nor VK_KHR_synchronization2".into(),
+        ));
+    }
+    let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
+    let mut sync2 = vk::PhysicalDeviceSynchronization2Features::default();
+    let mut f2 = vk::PhysicalDeviceFeatures2::default()
+        .push_next(&mut f12)
+        .push_next(&mut sync2);
+    // SAFETY: the chained structs are valid for a ≥1.2 device (sync2 checked above).
+    unsafe {
+        instance
+            .raw
+            .get_physical_device_features2(c.physical, &mut f2)
+    };
+    if f12.timeline_semaphore == vk::FALSE {
+        return Err(unsupported(
+            "the timelineSemaphore feature is missing".into(),
+        ));
+    }
+    if sync2.synchronization2 == vk::FALSE {
+        return Err(unsupported(
+            "the synchronization2 feature is missing".into(),
+        ));
+    }
+    // SAFETY: plain query.
+    let families = unsafe {
+        instance
+            .raw
+            .get_physical_device_queue_family_properties(c.physical)
+    };
+    if !families
+        .iter()
+        .any(|f| f.queue_flags.contains(vk::QueueFlags::COMPUTE))
+    {
+        return Err(unsupported("it has no compute queue".into()));
+    }
+    Ok(())
+}
+
+/// Chooses the compute family and the transfer queue: a dedicated transfer family (copy engines run
+/// beside compute) is best, a second queue of the compute family next, else none.
+fn choose_queues(
+    families: &[vk::QueueFamilyProperties],
+    force_single_queue: bool,
+) -> Option<(u32, Option<(u32, u32)>)> {
+    let compute = families
+        .iter()
+        .position(|f| f.queue_flags.contains(vk::QueueFlags::COMPUTE))? as u32;
+    if force_single_queue {
+        return Some((compute, None));
+    }
+    let dedicated = families.iter().position(|f| {
+        f.queue_count > 0
+            && f.queue_flags.contains(vk::QueueFlags::TRANSFER)
+            && !f
+                .queue_flags
+                .intersects(vk::QueueFlags::COMPUTE | vk::QueueFlags::GRAPHICS)
+    });
+    let transfer = match dedicated {
+        Some(fam) => Some((fam as u32, 0)),
+        None if families[compute as usize].queue_count >= 2 => Some((compute, 1)),
+        None => None,
+    };
+    Some((compute, transfer))
+}
+
+fn open(
+    instance: &Instance,
+    c: &Candidate,
+    force_single_queue: bool,
+) -> Result<DeviceParts, VkError> {
+    let inst = &instance.raw;
+    let api = effective_api(instance, c);
+    // SAFETY: plain query.
+    let families = unsafe { inst.get_physical_device_queue_family_properties(c.physical) };
+    let (compute_family, transfer) =
+        choose_queues(&families, force_single_queue).ok_or_else(|| VkError::Unsupported {
+            device: c.name.clone(),
+            reason: "it has no compute queue".into(),
+        })?;
+
+    // One priority per queue of a family; both arrays outlive vkCreateDevice.
+    let priorities_one = [1.0f32];
+    let priorities_two = [1.0f32, 1.0];
+    let mut queue_infos = Vec::new();
+    match transfer {
+        Some((fam, 1)) if fam == compute_family => {
+            queue_infos.push(
+                vk::DeviceQueueCreateInfo::default()
+                    .queue_family_index(compute_family)
+                    .queue_priorities(&priorities_two),
+            );
+        }
+        Some((fam, _)) => {
+            queue_infos.push(
+                vk::DeviceQueueCreateInfo::default()
+                    .queue_family_index(compute_family)
+                    .queue_priorities(&priorities_one),
+            );
+            queue_infos.push(
+                vk::DeviceQueueCreateInfo::default()
+                    .queue_family_index(fam)
+                    .queue_priorities(&priorities_one),
+            );
+        }
+        None => {
+            queue_infos.push(
+                vk::DeviceQueueCreateInfo::default()
+                    .queue_family_index(compute_family)
+                    .queue_priorities(&priorities_one),
+            );
+        }
+    }
+
+    let use_khr_sync2 = api < vk::API_VERSION_1_3;
+    let mut extensions: Vec<*const std::ffi::c_char> = Vec::new();
+    if use_khr_sync2 {
+        extensions.push(ash::khr::synchronization2::NAME.as_ptr());
+    }
+    let mut f12 = vk::PhysicalDeviceVulkan12Features::default().timeline_semaphore(true);
+    let mut sync2_features =
+        vk::PhysicalDeviceSynchronization2Features::default().synchronization2(true);
+    let create_info = vk::DeviceCreateInfo::default()
+        .queue_create_infos(&queue_infos)
+        .enabled_extension_names(&extensions)
+        .push_next(&mut f12)
+        .push_next(&mut sync2_features);
+    // SAFETY: all pointers in create_info point to locals alive for the call; support was checked.
+    let device = unsafe { inst.create_device(c.physical, &create_info, None) }
+        .op_with(|| format!("creating the logical device on `{}`", c.name))?;
+
+    let get_queue = |family: u32, index: u32| {
+        // SAFETY: this (family, index) was requested in queue_infos.
+        let raw = unsafe { device.get_device_queue(family, index) };
+        Queue {
+            raw,
+            family,
+            index,
+            lock: Mutex::new(()),
+        }
+    };
+    let compute = get_queue(compute_family, 0);
+    let transfer = transfer.map(|(fam, idx)| get_queue(fam, idx));
+    let sync2 = if use_khr_sync2 {
+        Sync2::Khr(ash::khr::synchronization2::Device::new(inst, &device))
+    } else {
+        Sync2::Core
+    };
+
+    // Properties for limits and reports.
+    let mut p11 = vk::PhysicalDeviceVulkan11Properties::default();
+    let mut driver = vk::PhysicalDeviceDriverProperties::default();
+    let mut p2 = vk::PhysicalDeviceProperties2::default()
+        .push_next(&mut p11)
+        .push_next(&mut driver);
+    // SAFETY: valid chain for a ≥1.2 device.
+    unsafe { inst.get_physical_device_properties2(c.physical, &mut p2) };
+    let props = p2.properties;
+    // SAFETY: plain query.
+    let mem = unsafe { inst.get_physical_device_memory_properties(c.physical) };
+    let device_local_heap_bytes = mem.memory_heaps[..mem.memory_heap_count as usize]
+        .iter()
+        .filter(|h| h.flags.contains(vk::MemoryHeapFlags::DEVICE_LOCAL))
+        .map(|h| h.size)
+        .sum();
+    let l = props.limits;
+    let limits = Limits {
+        max_storage_buffer_range: u64::from(l.max_storage_buffer_range),
+        max_workgroup_count: l.max_compute_work_group_count,
+        max_workgroup_invocations: l.max_compute_work_group_invocations,
+        subgroup_size: p11.subgroup_size,
+        timestamp_period_ns: l.timestamp_period,
+        timestamps_supported: l.timestamp_compute_and_graphics == vk::TRUE
+            && families[compute_family as usize].timestamp_valid_bits > 0,
+        device_local_heap_bytes,
+        is_cpu: props.device_type == vk::PhysicalDeviceType::CPU,
+        min_storage_buffer_offset_alignment: l.min_storage_buffer_offset_alignment,
+        max_push_constants_size: l.max_push_constants_size,
+    };
+    let driver_name = driver
+        .driver_name_as_c_str()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let driver_info = driver
+        .driver_info_as_c_str()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let driver_description = format!(
+        "{driver_name} {driver_info} (Vulkan {}, driver version {:#x})",
+        version_string(props.api_version),
+        props.driver_version
+    );
+    tracing::info!(
+        compute_family,
+        transfer = ?transfer.as_ref().map(|q| (q.family, q.index)),
+        ?limits,
+        driver = %driver_description,
+        "Vulkan device opened"
+    );
+    Ok(DeviceParts {
+        physical: c.physical,
+        device,
+        compute,
+        transfer,
+        sync2,
+        name: c.name.clone(),
+        driver_description,
+        driver_id: driver.driver_id,
+        limits,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn fam(flags: vk::QueueFlags, count: u32) -> vk::QueueFamilyProperties {
+        vk::QueueFamilyProperties {
+            queue_flags: flags,
+            queue_count: count,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn queue_choice() {
+        let gct = vk::QueueFlags::GRAPHICS | vk::QueueFlags::COMPUTE | vk::QueueFlags::TRANSFER;
+        // lavapipe: one family, one queue.
+        assert_eq!(choose_queues(&[fam(gct, 1)], false), Some((0, None)));
+        // Two queues in the only family: the second one transfers.
+        assert_eq!(
+            choose_queues(&[fam(gct, 2)], false),
+            Some((0, Some((0, 1))))
+        );
+        // NVIDIA-like: dedicated transfer family preferred over a 2nd compute queue.
+        let fams = [
+            fam(gct, 16),
+            fam(vk::QueueFlags::TRANSFER, 2),
+            fam(vk::QueueFlags::COMPUTE | vk::QueueFlags::TRANSFER, 8),
+        ];
+        assert_eq!(choose_queues(&fams, false), Some((0, Some((1, 0)))));
+        assert_eq!(choose_queues(&fams, true), Some((0, None)));
+        assert_eq!(
+            choose_queues(&[fam(vk::QueueFlags::GRAPHICS, 1)], false),
+            None
+        );
+    }
+}
