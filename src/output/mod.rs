@@ -1,1 +1,21 @@
-//! output (to be written)
+//! Files the user reads: atomic writes, and fields exported as raw + json + NRRD header.
+//!
+//! Every file is written under a temporary name in its own directory, fsynced, then renamed over
+//! its final name ([`write_atomic`]), so a crash or an error never leaves a half-written output.
+//!
+//! An exported field `<base>` is three files:
+//! - `<base>.raw`: little-endian f32, all components of a voxel together (component fastest), then
+//!   x, then y, then z, over the volume's own dims (no brick padding);
+//! - `<base>.json`: what the raw file holds ([`FieldInfo`]);
+//! - `<base>.nhdr`: a detached NRRD header so ParaView, 3D Slicer, teem … open the raw directly.
+
+mod atomic;
+mod error;
+mod export;
+mod nrrd;
+mod read;
+
+pub use atomic::{write_atomic, write_json_atomic};
+pub use error::OutputError;
+pub use export::{export_field, FieldInfo, FieldMeta, LAYOUT};
+pub use read::{read_field_json, read_raw_field};

@@ -1,1 +1,38 @@
-//! store (to be written)
+//! The 16³ brick store: the volume on disk, in memory-mapped files.
+//!
+//! A volume of `dims` voxels (any size, not only multiples of 16) is tiled into 16³ bricks
+//! ([`BrickGrid`]). The density is written once, by [`BrickStore::create_with`], into
+//! `density.bricks`; a brick whose voxels are all zero is *empty*: it is recorded in the brick table
+//! (`bricks.json`) and takes no space on disk, and the solver skips it. Every other per-voxel
+//! quantity (sources, fluence, accumulators) is a [`Field`]: a memory-mapped file holding, for each
+//! stored brick, `components × 4096` f32 values, component-major. A field either covers every brick
+//! ([`Coverage::Dense`]) or only the occupied ones ([`Coverage::Occupied`], indexed by slot).
+//!
+//! Files in a store directory:
+//!
+//! | file | content |
+//! |---|---|
+//! | `bricks.json` | dims, voxel size, the brick table (slot of each brick or `null`), occupied count |
+//! | `density.bricks` | the occupied bricks' densities, in brick-index order, 4096 f32 (native = little-endian) each |
+//! | `<name>.field` | a field, see [`Field`] |
+//!
+//! Importers that feed [`BrickStore::create_with`] live in [`import`].
+
+mod atomic;
+mod brick_store;
+mod error;
+mod field;
+mod grid;
+pub mod import;
+mod table;
+
+pub(crate) use atomic::write_atomic_io;
+pub use brick_store::BrickStore;
+pub use error::StoreError;
+pub use field::{Coverage, Field};
+pub use grid::{local_index, BrickGrid, BRICK_EDGE, BRICK_VOXELS};
+pub use import::{raw_density, RawDensity};
+
+// Brick and field files hold native f32 and are mapped as such; they are specified little-endian.
+#[cfg(target_endian = "big")]
+compile_error!("the lpm brick store requires a little-endian host");

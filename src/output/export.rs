@@ -1,0 +1,122 @@
+//! Exporting a [`Field`] as `<base>.raw` + `<base>.json` + `<base>.nhdr`.
+
+use super::{nrrd, write_atomic, write_json_atomic, OutputError};
+use crate::store::{BrickStore, Field, BRICK_EDGE, BRICK_VOXELS};
+use serde::{Deserialize, Serialize};
+use std::io::Write;
+use std::path::Path;
+
+/// What an exported field means, given by the caller.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FieldMeta {
+    /// e.g. "fluence".
+    pub quantity: String,
+    /// e.g. "W/m^2".
+    pub units: String,
+    /// One name per component, e.g. `["r", "g", "b"]` or `["d0.r", "d0.g", …]`.
+    pub components: Vec<String>,
+    pub description: String,
+}
+
+/// The content of `<base>.json`: everything needed to read `<base>.raw` without lpm.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FieldInfo {
+    pub dims: [u32; 3],
+    pub components: u32,
+    pub component_names: Vec<String>,
+    /// Always "f32".
+    pub dtype: String,
+    /// Always "little".
+    pub endianness: String,
+    /// Always [`LAYOUT`].
+    pub layout: String,
+    pub voxel_size: f64,
+    pub quantity: String,
+    pub units: String,
+    pub description: String,
+    /// The raw file's name, relative to the json.
+    pub file: String,
+}
+
+/// The `layout` string of every exported field.
+pub const LAYOUT: &str = "component fastest, then x, then y, then z";
+
+/// Writes `field` (a field of `store`) into `out_dir` as `<base>.raw`, `<base>.json` and
+/// `<base>.nhdr`, each atomically. The raw is streamed one voxel row at a time, so the volume is never
+/// held in memory. The raw is written first: a json or header never describes a missing raw.
+pub fn export_field(
+    field: &Field,
+    store: &BrickStore,
+    out_dir: &Path,
+    base: &str,
+    meta: &FieldMeta,
+) -> Result<(), OutputError> {
+    let json_path = out_dir.join(format!("{base}.json"));
+    let invalid = |message: String| OutputError::Invalid { path: json_path.clone(), message };
+    if base.is_empty() || base.contains(['/', '\\']) || base.starts_with('.') {
+        return Err(invalid(format!("export name {base:?} must be a plain file name")));
+    }
+    if field.grid() != store.grid() {
+        return Err(invalid(format!(
+            "field {} covers a {:?} volume, the store a {:?} one",
+            field.name(),
+            field.grid().dims,
+            store.grid().dims
+        )));
+    }
+    if meta.components.len() != field.components() as usize {
+        return Err(invalid(format!(
+            "{} component names given for field {} of {} components",
+            meta.components.len(),
+            field.name(),
+            field.components()
+        )));
+    }
+    let info = FieldInfo {
+        dims: store.grid().dims,
+        components: field.components(),
+        component_names: meta.components.clone(),
+        dtype: "f32".to_string(),
+        endianness: "little".to_string(),
+        layout: LAYOUT.to_string(),
+        voxel_size: store.voxel_size(),
+        quantity: meta.quantity.clone(),
+        units: meta.units.clone(),
+        description: meta.description.clone(),
+        file: format!("{base}.raw"),
+    };
+    write_atomic(&out_dir.join(&info.file), |w| write_raw(field, w))?;
+    write_json_atomic(&json_path, &info)?;
+    let header = nrrd::header(&info);
+    write_atomic(&out_dir.join(format!("{base}.nhdr")), |w| w.write_all(header.as_bytes()))
+}
+
+/// Streams the field voxel row by voxel row (fixed y and z), in the exported layout.
+fn write_raw(field: &Field, w: &mut impl Write) -> std::io::Result<()> {
+    let grid = *field.grid();
+    let [nx, ny, nz] = grid.dims;
+    let c = field.components() as usize;
+    let mut row = Vec::with_capacity(nx as usize * c * 4);
+    for z in 0..nz {
+        for y in 0..ny {
+            row.clear();
+            for bx in 0..grid.bricks[0] {
+                let (brick, local) = grid.locate([bx * BRICK_EDGE, y, z]);
+                let width = grid.brick_extent([bx, y / BRICK_EDGE, z / BRICK_EDGE])[0] as usize;
+                match field.brick(brick) {
+                    Some(data) => {
+                        for x in 0..width {
+                            for ch in 0..c {
+                                row.extend_from_slice(&data[ch * BRICK_VOXELS + local + x].to_le_bytes());
+                            }
+                        }
+                    }
+                    // An unstored (empty) brick reads as zeros.
+                    None => row.resize(row.len() + width * c * 4, 0),
+                }
+            }
+            w.write_all(&row)?;
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,87 @@
+//! [`Image`] and [`render`]: one ray per pixel, rows shared among threads.
+
+use super::camera::RayGenerator;
+use super::march::march_ray;
+use crate::scene::{Camera, Medium};
+use crate::store::{BrickStore, Field};
+use glam::DVec3;
+use std::sync::Mutex;
+
+/// Linear radiance, RGB per pixel, row-major, top row first.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Image {
+    pub width: u32,
+    pub height: u32,
+    pub rgb: Vec<f32>,
+}
+
+impl Image {
+    /// RGB of pixel (x, y), y = 0 the top row.
+    pub fn pixel(&self, x: u32, y: u32) -> [f32; 3] {
+        let i = 3 * (y as usize * self.width as usize + x as usize);
+        [self.rgb[i], self.rgb[i + 1], self.rgb[i + 2]]
+    }
+}
+
+/// Everything a render reads.
+pub struct RenderInputs<'a> {
+    pub store: &'a BrickStore,
+    /// In-scattered source J summed over orders; `Coverage::Occupied`; component
+    /// `d·channels + ch` for storage direction d and channel ch.
+    pub source: &'a Field,
+    /// 1 (grey: channel 0 serves r, g and b) or 3.
+    pub channels: u32,
+    pub storage_dirs: u32,
+    /// Storage direction index for a direction of light travel.
+    pub storage_lookup: &'a (dyn Fn(DVec3) -> usize + Sync),
+    pub medium: &'a Medium,
+    /// Radiance seen where a ray leaves the volume.
+    pub background: [f64; 3],
+    pub camera: &'a Camera,
+}
+
+/// Renders `inputs.camera`'s view. Rows are handed out to `available_parallelism` threads; each pixel
+/// depends only on its own ray, so the image is the same whatever the thread count or timing.
+pub fn render(inputs: &RenderInputs) -> Image {
+    // Caller contracts (the plan builds these together); a mismatch would read zeros, not crash.
+    debug_assert_eq!(inputs.source.grid(), inputs.store.grid());
+    debug_assert!(inputs.source.components() >= inputs.storage_dirs * inputs.channels);
+    let rays = RayGenerator::new(inputs.camera);
+    let (width, height) = (inputs.camera.width.max(1), inputs.camera.height.max(1));
+    let mut rgb = vec![0.0f32; width as usize * height as usize * 3];
+    let rows = Mutex::new(rgb.chunks_mut(width as usize * 3).enumerate());
+    let workers = std::thread::available_parallelism().map_or(1, |n| n.get()).min(height as usize);
+    std::thread::scope(|s| {
+        for _ in 0..workers {
+            s.spawn(|| loop {
+                // A poisoned lock means another worker panicked; the scope re-raises that panic.
+                let next = match rows.lock() {
+                    Ok(mut it) => it.next(),
+                    Err(_) => return,
+                };
+                let Some((y, row)) = next else { return };
+                for (x, px) in row.chunks_mut(3).enumerate() {
+                    let (origin, dir) = rays.ray(x as u32, y as u32);
+                    let l = march_ray(inputs, origin, dir);
+                    for ch in 0..3 {
+                        px[ch] = l[ch] as f32;
+                    }
+                }
+            });
+        }
+    });
+    Image { width, height, rgb }
+}
+
+/// Display value in [0, 1] (before sRGB encoding) of a linear radiance scaled by `exposure`:
+/// Reinhard's `x / (1 + x)`, which keeps highlights from clipping. Negative or NaN maps to 0.
+pub fn tone_map(radiance: f32, exposure: f64) -> f64 {
+    let x = radiance as f64 * exposure;
+    if x.is_nan() || x <= 0.0 {
+        0.0
+    } else if x.is_infinite() {
+        1.0
+    } else {
+        x / (1.0 + x)
+    }
+}

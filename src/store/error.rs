@@ -1,0 +1,45 @@
+//! Errors of the brick store and its importers. Each names the file and what is wrong with it.
+
+use std::path::PathBuf;
+
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    #[error("{}: cannot {action}: {source}", path.display())]
+    Io { path: PathBuf, action: &'static str, source: std::io::Error },
+
+    #[error("{}: invalid brick table: {source}", path.display())]
+    Json { path: PathBuf, source: serde_json::Error },
+
+    #[error("{}: {message}", path.display())]
+    Corrupt { path: PathBuf, message: String },
+
+    #[error("{}: expected {expected} bytes for a {}×{}×{} f32 volume, but the file has {actual} bytes",
+        path.display(), dims[0], dims[1], dims[2])]
+    RawSize { path: PathBuf, dims: [u32; 3], expected: u64, actual: u64 },
+
+    #[error("{}: voxel ({}, {}, {}) has density {value}; densities must be finite and non-negative",
+        path.display(), voxel[0], voxel[1], voxel[2])]
+    BadDensity { path: PathBuf, voxel: [u32; 3], value: f32 },
+
+    #[error("volume dims {}×{}×{} are invalid: {reason}", dims[0], dims[1], dims[2])]
+    BadDims { dims: [u32; 3], reason: &'static str },
+
+    #[error("voxel size {voxel_size} is invalid: it must be a positive number")]
+    BadVoxelSize { voxel_size: f64 },
+
+    #[error("field name {name:?} is invalid: use letters, digits, '_', '-' and '.' only")]
+    BadFieldName { name: String },
+
+    #[error("{}: {message}", path.display())]
+    FieldShape { path: PathBuf, message: String },
+}
+
+impl StoreError {
+    pub(crate) fn io(
+        path: impl Into<PathBuf>,
+        action: &'static str,
+    ) -> impl FnOnce(std::io::Error) -> StoreError {
+        let path = path.into();
+        move |source| StoreError::Io { path, action, source }
+    }
+}

@@ -1,0 +1,228 @@
+//! [`Field`]: a per-voxel quantity with one or more components, in a memory-mapped file beside the
+//! density. Per stored brick: `components × 4096` f32, component-major (`[c][local voxel]`), so one
+//! component of one brick is a contiguous 16 KiB block, as the GPU kernels read it.
+
+use super::grid::{BrickGrid, BRICK_VOXELS};
+use super::table::BrickTable;
+use super::StoreError;
+use memmap2::MmapMut;
+use std::fs::{File, OpenOptions};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// Which bricks a field stores.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Coverage {
+    /// Every brick, in brick-index order.
+    Dense,
+    /// Only the occupied (non-empty) bricks, in slot order; empty bricks read as zero.
+    Occupied,
+}
+
+pub struct Field {
+    name: String,
+    path: PathBuf,
+    components: u32,
+    coverage: Coverage,
+    table: Arc<BrickTable>,
+    map: MmapMut,
+}
+
+impl Field {
+    pub(crate) fn create(
+        dir: &Path,
+        table: Arc<BrickTable>,
+        name: &str,
+        components: u32,
+        coverage: Coverage,
+    ) -> Result<Field, StoreError> {
+        let (path, len) = shape(dir, &table, name, components, coverage)?;
+        let file = OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .open(&path)
+            .map_err(StoreError::io(&path, "create"))?;
+        // On a fresh (truncated) file set_len leaves a hole: zeros that cost no disk until written.
+        file.set_len(len).map_err(StoreError::io(&path, "size"))?;
+        Self::map(path, file, table, name, components, coverage)
+    }
+
+    pub(crate) fn open(
+        dir: &Path,
+        table: Arc<BrickTable>,
+        name: &str,
+        components: u32,
+        coverage: Coverage,
+    ) -> Result<Field, StoreError> {
+        let (path, len) = shape(dir, &table, name, components, coverage)?;
+        let file =
+            OpenOptions::new().read(true).write(true).open(&path).map_err(StoreError::io(&path, "open"))?;
+        let actual = file.metadata().map_err(StoreError::io(&path, "read the size of"))?.len();
+        if actual != len {
+            return Err(StoreError::FieldShape {
+                path,
+                message: format!(
+                    "{actual} bytes, but {components} component(s) over {coverage:?} bricks need {len} bytes"
+                ),
+            });
+        }
+        Self::map(path, file, table, name, components, coverage)
+    }
+
+    fn map(
+        path: PathBuf,
+        file: File,
+        table: Arc<BrickTable>,
+        name: &str,
+        components: u32,
+        coverage: Coverage,
+    ) -> Result<Field, StoreError> {
+        // SAFETY: the field file belongs to the store directory; like every memory-mapped file it must
+        // not be truncated by another process while mapped.
+        let map = unsafe { MmapMut::map_mut(&file) }.map_err(StoreError::io(&path, "memory-map"))?;
+        Ok(Field { name: name.to_string(), path, components, coverage, table, map })
+    }
+
+    pub fn components(&self) -> u32 {
+        self.components
+    }
+
+    pub fn coverage(&self) -> Coverage {
+        self.coverage
+    }
+
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    pub fn grid(&self) -> &BrickGrid {
+        &self.table.grid
+    }
+
+    /// Number of bricks held in the file.
+    pub fn stored_bricks(&self) -> usize {
+        stored_bricks(&self.table, self.coverage)
+    }
+
+    /// f32 values per stored brick (`components × 4096`).
+    pub fn brick_len(&self) -> usize {
+        self.components as usize * BRICK_VOXELS
+    }
+
+    /// Position of `brick` in the file; `None` for an empty brick under `Occupied` or out of range.
+    pub fn stored_index(&self, brick: usize) -> Option<usize> {
+        match self.coverage {
+            Coverage::Dense => (brick < self.table.grid.brick_count()).then_some(brick),
+            Coverage::Occupied => self.table.slot(brick).map(|s| s as usize),
+        }
+    }
+
+    /// The `components × 4096` values of `brick`, component-major.
+    pub fn brick(&self, brick: usize) -> Option<&[f32]> {
+        let i = self.stored_index(brick)?;
+        let n = self.brick_len();
+        self.as_slice().get(i * n..(i + 1) * n)
+    }
+
+    pub fn brick_mut(&mut self, brick: usize) -> Option<&mut [f32]> {
+        let i = self.stored_index(brick)?;
+        let n = self.brick_len();
+        self.as_mut_slice().get_mut(i * n..(i + 1) * n)
+    }
+
+    /// Component `c` at voxel `v`; 0 outside the volume, for `c` out of range and in unstored bricks.
+    pub fn value(&self, v: [u32; 3], c: u32) -> f32 {
+        if !self.grid().contains(v) || c >= self.components {
+            return 0.0;
+        }
+        let (b, l) = self.grid().locate(v);
+        self.brick(b).map_or(0.0, |d| d[c as usize * BRICK_VOXELS + l])
+    }
+
+    pub fn fill_zero(&mut self) {
+        self.as_mut_slice().fill(0.0);
+    }
+
+    /// Writes the mapped pages back to the file (blocking).
+    pub fn flush(&self) -> Result<(), StoreError> {
+        self.map.flush().map_err(StoreError::io(&self.path, "flush"))
+    }
+
+    /// All stored bricks, in storage order.
+    pub fn as_slice(&self) -> &[f32] {
+        // The map is page-aligned; the cast only fails for an empty map (no stored bricks).
+        bytemuck::try_cast_slice(&self.map[..]).unwrap_or(&[])
+    }
+
+    pub fn as_mut_slice(&mut self) -> &mut [f32] {
+        bytemuck::try_cast_slice_mut(&mut self.map[..]).unwrap_or(&mut [])
+    }
+
+    /// Copies every value of `other`, which must have the same components, coverage and brick table.
+    pub fn copy_from(&mut self, other: &Field) -> Result<(), StoreError> {
+        if self.components != other.components
+            || self.coverage != other.coverage
+            || *self.table != *other.table
+        {
+            return Err(StoreError::FieldShape {
+                path: self.path.clone(),
+                message: format!(
+                    "cannot copy from {}: {} component(s) over {:?} bricks of a {:?} volume, this field has {} over {:?} of {:?}",
+                    other.path.display(),
+                    other.components,
+                    other.coverage,
+                    other.table.grid.dims,
+                    self.components,
+                    self.coverage,
+                    self.table.grid.dims
+                ),
+            });
+        }
+        self.as_mut_slice().copy_from_slice(other.as_slice());
+        Ok(())
+    }
+}
+
+fn stored_bricks(table: &BrickTable, coverage: Coverage) -> usize {
+    match coverage {
+        Coverage::Dense => table.grid.brick_count(),
+        Coverage::Occupied => table.occupied(),
+    }
+}
+
+/// The file path of field `name` and its size in bytes, after checking the name and shape.
+fn shape(
+    dir: &Path,
+    table: &BrickTable,
+    name: &str,
+    components: u32,
+    coverage: Coverage,
+) -> Result<(PathBuf, u64), StoreError> {
+    // The name becomes a file name: keep it to a safe alphabet so it cannot escape the directory.
+    let ok = !name.is_empty()
+        && !name.starts_with('.')
+        && name.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.'));
+    if !ok {
+        return Err(StoreError::BadFieldName { name: name.to_string() });
+    }
+    let path = dir.join(format!("{name}.field"));
+    if components == 0 {
+        return Err(StoreError::FieldShape {
+            path,
+            message: "a field needs at least one component".to_string(),
+        });
+    }
+    let len = (stored_bricks(table, coverage) as u64)
+        .checked_mul(components as u64 * BRICK_VOXELS as u64 * 4)
+        .ok_or_else(|| StoreError::FieldShape {
+            path: path.clone(),
+            message: format!("{components} components make the file larger than 2^64 bytes"),
+        })?;
+    Ok((path, len))
+}
