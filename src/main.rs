@@ -165,7 +165,17 @@ fn info(dir: &std::path::Path, json: bool) -> Result<()> {
     }
     for base in ["fluence", "source"] {
         match lpm::output::read_field_json(&dir.join(format!("{base}.json"))) {
-            Ok(info) => println!("{base:<9} {info}"),
+            Ok(info) => println!(
+                "{base:<9} {} ({}): {}×{}×{} voxels × {} f32 [{}], {}",
+                info.file,
+                info.quantity,
+                info.dims[0],
+                info.dims[1],
+                info.dims[2],
+                info.components,
+                info.component_names.join(", "),
+                info.units
+            ),
             Err(e) => println!("{base:<9} missing or unreadable: {e}"),
         }
     }

@@ -70,11 +70,7 @@ impl DeviceBuffers {
 /// Sizes that bound every slice.
 #[derive(Clone, Copy, Debug)]
 struct Capacity {
-    /// Bricks in the largest slice.
-    slice_bricks: u64,
-    /// Rays in the largest face map.
-    rays: u64,
-    /// Directions per dispatch group.
+    /// Directions per dispatch group (the deposit buffer holds one group's segment averages).
     group: u32,
 }
 
@@ -131,7 +127,7 @@ impl<'a> GpuBackend<'a> {
         if group == 0 {
             need("the deposit buffer of one direction", deposit_per_dir)?;
         }
-        let capacity = Capacity { slice_bricks, rays, group };
+        let capacity = Capacity { group };
         let device = MemoryLocation::GpuOnly;
         let storage = vk::BufferUsageFlags::STORAGE_BUFFER
             | vk::BufferUsageFlags::TRANSFER_DST
@@ -428,7 +424,7 @@ impl<'a> GpuBackend<'a> {
         self.submit_and_wait(rec)?;
 
         // Scatter the accumulators back into the store.
-        let buffers = self.buffers()?;
+        let buffers = self.buffers.as_ref().ok_or(SolveError::Internal("device buffers released"))?;
         let staging = buffers.download.mapped().ok_or(SolveError::Internal("download staging is not mapped"))?;
         let fields = &mut *self.fields;
         for (i, &b) in occupied.iter().enumerate() {
