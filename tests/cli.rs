@@ -1,0 +1,187 @@
+//! The `lpm` binary end to end: outputs and their layout, `info`, and clear one-line errors that
+//! leave nothing behind.
+mod common;
+use common::temp_dir;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn lpm(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_lpm"))
+        .args(args)
+        .env("LPM_VALIDATION", "1")
+        .env("LPM_LOG", "warn")
+        .output()
+        .expect("run lpm")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn write_scene(dir: &Path, text: &str) -> PathBuf {
+    let path = dir.join("scene.toml");
+    std::fs::write(&path, text).expect("write scene");
+    path
+}
+
+const SMALL: &str = r#"
+[volume]
+procedural = "sphere"
+dims = [20, 17, 23]
+voxel_size = 0.5
+[medium]
+sigma_t = [1.0, 0.8, 0.6]
+albedo = 0.8
+[[lights]]
+kind = "sky"
+radiance = 1.0
+[[lights]]
+kind = "sun"
+direction = [0.3, 1.0, 0.2]
+irradiance = 2.0
+[solver]
+directions_per_face = 2
+max_orders = 6
+[camera]
+projection = "orthographic"
+position = [5, -20, 6]
+look_at = [5, 4, 6]
+width = 40
+height = 30
+"#;
+
+#[test]
+fn help_explains_every_subcommand_and_option() {
+    let o = lpm(&["--help"]);
+    assert!(o.status.success());
+    let text = String::from_utf8_lossy(&o.stdout);
+    for word in ["solve", "info"] {
+        assert!(text.contains(word), "{text}");
+    }
+    let o = lpm(&["solve", "--help"]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    for word in ["--out", "--backend", "--device", "--validation", "--keep-store", "--no-image"] {
+        assert!(text.contains(word), "{text}");
+    }
+}
+
+#[test]
+fn solve_writes_every_output_with_the_documented_layout() {
+    let dir = temp_dir("cli-solve");
+    let scene = write_scene(&dir, SMALL);
+    let out = dir.join("out");
+    let o = lpm(&["solve", scene.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for f in ["fluence.raw", "fluence.json", "fluence.nhdr", "source.raw", "source.json", "source.nhdr", "image.exr", "image.png", "report.json"] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    // RGB (the medium is not grey), original dims, channel fastest.
+    let raw = std::fs::metadata(out.join("fluence.raw")).unwrap().len();
+    assert_eq!(raw, 20 * 17 * 23 * 3 * 4);
+    let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("fluence.json")).unwrap()).unwrap();
+    assert_eq!(json["dims"], serde_json::json!([20, 17, 23]));
+    assert_eq!(json["components"], 3);
+    assert_eq!(json["voxel_size"], 0.5);
+    let nhdr = std::fs::read_to_string(out.join("fluence.nhdr")).unwrap();
+    assert!(nhdr.starts_with("NRRD") && nhdr.contains("sizes: 3 20 17 23"), "{nhdr}");
+    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["plan"]["channels"], 3);
+    assert_eq!(report["plan"]["propagation_directions"], 24);
+    assert!(report["plan"]["bricks_total"].as_u64().unwrap() > 0);
+    assert!(report["orders"].as_u64().unwrap() >= 1);
+    assert!(report["final_residual"].is_number());
+    assert!(report["peak_device_bytes"].as_u64().unwrap() > 0);
+    assert!(report["device"].as_str().unwrap().len() > 3);
+    assert!(report["seconds"].as_array().unwrap().len() >= 4);
+    // No temporary files or store left behind.
+    let leftovers: Vec<_> = std::fs::read_dir(&out).unwrap().filter_map(|e| e.ok()).map(|e| e.file_name().to_string_lossy().into_owned()).filter(|n| n.contains("tmp") || n.starts_with('.')).collect();
+    assert!(leftovers.is_empty(), "{leftovers:?}");
+
+    let o = lpm(&["info", out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.contains("3 channel(s)") && text.contains("fluence.raw") && text.contains("residual"), "{text}");
+}
+
+#[test]
+fn cpu_backend_writes_the_same_layout() {
+    let dir = temp_dir("cli-cpu");
+    let scene = write_scene(&dir, SMALL);
+    let out = dir.join("out");
+    let o = lpm(&["solve", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--backend", "cpu", "--no-image"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(std::fs::metadata(out.join("fluence.raw")).unwrap().len(), 20 * 17 * 23 * 3 * 4);
+    assert!(!out.join("image.png").exists());
+}
+
+/// A failing solve: exit status 1, one line on stderr with every `needle`, and nothing written.
+fn assert_fails_cleanly(name: &str, scene_text: &str, extra: impl FnOnce(&Path), needles: &[&str]) {
+    let dir = temp_dir(name);
+    extra(&dir);
+    let scene = write_scene(&dir, scene_text);
+    let out = dir.join("out");
+    let o = lpm(&["solve", scene.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(1));
+    let err = stderr(&o);
+    let last = err.lines().last().unwrap_or("");
+    assert!(last.starts_with("lpm: "), "{err}");
+    for n in needles {
+        assert!(last.contains(n), "{n:?} not in {last:?}");
+    }
+    assert!(!out.exists(), "output directory left behind");
+}
+
+#[test]
+fn bad_scene_is_rejected_with_file_key_and_problem() {
+    let text = SMALL.replace("albedo = 0.8", "albedo = 1.5");
+    assert_fails_cleanly("cli-bad-albedo", &text, |_| {}, &["scene.toml", "medium.albedo", "1.5"]);
+    let text = SMALL.replace("sigma_t = [1.0, 0.8, 0.6]", "sigma_t = nan");
+    assert_fails_cleanly("cli-nan", &text, |_| {}, &["scene.toml", "medium.sigma_t"]);
+    let text = SMALL.replace("voxel_size = 0.5", "voxel_size = 0.5\ncolour = 1");
+    assert_fails_cleanly("cli-unknown", &text, |_| {}, &["scene.toml", "colour"]);
+}
+
+const RAW: &str = r#"
+[volume]
+raw = "density.raw"
+dims = [5, 4, 3]
+[medium]
+sigma_t = 1.0
+albedo = 0.5
+[[lights]]
+kind = "sky"
+radiance = 1.0
+"#;
+
+fn write_raw(dir: &Path, values: &[f32]) {
+    let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+    std::fs::write(dir.join("density.raw"), bytes).unwrap();
+}
+
+#[test]
+fn bad_raw_files_are_rejected_and_nothing_is_written() {
+    // A NaN at voxel (2, 1, 0): index 2 + 5·1.
+    let mut values = vec![0.5f32; 60];
+    values[7] = f32::NAN;
+    assert_fails_cleanly("cli-raw-nan", RAW, |d| write_raw(d, &values), &["density.raw", "(2, 1, 0)"]);
+    let mut values = vec![0.5f32; 60];
+    values[59] = -1.0;
+    assert_fails_cleanly("cli-raw-negative", RAW, |d| write_raw(d, &values), &["density.raw", "-1"]);
+    assert_fails_cleanly("cli-raw-truncated", RAW, |d| write_raw(d, &[0.5; 59]), &["density.raw", "240"]);
+    assert_fails_cleanly("cli-raw-missing", RAW, |_| {}, &["density.raw"]);
+}
+
+#[test]
+fn a_failed_solve_leaves_earlier_outputs_untouched() {
+    let dir = temp_dir("cli-keep");
+    let scene = write_scene(&dir, SMALL);
+    let out = dir.join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::write(out.join("fluence.raw"), b"earlier").unwrap();
+    let bad = write_scene(&dir, &SMALL.replace("dims = [20, 17, 23]", "dims = [20, 0, 23]"));
+    let o = lpm(&["solve", bad.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(1));
+    assert_eq!(std::fs::read(out.join("fluence.raw")).unwrap(), b"earlier");
+    assert_eq!(std::fs::read_dir(&out).unwrap().count(), 1);
+    let _ = scene;
+}
