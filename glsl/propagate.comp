@@ -42,32 +42,37 @@ void main() {
     }
 
     uint planes = pc.t1 - pc.t0;
+    // The ray's column, tracked incrementally: the offset moves by at most one column per plane,
+    // so stepping out of [0, n) is exactly a wrap (a new ray). Divisions only once per slice.
+    uint base = di * pc.na;
+    ivec2 prev_o = offsets[base + (pc.t0 == 0u ? 0u : pc.t0 - 1u)];
+    int vb = wrap_mod(int(p) + prev_o.x, int(pc.nb));
+    int vc = wrap_mod(int(q) + prev_o.y, int(pc.nc));
     for (uint t = pc.t0; t < pc.t1; ++t) {
-        ivec2 o = offsets[di * pc.na + t];
-        int ub = int(p) + o.x;
-        int uc = int(q) + o.y;
-        ivec2 wrap = ivec2(floor_div(ub, int(pc.nb)), floor_div(uc, int(pc.nc)));
+        ivec2 o = offsets[base + t];
         bool born = (t == 0u);
         if (t > 0u) {
-            ivec2 po = offsets[di * pc.na + t - 1u];
-            ivec2 prev = ivec2(floor_div(int(p) + po.x, int(pc.nb)), floor_div(int(q) + po.y, int(pc.nc)));
-            if (prev != wrap) {
+            vb += o.x - prev_o.x;
+            vc += o.y - prev_o.y;
+            bool wrapped = false;
+            if (vb >= int(pc.nb)) { vb -= int(pc.nb); wrapped = true; } else if (vb < 0) { vb += int(pc.nb); wrapped = true; }
+            if (vc >= int(pc.nc)) { vc -= int(pc.nc); wrapped = true; } else if (vc < 0) { vc += int(pc.nc); wrapped = true; }
+            if (wrapped) {
                 // The ray left through a side: a new one enters from the opposite side.
                 tout += l;
                 born = true;
             }
         }
+        prev_o = o;
         if (born) {
             l = birth;
             tin += birth;
         }
-        uint vb = uint(wrap_mod(ub, int(pc.nb)));
-        uint vc = uint(wrap_mod(uc, int(pc.nc)));
-        uvec3 v = voxel_of(t, vb, vc);
-        int slot = medium_slot[slice_brick(vb, vc)];
+        uvec3 v = voxel_of(t, uint(vb), uint(vc));
+        int slot = medium_slot[slice_brick(uint(vb), uint(vc))];
         uint local = local_index(v);
         float rho = slot >= 0 ? density[uint(slot) * BRICK_VOXELS + local] : 0.0;
-        uint cell = ((t - pc.t0) * pc.nc + vc) * pc.nb + vb;
+        uint cell = ((t - pc.t0) * pc.nc + uint(vc)) * pc.nb + uint(vb);
         for (uint ch = 0u; ch < C; ++ch) {
             float j = 0.0;
             if (slot >= 0 && (pc.flags & FLAG_GAIN) != 0u) {

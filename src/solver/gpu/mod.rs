@@ -147,7 +147,8 @@ impl<'a> GpuBackend<'a> {
         for (name, size) in sizes {
             made.push(ctx.create_buffer(name, size, storage, device)?);
         }
-        let upload_bytes = slice_bricks * 4 + slice_bricks * BRICK_BYTES * (1 + 2 * comps + c);
+        // Same layout as `slice` fills: the slot table, padded to 16 bytes, then the brick data.
+        let upload_bytes = (slice_bricks * 4).next_multiple_of(16) + slice_bricks * BRICK_BYTES * (1 + 2 * comps + c);
         let download_bytes = (slice_bricks * BRICK_BYTES * (comps + c)).max(2 * per_face * c * rays * 4);
         let upload = ctx.create_buffer(
             "upload staging",
