@@ -36,6 +36,7 @@
 pub mod job;
 pub mod output;
 pub mod quadrature;
+pub mod reference;
 pub mod render;
 pub mod scene;
 pub mod solver;

@@ -1,0 +1,145 @@
+//! Camera images by path tracing with delta tracking and next-event estimation.
+
+use super::fluence::{ChannelSetup, RR_WEIGHT};
+use super::grid::{box_interval, Grid};
+use super::phase::{hg_eval, sample_hg};
+use super::rng::Rng;
+use super::tracking::{exit_distance, free_flight, transmittance};
+use crate::scene::{Camera, Projection};
+use glam::DVec3;
+
+/// A camera reduced to what ray generation needs, in world units.
+#[derive(Clone, Debug)]
+pub struct View {
+    pub projection: Projection,
+    pub position: DVec3,
+    pub forward: DVec3,
+    pub right: DVec3,
+    pub up: DVec3,
+    pub width: u32,
+    pub height: u32,
+}
+
+impl View {
+    /// The scene's camera, or the default view: a 128×128 pinhole (40° vertical field of view)
+    /// looking at the volume's centre from 30° above the horizon, azimuth 45° between +x and +z, +y
+    /// up, at 1.6 × the volume's diagonal. (Pass an explicit camera to frame the view exactly like the
+    /// renderer.)
+    pub fn new(camera: Option<&Camera>, extent_world: DVec3) -> View {
+        let default;
+        let cam = match camera {
+            Some(c) => c,
+            None => {
+                let c = 0.5 * extent_world;
+                let (el, az) = (30f64.to_radians(), 45f64.to_radians());
+                let to_eye = DVec3::new(el.cos() * az.sin(), el.sin(), el.cos() * az.cos());
+                default = Camera {
+                    projection: Projection::Pinhole { fov_y_degrees: 40.0 },
+                    position: c + to_eye * (1.6 * extent_world.length()),
+                    look_at: c,
+                    up: DVec3::Y,
+                    width: 128,
+                    height: 128,
+                };
+                &default
+            }
+        };
+        let mut forward = (cam.look_at - cam.position).normalize_or_zero();
+        if forward == DVec3::ZERO {
+            forward = DVec3::NEG_Z;
+        }
+        let mut right = forward.cross(cam.up).normalize_or_zero();
+        if right == DVec3::ZERO {
+            // `up` parallel to the view direction: any perpendicular will do.
+            right = forward.any_orthonormal_vector();
+        }
+        let up = right.cross(forward);
+        View {
+            projection: cam.projection,
+            position: cam.position,
+            forward,
+            right,
+            up,
+            width: cam.width.max(1),
+            height: cam.height.max(1),
+        }
+    }
+
+    /// The world-space ray through image point (x, y) in pixels (0,0 = top-left corner of the image).
+    pub fn ray(&self, x: f64, y: f64) -> (DVec3, DVec3) {
+        let aspect = self.width as f64 / self.height as f64;
+        let sx = 2.0 * x / self.width as f64 - 1.0;
+        let sy = 1.0 - 2.0 * y / self.height as f64;
+        match self.projection {
+            Projection::Pinhole { fov_y_degrees } => {
+                let t = (0.5 * fov_y_degrees.to_radians()).tan();
+                let d = (self.forward + self.right * (sx * t * aspect) + self.up * (sy * t)).normalize();
+                (self.position, d)
+            }
+            Projection::Orthographic { height } => {
+                let half = 0.5 * height;
+                let o = self.position + self.right * (sx * half * aspect) + self.up * (sy * half);
+                (o, self.forward)
+            }
+        }
+    }
+}
+
+/// One radiance sample along the ray o + t·d (grid units) for one channel.
+pub fn radiance(grid: &Grid, s: &ChannelSetup, o: DVec3, d: DVec3, rng: &mut Rng) -> f64 {
+    let extent = grid.extent();
+    let mut l = 0.0;
+    let mut beta = 1.0f64;
+    let mut p;
+    let mut d = d;
+    // Bring the camera ray to the box.
+    match box_interval(o, d, extent) {
+        None => return s.sky,
+        Some((t0, _)) => p = o + d * t0.max(0.0),
+    }
+    let mut scattered = false;
+    loop {
+        let t_exit = exit_distance(grid, p, d);
+        let hit = if t_exit > 0.0 { free_flight(grid, s.sigma, p, d, t_exit, rng) } else { None };
+        let Some(t) = hit else {
+            // Escaped. After a scattering event the sky was already counted by next-event
+            // estimation (its direction sampled from the phase function), so only the primary ray
+            // sees the sky here; the sun is a delta and never seen directly.
+            if !scattered {
+                l += beta * s.sky;
+            }
+            break;
+        };
+        p += d * t;
+        // Collision estimator: at a real collision (pdf σt·T) the source term σa·Le/σt = (1 − α)·Le.
+        l += beta * (1.0 - s.albedo) * s.le;
+        beta *= s.albedo;
+        if !(beta > 0.0) {
+            break;
+        }
+        // Next-event estimation to each sun: light travelling along −sun scatters into −d, so the
+        // scattering cosine is (−sun)·(−d) = sun·d.
+        for &(sun, e) in &s.suns {
+            let tr = transmittance(grid, s.sigma, p, sun, exit_distance(grid, p, sun), rng);
+            if tr > 0.0 {
+                l += beta * tr * e * hg_eval(s.g, sun.dot(d));
+            }
+        }
+        // Next-event estimation to the sky along a phase-sampled direction (phase / pdf = 1).
+        if s.sky > 0.0 {
+            let w = sample_hg(s.g, rng.uniform(), rng.uniform(), d);
+            let tr = transmittance(grid, s.sigma, p, w, exit_distance(grid, p, w), rng);
+            l += beta * tr * s.sky;
+        }
+        scattered = true;
+        if beta < RR_WEIGHT {
+            if rng.uniform() * RR_WEIGHT < beta {
+                beta = RR_WEIGHT;
+            } else {
+                break;
+            }
+        }
+        d = sample_hg(s.g, rng.uniform(), rng.uniform(), d);
+    }
+    l
+}
