@@ -73,7 +73,7 @@ fn shipped_scenes_say_what_the_brief_says() {
     let s = |name: &str| Scene::load(&scenes_dir().join(name)).unwrap_or_else(|e| panic!("{e}"));
 
     let demo = s("demo_cloud.toml");
-    assert_eq!(demo.volume.dims, [96; 3]);
+    assert_eq!(demo.volume.dims, [64; 3]);
     assert!(matches!(
         demo.volume.source,
         VolumeSource::Procedural {
@@ -81,7 +81,7 @@ fn shipped_scenes_say_what_the_brief_says() {
             ..
         }
     ));
-    assert_eq!(demo.solver.directions_per_face, 5);
+    assert_eq!(demo.solver.directions_per_face, 4);
     assert!(demo.lights.iter().any(|l| matches!(l, Light::Sun { .. })));
     assert!(demo.lights.iter().any(|l| matches!(l, Light::Sky { .. })));
     assert!(matches!(
