@@ -32,22 +32,27 @@ void main() {
     float rho = slot >= 0 ? density[uint(slot) * BRICK_VOXELS + local] : 0.0;
     uint cell = (tt * pc.nc + vc) * pc.nb + vb;
 
+    // Each direction's contribution is added on its own, in direction order: whatever grouping of
+    // directions or planes the memory budget chooses, every voxel sees the same sequence of f32
+    // additions, so results are bitwise identical at any budget.
     for (uint ch = 0u; ch < C; ++ch) {
-        float phi = 0.0;
+        uint fi = (brick * C + ch) * BRICK_VOXELS + local;
+        float phi = fluence[fi];
         for (uint di = 0u; di < pc.dir_count; ++di) {
             phi += dirs[pc.dir_base + di].fluence_weight * deposit[(di * C + ch) * planes * rays + cell];
         }
-        fluence[(brick * C + ch) * BRICK_VOXELS + local] += phi;
+        fluence[fi] = phi;
 
         float sigma_s = rho * pc.sigma_s[ch];
         if (slot >= 0 && sigma_s > 0.0) {
             uint comps = pc.storage * C;
             for (uint d = 0u; d < pc.storage; ++d) {
-                float acc = 0.0;
+                uint ji = (uint(slot) * comps + d * C + ch) * BRICK_VOXELS + local;
+                float j = j_next[ji];
                 for (uint di = 0u; di < pc.dir_count; ++di) {
-                    acc += rows[(pc.dir_base + di) * pc.storage + d] * deposit[(di * C + ch) * planes * rays + cell];
+                    j += sigma_s * (rows[(pc.dir_base + di) * pc.storage + d] * deposit[(di * C + ch) * planes * rays + cell]);
                 }
-                j_next[(uint(slot) * comps + d * C + ch) * BRICK_VOXELS + local] += sigma_s * acc;
+                j_next[ji] = j;
             }
         }
     }

@@ -16,7 +16,7 @@ layout(push_constant) uniform Push {
     uint storage;       // storage directions of the source
     uint flags;         // FLAG_*
     uint dir_base;      // first direction of this dispatch within the sweep's tables
-    uint pad1;
+    uint ray_base;      // index of the dispatch's first direction in the pass's ray buffers
     uint pad2;
     vec4 sigma_t;       // extinction per unit density, rgb
     vec4 sigma_s;       // scattering per unit density, rgb

@@ -24,7 +24,8 @@ void main() {
     uint q = gl_GlobalInvocationID.y;
     uint local_dir = gl_GlobalInvocationID.z;
     if (p >= pc.nb || q >= pc.nc || local_dir >= pc.dir_count) return;
-    uint di = pc.dir_base + local_dir;   // index into the sweep's tables and ray buffers
+    uint di = pc.dir_base + local_dir;   // index into the sweep's tables
+    uint ri = pc.ray_base + local_dir;   // index into the pass's ray buffers
 
     uint rays = pc.nb * pc.nc;
     uint ray = q * pc.nb + p;
@@ -35,7 +36,7 @@ void main() {
 
     vec3 l = vec3(0.0), tin = vec3(0.0), tout = vec3(0.0);
     for (uint ch = 0u; ch < C; ++ch) {
-        uint r = (di * C + ch) * rays + ray;
+        uint r = (ri * C + ch) * rays + ray;
         l[ch] = ray_l[r];
         tin[ch] = ray_in[r];
         tout[ch] = ray_out[r];
@@ -93,7 +94,7 @@ void main() {
         l = vec3(0.0);
     }
     for (uint ch = 0u; ch < C; ++ch) {
-        uint r = (di * C + ch) * rays + ray;
+        uint r = (ri * C + ch) * rays + ray;
         ray_l[r] = l[ch];
         ray_in[r] = tin[ch];
         ray_out[r] = tout[ch];

@@ -37,6 +37,8 @@ pub struct SolveJob {
     pub keep_store: bool,
     /// Skip rendering the image.
     pub no_image: bool,
+    /// Device memory budget in bytes; overrides the scene's `solver.device_memory_budget`.
+    pub device_memory_budget: Option<u64>,
 }
 
 /// `report.json`.
@@ -57,6 +59,8 @@ pub struct Report {
     /// Wall-clock seconds per phase, in order.
     pub seconds: Vec<Phase>,
     pub peak_device_bytes: u64,
+    /// The device memory plan: budget, planned bytes and how the sweeps were cut (GPU only).
+    pub device_memory: Option<solver::gpu::budget::MemoryPlan>,
     pub outputs: Vec<String>,
 }
 
@@ -68,7 +72,10 @@ pub struct Phase {
 
 /// Runs the job; `progress(order, residual)` is called after each order.
 pub fn run(job: &SolveJob, progress: impl FnMut(u32, f64)) -> Result<Report, JobError> {
-    let scene = Scene::load(&job.scene)?;
+    let mut scene = Scene::load(&job.scene)?;
+    if job.device_memory_budget.is_some() {
+        scene.solver.device_memory_budget = job.device_memory_budget;
+    }
     let created_out = !job.out.exists();
     std::fs::create_dir_all(&job.out).map_err(|source| JobError::OutputDir { path: job.out.clone(), source })?;
     let work = job.out.join(format!(".store.tmp-{}", std::process::id()));
@@ -95,7 +102,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
     let store = solver::build_store(scene, work)?;
     let store_seconds = t.elapsed().as_secs_f64();
     let (run, fields) = solver::solve(scene, &store, job.backend, job.vk.clone(), progress)?;
-    let SolveRun { plan, outcome, device, peak_device_bytes, mut phases } = run;
+    let SolveRun { plan, outcome, device, peak_device_bytes, memory, mut phases } = run;
     phases.insert(0, ("store".to_string(), store_seconds));
 
     let t = Instant::now();
@@ -190,6 +197,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
         energy: outcome.energy,
         seconds: phases.into_iter().map(|(phase, seconds)| Phase { phase, seconds }).collect(),
         peak_device_bytes,
+        device_memory: memory,
         outputs,
     };
     output::write_json_atomic(&job.out.join("report.json"), &report)?;

@@ -17,8 +17,10 @@
 //! | [`vk`] | the thin Vulkan layer: instance, device, queues, buffers, pipelines, timeline sync |
 //! | [`solver`] | the plan (what a scene needs), the discretisation shared by both backends, the CPU twin (f64), the GPU driver, the order loop |
 //! | [`render`] | the camera ray-march over the solved source, EXR and PNG writers |
+//! | [`reference`] | the independent Monte-Carlo reference (shares only the scene with the solver) |
+//! | [`job`] | a whole `lpm solve`: scene → store → solve → exported fields, image, report |
 //!
-//! The binary (`src/main.rs`) is a thin CLI over [`solver::solve`], [`render`] and the store readers.
+//! The binary (`src/main.rs`) is a thin CLI over [`job`], [`reference`] and the output readers.
 //!
 //! ## The discretisation in one paragraph
 //!

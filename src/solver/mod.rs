@@ -36,6 +36,8 @@ pub enum SolveError {
     TooLargeForCpu { bytes: u64 },
     #[error("{what} needs {bytes} bytes in one buffer, but this device binds at most {limit} bytes per storage buffer")]
     DeviceLimit { what: String, bytes: u64, limit: u64 },
+    #[error("the device memory budget of {budget} bytes is too small: the smallest unit (one slice of bricks, one direction, one plane) needs {needed} bytes; raise --device-memory-budget to at least {needed}")]
+    BudgetTooSmall { budget: u64, needed: u64 },
     #[error("Vulkan validation reported {} error(s); the first: {}", .0.len(), .0.first().map(String::as_str).unwrap_or(""))]
     Validation(Vec<String>),
     #[error("internal error: {0}")]
@@ -58,6 +60,8 @@ pub struct SolveRun {
     pub device: String,
     /// Peak device memory allocated by the solver's allocator (0 for the CPU backend).
     pub peak_device_bytes: u64,
+    /// How the sweeps were cut to fit the device memory budget (GPU backend only).
+    pub memory: Option<gpu::budget::MemoryPlan>,
     /// Seconds spent per phase, in order.
     pub phases: Vec<(String, f64)>,
 }
@@ -100,6 +104,7 @@ pub fn solve(
     for reason in &plan.reasons {
         tracing::info!("plan: {reason}");
     }
+    let mut memory = None;
     let (outcome, device, peak) = match backend {
         BackendKind::Cpu => {
             let t = Instant::now();
@@ -115,7 +120,9 @@ pub fn solve(
             let t = Instant::now();
             let ctx = Context::new(vk_options)?;
             let device = format!("{} ({})", ctx.device_name(), ctx.driver_description());
-            let mut gpu = gpu::GpuBackend::new(ctx.clone(), &plan, store, &mut fields)?;
+            let mut gpu =
+                gpu::GpuBackend::new(ctx.clone(), &plan, store, &mut fields, scene.solver.device_memory_budget)?;
+            memory = Some(gpu.memory_plan());
             phases.push(("setup".to_string(), t.elapsed().as_secs_f64()));
             let t = Instant::now();
             let outcome = orders::run_orders(&plan, &mut gpu, &mut progress)?;
@@ -133,5 +140,5 @@ pub fn solve(
     };
     fields.fluence.flush()?;
     fields.source_total.flush()?;
-    Ok((SolveRun { plan, outcome, device, peak_device_bytes: peak, phases }, fields))
+    Ok((SolveRun { plan, outcome, device, peak_device_bytes: peak, memory, phases }, fields))
 }

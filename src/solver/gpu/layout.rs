@@ -28,8 +28,10 @@ pub struct SweepPush {
     pub channels: u32,
     pub storage: u32,
     pub flags: u32,
+    /// First direction of the dispatch in the sweep's tables.
     pub dir_base: u32,
-    pub pad1: u32,
+    /// First direction of the dispatch in the pass's ray buffers.
+    pub ray_base: u32,
     pub pad2: u32,
     pub sigma_t: [f32; 4],
     pub sigma_s: [f32; 4],

@@ -12,6 +12,7 @@
 //! This driver runs the steps of a slice one after another on the compute queue, waiting on a
 //! timeline value before touching the staging memory again; the pipelined form overlaps them.
 
+pub mod budget;
 mod layout;
 mod tables;
 
@@ -27,6 +28,7 @@ use ash::vk;
 use gpu_allocator::MemoryLocation;
 use layout::*;
 use std::sync::Arc;
+use budget::MemoryPlan;
 use tables::SweepTables;
 
 const PROPAGATE_SPV: &[u8] = include_bytes!("../../../spirv/propagate.spv");
@@ -67,13 +69,6 @@ impl DeviceBuffers {
     }
 }
 
-/// Sizes that bound every slice.
-#[derive(Clone, Copy, Debug)]
-struct Capacity {
-    /// Directions per dispatch group (the deposit buffer holds one group's segment averages).
-    group: u32,
-}
-
 pub struct GpuBackend<'a> {
     ctx: Arc<Context>,
     plan: &'a Plan,
@@ -86,79 +81,63 @@ pub struct GpuBackend<'a> {
     buffers: Option<DeviceBuffers>,
     face_tables: Vec<SweepTables>,
     beam_tables: Vec<SweepTables>,
-    capacity: Capacity,
+    memory: MemoryPlan,
 }
 
 impl<'a> GpuBackend<'a> {
-    /// Prepares the device for `plan`; the solve accumulates into `fields` (in `store`).
+    /// Prepares the device for `plan` within `budget` bytes of device memory (None: the default
+    /// fraction of the device heap); the solve accumulates into `fields` (in `store`).
     pub fn new(
         ctx: Arc<Context>,
         plan: &'a Plan,
         store: &'a BrickStore,
         fields: &'a mut StoreFields,
+        budget: Option<u64>,
     ) -> Result<Self, SolveError> {
         let limits = ctx.limits();
-        let grid = *store.grid();
+        let budget = budget.unwrap_or_else(|| budget::default_budget(&limits));
+        let memory = budget::plan_memory(plan, budget::slice_extent(plan, store), &limits, budget)?;
         let c = plan.channels as u64;
         let comps = plan.source_components() as u64;
-        let per_face = plan.propagation.per_face() as u64;
-        let slice_bricks = (0..6)
-            .map(|f| {
-                let face = crate::quadrature::FACES[f];
-                grid.bricks[face.lateral[0]] as u64 * grid.bricks[face.lateral[1]] as u64
-            })
-            .max()
-            .unwrap_or(1);
-        let rays = (0..6).map(|f| FaceSweep::new(f, plan.dims).rays() as u64).max().unwrap_or(1);
-        let max_range = limits.max_storage_buffer_range;
-        let deposit_per_dir = c * BRICK_EDGE as u64 * rays * 4;
-        let group = (max_range / deposit_per_dir).min(per_face) as u32;
-        let need = |what: &str, bytes: u64| -> Result<u64, SolveError> {
-            if bytes > max_range {
-                Err(SolveError::DeviceLimit {
-                    what: what.to_string(),
-                    bytes,
-                    limit: max_range,
-                })
-            } else {
-                Ok(bytes.max(4))
-            }
-        };
-        if group == 0 {
-            need("the deposit buffer of one direction", deposit_per_dir)?;
-        }
-        let capacity = Capacity { group };
+        let extent = memory.slice;
+        let pass = memory.directions_per_pass as u64;
+        let ray_bytes = pass * c * extent.rays * 4;
         let device = MemoryLocation::GpuOnly;
         let storage = vk::BufferUsageFlags::STORAGE_BUFFER
             | vk::BufferUsageFlags::TRANSFER_DST
             | vk::BufferUsageFlags::TRANSFER_SRC;
         let sizes = [
-            ("slot table", need("the slice slot table", slice_bricks * 4)?),
-            ("density", need("the slice density", slice_bricks * BRICK_BYTES)?),
-            ("source prev", need("the slice source", slice_bricks * comps * BRICK_BYTES)?),
-            ("source next", need("the slice source", slice_bricks * comps * BRICK_BYTES)?),
-            ("fluence", need("the slice fluence", slice_bricks * c * BRICK_BYTES)?),
-            ("rays", need("the ray state", per_face * c * rays * 4)?),
-            ("rays in", need("the ray tallies", per_face * c * rays * 4)?),
-            ("rays out", need("the ray tallies", per_face * c * rays * 4)?),
-            ("deposit", need("the deposit buffer", group as u64 * deposit_per_dir)?),
+            ("slot table", extent.bricks * 4),
+            ("density", extent.occupied * BRICK_BYTES),
+            ("source prev", extent.occupied * comps * BRICK_BYTES),
+            ("source next", extent.occupied * comps * BRICK_BYTES),
+            ("fluence", extent.bricks * c * BRICK_BYTES),
+            ("rays", ray_bytes),
+            ("rays in", ray_bytes),
+            ("rays out", ray_bytes),
+            ("deposit", memory.deposit_bytes),
         ];
         let mut made = Vec::new();
         for (name, size) in sizes {
-            made.push(ctx.create_buffer(name, size, storage, device)?);
+            match ctx.create_buffer(name, size.max(4), storage, device) {
+                Ok(b) => made.push(b),
+                Err(e) => {
+                    made.into_iter().for_each(|b| ctx.destroy_buffer(b));
+                    return Err(e.into());
+                }
+            }
         }
-        // Same layout as `slice` fills: the slot table, padded to 16 bytes, then the brick data.
-        let upload_bytes = (slice_bricks * 4).next_multiple_of(16) + slice_bricks * BRICK_BYTES * (1 + 2 * comps + c);
-        let download_bytes = (slice_bricks * BRICK_BYTES * (comps + c)).max(2 * per_face * c * rays * 4);
+        let upload_bytes = memory.slice_bytes;
+        let download_bytes = (extent.occupied * comps * BRICK_BYTES + extent.bricks * c * BRICK_BYTES).max(2 * ray_bytes);
         let upload = ctx.create_buffer(
             "upload staging",
-            upload_bytes,
+            upload_bytes.max(4),
             vk::BufferUsageFlags::TRANSFER_SRC,
             MemoryLocation::CpuToGpu,
         )?;
         let download = ctx.create_buffer(
             "download staging",
-            download_bytes,
+            download_bytes.max(4),
             vk::BufferUsageFlags::TRANSFER_DST,
             MemoryLocation::GpuToCpu,
         )?;
@@ -192,7 +171,7 @@ impl<'a> GpuBackend<'a> {
             buffers: Some(buffers),
             face_tables: Vec::new(),
             beam_tables: Vec::new(),
-            capacity,
+            memory,
         };
         for face in &plan.faces {
             let t = SweepTables::upload(&mut backend, face)?;
@@ -204,12 +183,19 @@ impl<'a> GpuBackend<'a> {
         }
         tracing::info!(
             device = backend.ctx.device_name(),
-            slice_bricks,
-            rays,
-            group,
+            budget = memory.budget_bytes,
+            planned = memory.planned_bytes,
+            directions_per_pass = memory.directions_per_pass,
+            directions_per_dispatch = memory.directions_per_dispatch,
+            planes_per_dispatch = memory.planes_per_dispatch,
             "GPU backend ready"
         );
         Ok(backend)
+    }
+
+    /// How the sweeps were cut to fit the device memory budget.
+    pub fn memory_plan(&self) -> MemoryPlan {
+        self.memory
     }
 
     /// The Vulkan context the backend runs on.
@@ -236,18 +222,22 @@ impl<'a> GpuBackend<'a> {
         Ok(())
     }
 
-    /// One sweep: every slice of the face, in sweep order.
+    /// One sweep of a face (or a beam): its directions in passes of at most `directions_per_pass`,
+    /// each pass streaming every slice of the face in sweep order.
     fn sweep(&mut self, tables: &SweepTables, dirs: &[SweepDirection], flags: u32) -> Result<Tallies, SolveError> {
         let plan = self.plan;
-        let face = dirs[0].face;
-        let sweep = FaceSweep::new(face, plan.dims);
+        let sweep = FaceSweep::new(dirs[0].face, plan.dims);
         let slices = sweep.slices(BRICK_EDGE);
-        let count = slices.len();
-        for (i, slice) in slices.iter().enumerate() {
-            let last = i + 1 == count;
-            self.slice(tables, &sweep, slice, dirs.len() as u32, flags, i == 0, last)?;
+        let pass = self.memory.directions_per_pass as usize;
+        let mut tallies = Tallies::default();
+        for first in (0..dirs.len()).step_by(pass) {
+            let pass_dirs = first as u32..(first + pass).min(dirs.len()) as u32;
+            for (i, slice) in slices.iter().enumerate() {
+                self.slice(tables, &sweep, slice, pass_dirs.clone(), flags, i == 0, i + 1 == slices.len())?;
+            }
+            tallies.add(&self.read_tallies(&sweep, &dirs[pass_dirs.start as usize..pass_dirs.end as usize])?);
         }
-        self.read_tallies(&sweep, dirs)
+        Ok(tallies)
     }
 
     #[allow(clippy::too_many_arguments)]
@@ -256,7 +246,7 @@ impl<'a> GpuBackend<'a> {
         tables: &SweepTables,
         sweep: &FaceSweep,
         slice: &SliceRange,
-        dir_count: u32,
+        pass_dirs: std::ops::Range<u32>,
         flags: u32,
         first: bool,
         last: bool,
@@ -366,53 +356,62 @@ impl<'a> GpuBackend<'a> {
             dir_count: 0,
             channels: plan.channels,
             storage: plan.storage.len() as u32,
-            flags: flags | if last { FLAG_LAST_SLICE } else { 0 },
+            flags,
             dir_base: 0,
-            pad1: 0,
+            ray_base: 0,
             pad2: 0,
             sigma_t: st,
             sigma_s: ss,
             emission: emit,
         };
-        let planes = slice.t1 - slice.t0;
-        let group = self.capacity.group;
-        let mut base = 0;
-        while base < dir_count {
-            let n = group.min(dir_count - base);
+        let group = self.memory.directions_per_dispatch;
+        let chunk = self.memory.planes_per_dispatch;
+        let mut base = pass_dirs.start;
+        while base < pass_dirs.end {
+            let n = group.min(pass_dirs.end - base);
             push.dir_base = base;
+            push.ray_base = base - pass_dirs.start;
             push.dir_count = n;
-            rec.dispatch(
-                propagate,
-                &[
-                    BufferRange::from(&tables.directions),
-                    BufferRange::from(&tables.offsets),
-                    BufferRange::from(&buffers.slot_table),
-                    BufferRange::from(&buffers.density),
-                    BufferRange::from(&buffers.source_prev),
-                    BufferRange::from(&buffers.rays),
-                    BufferRange::from(&buffers.rays_in),
-                    BufferRange::from(&buffers.rays_out),
-                    BufferRange::from(&buffers.deposit),
-                ],
-                bytemuck::bytes_of(&push),
-                [sweep.n[1].div_ceil(16), sweep.n[2].div_ceil(4), n],
-            )?;
-            rec.compute_to_compute();
-            rec.dispatch(
-                collect,
-                &[
-                    BufferRange::from(&tables.directions),
-                    BufferRange::from(&tables.rows),
-                    BufferRange::from(&buffers.slot_table),
-                    BufferRange::from(&buffers.density),
-                    BufferRange::from(&buffers.deposit),
-                    BufferRange::from(&buffers.source_next),
-                    BufferRange::from(&buffers.fluence),
-                ],
-                bytemuck::bytes_of(&push),
-                [sweep.n[1].div_ceil(16), sweep.n[2].div_ceil(4), planes],
-            )?;
-            rec.compute_to_compute();
+            let mut t0 = slice.t0;
+            while t0 < slice.t1 {
+                let t1 = (t0 + chunk).min(slice.t1);
+                push.t0 = t0;
+                push.t1 = t1;
+                push.flags = flags | if last && t1 == slice.t1 { FLAG_LAST_SLICE } else { 0 };
+                rec.dispatch(
+                    propagate,
+                    &[
+                        BufferRange::from(&tables.directions),
+                        BufferRange::from(&tables.offsets),
+                        BufferRange::from(&buffers.slot_table),
+                        BufferRange::from(&buffers.density),
+                        BufferRange::from(&buffers.source_prev),
+                        BufferRange::from(&buffers.rays),
+                        BufferRange::from(&buffers.rays_in),
+                        BufferRange::from(&buffers.rays_out),
+                        BufferRange::from(&buffers.deposit),
+                    ],
+                    bytemuck::bytes_of(&push),
+                    [sweep.n[1].div_ceil(16), sweep.n[2].div_ceil(4), n],
+                )?;
+                rec.compute_to_compute();
+                rec.dispatch(
+                    collect,
+                    &[
+                        BufferRange::from(&tables.directions),
+                        BufferRange::from(&tables.rows),
+                        BufferRange::from(&buffers.slot_table),
+                        BufferRange::from(&buffers.density),
+                        BufferRange::from(&buffers.deposit),
+                        BufferRange::from(&buffers.source_next),
+                        BufferRange::from(&buffers.fluence),
+                    ],
+                    bytemuck::bytes_of(&push),
+                    [sweep.n[1].div_ceil(16), sweep.n[2].div_ceil(4), t1 - t0],
+                )?;
+                rec.compute_to_compute();
+                t0 = t1;
+            }
             base += n;
         }
         rec.compute_to_transfer();

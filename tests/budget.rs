@@ -1,0 +1,70 @@
+//! The device memory budget: any cut of the sweeps gives bitwise the same fluence and source, and a
+//! budget below the smallest unit is a clear error.
+mod common;
+use common::*;
+use lpm::scene::{Scene, Shape};
+use lpm::solver::BackendKind::Gpu;
+use lpm::solver::SolveError;
+
+fn cloud() -> Scene {
+    let mut s = scene(Shape::Cloud, [34, 30, 38], [0.9, 0.7, 0.5], [0.9, 0.8, 0.7], vec![sky(0.5), sun([0.4, -0.3, 1.0], [2.0; 3])]);
+    s.medium.g = 0.5;
+    s.solver.directions_per_face = 3;
+    s.solver.storage_directions_per_face = Some(2);
+    s.solver.max_orders = 3;
+    s
+}
+
+/// The bytes the smallest cut needs, from the error a zero budget gives.
+fn smallest_unit(scene: &Scene) -> u64 {
+    let dir = temp_dir("budget-probe");
+    let store = lpm::solver::build_store(scene, &dir.join("store")).unwrap();
+    let mut s = scene.clone();
+    s.solver.device_memory_budget = Some(1);
+    match lpm::solver::solve(&s, &store, Gpu, validated(), |_, _| {}) {
+        Err(SolveError::BudgetTooSmall { needed, .. }) => needed,
+        other => panic!("expected BudgetTooSmall, got {:?}", other.map(|_| ())),
+    }
+}
+
+fn bits(solved: &Solved) -> (Vec<u32>, Vec<u32>) {
+    (
+        solved.fields.fluence.as_slice().iter().map(|v| v.to_bits()).collect(),
+        solved.fields.source_total.as_slice().iter().map(|v| v.to_bits()).collect(),
+    )
+}
+
+#[test]
+fn any_budget_gives_bitwise_the_same_fluence_and_source() {
+    let base = cloud();
+    let reference = solve("budget-large", &base, Gpu);
+    let full = reference.run.memory.expect("memory plan");
+    assert_eq!(full.directions_per_pass, 9, "{full:?}");
+    assert_eq!(full.planes_per_dispatch, 16, "{full:?}");
+
+    let needed = smallest_unit(&base);
+    let mut cuts = Vec::new();
+    for budget in [needed, (needed + full.planned_bytes) / 2] {
+        let mut s = base.clone();
+        s.solver.device_memory_budget = Some(budget);
+        let solved = solve(&format!("budget-{budget}"), &s, Gpu);
+        let m = solved.run.memory.expect("memory plan");
+        assert!(m.planned_bytes <= budget, "{m:?}");
+        assert!(solved.run.peak_device_bytes <= budget, "peak {} over budget {budget}", solved.run.peak_device_bytes);
+        assert!(bits(&solved) == bits(&reference), "budget {budget} ({m:?}) changed the result");
+        cuts.push((m.directions_per_pass, m.directions_per_dispatch, m.planes_per_dispatch));
+    }
+    // The smallest budget cuts everything to one direction per pass and one plane per dispatch.
+    assert_eq!(cuts[0], (1, 1, 1));
+    assert_ne!(cuts[1], (9, 9, 16), "the middle budget should cut the sweeps too");
+}
+
+#[test]
+fn a_budget_below_the_smallest_unit_says_how_much_is_needed() {
+    let scene = cloud();
+    let needed = smallest_unit(&scene);
+    let err = SolveError::BudgetTooSmall { budget: 1000, needed };
+    let text = err.to_string();
+    assert!(text.contains(&needed.to_string()) && text.contains("--device-memory-budget"), "{text}");
+    assert!(needed > 4096);
+}
