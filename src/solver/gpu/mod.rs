@@ -13,6 +13,7 @@
 //! timeline value before touching the staging memory again; the pipelined form overlaps them.
 
 pub mod budget;
+mod copier;
 mod layout;
 mod tables;
 
