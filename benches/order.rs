@@ -58,7 +58,7 @@ fn order(c: &mut Criterion) {
     let label = format!("gpu [{}]", ctx.device_name());
     let mut fields = StoreFields::create(&store, &plan).expect("fields");
     {
-        let mut gpu = GpuBackend::new(ctx.clone(), &plan, &store, &mut fields, None).expect("GPU backend");
+        let mut gpu = GpuBackend::new(ctx.clone(), &plan, &store, &mut fields, lpm::solver::gpu::GpuOptions::default()).expect("GPU backend");
         gpu.propagate_order(0).expect("order 0");
         gpu.finish_order().expect("finish");
         group.bench_function(label, |b| b.iter(|| gpu.propagate_order(1).expect("order")));

@@ -87,12 +87,25 @@ pub fn build_store(scene: &Scene, dir: &Path) -> Result<BrickStore, SolveError> 
 }
 
 /// Solves `scene` over `store`: plans, runs the orders on the chosen backend, and leaves the
-/// fluence and the summed source in the returned fields.
+/// fluence and the summed source in the returned fields. The device memory budget is the scene's.
 pub fn solve(
     scene: &Scene,
     store: &BrickStore,
     backend: BackendKind,
     vk_options: ContextOptions,
+    progress: impl FnMut(u32, f64),
+) -> Result<(SolveRun, StoreFields), SolveError> {
+    let gpu = gpu::GpuOptions { budget: scene.solver.device_memory_budget, ..gpu::GpuOptions::default() };
+    solve_with(scene, store, backend, vk_options, gpu, progress)
+}
+
+/// [`solve`] with explicit GPU options (budget, slices in flight).
+pub fn solve_with(
+    scene: &Scene,
+    store: &BrickStore,
+    backend: BackendKind,
+    vk_options: ContextOptions,
+    gpu_options: gpu::GpuOptions,
     mut progress: impl FnMut(u32, f64),
 ) -> Result<(SolveRun, StoreFields), SolveError> {
     let mut phases = Vec::new();
@@ -121,7 +134,7 @@ pub fn solve(
             let ctx = Context::new(vk_options)?;
             let device = format!("{} ({})", ctx.device_name(), ctx.driver_description());
             let mut gpu =
-                gpu::GpuBackend::new(ctx.clone(), &plan, store, &mut fields, scene.solver.device_memory_budget)?;
+                gpu::GpuBackend::new(ctx.clone(), &plan, store, &mut fields, gpu_options)?;
             memory = Some(gpu.memory_plan());
             phases.push(("setup".to_string(), t.elapsed().as_secs_f64()));
             let t = Instant::now();

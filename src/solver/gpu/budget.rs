@@ -1,7 +1,9 @@
 //! The device memory plan: how the sweeps are cut so that everything the solver allocates on the
 //! device (slice buffers, ray state, deposit, staging, tables) fits a byte budget.
 //!
-//! Three knobs, tried from the cheapest in transfers to the costliest:
+//! Four knobs, tried from the cheapest in time to the costliest:
+//! - **slices in flight**: two slices' buffers and staging let the transfers of one slice overlap
+//!   the compute of the other; one means each slice waits for the last (still correct);
 //! - **planes per dispatch** (a sub-slice in depth): the deposit buffer holds that many planes; free;
 //! - **directions per dispatch**: the deposit buffer holds that many directions; free;
 //! - **directions per pass**: the ray state holds that many directions, and a face whose k²
@@ -37,6 +39,8 @@ pub struct SliceExtent {
 pub struct MemoryPlan {
     pub budget_bytes: u64,
     pub planned_bytes: u64,
+    /// 2: transfers overlap compute (pipelined); 1: one slice at a time.
+    pub slices_in_flight: u32,
     pub directions_per_pass: u32,
     pub directions_per_dispatch: u32,
     pub planes_per_dispatch: u32,
@@ -81,7 +85,14 @@ pub fn default_budget(limits: &Limits) -> u64 {
 }
 
 /// Chooses the cut of the sweeps for `budget` bytes.
-pub fn plan_memory(plan: &Plan, extent: SliceExtent, limits: &Limits, budget: u64) -> Result<MemoryPlan, SolveError> {
+/// `max_slots` caps the slices in flight (1 forces the serial schedule).
+pub fn plan_memory(
+    plan: &Plan,
+    extent: SliceExtent,
+    limits: &Limits,
+    budget: u64,
+    max_slots: u32,
+) -> Result<MemoryPlan, SolveError> {
     let c = plan.channels as u64;
     let comps = plan.source_components() as u64;
     let per_face = plan.propagation.per_face() as u32;
@@ -113,38 +124,44 @@ pub fn plan_memory(plan: &Plan, extent: SliceExtent, limits: &Limits, budget: u6
     let upload = slice_bytes;
     let download = source_bytes + fluence_bytes;
 
-    let cost = |pass: u32, group: u32, planes: u32| -> (u64, u64, u64, u64) {
+    let cost = |slots: u32, pass: u32, group: u32, planes: u32| -> (u64, u64, u64, u64) {
         let ray_buffer = pass as u64 * c * rays * 4;
         let ray_state = 3 * ray_buffer;
         let deposit = group as u64 * c * planes as u64 * rays * 4;
-        let staging = upload + download.max(2 * ray_buffer);
-        (ray_state, deposit, staging, table_bytes + slice_bytes + ray_state + deposit + staging)
+        // Per slot: the device slice buffers and their upload and download staging; plus the
+        // staging the rays' tallies come home through.
+        let staging = slots as u64 * (upload + download) + 2 * ray_buffer;
+        let total = table_bytes + slots as u64 * slice_bytes + ray_state + deposit + staging;
+        (ray_state, deposit, staging, total)
     };
     let fits_range = |pass: u32, group: u32, planes: u32| {
         pass as u64 * c * rays * 4 <= max_range && group as u64 * c * planes as u64 * rays * 4 <= max_range
     };
-    for pass in (1..=per_face).rev() {
-        for group in (1..=pass).rev() {
-            for planes in [BRICK_EDGE, 8, 4, 2, 1] {
-                let (ray_state, deposit, staging, total) = cost(pass, group, planes);
-                if total <= budget && fits_range(pass, group, planes) {
-                    return Ok(MemoryPlan {
-                        budget_bytes: budget,
-                        planned_bytes: total,
-                        directions_per_pass: pass,
-                        directions_per_dispatch: group,
-                        planes_per_dispatch: planes,
-                        slice: extent,
-                        ray_state_bytes: ray_state,
-                        deposit_bytes: deposit,
-                        slice_bytes,
-                        staging_bytes: staging,
-                        table_bytes,
-                    });
+    for slots in [2, 1].into_iter().filter(|&s| s <= max_slots.max(1)) {
+        for pass in (1..=per_face).rev() {
+            for group in (1..=pass).rev() {
+                for planes in [BRICK_EDGE, 8, 4, 2, 1] {
+                    let (ray_state, deposit, staging, total) = cost(slots, pass, group, planes);
+                    if total <= budget && fits_range(pass, group, planes) {
+                        return Ok(MemoryPlan {
+                            budget_bytes: budget,
+                            planned_bytes: total,
+                            slices_in_flight: slots,
+                            directions_per_pass: pass,
+                            directions_per_dispatch: group,
+                            planes_per_dispatch: planes,
+                            slice: extent,
+                            ray_state_bytes: ray_state,
+                            deposit_bytes: deposit,
+                            slice_bytes: slots as u64 * slice_bytes,
+                            staging_bytes: staging,
+                            table_bytes,
+                        });
+                    }
                 }
             }
         }
     }
-    let (_, _, _, needed) = cost(1, 1, 1);
+    let (_, _, _, needed) = cost(1, 1, 1, 1);
     Err(SolveError::BudgetTooSmall { budget, needed })
 }

@@ -1,73 +1,105 @@
-//! The GPU driver: sweeps the faces slice of bricks by slice of bricks on Vulkan.
+//! The GPU driver: sweeps the faces slice of bricks by slice of bricks on Vulkan, streaming the
+//! slices through the device so that a volume far larger than device memory is solved.
 //!
-//! For every sweep (a sun beam, or the k² directions of one face in one order) the ray state of all
-//! its directions stays on the device from the first slice to the last. Each slice goes through the
-//! same steps: its bricks are gathered from the store into a host-visible staging buffer (medium,
-//! previous source, the new source and fluence accumulated so far), copied to device buffers,
-//! `propagate.comp` marches the rays through the slice's planes writing segment averages into the
-//! deposit buffer, `collect.comp` folds them into fluence and the next source, and the two
-//! accumulators are copied back and scattered into the store. A face's directions are dispatched in
-//! groups small enough that the deposit buffer respects `maxStorageBufferRange`.
+//! For every sweep (a sun beam, or the k² directions of one face in one order) the ray state stays
+//! on the device from the first slice to the last; a face whose directions do not fit at once is
+//! swept in passes. Each slice goes through five steps:
 //!
-//! This driver runs the steps of a slice one after another on the compute queue, waiting on a
-//! timeline value before touching the staging memory again; the pipelined form overlaps them.
+//! 1. **gather** (host copy workers): its bricks (medium, previous source, the new source and fluence
+//!    accumulated so far) from the memory-mapped store into the pinned upload staging of a slot;
+//! 2. **upload** (transfer queue): staging → the slot's device buffers; signals `upload = v`;
+//! 3. **compute** (compute queue, waits `upload ≥ v`): `propagate.comp` marches the rays through the
+//!    slice's planes writing segment averages into the deposit buffer, `collect.comp` folds them into
+//!    fluence and the next source; signals `compute = v`;
+//! 4. **download** (transfer queue, waits `compute ≥ v`): the two accumulators → download staging;
+//!    signals `download = v`;
+//! 5. **scatter** (host copy workers, after `download ≥ v`): staging → store.
+//!
+//! With two slots (the memory plan decides, see [`budget`]) the steps of neighbouring slices
+//! overlap: slice l+1 is gathered and uploaded, and slice l−1 downloaded and scattered, while slice
+//! l computes. Transfer submissions go to a dedicated transfer queue when the device has one, else
+//! to the compute queue as a second submission stream ordered by the same timeline semaphores.
+//! With one slot each slice completes before the next starts. Slots are reused against timeline
+//! values, never by idling the device.
 
 pub mod budget;
 mod copier;
 mod layout;
+mod slice;
 mod tables;
 
 use super::energy::Tallies;
 use super::fields::StoreFields;
 use super::orders::Backend;
 use super::plan::{Plan, SweepDirection};
-use super::sweep::{FaceSweep, SliceRange};
+use super::sweep::FaceSweep;
 use super::SolveError;
-use crate::store::{BrickStore, BRICK_EDGE, BRICK_VOXELS};
-use crate::vk::{Buffer, BufferRange, ComputePipeline, Context, Recorder, TimelineSemaphore};
+use crate::store::{BrickStore, BRICK_EDGE};
+use crate::vk::{Buffer, BufferRange, ComputePipeline, Context, Queue, Recorder, TimelineSemaphore};
 use ash::vk;
+use budget::MemoryPlan;
+use copier::{Copier, Ticket};
 use gpu_allocator::MemoryLocation;
 use layout::*;
+use slice::{SliceLayout, BRICK_BYTES};
 use std::sync::Arc;
-use budget::MemoryPlan;
 use tables::SweepTables;
 
 const PROPAGATE_SPV: &[u8] = include_bytes!("../../../spirv/propagate.spv");
 const COLLECT_SPV: &[u8] = include_bytes!("../../../spirv/collect.spv");
-const BRICK_BYTES: u64 = BRICK_VOXELS as u64 * 4;
 const WAIT_FOREVER: u64 = u64::MAX;
 
-/// Device buffers sized for the largest slice of any face.
-struct DeviceBuffers {
+/// How the GPU backend runs.
+#[derive(Clone, Copy, Debug)]
+pub struct GpuOptions {
+    /// Device memory budget in bytes; `None`: a safe fraction of the device heap.
+    pub budget: Option<u64>,
+    /// At most this many slices in flight: 2 lets transfers overlap compute, 1 forces one slice
+    /// at a time (the single-queue schedule).
+    pub max_slices_in_flight: u32,
+}
+
+impl Default for GpuOptions {
+    fn default() -> Self {
+        GpuOptions { budget: None, max_slices_in_flight: 2 }
+    }
+}
+
+/// The device buffers and staging of one slice in flight.
+struct Slot {
     slot_table: Buffer,
     density: Buffer,
     source_prev: Buffer,
     source_next: Buffer,
     fluence: Buffer,
+    upload: Buffer,
+    download: Buffer,
+    /// The slice whose download into this slot's staging is not yet scattered back.
+    pending: Option<(u64, SliceLayout)>,
+    /// The scatter of this slot's download staging still being copied.
+    scattering: Option<Ticket>,
+}
+
+impl Slot {
+    fn buffers(self) -> [Buffer; 7] {
+        [self.slot_table, self.density, self.source_prev, self.source_next, self.fluence, self.upload, self.download]
+    }
+}
+
+/// Buffers shared by all slots: ray state and the deposit.
+struct Shared {
     rays: Buffer,
     rays_in: Buffer,
     rays_out: Buffer,
     deposit: Buffer,
-    upload: Buffer,
-    download: Buffer,
+    tallies: Buffer,
 }
 
-impl DeviceBuffers {
-    fn all(self) -> [Buffer; 11] {
-        [
-            self.slot_table,
-            self.density,
-            self.source_prev,
-            self.source_next,
-            self.fluence,
-            self.rays,
-            self.rays_in,
-            self.rays_out,
-            self.deposit,
-            self.upload,
-            self.download,
-        ]
-    }
+/// The three timelines of the pipeline; each slice gets the next value on all three.
+struct Timelines {
+    upload: TimelineSemaphore,
+    compute: TimelineSemaphore,
+    download: TimelineSemaphore,
 }
 
 pub struct GpuBackend<'a> {
@@ -77,103 +109,129 @@ pub struct GpuBackend<'a> {
     fields: &'a mut StoreFields,
     propagate: Option<ComputePipeline>,
     collect: Option<ComputePipeline>,
-    timeline: Option<TimelineSemaphore>,
-    timeline_value: u64,
-    buffers: Option<DeviceBuffers>,
+    timelines: Option<Timelines>,
+    /// The last value handed out on the timelines.
+    value: u64,
+    slots: Vec<Slot>,
+    shared: Option<Shared>,
     face_tables: Vec<SweepTables>,
     beam_tables: Vec<SweepTables>,
     memory: MemoryPlan,
+    copier: Copier,
+}
+
+fn create_buffers(ctx: &Context, specs: &[(&str, u64, vk::BufferUsageFlags, MemoryLocation)]) -> Result<Vec<Buffer>, SolveError> {
+    let mut made = Vec::with_capacity(specs.len());
+    for &(name, size, usage, location) in specs {
+        match ctx.create_buffer(name, size.max(4), usage, location) {
+            Ok(b) => made.push(b),
+            Err(e) => {
+                made.into_iter().for_each(|b| ctx.destroy_buffer(b));
+                return Err(e.into());
+            }
+        }
+    }
+    Ok(made)
 }
 
 impl<'a> GpuBackend<'a> {
-    /// Prepares the device for `plan` within `budget` bytes of device memory (None: the default
-    /// fraction of the device heap); the solve accumulates into `fields` (in `store`).
+    /// Prepares the device for `plan`; the solve accumulates into `fields` (in `store`).
     pub fn new(
         ctx: Arc<Context>,
         plan: &'a Plan,
         store: &'a BrickStore,
         fields: &'a mut StoreFields,
-        budget: Option<u64>,
+        options: GpuOptions,
     ) -> Result<Self, SolveError> {
         let limits = ctx.limits();
-        let budget = budget.unwrap_or_else(|| budget::default_budget(&limits));
-        let memory = budget::plan_memory(plan, budget::slice_extent(plan, store), &limits, budget)?;
+        let budget = options.budget.unwrap_or_else(|| budget::default_budget(&limits));
+        let memory =
+            budget::plan_memory(plan, budget::slice_extent(plan, store), &limits, budget, options.max_slices_in_flight)?;
         let c = plan.channels as u64;
         let comps = plan.source_components() as u64;
         let extent = memory.slice;
-        let pass = memory.directions_per_pass as u64;
-        let ray_bytes = pass * c * extent.rays * 4;
-        let device = MemoryLocation::GpuOnly;
+        let ray_bytes = memory.directions_per_pass as u64 * c * extent.rays * 4;
         let storage = vk::BufferUsageFlags::STORAGE_BUFFER
             | vk::BufferUsageFlags::TRANSFER_DST
             | vk::BufferUsageFlags::TRANSFER_SRC;
-        let sizes = [
-            ("slot table", extent.bricks * 4),
-            ("density", extent.occupied * BRICK_BYTES),
-            ("source prev", extent.occupied * comps * BRICK_BYTES),
-            ("source next", extent.occupied * comps * BRICK_BYTES),
-            ("fluence", extent.bricks * c * BRICK_BYTES),
-            ("rays", ray_bytes),
-            ("rays in", ray_bytes),
-            ("rays out", ray_bytes),
-            ("deposit", memory.deposit_bytes),
-        ];
-        let mut made = Vec::new();
-        for (name, size) in sizes {
-            match ctx.create_buffer(name, size.max(4), storage, device) {
-                Ok(b) => made.push(b),
-                Err(e) => {
-                    made.into_iter().for_each(|b| ctx.destroy_buffer(b));
-                    return Err(e.into());
-                }
+        let gpu = MemoryLocation::GpuOnly;
+        let source_bytes = extent.occupied * comps * BRICK_BYTES;
+        let fluence_bytes = extent.bricks * c * BRICK_BYTES;
+        let upload_bytes = (extent.bricks * 4).next_multiple_of(16) + extent.occupied * BRICK_BYTES + 2 * source_bytes + fluence_bytes;
+
+        let shared = create_buffers(
+            &ctx,
+            &[
+                ("rays", ray_bytes, storage, gpu),
+                ("rays in", ray_bytes, storage, gpu),
+                ("rays out", ray_bytes, storage, gpu),
+                ("deposit", memory.deposit_bytes, storage, gpu),
+                ("tally staging", 2 * ray_bytes, vk::BufferUsageFlags::TRANSFER_DST, MemoryLocation::GpuToCpu),
+            ],
+        )?;
+        let mut it = shared.into_iter();
+        let shared = match (it.next(), it.next(), it.next(), it.next(), it.next()) {
+            (Some(rays), Some(rays_in), Some(rays_out), Some(deposit), Some(tallies)) => {
+                Shared { rays, rays_in, rays_out, deposit, tallies }
             }
-        }
-        let upload_bytes = memory.slice_bytes;
-        let download_bytes = (extent.occupied * comps * BRICK_BYTES + extent.bricks * c * BRICK_BYTES).max(2 * ray_bytes);
-        let upload = ctx.create_buffer(
-            "upload staging",
-            upload_bytes.max(4),
-            vk::BufferUsageFlags::TRANSFER_SRC,
-            MemoryLocation::CpuToGpu,
-        )?;
-        let download = ctx.create_buffer(
-            "download staging",
-            download_bytes.max(4),
-            vk::BufferUsageFlags::TRANSFER_DST,
-            MemoryLocation::GpuToCpu,
-        )?;
-        let mut it = made.into_iter();
-        let mut next = || it.next().ok_or(SolveError::Internal("buffer list"));
-        let buffers = DeviceBuffers {
-            slot_table: next()?,
-            density: next()?,
-            source_prev: next()?,
-            source_next: next()?,
-            fluence: next()?,
-            rays: next()?,
-            rays_in: next()?,
-            rays_out: next()?,
-            deposit: next()?,
-            upload,
-            download,
+            _ => return Err(SolveError::Internal("shared buffers")),
         };
-        let propagate = ctx.create_compute_pipeline("propagate", PROPAGATE_SPV, 9, std::mem::size_of::<SweepPush>() as u32)?;
-        let collect = ctx.create_compute_pipeline("collect", COLLECT_SPV, 7, std::mem::size_of::<SweepPush>() as u32)?;
-        let timeline = ctx.create_timeline("solver", 0)?;
         let mut backend = GpuBackend {
-            ctx,
+            ctx: ctx.clone(),
             plan,
             store,
             fields,
-            propagate: Some(propagate),
-            collect: Some(collect),
-            timeline: Some(timeline),
-            timeline_value: 0,
-            buffers: Some(buffers),
+            propagate: None,
+            collect: None,
+            timelines: None,
+            value: 0,
+            slots: Vec::new(),
+            shared: Some(shared),
             face_tables: Vec::new(),
             beam_tables: Vec::new(),
             memory,
+            copier: Copier::new(std::thread::available_parallelism().map_or(2, |n| n.get()).min(8)),
         };
+        // From here on, `backend` owns everything made and frees it on drop if a step fails.
+        for i in 0..memory.slices_in_flight {
+            let made = create_buffers(
+                &ctx,
+                &[
+                    (&format!("slot {i} slot table"), extent.bricks * 4, storage, gpu),
+                    (&format!("slot {i} density"), extent.occupied * BRICK_BYTES, storage, gpu),
+                    (&format!("slot {i} source prev"), source_bytes, storage, gpu),
+                    (&format!("slot {i} source next"), source_bytes, storage, gpu),
+                    (&format!("slot {i} fluence"), fluence_bytes, storage, gpu),
+                    (&format!("slot {i} upload staging"), upload_bytes, vk::BufferUsageFlags::TRANSFER_SRC, MemoryLocation::CpuToGpu),
+                    (&format!("slot {i} download staging"), source_bytes + fluence_bytes, vk::BufferUsageFlags::TRANSFER_DST, MemoryLocation::GpuToCpu),
+                ],
+            )?;
+            let mut it = made.into_iter();
+            match (it.next(), it.next(), it.next(), it.next(), it.next(), it.next(), it.next()) {
+                (Some(slot_table), Some(density), Some(source_prev), Some(source_next), Some(fluence), Some(upload), Some(download)) => {
+                    backend.slots.push(Slot {
+                        slot_table,
+                        density,
+                        source_prev,
+                        source_next,
+                        fluence,
+                        upload,
+                        download,
+                        pending: None,
+                        scattering: None,
+                    })
+                }
+                _ => return Err(SolveError::Internal("slot buffers")),
+            }
+        }
+        let push_bytes = std::mem::size_of::<SweepPush>() as u32;
+        backend.propagate = Some(ctx.create_compute_pipeline("propagate", PROPAGATE_SPV, 9, push_bytes)?);
+        backend.collect = Some(ctx.create_compute_pipeline("collect", COLLECT_SPV, 7, push_bytes)?);
+        backend.timelines = Some(Timelines {
+            upload: ctx.create_timeline("upload", 0)?,
+            compute: ctx.create_timeline("compute", 0)?,
+            download: ctx.create_timeline("download", 0)?,
+        });
         for face in &plan.faces {
             let t = SweepTables::upload(&mut backend, face)?;
             backend.face_tables.push(t);
@@ -184,8 +242,10 @@ impl<'a> GpuBackend<'a> {
         }
         tracing::info!(
             device = backend.ctx.device_name(),
+            transfer_queue = backend.ctx.transfer_queue().is_some(),
             budget = memory.budget_bytes,
             planned = memory.planned_bytes,
+            slices_in_flight = memory.slices_in_flight,
             directions_per_pass = memory.directions_per_pass,
             directions_per_dispatch = memory.directions_per_dispatch,
             planes_per_dispatch = memory.planes_per_dispatch,
@@ -204,21 +264,31 @@ impl<'a> GpuBackend<'a> {
         &self.ctx
     }
 
-    fn buffers(&self) -> Result<&DeviceBuffers, SolveError> {
-        self.buffers.as_ref().ok_or(SolveError::Internal("device buffers already released"))
+    /// The queue transfers go to: a dedicated one when the device has it, else the compute queue.
+    fn transfer_queue(&self) -> &Queue {
+        self.ctx.transfer_queue().unwrap_or(self.ctx.compute_queue())
     }
 
-    fn timeline(&self) -> Result<&TimelineSemaphore, SolveError> {
-        self.timeline.as_ref().ok_or(SolveError::Internal("timeline already released"))
+    fn timelines(&self) -> Result<&Timelines, SolveError> {
+        self.timelines.as_ref().ok_or(SolveError::Internal("timelines released"))
     }
 
-    /// Submits a recorded command buffer on the compute queue and waits for it on the timeline.
+    fn shared(&self) -> Result<&Shared, SolveError> {
+        self.shared.as_ref().ok_or(SolveError::Internal("shared buffers released"))
+    }
+
+    /// Submits a one-off command buffer on the compute queue and waits for it (setup and the
+    /// per-pass tallies, not the slice pipeline).
     fn submit_and_wait(&mut self, rec: Recorder) -> Result<(), SolveError> {
-        self.timeline_value += 1;
-        let value = self.timeline_value;
-        let timeline = self.timeline()?;
-        rec.submit(self.ctx.compute_queue(), &[], (timeline, value))?;
-        timeline.wait(&self.ctx, value, WAIT_FOREVER)?;
+        self.value += 1;
+        let v = self.value;
+        let t = self.timelines()?;
+        // The upload, compute and download timelines all advance to v, so the slice pipeline's
+        // values stay one sequence.
+        rec.submit(self.ctx.compute_queue(), &[], (&t.compute, v))?;
+        t.compute.wait(&self.ctx, v, WAIT_FOREVER)?;
+        t.upload.signal(&self.ctx, v)?;
+        t.download.signal(&self.ctx, v)?;
         self.ctx.collect_garbage()?;
         Ok(())
     }
@@ -226,134 +296,157 @@ impl<'a> GpuBackend<'a> {
     /// One sweep of a face (or a beam): its directions in passes of at most `directions_per_pass`,
     /// each pass streaming every slice of the face in sweep order.
     fn sweep(&mut self, tables: &SweepTables, dirs: &[SweepDirection], flags: u32) -> Result<Tallies, SolveError> {
-        let plan = self.plan;
-        let sweep = FaceSweep::new(dirs[0].face, plan.dims);
-        let slices = sweep.slices(BRICK_EDGE);
+        let sweep = FaceSweep::new(dirs[0].face, self.plan.dims);
         let pass = self.memory.directions_per_pass as usize;
         let mut tallies = Tallies::default();
         for first in (0..dirs.len()).step_by(pass) {
             let pass_dirs = first as u32..(first + pass).min(dirs.len()) as u32;
-            for (i, slice) in slices.iter().enumerate() {
-                self.slice(tables, &sweep, slice, pass_dirs.clone(), flags, i == 0, i + 1 == slices.len())?;
-            }
+            self.stream_pass(tables, &sweep, pass_dirs.clone(), flags)?;
             tallies.add(&self.read_tallies(&sweep, &dirs[pass_dirs.start as usize..pass_dirs.end as usize])?);
         }
         Ok(tallies)
     }
 
+    /// Streams every slice of the face through the slots for the directions `pass_dirs`.
+    fn stream_pass(&mut self, tables: &SweepTables, sweep: &FaceSweep, pass_dirs: std::ops::Range<u32>, flags: u32) -> Result<(), SolveError> {
+        let slices = sweep.slices(BRICK_EDGE);
+        let n_slots = self.slots.len();
+        let gain = flags & FLAG_GAIN != 0;
+        let (c, comps) = (self.plan.channels as u64, self.plan.source_components() as u64);
+        // The slice computed in the previous iteration, whose download is submitted after this
+        // iteration's upload so the transfer queue can upload the next slice while it computes.
+        let mut to_download: Option<(usize, u64)> = None;
+        for (i, range) in slices.iter().enumerate() {
+            let s = i % n_slots;
+            self.retire_slot(s)?;
+            let layout = SliceLayout::new(self.store, sweep, *range, gain, c, comps);
+            self.gather(s, &layout)?;
+            self.value += 1;
+            let v = self.value;
+            self.submit_upload(s, &layout, v)?;
+            self.submit_compute(s, &layout, tables, sweep, pass_dirs.clone(), flags, i == 0, i + 1 == slices.len(), v)?;
+            if n_slots == 1 {
+                self.submit_download(s, &layout, v)?;
+            } else if let Some((prev_slot, prev_v)) = to_download.take() {
+                let prev = self.slots[prev_slot].pending.take();
+                if let Some((pv, prev_layout)) = prev {
+                    self.submit_download(prev_slot, &prev_layout, prev_v)?;
+                    self.slots[prev_slot].pending = Some((pv, prev_layout));
+                }
+            }
+            self.slots[s].pending = Some((v, layout));
+            if n_slots > 1 {
+                to_download = Some((s, v));
+            }
+        }
+        if let Some((prev_slot, prev_v)) = to_download.take() {
+            if let Some((pv, prev_layout)) = self.slots[prev_slot].pending.take() {
+                self.submit_download(prev_slot, &prev_layout, prev_v)?;
+                self.slots[prev_slot].pending = Some((pv, prev_layout));
+            }
+        }
+        // Drain: every slice back in the store before the next pass reads it.
+        let mut order: Vec<usize> = (0..n_slots).collect();
+        order.sort_by_key(|&s| self.slots[s].pending.as_ref().map_or(0, |p| p.0));
+        for s in order {
+            self.retire_slot(s)?;
+        }
+        for slot in &mut self.slots {
+            if let Some(t) = slot.scattering.take() {
+                t.wait();
+            }
+        }
+        self.ctx.collect_garbage()?;
+        Ok(())
+    }
+
+    /// Makes slot `s` free: waits for its last slice's download and scatters it back to the store.
+    fn retire_slot(&mut self, s: usize) -> Result<(), SolveError> {
+        if let Some(t) = self.slots[s].scattering.take() {
+            t.wait();
+        }
+        let Some((v, layout)) = self.slots[s].pending.take() else { return Ok(()) };
+        self.timelines()?.download.wait(&self.ctx, v, WAIT_FOREVER)?;
+        let staging = self.slots[s].download.mapped().ok_or(SolveError::Internal("download staging is not mapped"))?.as_ptr();
+        let regions = layout.scatter(self.fields, staging);
+        self.slots[s].scattering = Some(self.copier.copy(regions));
+        Ok(())
+    }
+
+    /// Fills slot `s`'s upload staging with the slice's bricks (waits for the copies).
+    fn gather(&mut self, s: usize, layout: &SliceLayout) -> Result<(), SolveError> {
+        let store = self.store;
+        let staging = self.slots[s].upload.mapped_mut().ok_or(SolveError::Internal("upload staging is not mapped"))?;
+        if (staging.len() as u64) < layout.upload_bytes() {
+            return Err(SolveError::Internal("upload staging smaller than the slice"));
+        }
+        let table: &[u8] = bytemuck::cast_slice(&layout.slots);
+        staging[..table.len()].copy_from_slice(table);
+        let base = staging.as_mut_ptr();
+        let regions = layout.gather(store, self.fields, base);
+        self.copier.copy(regions).wait();
+        Ok(())
+    }
+
+    fn submit_upload(&mut self, s: usize, layout: &SliceLayout, v: u64) -> Result<(), SolveError> {
+        let queue = self.transfer_queue();
+        let slot = &self.slots[s];
+        let mut rec = Recorder::begin(&self.ctx, queue.family(), "upload")?;
+        let copy = |src: u64, size: u64| [vk::BufferCopy { src_offset: src, dst_offset: 0, size }];
+        rec.copy_buffer(&slot.upload, &slot.slot_table, &copy(0, layout.slot_table_bytes()));
+        if layout.occ() > 0 {
+            rec.copy_buffer(&slot.upload, &slot.density, &copy(layout.density_offset(), layout.density_bytes()));
+            if layout.gain {
+                rec.copy_buffer(&slot.upload, &slot.source_prev, &copy(layout.prev_offset(), layout.source_bytes()));
+            }
+            rec.copy_buffer(&slot.upload, &slot.source_next, &copy(layout.next_offset(), layout.source_bytes()));
+        }
+        rec.copy_buffer(&slot.upload, &slot.fluence, &copy(layout.fluence_offset(), layout.fluence_bytes()));
+        rec.submit(queue, &[], (&self.timelines()?.upload, v))?;
+        Ok(())
+    }
+
     #[allow(clippy::too_many_arguments)]
-    fn slice(
+    fn submit_compute(
         &mut self,
+        s: usize,
+        layout: &SliceLayout,
         tables: &SweepTables,
         sweep: &FaceSweep,
-        slice: &SliceRange,
         pass_dirs: std::ops::Range<u32>,
         flags: u32,
         first: bool,
         last: bool,
+        v: u64,
     ) -> Result<(), SolveError> {
         let plan = self.plan;
-        let grid = *self.store.grid();
-        let face = sweep.geometry();
-        let bricks_b = grid.bricks[face.lateral[0]];
-        let bricks_c = grid.bricks[face.lateral[1]];
-        let c = plan.channels as u64;
-        let comps = plan.source_components() as u64;
-        let gain = flags & FLAG_GAIN != 0;
-
-        // The slice's bricks in slice order (c slowest) and their medium slots.
-        let mut bricks = Vec::with_capacity((bricks_b * bricks_c) as usize);
-        for bc in 0..bricks_c {
-            for bb in 0..bricks_b {
-                let mut b = [0; 3];
-                b[face.axis] = slice.brick_a;
-                b[face.lateral[0]] = bb;
-                b[face.lateral[1]] = bc;
-                bricks.push(grid.brick_index(b));
-            }
-        }
-        let mut slots = Vec::with_capacity(bricks.len());
-        let mut occupied = Vec::new();
-        for &b in &bricks {
-            if self.store.slot(b).is_some() {
-                slots.push(occupied.len() as i32);
-                occupied.push(b);
-            } else {
-                slots.push(-1);
-            }
-        }
-        let n_dense = bricks.len() as u64;
-        let n_occ = occupied.len() as u64;
-
-        // Gather into the upload staging buffer: slot table, density, prev source, next source, fluence.
-        let off_density = (n_dense * 4).next_multiple_of(16);
-        let off_prev = off_density + n_occ * BRICK_BYTES;
-        let off_next = off_prev + if gain { n_occ * comps * BRICK_BYTES } else { 0 };
-        let off_fluence = off_next + n_occ * comps * BRICK_BYTES;
-        let upload_end = off_fluence + n_dense * c * BRICK_BYTES;
-        {
-            let store = self.store;
-            let fields = &*self.fields;
-            let buffers = self.buffers.as_mut().ok_or(SolveError::Internal("device buffers released"))?;
-            let staging = buffers.upload.mapped_mut().ok_or(SolveError::Internal("upload staging is not mapped"))?;
-            let staging = &mut staging[..upload_end as usize];
-            put(staging, 0, bytemuck::cast_slice(&slots));
-            for (i, &b) in occupied.iter().enumerate() {
-                let o = off_density as usize + i * BRICK_BYTES as usize;
-                put(staging, o, bytemuck::cast_slice(store.density_brick(b).unwrap_or(&[])));
-                let block = (comps * BRICK_BYTES) as usize;
-                if gain {
-                    let src = fields.source_prev.brick(b).unwrap_or(&[]);
-                    put(staging, off_prev as usize + i * block, bytemuck::cast_slice(src));
-                }
-                let src = fields.source_next.brick(b).unwrap_or(&[]);
-                put(staging, off_next as usize + i * block, bytemuck::cast_slice(src));
-            }
-            for (i, &b) in bricks.iter().enumerate() {
-                let block = (c * BRICK_BYTES) as usize;
-                let src = fields.fluence.brick(b).unwrap_or(&[]);
-                put(staging, off_fluence as usize + i * block, bytemuck::cast_slice(src));
-            }
-        }
-
-        let buffers = self.buffers()?;
+        let slot = &self.slots[s];
+        let shared = self.shared()?;
         let propagate = self.propagate.as_ref().ok_or(SolveError::Internal("pipeline released"))?;
         let collect = self.collect.as_ref().ok_or(SolveError::Internal("pipeline released"))?;
-        let mut rec = Recorder::begin(&self.ctx, self.ctx.compute_queue().family(), "slice")?;
+        let queue = self.ctx.compute_queue();
+        let mut rec = Recorder::begin(&self.ctx, queue.family(), "compute")?;
+        // Earlier compute submissions wrote the ray state and the deposit this one uses.
+        rec.compute_to_compute();
         if first {
-            for b in [&buffers.rays, &buffers.rays_in, &buffers.rays_out] {
+            for b in [&shared.rays, &shared.rays_in, &shared.rays_out] {
                 rec.fill_buffer(b, 0, vk::WHOLE_SIZE, 0);
             }
+            rec.transfer_to_compute();
         }
-        let copy = |src: u64, dst: u64, size: u64| vk::BufferCopy { src_offset: src, dst_offset: dst, size };
-        rec.copy_buffer(&buffers.upload, &buffers.slot_table, &[copy(0, 0, n_dense * 4)]);
-        if n_occ > 0 {
-            rec.copy_buffer(&buffers.upload, &buffers.density, &[copy(off_density, 0, n_occ * BRICK_BYTES)]);
-            if gain {
-                rec.copy_buffer(&buffers.upload, &buffers.source_prev, &[copy(off_prev, 0, n_occ * comps * BRICK_BYTES)]);
-            }
-            rec.copy_buffer(&buffers.upload, &buffers.source_next, &[copy(off_next, 0, n_occ * comps * BRICK_BYTES)]);
-        }
-        rec.copy_buffer(&buffers.upload, &buffers.fluence, &[copy(off_fluence, 0, n_dense * c * BRICK_BYTES)]);
-        rec.transfer_to_compute();
-
-        let (st, ss, emit) = (0..3).fold(([0f32; 4], [0f32; 4], [0f32; 4]), |(mut st, mut ss, mut em), ch| {
-            let (t, s, a) = plan.coefficients(ch.min(plan.channels as usize - 1));
-            st[ch] = t as f32;
-            ss[ch] = s as f32;
-            em[ch] = (a * plan.medium.emission[ch]) as f32;
-            (st, ss, em)
-        });
+        let face = sweep.geometry();
+        let coefficient = |ch: usize| plan.coefficients(ch.min(plan.channels as usize - 1));
+        let vec4 = |f: &dyn Fn(usize) -> f64| [f(0) as f32, f(1) as f32, f(2) as f32, 0.0];
         let mut push = SweepPush {
             na: sweep.n[0],
             nb: sweep.n[1],
             nc: sweep.n[2],
-            t0: slice.t0,
-            t1: slice.t1,
+            t0: 0,
+            t1: 0,
             axis_sign: face.axis as u32 | if face.sign < 0.0 { 4 } else { 0 },
             lateral: face.lateral[0] as u32 | (face.lateral[1] as u32) << 2,
-            bricks_b,
-            bricks_c,
+            bricks_b: layout.bricks_b,
+            bricks_c: layout.bricks_c,
             dir_count: 0,
             channels: plan.channels,
             storage: plan.storage.len() as u32,
@@ -361,10 +454,11 @@ impl<'a> GpuBackend<'a> {
             dir_base: 0,
             ray_base: 0,
             pad2: 0,
-            sigma_t: st,
-            sigma_s: ss,
-            emission: emit,
+            sigma_t: vec4(&|ch| coefficient(ch).0),
+            sigma_s: vec4(&|ch| coefficient(ch).1),
+            emission: vec4(&|ch| coefficient(ch).2 * plan.medium.emission[ch]),
         };
+        let range = layout.range;
         let group = self.memory.directions_per_dispatch;
         let chunk = self.memory.planes_per_dispatch;
         let mut base = pass_dirs.start;
@@ -373,24 +467,24 @@ impl<'a> GpuBackend<'a> {
             push.dir_base = base;
             push.ray_base = base - pass_dirs.start;
             push.dir_count = n;
-            let mut t0 = slice.t0;
-            while t0 < slice.t1 {
-                let t1 = (t0 + chunk).min(slice.t1);
+            let mut t0 = range.t0;
+            while t0 < range.t1 {
+                let t1 = (t0 + chunk).min(range.t1);
                 push.t0 = t0;
                 push.t1 = t1;
-                push.flags = flags | if last && t1 == slice.t1 { FLAG_LAST_SLICE } else { 0 };
+                push.flags = flags | if last && t1 == range.t1 { FLAG_LAST_SLICE } else { 0 };
                 rec.dispatch(
                     propagate,
                     &[
                         BufferRange::from(&tables.directions),
                         BufferRange::from(&tables.offsets),
-                        BufferRange::from(&buffers.slot_table),
-                        BufferRange::from(&buffers.density),
-                        BufferRange::from(&buffers.source_prev),
-                        BufferRange::from(&buffers.rays),
-                        BufferRange::from(&buffers.rays_in),
-                        BufferRange::from(&buffers.rays_out),
-                        BufferRange::from(&buffers.deposit),
+                        BufferRange::from(&slot.slot_table),
+                        BufferRange::from(&slot.density),
+                        BufferRange::from(&slot.source_prev),
+                        BufferRange::from(&shared.rays),
+                        BufferRange::from(&shared.rays_in),
+                        BufferRange::from(&shared.rays_out),
+                        BufferRange::from(&shared.deposit),
                     ],
                     bytemuck::bytes_of(&push),
                     [sweep.n[1].div_ceil(16), sweep.n[2].div_ceil(4), n],
@@ -401,11 +495,11 @@ impl<'a> GpuBackend<'a> {
                     &[
                         BufferRange::from(&tables.directions),
                         BufferRange::from(&tables.rows),
-                        BufferRange::from(&buffers.slot_table),
-                        BufferRange::from(&buffers.density),
-                        BufferRange::from(&buffers.deposit),
-                        BufferRange::from(&buffers.source_next),
-                        BufferRange::from(&buffers.fluence),
+                        BufferRange::from(&slot.slot_table),
+                        BufferRange::from(&slot.density),
+                        BufferRange::from(&shared.deposit),
+                        BufferRange::from(&slot.source_next),
+                        BufferRange::from(&slot.fluence),
                     ],
                     bytemuck::bytes_of(&push),
                     [sweep.n[1].div_ceil(16), sweep.n[2].div_ceil(4), t1 - t0],
@@ -415,49 +509,44 @@ impl<'a> GpuBackend<'a> {
             }
             base += n;
         }
-        rec.compute_to_transfer();
-        let next_bytes = n_occ * comps * BRICK_BYTES;
-        if n_occ > 0 {
-            rec.copy_buffer(&buffers.source_next, &buffers.download, &[copy(0, 0, next_bytes)]);
-        }
-        rec.copy_buffer(&buffers.fluence, &buffers.download, &[copy(0, next_bytes, n_dense * c * BRICK_BYTES)]);
-        rec.transfer_to_host();
-        self.submit_and_wait(rec)?;
-
-        // Scatter the accumulators back into the store.
-        let buffers = self.buffers.as_ref().ok_or(SolveError::Internal("device buffers released"))?;
-        let staging = buffers.download.mapped().ok_or(SolveError::Internal("download staging is not mapped"))?;
-        let fields = &mut *self.fields;
-        for (i, &b) in occupied.iter().enumerate() {
-            let block = (comps * BRICK_BYTES) as usize;
-            if let Some(dst) = fields.source_next.brick_mut(b) {
-                dst.copy_from_slice(bytemuck::cast_slice(&staging[i * block..(i + 1) * block]));
-            }
-        }
-        for (i, &b) in bricks.iter().enumerate() {
-            let block = (c * BRICK_BYTES) as usize;
-            let o = next_bytes as usize + i * block;
-            if let Some(dst) = fields.fluence.brick_mut(b) {
-                dst.copy_from_slice(bytemuck::cast_slice(&staging[o..o + block]));
-            }
-        }
+        let t = self.timelines()?;
+        rec.submit(queue, &[(&t.upload, v, vk::PipelineStageFlags2::COMPUTE_SHADER)], (&t.compute, v))?;
         Ok(())
     }
 
-    /// Downloads the rays' birth and exit tallies of the sweep just finished, as powers.
+    fn submit_download(&mut self, s: usize, layout: &SliceLayout, v: u64) -> Result<(), SolveError> {
+        // The staging is free once the scatter of its previous contents is done.
+        if let Some(t) = self.slots[s].scattering.take() {
+            t.wait();
+        }
+        let queue = self.transfer_queue();
+        let slot = &self.slots[s];
+        let mut rec = Recorder::begin(&self.ctx, queue.family(), "download")?;
+        let next = layout.source_bytes();
+        if layout.occ() > 0 {
+            rec.copy_buffer(&slot.source_next, &slot.download, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: next }]);
+        }
+        rec.copy_buffer(&slot.fluence, &slot.download, &[vk::BufferCopy { src_offset: 0, dst_offset: next, size: layout.fluence_bytes() }]);
+        rec.transfer_to_host();
+        let t = self.timelines()?;
+        rec.submit(queue, &[(&t.compute, v, vk::PipelineStageFlags2::TRANSFER)], (&t.download, v))?;
+        Ok(())
+    }
+
+    /// Downloads the rays' birth and exit tallies of the pass just finished, as powers.
     fn read_tallies(&mut self, sweep: &FaceSweep, dirs: &[SweepDirection]) -> Result<Tallies, SolveError> {
         let c = self.plan.channels as usize;
         let rays = sweep.rays();
         let bytes = (dirs.len() * c * rays * 4) as u64;
-        let buffers = self.buffers()?;
+        let shared = self.shared()?;
         let mut rec = Recorder::begin(&self.ctx, self.ctx.compute_queue().family(), "tallies")?;
         rec.compute_to_transfer();
         let region = |dst| [vk::BufferCopy { src_offset: 0, dst_offset: dst, size: bytes }];
-        rec.copy_buffer(&buffers.rays_in, &buffers.download, &region(0));
-        rec.copy_buffer(&buffers.rays_out, &buffers.download, &region(bytes));
+        rec.copy_buffer(&shared.rays_in, &shared.tallies, &region(0));
+        rec.copy_buffer(&shared.rays_out, &shared.tallies, &region(bytes));
         rec.transfer_to_host();
         self.submit_and_wait(rec)?;
-        let staging = self.buffers()?.download.mapped().ok_or(SolveError::Internal("download staging is not mapped"))?;
+        let staging = self.shared()?.tallies.mapped().ok_or(SolveError::Internal("tally staging is not mapped"))?;
         let values: &[f32] = bytemuck::cast_slice(&staging[..2 * bytes as usize]);
         let (born, left) = values.split_at(values.len() / 2);
         let mut tallies = Tallies::default();
@@ -475,16 +564,28 @@ impl<'a> GpuBackend<'a> {
 
     /// Frees every device resource (waits for the last submission first).
     fn release(&mut self) {
-        if let Some(timeline) = self.timeline.as_ref() {
-            if let Err(e) = timeline.wait(&self.ctx, self.timeline_value, WAIT_FOREVER) {
-                tracing::warn!("waiting for the last submission failed: {e}");
+        if let Some(t) = self.timelines.as_ref() {
+            for timeline in [&t.upload, &t.compute, &t.download] {
+                if let Err(e) = timeline.wait(&self.ctx, self.value, WAIT_FOREVER) {
+                    tracing::warn!("waiting for the last submission failed: {e}");
+                }
+            }
+        }
+        for slot in &mut self.slots {
+            if let Some(t) = slot.scattering.take() {
+                t.wait();
             }
         }
         for tables in self.face_tables.drain(..).chain(self.beam_tables.drain(..)) {
             tables.destroy(&self.ctx);
         }
-        if let Some(buffers) = self.buffers.take() {
-            for b in buffers.all() {
+        for slot in self.slots.drain(..) {
+            for b in slot.buffers() {
+                self.ctx.destroy_buffer(b);
+            }
+        }
+        if let Some(shared) = self.shared.take() {
+            for b in [shared.rays, shared.rays_in, shared.rays_out, shared.deposit, shared.tallies] {
                 self.ctx.destroy_buffer(b);
             }
         }
@@ -494,8 +595,10 @@ impl<'a> GpuBackend<'a> {
         if let Some(p) = self.collect.take() {
             self.ctx.destroy_pipeline(p);
         }
-        if let Some(t) = self.timeline.take() {
-            self.ctx.destroy_timeline(t);
+        if let Some(t) = self.timelines.take() {
+            self.ctx.destroy_timeline(t.upload);
+            self.ctx.destroy_timeline(t.compute);
+            self.ctx.destroy_timeline(t.download);
         }
     }
 }
@@ -506,28 +609,24 @@ impl Drop for GpuBackend<'_> {
     }
 }
 
-/// Copies `bytes` into `staging` at `offset`.
-fn put(staging: &mut [u8], offset: usize, bytes: &[u8]) {
-    staging[offset..offset + bytes.len()].copy_from_slice(bytes);
-}
-
 impl Backend for GpuBackend<'_> {
     fn propagate_order(&mut self, order: u32) -> Result<Tallies, SolveError> {
         let plan = self.plan;
         let mut tallies = Tallies::default();
         if order == 0 {
             let beams = std::mem::take(&mut self.beam_tables);
+            let mut result = Ok(());
             for (tables, beam) in beams.iter().zip(&plan.beams) {
-                let r = self.sweep(tables, std::slice::from_ref(beam), FLAG_BOUNDARY);
-                match r {
+                match self.sweep(tables, std::slice::from_ref(beam), FLAG_BOUNDARY) {
                     Ok(t) => tallies.add(&t),
                     Err(e) => {
-                        self.beam_tables = beams;
-                        return Err(e);
+                        result = Err(e);
+                        break;
                     }
                 }
             }
             self.beam_tables = beams;
+            result?;
         }
         let mut flags = FLAG_GAIN;
         if order == 0 {
