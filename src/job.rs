@@ -1,9 +1,11 @@
 //! A solve job from start to finish: read the scene, build the brick store, solve, export the
 //! fields, render the image, write the report. The CLI and the tests both run jobs through here.
 //!
-//! Nothing is left half-written: the scene is validated before anything is created, the store is
-//! built in a temporary directory inside the output directory and removed at the end (or on
-//! failure), and every output file is written under a temporary name and renamed when complete.
+//! Nothing is left half-written: the scene is validated before anything is created, the brick
+//! store is built in `OUT/.lpm-work` and removed at the end, and every output file is written under
+//! a temporary name and renamed when complete. The GPU backend checkpoints the store after every
+//! order; a solve that is killed or fails after its first checkpoint keeps `OUT/.lpm-work`, and
+//! `--resume` continues it (bitwise the same result as an uninterrupted solve).
 
 use crate::output::{self, FieldMeta, OutputError};
 use crate::render::{self, RenderInputs};
@@ -39,6 +41,13 @@ pub struct SolveJob {
     pub no_image: bool,
     /// Device memory budget in bytes; overrides the scene's `solver.device_memory_budget`.
     pub device_memory_budget: Option<u64>,
+    /// Continue from the checkpoint in `OUT/.lpm-work` if there is one.
+    pub resume: bool,
+}
+
+/// The work directory (brick store and checkpoint) of a solve writing to `out`.
+pub fn work_dir(out: &Path) -> PathBuf {
+    out.join(".lpm-work")
 }
 
 /// `report.json`.
@@ -72,26 +81,36 @@ pub struct Phase {
 
 /// Runs the job; `progress(order, residual)` is called after each order.
 pub fn run(job: &SolveJob, progress: impl FnMut(u32, f64)) -> Result<Report, JobError> {
+    if job.resume && job.backend == BackendKind::Cpu {
+        return Err(SolveError::ResumeNeedsGpu.into());
+    }
     let mut scene = Scene::load(&job.scene)?;
     if job.device_memory_budget.is_some() {
         scene.solver.device_memory_budget = job.device_memory_budget;
     }
     let created_out = !job.out.exists();
     std::fs::create_dir_all(&job.out).map_err(|source| JobError::OutputDir { path: job.out.clone(), source })?;
-    let work = job.out.join(format!(".store.tmp-{}", std::process::id()));
+    let work = work_dir(&job.out);
+    if !job.resume {
+        let _ = std::fs::remove_dir_all(&work);
+    }
     let result = run_in(job, &scene, &work, progress);
-    // The store is scratch unless asked for; on failure nothing of this job stays behind.
+    let checkpointed = work.join("checkpoint.json").exists();
     match (&result, job.keep_store) {
         (Ok(_), true) => {
             let keep = job.out.join("store");
             let _ = std::fs::remove_dir_all(&keep);
             let _ = std::fs::rename(&work, &keep);
         }
+        // A failed solve that got past its first order keeps its store for `--resume`.
+        (Err(_), _) if checkpointed => {
+            tracing::warn!("the solve can be continued: run the same command with --resume");
+        }
         _ => {
             let _ = std::fs::remove_dir_all(&work);
         }
     }
-    if result.is_err() && created_out {
+    if result.is_err() && created_out && !checkpointed {
         let _ = std::fs::remove_dir(&job.out);
     }
     result
@@ -99,9 +118,22 @@ pub fn run(job: &SolveJob, progress: impl FnMut(u32, f64)) -> Result<Report, Job
 
 fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, f64)) -> Result<Report, JobError> {
     let t = Instant::now();
-    let store = solver::build_store(scene, work)?;
+    let reopen = job.resume && work.join("checkpoint.json").exists();
+    let store = if reopen {
+        crate::store::BrickStore::open(work).map_err(SolveError::from)?
+    } else {
+        if job.resume {
+            tracing::info!("nothing to resume in {}: starting from the beginning", work.display());
+        }
+        solver::build_store(scene, work)?
+    };
     let store_seconds = t.elapsed().as_secs_f64();
-    let (run, fields) = solver::solve(scene, &store, job.backend, job.vk.clone(), progress)?;
+    let gpu = solver::gpu::GpuOptions {
+        budget: scene.solver.device_memory_budget,
+        checkpoints: job.backend == BackendKind::Gpu,
+        ..solver::gpu::GpuOptions::default()
+    };
+    let (run, fields) = solver::solve_with(scene, &store, job.backend, job.vk.clone(), gpu, reopen, progress)?;
     let SolveRun { plan, outcome, device, peak_device_bytes, memory, mut phases } = run;
     phases.insert(0, ("store".to_string(), store_seconds));
 
@@ -113,7 +145,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
     };
     let mut outputs = Vec::new();
     output::export_field(
-        &fields.fluence,
+        &fields.fluence_total,
         &store,
         &job.out,
         "fluence",

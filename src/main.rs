@@ -53,6 +53,10 @@ enum Command {
         /// of the device's memory heap. Smaller budgets cut the sweeps finer; results are identical.
         #[arg(long, env = "LPM_DEVICE_MEMORY_BUDGET", value_parser = parse_budget)]
         device_memory_budget: Option<u64>,
+        /// Continue a solve that was killed or failed: picks up after the last completed order
+        /// checkpointed in OUT/.lpm-work (GPU backend). The result is bitwise the same.
+        #[arg(long)]
+        resume: bool,
     },
     /// Print what a solve wrote to DIR: the plan, orders, residual, energy balance and the fields.
     Info {
@@ -83,7 +87,7 @@ fn main() {
 
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Solve { scene, out, backend, device, validation, keep_store, no_image, device_memory_budget } => {
+        Command::Solve { scene, out, backend, device, validation, keep_store, no_image, device_memory_budget, resume } => {
             let mut vk = ContextOptions::default();
             if let Some(v) = validation {
                 vk.validation = v;
@@ -102,6 +106,7 @@ fn run(cli: Cli) -> Result<()> {
                 keep_store,
                 no_image,
                 device_memory_budget,
+                resume,
             };
             let bar = std::io::stderr().is_terminal().then(|| {
                 let bar = indicatif::ProgressBar::new_spinner();

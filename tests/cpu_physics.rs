@@ -12,7 +12,7 @@ fn furnace_fluence_is_four_pi() {
     let scene = scene(Shape::Box, [12, 10, 14], [0.2; 3], [1.0; 3], vec![sky(1.0)]);
     let plan = Plan::new(&scene, 8, 0);
     let mut twin = CpuTwin::new(&plan, |_| 1.0).unwrap();
-    let out = run_orders(&plan, &mut twin, |_, _| {}).unwrap();
+    let out = run_orders(&plan, &mut twin, Default::default(), |_, _| {}).unwrap();
     assert!(out.converged, "{:?}", out.residual);
     for v in [[0, 0, 0], [5, 5, 7], [11, 9, 13]] {
         let phi = twin.fluence(v, 0);
@@ -29,7 +29,7 @@ fn energy_balances_with_sun_sky_and_absorption() {
     let plan = Plan::new(&scene, 1, 0);
     let dims = scene.volume.dims;
     let mut twin = CpuTwin::new(&plan, |v| lpm_density_sphere(dims, v)).unwrap();
-    let out = run_orders(&plan, &mut twin, |_, _| {}).unwrap();
+    let out = run_orders(&plan, &mut twin, Default::default(), |_, _| {}).unwrap();
     assert!(out.energy.relative_imbalance < 1e-9, "{:?}", out.energy);
 }
 

@@ -197,7 +197,7 @@ impl CpuTwin<'_> {
                     let v = [x, y, z];
                     let i = self.index(v);
                     let (brick, local) = grid.locate(v);
-                    if let Some(dst) = fields.fluence.brick_mut(brick) {
+                    if let Some(dst) = fields.fluence_total.brick_mut(brick) {
                         for ch in 0..c {
                             dst[ch * crate::store::BRICK_VOXELS + local] = self.fluence[i * c + ch] as f32;
                         }

@@ -1,62 +1,195 @@
-//! The solver's fields in the brick store, and the host passes over them between orders.
+//! The solver's fields in the brick store, the host pass between orders, and checkpoints.
 //!
-//! `source_prev`/`source_next`/`source_total` hold the in-scattered source (storage directions ×
-//! channels per voxel) for occupied bricks only: empty bricks neither scatter nor hold a source.
-//! `fluence` (channels per voxel) covers every brick, since light crosses vacuum too.
+//! Sources (storage directions × channels per voxel) are stored for occupied bricks only: empty
+//! bricks neither scatter nor hold a source. Fluence (channels per voxel) covers every brick.
+//!
+//! Each order accumulates into fields of its own: `source_next` (the next order's source) and
+//! `fluence` (this order's fluence), both zero when the order starts. The committed results —
+//! `source_total` and `fluence_total` — have a spare copy each: the pass at the end of an order
+//! writes `committed + this order` into the spares, flushes them, and only then writes
+//! `checkpoint.json` (atomically) naming the spares as committed. Nothing a checkpoint names is
+//! written afterwards until the next checkpoint replaces it, so a solve killed at any moment
+//! resumes from its last completed order and ends bitwise identical to an uninterrupted one (which
+//! runs the very same passes).
 
+use super::energy::Tallies;
+use super::orders::OrderRecord;
 use super::plan::Plan;
 use super::SolveError;
-use crate::store::{BrickStore, Coverage, Field, BRICK_VOXELS};
+use crate::store::{BrickStore, Coverage, Field, StoreError, BRICK_VOXELS};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+const CHECKPOINT: &str = "checkpoint.json";
+const CHECKPOINT_VERSION: u32 = 1;
 
 pub struct StoreFields {
+    /// The source rays gain in this order.
     pub source_prev: Field,
+    /// The source this order scatters (the next order's), accumulated over the order's sweeps.
     pub source_next: Field,
-    pub source_total: Field,
+    /// This order's fluence, accumulated over its sweeps.
     pub fluence: Field,
+    /// Committed sums over the completed orders.
+    pub source_total: Field,
+    pub fluence_total: Field,
+    source_spare: Field,
+    fluence_spare: Field,
+    /// The order's accumulators are known to be zero (fresh files, or just cleared).
+    clean: bool,
+}
+
+/// The order loop's state after a completed order, as saved in `checkpoint.json`.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct LoopState {
+    /// Orders completed (the next order to propagate).
+    pub orders_done: u32,
+    pub tallies: [[f64; 3]; 2],
+    pub total_power: [f64; 3],
+    pub last_new_power: [f64; 3],
+    pub history: Vec<OrderRecord>,
+}
+
+impl LoopState {
+    pub fn tallies(&self) -> Tallies {
+        Tallies { boundary_in: self.tallies[0], boundary_out: self.tallies[1] }
+    }
+}
+
+#[derive(Serialize, Deserialize)]
+struct Checkpoint {
+    version: u32,
+    /// Identifies the scene and plan the fields belong to.
+    digest: String,
+    /// Field file names in their current roles.
+    source_prev: String,
+    source_next: String,
+    source_total: String,
+    source_spare: String,
+    fluence_total: String,
+    fluence_spare: String,
+    state: LoopState,
 }
 
 impl StoreFields {
+    /// Fresh, zero fields.
     pub fn create(store: &BrickStore, plan: &Plan) -> Result<Self, SolveError> {
         let comps = plan.source_components();
+        let c = plan.channels;
         Ok(StoreFields {
-            source_prev: store.create_field("source_prev", comps, Coverage::Occupied)?,
-            source_next: store.create_field("source_next", comps, Coverage::Occupied)?,
-            source_total: store.create_field("source_total", comps, Coverage::Occupied)?,
-            fluence: store.create_field("fluence", plan.channels, Coverage::Dense)?,
+            source_prev: store.create_field("source_a", comps, Coverage::Occupied)?,
+            source_next: store.create_field("source_b", comps, Coverage::Occupied)?,
+            fluence: store.create_field("fluence_order", c, Coverage::Dense)?,
+            source_total: store.create_field("total_a", comps, Coverage::Occupied)?,
+            source_spare: store.create_field("total_b", comps, Coverage::Occupied)?,
+            fluence_total: store.create_field("fluence_a", c, Coverage::Dense)?,
+            fluence_spare: store.create_field("fluence_b", c, Coverage::Dense)?,
+            clean: true,
         })
     }
 
-    /// Adds the new source to the total, makes it the next order's previous source, clears it, and
-    /// returns its scattered power per channel.
-    pub fn finish_order(&mut self, plan: &Plan) -> [f64; 3] {
+    /// Reopens the fields of `store` in the roles its checkpoint names, with the saved loop state;
+    /// `None` when the store holds no checkpoint.
+    pub fn resume(store: &BrickStore, plan: &Plan, digest: &str) -> Result<Option<(Self, LoopState)>, SolveError> {
+        let path = store.dir().join(CHECKPOINT);
+        let text = match std::fs::read_to_string(&path) {
+            Ok(t) => t,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+            Err(source) => return Err(StoreError::Io { path, action: "read", source }.into()),
+        };
+        let cp: Checkpoint = serde_json::from_str(&text).map_err(|source| StoreError::Json { path: path.clone(), source })?;
+        if cp.version != CHECKPOINT_VERSION || cp.digest != digest {
+            return Err(SolveError::CheckpointMismatch { path });
+        }
+        let comps = plan.source_components();
+        let c = plan.channels;
+        let mut fields = StoreFields {
+            source_prev: store.open_field(&cp.source_prev, comps, Coverage::Occupied)?,
+            source_next: store.open_field(&cp.source_next, comps, Coverage::Occupied)?,
+            fluence: store.open_field("fluence_order", c, Coverage::Dense)?,
+            source_total: store.open_field(&cp.source_total, comps, Coverage::Occupied)?,
+            source_spare: store.open_field(&cp.source_spare, comps, Coverage::Occupied)?,
+            fluence_total: store.open_field(&cp.fluence_total, c, Coverage::Dense)?,
+            fluence_spare: store.open_field(&cp.fluence_spare, c, Coverage::Dense)?,
+            clean: false,
+        };
+        // Whatever the killed order had accumulated is discarded.
+        fields.begin_order();
+        Ok(Some((fields, cp.state)))
+    }
+
+    /// The end-of-order pass: commits the order's fluence and source into the spare copies, makes
+    /// them the committed ones and the new source the next order's previous one, and returns the
+    /// new source's scattered power per channel. The order's accumulators are cleared by
+    /// [`StoreFields::begin_order`], after any checkpoint is written: until then they still hold
+    /// what the previous checkpoint names.
+    pub fn commit_order(&mut self, plan: &Plan) -> [f64; 3] {
         let c = plan.channels as usize;
+        let comps = plan.source_components() as usize;
         let h3 = plan.voxel_size.powi(3);
         let mut power = [0.0; 3];
-        let next = self.source_next.as_slice();
-        let total = self.source_total.as_mut_slice();
-        for (component_block, (n, t)) in next.chunks(BRICK_VOXELS).zip(total.chunks_mut(BRICK_VOXELS)).enumerate() {
-            let k = component_block % plan.source_components() as usize;
-            let weight = plan.storage.solid_angle[k / c] * h3;
-            let mut sum = 0.0;
-            for (t, &n) in t.iter_mut().zip(n) {
-                *t += n;
-                sum += n as f64;
+        {
+            let next = self.source_next.as_slice();
+            let total = self.source_total.as_slice();
+            let spare = self.source_spare.as_mut_slice();
+            for (block, ((n, t), s)) in next.chunks(BRICK_VOXELS).zip(total.chunks(BRICK_VOXELS)).zip(spare.chunks_mut(BRICK_VOXELS)).enumerate() {
+                let k = block % comps;
+                let mut sum = 0.0;
+                for ((s, &t), &n) in s.iter_mut().zip(t).zip(n) {
+                    *s = t + n;
+                    sum += n as f64;
+                }
+                power[k % c] += plan.storage.solid_angle[k / c] * h3 * sum;
             }
-            power[k % c] += weight * sum;
+            let order = self.fluence.as_slice();
+            let total = self.fluence_total.as_slice();
+            for ((s, &t), &o) in self.fluence_spare.as_mut_slice().iter_mut().zip(total).zip(order) {
+                *s = t + o;
+            }
         }
+        std::mem::swap(&mut self.source_total, &mut self.source_spare);
+        std::mem::swap(&mut self.fluence_total, &mut self.fluence_spare);
         std::mem::swap(&mut self.source_prev, &mut self.source_next);
-        self.source_next.fill_zero();
+        self.clean = false;
         power
     }
 
-    /// Power emitted in order 0 and absorbed over all orders so far, per channel.
+    /// Flushes the committed state and records it in `checkpoint.json` (atomically).
+    pub fn write_checkpoint(&self, dir: &Path, digest: &str, state: &LoopState) -> Result<(), SolveError> {
+        for f in [&self.source_prev, &self.source_total, &self.fluence_total] {
+            f.flush()?;
+        }
+        let cp = Checkpoint {
+            version: CHECKPOINT_VERSION,
+            digest: digest.to_string(),
+            source_prev: self.source_prev.name().to_string(),
+            source_next: self.source_next.name().to_string(),
+            source_total: self.source_total.name().to_string(),
+            source_spare: self.source_spare.name().to_string(),
+            fluence_total: self.fluence_total.name().to_string(),
+            fluence_spare: self.fluence_spare.name().to_string(),
+            state: state.clone(),
+        };
+        crate::output::write_json_atomic(&dir.join(CHECKPOINT), &cp).map_err(SolveError::Checkpoint)
+    }
+
+    /// Clears the order's accumulators before an order starts.
+    pub fn begin_order(&mut self) {
+        if std::mem::replace(&mut self.clean, true) {
+            return;
+        }
+        self.source_next.fill_zero();
+        self.fluence.fill_zero();
+    }
+
+    /// Power emitted in order 0 and absorbed over all committed orders, per channel.
     pub fn emitted_and_absorbed(&self, store: &BrickStore, plan: &Plan) -> ([f64; 3], [f64; 3]) {
         let c = plan.channels as usize;
         let h3 = plan.voxel_size.powi(3);
         let four_pi: f64 = plan.storage.solid_angle.iter().sum();
         let (mut emitted, mut absorbed) = ([0.0; 3], [0.0; 3]);
         for brick in 0..store.grid().brick_count() {
-            let (Some(density), Some(phi)) = (store.density_brick(brick), self.fluence.brick(brick)) else {
+            let (Some(density), Some(phi)) = (store.density_brick(brick), self.fluence_total.brick(brick)) else {
                 continue;
             };
             for ch in 0..c {

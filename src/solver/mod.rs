@@ -40,6 +40,12 @@ pub enum SolveError {
     BudgetTooSmall { budget: u64, needed: u64 },
     #[error("Vulkan validation reported {} error(s); the first: {}", .0.len(), .0.first().map(String::as_str).unwrap_or(""))]
     Validation(Vec<String>),
+    #[error("{}: the checkpoint belongs to another scene or lpm version; solve again without --resume", path.display())]
+    CheckpointMismatch { path: std::path::PathBuf },
+    #[error("writing the checkpoint: {0}")]
+    Checkpoint(crate::output::OutputError),
+    #[error("--resume needs the GPU backend (the CPU twin keeps its fields in memory)")]
+    ResumeNeedsGpu,
     #[error("internal error: {0}")]
     Internal(&'static str),
 }
@@ -96,7 +102,18 @@ pub fn solve(
     progress: impl FnMut(u32, f64),
 ) -> Result<(SolveRun, StoreFields), SolveError> {
     let gpu = gpu::GpuOptions { budget: scene.solver.device_memory_budget, ..gpu::GpuOptions::default() };
-    solve_with(scene, store, backend, vk_options, gpu, progress)
+    solve_with(scene, store, backend, vk_options, gpu, false, progress)
+}
+
+/// Identifies a scene for checkpoints: a resumed solve must be the same job.
+pub fn scene_digest(scene: &Scene) -> String {
+    // FNV-1a over the validated scene and the crate version: stable across runs and platforms.
+    let text = format!("{}|{:?}", env!("CARGO_PKG_VERSION"), scene);
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in text.bytes() {
+        h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
+    }
+    format!("{h:016x}")
 }
 
 /// [`solve`] with explicit GPU options (budget, slices in flight).
@@ -106,13 +123,25 @@ pub fn solve_with(
     backend: BackendKind,
     vk_options: ContextOptions,
     gpu_options: gpu::GpuOptions,
+    resume: bool,
     mut progress: impl FnMut(u32, f64),
 ) -> Result<(SolveRun, StoreFields), SolveError> {
     let mut phases = Vec::new();
     let t = Instant::now();
     let total = store.grid().brick_count();
     let plan = Plan::new(scene, total, total - store.occupied_count());
-    let mut fields = StoreFields::create(store, &plan)?;
+    let digest = scene_digest(scene);
+    if resume && backend == BackendKind::Cpu {
+        return Err(SolveError::ResumeNeedsGpu);
+    }
+    let resumed = if resume { StoreFields::resume(store, &plan, &digest)? } else { None };
+    let (mut fields, start) = match resumed {
+        Some((fields, state)) => {
+            tracing::info!("resuming after {} completed order(s)", state.orders_done);
+            (fields, state)
+        }
+        None => (StoreFields::create(store, &plan)?, fields::LoopState::default()),
+    };
     phases.push(("plan".to_string(), t.elapsed().as_secs_f64()));
     for reason in &plan.reasons {
         tracing::info!("plan: {reason}");
@@ -124,7 +153,7 @@ pub fn solve_with(
             let mut twin = cpu::CpuTwin::new(&plan, |v| store.density_at(v))?;
             phases.push(("setup".to_string(), t.elapsed().as_secs_f64()));
             let t = Instant::now();
-            let outcome = orders::run_orders(&plan, &mut twin, &mut progress)?;
+            let outcome = orders::run_orders(&plan, &mut twin, start, &mut progress)?;
             phases.push(("orders".to_string(), t.elapsed().as_secs_f64()));
             twin.write_into(store, &mut fields);
             (outcome, "CPU twin (f64)".to_string(), 0)
@@ -136,9 +165,12 @@ pub fn solve_with(
             let mut gpu =
                 gpu::GpuBackend::new(ctx.clone(), &plan, store, &mut fields, gpu_options)?;
             memory = Some(gpu.memory_plan());
+            if gpu_options.checkpoints {
+                gpu.enable_checkpoints(digest.clone());
+            }
             phases.push(("setup".to_string(), t.elapsed().as_secs_f64()));
             let t = Instant::now();
-            let outcome = orders::run_orders(&plan, &mut gpu, &mut progress)?;
+            let outcome = orders::run_orders(&plan, &mut gpu, start, &mut progress)?;
             phases.push(("orders".to_string(), t.elapsed().as_secs_f64()));
             drop(gpu);
             let peak = ctx.peak_allocated_bytes();
@@ -151,7 +183,7 @@ pub fn solve_with(
             (outcome, device, peak)
         }
     };
-    fields.fluence.flush()?;
+    fields.fluence_total.flush()?;
     fields.source_total.flush()?;
     Ok((SolveRun { plan, outcome, device, peak_device_bytes: peak, memory, phases }, fields))
 }

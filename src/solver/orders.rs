@@ -2,6 +2,7 @@
 //! total, and stop when the newest order's scattered power falls below the tolerance.
 
 use super::energy::{EnergyBalance, Tallies};
+use super::fields::LoopState;
 use super::plan::Plan;
 use super::SolveError;
 use serde::Serialize;
@@ -12,14 +13,18 @@ use std::time::{Duration, Instant};
 pub trait Backend {
     /// Propagates one order (the beams first when `order == 0`) and returns its boundary tallies.
     fn propagate_order(&mut self, order: u32) -> Result<Tallies, SolveError>;
-    /// Adds the new source to the total, makes it the source of the next order, clears the new
-    /// source, and returns its scattered power per channel (Σ_x Σ_d Ω_d·J^d·h³).
+    /// Adds the order's fluence and new source to the totals, makes the new source the next
+    /// order's, and returns its scattered power per channel (Σ_x Σ_d Ω_d·J^d·h³).
     fn finish_order(&mut self) -> Result<[f64; 3], SolveError>;
+    /// Records the state after a completed order so that a killed solve can resume from it.
+    fn checkpoint(&mut self, _state: &LoopState) -> Result<(), SolveError> {
+        Ok(())
+    }
     /// Power emitted (order 0) and absorbed (all orders so far), per channel.
     fn emitted_and_absorbed(&mut self) -> Result<([f64; 3], [f64; 3]), SolveError>;
 }
 
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct OrderRecord {
     pub order: u32,
     /// Scattered power of the source this order produced (summed over channels).
@@ -42,48 +47,56 @@ pub struct OrderOutcome {
     pub elapsed: Duration,
 }
 
-/// Runs orders until the tolerance or the cap. `progress(order, residual)` is called after each.
+/// Runs orders until the tolerance or the cap, from `start` (a fresh solve passes the default
+/// state; a resumed one the state of its checkpoint). `progress(order, residual)` is called after
+/// each order.
 pub fn run_orders(
     plan: &Plan,
     backend: &mut dyn Backend,
+    start: LoopState,
     mut progress: impl FnMut(u32, f64),
 ) -> Result<OrderOutcome, SolveError> {
-    let start = Instant::now();
-    let mut tallies = Tallies::default();
-    let mut total = [0.0; 3];
-    let mut history = Vec::new();
-    let mut residual = 0.0;
-    let mut converged = false;
-    let mut last_new = [0.0; 3];
-    for order in 0..plan.max_orders {
+    let clock = Instant::now();
+    let mut state = start;
+    let residual_of = |s: &LoopState| {
+        let total: f64 = s.total_power.iter().sum();
+        if total > 0.0 {
+            s.last_new_power.iter().sum::<f64>() / total
+        } else {
+            0.0
+        }
+    };
+    let mut converged = state.orders_done > 0 && residual_of(&state) <= plan.tolerance;
+    while !converged && state.orders_done < plan.max_orders {
+        let order = state.orders_done;
         let t = Instant::now();
+        let mut tallies = state.tallies();
         tallies.add(&backend.propagate_order(order)?);
-        last_new = backend.finish_order()?;
-        (0..3).for_each(|c| total[c] += last_new[c]);
-        let new_sum: f64 = last_new.iter().sum();
-        let total_sum: f64 = total.iter().sum();
-        residual = if total_sum > 0.0 { new_sum / total_sum } else { 0.0 };
-        history.push(OrderRecord {
+        let new = backend.finish_order()?;
+        (0..3).for_each(|c| state.total_power[c] += new[c]);
+        state.last_new_power = new;
+        state.tallies = [tallies.boundary_in, tallies.boundary_out];
+        state.orders_done += 1;
+        let residual = residual_of(&state);
+        state.history.push(OrderRecord {
             order,
-            new_source_power: new_sum,
-            total_source_power: total_sum,
+            new_source_power: new.iter().sum(),
+            total_source_power: state.total_power.iter().sum(),
             seconds: t.elapsed().as_secs_f64(),
         });
+        backend.checkpoint(&state)?;
         progress(order, residual);
         tracing::debug!(order, residual, "order done");
-        if residual <= plan.tolerance {
-            converged = true;
-            break;
-        }
+        converged = residual <= plan.tolerance;
     }
     let (emitted, absorbed) = backend.emitted_and_absorbed()?;
-    let energy = EnergyBalance::new(&tallies, emitted, absorbed, last_new, plan.channels as usize);
+    let energy = EnergyBalance::new(&state.tallies(), emitted, absorbed, state.last_new_power, plan.channels as usize);
     Ok(OrderOutcome {
-        orders: history.len() as u32,
+        orders: state.orders_done,
         converged,
-        residual,
-        history,
+        residual: residual_of(&state),
+        history: state.history,
         energy,
-        elapsed: start.elapsed(),
+        elapsed: clock.elapsed(),
     })
 }

@@ -57,7 +57,7 @@ pub struct Solved {
 
 impl Solved {
     pub fn fluence(&self, v: [u32; 3], ch: u32) -> f64 {
-        self.fields.fluence.value(v, ch) as f64
+        self.fields.fluence_total.value(v, ch) as f64
     }
 
     /// All fluence values, voxel by voxel (x fastest), channels innermost.

@@ -57,11 +57,13 @@ pub struct GpuOptions {
     /// At most this many slices in flight: 2 lets transfers overlap compute, 1 forces one slice
     /// at a time (the single-queue schedule).
     pub max_slices_in_flight: u32,
+    /// Write a checkpoint into the store after every completed order (for `--resume`).
+    pub checkpoints: bool,
 }
 
 impl Default for GpuOptions {
     fn default() -> Self {
-        GpuOptions { budget: None, max_slices_in_flight: 2 }
+        GpuOptions { budget: None, max_slices_in_flight: 2, checkpoints: false }
     }
 }
 
@@ -118,6 +120,10 @@ pub struct GpuBackend<'a> {
     beam_tables: Vec<SweepTables>,
     memory: MemoryPlan,
     copier: Copier,
+    /// The scene digest checkpoints are written under; `None`: no checkpoints.
+    checkpoint_digest: Option<String>,
+    /// Test hook: abort the process when this many slices have been submitted (simulates a kill).
+    abort_at_slice: Option<u64>,
 }
 
 fn create_buffers(ctx: &Context, specs: &[(&str, u64, vk::BufferUsageFlags, MemoryLocation)]) -> Result<Vec<Buffer>, SolveError> {
@@ -191,6 +197,8 @@ impl<'a> GpuBackend<'a> {
             beam_tables: Vec::new(),
             memory,
             copier: Copier::new(std::thread::available_parallelism().map_or(2, |n| n.get()).min(8)),
+            checkpoint_digest: None,
+            abort_at_slice: std::env::var("LPM_TEST_ABORT_AT_SLICE").ok().and_then(|v| v.parse().ok()),
         };
         // From here on, `backend` owns everything made and frees it on drop if a step fails.
         for i in 0..memory.slices_in_flight {
@@ -252,6 +260,11 @@ impl<'a> GpuBackend<'a> {
             "GPU backend ready"
         );
         Ok(backend)
+    }
+
+    /// Writes a checkpoint into the store after every completed order.
+    pub fn enable_checkpoints(&mut self, digest: String) {
+        self.checkpoint_digest = Some(digest);
     }
 
     /// How the sweeps were cut to fit the device memory budget.
@@ -323,6 +336,10 @@ impl<'a> GpuBackend<'a> {
             self.gather(s, &layout)?;
             self.value += 1;
             let v = self.value;
+            if self.abort_at_slice == Some(v) {
+                tracing::error!("LPM_TEST_ABORT_AT_SLICE={v}: aborting as a kill would");
+                std::process::abort();
+            }
             self.submit_upload(s, &layout, v)?;
             self.submit_compute(s, &layout, tables, sweep, pass_dirs.clone(), flags, i == 0, i + 1 == slices.len(), v)?;
             if n_slots == 1 {
@@ -612,6 +629,7 @@ impl Drop for GpuBackend<'_> {
 impl Backend for GpuBackend<'_> {
     fn propagate_order(&mut self, order: u32) -> Result<Tallies, SolveError> {
         let plan = self.plan;
+        self.fields.begin_order();
         let mut tallies = Tallies::default();
         if order == 0 {
             let beams = std::mem::take(&mut self.beam_tables);
@@ -651,7 +669,14 @@ impl Backend for GpuBackend<'_> {
     }
 
     fn finish_order(&mut self) -> Result<[f64; 3], SolveError> {
-        Ok(self.fields.finish_order(self.plan))
+        Ok(self.fields.commit_order(self.plan))
+    }
+
+    fn checkpoint(&mut self, state: &super::fields::LoopState) -> Result<(), SolveError> {
+        match &self.checkpoint_digest {
+            Some(digest) => self.fields.write_checkpoint(self.store.dir(), digest, state),
+            None => Ok(()),
+        }
     }
 
     fn emitted_and_absorbed(&mut self) -> Result<([f64; 3], [f64; 3]), SolveError> {
