@@ -35,6 +35,7 @@
 //! collect step forms the fluence and the next order's in-scattered source. The sun is one more
 //! "direction" swept along its exact direction, so its uncollided light shows no ray effects.
 
+pub mod bench;
 pub mod job;
 pub mod output;
 pub mod quadrature;

@@ -58,6 +58,11 @@ enum Command {
         #[arg(long)]
         resume: bool,
     },
+    /// Benchmarks that print JSON (see README, "Benchmarks").
+    Bench {
+        #[command(subcommand)]
+        what: BenchCommand,
+    },
     /// Print what a solve wrote to DIR: the plan, orders, residual, energy balance and the fields.
     Info {
         /// An output directory of `lpm solve`.
@@ -65,6 +70,29 @@ enum Command {
         /// Print report.json as it is instead of a summary.
         #[arg(long)]
         json: bool,
+    },
+}
+
+#[derive(Subcommand)]
+enum BenchCommand {
+    /// Profile the slice stream with GPU timestamps: per order, seconds in upload, compute and
+    /// download, the fraction of transfer time hidden behind compute, bytes/s each way and
+    /// voxel·direction updates/s. JSON on stdout.
+    Stream {
+        /// The scene file (TOML).
+        scene: PathBuf,
+        /// Orders to run and report.
+        #[arg(long, default_value_t = 2)]
+        orders: u32,
+        /// Device memory budget (K/M/G/T suffixes), as for `solve`.
+        #[arg(long, value_parser = parse_budget)]
+        device_memory_budget: Option<u64>,
+        /// Vulkan physical device index.
+        #[arg(long, env = "LPM_DEVICE")]
+        device: Option<usize>,
+        /// Also write the JSON to this file (atomically).
+        #[arg(long)]
+        json: Option<PathBuf>,
     },
 }
 
@@ -137,6 +165,20 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Info { dir, json } => info(&dir, json),
+        Command::Bench { what: BenchCommand::Stream { scene, orders, device_memory_budget, device, json } } => {
+            let mut vk = ContextOptions::default();
+            if device.is_some() {
+                vk.device_index = device;
+            }
+            let work = std::env::temp_dir().join(format!("lpm-bench-stream-{}", std::process::id()));
+            let report = lpm::bench::stream(&scene, orders, device_memory_budget, vk, &work)?;
+            let text = serde_json::to_string_pretty(&report)?;
+            if let Some(path) = json {
+                lpm::output::write_atomic(&path, |w| std::io::Write::write_all(w, text.as_bytes()))?;
+            }
+            println!("{text}");
+            Ok(())
+        }
     }
 }
 

@@ -69,7 +69,7 @@ fn pipelined_and_serial_schedules_agree_bitwise() {
     let dir = temp_dir("schedule");
     let store = lpm::solver::build_store(&scene, &dir.join("store")).unwrap();
     let run = |slots: u32| {
-        let options = lpm::solver::gpu::GpuOptions { budget: None, max_slices_in_flight: slots, checkpoints: false };
+        let options = lpm::solver::gpu::GpuOptions { max_slices_in_flight: slots, ..Default::default() };
         let (run, fields) = lpm::solver::solve_with(&scene, &store, Gpu, validated(), options, false, |_, _| {}).unwrap();
         assert_eq!(run.memory.unwrap().slices_in_flight, slots);
         (fields.fluence_total.as_slice().to_vec(), fields.source_total.as_slice().to_vec())

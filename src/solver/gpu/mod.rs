@@ -25,6 +25,7 @@
 pub mod budget;
 mod copier;
 mod layout;
+pub mod profile;
 mod slice;
 mod tables;
 
@@ -35,7 +36,7 @@ use super::plan::{Plan, SweepDirection};
 use super::sweep::FaceSweep;
 use super::SolveError;
 use crate::store::{BrickStore, BRICK_EDGE};
-use crate::vk::{Buffer, BufferRange, ComputePipeline, Context, Queue, Recorder, TimelineSemaphore};
+use crate::vk::{Buffer, BufferRange, ComputePipeline, Context, Recorder, TimelineSemaphore};
 use ash::vk;
 use budget::MemoryPlan;
 use copier::{Copier, Ticket};
@@ -59,11 +60,13 @@ pub struct GpuOptions {
     pub max_slices_in_flight: u32,
     /// Write a checkpoint into the store after every completed order (for `--resume`).
     pub checkpoints: bool,
+    /// Bracket every submission with GPU timestamps (for `lpm bench stream`).
+    pub profile: bool,
 }
 
 impl Default for GpuOptions {
     fn default() -> Self {
-        GpuOptions { budget: None, max_slices_in_flight: 2, checkpoints: false }
+        GpuOptions { budget: None, max_slices_in_flight: 2, checkpoints: false, profile: false }
     }
 }
 
@@ -124,6 +127,7 @@ pub struct GpuBackend<'a> {
     checkpoint_digest: Option<String>,
     /// Test hook: abort the process when this many slices have been submitted (simulates a kill).
     abort_at_slice: Option<u64>,
+    profiler: Option<profile::Profiler>,
 }
 
 fn create_buffers(ctx: &Context, specs: &[(&str, u64, vk::BufferUsageFlags, MemoryLocation)]) -> Result<Vec<Buffer>, SolveError> {
@@ -199,7 +203,13 @@ impl<'a> GpuBackend<'a> {
             copier: Copier::new(std::thread::available_parallelism().map_or(2, |n| n.get()).min(8)),
             checkpoint_digest: None,
             abort_at_slice: std::env::var("LPM_TEST_ABORT_AT_SLICE").ok().and_then(|v| v.parse().ok()),
+            profiler: None,
         };
+        if options.profile {
+            // Three intervals per slice; a pass never has more slices than the longest axis has bricks.
+            let slices = plan.dims.iter().map(|d| d.div_ceil(BRICK_EDGE)).max().unwrap_or(1);
+            backend.profiler = Some(profile::Profiler::new(&ctx, 6 * slices + 6)?);
+        }
         // From here on, `backend` owns everything made and frees it on drop if a step fails.
         for i in 0..memory.slices_in_flight {
             let made = create_buffers(
@@ -267,6 +277,11 @@ impl<'a> GpuBackend<'a> {
         self.checkpoint_digest = Some(digest);
     }
 
+    /// Streaming time and bytes measured so far (when profiling).
+    pub fn stream_stats(&self) -> Option<profile::StreamStats> {
+        self.profiler.as_ref().map(|p| p.stats.clone())
+    }
+
     /// How the sweeps were cut to fit the device memory budget.
     pub fn memory_plan(&self) -> MemoryPlan {
         self.memory
@@ -275,11 +290,6 @@ impl<'a> GpuBackend<'a> {
     /// The Vulkan context the backend runs on.
     pub fn context(&self) -> &Arc<Context> {
         &self.ctx
-    }
-
-    /// The queue transfers go to: a dedicated one when the device has it, else the compute queue.
-    fn transfer_queue(&self) -> &Queue {
-        self.ctx.transfer_queue().unwrap_or(self.ctx.compute_queue())
     }
 
     fn timelines(&self) -> Result<&Timelines, SolveError> {
@@ -373,6 +383,9 @@ impl<'a> GpuBackend<'a> {
                 t.wait();
             }
         }
+        if let Some(p) = self.profiler.as_mut() {
+            p.collect(&self.ctx)?;
+        }
         self.ctx.collect_garbage()?;
         Ok(())
     }
@@ -406,9 +419,10 @@ impl<'a> GpuBackend<'a> {
     }
 
     fn submit_upload(&mut self, s: usize, layout: &SliceLayout, v: u64) -> Result<(), SolveError> {
-        let queue = self.transfer_queue();
+        let queue = self.ctx.transfer_queue().unwrap_or(self.ctx.compute_queue());
         let slot = &self.slots[s];
         let mut rec = Recorder::begin(&self.ctx, queue.family(), "upload")?;
+        let mark = self.profiler.as_mut().and_then(|p| p.begin(&mut rec, profile::Work::Upload, layout.upload_bytes()));
         let copy = |src: u64, size: u64| [vk::BufferCopy { src_offset: src, dst_offset: 0, size }];
         rec.copy_buffer(&slot.upload, &slot.slot_table, &copy(0, layout.slot_table_bytes()));
         if layout.occ() > 0 {
@@ -419,6 +433,9 @@ impl<'a> GpuBackend<'a> {
             rec.copy_buffer(&slot.upload, &slot.source_next, &copy(layout.next_offset(), layout.source_bytes()));
         }
         rec.copy_buffer(&slot.upload, &slot.fluence, &copy(layout.fluence_offset(), layout.fluence_bytes()));
+        if let Some(p) = self.profiler.as_mut() {
+            p.end(&mut rec, mark);
+        }
         rec.submit(queue, &[], (&self.timelines()?.upload, v))?;
         Ok(())
     }
@@ -438,11 +455,12 @@ impl<'a> GpuBackend<'a> {
     ) -> Result<(), SolveError> {
         let plan = self.plan;
         let slot = &self.slots[s];
-        let shared = self.shared()?;
+        let shared = self.shared.as_ref().ok_or(SolveError::Internal("shared buffers released"))?;
         let propagate = self.propagate.as_ref().ok_or(SolveError::Internal("pipeline released"))?;
         let collect = self.collect.as_ref().ok_or(SolveError::Internal("pipeline released"))?;
         let queue = self.ctx.compute_queue();
         let mut rec = Recorder::begin(&self.ctx, queue.family(), "compute")?;
+        let mark = self.profiler.as_mut().and_then(|p| p.begin(&mut rec, profile::Work::Compute, 0));
         // Earlier compute submissions wrote the ray state and the deposit this one uses.
         rec.compute_to_compute();
         if first {
@@ -526,7 +544,10 @@ impl<'a> GpuBackend<'a> {
             }
             base += n;
         }
-        let t = self.timelines()?;
+        if let Some(p) = self.profiler.as_mut() {
+            p.end(&mut rec, mark);
+        }
+        let t = self.timelines.as_ref().ok_or(SolveError::Internal("timelines released"))?;
         rec.submit(queue, &[(&t.upload, v, vk::PipelineStageFlags2::COMPUTE_SHADER)], (&t.compute, v))?;
         Ok(())
     }
@@ -536,16 +557,21 @@ impl<'a> GpuBackend<'a> {
         if let Some(t) = self.slots[s].scattering.take() {
             t.wait();
         }
-        let queue = self.transfer_queue();
+        let queue = self.ctx.transfer_queue().unwrap_or(self.ctx.compute_queue());
         let slot = &self.slots[s];
         let mut rec = Recorder::begin(&self.ctx, queue.family(), "download")?;
         let next = layout.source_bytes();
+        let bytes = next + layout.fluence_bytes();
+        let mark = self.profiler.as_mut().and_then(|p| p.begin(&mut rec, profile::Work::Download, bytes));
         if layout.occ() > 0 {
             rec.copy_buffer(&slot.source_next, &slot.download, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: next }]);
         }
         rec.copy_buffer(&slot.fluence, &slot.download, &[vk::BufferCopy { src_offset: 0, dst_offset: next, size: layout.fluence_bytes() }]);
         rec.transfer_to_host();
-        let t = self.timelines()?;
+        if let Some(p) = self.profiler.as_mut() {
+            p.end(&mut rec, mark);
+        }
+        let t = self.timelines.as_ref().ok_or(SolveError::Internal("timelines released"))?;
         rec.submit(queue, &[(&t.compute, v, vk::PipelineStageFlags2::TRANSFER)], (&t.download, v))?;
         Ok(())
     }
@@ -611,6 +637,9 @@ impl<'a> GpuBackend<'a> {
         }
         if let Some(p) = self.collect.take() {
             self.ctx.destroy_pipeline(p);
+        }
+        if let Some(p) = self.profiler.take() {
+            p.destroy(&self.ctx);
         }
         if let Some(t) = self.timelines.take() {
             self.ctx.destroy_timeline(t.upload);

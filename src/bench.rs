@@ -1,0 +1,120 @@
+//! `lpm bench`: throughput measurements that print JSON.
+//!
+//! `stream` runs a few scattering orders of a scene on the GPU backend with every upload, compute
+//! and download submission bracketed by GPU timestamps, and reports per order the time in each, the
+//! fraction of transfer time hidden behind compute, bytes moved per second each way, and
+//! voxel·direction updates per second. On a CPU Vulkan device (lavapipe) transfers and compute run
+//! on the same cores one after the other, so the overlap figures mean nothing there: the report
+//! says so.
+
+use crate::job::JobError;
+use crate::scene::Scene;
+use crate::solver::fields::StoreFields;
+use crate::solver::gpu::{budget::MemoryPlan, profile::StreamStats, GpuBackend, GpuOptions};
+use crate::solver::orders::Backend;
+use crate::solver::plan::Plan;
+use crate::solver::{self, SolveError};
+use crate::vk::{Context, ContextOptions};
+use serde::Serialize;
+use std::path::Path;
+use std::time::Instant;
+
+#[derive(Debug, Serialize)]
+pub struct StreamOrder {
+    pub order: u32,
+    pub wall_seconds: f64,
+    pub upload_seconds: f64,
+    pub compute_seconds: f64,
+    pub download_seconds: f64,
+    /// Transfer time spent while compute was running, over all transfer time.
+    pub hidden_transfer_fraction: f64,
+    pub upload_bytes_per_second: f64,
+    pub download_bytes_per_second: f64,
+    /// Voxel·direction updates per wall-clock second (every channel counted once).
+    pub updates_per_second: f64,
+}
+
+#[derive(Debug, Serialize)]
+pub struct StreamReport {
+    pub scene: String,
+    pub device: String,
+    pub device_is_cpu: bool,
+    pub dedicated_transfer_queue: bool,
+    pub note: String,
+    pub dims: [u32; 3],
+    pub channels: u32,
+    pub directions: usize,
+    pub memory: MemoryPlan,
+    pub orders: Vec<StreamOrder>,
+}
+
+/// Runs `orders` orders of `scene_path` with the stream profiled.
+pub fn stream(scene_path: &Path, orders: u32, budget: Option<u64>, vk: ContextOptions, work: &Path) -> Result<StreamReport, JobError> {
+    let mut scene = Scene::load(scene_path)?;
+    if budget.is_some() {
+        scene.solver.device_memory_budget = budget;
+    }
+    let result = run_stream(&scene, scene_path, orders, vk, work);
+    let _ = std::fs::remove_dir_all(work);
+    result
+}
+
+fn run_stream(scene: &Scene, scene_path: &Path, orders: u32, vk: ContextOptions, work: &Path) -> Result<StreamReport, JobError> {
+    let store = solver::build_store(scene, work)?;
+    let total = store.grid().brick_count();
+    let plan = Plan::new(scene, total, total - store.occupied_count());
+    let mut fields = StoreFields::create(&store, &plan)?;
+    let ctx = Context::new(vk).map_err(SolveError::from)?;
+    let limits = ctx.limits();
+    let options = GpuOptions { budget: scene.solver.device_memory_budget, profile: true, ..GpuOptions::default() };
+    let mut gpu = GpuBackend::new(ctx.clone(), &plan, &store, &mut fields, options)?;
+    let [nx, ny, nz] = plan.dims;
+    let updates = nx as f64 * ny as f64 * nz as f64 * plan.propagation.len() as f64;
+    let mut rows = Vec::new();
+    let mut before = StreamStats::default();
+    for order in 0..orders.max(1) {
+        let t = Instant::now();
+        gpu.propagate_order(order)?;
+        gpu.finish_order()?;
+        let wall = t.elapsed().as_secs_f64();
+        let now = gpu.stream_stats().unwrap_or_default();
+        let d = |a: f64, b: f64| a - b;
+        let upload = d(now.upload_seconds, before.upload_seconds);
+        let download = d(now.download_seconds, before.download_seconds);
+        let hidden = d(now.hidden_transfer_seconds, before.hidden_transfer_seconds);
+        let per_second = |bytes: u64, seconds: f64| if seconds > 0.0 { bytes as f64 / seconds } else { 0.0 };
+        rows.push(StreamOrder {
+            order,
+            wall_seconds: wall,
+            upload_seconds: upload,
+            compute_seconds: d(now.compute_seconds, before.compute_seconds),
+            download_seconds: download,
+            hidden_transfer_fraction: if upload + download > 0.0 { hidden / (upload + download) } else { 0.0 },
+            upload_bytes_per_second: per_second(now.upload_bytes - before.upload_bytes, upload),
+            download_bytes_per_second: per_second(now.download_bytes - before.download_bytes, download),
+            updates_per_second: updates / wall,
+        });
+        before = now;
+    }
+    let memory = gpu.memory_plan();
+    drop(gpu);
+    let note = if limits.is_cpu {
+        "CPU Vulkan device (e.g. lavapipe): transfers and compute share the host's cores and run one after the other, so the overlap and bandwidth figures say nothing about a GPU; the updates/s figure is a CPU figure".to_string()
+    } else if ctx.transfer_queue().is_none() {
+        "no queue besides the compute queue: transfers are ordered after compute on one queue, so little can overlap".to_string()
+    } else {
+        "transfers run on a dedicated queue; hidden_transfer_fraction is the share of transfer time overlapped by compute".to_string()
+    };
+    Ok(StreamReport {
+        scene: scene_path.display().to_string(),
+        device: format!("{} ({})", ctx.device_name(), ctx.driver_description()),
+        device_is_cpu: limits.is_cpu,
+        dedicated_transfer_queue: ctx.transfer_queue().is_some(),
+        note,
+        dims: plan.dims,
+        channels: plan.channels,
+        directions: plan.propagation.len(),
+        memory,
+        orders: rows,
+    })
+}
