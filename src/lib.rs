@@ -17,6 +17,7 @@
 //! | [`vk`] | the thin Vulkan layer: instance, device, queues, buffers, pipelines, timeline sync |
 //! | [`solver`] | the plan (what a scene needs), the discretisation shared by both backends, the CPU twin (f64), the GPU driver, the order loop |
 //! | [`render`] | the camera ray-march over the solved source, EXR and PNG writers |
+//! | [`compare`] | accuracy figures of one output directory against another (e.g. a solve against a reference) |
 //!
 //! The binary (`src/main.rs`) is a thin CLI over [`solver::solve`], [`render`] and the store readers.
 //!
@@ -33,6 +34,7 @@
 //! collect step forms the fluence and the next order's in-scattered source. The sun is one more
 //! "direction" swept along its exact direction, so its uncollided light shows no ray effects.
 
+pub mod compare;
 pub mod job;
 pub mod output;
 pub mod quadrature;
