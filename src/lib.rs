@@ -18,9 +18,12 @@
 //! | [`solver`] | the plan (what a scene needs), the discretisation shared by both backends, the CPU twin (f64), the GPU driver, the order loop |
 //! | [`render`] | the camera ray-march over the solved source, EXR and PNG writers |
 //! | [`reference`] | the independent Monte-Carlo reference (shares only the scene with the solver) |
-//! | [`job`] | a whole `lpm solve`: scene → store → solve → exported fields, image, report |
+//! | [`compare`] | accuracy figures of one output directory against another (e.g. a solve against a reference) |
+//! | [`job`] | a whole `lpm solve`: scene → store → solve → exported fields, image, report; checkpoints and resume |
+//! | [`bench`] | `lpm bench`: profiled runs that print JSON |
 //!
-//! The binary (`src/main.rs`) is a thin CLI over [`job`], [`reference`] and the output readers.
+//! The binary (`src/main.rs`) is a thin CLI over [`job`], [`reference::job`], [`compare`], [`bench`]
+//! and the output readers.
 //!
 //! ## The discretisation in one paragraph
 //!
@@ -36,6 +39,7 @@
 //! "direction" swept along its exact direction, so its uncollided light shows no ray effects.
 
 pub mod bench;
+pub mod compare;
 pub mod job;
 pub mod output;
 pub mod quadrature;

@@ -1,9 +1,10 @@
-//! Exporting a [`Field`] as `<base>.raw` + `<base>.json` + `<base>.nhdr`.
+//! Exporting a [`Field`] (or a field held in memory) as `<base>.raw` + `<base>.json` + `<base>.nhdr`.
 
 use super::{nrrd, write_atomic, write_json_atomic, OutputError};
 use crate::store::{BrickStore, Field, BRICK_EDGE, BRICK_VOXELS};
 use serde::{Deserialize, Serialize};
-use std::io::Write;
+use std::fs::File;
+use std::io::{BufWriter, Write};
 use std::path::Path;
 
 /// What an exported field means, given by the caller.
@@ -51,11 +52,7 @@ pub fn export_field(
     base: &str,
     meta: &FieldMeta,
 ) -> Result<(), OutputError> {
-    let json_path = out_dir.join(format!("{base}.json"));
-    let invalid = |message: String| OutputError::Invalid { path: json_path.clone(), message };
-    if base.is_empty() || base.contains(['/', '\\']) || base.starts_with('.') {
-        return Err(invalid(format!("export name {base:?} must be a plain file name")));
-    }
+    let invalid = |message: String| OutputError::Invalid { path: out_dir.join(format!("{base}.json")), message };
     if field.grid() != store.grid() {
         return Err(invalid(format!(
             "field {} covers a {:?} volume, the store a {:?} one",
@@ -72,20 +69,75 @@ pub fn export_field(
             field.components()
         )));
     }
+    write_described(out_dir, base, store.grid().dims, store.voxel_size(), meta, |w| write_raw(field, w))
+}
+
+/// Writes a field held in memory (`values` in the exported layout: component fastest, then x, y, z;
+/// `meta.components.len()` components per voxel over `dims`) into `out_dir` as `<base>.raw`,
+/// `<base>.json` and `<base>.nhdr`, exactly as [`export_field`] lays them out, each atomically.
+pub fn export_dense(
+    values: &[f32],
+    dims: [u32; 3],
+    voxel_size: f64,
+    out_dir: &Path,
+    base: &str,
+    meta: &FieldMeta,
+) -> Result<(), OutputError> {
+    let expected = dims.iter().try_fold(meta.components.len(), |acc, &d| acc.checked_mul(d as usize));
+    if meta.components.is_empty() || expected != Some(values.len()) {
+        return Err(OutputError::Invalid {
+            path: out_dir.join(format!("{base}.json")),
+            message: format!(
+                "{} values given for {} component(s) over {:?} voxels",
+                values.len(),
+                meta.components.len(),
+                dims
+            ),
+        });
+    }
+    write_described(out_dir, base, dims, voxel_size, meta, |w| {
+        // Little-endian f32, in chunks so a large volume is not duplicated as bytes in memory.
+        let mut bytes = Vec::with_capacity(values.len().min(1 << 16) * 4);
+        for chunk in values.chunks(1 << 16) {
+            bytes.clear();
+            chunk.iter().for_each(|v| bytes.extend_from_slice(&v.to_le_bytes()));
+            w.write_all(&bytes)?;
+        }
+        Ok(())
+    })
+}
+
+/// The one writer of the exported layout: checks `base`, writes the raw through `write_raw`, then
+/// the json and the NRRD header describing it.
+fn write_described(
+    out_dir: &Path,
+    base: &str,
+    dims: [u32; 3],
+    voxel_size: f64,
+    meta: &FieldMeta,
+    write_raw: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
+) -> Result<(), OutputError> {
+    let json_path = out_dir.join(format!("{base}.json"));
+    if base.is_empty() || base.contains(['/', '\\']) || base.starts_with('.') {
+        return Err(OutputError::Invalid {
+            path: json_path,
+            message: format!("export name {base:?} must be a plain file name"),
+        });
+    }
     let info = FieldInfo {
-        dims: store.grid().dims,
-        components: field.components(),
+        dims,
+        components: meta.components.len() as u32,
         component_names: meta.components.clone(),
         dtype: "f32".to_string(),
         endianness: "little".to_string(),
         layout: LAYOUT.to_string(),
-        voxel_size: store.voxel_size(),
+        voxel_size,
         quantity: meta.quantity.clone(),
         units: meta.units.clone(),
         description: meta.description.clone(),
         file: format!("{base}.raw"),
     };
-    write_atomic(&out_dir.join(&info.file), |w| write_raw(field, w))?;
+    write_atomic(&out_dir.join(&info.file), write_raw)?;
     write_json_atomic(&json_path, &info)?;
     let header = nrrd::header(&info);
     write_atomic(&out_dir.join(format!("{base}.nhdr")), |w| w.write_all(header.as_bytes()))

@@ -17,5 +17,5 @@ mod read;
 
 pub use atomic::{write_atomic, write_json_atomic};
 pub use error::OutputError;
-pub use export::{export_field, FieldInfo, FieldMeta, LAYOUT};
+pub use export::{export_dense, export_field, FieldInfo, FieldMeta, LAYOUT};
 pub use read::{read_field_json, read_raw_field};

@@ -59,6 +59,7 @@
 mod fluence;
 mod grid;
 mod image;
+pub mod job;
 mod phase;
 mod rng;
 mod tracking;

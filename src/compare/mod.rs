@@ -1,0 +1,170 @@
+//! Accuracy of one output directory against another (`lpm compare A B`): A is the candidate (say an
+//! `lpm solve` output), B the reference (say an `lpm reference` output).
+//!
+//! **Fluence.** `fluence.json` / `fluence.raw` of both are read ([`output::read_raw_field`]); their
+//! dims and components must match. When B has `fluence_stderr.*` (a Monte-Carlo reference), only the
+//! voxels where every component of the reference is > 0 with a relative standard error ≤
+//! [`CompareOptions::max_relative_stderr`] are compared: elsewhere the reference is too noisy to
+//! judge the candidate by. Otherwise every voxel is compared. Over the compared values (all
+//! components): relative L2 ‖a−b‖/‖b‖, RMSE, max relative error |a−b|/|b| and mean bias
+//! mean(a−b)/mean(b) ([`Metrics`]).
+//!
+//! **Images.** When both have `image.exr` of the same size, the same metrics over all pixels and
+//! r, g, b; otherwise a note says why the images were not compared.
+//!
+//! [`Comparison`] serialises to JSON ([`write_comparison_json`]) and displays as a short text table.
+
+mod image;
+mod metrics;
+mod text;
+
+pub use metrics::Metrics;
+
+use crate::output::{self, OutputError};
+use metrics::Accumulator;
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use thiserror::Error;
+
+/// What [`compare_dirs`] counts.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CompareOptions {
+    /// Reference values with a larger relative standard error are left out (when the reference has
+    /// `fluence_stderr.*`). Must be ≥ 0; infinity keeps every voxel with fluence > 0.
+    pub max_relative_stderr: f64,
+}
+
+impl Default for CompareOptions {
+    fn default() -> Self {
+        CompareOptions { max_relative_stderr: 0.05 }
+    }
+}
+
+#[derive(Debug, Error)]
+pub enum CompareError {
+    #[error(transparent)]
+    Output(#[from] OutputError),
+    #[error("{} and {} cannot be compared: {message}", a.display(), b.display())]
+    Mismatch { a: PathBuf, b: PathBuf, message: String },
+    #[error("{}: cannot read the EXR image: {message}", path.display())]
+    Image { path: PathBuf, message: String },
+    #[error("the maximum relative standard error must be a number ≥ 0, not {0}")]
+    BadThreshold(f64),
+}
+
+/// Everything `lpm compare` reports.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Comparison {
+    /// Directory A.
+    pub candidate: String,
+    /// Directory B.
+    pub reference: String,
+    pub fluence: FluenceComparison,
+    /// `None` when the images were not compared (see `notes`).
+    pub image: Option<ImageComparison>,
+    /// Why something was left out, in plain words.
+    pub notes: Vec<String>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct FluenceComparison {
+    pub dims: [u32; 3],
+    pub components: u32,
+    /// The threshold applied when the reference has standard errors; `None` when it has none.
+    pub max_relative_stderr: Option<f64>,
+    pub voxels_total: u64,
+    pub voxels_used: u64,
+    pub voxels_excluded: u64,
+    pub metrics: Metrics,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ImageComparison {
+    pub width: u32,
+    pub height: u32,
+    pub metrics: Metrics,
+}
+
+/// Compares candidate directory `a` against reference directory `b`.
+pub fn compare_dirs(a: &Path, b: &Path, opts: &CompareOptions) -> Result<Comparison, CompareError> {
+    let threshold = opts.max_relative_stderr;
+    if threshold.is_nan() || threshold < 0.0 {
+        return Err(CompareError::BadThreshold(threshold));
+    }
+    let (info_a, values_a) = output::read_raw_field(a, "fluence")?;
+    let (info_b, values_b) = output::read_raw_field(b, "fluence")?;
+    let mismatch = |what: &str, x: String, y: String, file_b: &str| CompareError::Mismatch {
+        a: a.join("fluence.json"),
+        b: b.join(file_b),
+        message: format!("{what} {x} against {y}"),
+    };
+    if info_a.dims != info_b.dims {
+        return Err(mismatch("dims", format!("{:?}", info_a.dims), format!("{:?}", info_b.dims), "fluence.json"));
+    }
+    if info_a.components != info_b.components {
+        let (x, y) = (info_a.components.to_string(), info_b.components.to_string());
+        return Err(mismatch("components", x, y, "fluence.json"));
+    }
+    let c = info_b.components as usize;
+    let voxels_total = values_b.len() as u64 / c as u64;
+    let mut notes = Vec::new();
+
+    let stderr = if b.join("fluence_stderr.json").exists() {
+        let (info_s, se) = output::read_raw_field(b, "fluence_stderr")?;
+        if info_s.dims != info_b.dims || info_s.components != info_b.components {
+            return Err(CompareError::Mismatch {
+                a: b.join("fluence.json"),
+                b: b.join("fluence_stderr.json"),
+                message: format!(
+                    "the fluence is {:?} × {} component(s), its standard error {:?} × {}",
+                    info_b.dims, info_b.components, info_s.dims, info_s.components
+                ),
+            });
+        }
+        Some(se)
+    } else {
+        None
+    };
+    let mut acc = Accumulator::default();
+    let mut used = 0u64;
+    for (v, (va, vb)) in values_a.chunks_exact(c).zip(values_b.chunks_exact(c)).enumerate() {
+        let keep = match &stderr {
+            // A NaN standard error and a fluence ≤ 0 both exclude the voxel.
+            Some(se) => (0..c).all(|k| vb[k] > 0.0 && (se[v * c + k] as f64) <= threshold * vb[k] as f64),
+            None => true,
+        };
+        if keep {
+            used += 1;
+            va.iter().zip(vb).for_each(|(&x, &y)| acc.add(x, y));
+        }
+    }
+    let non_finite = values_a.iter().filter(|v| !v.is_finite()).count();
+    if non_finite > 0 {
+        notes.push(format!("the candidate's fluence has {non_finite} non-finite value(s)"));
+    }
+    if used == 0 {
+        notes.push("no voxel was compared: the reference has no voxel with fluence > 0 and a small enough standard error".into());
+    }
+    let fluence = FluenceComparison {
+        dims: info_b.dims,
+        components: info_b.components,
+        max_relative_stderr: stderr.is_some().then_some(threshold),
+        voxels_total,
+        voxels_used: used,
+        voxels_excluded: voxels_total - used,
+        metrics: acc.finish(),
+    };
+    let image = image::compare_images(a, b, &mut notes)?;
+    Ok(Comparison {
+        candidate: a.display().to_string(),
+        reference: b.display().to_string(),
+        fluence,
+        image,
+        notes,
+    })
+}
+
+/// Writes `comparison` as pretty JSON to `path`, atomically.
+pub fn write_comparison_json(path: &Path, comparison: &Comparison) -> Result<(), OutputError> {
+    output::write_json_atomic(path, comparison)
+}

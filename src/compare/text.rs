@@ -1,0 +1,52 @@
+//! The human-readable form of a [`Comparison`]: a few header lines and a table of metrics.
+
+use super::{Comparison, Metrics};
+use std::fmt;
+
+fn cell(v: Option<f64>) -> String {
+    v.map_or_else(|| "n/a".to_string(), |x| format!("{x:.3e}"))
+}
+
+fn row(f: &mut fmt::Formatter<'_>, name: &str, m: &Metrics, extra: &str) -> fmt::Result {
+    let line = format!(
+        "{name:<9} {:>11} {:>11} {:>11} {:>11} {:>11}  {extra}",
+        cell(m.relative_l2),
+        cell(m.rmse),
+        cell(m.max_relative_error),
+        cell(m.mean_bias),
+        m.values
+    );
+    writeln!(f, "{}", line.trim_end())
+}
+
+impl fmt::Display for Comparison {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let fl = &self.fluence;
+        writeln!(f, "candidate  {}", self.candidate)?;
+        writeln!(f, "reference  {}", self.reference)?;
+        let [nx, ny, nz] = fl.dims;
+        write!(
+            f,
+            "fluence    {nx}×{ny}×{nz}, {} component(s); {} of {} voxels compared",
+            fl.components, fl.voxels_used, fl.voxels_total
+        )?;
+        match fl.max_relative_stderr {
+            Some(t) => writeln!(
+                f,
+                " ({} excluded: reference fluence ≤ 0 or relative standard error > {t})",
+                fl.voxels_excluded
+            )?,
+            None => writeln!(f, " (the reference has no standard errors)")?,
+        }
+        writeln!(f)?;
+        writeln!(f, "{:<9} {:>11} {:>11} {:>11} {:>11} {:>11}", "", "rel. L2", "RMSE", "max rel.", "bias", "values")?;
+        row(f, "fluence", &fl.metrics, "")?;
+        if let Some(img) = &self.image {
+            row(f, "image", &img.metrics, &format!("{}×{} px", img.width, img.height))?;
+        }
+        for note in &self.notes {
+            writeln!(f, "note: {note}")?;
+        }
+        Ok(())
+    }
+}

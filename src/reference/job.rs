@@ -1,0 +1,250 @@
+//! A reference job from start to finish (`lpm reference`): read the scene, sample its densities, run
+//! the Monte-Carlo reference ([`super::run`]) and write its outputs beside the same names `lpm solve`
+//! uses, so the two directories can be compared file by file ([`crate::compare`]).
+//!
+//! Outputs (in `out`):
+//! - `fluence.raw/.json/.nhdr`: the mean fluence, in the exported layout of [`crate::output`]
+//!   (component fastest, then x, y, z; 1 component when the medium and every light are grey, else r, g, b);
+//! - `fluence_stderr.raw/.json/.nhdr`: the standard error of each value of `fluence.raw`, same layout;
+//! - `image.exr` / `image.png` when image samples are asked for, framed by the scene's camera or
+//!   [`render::default_camera`] exactly like the image of `lpm solve`;
+//! - `report.json` ([`ReferenceReport`]).
+//!
+//! Nothing is left half-written: the scene is validated before anything is created, every file is
+//! written into a staging directory inside `out` and only renamed into `out` once all of them are
+//! complete; on failure the staging directory (and `out`, when this job created it) is removed, and
+//! files already in `out` keep their old content.
+
+use super::{ReferenceOptions, ReferenceResult};
+use crate::output::{self, FieldMeta, OutputError};
+use crate::render::{self, Image};
+use crate::scene::{procedural, Scene, SceneError, Shape, VolumeSource};
+use crate::store::{self, BrickGrid, StoreError, BRICK_VOXELS};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+use thiserror::Error;
+
+/// What `lpm reference` runs.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ReferenceJob {
+    pub scene: PathBuf,
+    pub out: PathBuf,
+    /// Photons per channel (≥ 1), rounded up to a multiple of the batch count.
+    pub photons: u64,
+    pub seed: u64,
+    /// Worker threads; 0 = all available.
+    pub threads: usize,
+    /// Camera samples per pixel; 0 = no image.
+    pub image_samples_per_pixel: u32,
+}
+
+#[derive(Debug, Error)]
+pub enum ReferenceJobError {
+    #[error(transparent)]
+    Scene(#[from] SceneError),
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    #[error(transparent)]
+    Output(#[from] OutputError),
+    #[error("cannot create output directory {path}: {source}")]
+    OutputDir { path: PathBuf, source: std::io::Error },
+    #[error("the number of photons must be at least 1")]
+    NoPhotons,
+}
+
+/// `report.json` of a reference job.
+#[derive(Clone, Debug, Serialize)]
+pub struct ReferenceReport {
+    pub lpm_version: &'static str,
+    pub scene: String,
+    /// Always "monte-carlo".
+    pub method: &'static str,
+    pub dims: [u32; 3],
+    /// Photons traced per channel.
+    pub photons: u64,
+    pub seed: u64,
+    /// Independent batches behind the standard errors.
+    pub batches: u32,
+    pub image_samples_per_pixel: u32,
+    /// Wall-clock seconds of the whole job (sampling, transport, image, writing).
+    pub seconds: f64,
+    pub channels: u32,
+    /// Mean of standard error / fluence over the values with fluence > 0; `None` when there are none.
+    pub mean_relative_std_error: Option<f64>,
+    pub outputs: Vec<String>,
+}
+
+/// Runs the job and returns what it wrote to `report.json`.
+pub fn run(job: &ReferenceJob) -> Result<ReferenceReport, ReferenceJobError> {
+    let start = Instant::now();
+    if job.photons == 0 {
+        return Err(ReferenceJobError::NoPhotons);
+    }
+    let scene = Scene::load(&job.scene)?;
+    let created_out = !job.out.exists();
+    std::fs::create_dir_all(&job.out)
+        .map_err(|source| ReferenceJobError::OutputDir { path: job.out.clone(), source })?;
+    let stage = job.out.join(format!(".reference.tmp-{}", std::process::id()));
+    let result = std::fs::create_dir_all(&stage)
+        .map_err(|source| ReferenceJobError::OutputDir { path: stage.clone(), source })
+        .and_then(|()| run_in(job, &scene, &stage, start))
+        .and_then(|report| {
+            publish(&stage, &job.out, &report.outputs)?;
+            Ok(report)
+        });
+    let _ = std::fs::remove_dir_all(&stage);
+    if result.is_err() && created_out {
+        // Only removes it when empty: never anything this job did not create.
+        let _ = std::fs::remove_dir(&job.out);
+    }
+    result
+}
+
+/// Samples, runs and writes every output into `stage`.
+fn run_in(job: &ReferenceJob, scene: &Scene, stage: &Path, start: Instant) -> Result<ReferenceReport, ReferenceJobError> {
+    let dims = scene.volume.dims;
+    let h = scene.volume.voxel_size;
+    let grey = scene.medium.is_grey() && scene.lights.iter().all(|l| l.is_grey());
+    let channels = if grey { 1 } else { 3 };
+    // The reference frames its image with the scene's camera; give it the renderer's default view so
+    // the two images match pixel for pixel.
+    let mut scene = scene.clone();
+    if scene.camera.is_none() {
+        scene.camera = Some(render::default_camera(dims, h));
+    }
+    let opts = ReferenceOptions {
+        photons: job.photons,
+        seed: job.seed,
+        threads: job.threads,
+        image_samples_per_pixel: job.image_samples_per_pixel,
+        ..ReferenceOptions::default()
+    };
+    let result = match &scene.volume.source {
+        VolumeSource::Procedural { shape, seed } => {
+            let (shape, seed): (Shape, u64) = (*shape, *seed);
+            super::run(&scene, &|v| procedural::density(shape, seed, dims, v), channels, &opts)
+        }
+        VolumeSource::Raw { path } => {
+            let values = raw_densities(path, dims)?;
+            let (nx, ny) = (dims[0] as usize, dims[1] as usize);
+            let at = |v: [u32; 3]| {
+                let i = (v[2] as usize * ny + v[1] as usize) * nx + v[0] as usize;
+                values.get(i).copied().unwrap_or(0.0)
+            };
+            super::run(&scene, &at, channels, &opts)
+        }
+    };
+    let outputs = write_outputs(&result, h, stage)?;
+    let report = ReferenceReport {
+        lpm_version: env!("CARGO_PKG_VERSION"),
+        scene: job.scene.display().to_string(),
+        method: "monte-carlo",
+        dims,
+        photons: result.photons,
+        seed: job.seed,
+        batches: opts.batches.max(2),
+        image_samples_per_pixel: job.image_samples_per_pixel,
+        seconds: start.elapsed().as_secs_f64(),
+        channels: result.channels,
+        mean_relative_std_error: mean_relative(&result.fluence, &result.std_error),
+        outputs,
+    };
+    output::write_json_atomic(&stage.join("report.json"), &report)?;
+    Ok(report)
+}
+
+/// The densities of a raw volume file (x fastest), checked by the same importer as the solver's
+/// (NaN, infinite or negative values are errors naming the voxel).
+fn raw_densities(path: &Path, dims: [u32; 3]) -> Result<Vec<f32>, StoreError> {
+    let raw = store::raw_density(path, dims)?;
+    let grid = BrickGrid::new(dims);
+    let [nx, ny, nz] = dims.map(|d| d as usize);
+    let mut values = vec![0.0f32; nx * ny * nz];
+    let mut brick = vec![0.0f32; BRICK_VOXELS];
+    for b in 0..grid.brick_count() {
+        let coords = grid.brick_coords(b);
+        raw.fill_brick(coords, &mut brick)?;
+        let o = grid.brick_origin(coords).map(|c| c as usize);
+        let e = grid.brick_extent(coords).map(|c| c as usize);
+        for z in 0..e[2] {
+            for y in 0..e[1] {
+                for x in 0..e[0] {
+                    let i = ((o[2] + z) * ny + o[1] + y) * nx + o[0] + x;
+                    values[i] = brick[store::local_index([x, y, z])];
+                }
+            }
+        }
+    }
+    Ok(values)
+}
+
+/// Writes the fields and the image into `dir`; returns the names written, `report.json` last.
+fn write_outputs(result: &ReferenceResult, voxel_size: f64, dir: &Path) -> Result<Vec<String>, OutputError> {
+    let names: Vec<String> = if result.channels == 1 {
+        vec!["grey".into()]
+    } else {
+        ["r", "g", "b"].map(String::from).to_vec()
+    };
+    let photons = result.photons;
+    let fields = [
+        (
+            "fluence",
+            &result.fluence,
+            FieldMeta {
+                quantity: "fluence".into(),
+                units: "radiance units × sr (W/m² for radiance in W/m²/sr)".into(),
+                components: names.clone(),
+                description: format!(
+                    "fluence φ = ∫L dω, all orders: Monte-Carlo reference (track-length estimator, {photons} photons per channel)"
+                ),
+            },
+        ),
+        (
+            "fluence_stderr",
+            &result.std_error,
+            FieldMeta {
+                quantity: "fluence standard error".into(),
+                units: "radiance units × sr (W/m² for radiance in W/m²/sr)".into(),
+                components: names,
+                description: "standard error of each value of fluence.raw, from the spread of the batch estimates".into(),
+            },
+        ),
+    ];
+    let mut outputs = Vec::new();
+    for (base, values, meta) in &fields {
+        output::export_dense(values, result.dims, voxel_size, dir, base, meta)?;
+        outputs.extend(["raw", "json", "nhdr"].map(|ext| format!("{base}.{ext}")));
+    }
+    if let Some(img) = &result.image {
+        let image = Image { width: img.width, height: img.height, rgb: img.rgb.clone() };
+        render::write_exr(&dir.join("image.exr"), &image)?;
+        render::write_png(&dir.join("image.png"), &image, 1.0)?;
+        outputs.extend(["image.exr", "image.png"].map(String::from));
+    }
+    outputs.push("report.json".into());
+    Ok(outputs)
+}
+
+/// Moves every staged output over its final name (each rename is atomic).
+fn publish(stage: &Path, out: &Path, names: &[String]) -> Result<(), OutputError> {
+    for name in names {
+        let to = out.join(name);
+        std::fs::rename(stage.join(name), &to).map_err(|source| OutputError::Io {
+            path: to,
+            action: "move into place",
+            source,
+        })?;
+    }
+    Ok(())
+}
+
+/// Mean of `se / value` over the values > 0.
+fn mean_relative(values: &[f32], se: &[f32]) -> Option<f64> {
+    let (sum, n) = values
+        .iter()
+        .zip(se)
+        .filter(|(v, _)| **v > 0.0)
+        .fold((0.0f64, 0usize), |(s, n), (v, e)| (s + *e as f64 / *v as f64, n + 1));
+    (n > 0).then(|| sum / n as f64)
+}

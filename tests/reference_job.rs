@@ -1,0 +1,178 @@
+//! `lpm::reference::job`: the reference run from a scene file to its output directory, then compared
+//! with a solve of the same scene.
+mod common;
+use common::temp_dir;
+use lpm::compare::{compare_dirs, CompareOptions};
+use lpm::job::SolveJob;
+use lpm::reference::job::{run, ReferenceJob, ReferenceJobError};
+use lpm::solver::BackendKind;
+use lpm::vk::ContextOptions;
+use std::f64::consts::PI;
+use std::path::{Path, PathBuf};
+
+/// A furnace: a non-absorbing box under a uniform sky of radiance 1, so the fluence is 4π
+/// everywhere and every pixel sees radiance 1. Small (4³), so that few photons give a tight estimate.
+const FURNACE: &str = r#"
+[volume]
+procedural = "box"
+dims = [4, 4, 4]
+voxel_size = 1.0
+[medium]
+sigma_t = 0.3
+albedo = 1.0
+[[lights]]
+kind = "sky"
+radiance = 1.0
+[solver]
+directions_per_face = 3
+max_orders = 200
+tolerance = 1e-6
+[camera]
+position = [10, 8, 12]
+look_at = [2, 2, 2]
+width = 12
+height = 9
+"#;
+
+fn write_scene(dir: &Path, text: &str) -> PathBuf {
+    write_scene_as(dir, "scene.toml", text)
+}
+
+fn write_scene_as(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let path = dir.join(name);
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+fn job(scene: PathBuf, out: PathBuf, photons: u64, spp: u32) -> ReferenceJob {
+    ReferenceJob { scene, out, photons, seed: 3, threads: 0, image_samples_per_pixel: spp }
+}
+
+fn json(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+#[test]
+fn furnace_reference_writes_its_outputs_and_agrees_with_the_solver() {
+    let dir = temp_dir("refjob-furnace");
+    let scene = write_scene(&dir, FURNACE);
+    let reference = dir.join("reference");
+    let report = run(&job(scene.clone(), reference.clone(), 2_000_000, 16)).expect("reference job");
+
+    let files = ["fluence.raw", "fluence.json", "fluence.nhdr", "fluence_stderr.raw", "fluence_stderr.json", "fluence_stderr.nhdr", "image.exr", "image.png", "report.json"];
+    for f in files {
+        assert!(reference.join(f).is_file(), "{f} missing");
+    }
+    let names: Vec<String> = std::fs::read_dir(&reference).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    assert_eq!(names.len(), files.len(), "unexpected files: {names:?}");
+    for base in ["fluence", "fluence_stderr"] {
+        assert_eq!(std::fs::metadata(reference.join(format!("{base}.raw"))).unwrap().len(), 64 * 4);
+        let info = json(&reference.join(format!("{base}.json")));
+        assert_eq!(info["dims"], serde_json::json!([4, 4, 4]));
+        assert_eq!(info["components"], 1);
+        let nhdr = std::fs::read_to_string(reference.join(format!("{base}.nhdr"))).unwrap();
+        assert!(nhdr.contains("sizes: 4 4 4") && nhdr.contains(&format!("data file: {base}.raw")), "{nhdr}");
+    }
+    let r = json(&reference.join("report.json"));
+    assert_eq!(r["method"], "monte-carlo");
+    assert_eq!(r["channels"], 1);
+    assert_eq!(r["seed"], 3);
+    assert_eq!(r["photons"].as_u64(), Some(report.photons));
+    assert!(report.photons >= 2_000_000);
+    assert_eq!(r["outputs"].as_array().unwrap().len(), files.len());
+    let rel_se = report.mean_relative_std_error.expect("fluence > 0");
+    assert!(rel_se > 0.0 && rel_se < 0.02, "{rel_se}");
+
+    // Fluence ≈ 4π everywhere.
+    let (_, fluence) = lpm::output::read_raw_field(&reference, "fluence").unwrap();
+    let mean = fluence.iter().map(|&v| v as f64).sum::<f64>() / fluence.len() as f64;
+    assert!((mean / (4.0 * PI) - 1.0).abs() < 5e-3, "mean fluence {mean}");
+    for (i, &v) in fluence.iter().enumerate() {
+        assert!((v as f64 / (4.0 * PI) - 1.0).abs() < 0.05, "voxel {i}: {v}");
+    }
+
+    // The solver (CPU twin) on the same scene, compared against the reference.
+    let solved = dir.join("solve");
+    let solve = SolveJob {
+        scene,
+        out: solved.clone(),
+        backend: BackendKind::Cpu,
+        vk: ContextOptions::default(),
+        keep_store: false,
+        no_image: false,
+    };
+    lpm::job::run(&solve, |_, _| {}).expect("solve job");
+    let c = compare_dirs(&solved, &reference, &CompareOptions::default()).expect("compare");
+    eprintln!("{c}");
+    assert_eq!(c.fluence.voxels_used, 64);
+    let rel_l2 = c.fluence.metrics.relative_l2.unwrap();
+    assert!(rel_l2 < 1e-2, "{c}");
+    assert!(c.fluence.metrics.mean_bias.unwrap().abs() < 5e-3, "{c}");
+    // Same framing, so the images are compared; both see radiance 1 everywhere.
+    let image = c.image.as_ref().expect("images compared");
+    assert_eq!((image.width, image.height), (12, 9));
+    assert!(image.metrics.relative_l2.unwrap() < 0.1, "{c}");
+}
+
+#[test]
+fn no_image_unless_asked_and_grey_or_rgb_by_the_scene() {
+    let dir = temp_dir("refjob-rgb");
+    let scene = write_scene(&dir, &FURNACE.replace("sigma_t = 0.3", "sigma_t = [0.3, 0.2, 0.1]"));
+    let out = dir.join("out");
+    let report = run(&job(scene, out.clone(), 2_000, 0)).expect("reference job");
+    assert_eq!(report.channels, 3);
+    assert!(!out.join("image.exr").exists() && !out.join("image.png").exists());
+    assert_eq!(std::fs::metadata(out.join("fluence.raw")).unwrap().len(), 64 * 3 * 4);
+    assert_eq!(std::fs::metadata(out.join("fluence_stderr.raw")).unwrap().len(), 64 * 3 * 4);
+    assert_eq!(json(&out.join("fluence.json"))["component_names"], serde_json::json!(["r", "g", "b"]));
+}
+
+#[test]
+fn a_raw_volume_is_read_like_the_solver_reads_it() {
+    let dir = temp_dir("refjob-raw");
+    let text = FURNACE.replace("procedural = \"box\"\ndims = [4, 4, 4]", "raw = \"density.raw\"\ndims = [4, 3, 2]");
+    let scene = write_scene(&dir, &text);
+    // Density 1 in the x < 2 half, 0 elsewhere: the empty half stays at the sky's 4π too.
+    let values: Vec<f32> = (0..24).map(|i| if i % 4 < 2 { 1.0 } else { 0.0 }).collect();
+    std::fs::write(dir.join("density.raw"), values.iter().flat_map(|v| v.to_le_bytes()).collect::<Vec<u8>>()).unwrap();
+    let out = dir.join("out");
+    run(&job(scene.clone(), out.clone(), 20_000, 0)).expect("reference job");
+    let (info, fluence) = lpm::output::read_raw_field(&out, "fluence").unwrap();
+    assert_eq!(info.dims, [4, 3, 2]);
+    let mean = fluence.iter().map(|&v| v as f64).sum::<f64>() / 24.0;
+    assert!((mean / (4.0 * PI) - 1.0).abs() < 0.02, "{mean}");
+
+    // A NaN density: an error naming the file and the voxel, and nothing left behind.
+    let mut bad = values.clone();
+    bad[5] = f32::NAN;
+    std::fs::write(dir.join("density.raw"), bad.iter().flat_map(|v| v.to_le_bytes()).collect::<Vec<u8>>()).unwrap();
+    let out2 = dir.join("out2");
+    let err = run(&job(scene, out2.clone(), 1_000, 0)).unwrap_err();
+    assert!(matches!(err, ReferenceJobError::Store(_)), "{err:?}");
+    let msg = err.to_string();
+    assert!(msg.contains("density.raw") && msg.contains("(1, 1, 0)"), "{msg}");
+    assert!(!out2.exists(), "output directory left behind");
+}
+
+#[test]
+fn a_bad_scene_is_an_error_and_leaves_nothing_behind() {
+    let dir = temp_dir("refjob-bad");
+    let scene = write_scene_as(&dir, "bad.toml", &FURNACE.replace("albedo = 1.0", "albedo = 1.5"));
+    let out = dir.join("out");
+    let err = run(&job(scene.clone(), out.clone(), 1_000, 0)).unwrap_err();
+    assert!(matches!(err, ReferenceJobError::Scene(_)), "{err:?}");
+    assert!(err.to_string().contains("bad.toml") && err.to_string().contains("medium.albedo"), "{err}");
+    assert!(!out.exists());
+
+    // Zero photons is refused before anything is created.
+    let good = write_scene(&dir, FURNACE);
+    assert!(matches!(run(&job(good.clone(), out.clone(), 0, 0)), Err(ReferenceJobError::NoPhotons)));
+    assert!(!out.exists());
+
+    // A failure with an existing output directory leaves its files untouched.
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::write(out.join("fluence.raw"), b"earlier").unwrap();
+    assert!(run(&job(scene, out.clone(), 1_000, 0)).is_err());
+    assert_eq!(std::fs::read(out.join("fluence.raw")).unwrap(), b"earlier");
+    assert_eq!(std::fs::read_dir(&out).unwrap().count(), 1);
+}
