@@ -58,6 +58,41 @@ enum Command {
         #[arg(long)]
         resume: bool,
     },
+    /// Monte-Carlo reference solution of a scene (independent of the LPM solver): writes fluence.*,
+    /// fluence_stderr.* (per-voxel standard error), image.* when --image-spp > 0, and report.json.
+    Reference {
+        /// The scene file (TOML).
+        scene: PathBuf,
+        /// Output directory (created if missing; written only when complete).
+        #[arg(long, short)]
+        out: PathBuf,
+        /// Photons per channel (an RGB scene traces three times as many); rounded up to a multiple
+        /// of the 16 batches the standard error is estimated from.
+        #[arg(long)]
+        samples: u64,
+        /// Random seed: the same seed gives bitwise the same result, whatever the thread count.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Camera paths per pixel for image.exr/.png (0: no image). The default camera is 512 px wide.
+        #[arg(long, default_value_t = 0)]
+        image_spp: u32,
+        /// Worker threads (0: all cores).
+        #[arg(long, default_value_t = 0)]
+        threads: usize,
+    },
+    /// Compare output directory A (e.g. a solve) against B (e.g. a reference): relative L2, RMSE,
+    /// max relative error and mean bias of the fluence (voxels where B's standard error is small),
+    /// and of the images when both have one.
+    Compare {
+        a: PathBuf,
+        b: PathBuf,
+        /// Also write the comparison as JSON to this file.
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// Use only voxels whose reference standard error is at most this fraction of its fluence.
+        #[arg(long, default_value_t = 0.05)]
+        max_rel_stderr: f64,
+    },
     /// Benchmarks that print JSON (see README, "Benchmarks").
     Bench {
         #[command(subcommand)]
@@ -165,6 +200,27 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Info { dir, json } => info(&dir, json),
+        Command::Reference { scene, out, samples, seed, image_spp, threads } => {
+            let job = lpm::reference::job::ReferenceJob { scene, out: out.clone(), photons: samples, seed, threads, image_samples_per_pixel: image_spp };
+            let report = lpm::reference::job::run(&job)?;
+            println!(
+                "reference of {} with {} photons per channel in {:.1} s, mean relative standard error {}; outputs in {}",
+                report.scene,
+                report.photons,
+                report.seconds,
+                report.mean_relative_std_error.map_or("n/a".to_string(), |e| format!("{e:.2e}")),
+                out.display()
+            );
+            Ok(())
+        }
+        Command::Compare { a, b, json, max_rel_stderr } => {
+            let c = lpm::compare::compare_dirs(&a, &b, &lpm::compare::CompareOptions { max_relative_stderr: max_rel_stderr })?;
+            println!("{c}");
+            if let Some(path) = json {
+                lpm::compare::write_comparison_json(&path, &c)?;
+            }
+            Ok(())
+        }
         Command::Bench { what: BenchCommand::Stream { scene, orders, device_memory_budget, device, json } } => {
             let mut vk = ContextOptions::default();
             if device.is_some() {
