@@ -185,3 +185,54 @@ fn a_failed_solve_leaves_earlier_outputs_untouched() {
     assert_eq!(std::fs::read_dir(&out).unwrap().count(), 1);
     let _ = scene;
 }
+
+#[test]
+fn reference_compare_and_bench_stream_from_the_command_line() {
+    let dir = temp_dir("cli-ref");
+    let text = SMALL.replace("dims = [20, 17, 23]", "dims = [10, 9, 8]").replace("directions_per_face = 2", "directions_per_face = 3");
+    let scene = write_scene(&dir, &text);
+    let s = scene.to_str().unwrap();
+    let (solved, reference) = (dir.join("solved"), dir.join("reference"));
+    let o = lpm(&["solve", s, "--out", solved.to_str().unwrap(), "--no-image"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = lpm(&["reference", s, "--out", reference.to_str().unwrap(), "--samples", "200000", "--seed", "5"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for f in ["fluence.raw", "fluence.json", "fluence_stderr.raw", "report.json"] {
+        assert!(reference.join(f).is_file(), "{f} missing");
+    }
+    let json = dir.join("cmp.json");
+    let o = lpm(&["compare", solved.to_str().unwrap(), reference.to_str().unwrap(), "--json", json.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.contains("rel. L2"), "{text}");
+    let c: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert!(c["fluence"]["metrics"]["relative_l2"].as_f64().unwrap() < 0.2, "{c}");
+
+    let o = lpm(&["bench", "stream", s, "--orders", "1"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let order = &report["orders"][0];
+    for key in ["upload_seconds", "compute_seconds", "download_seconds", "hidden_transfer_fraction", "upload_bytes_per_second", "download_bytes_per_second", "updates_per_second"] {
+        assert!(order[key].is_number(), "{key} missing in {report}");
+    }
+    assert!(order["compute_seconds"].as_f64().unwrap() > 0.0);
+    assert!(report["note"].as_str().unwrap().len() > 10);
+}
+
+#[test]
+fn device_memory_budget_flag_and_too_small_budget() {
+    let dir = temp_dir("cli-budget");
+    let scene = write_scene(&dir, SMALL);
+    let out = dir.join("out");
+    let o = lpm(&["solve", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--no-image", "--device-memory-budget", "16K"]);
+    assert_eq!(o.status.code(), Some(1));
+    let err = stderr(&o);
+    assert!(err.contains("too small") && err.contains("--device-memory-budget"), "{err}");
+    let o = lpm(&["solve", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--no-image", "--device-memory-budget", "64M"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["device_memory"]["budget_bytes"], 64 << 20);
+    assert!(report["device_memory"]["planned_bytes"].as_u64().unwrap() <= 64 << 20);
+    let o = lpm(&["solve", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--device-memory-budget", "lots"]);
+    assert_eq!(o.status.code(), Some(2), "clap rejects a malformed budget");
+}
