@@ -7,6 +7,8 @@
 //! on the same cores one after the other, so the overlap figures mean nothing there: the report
 //! says so.
 
+pub mod accuracy;
+
 use crate::job::JobError;
 use crate::scene::Scene;
 use crate::solver::fields::StoreFields;

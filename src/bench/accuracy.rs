@@ -1,0 +1,255 @@
+//! `lpm bench accuracy`: time against error for the solver and the Monte-Carlo reference, on the
+//! same axes.
+//!
+//! A long Monte-Carlo run is the reference. The solver runs across directions per face and
+//! tolerances; the Monte-Carlo reference runs again across photon counts (other seeds). Every run
+//! is timed and compared with the reference over the voxels where the reference's relative standard
+//! error is small ([`crate::compare`]). The results go to `accuracy.json`, `accuracy.csv` and a
+//! log-log plot `accuracy.png` / `accuracy.svg` of seconds against relative L2 error.
+
+use crate::compare::{compare_dirs, CompareOptions};
+use crate::job::{self, SolveJob};
+use crate::plot::{Figure, Series, Style};
+use crate::reference::job::{self as reference_job, ReferenceJob};
+use crate::solver::BackendKind;
+use crate::vk::ContextOptions;
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+#[derive(Clone, Debug)]
+pub struct AccuracyOptions {
+    pub directions_per_face: Vec<u32>,
+    pub tolerances: Vec<f64>,
+    pub photons: Vec<u64>,
+    pub reference_photons: u64,
+    pub backend: BackendKind,
+    pub vk: ContextOptions,
+    pub max_relative_stderr: f64,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct AccuracyRow {
+    /// "lpm" or "monte-carlo".
+    pub method: String,
+    /// The setting, e.g. "k=5 tol=1e-4" or "photons=1000000".
+    pub setting: String,
+    pub seconds: f64,
+    pub relative_l2: Option<f64>,
+    pub rmse: Option<f64>,
+    pub max_relative_error: Option<f64>,
+    pub mean_bias: Option<f64>,
+    pub voxels_compared: u64,
+    /// Solver only: orders run and the final residual.
+    pub orders: Option<u32>,
+    pub residual: Option<f64>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct AccuracyReport {
+    pub scene: String,
+    pub reference_photons: u64,
+    pub reference_seconds: f64,
+    pub reference_mean_relative_std_error: Option<f64>,
+    pub max_relative_stderr: f64,
+    pub rows: Vec<AccuracyRow>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum AccuracyError {
+    #[error(transparent)]
+    Solve(#[from] job::JobError),
+    #[error(transparent)]
+    Reference(#[from] reference_job::ReferenceJobError),
+    #[error(transparent)]
+    Compare(#[from] crate::compare::CompareError),
+    #[error(transparent)]
+    Output(#[from] crate::output::OutputError),
+    #[error("{path}: {message}")]
+    Scene { path: PathBuf, message: String },
+    #[error("writing {path}: {source}")]
+    Write { path: PathBuf, source: std::io::Error },
+}
+
+/// Runs the whole study; `log(line)` reports progress.
+pub fn run(scene: &Path, out: &Path, opts: &AccuracyOptions, mut log: impl FnMut(&str)) -> Result<AccuracyReport, AccuracyError> {
+    let runs = out.join("runs");
+    let reference_dir = runs.join("reference");
+    log(&format!("reference: Monte Carlo with {} photons per channel", opts.reference_photons));
+    let reference = reference_job::run(&ReferenceJob {
+        scene: scene.to_path_buf(),
+        out: reference_dir.clone(),
+        photons: opts.reference_photons,
+        seed: 0xACC,
+        threads: 0,
+        image_samples_per_pixel: 0,
+    })?;
+    let compare_options = CompareOptions { max_relative_stderr: opts.max_relative_stderr };
+    let mut rows = Vec::new();
+
+    for &k in &opts.directions_per_face {
+        for &tolerance in &opts.tolerances {
+            let setting = format!("k={k} tol={tolerance:e}");
+            log(&format!("lpm {setting}"));
+            let dir = runs.join(format!("lpm-k{k}-tol{tolerance:e}"));
+            let scene_copy = with_solver_settings(scene, &dir, k, tolerance)?;
+            let t = Instant::now();
+            let report = job::run(
+                &SolveJob {
+                    scene: scene_copy,
+                    out: dir.clone(),
+                    backend: opts.backend,
+                    vk: opts.vk.clone(),
+                    keep_store: false,
+                    no_image: true,
+                    device_memory_budget: None,
+                    resume: false,
+                },
+                |_, _| {},
+            )?;
+            let seconds = t.elapsed().as_secs_f64();
+            let c = compare_dirs(&dir, &reference_dir, &compare_options)?;
+            let m = &c.fluence.metrics;
+            rows.push(AccuracyRow {
+                method: "lpm".into(),
+                setting,
+                seconds,
+                relative_l2: m.relative_l2,
+                rmse: m.rmse,
+                max_relative_error: m.max_relative_error,
+                mean_bias: m.mean_bias,
+                voxels_compared: c.fluence.voxels_used,
+                orders: Some(report.orders),
+                residual: Some(report.final_residual),
+            });
+        }
+    }
+    for (i, &photons) in opts.photons.iter().enumerate() {
+        let setting = format!("photons={photons}");
+        log(&format!("monte-carlo {setting}"));
+        let dir = runs.join(format!("mc-{photons}"));
+        let t = Instant::now();
+        reference_job::run(&ReferenceJob {
+            scene: scene.to_path_buf(),
+            out: dir.clone(),
+            photons,
+            seed: 1 + i as u64,
+            threads: 0,
+            image_samples_per_pixel: 0,
+        })?;
+        let seconds = t.elapsed().as_secs_f64();
+        let c = compare_dirs(&dir, &reference_dir, &compare_options)?;
+        let m = &c.fluence.metrics;
+        rows.push(AccuracyRow {
+            method: "monte-carlo".into(),
+            setting,
+            seconds,
+            relative_l2: m.relative_l2,
+            rmse: m.rmse,
+            max_relative_error: m.max_relative_error,
+            mean_bias: m.mean_bias,
+            voxels_compared: c.fluence.voxels_used,
+            orders: None,
+            residual: None,
+        });
+    }
+    let report = AccuracyReport {
+        scene: scene.display().to_string(),
+        reference_photons: reference.photons,
+        reference_seconds: reference.seconds,
+        reference_mean_relative_std_error: reference.mean_relative_std_error,
+        max_relative_stderr: opts.max_relative_stderr,
+        rows,
+    };
+    write_outputs(out, &report)?;
+    Ok(report)
+}
+
+/// A copy of the scene with its solver settings replaced, written next to the run. A raw volume's
+/// path is rewritten to the absolute path the loader resolved, so the copy reads the same data.
+fn with_solver_settings(scene: &Path, dir: &Path, k: u32, tolerance: f64) -> Result<PathBuf, AccuracyError> {
+    let loaded = crate::scene::Scene::load(scene).map_err(job::JobError::from)?;
+    let text = std::fs::read_to_string(scene).map_err(|source| AccuracyError::Write { path: scene.to_path_buf(), source })?;
+    let mut value: toml::Value = text
+        .parse()
+        .map_err(|e: toml::de::Error| AccuracyError::Scene { path: scene.to_path_buf(), message: e.to_string() })?;
+    if let Some(table) = value.as_table_mut() {
+        let solver = table.entry("solver").or_insert_with(|| toml::Value::Table(Default::default()));
+        if let Some(solver) = solver.as_table_mut() {
+            solver.insert("directions_per_face".into(), toml::Value::Integer(k as i64));
+            solver.insert("tolerance".into(), toml::Value::Float(tolerance));
+            if solver.get("storage_directions_per_face").and_then(toml::Value::as_integer).is_some_and(|ks| ks > k as i64) {
+                solver.insert("storage_directions_per_face".into(), toml::Value::Integer(k as i64));
+            }
+        }
+        if let (crate::scene::VolumeSource::Raw { path }, Some(volume)) =
+            (&loaded.volume.source, table.get_mut("volume").and_then(|v| v.as_table_mut()))
+        {
+            volume.insert("raw".into(), toml::Value::String(path.display().to_string()));
+        }
+    }
+    std::fs::create_dir_all(dir).map_err(|source| AccuracyError::Write { path: dir.to_path_buf(), source })?;
+    let copy = dir.join("scene.toml");
+    crate::output::write_atomic(&copy, |w| std::io::Write::write_all(w, value.to_string().as_bytes()))?;
+    Ok(copy)
+}
+
+fn write_outputs(out: &Path, report: &AccuracyReport) -> Result<(), AccuracyError> {
+    crate::output::write_json_atomic(&out.join("accuracy.json"), report)?;
+    let opt = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:e}"));
+    let mut csv =
+        String::from("method,setting,seconds,relative_l2,rmse,max_relative_error,mean_bias,voxels_compared,orders,residual\n");
+    for r in &report.rows {
+        csv.push_str(&format!(
+            "{},{},{:e},{},{},{},{},{},{},{}\n",
+            r.method,
+            r.setting,
+            r.seconds,
+            opt(r.relative_l2),
+            opt(r.rmse),
+            opt(r.max_relative_error),
+            opt(r.mean_bias),
+            r.voxels_compared,
+            r.orders.map_or(String::new(), |o| o.to_string()),
+            opt(r.residual)
+        ));
+    }
+    crate::output::write_atomic(&out.join("accuracy.csv"), |w| std::io::Write::write_all(w, csv.as_bytes()))?;
+
+    // One series per directions-per-face (its points are the tolerances), one for Monte Carlo.
+    let point = |r: &AccuracyRow| r.relative_l2.map(|e| (r.seconds, e));
+    let mut series: Vec<Series> = Vec::new();
+    let mut ks: Vec<&str> = Vec::new();
+    for r in report.rows.iter().filter(|r| r.method == "lpm") {
+        let k = r.setting.split(' ').next().unwrap_or("");
+        if !ks.contains(&k) {
+            ks.push(k);
+        }
+    }
+    for k in ks {
+        let prefix = format!("{k} ");
+        let points = report.rows.iter().filter(|r| r.method == "lpm" && r.setting.starts_with(&prefix)).filter_map(point).collect();
+        series.push(Series { name: format!("LPM {k}, tolerances"), points, style: Style::LineAndMarkers });
+    }
+    series.push(Series {
+        name: "Monte Carlo, photon counts".into(),
+        points: report.rows.iter().filter(|r| r.method == "monte-carlo").filter_map(point).collect(),
+        style: Style::LineAndMarkers,
+    });
+    let name = Path::new(&report.scene).file_name().map_or(report.scene.clone(), |n| n.to_string_lossy().into_owned());
+    let figure = Figure {
+        title: format!("Time against error: {name}"),
+        x_label: "seconds".into(),
+        y_label: "relative L2 error of fluence".into(),
+        log_x: true,
+        log_y: true,
+        series,
+        width: 900,
+        height: 600,
+    };
+    let svg = out.join("accuracy.svg");
+    figure.write_svg(&svg).map_err(|source| AccuracyError::Write { path: svg, source })?;
+    let png = out.join("accuracy.png");
+    figure.write_png(&png).map_err(|source| AccuracyError::Write { path: png, source })?;
+    Ok(())
+}
