@@ -17,6 +17,7 @@
 //! | [`vk`] | the thin Vulkan layer: instance, device, queues, buffers, pipelines, timeline sync |
 //! | [`solver`] | the plan (what a scene needs), the discretisation shared by both backends, the CPU twin (f64), the GPU driver, the order loop |
 //! | [`render`] | the camera ray-march over the solved source, EXR and PNG writers |
+//! | [`plot`] | small dependency-free plots (log/linear axes, series, legend) written as SVG and PNG, with an embedded bitmap font |
 //!
 //! The binary (`src/main.rs`) is a thin CLI over [`solver::solve`], [`render`] and the store readers.
 //!
@@ -35,6 +36,7 @@
 
 pub mod job;
 pub mod output;
+pub mod plot;
 pub mod quadrature;
 pub mod reference;
 pub mod render;
