@@ -20,7 +20,8 @@
 //! | [`reference`] | the independent Monte-Carlo reference (shares only the scene with the solver) |
 //! | [`compare`] | accuracy figures of one output directory against another (e.g. a solve against a reference) |
 //! | [`job`] | a whole `lpm solve`: scene → store → solve → exported fields, image, report; checkpoints and resume |
-//! | [`bench`] | `lpm bench`: profiled runs that print JSON |
+//! | [`bench`] | `lpm bench`: the profiled stream (JSON) and the time-against-error study |
+//! | [`plot`] | small dependency-free plots (log/linear axes, series, legend) written as SVG and PNG, with an embedded bitmap font |
 //!
 //! The binary (`src/main.rs`) is a thin CLI over [`job`], [`reference::job`], [`compare`], [`bench`]
 //! and the output readers.
@@ -42,6 +43,7 @@ pub mod bench;
 pub mod compare;
 pub mod job;
 pub mod output;
+pub mod plot;
 pub mod quadrature;
 pub mod reference;
 pub mod render;
