@@ -129,6 +129,34 @@ enum BenchCommand {
         #[arg(long)]
         json: Option<PathBuf>,
     },
+    /// Time against error: the solver across directions per face and tolerances, and the Monte-Carlo
+    /// reference across photon counts, each timed and compared with a long Monte-Carlo run; writes
+    /// accuracy.json, accuracy.csv, accuracy.png and accuracy.svg (log-log) into --out.
+    Accuracy {
+        /// The scene file (TOML).
+        scene: PathBuf,
+        /// Output directory (the runs go to OUT/runs).
+        #[arg(long, short)]
+        out: PathBuf,
+        /// Directions per face to try (comma-separated).
+        #[arg(long, value_delimiter = ',', default_value = "2,3,4,5")]
+        k: Vec<u32>,
+        /// Solver tolerances to try (comma-separated).
+        #[arg(long, value_delimiter = ',', default_value = "1e-2,1e-3,1e-4")]
+        tolerances: Vec<f64>,
+        /// Monte-Carlo photon counts per channel to try (comma-separated).
+        #[arg(long, value_delimiter = ',', default_value = "100000,400000,1600000")]
+        samples: Vec<f64>,
+        /// Photons per channel of the reference run.
+        #[arg(long, default_value_t = 16e6)]
+        reference_samples: f64,
+        /// Backend of the solver runs.
+        #[arg(long, value_enum, default_value_t = Backend::Gpu)]
+        backend: Backend,
+        /// Compare only voxels whose reference relative standard error is at most this.
+        #[arg(long, default_value_t = 0.05)]
+        max_rel_stderr: f64,
+    },
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -219,6 +247,30 @@ fn run(cli: Cli) -> Result<()> {
             if let Some(path) = json {
                 lpm::compare::write_comparison_json(&path, &c)?;
             }
+            Ok(())
+        }
+        Command::Bench {
+            what: BenchCommand::Accuracy { scene, out, k, tolerances, samples, reference_samples, backend, max_rel_stderr },
+        } => {
+            let options = lpm::bench::accuracy::AccuracyOptions {
+                directions_per_face: k,
+                tolerances,
+                photons: samples.iter().map(|&s| s.max(1.0) as u64).collect(),
+                reference_photons: reference_samples.max(1.0) as u64,
+                backend: match backend {
+                    Backend::Gpu => BackendKind::Gpu,
+                    Backend::Cpu => BackendKind::Cpu,
+                },
+                vk: ContextOptions::default(),
+                max_relative_stderr: max_rel_stderr,
+            };
+            let report = lpm::bench::accuracy::run(&scene, &out, &options, |line| tracing::info!("{line}"))?;
+            println!("{:<12} {:<22} {:>10} {:>12} {:>12}", "method", "setting", "seconds", "rel. L2", "bias");
+            for r in &report.rows {
+                let f = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.3e}"));
+                println!("{:<12} {:<22} {:>10.3} {:>12} {:>12}", r.method, r.setting, r.seconds, f(r.relative_l2), f(r.mean_bias));
+            }
+            println!("wrote accuracy.json, accuracy.csv, accuracy.png and accuracy.svg to {}", out.display());
             Ok(())
         }
         Command::Bench { what: BenchCommand::Stream { scene, orders, device_memory_budget, device, json } } => {

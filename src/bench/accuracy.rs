@@ -190,7 +190,9 @@ fn with_solver_settings(scene: &Path, dir: &Path, k: u32, tolerance: f64) -> Res
     }
     std::fs::create_dir_all(dir).map_err(|source| AccuracyError::Write { path: dir.to_path_buf(), source })?;
     let copy = dir.join("scene.toml");
-    crate::output::write_atomic(&copy, |w| std::io::Write::write_all(w, value.to_string().as_bytes()))?;
+    // `Value::to_string` writes an inline table; serialise as a document instead.
+    let text = toml::to_string(&value).map_err(|e| AccuracyError::Scene { path: copy.clone(), message: e.to_string() })?;
+    crate::output::write_atomic(&copy, |w| std::io::Write::write_all(w, text.as_bytes()))?;
     Ok(copy)
 }
 
