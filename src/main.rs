@@ -265,10 +265,21 @@ fn run(cli: Cli) -> Result<()> {
                 max_relative_stderr: max_rel_stderr,
             };
             let report = lpm::bench::accuracy::run(&scene, &out, &options, |line| tracing::info!("{line}"))?;
-            println!("{:<12} {:<22} {:>10} {:>12} {:>12}", "method", "setting", "seconds", "rel. L2", "bias");
+            println!(
+                "{:<12} {:<22} {:>10} {:>12} {:>12} {:>12}",
+                "method", "setting", "seconds", "rel. L2", "noise-corr.", "bias"
+            );
             for r in &report.rows {
                 let f = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.3e}"));
-                println!("{:<12} {:<22} {:>10.3} {:>12} {:>12}", r.method, r.setting, r.seconds, f(r.relative_l2), f(r.mean_bias));
+                println!(
+                    "{:<12} {:<22} {:>10.3} {:>12} {:>12} {:>12}",
+                    r.method,
+                    r.setting,
+                    r.seconds,
+                    f(r.relative_l2),
+                    f(r.noise_corrected_l2),
+                    f(r.mean_bias)
+                );
             }
             println!("wrote accuracy.json, accuracy.csv, accuracy.png and accuracy.svg to {}", out.display());
             Ok(())

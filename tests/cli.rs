@@ -236,3 +236,24 @@ fn device_memory_budget_flag_and_too_small_budget() {
     let o = lpm(&["solve", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--device-memory-budget", "lots"]);
     assert_eq!(o.status.code(), Some(2), "clap rejects a malformed budget");
 }
+
+#[test]
+fn bench_accuracy_writes_json_csv_and_plots() {
+    let dir = temp_dir("cli-accuracy");
+    let text = SMALL.replace("dims = [20, 17, 23]", "dims = [8, 8, 8]").replace("sigma_t = [1.0, 0.8, 0.6]", "sigma_t = 0.8");
+    let scene = write_scene(&dir, &text);
+    let out = dir.join("acc");
+    let o = lpm(&[
+        "bench", "accuracy", scene.to_str().unwrap(), "--out", out.to_str().unwrap(),
+        "--k", "1,2", "--tolerances", "1e-2", "--samples", "2e4,8e4", "--reference-samples", "4e5", "--max-rel-stderr", "0.2",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("accuracy.json")).unwrap()).unwrap();
+    let rows = report["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 4);
+    assert!(rows.iter().all(|r| r["seconds"].as_f64().unwrap() > 0.0 && r["relative_l2"].is_number()));
+    let csv = std::fs::read_to_string(out.join("accuracy.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 5);
+    assert!(std::fs::read_to_string(out.join("accuracy.svg")).unwrap().contains("Monte Carlo"));
+    assert!(std::fs::metadata(out.join("accuracy.png")).unwrap().len() > 1000);
+}

@@ -39,6 +39,9 @@ pub struct AccuracyRow {
     pub rmse: Option<f64>,
     pub max_relative_error: Option<f64>,
     pub mean_bias: Option<f64>,
+    /// The relative L2 the reference's own noise accounts for, and the error with it taken out.
+    pub reference_noise_l2: Option<f64>,
+    pub noise_corrected_l2: Option<f64>,
     pub voxels_compared: u64,
     /// Solver only: orders run and the final residual.
     pub orders: Option<u32>,
@@ -118,6 +121,8 @@ pub fn run(scene: &Path, out: &Path, opts: &AccuracyOptions, mut log: impl FnMut
                 rmse: m.rmse,
                 max_relative_error: m.max_relative_error,
                 mean_bias: m.mean_bias,
+                reference_noise_l2: c.fluence.reference_noise_relative_l2,
+                noise_corrected_l2: c.fluence.noise_corrected_relative_l2,
                 voxels_compared: c.fluence.voxels_used,
                 orders: Some(report.orders),
                 residual: Some(report.final_residual),
@@ -148,6 +153,8 @@ pub fn run(scene: &Path, out: &Path, opts: &AccuracyOptions, mut log: impl FnMut
             rmse: m.rmse,
             max_relative_error: m.max_relative_error,
             mean_bias: m.mean_bias,
+            reference_noise_l2: c.fluence.reference_noise_relative_l2,
+            noise_corrected_l2: c.fluence.noise_corrected_relative_l2,
             voxels_compared: c.fluence.voxels_used,
             orders: None,
             residual: None,
@@ -199,11 +206,12 @@ fn with_solver_settings(scene: &Path, dir: &Path, k: u32, tolerance: f64) -> Res
 fn write_outputs(out: &Path, report: &AccuracyReport) -> Result<(), AccuracyError> {
     crate::output::write_json_atomic(&out.join("accuracy.json"), report)?;
     let opt = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:e}"));
-    let mut csv =
-        String::from("method,setting,seconds,relative_l2,rmse,max_relative_error,mean_bias,voxels_compared,orders,residual\n");
+    let mut csv = String::from(
+        "method,setting,seconds,relative_l2,rmse,max_relative_error,mean_bias,reference_noise_l2,noise_corrected_l2,voxels_compared,orders,residual\n",
+    );
     for r in &report.rows {
         csv.push_str(&format!(
-            "{},{},{:e},{},{},{},{},{},{},{}\n",
+            "{},{},{:e},{},{},{},{},{},{},{},{},{}\n",
             r.method,
             r.setting,
             r.seconds,
@@ -211,6 +219,8 @@ fn write_outputs(out: &Path, report: &AccuracyReport) -> Result<(), AccuracyErro
             opt(r.rmse),
             opt(r.max_relative_error),
             opt(r.mean_bias),
+            opt(r.reference_noise_l2),
+            opt(r.noise_corrected_l2),
             r.voxels_compared,
             r.orders.map_or(String::new(), |o| o.to_string()),
             opt(r.residual)

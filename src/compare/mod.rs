@@ -76,6 +76,12 @@ pub struct FluenceComparison {
     pub voxels_used: u64,
     pub voxels_excluded: u64,
     pub metrics: Metrics,
+    /// √(Σ σ²)/‖b‖ over the values compared: the relative L2 difference a perfect candidate would
+    /// show from the reference's own Monte-Carlo noise (`None` without standard errors).
+    pub reference_noise_relative_l2: Option<f64>,
+    /// √(max(0, rel. L2² − noise²)): the relative L2 error with the reference's noise taken out
+    /// (in expectation); meaningful when clearly above zero.
+    pub noise_corrected_relative_l2: Option<f64>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -127,6 +133,7 @@ pub fn compare_dirs(a: &Path, b: &Path, opts: &CompareOptions) -> Result<Compari
     };
     let mut acc = Accumulator::default();
     let mut used = 0u64;
+    let (mut noise_sq, mut ref_sq) = (0.0f64, 0.0f64);
     for (v, (va, vb)) in values_a.chunks_exact(c).zip(values_b.chunks_exact(c)).enumerate() {
         let keep = match &stderr {
             // A NaN standard error and a fluence ≤ 0 both exclude the voxel.
@@ -136,6 +143,12 @@ pub fn compare_dirs(a: &Path, b: &Path, opts: &CompareOptions) -> Result<Compari
         if keep {
             used += 1;
             va.iter().zip(vb).for_each(|(&x, &y)| acc.add(x, y));
+            if let Some(se) = &stderr {
+                for k in 0..c {
+                    noise_sq += (se[v * c + k] as f64).powi(2);
+                    ref_sq += (vb[k] as f64).powi(2);
+                }
+            }
         }
     }
     let non_finite = values_a.iter().filter(|v| !v.is_finite()).count();
@@ -145,6 +158,12 @@ pub fn compare_dirs(a: &Path, b: &Path, opts: &CompareOptions) -> Result<Compari
     if used == 0 {
         notes.push("no voxel was compared: the reference has no voxel with fluence > 0 and a small enough standard error".into());
     }
+    let metrics = acc.finish();
+    let noise = (stderr.is_some() && ref_sq > 0.0).then(|| (noise_sq / ref_sq).sqrt());
+    let corrected = match (metrics.relative_l2, noise) {
+        (Some(l2), Some(n)) => Some((l2 * l2 - n * n).max(0.0).sqrt()),
+        _ => None,
+    };
     let fluence = FluenceComparison {
         dims: info_b.dims,
         components: info_b.components,
@@ -152,7 +171,9 @@ pub fn compare_dirs(a: &Path, b: &Path, opts: &CompareOptions) -> Result<Compari
         voxels_total,
         voxels_used: used,
         voxels_excluded: voxels_total - used,
-        metrics: acc.finish(),
+        metrics,
+        reference_noise_relative_l2: noise,
+        noise_corrected_relative_l2: corrected,
     };
     let image = image::compare_images(a, b, &mut notes)?;
     Ok(Comparison {
