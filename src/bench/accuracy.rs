@@ -7,7 +7,7 @@
 //! error is small ([`crate::compare`]). The results go to `accuracy.json`, `accuracy.csv` and a
 //! log-log plot `accuracy.png` / `accuracy.svg` of seconds against relative L2 error.
 
-use crate::compare::{compare_dirs, CompareOptions};
+use crate::compare::{compare_dirs, CompareOptions, Comparison};
 use crate::job::{self, SolveJob};
 use crate::plot::{Figure, Series, Style};
 use crate::reference::job::{self as reference_job, ReferenceJob};
@@ -112,21 +112,7 @@ pub fn run(scene: &Path, out: &Path, opts: &AccuracyOptions, mut log: impl FnMut
             )?;
             let seconds = t.elapsed().as_secs_f64();
             let c = compare_dirs(&dir, &reference_dir, &compare_options)?;
-            let m = &c.fluence.metrics;
-            rows.push(AccuracyRow {
-                method: "lpm".into(),
-                setting,
-                seconds,
-                relative_l2: m.relative_l2,
-                rmse: m.rmse,
-                max_relative_error: m.max_relative_error,
-                mean_bias: m.mean_bias,
-                reference_noise_l2: c.fluence.reference_noise_relative_l2,
-                noise_corrected_l2: c.fluence.noise_corrected_relative_l2,
-                voxels_compared: c.fluence.voxels_used,
-                orders: Some(report.orders),
-                residual: Some(report.final_residual),
-            });
+            rows.push(row("lpm", setting, seconds, &c, Some(report.orders), Some(report.final_residual)));
         }
     }
     for (i, &photons) in opts.photons.iter().enumerate() {
@@ -144,21 +130,7 @@ pub fn run(scene: &Path, out: &Path, opts: &AccuracyOptions, mut log: impl FnMut
         })?;
         let seconds = t.elapsed().as_secs_f64();
         let c = compare_dirs(&dir, &reference_dir, &compare_options)?;
-        let m = &c.fluence.metrics;
-        rows.push(AccuracyRow {
-            method: "monte-carlo".into(),
-            setting,
-            seconds,
-            relative_l2: m.relative_l2,
-            rmse: m.rmse,
-            max_relative_error: m.max_relative_error,
-            mean_bias: m.mean_bias,
-            reference_noise_l2: c.fluence.reference_noise_relative_l2,
-            noise_corrected_l2: c.fluence.noise_corrected_relative_l2,
-            voxels_compared: c.fluence.voxels_used,
-            orders: None,
-            residual: None,
-        });
+        rows.push(row("monte-carlo", setting, seconds, &c, None, None));
     }
     let report = AccuracyReport {
         scene: scene.display().to_string(),
@@ -170,6 +142,25 @@ pub fn run(scene: &Path, out: &Path, opts: &AccuracyOptions, mut log: impl FnMut
     };
     write_outputs(out, &report)?;
     Ok(report)
+}
+
+/// One row of the study from a run's comparison with the reference.
+fn row(method: &str, setting: String, seconds: f64, c: &Comparison, orders: Option<u32>, residual: Option<f64>) -> AccuracyRow {
+    let m = &c.fluence.metrics;
+    AccuracyRow {
+        method: method.into(),
+        setting,
+        seconds,
+        relative_l2: m.relative_l2,
+        rmse: m.rmse,
+        max_relative_error: m.max_relative_error,
+        mean_bias: m.mean_bias,
+        reference_noise_l2: c.fluence.reference_noise_relative_l2,
+        noise_corrected_l2: c.fluence.noise_corrected_relative_l2,
+        voxels_compared: c.fluence.voxels_used,
+        orders,
+        residual,
+    }
 }
 
 /// A copy of the scene with its solver settings replaced, written next to the run. A raw volume's
