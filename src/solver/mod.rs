@@ -108,6 +108,10 @@ pub fn solve(
 /// Identifies a scene for checkpoints: a resumed solve must be the same job.
 pub fn scene_digest(scene: &Scene) -> String {
     // FNV-1a over the validated scene and the crate version: stable across runs and platforms.
+    // The memory budget is left out: any budget gives bitwise the same result, so a solve may
+    // resume under another one.
+    let mut scene = scene.clone();
+    scene.solver.device_memory_budget = None;
     let text = format!("{}|{:?}", env!("CARGO_PKG_VERSION"), scene);
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
     for b in text.bytes() {
