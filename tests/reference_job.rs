@@ -100,6 +100,8 @@ fn furnace_reference_writes_its_outputs_and_agrees_with_the_solver() {
         vk: ContextOptions::default(),
         keep_store: false,
         no_image: false,
+        device_memory_budget: None,
+        resume: false,
     };
     lpm::job::run(&solve, |_, _| {}).expect("solve job");
     let c = compare_dirs(&solved, &reference, &CompareOptions::default()).expect("compare");
