@@ -36,6 +36,7 @@ fn bench_scene() -> Scene {
             max_orders: 1,
             tolerance: 1e-4,
             device_memory_budget: None,
+            extrapolate_tail: false,
         },
         camera: None,
     }

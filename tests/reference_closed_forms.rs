@@ -22,6 +22,7 @@ fn scene(dims: [u32; 3], h: f64, sigma_t: f64, albedo: f64, g: f64, emission: f6
             max_orders: 16,
             tolerance: 1e-3,
             device_memory_budget: None,
+            extrapolate_tail: false,
         },
         camera: None,
     }

@@ -57,6 +57,7 @@ pub(crate) struct RawSolver {
     pub max_orders: Option<i64>,
     pub tolerance: Option<f64>,
     pub device_memory_budget: Option<ByteSize>,
+    pub extrapolate_tail: Option<bool>,
 }
 
 #[derive(Debug, Deserialize)]

@@ -80,6 +80,9 @@ pub struct SolverSettings {
     pub tolerance: f64,
     /// Device memory budget in bytes; `None`: a safe fraction of the device's heap.
     pub device_memory_budget: Option<u64>,
+    /// Estimate the orders not propagated as a geometric series and add them (for high albedo),
+    /// stopping once that estimate is within the tolerance.
+    pub extrapolate_tail: bool,
 }
 
 #[derive(Clone, Debug, PartialEq)]

@@ -335,6 +335,7 @@ impl Validator<'_> {
                 max_orders: DEFAULT_MAX_ORDERS,
                 tolerance: DEFAULT_TOLERANCE,
                 device_memory_budget: None,
+                extrapolate_tail: false,
             });
         };
         let k = match s.directions_per_face {
@@ -379,6 +380,7 @@ impl Validator<'_> {
             max_orders,
             tolerance,
             device_memory_budget,
+            extrapolate_tail: s.extrapolate_tail.unwrap_or(false),
         })
     }
 

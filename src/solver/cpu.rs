@@ -21,8 +21,9 @@ pub struct CpuTwin<'a> {
     j_prev: Vec<f64>,
     j_next: Vec<f64>,
     j_total: Vec<f64>,
-    /// Fluence per voxel, `[voxel][ch]`.
+    /// Fluence per voxel, `[voxel][ch]`: over all orders, and of the order being propagated.
     fluence: Vec<f64>,
+    fluence_order: Vec<f64>,
 }
 
 impl<'a> CpuTwin<'a> {
@@ -50,6 +51,7 @@ impl<'a> CpuTwin<'a> {
             j_next: vec![0.0; voxels * comps],
             j_total: vec![0.0; voxels * comps],
             fluence: vec![0.0; voxels * plan.channels as usize],
+            fluence_order: vec![0.0; voxels * plan.channels as usize],
         })
     }
 
@@ -113,6 +115,7 @@ impl<'a> CpuTwin<'a> {
                         let (out, avg) = segment(l[ch], j, rho * st, dir.path_length);
                         l[ch] = out;
                         self.fluence[v * c + ch] += dir.fluence_weight * avg;
+                        self.fluence_order[v * c + ch] += dir.fluence_weight * avg;
                         let sigma_s = rho * ss;
                         if sigma_s > 0.0 {
                             for (d, m) in dir.collect_row.iter().enumerate() {
@@ -136,6 +139,7 @@ impl Backend for CpuTwin<'_> {
     fn propagate_order(&mut self, order: u32) -> Result<Tallies, SolveError> {
         let plan = self.plan;
         let mut tallies = Tallies::default();
+        self.fluence_order.iter_mut().for_each(|f| *f = 0.0);
         if order == 0 {
             for beam in &plan.beams {
                 tallies.add(&self.sweep(beam, true, false, false));
@@ -163,6 +167,18 @@ impl Backend for CpuTwin<'_> {
         std::mem::swap(&mut self.j_prev, &mut self.j_next);
         self.j_next.iter_mut().for_each(|j| *j = 0.0);
         Ok(power)
+    }
+
+    fn apply_tail(&mut self, factor: [f64; 3]) -> Result<(), SolveError> {
+        let c = self.plan.channels as usize;
+        let comps = self.plan.source_components() as usize;
+        for (k, (t, p)) in self.j_total.iter_mut().zip(&self.j_prev).enumerate() {
+            *t += factor[(k % comps) % c] * p;
+        }
+        for (k, (f, o)) in self.fluence.iter_mut().zip(&self.fluence_order).enumerate() {
+            *f += factor[k % c] * o;
+        }
+        Ok(())
     }
 
     fn emitted_and_absorbed(&mut self) -> Result<([f64; 3], [f64; 3]), SolveError> {

@@ -47,6 +47,12 @@ pub struct LoopState {
     pub tallies: [[f64; 3]; 2],
     pub total_power: [f64; 3],
     pub last_new_power: [f64; 3],
+    /// Per channel, the new power of the order before the last, and the ratio of the last two
+    /// (for the tail estimate).
+    #[serde(default)]
+    pub previous_new_power: [f64; 3],
+    #[serde(default)]
+    pub previous_ratio: [f64; 3],
     pub history: Vec<OrderRecord>,
 }
 
@@ -103,7 +109,7 @@ impl StoreFields {
         }
         let comps = plan.source_components();
         let c = plan.channels;
-        let mut fields = StoreFields {
+        let fields = StoreFields {
             source_prev: store.open_field(&cp.source_prev, comps, Coverage::Occupied)?,
             source_next: store.open_field(&cp.source_next, comps, Coverage::Occupied)?,
             fluence: store.open_field("fluence_order", c, Coverage::Dense)?,
@@ -113,8 +119,8 @@ impl StoreFields {
             fluence_spare: store.open_field(&cp.fluence_spare, c, Coverage::Dense)?,
             clean: false,
         };
-        // Whatever the killed order had accumulated is discarded.
-        fields.begin_order();
+        // A killed order's partial sums are cleared when the next order begins; the order fields
+        // still hold the last completed order's (the tail estimate may need its fluence).
         Ok(Some((fields, cp.state)))
     }
 
@@ -156,7 +162,7 @@ impl StoreFields {
 
     /// Flushes the committed state and records it in `checkpoint.json` (atomically).
     pub fn write_checkpoint(&self, dir: &Path, digest: &str, state: &LoopState) -> Result<(), SolveError> {
-        for f in [&self.source_prev, &self.source_total, &self.fluence_total] {
+        for f in [&self.source_prev, &self.source_total, &self.fluence_total, &self.fluence] {
             f.flush()?;
         }
         let cp = Checkpoint {
@@ -171,6 +177,27 @@ impl StoreFields {
             state: state.clone(),
         };
         crate::output::write_json_atomic(&dir.join(CHECKPOINT), &cp).map_err(SolveError::Checkpoint)
+    }
+
+    /// Adds the estimated tail of the order series: `factor[ch]` times the last order's fluence and
+    /// the last (unpropagated) source, written into the spare copies so that what the checkpoint
+    /// names stays intact.
+    pub fn apply_tail(&mut self, plan: &Plan, factor: [f64; 3]) {
+        let c = plan.channels as usize;
+        let comps = plan.source_components() as usize;
+        let add = |spare: &mut [f32], total: &[f32], last: &[f32], channel_of: &dyn Fn(usize) -> usize| {
+            let blocks = spare.chunks_mut(BRICK_VOXELS).zip(total.chunks(BRICK_VOXELS)).zip(last.chunks(BRICK_VOXELS));
+            for (block, ((s, t), l)) in blocks.enumerate() {
+                let f = factor[channel_of(block)] as f32;
+                for ((s, &t), &l) in s.iter_mut().zip(t).zip(l) {
+                    *s = t + f * l;
+                }
+            }
+        };
+        add(self.source_spare.as_mut_slice(), self.source_total.as_slice(), self.source_prev.as_slice(), &|b| (b % comps) % c);
+        add(self.fluence_spare.as_mut_slice(), self.fluence_total.as_slice(), self.fluence.as_slice(), &|b| b % c);
+        std::mem::swap(&mut self.source_total, &mut self.source_spare);
+        std::mem::swap(&mut self.fluence_total, &mut self.fluence_spare);
     }
 
     /// Clears the order's accumulators before an order starts.

@@ -16,6 +16,9 @@ pub trait Backend {
     /// Adds the order's fluence and new source to the totals, makes the new source the next
     /// order's, and returns its scattered power per channel (Σ_x Σ_d Ω_d·J^d·h³).
     fn finish_order(&mut self) -> Result<[f64; 3], SolveError>;
+    /// Adds `factor[ch]` times the last order's fluence and the last source to the totals: the
+    /// geometric tail of the order series.
+    fn apply_tail(&mut self, factor: [f64; 3]) -> Result<(), SolveError>;
     /// Records the state after a completed order so that a killed solve can resume from it.
     fn checkpoint(&mut self, _state: &LoopState) -> Result<(), SolveError> {
         Ok(())
@@ -34,6 +37,50 @@ pub struct OrderRecord {
     pub seconds: f64,
 }
 
+/// The orders not propagated, estimated as a geometric series from the last two orders.
+#[derive(Clone, Debug, Serialize)]
+pub struct TailEstimate {
+    /// Per channel, the ratio of the last order's scattered power to the previous one's.
+    pub ratio: [f64; 3],
+    /// Per channel, ρ/(1 − ρ): the tail in units of the last order.
+    pub factor: [f64; 3],
+    /// Scattered power of the tail (summed over channels).
+    pub power: f64,
+    /// How far off the tail may be: last power × |Δρ|/(1 − ρ)², summed over channels.
+    pub uncertainty: f64,
+}
+
+/// The tail estimate after the orders in `state`, when the ratios are settled enough to use:
+/// at least three orders, and every scattering channel's ratio in (0, 1).
+pub fn tail_estimate(plan: &Plan, state: &LoopState) -> Option<TailEstimate> {
+    if state.orders_done < 3 {
+        return None;
+    }
+    let c = plan.channels as usize;
+    let mut t = TailEstimate { ratio: [0.0; 3], factor: [0.0; 3], power: 0.0, uncertainty: 0.0 };
+    for ch in 0..c {
+        let (new, before) = (state.last_new_power[ch], state.previous_new_power[ch]);
+        if new <= 0.0 {
+            continue;
+        }
+        let rho = new / before;
+        if !(rho > 0.0 && rho < 1.0) || !(state.previous_ratio[ch] > 0.0) {
+            return None;
+        }
+        t.ratio[ch] = rho;
+        t.factor[ch] = rho / (1.0 - rho);
+        t.power += new * t.factor[ch];
+        t.uncertainty += new * (rho - state.previous_ratio[ch]).abs() / ((1.0 - rho) * (1.0 - rho));
+    }
+    Some(t)
+}
+
+/// Whether the tail estimate is good to the tolerance.
+fn tail_converged(plan: &Plan, state: &LoopState) -> bool {
+    let total: f64 = state.total_power.iter().sum();
+    tail_estimate(plan, state).is_some_and(|t| t.uncertainty <= plan.tolerance * (total + t.power))
+}
+
 #[derive(Clone, Debug, Serialize)]
 pub struct OrderOutcome {
     /// Orders propagated (order 0 is the light straight from the boundary and the beams).
@@ -43,6 +90,8 @@ pub struct OrderOutcome {
     pub residual: f64,
     pub history: Vec<OrderRecord>,
     pub energy: EnergyBalance,
+    /// The geometric tail added after the last order (when `solver.extrapolate_tail` is on).
+    pub tail: Option<TailEstimate>,
     #[serde(skip)]
     pub elapsed: Duration,
 }
@@ -66,14 +115,23 @@ pub fn run_orders(
             0.0
         }
     };
-    let mut converged = state.orders_done > 0 && residual_of(&state) <= plan.tolerance;
+    let extrapolate = plan.extrapolate_tail;
+    let done = |s: &LoopState| {
+        (s.orders_done > 0 && residual_of(s) <= plan.tolerance) || (extrapolate && tail_converged(plan, s))
+    };
+    let mut converged = done(&state);
     while !converged && state.orders_done < plan.max_orders {
         let order = state.orders_done;
         let t = Instant::now();
         let mut tallies = state.tallies();
         tallies.add(&backend.propagate_order(order)?);
         let new = backend.finish_order()?;
-        (0..3).for_each(|c| state.total_power[c] += new[c]);
+        for c in 0..3 {
+            state.total_power[c] += new[c];
+            let last = state.last_new_power[c];
+            state.previous_ratio[c] = if state.previous_new_power[c] > 0.0 { last / state.previous_new_power[c] } else { 0.0 };
+            state.previous_new_power[c] = last;
+        }
         state.last_new_power = new;
         state.tallies = [tallies.boundary_in, tallies.boundary_out];
         state.orders_done += 1;
@@ -87,16 +145,27 @@ pub fn run_orders(
         backend.checkpoint(&state)?;
         progress(order, residual);
         tracing::debug!(order, residual, "order done");
-        converged = residual <= plan.tolerance;
+        converged = done(&state);
     }
+    // The balance covers the propagated orders; the tail is reported on its own.
     let (emitted, absorbed) = backend.emitted_and_absorbed()?;
     let energy = EnergyBalance::new(&state.tallies(), emitted, absorbed, state.last_new_power, plan.channels as usize);
+    let tail = if extrapolate { tail_estimate(plan, &state) } else { None };
+    let residual = match &tail {
+        Some(t) => t.uncertainty / (state.total_power.iter().sum::<f64>() + t.power),
+        None => residual_of(&state),
+    };
+    if let Some(t) = &tail {
+        backend.apply_tail(t.factor)?;
+        tracing::info!(ratio = t.ratio[0], power = t.power, "added the geometric tail of the order series");
+    }
     Ok(OrderOutcome {
         orders: state.orders_done,
         converged,
-        residual: residual_of(&state),
+        residual,
         history: state.history,
         energy,
+        tail,
         elapsed: clock.elapsed(),
     })
 }

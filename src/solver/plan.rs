@@ -52,6 +52,8 @@ pub struct Plan {
     pub emission: bool,
     pub max_orders: u32,
     pub tolerance: f64,
+    /// Add the geometric tail of the order series once it is settled (see `orders::tail_estimate`).
+    pub extrapolate_tail: bool,
     pub bricks_total: usize,
     pub bricks_empty: usize,
     /// Why each choice was made, for the report.
@@ -74,6 +76,7 @@ pub struct PlanSummary {
     pub bricks_empty: usize,
     pub max_orders: u32,
     pub tolerance: f64,
+    pub extrapolate_tail: bool,
     pub reasons: Vec<String>,
 }
 
@@ -189,6 +192,7 @@ impl Plan {
             emission,
             max_orders: scene.solver.max_orders,
             tolerance: scene.solver.tolerance,
+            extrapolate_tail: scene.solver.extrapolate_tail,
             bricks_total,
             bricks_empty,
             reasons,
@@ -222,6 +226,7 @@ impl Plan {
             bricks_empty: self.bricks_empty,
             max_orders: self.max_orders,
             tolerance: self.tolerance,
+            extrapolate_tail: self.extrapolate_tail,
             reasons: self.reasons.clone(),
         }
     }

@@ -18,6 +18,7 @@ pub fn scene(shape: Shape, dims: [u32; 3], sigma_t: [f64; 3], albedo: [f64; 3], 
             max_orders: 200,
             tolerance: 1e-6,
             device_memory_budget: None,
+            extrapolate_tail: false,
         },
         camera: None,
     }

@@ -701,6 +701,11 @@ impl Backend for GpuBackend<'_> {
         Ok(self.fields.commit_order(self.plan))
     }
 
+    fn apply_tail(&mut self, factor: [f64; 3]) -> Result<(), SolveError> {
+        self.fields.apply_tail(self.plan, factor);
+        Ok(())
+    }
+
     fn checkpoint(&mut self, state: &super::fields::LoopState) -> Result<(), SolveError> {
         match &self.checkpoint_digest {
             Some(digest) => self.fields.write_checkpoint(self.store.dir(), digest, state),
