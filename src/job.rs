@@ -65,6 +65,8 @@ pub struct Report {
     pub tolerance: f64,
     pub history: Vec<solver::orders::OrderRecord>,
     pub energy: solver::energy::EnergyBalance,
+    /// The geometric tail added after the last order (`solver.extrapolate_tail`).
+    pub tail: Option<solver::orders::TailEstimate>,
     /// Wall-clock seconds per phase, in order.
     pub seconds: Vec<Phase>,
     pub peak_device_bytes: u64,
@@ -227,6 +229,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
         tolerance: plan.tolerance,
         history: outcome.history,
         energy: outcome.energy,
+        tail: outcome.tail,
         seconds: phases.into_iter().map(|(phase, seconds)| Phase { phase, seconds }).collect(),
         peak_device_bytes,
         device_memory: memory,

@@ -337,6 +337,9 @@ fn info(dir: &std::path::Path, json: bool) -> Result<()> {
         r["tolerance"]
     );
     println!("energy    relative imbalance {}", r["energy"]["relative_imbalance"]);
+    if let Some(t) = r.get("tail").filter(|t| !t.is_null()) {
+        println!("tail      geometric tail added: ratio {}, power {}, uncertainty {}", t["ratio"], t["power"], t["uncertainty"]);
+    }
     println!("device    peak allocation {} bytes", r["peak_device_bytes"]);
     if let Some(m) = r.get("device_memory").filter(|m| !m.is_null()) {
         println!(

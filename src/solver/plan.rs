@@ -179,6 +179,7 @@ impl Plan {
             "no emission term: the medium does not emit".into()
         });
         reasons.push(format!("{bricks_empty} of {bricks_total} bricks are empty: no medium or source stored"));
+        reasons.push("fields stored in f32 (f16 storage is not implemented yet)".into());
 
         Plan {
             dims,
