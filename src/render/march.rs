@@ -82,13 +82,21 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> [f64; 3] {
         // The light reaching the camera travels along −dir: that is the direction J is stored for.
         let d = (inputs.storage_lookup)(-dir).min(inputs.storage_dirs.saturating_sub(1) as usize) as u32;
         let m = inputs.medium;
-        walk_voxels(origin, dir, span, grid.dims, h, |v, s| {
-            let density = inputs.store.density_at(v) as f64;
+        let mut t = span.0;
+        walk_voxels(origin, dir, span, grid.dims, h, |_, s| {
+            // Density and source are sampled trilinearly (between voxel centres, clamped at the
+            // volume's edge) at the segment's midpoint, then held constant along the segment so
+            // the segment integral stays exact: smooth images, exact for uniform media.
+            let mid = origin + dir * (t + 0.5 * s);
+            t += s;
+            let corners = trilinear(mid / h, grid.dims);
+            let sample = |f: &dyn Fn([u32; 3]) -> f64| corners.iter().map(|&(v, w)| w * f(v)).sum::<f64>();
+            let density = sample(&|v| inputs.store.density_at(v) as f64);
             for ch in 0..3 {
                 let sigma_t = density * m.sigma_t[ch];
                 let sigma_a = sigma_t * (1.0 - m.albedo[ch]);
                 let j_ch = if inputs.channels == 1 { 0 } else { ch as u32 };
-                let j = inputs.source.value(v, d * inputs.channels + j_ch) as f64;
+                let j = sample(&|v| inputs.source.value(v, d * inputs.channels + j_ch) as f64);
                 let q = j + sigma_a * m.emission[ch];
                 let x = sigma_t * s;
                 // ∫₀ˢ e^{−σt·u} du, exact as σt → 0 (where it tends to s).
@@ -102,9 +110,46 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> [f64; 3] {
     [0, 1, 2].map(|ch| radiance[ch] + transmittance[ch] * inputs.background[ch])
 }
 
+/// The eight voxels around `p` (in voxel units) with their trilinear weights; voxel centres sit at
+/// i + ½, and indices are clamped to the volume, so a value is held constant past the outer centres.
+fn trilinear(p: DVec3, dims: [u32; 3]) -> [([u32; 3], f64); 8] {
+    let mut lo = [0u32; 3];
+    let mut hi = [0u32; 3];
+    let mut w = [0.0f64; 3];
+    for a in 0..3 {
+        let u = p[a] - 0.5;
+        let i = u.floor();
+        let max = dims[a] as f64 - 1.0;
+        lo[a] = i.clamp(0.0, max) as u32;
+        hi[a] = (i + 1.0).clamp(0.0, max) as u32;
+        w[a] = (u - i).clamp(0.0, 1.0);
+    }
+    let mut out = [([0u32; 3], 0.0); 8];
+    for (k, slot) in out.iter_mut().enumerate() {
+        let pick = |a: usize| (k >> a) & 1 == 1;
+        let v = [0, 1, 2].map(|a| if pick(a) { hi[a] } else { lo[a] });
+        let weight: f64 = (0..3).map(|a| if pick(a) { w[a] } else { 1.0 - w[a] }).product();
+        *slot = (v, weight);
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn trilinear_weights_sum_to_one_and_hit_centres_exactly() {
+        let dims = [4, 3, 5];
+        for p in [DVec3::new(1.5, 1.5, 2.5), DVec3::new(0.1, 2.9, 4.99), DVec3::new(2.2, 0.7, 3.3)] {
+            let c = trilinear(p, dims);
+            assert!((c.iter().map(|x| x.1).sum::<f64>() - 1.0).abs() < 1e-12);
+            assert!(c.iter().all(|(v, _)| (0..3).all(|a| v[a] < dims[a])));
+        }
+        let at_centre = trilinear(DVec3::new(1.5, 1.5, 2.5), dims);
+        let main = at_centre.iter().find(|(v, _)| *v == [1, 1, 2]).unwrap();
+        assert!((at_centre.iter().filter(|(v, _)| *v == [1, 1, 2]).map(|x| x.1).sum::<f64>() - 1.0).abs() < 1e-12, "{main:?}");
+    }
 
     #[test]
     fn walk_visits_neighbouring_voxels_and_sums_to_the_chord() {
