@@ -1,27 +1,16 @@
 //! The `lpm` binary end to end: outputs and their layout, `info`, and clear one-line errors that
 //! leave nothing behind.
 mod common;
-use common::temp_dir;
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use common::{lpm_command, temp_dir, write_scene};
+use std::path::Path;
+use std::process::Output;
 
 fn lpm(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_lpm"))
-        .args(args)
-        .env("LPM_VALIDATION", "1")
-        .env("LPM_LOG", "warn")
-        .output()
-        .expect("run lpm")
+    lpm_command(args).output().expect("run lpm")
 }
 
 fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-fn write_scene(dir: &Path, text: &str) -> PathBuf {
-    let path = dir.join("scene.toml");
-    std::fs::write(&path, text).expect("write scene");
-    path
 }
 
 const SMALL: &str = r#"

@@ -3,8 +3,6 @@
 mod common;
 use common::*;
 use lpm::scene::{Scene, Shape};
-use lpm::solver::segment::e1;
-use lpm::solver::sweep::{column, FaceSweep};
 use lpm::solver::BackendKind::{Cpu, Gpu};
 use std::f64::consts::PI;
 
@@ -79,26 +77,9 @@ fn two_gpu_solves_are_bitwise_identical() {
     assert!(a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()));
 }
 
-/// A scene whose density comes from a raw file written here.
-fn raw_scene(name: &str, dims: [u32; 3], density: impl Fn([u32; 3]) -> f32) -> Scene {
-    let path = temp_dir(name).join("density.raw");
-    let mut bytes = Vec::new();
-    for z in 0..dims[2] {
-        for y in 0..dims[1] {
-            for x in 0..dims[0] {
-                bytes.extend_from_slice(&density([x, y, z]).to_le_bytes());
-            }
-        }
-    }
-    std::fs::write(&path, bytes).expect("write raw");
-    let mut s = scene(Shape::Box, dims, [1.0; 3], [0.9; 3], vec![sky(2.0)]);
-    s.volume.source = lpm::scene::VolumeSource::Raw { path };
-    s
-}
-
 #[test]
 fn empty_volume_sees_the_sky_everywhere() {
-    let scene = raw_scene("empty-raw", [20, 18, 17], |_| 0.0);
+    let scene = raw_scene("empty-raw", [20, 18, 17], 1.0, 0.9, vec![sky(2.0)], |_| 0.0);
     let s = solve("empty", &scene, Gpu);
     assert_eq!(s.run.plan.bricks_empty, s.run.plan.bricks_total);
     for phi in s.fluence_all() {
@@ -109,7 +90,7 @@ fn empty_volume_sees_the_sky_everywhere() {
 
 #[test]
 fn single_dense_voxel_is_stable_and_matches_the_twin() {
-    let mut scene = raw_scene("dense-voxel-raw", [17, 17, 17], |v| if v == [8, 8, 8] { 1e4 } else { 0.0 });
+    let mut scene = raw_scene("dense-voxel-raw", [17, 17, 17], 1.0, 0.9, vec![sky(2.0)], |v| if v == [8, 8, 8] { 1e4 } else { 0.0 });
     scene.solver.max_orders = 6;
     scene.solver.tolerance = 1e-30;
     scene.lights.push(sun([0.2, 0.3, 1.0], [5.0; 3]));
@@ -123,42 +104,13 @@ fn single_dense_voxel_is_stable_and_matches_the_twin() {
     assert!(gpu.fluence([8, 8, 8], 0) > 0.0 && gpu.fluence([8, 8, 8], 0) < gpu.fluence([0, 0, 0], 0));
 }
 
-/// Fluence of a pure absorber box under a uniform sky, from Beer–Lambert along the discrete rays of
-/// the direction set: a ray born `m` planes before voxel v arrives with e^{−σ s m} and its segment
-/// average there is e^{−σ s m}·E1(σ s).
-fn beer_lambert_over_the_direction_set(scene: &Scene, plan: &lpm::solver::plan::Plan, v: [u32; 3]) -> f64 {
-    let sigma = scene.medium.sigma_t[0];
-    let mut phi = 0.0;
-    for dir in plan.faces.iter().flatten() {
-        let sweep = FaceSweep::new(dir.face, plan.dims);
-        let f = sweep.geometry();
-        let t = if f.sign > 0.0 { v[f.axis] } else { plan.dims[f.axis] - 1 - v[f.axis] };
-        // The ray in v at plane t, and the plane it was born in (its last wrap).
-        let (vb, vc) = (v[f.lateral[0]] as i64, v[f.lateral[1]] as i64);
-        let o = dir.offsets[t as usize];
-        let p = (vb - o[0] as i64).rem_euclid(sweep.n[1] as i64) as u32;
-        let q = (vc - o[1] as i64).rem_euclid(sweep.n[2] as i64) as u32;
-        let wrap_at = |t: u32| {
-            let o = dir.offsets[t as usize];
-            (column(p, o[0], sweep.n[1]).1, column(q, o[1], sweep.n[2]).1)
-        };
-        let mut born = t;
-        while born > 0 && wrap_at(born - 1) == wrap_at(t) {
-            born -= 1;
-        }
-        let x = sigma * dir.path_length;
-        phi += dir.fluence_weight * (-x * (t - born) as f64).exp() * e1(x);
-    }
-    phi
-}
-
 #[test]
 fn pure_absorber_matches_beer_lambert_over_the_direction_set() {
     let mut scene = scene(Shape::Box, [21, 19, 23], [0.3; 3], [0.0; 3], vec![sky(1.0)]);
     scene.solver.directions_per_face = 3;
     let s = solve("absorber", &scene, Gpu);
     for v in [[10, 9, 11], [0, 0, 0], [20, 3, 17], [5, 18, 22]] {
-        let expected = beer_lambert_over_the_direction_set(&scene, &s.run.plan, v);
+        let expected = beer_lambert_over_the_direction_set(scene.medium.sigma_t[0], &s.run.plan, v);
         let got = s.fluence(v, 0);
         assert!((got / expected - 1.0).abs() < 1e-5, "{v:?}: {got} vs {expected}");
     }

@@ -8,40 +8,14 @@
 mod common;
 use common::*;
 use lpm::reference::ReferenceOptions;
-use lpm::scene::{Scene, Shape, VolumeSource};
-use lpm::solver::plan::{Plan, SweepDirection};
-use lpm::solver::segment::e1;
-use lpm::solver::sweep::{column, FaceSweep};
+use lpm::scene::{Scene, Shape};
+use lpm::solver::sweep::FaceSweep;
 use lpm::solver::BackendKind::{Cpu, Gpu};
 use std::f64::consts::PI;
 
 // ---------------------------------------------------------------------------------------------
 // Helpers
 // ---------------------------------------------------------------------------------------------
-
-/// A scene whose density comes from a raw file written here (grey medium, g = 0).
-fn raw_scene(
-    name: &str,
-    dims: [u32; 3],
-    sigma_t: f64,
-    albedo: f64,
-    lights: Vec<lpm::scene::Light>,
-    density: impl Fn([u32; 3]) -> f32,
-) -> Scene {
-    let path = temp_dir(name).join("density.raw");
-    let mut bytes = Vec::new();
-    for z in 0..dims[2] {
-        for y in 0..dims[1] {
-            for x in 0..dims[0] {
-                bytes.extend_from_slice(&density([x, y, z]).to_le_bytes());
-            }
-        }
-    }
-    std::fs::write(&path, bytes).expect("write raw");
-    let mut s = scene(Shape::Box, dims, [sigma_t; 3], [albedo; 3], lights);
-    s.volume.source = VolumeSource::Raw { path };
-    s
-}
 
 fn assert_finite_non_negative(label: &str, s: &Solved) {
     for (i, phi) in s.fluence_all().iter().enumerate() {
@@ -84,41 +58,6 @@ fn mean_fluence(s: &Solved, lo: [u32; 3], hi: [u32; 3]) -> f64 {
         }
     }
     sum / n
-}
-
-/// Where the discrete ray of `dir` that is in voxel `v` was born: the plane of its last wrap (0 when
-/// it entered through the sweep's entry face), and the plane `t` of `v` itself.
-fn birth_plane(dir: &SweepDirection, dims: [u32; 3], v: [u32; 3]) -> (u32, u32) {
-    let sweep = FaceSweep::new(dir.face, dims);
-    let f = sweep.geometry();
-    let t = if f.sign > 0.0 { v[f.axis] } else { dims[f.axis] - 1 - v[f.axis] };
-    let (vb, vc) = (v[f.lateral[0]] as i64, v[f.lateral[1]] as i64);
-    let o = dir.offsets[t as usize];
-    let p = (vb - o[0] as i64).rem_euclid(sweep.n[1] as i64) as u32;
-    let q = (vc - o[1] as i64).rem_euclid(sweep.n[2] as i64) as u32;
-    let wrap_at = |t: u32| {
-        let o = dir.offsets[t as usize];
-        (column(p, o[0], sweep.n[1]).1, column(q, o[1], sweep.n[2]).1)
-    };
-    let mut born = t;
-    while born > 0 && wrap_at(born - 1) == wrap_at(t) {
-        born -= 1;
-    }
-    (born, t)
-}
-
-/// Fluence of a pure absorber box (uniform density 1) under a uniform sky of radiance 1, from
-/// Beer–Lambert along the discrete rays of the direction set: a ray born `m` planes before voxel v
-/// arrives with e^{−σ s m} and its segment average there is e^{−σ s m}·E1(σ s). (As in
-/// `gpu_solver.rs`.)
-fn beer_lambert_over_the_direction_set(sigma: f64, plan: &Plan, v: [u32; 3]) -> f64 {
-    let mut phi = 0.0;
-    for dir in plan.faces.iter().flatten() {
-        let (born, t) = birth_plane(dir, plan.dims, v);
-        let x = sigma * dir.path_length;
-        phi += dir.fluence_weight * (-x * (t - born) as f64).exp() * e1(x);
-    }
-    phi
 }
 
 /// A small deterministic hash (splitmix64) for seeded per-voxel randomness.

@@ -1,7 +1,7 @@
 //! `lpm::reference::job`: the reference run from a scene file to its output directory, then compared
 //! with a solve of the same scene.
 mod common;
-use common::temp_dir;
+use common::{temp_dir, write_scene, write_scene_as};
 use lpm::compare::{compare_dirs, CompareOptions};
 use lpm::job::SolveJob;
 use lpm::reference::job::{run, ReferenceJob, ReferenceJobError};
@@ -33,16 +33,6 @@ look_at = [2, 2, 2]
 width = 12
 height = 9
 "#;
-
-fn write_scene(dir: &Path, text: &str) -> PathBuf {
-    write_scene_as(dir, "scene.toml", text)
-}
-
-fn write_scene_as(dir: &Path, name: &str, text: &str) -> PathBuf {
-    let path = dir.join(name);
-    std::fs::write(&path, text).unwrap();
-    path
-}
 
 fn job(scene: PathBuf, out: PathBuf, photons: u64, spp: u32) -> ReferenceJob {
     ReferenceJob { scene, out, photons, seed: 3, threads: 0, image_samples_per_pixel: spp }

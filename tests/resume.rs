@@ -2,7 +2,6 @@
 //! uninterrupted one; the kill leaves no half-written output behind.
 mod common;
 use common::temp_dir;
-use std::process::Command;
 
 const SCENE: &str = r#"
 [volume]
@@ -26,12 +25,10 @@ tolerance = 1e-12
 "#;
 
 fn lpm(args: &[&str], abort_at: Option<u32>) -> std::process::Output {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_lpm"));
-    cmd.args(args).env("LPM_VALIDATION", "1").env("LPM_LOG", "warn");
-    match abort_at {
-        Some(n) => cmd.env("LPM_TEST_ABORT_AT_SLICE", n.to_string()),
-        None => cmd.env_remove("LPM_TEST_ABORT_AT_SLICE"),
-    };
+    let mut cmd = common::lpm_command(args);
+    if let Some(n) = abort_at {
+        cmd.env("LPM_TEST_ABORT_AT_SLICE", n.to_string());
+    }
     cmd.output().expect("run lpm")
 }
 

@@ -35,6 +35,9 @@ pub fn sun(dir: [f64; 3], e: [f64; 3]) -> Light {
 use lpm::solver::fields::StoreFields;
 use lpm::solver::{BackendKind, SolveRun};
 use lpm::store::BrickStore;
+use lpm::solver::plan::{Plan, SweepDirection};
+use lpm::solver::segment::e1;
+use lpm::solver::sweep::{column, FaceSweep};
 use lpm::vk::ContextOptions;
 
 /// A fresh directory under cargo's per-test temporary area.
@@ -93,4 +96,82 @@ pub fn relative_l2(a: &[f64], b: &[f64]) -> f64 {
     let num: f64 = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum();
     let den: f64 = b.iter().map(|y| y * y).sum();
     (num / den).sqrt()
+}
+
+/// A scene whose density comes from a raw file written here (grey medium, g = 0).
+pub fn raw_scene(
+    name: &str,
+    dims: [u32; 3],
+    sigma_t: f64,
+    albedo: f64,
+    lights: Vec<Light>,
+    density: impl Fn([u32; 3]) -> f32,
+) -> Scene {
+    let path = temp_dir(name).join("density.raw");
+    let mut bytes = Vec::new();
+    for z in 0..dims[2] {
+        for y in 0..dims[1] {
+            for x in 0..dims[0] {
+                bytes.extend_from_slice(&density([x, y, z]).to_le_bytes());
+            }
+        }
+    }
+    std::fs::write(&path, bytes).expect("write raw");
+    let mut s = scene(Shape::Box, dims, [sigma_t; 3], [albedo; 3], lights);
+    s.volume.source = VolumeSource::Raw { path };
+    s
+}
+
+/// Where the discrete ray of `dir` that is in voxel `v` was born: the plane of its last wrap (0 when
+/// it entered through the sweep's entry face), and the plane `t` of `v` itself.
+pub fn birth_plane(dir: &SweepDirection, dims: [u32; 3], v: [u32; 3]) -> (u32, u32) {
+    let sweep = FaceSweep::new(dir.face, dims);
+    let f = sweep.geometry();
+    let t = if f.sign > 0.0 { v[f.axis] } else { dims[f.axis] - 1 - v[f.axis] };
+    let (vb, vc) = (v[f.lateral[0]] as i64, v[f.lateral[1]] as i64);
+    let o = dir.offsets[t as usize];
+    let p = (vb - o[0] as i64).rem_euclid(sweep.n[1] as i64) as u32;
+    let q = (vc - o[1] as i64).rem_euclid(sweep.n[2] as i64) as u32;
+    let wrap_at = |t: u32| {
+        let o = dir.offsets[t as usize];
+        (column(p, o[0], sweep.n[1]).1, column(q, o[1], sweep.n[2]).1)
+    };
+    let mut born = t;
+    while born > 0 && wrap_at(born - 1) == wrap_at(t) {
+        born -= 1;
+    }
+    (born, t)
+}
+
+/// Fluence of a pure absorber box (uniform density 1) under a uniform sky of radiance 1, from
+/// Beer–Lambert along the discrete rays of the direction set: a ray born `m` planes before voxel v
+/// arrives with e^{−σ s m} and its segment average there is e^{−σ s m}·E1(σ s).
+pub fn beer_lambert_over_the_direction_set(sigma: f64, plan: &Plan, v: [u32; 3]) -> f64 {
+    let mut phi = 0.0;
+    for dir in plan.faces.iter().flatten() {
+        let (born, t) = birth_plane(dir, plan.dims, v);
+        let x = sigma * dir.path_length;
+        phi += dir.fluence_weight * (-x * (t - born) as f64).exp() * e1(x);
+    }
+    phi
+}
+
+
+/// The `lpm` binary with validation on, quiet logs and no fault injection.
+pub fn lpm_command(args: &[&str]) -> std::process::Command {
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_lpm"));
+    cmd.args(args).env("LPM_VALIDATION", "1").env("LPM_LOG", "warn").env_remove("LPM_TEST_ABORT_AT_SLICE");
+    cmd
+}
+
+/// Writes `text` as `dir/name` and returns its path.
+pub fn write_scene_as(dir: &std::path::Path, name: &str, text: &str) -> PathBuf {
+    let path = dir.join(name);
+    std::fs::write(&path, text).expect("write scene");
+    path
+}
+
+/// Writes `text` as `dir/scene.toml` and returns its path.
+pub fn write_scene(dir: &std::path::Path, text: &str) -> PathBuf {
+    write_scene_as(dir, "scene.toml", text)
 }
