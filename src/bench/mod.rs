@@ -80,16 +80,15 @@ fn run_stream(scene: &Scene, scene_path: &Path, orders: u32, vk: ContextOptions,
         gpu.finish_order()?;
         let wall = t.elapsed().as_secs_f64();
         let now = gpu.stream_stats().unwrap_or_default();
-        let d = |a: f64, b: f64| a - b;
-        let upload = d(now.upload_seconds, before.upload_seconds);
-        let download = d(now.download_seconds, before.download_seconds);
-        let hidden = d(now.hidden_transfer_seconds, before.hidden_transfer_seconds);
+        let upload = now.upload_seconds - before.upload_seconds;
+        let download = now.download_seconds - before.download_seconds;
+        let hidden = now.hidden_transfer_seconds - before.hidden_transfer_seconds;
         let per_second = |bytes: u64, seconds: f64| if seconds > 0.0 { bytes as f64 / seconds } else { 0.0 };
         rows.push(StreamOrder {
             order,
             wall_seconds: wall,
             upload_seconds: upload,
-            compute_seconds: d(now.compute_seconds, before.compute_seconds),
+            compute_seconds: now.compute_seconds - before.compute_seconds,
             download_seconds: download,
             hidden_transfer_fraction: if upload + download > 0.0 { hidden / (upload + download) } else { 0.0 },
             upload_bytes_per_second: per_second(now.upload_bytes - before.upload_bytes, upload),

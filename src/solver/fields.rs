@@ -134,25 +134,12 @@ impl StoreFields {
         let comps = plan.source_components() as usize;
         let h3 = plan.voxel_size.powi(3);
         let mut power = [0.0; 3];
-        {
-            let next = self.source_next.as_slice();
-            let total = self.source_total.as_slice();
-            let spare = self.source_spare.as_mut_slice();
-            for (block, ((n, t), s)) in next.chunks(BRICK_VOXELS).zip(total.chunks(BRICK_VOXELS)).zip(spare.chunks_mut(BRICK_VOXELS)).enumerate() {
-                let k = block % comps;
-                let mut sum = 0.0;
-                for ((s, &t), &n) in s.iter_mut().zip(t).zip(n) {
-                    *s = t + n;
-                    sum += n as f64;
-                }
-                power[k % c] += plan.storage.solid_angle[k / c] * h3 * sum;
-            }
-            let order = self.fluence.as_slice();
-            let total = self.fluence_total.as_slice();
-            for ((s, &t), &o) in self.fluence_spare.as_mut_slice().iter_mut().zip(total).zip(order) {
-                *s = t + o;
-            }
-        }
+        let weight = |k: usize| plan.storage.solid_angle[k / c] * h3;
+        combine(self.source_spare.as_mut_slice(), self.source_total.as_slice(), self.source_next.as_slice(), |_| 1.0, |block, sum| {
+            let k = block % comps;
+            power[k % c] += weight(k) * sum;
+        });
+        combine(self.fluence_spare.as_mut_slice(), self.fluence_total.as_slice(), self.fluence.as_slice(), |_| 1.0, |_, _| {});
         std::mem::swap(&mut self.source_total, &mut self.source_spare);
         std::mem::swap(&mut self.fluence_total, &mut self.fluence_spare);
         std::mem::swap(&mut self.source_prev, &mut self.source_next);
@@ -185,17 +172,9 @@ impl StoreFields {
     pub fn apply_tail(&mut self, plan: &Plan, factor: [f64; 3]) {
         let c = plan.channels as usize;
         let comps = plan.source_components() as usize;
-        let add = |spare: &mut [f32], total: &[f32], last: &[f32], channel_of: &dyn Fn(usize) -> usize| {
-            let blocks = spare.chunks_mut(BRICK_VOXELS).zip(total.chunks(BRICK_VOXELS)).zip(last.chunks(BRICK_VOXELS));
-            for (block, ((s, t), l)) in blocks.enumerate() {
-                let f = factor[channel_of(block)] as f32;
-                for ((s, &t), &l) in s.iter_mut().zip(t).zip(l) {
-                    *s = t + f * l;
-                }
-            }
-        };
-        add(self.source_spare.as_mut_slice(), self.source_total.as_slice(), self.source_prev.as_slice(), &|b| (b % comps) % c);
-        add(self.fluence_spare.as_mut_slice(), self.fluence_total.as_slice(), self.fluence.as_slice(), &|b| b % c);
+        let f = |ch: usize| factor[ch] as f32;
+        combine(self.source_spare.as_mut_slice(), self.source_total.as_slice(), self.source_prev.as_slice(), |b| f((b % comps) % c), |_, _| {});
+        combine(self.fluence_spare.as_mut_slice(), self.fluence_total.as_slice(), self.fluence.as_slice(), |b| f(b % c), |_, _| {});
         std::mem::swap(&mut self.source_total, &mut self.source_spare);
         std::mem::swap(&mut self.fluence_total, &mut self.fluence_spare);
     }
@@ -234,5 +213,20 @@ impl StoreFields {
             }
         }
         (emitted, absorbed)
+    }
+}
+
+/// `spare = total + factor(block)·last`, brick-component block by block (4096 values each); calls
+/// `block_sum(block, Σ last)` for each block. With factor 1 this is exactly `total + last`.
+fn combine(spare: &mut [f32], total: &[f32], last: &[f32], factor: impl Fn(usize) -> f32, mut block_sum: impl FnMut(usize, f64)) {
+    let blocks = spare.chunks_mut(BRICK_VOXELS).zip(total.chunks(BRICK_VOXELS)).zip(last.chunks(BRICK_VOXELS));
+    for (block, ((s, t), l)) in blocks.enumerate() {
+        let f = factor(block);
+        let mut sum = 0.0;
+        for ((s, &t), &l) in s.iter_mut().zip(t).zip(l) {
+            *s = t + f * l;
+            sum += l as f64;
+        }
+        block_sum(block, sum);
     }
 }

@@ -118,6 +118,23 @@ impl Plan {
                 (0..3).for_each(|c| sky[c] += radiance[c]);
             }
         }
+        // Everything about one swept direction that follows from its geometry; `weight` is its
+        // solid angle (a beam: 1, its boundary value being an irradiance).
+        let swept = |face: usize, omega: DVec3, weight: f64, boundary: [f64; 3], gain_storage: u32, collect_row: Vec<f64>| {
+            let path_length = plane_path_length(face, omega, h);
+            SweepDirection {
+                face,
+                omega,
+                path_length,
+                offsets: offsets(lateral_slope(face, omega), FaceSweep::new(face, dims).n[0]),
+                fluence_weight: weight,
+                boundary,
+                gain_storage,
+                collect_row,
+                // A ray's tube has cross-section h²·|ω_a| = h³/path_length.
+                power_per_radiance: h * h * h / path_length * weight,
+            }
+        };
         let faces = (0..6)
             .map(|face| {
                 let start = face * propagation.per_face();
@@ -127,17 +144,8 @@ impl Plan {
                     .enumerate()
                     .map(|(j, d)| {
                         let i = start + j;
-                        SweepDirection {
-                            face,
-                            omega: d.omega,
-                            path_length: plane_path_length(face, d.omega, h),
-                            offsets: offsets(lateral_slope(face, d.omega), FaceSweep::new(face, dims).n[0]),
-                            fluence_weight: d.solid_angle,
-                            boundary: sky,
-                            gain_storage: storage.owner[i],
-                            collect_row: collect[i * s..(i + 1) * s].to_vec(),
-                            power_per_radiance: h * h * (h / plane_path_length(face, d.omega, h)) * d.solid_angle,
-                        }
+                        let row = collect[i * s..(i + 1) * s].to_vec();
+                        swept(face, d.omega, d.solid_angle, sky, storage.owner[i], row)
                     })
                     .collect()
             })
@@ -149,19 +157,8 @@ impl Plan {
             .filter_map(|light| match light {
                 Light::Sun { direction, irradiance } => {
                     let travel = -*direction;
-                    let face = cube_face_of(travel);
-                    let path_length = plane_path_length(face, travel, h);
-                    Some(SweepDirection {
-                        face,
-                        omega: travel,
-                        path_length,
-                        offsets: offsets(lateral_slope(face, travel), FaceSweep::new(face, dims).n[0]),
-                        fluence_weight: 1.0,
-                        boundary: *irradiance,
-                        gain_storage: 0,
-                        collect_row: phase::beam_row(&propagation, &storage, medium.g, travel),
-                        power_per_radiance: h * h * (h / path_length),
-                    })
+                    let row = phase::beam_row(&propagation, &storage, medium.g, travel);
+                    Some(swept(cube_face_of(travel), travel, 1.0, *irradiance, 0, row))
                 }
                 Light::Sky { .. } => None,
             })

@@ -336,9 +336,9 @@ impl<'a> GpuBackend<'a> {
         let n_slots = self.slots.len();
         let gain = flags & FLAG_GAIN != 0;
         let (c, comps) = (self.plan.channels as u64, self.plan.source_components() as u64);
-        // The slice computed in the previous iteration, whose download is submitted after this
-        // iteration's upload so the transfer queue can upload the next slice while it computes.
-        let mut to_download: Option<(usize, u64)> = None;
+        // The slot of the slice computed in the previous iteration: its download is submitted after
+        // this iteration's upload, so the transfer queue can upload the next slice while it computes.
+        let mut to_download: Option<usize> = None;
         for (i, range) in slices.iter().enumerate() {
             let s = i % n_slots;
             self.retire_slot(s)?;
@@ -352,25 +352,15 @@ impl<'a> GpuBackend<'a> {
             }
             self.submit_upload(s, &layout, v)?;
             self.submit_compute(s, &layout, tables, sweep, pass_dirs.clone(), flags, i == 0, i + 1 == slices.len(), v)?;
-            if n_slots == 1 {
-                self.submit_download(s, &layout, v)?;
-            } else if let Some((prev_slot, prev_v)) = to_download.take() {
-                let prev = self.slots[prev_slot].pending.take();
-                if let Some((pv, prev_layout)) = prev {
-                    self.submit_download(prev_slot, &prev_layout, prev_v)?;
-                    self.slots[prev_slot].pending = Some((pv, prev_layout));
-                }
-            }
             self.slots[s].pending = Some((v, layout));
-            if n_slots > 1 {
-                to_download = Some((s, v));
+            if n_slots == 1 {
+                self.submit_download(s)?;
+            } else if let Some(prev) = to_download.replace(s) {
+                self.submit_download(prev)?;
             }
         }
-        if let Some((prev_slot, prev_v)) = to_download.take() {
-            if let Some((pv, prev_layout)) = self.slots[prev_slot].pending.take() {
-                self.submit_download(prev_slot, &prev_layout, prev_v)?;
-                self.slots[prev_slot].pending = Some((pv, prev_layout));
-            }
+        if let Some(prev) = to_download {
+            self.submit_download(prev)?;
         }
         // Drain: every slice back in the store before the next pass reads it.
         let mut order: Vec<usize> = (0..n_slots).collect();
@@ -552,13 +542,16 @@ impl<'a> GpuBackend<'a> {
         Ok(())
     }
 
-    fn submit_download(&mut self, s: usize, layout: &SliceLayout, v: u64) -> Result<(), SolveError> {
+    /// Submits the download of the slice pending in slot `s`.
+    fn submit_download(&mut self, s: usize) -> Result<(), SolveError> {
         // The staging is free once the scatter of its previous contents is done.
         if let Some(t) = self.slots[s].scattering.take() {
             t.wait();
         }
         let queue = self.ctx.transfer_queue().unwrap_or(self.ctx.compute_queue());
         let slot = &self.slots[s];
+        let Some((v, layout)) = slot.pending.as_ref() else { return Ok(()) };
+        let v = *v;
         let mut rec = Recorder::begin(&self.ctx, queue.family(), "download")?;
         let next = layout.source_bytes();
         let bytes = next + layout.fluence_bytes();
