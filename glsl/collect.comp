@@ -13,8 +13,8 @@ layout(std430, binding = 1) readonly buffer CollectRows { float rows[]; };      
 layout(std430, binding = 2) readonly buffer SlotTable { int medium_slot[]; };
 layout(std430, binding = 3) readonly buffer Density { float density[]; };
 layout(std430, binding = 4) readonly buffer Deposit { float deposit[]; };        // [dispatch dir][ch][plane][vc][vb]
-layout(std430, binding = 5) buffer SourceNext { float j_next[]; };               // [slot][d·C+ch][4096]
-layout(std430, binding = 6) buffer Fluence { float fluence[]; };                 // [slice brick][ch][4096]
+layout(std430, binding = 5) buffer SourceNext { float j_next[]; };               // [slot][d·C+ch][slab voxel]
+layout(std430, binding = 6) buffer Fluence { float fluence[]; };                 // [slot][ch][slab voxel]
 
 void main() {
     uint vb = gl_GlobalInvocationID.x;
@@ -23,20 +23,23 @@ void main() {
     uint planes = pc.t1 - pc.t0;
     if (vb >= pc.nb || vc >= pc.nc || tt >= planes) return;
 
+    // Empty bricks are not solved: no medium, no source, no fluence stored.
+    int slot = medium_slot[slice_brick(vb, vc)];
+    if (slot < 0) return;
+
     uint rays = pc.nb * pc.nc;
     uint C = pc.channels;
     uvec3 v = voxel_of(pc.t0 + tt, vb, vc);
-    uint brick = slice_brick(vb, vc);
-    uint local = local_index(v);
-    int slot = medium_slot[brick];
-    float rho = slot >= 0 ? density[uint(slot) * BRICK_VOXELS + local] : 0.0;
+    uint sv = slab_voxels();
+    uint local = slab_index(v);
+    float rho = density[uint(slot) * sv + local];
     uint cell = (tt * pc.nc + vc) * pc.nb + vb;
 
     // Each direction's contribution is added on its own, in direction order: whatever grouping of
     // directions or planes the memory budget chooses, every voxel sees the same sequence of f32
     // additions, so results are bitwise identical at any budget.
     for (uint ch = 0u; ch < C; ++ch) {
-        uint fi = (brick * C + ch) * BRICK_VOXELS + local;
+        uint fi = (uint(slot) * C + ch) * sv + local;
         float phi = fluence[fi];
         for (uint di = 0u; di < pc.dir_count; ++di) {
             phi += dirs[pc.dir_base + di].fluence_weight * deposit[(di * C + ch) * planes * rays + cell];
@@ -44,10 +47,10 @@ void main() {
         fluence[fi] = phi;
 
         float sigma_s = rho * pc.sigma_s[ch];
-        if (slot >= 0 && sigma_s > 0.0) {
+        if (sigma_s > 0.0) {
             uint comps = pc.storage * C;
             for (uint d = 0u; d < pc.storage; ++d) {
-                uint ji = (uint(slot) * comps + d * C + ch) * BRICK_VOXELS + local;
+                uint ji = (uint(slot) * comps + d * C + ch) * sv + local;
                 float j = j_next[ji];
                 for (uint di = 0u; di < pc.dir_count; ++di) {
                     j += sigma_s * (rows[(pc.dir_base + di) * pc.storage + d] * deposit[(di * C + ch) * planes * rays + cell]);

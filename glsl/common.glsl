@@ -17,7 +17,7 @@ layout(push_constant) uniform Push {
     uint flags;         // FLAG_*
     uint dir_base;      // first direction of this dispatch within the sweep's tables
     uint ray_base;      // index of the dispatch's first direction in the pass's ray buffers
-    uint pad2;
+    uint slab;          // bits 0-7: first local plane of the bricks' slab along a; bits 8-15: its planes
     vec4 sigma_t;       // extinction per unit density, rgb
     vec4 sigma_s;       // scattering per unit density, rgb
     vec4 emission;      // σa·Le per unit density, rgb
@@ -27,8 +27,8 @@ const uint FLAG_BOUNDARY = 1u;   // rays are born with the boundary radiance (el
 const uint FLAG_GAIN = 2u;       // rays gain the previous order's source
 const uint FLAG_EMIT = 4u;       // rays gain the emission σa·Le
 const uint FLAG_LAST_SLICE = 8u; // the slice ends the sweep: every ray leaves
+const uint FLAG_VACUUM = 16u;    // the slice has no occupied brick: rays only move (no slot buffers)
 
-const uint BRICK_VOXELS = 4096u;
 
 // Keep in sync with `GpuDirection` in src/solver/gpu/layout.rs.
 struct Direction {
@@ -54,9 +54,22 @@ uvec3 voxel_of(uint t, uint vb, uint vc) {
     return v;
 }
 
-// The brick of the slice holding lateral column (vb, vc), and the voxel's index inside its brick.
+// The brick of the slice holding lateral column (vb, vc).
 uint slice_brick(uint vb, uint vc) { return (vc / 16u) * pc.bricks_b + (vb / 16u); }
-uint local_index(uvec3 v) { return (v.x & 15u) + 16u * (v.y & 15u) + 256u * (v.z & 15u); }
+
+// Voxels per component of one brick's slab (the slot buffers hold slabs; src/solver/gpu/slice.rs).
+uint slab_voxels() { return 256u * ((pc.slab >> 8) & 255u); }
+
+// The voxel's index inside its brick's slab: the brick's x-fastest order with the sweep axis cut to
+// the slab's planes (a whole brick when the slab has 16 planes).
+uint slab_index(uvec3 v) {
+    uvec3 l = v & 15u;
+    uvec3 e = uvec3(16u);
+    uint a = pc.axis_sign & 3u;
+    l[a] -= pc.slab & 255u;
+    e[a] = (pc.slab >> 8) & 255u;
+    return l.x + e.x * (l.y + e.y * l.z);
+}
 
 // Segment functions: keep in sync with src/solver/segment.rs.
 // E1(x) = (1 − e^{−x})/x, E2(x) = (x − 1 + e^{−x})/x², series below x = 1 (no cancellation).

@@ -12,8 +12,8 @@ layout(local_size_x = 16, local_size_y = 4, local_size_z = 1) in;
 layout(std430, binding = 0) readonly buffer Directions { Direction dirs[]; };
 layout(std430, binding = 1) readonly buffer Offsets { ivec2 offsets[]; };        // [dir][na]
 layout(std430, binding = 2) readonly buffer SlotTable { int medium_slot[]; };    // [slice brick] → slot or −1
-layout(std430, binding = 3) readonly buffer Density { float density[]; };        // [slot][4096]
-layout(std430, binding = 4) readonly buffer SourcePrev { float j_prev[]; };      // [slot][d·C+ch][4096]
+layout(std430, binding = 3) readonly buffer Density { float density[]; };        // [slot][slab voxel]
+layout(std430, binding = 4) readonly buffer SourcePrev { float j_prev[]; };      // [slot][d·C+ch][slab voxel]
 layout(std430, binding = 5) buffer Rays { float ray_l[]; };                      // [dir][ch][ray]
 layout(std430, binding = 6) buffer RaysIn { float ray_in[]; };                   // [dir][ch][ray]
 layout(std430, binding = 7) buffer RaysOut { float ray_out[]; };                 // [dir][ch][ray]
@@ -69,16 +69,21 @@ void main() {
             l = birth;
             tin += birth;
         }
-        uvec3 v = voxel_of(t, uint(vb), uint(vc));
+        // Empty bricks (and vacuum slices) hold no medium: the ray keeps its radiance and nothing
+        // is deposited (collect skips their voxels).
+        if ((pc.flags & FLAG_VACUUM) != 0u) continue;
         int slot = medium_slot[slice_brick(uint(vb), uint(vc))];
-        uint local = local_index(v);
-        float rho = slot >= 0 ? density[uint(slot) * BRICK_VOXELS + local] : 0.0;
+        if (slot < 0) continue;
+        uvec3 v = voxel_of(t, uint(vb), uint(vc));
+        uint sv = slab_voxels();
+        uint local = slab_index(v);
+        float rho = density[uint(slot) * sv + local];
         uint cell = ((t - pc.t0) * pc.nc + uint(vc)) * pc.nb + uint(vb);
         for (uint ch = 0u; ch < C; ++ch) {
             float j = 0.0;
-            if (slot >= 0 && (pc.flags & FLAG_GAIN) != 0u) {
+            if ((pc.flags & FLAG_GAIN) != 0u) {
                 uint comps = pc.storage * C;
-                j = j_prev[(uint(slot) * comps + dir.gain_storage * C + ch) * BRICK_VOXELS + local];
+                j = j_prev[(uint(slot) * comps + dir.gain_storage * C + ch) * sv + local];
                 if ((pc.flags & FLAG_EMIT) != 0u) j += rho * pc.emission[ch];
             }
             float s = dir.path_length;

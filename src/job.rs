@@ -157,6 +157,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
             components: channel_names.clone(),
             description: "fluence φ = ∫L dω over all scattering orders, per voxel".into(),
         },
+        output::EmptyBricks::NotSolved,
     )?;
     outputs.extend(["fluence.raw", "fluence.json", "fluence.nhdr"].map(String::from));
     let source_names: Vec<String> = if plan.storage.is_isotropic() {
@@ -184,6 +185,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
                 )
             },
         },
+        output::EmptyBricks::Zero,
     )?;
     outputs.extend(["source.raw", "source.json", "source.nhdr"].map(String::from));
     phases.push(("export".to_string(), t.elapsed().as_secs_f64()));

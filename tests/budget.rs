@@ -1,5 +1,6 @@
-//! The device memory budget: any cut of the sweeps gives bitwise the same fluence and source, and a
-//! budget below the smallest unit is a clear error.
+//! The device memory budget: any cut of the sweeps (slices in flight, directions per pass, sub-slices
+//! of fewer planes, directions and planes per dispatch) gives bitwise the same fluence and source,
+//! and a budget below the smallest unit is a clear error.
 mod common;
 use common::*;
 use lpm::scene::{Scene, Shape};
@@ -41,10 +42,14 @@ fn any_budget_gives_bitwise_the_same_fluence_and_source() {
     let full = reference.run.memory.expect("memory plan");
     assert_eq!(full.directions_per_pass, 9, "{full:?}");
     assert_eq!(full.planes_per_dispatch, 16, "{full:?}");
+    assert_eq!(full.planes_per_slice, 16, "{full:?}");
 
     let needed = smallest_unit(&base);
     let mut cuts = Vec::new();
-    for budget in [needed, (needed + full.planned_bytes) / 2] {
+    // The smallest unit, a budget that still holds every direction but not a whole slice in each
+    // of two slots (sub-slices), and one between those two.
+    let sub_slices = full.planned_bytes - full.slice_bytes / 2;
+    for budget in [needed, sub_slices, (needed + sub_slices) / 2] {
         let mut s = base.clone();
         s.solver.device_memory_budget = Some(budget);
         let solved = solve(&format!("budget-{budget}"), &s, Gpu);
@@ -52,12 +57,15 @@ fn any_budget_gives_bitwise_the_same_fluence_and_source() {
         assert!(m.planned_bytes <= budget, "{m:?}");
         assert!(solved.run.peak_device_bytes <= budget, "peak {} over budget {budget}", solved.run.peak_device_bytes);
         assert!(bits(&solved) == bits(&reference), "budget {budget} ({m:?}) changed the result");
-        cuts.push((m.slices_in_flight, m.directions_per_pass, m.directions_per_dispatch, m.planes_per_dispatch));
+        eprintln!("budget {budget}: {m:?}");
+        cuts.push((m.slices_in_flight, m.directions_per_pass, m.planes_per_slice, m.directions_per_dispatch, m.planes_per_dispatch));
     }
-    // The smallest budget: one slice at a time, one direction per pass, one plane per dispatch.
+    // The smallest budget: one slice at a time, one direction per pass, sub-slices of one plane.
     assert_eq!(full.slices_in_flight, 2);
-    assert_eq!(cuts[0], (1, 1, 1, 1));
-    assert_ne!(cuts[1], (2, 9, 9, 16), "the middle budget should cut the sweeps too");
+    assert_eq!(cuts[0], (1, 1, 1, 1, 1));
+    // Every direction in one pass, two slots, but sub-slices.
+    assert!(cuts[1].0 == 2 && cuts[1].1 == 9 && cuts[1].2 < 16, "{:?}", cuts[1]);
+    assert_ne!(cuts[2], (2, 9, 16, 9, 16), "the middle budget should cut the sweeps too");
 }
 
 #[test]

@@ -78,14 +78,31 @@ fn two_gpu_solves_are_bitwise_identical() {
 }
 
 #[test]
-fn empty_volume_sees_the_sky_everywhere() {
+fn empty_volume_is_streamed_but_not_solved() {
+    // Every brick empty: the rays cross vacuum slices only, nothing is stored or solved.
     let scene = raw_scene("empty-raw", [20, 18, 17], 1.0, 0.9, vec![sky(2.0)], |_| 0.0);
     let s = solve("empty", &scene, Gpu);
     assert_eq!(s.run.plan.bricks_empty, s.run.plan.bricks_total);
-    for phi in s.fluence_all() {
-        assert!((phi - 8.0 * PI).abs() < 1e-4, "{phi}");
-    }
+    assert_eq!(s.fields.fluence_total.stored_bricks(), 0);
     assert_eq!(s.run.outcome.orders, 1);
+    let e = &s.run.outcome.energy;
+    assert!(e.relative_imbalance.abs() < 1e-6, "{e:?}");
+}
+
+#[test]
+fn empty_voxels_of_an_occupied_brick_see_the_sky() {
+    // One faint voxel makes its brick occupied; its empty voxels are solved (and see the whole sky),
+    // the other bricks are not.
+    let scene = raw_scene("faint-raw", [20, 18, 17], 1.0, 0.9, vec![sky(2.0)], |v| if v == [0, 0, 0] { 1e-9 } else { 0.0 });
+    let s = solve("faint", &scene, Gpu);
+    assert_eq!(s.run.plan.bricks_empty + 1, s.run.plan.bricks_total);
+    for (b, v) in [(0, [3u32, 9, 15]), (1, [17, 2, 2])] {
+        let stored = s.fields.fluence_total.brick(s.store.grid().locate(v).0).is_some();
+        assert_eq!(stored, b == 0, "{v:?}");
+        if stored {
+            assert!((s.fluence(v, 0) - 8.0 * PI).abs() < 1e-4, "{}", s.fluence(v, 0));
+        }
+    }
 }
 
 #[test]

@@ -1,7 +1,7 @@
 //! The brick store, its importers, and the exported field files.
 
 use lpm::output::{
-    export_field, read_field_json, read_raw_field, write_atomic, write_json_atomic, FieldMeta,
+    export_field, EmptyBricks, read_field_json, read_raw_field, write_atomic, write_json_atomic, FieldMeta,
 };
 use lpm::store::{raw_density, BrickGrid, BrickStore, Coverage, StoreError, BRICK_EDGE, BRICK_VOXELS};
 use std::fs;
@@ -307,7 +307,7 @@ fn export_field_layout_json_and_nhdr() {
         components: vec!["r".into(), "g".into(), "b".into()],
         description: "test".into(),
     };
-    export_field(&f, &store, &out, "fluence", &meta).expect("export");
+    export_field(&f, &store, &out, "fluence", &meta, EmptyBricks::NotSolved).expect("export");
     let (info, data) = read_raw_field(&out, "fluence").expect("read back");
     assert_eq!(info.dims, DIMS);
     assert_eq!(info.components, 3);
@@ -320,8 +320,11 @@ fn export_field_layout_json_and_nhdr() {
                 let occupied = store.slot(g.locate([x, y, z]).0).is_some();
                 for c in 0..3 {
                     let i = c as usize + 3 * (x + DIMS[0] * (y + DIMS[1] * z)) as usize;
-                    let expected = if occupied { value([x, y, z], c) } else { 0.0 };
-                    assert_eq!(data[i], expected, "voxel ({x}, {y}, {z}) component {c}");
+                    if occupied {
+                        assert_eq!(data[i], value([x, y, z], c), "voxel ({x}, {y}, {z}) component {c}");
+                    } else {
+                        assert!(data[i].is_nan(), "voxel ({x}, {y}, {z}) of an empty brick must read as not solved");
+                    }
                 }
             }
         }
@@ -345,15 +348,22 @@ fn export_field_layout_json_and_nhdr() {
     assert_eq!(json["dtype"], "f32");
     assert_eq!(json["layout"], "component fastest, then x, then y, then z");
     assert_eq!(json["component_names"][2], "b");
+    assert_eq!(json["not_solved"], lpm::output::NOT_SOLVED);
+
+    // The same field with empty bricks as zeros (a source): no NaN, no note.
+    export_field(&f, &store, &out, "source", &meta, EmptyBricks::Zero).expect("export");
+    let (info, data) = read_raw_field(&out, "source").expect("read back");
+    assert!(info.not_solved.is_none());
+    assert!(data.iter().all(|v| v.is_finite()) && data.contains(&0.0));
 
     // One component: a 3-D NRRD.
     let one = store.create_field("phi", 1, Coverage::Dense).expect("field");
     let meta1 = FieldMeta { components: vec!["grey".into()], ..meta.clone() };
-    export_field(&one, &store, &out, "phi", &meta1).expect("export");
+    export_field(&one, &store, &out, "phi", &meta1, EmptyBricks::NotSolved).expect("export");
     let nhdr = fs::read_to_string(out.join("phi.nhdr")).expect("nhdr");
     assert!(nhdr.contains("dimension: 3\n") && nhdr.contains("sizes: 37 20 53\n"), "{nhdr}");
     // Names that do not match the components are refused.
-    assert!(export_field(&one, &store, &out, "bad", &meta).is_err());
+    assert!(export_field(&one, &store, &out, "bad", &meta, EmptyBricks::Zero).is_err());
 
     // A raw whose size disagrees with its json is refused.
     fs::write(out.join("phi.raw"), [0u8; 8]).expect("clobber");

@@ -5,7 +5,9 @@
 //! dims and components must match. When B has `fluence_stderr.*` (a Monte-Carlo reference), only the
 //! voxels where every component of the reference is > 0 with a relative standard error ≤
 //! [`CompareOptions::max_relative_stderr`] are compared: elsewhere the reference is too noisy to
-//! judge the candidate by. Otherwise every voxel is compared. Over the compared values (all
+//! judge the candidate by. Otherwise every voxel is compared. Voxels either side left unsolved (NaN
+//! in every component: `lpm solve` does not solve empty bricks) are skipped and counted apart.
+//! Over the compared values (all
 //! components): relative L2 ‖a−b‖/‖b‖, RMSE, max relative error |a−b|/|b| and mean bias
 //! mean(a−b)/mean(b) ([`Metrics`]).
 //!
@@ -74,7 +76,11 @@ pub struct FluenceComparison {
     pub max_relative_stderr: Option<f64>,
     pub voxels_total: u64,
     pub voxels_used: u64,
+    /// Left out: unsolved on either side, or the reference too noisy there.
     pub voxels_excluded: u64,
+    /// Of the excluded: unsolved (NaN) in the candidate or the reference (empty bricks).
+    #[serde(default)]
+    pub voxels_not_solved: u64,
     pub metrics: Metrics,
     /// √(Σ σ²)/‖b‖ over the values compared: the relative L2 difference a perfect candidate would
     /// show from the reference's own Monte-Carlo noise (`None` without standard errors).
@@ -133,8 +139,14 @@ pub fn compare_dirs(a: &Path, b: &Path, opts: &CompareOptions) -> Result<Compari
     };
     let mut acc = Accumulator::default();
     let mut used = 0u64;
+    let mut not_solved = 0u64;
+    let unsolved = |v: &[f32]| v.iter().all(|x| x.is_nan());
     let (mut noise_sq, mut ref_sq) = (0.0f64, 0.0f64);
     for (v, (va, vb)) in values_a.chunks_exact(c).zip(values_b.chunks_exact(c)).enumerate() {
+        if unsolved(va) || unsolved(vb) {
+            not_solved += 1;
+            continue;
+        }
         let keep = match &stderr {
             // A NaN standard error and a fluence ≤ 0 both exclude the voxel.
             Some(se) => (0..c).all(|k| vb[k] > 0.0 && (se[v * c + k] as f64) <= threshold * vb[k] as f64),
@@ -151,7 +163,7 @@ pub fn compare_dirs(a: &Path, b: &Path, opts: &CompareOptions) -> Result<Compari
             }
         }
     }
-    let non_finite = values_a.iter().filter(|v| !v.is_finite()).count();
+    let non_finite = values_a.chunks_exact(c).filter(|v| !unsolved(v)).flatten().filter(|v| !v.is_finite()).count();
     if non_finite > 0 {
         notes.push(format!("the candidate's fluence has {non_finite} non-finite value(s)"));
     }
@@ -171,6 +183,7 @@ pub fn compare_dirs(a: &Path, b: &Path, opts: &CompareOptions) -> Result<Compari
         voxels_total,
         voxels_used: used,
         voxels_excluded: voxels_total - used,
+        voxels_not_solved: not_solved,
         metrics,
         reference_noise_relative_l2: noise,
         noise_corrected_relative_l2: corrected,

@@ -31,13 +31,17 @@ impl fmt::Display for Comparison {
             fl.components, fl.voxels_used, fl.voxels_total
         )?;
         match fl.max_relative_stderr {
-            Some(t) => writeln!(
+            Some(t) => write!(
                 f,
-                " ({} excluded: reference fluence ≤ 0 or relative standard error > {t})",
-                fl.voxels_excluded
+                " ({} excluded: reference fluence ≤ 0 or relative standard error > {t}",
+                fl.voxels_excluded - fl.voxels_not_solved
             )?,
-            None => writeln!(f, " (the reference has no standard errors)")?,
+            None => write!(f, " (the reference has no standard errors")?,
         }
+        if fl.voxels_not_solved > 0 {
+            write!(f, "; {} not solved: empty bricks", fl.voxels_not_solved)?;
+        }
+        writeln!(f, ")")?;
         writeln!(f)?;
         writeln!(f, "{:<9} {:>11} {:>11} {:>11} {:>11} {:>11}", "", "rel. L2", "RMSE", "max rel.", "bias", "values")?;
         row(f, "fluence", &fl.metrics, "")?;

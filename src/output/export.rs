@@ -37,7 +37,23 @@ pub struct FieldInfo {
     pub description: String,
     /// The raw file's name, relative to the json.
     pub file: String,
+    /// Present when NaN marks voxels that were not solved (those of empty bricks), saying so.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub not_solved: Option<String>,
 }
+
+/// What the voxels of empty (unstored) bricks read as in an export.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EmptyBricks {
+    /// Zero: the quantity is truly zero there (a source where nothing scatters).
+    Zero,
+    /// NaN: the quantity was not solved there (fluence where there is no medium).
+    NotSolved,
+}
+
+/// The `not_solved` note of an export whose empty bricks read as NaN.
+pub const NOT_SOLVED: &str =
+    "NaN marks the voxels of empty 16³ bricks (no medium): the solver does not solve there";
 
 /// The `layout` string of every exported field.
 pub const LAYOUT: &str = "component fastest, then x, then y, then z";
@@ -45,12 +61,14 @@ pub const LAYOUT: &str = "component fastest, then x, then y, then z";
 /// Writes `field` (a field of `store`) into `out_dir` as `<base>.raw`, `<base>.json` and
 /// `<base>.nhdr`, each atomically. The raw is streamed one voxel row at a time, so the volume is never
 /// held in memory. The raw is written first: a json or header never describes a missing raw.
+/// `empty` says what the voxels of bricks the field does not store read as.
 pub fn export_field(
     field: &Field,
     store: &BrickStore,
     out_dir: &Path,
     base: &str,
     meta: &FieldMeta,
+    empty: EmptyBricks,
 ) -> Result<(), OutputError> {
     let invalid = |message: String| OutputError::Invalid { path: out_dir.join(format!("{base}.json")), message };
     if field.grid() != store.grid() {
@@ -69,7 +87,13 @@ pub fn export_field(
             field.components()
         )));
     }
-    write_described(out_dir, base, store.grid().dims, store.voxel_size(), meta, |w| write_raw(field, w))
+    let fill = match empty {
+        EmptyBricks::Zero => 0.0,
+        EmptyBricks::NotSolved => f32::NAN,
+    };
+    let unstored = field.stored_bricks() < store.grid().brick_count();
+    let note = (empty == EmptyBricks::NotSolved && unstored).then(|| NOT_SOLVED.to_string());
+    write_described(out_dir, base, store.grid().dims, store.voxel_size(), meta, note, |w| write_raw(field, fill, w))
 }
 
 /// Writes a field held in memory (`values` in the exported layout: component fastest, then x, y, z;
@@ -95,7 +119,7 @@ pub fn export_dense(
             ),
         });
     }
-    write_described(out_dir, base, dims, voxel_size, meta, |w| {
+    write_described(out_dir, base, dims, voxel_size, meta, None, |w| {
         // Little-endian f32, in chunks so a large volume is not duplicated as bytes in memory.
         let mut bytes = Vec::with_capacity(values.len().min(1 << 16) * 4);
         for chunk in values.chunks(1 << 16) {
@@ -115,6 +139,7 @@ fn write_described(
     dims: [u32; 3],
     voxel_size: f64,
     meta: &FieldMeta,
+    not_solved: Option<String>,
     write_raw: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
 ) -> Result<(), OutputError> {
     let json_path = out_dir.join(format!("{base}.json"));
@@ -136,6 +161,7 @@ fn write_described(
         units: meta.units.clone(),
         description: meta.description.clone(),
         file: format!("{base}.raw"),
+        not_solved,
     };
     write_atomic(&out_dir.join(&info.file), write_raw)?;
     write_json_atomic(&json_path, &info)?;
@@ -143,8 +169,9 @@ fn write_described(
     write_atomic(&out_dir.join(format!("{base}.nhdr")), |w| w.write_all(header.as_bytes()))
 }
 
-/// Streams the field voxel row by voxel row (fixed y and z), in the exported layout.
-fn write_raw(field: &Field, w: &mut impl Write) -> std::io::Result<()> {
+/// Streams the field voxel row by voxel row (fixed y and z), in the exported layout; voxels of
+/// unstored bricks read as `fill`.
+fn write_raw(field: &Field, fill: f32, w: &mut impl Write) -> std::io::Result<()> {
     let grid = *field.grid();
     let [nx, ny, nz] = grid.dims;
     let c = field.components() as usize;
@@ -163,8 +190,7 @@ fn write_raw(field: &Field, w: &mut impl Write) -> std::io::Result<()> {
                             }
                         }
                     }
-                    // An unstored (empty) brick reads as zeros.
-                    None => row.resize(row.len() + width * c * 4, 0),
+                    None => (0..width * c).for_each(|_| row.extend_from_slice(&fill.to_le_bytes())),
                 }
             }
             w.write_all(&row)?;

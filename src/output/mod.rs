@@ -6,7 +6,8 @@
 //! An exported field `<base>` is three files:
 //! - `<base>.raw`: little-endian f32, all components of a voxel together (component fastest), then
 //!   x, then y, then z, over the volume's own dims (no brick padding);
-//! - `<base>.json`: what the raw file holds ([`FieldInfo`]);
+//! - `<base>.json`: what the raw file holds ([`FieldInfo`]), and, when NaN marks voxels that were
+//!   not solved (the fluence of empty bricks), a `not_solved` note saying so;
 //! - `<base>.nhdr`: a detached NRRD header so ParaView, 3D Slicer, teem … open the raw directly.
 
 mod atomic;
@@ -17,5 +18,5 @@ mod read;
 
 pub use atomic::{write_atomic, write_json_atomic};
 pub use error::OutputError;
-pub use export::{export_dense, export_field, FieldInfo, FieldMeta, LAYOUT};
+pub use export::{export_dense, export_field, EmptyBricks, FieldInfo, FieldMeta, LAYOUT, NOT_SOLVED};
 pub use read::{read_field_json, read_raw_field};

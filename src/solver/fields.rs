@@ -1,7 +1,8 @@
 //! The solver's fields in the brick store, the host pass between orders, and checkpoints.
 //!
-//! Sources (storage directions × channels per voxel) are stored for occupied bricks only: empty
-//! bricks neither scatter nor hold a source. Fluence (channels per voxel) covers every brick.
+//! Every field covers the occupied bricks only: empty bricks hold no medium, so nothing scatters
+//! there and nothing is solved there (their fluence is exported as NaN, "not solved"). Sources have
+//! storage directions × channels components per voxel, fluence has channels.
 //!
 //! Each order accumulates into fields of its own: `source_next` (the next order's source) and
 //! `fluence` (this order's fluence), both zero when the order starts. The committed results —
@@ -21,7 +22,8 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 const CHECKPOINT: &str = "checkpoint.json";
-const CHECKPOINT_VERSION: u32 = 1;
+/// 2: fluence covers the occupied bricks only (version 1 stored it for every brick).
+const CHECKPOINT_VERSION: u32 = 2;
 
 pub struct StoreFields {
     /// The source rays gain in this order.
@@ -85,11 +87,11 @@ impl StoreFields {
         Ok(StoreFields {
             source_prev: store.create_field("source_a", comps, Coverage::Occupied)?,
             source_next: store.create_field("source_b", comps, Coverage::Occupied)?,
-            fluence: store.create_field("fluence_order", c, Coverage::Dense)?,
+            fluence: store.create_field("fluence_order", c, Coverage::Occupied)?,
             source_total: store.create_field("total_a", comps, Coverage::Occupied)?,
             source_spare: store.create_field("total_b", comps, Coverage::Occupied)?,
-            fluence_total: store.create_field("fluence_a", c, Coverage::Dense)?,
-            fluence_spare: store.create_field("fluence_b", c, Coverage::Dense)?,
+            fluence_total: store.create_field("fluence_a", c, Coverage::Occupied)?,
+            fluence_spare: store.create_field("fluence_b", c, Coverage::Occupied)?,
             clean: true,
         })
     }
@@ -112,11 +114,11 @@ impl StoreFields {
         let fields = StoreFields {
             source_prev: store.open_field(&cp.source_prev, comps, Coverage::Occupied)?,
             source_next: store.open_field(&cp.source_next, comps, Coverage::Occupied)?,
-            fluence: store.open_field("fluence_order", c, Coverage::Dense)?,
+            fluence: store.open_field("fluence_order", c, Coverage::Occupied)?,
             source_total: store.open_field(&cp.source_total, comps, Coverage::Occupied)?,
             source_spare: store.open_field(&cp.source_spare, comps, Coverage::Occupied)?,
-            fluence_total: store.open_field(&cp.fluence_total, c, Coverage::Dense)?,
-            fluence_spare: store.open_field(&cp.fluence_spare, c, Coverage::Dense)?,
+            fluence_total: store.open_field(&cp.fluence_total, c, Coverage::Occupied)?,
+            fluence_spare: store.open_field(&cp.fluence_spare, c, Coverage::Occupied)?,
             clean: false,
         };
         // A killed order's partial sums are cleared when the next order begins; the order fields

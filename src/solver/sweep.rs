@@ -27,12 +27,20 @@ pub struct FaceSweep {
     pub n: [u32; 3],
 }
 
-/// The planes of one slice of bricks, in sweep order: t0..t1, and the brick coordinate along the axis.
+/// The planes of one slice (or sub-slice) of bricks, in sweep order: t0..t1, the brick coordinate
+/// along the axis, and the slab of the bricks' local planes it covers.
+///
+/// A whole slice covers all 16 local planes of its bricks (`slab_lo = 0`, `slab_planes = 16`, even
+/// where the volume ends inside the bricks). A sub-slice covers local planes
+/// `slab_lo .. slab_lo + slab_planes` along the axis (in increasing coordinate, whatever the sweep's
+/// sense) and only the real planes among them.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct SliceRange {
     pub brick_a: u32,
     pub t0: u32,
     pub t1: u32,
+    pub slab_lo: u32,
+    pub slab_planes: u32,
 }
 
 impl FaceSweep {
@@ -69,20 +77,29 @@ impl FaceSweep {
         v
     }
 
-    /// The slices of bricks (16 planes each, fewer at the volume's far end) in sweep order.
-    pub fn slices(&self, edge: u32) -> Vec<SliceRange> {
-        let na = self.n[0];
-        let bricks = na.div_ceil(edge);
-        (0..bricks)
-            .map(|l| {
-                if self.geometry().sign > 0.0 {
-                    SliceRange { brick_a: l, t0: l * edge, t1: ((l + 1) * edge).min(na) }
-                } else {
-                    let ba = bricks - 1 - l;
-                    SliceRange { brick_a: ba, t0: na - ((ba + 1) * edge).min(na), t1: na - ba * edge }
-                }
-            })
-            .collect()
+    /// The slices of bricks in sweep order, each cut into sub-slices of `slab` planes (`slab`
+    /// divides `edge`; `slab == edge`: whole slices of 16 planes, fewer at the volume's far end).
+    pub fn slices(&self, edge: u32, slab: u32) -> Vec<SliceRange> {
+        let na = self.n[0] as i64;
+        let (e, p) = (edge as i64, slab.clamp(1, edge) as i64);
+        let positive = self.geometry().sign > 0.0;
+        let bricks = (na + e - 1) / e;
+        let mut out = Vec::new();
+        for l in 0..bricks {
+            let ba = if positive { l } else { bricks - 1 - l };
+            // Local planes of the brick inside the volume: 0..real.
+            let real = (na - ba * e).min(e);
+            let slabs: Vec<i64> = (0..e / p).map(|k| k * p).filter(|&lo| lo < real).collect();
+            let ordered: Box<dyn Iterator<Item = i64>> =
+                if positive { Box::new(slabs.into_iter()) } else { Box::new(slabs.into_iter().rev()) };
+            for lo in ordered {
+                let hi = (lo + p).min(real);
+                // Coordinate along the axis c = ba·e + local; t = c (positive) or na − 1 − c.
+                let (t0, t1) = if positive { (ba * e + lo, ba * e + hi) } else { (na - ba * e - hi, na - ba * e - lo) };
+                out.push(SliceRange { brick_a: ba as u32, t0: t0 as u32, t1: t1 as u32, slab_lo: lo as u32, slab_planes: p as u32 });
+            }
+        }
+        out
     }
 }
 
@@ -127,18 +144,23 @@ mod tests {
     fn slices_cover_every_plane_once_in_sweep_order() {
         for face in 0..6 {
             let sweep = FaceSweep::new(face, [37, 20, 53]);
-            let slices = sweep.slices(16);
-            let mut t = 0;
-            for s in &slices {
-                assert_eq!(s.t0, t);
-                assert!(s.t1 > s.t0);
-                // Every plane of a slice lies in the slice's brick.
-                for tt in s.t0..s.t1 {
-                    assert_eq!(sweep.plane_coordinate(tt) / 16, s.brick_a);
+            for slab in [16, 8, 4, 2, 1] {
+                let slices = sweep.slices(16, slab);
+                let mut t = 0;
+                for s in &slices {
+                    assert_eq!(s.t0, t);
+                    assert!(s.t1 > s.t0 && s.t1 - s.t0 <= slab);
+                    assert_eq!(s.slab_planes, slab);
+                    // Every plane of a slice lies in the slice's brick, inside its slab.
+                    for tt in s.t0..s.t1 {
+                        let c = sweep.plane_coordinate(tt);
+                        assert_eq!(c / 16, s.brick_a);
+                        assert!((s.slab_lo..s.slab_lo + slab).contains(&(c % 16)));
+                    }
+                    t = s.t1;
                 }
-                t = s.t1;
+                assert_eq!(t, sweep.n[0]);
             }
-            assert_eq!(t, sweep.n[0]);
         }
     }
 

@@ -1,19 +1,22 @@
 //! The device memory plan: how the sweeps are cut so that everything the solver allocates on the
 //! device (slice buffers, ray state, deposit, staging, tables) fits a byte budget.
 //!
-//! Four knobs, tried from the cheapest in time to the costliest:
+//! Five knobs; the plan keeps the first ones as large as it can:
 //! - **slices in flight**: two slices' buffers and staging let the transfers of one slice overlap
 //!   the compute of the other; one means each slice waits for the last (still correct);
-//! - **planes per dispatch** (a sub-slice in depth): the deposit buffer holds that many planes; free;
-//! - **directions per dispatch**: the deposit buffer holds that many directions; free;
 //! - **directions per pass**: the ray state holds that many directions, and a face whose k²
-//!   directions need several passes streams its slices once per pass.
+//!   directions need several passes streams its slices once per pass (more bytes moved);
+//! - **planes per slice** (sub-slices): a slice of bricks (16 planes) is streamed as sub-slices of
+//!   8, 4, 2 or 1 planes, each slot holding that slab of every occupied brick; the same bytes move,
+//!   in smaller pieces and with strided host copies;
+//! - **directions per dispatch** and **planes per dispatch**: the deposit buffer holds that many
+//!   directions and planes; free but for smaller dispatches.
 //!
-//! None of them changes the result: every voxel receives each direction's contribution as its own
-//! addition, in direction order, whatever the cut (see `glsl/collect.comp`), so fluence and source
-//! are bitwise identical at any budget. The slice itself (one brick deep, the whole face wide) is
-//! the smallest unit: when even one direction and one plane do not fit beside it, the error says
-//! how much is needed.
+//! None of them changes the result: rays carry their radiance from plane to plane whatever the
+//! cut, and every voxel receives each direction's contribution as its own addition, in direction
+//! order (see `glsl/collect.comp`), so fluence and source are bitwise identical at any budget. The
+//! smallest unit is a one-plane sub-slice with one direction: when even that does not fit, the
+//! error says how much is needed.
 
 use crate::solver::plan::Plan;
 use crate::solver::sweep::FaceSweep;
@@ -23,11 +26,13 @@ use crate::vk::Limits;
 use serde::Serialize;
 
 const BRICK_BYTES: u64 = BRICK_VOXELS as u64 * 4;
+/// Sub-slice depths tried, in planes (each divides the brick edge).
+const SLAB_PLANES: [u32; 5] = [BRICK_EDGE, 8, 4, 2, 1];
 
 /// Fraction of the device-local heap used when no budget is given.
 pub const DEFAULT_HEAP_FRACTION: f64 = 0.5;
 
-/// The largest slice of any face: bricks in all, and occupied.
+/// The largest slice of any face: bricks in all, and occupied (only occupied bricks travel).
 #[derive(Clone, Copy, Debug, Serialize)]
 pub struct SliceExtent {
     pub bricks: u64,
@@ -43,6 +48,8 @@ pub struct MemoryPlan {
     pub slices_in_flight: u32,
     pub directions_per_pass: u32,
     pub directions_per_dispatch: u32,
+    /// Planes of a sub-slice (16: whole slices of bricks).
+    pub planes_per_slice: u32,
     pub planes_per_dispatch: u32,
     pub slice: SliceExtent,
     pub ray_state_bytes: u64,
@@ -108,60 +115,70 @@ pub fn plan_memory(
         plan.faces.iter().map(|f| table_set(f)).chain(plan.beams.iter().map(|b| table_set(std::slice::from_ref(b)))).collect();
     let table_bytes = sets.iter().sum::<u64>() + sets.iter().copied().max().unwrap_or(0);
     let slot_bytes = (extent.bricks * 4).next_multiple_of(16);
-    let source_bytes = extent.occupied * comps * BRICK_BYTES;
-    let fluence_bytes = extent.bricks * c * BRICK_BYTES;
-    let density_bytes = extent.occupied * BRICK_BYTES;
-    let slice_bytes = slot_bytes + density_bytes + 2 * source_bytes + fluence_bytes;
-    for (what, bytes) in [
-        ("the slice's source", source_bytes),
-        ("the slice's fluence", fluence_bytes),
-        ("the slice's density", density_bytes),
-    ] {
-        if bytes > max_range {
-            return Err(SolveError::DeviceLimit { what: what.to_string(), bytes, limit: max_range });
-        }
-    }
-    let upload = slice_bytes;
-    let download = source_bytes + fluence_bytes;
-
-    let cost = |slots: u32, pass: u32, group: u32, planes: u32| -> (u64, u64, u64, u64) {
+    // One slot for sub-slices of `slab` planes: its device bytes (the slot table, then density, the
+    // previous and the new source and the fluence of the occupied bricks' slabs), its download
+    // bytes, and the sizes of its three largest buffers.
+    let slot = |slab: u32| {
+        let per_component = extent.occupied * BRICK_BYTES / BRICK_EDGE as u64 * slab as u64;
+        let source = per_component * comps;
+        let fluence = per_component * c;
+        (slot_bytes + per_component + 2 * source + fluence, source + fluence, [source, fluence, per_component])
+    };
+    let cost = |slots: u32, pass: u32, slab: u32, group: u32, planes: u32| -> (u64, u64, u64, u64, u64) {
+        let (slice_bytes, download, _) = slot(slab);
         let ray_buffer = pass as u64 * c * rays * 4;
         let ray_state = 3 * ray_buffer;
         let deposit = group as u64 * c * planes as u64 * rays * 4;
         // Per slot: the device slice buffers and their upload and download staging; plus the
         // staging the rays' tallies come home through.
-        let staging = slots as u64 * (upload + download) + 2 * ray_buffer;
+        let staging = slots as u64 * (slice_bytes + download) + 2 * ray_buffer;
         let total = table_bytes + slots as u64 * slice_bytes + ray_state + deposit + staging;
-        (ray_state, deposit, staging, total)
+        (slice_bytes, ray_state, deposit, staging, total)
     };
-    let fits_range = |pass: u32, group: u32, planes: u32| {
-        pass as u64 * c * rays * 4 <= max_range && group as u64 * c * planes as u64 * rays * 4 <= max_range
+    let fits_range = |pass: u32, slab: u32, group: u32, planes: u32| {
+        pass as u64 * c * rays * 4 <= max_range
+            && group as u64 * c * planes as u64 * rays * 4 <= max_range
+            && slot(slab).2.iter().all(|&b| b <= max_range)
     };
     for slots in [2, 1].into_iter().filter(|&s| s <= max_slots.max(1)) {
         for pass in (1..=per_face).rev() {
-            for group in (1..=pass).rev() {
-                for planes in [BRICK_EDGE, 8, 4, 2, 1] {
-                    let (ray_state, deposit, staging, total) = cost(slots, pass, group, planes);
-                    if total <= budget && fits_range(pass, group, planes) {
-                        return Ok(MemoryPlan {
-                            budget_bytes: budget,
-                            planned_bytes: total,
-                            slices_in_flight: slots,
-                            directions_per_pass: pass,
-                            directions_per_dispatch: group,
-                            planes_per_dispatch: planes,
-                            slice: extent,
-                            ray_state_bytes: ray_state,
-                            deposit_bytes: deposit,
-                            slice_bytes: slots as u64 * slice_bytes,
-                            staging_bytes: staging,
-                            table_bytes,
-                        });
+            for slab in SLAB_PLANES {
+                for group in (1..=pass).rev() {
+                    for planes in SLAB_PLANES.into_iter().filter(|&p| p <= slab) {
+                        let (slice_bytes, ray_state, deposit, staging, total) = cost(slots, pass, slab, group, planes);
+                        if total <= budget && fits_range(pass, slab, group, planes) {
+                            return Ok(MemoryPlan {
+                                budget_bytes: budget,
+                                planned_bytes: total,
+                                slices_in_flight: slots,
+                                directions_per_pass: pass,
+                                directions_per_dispatch: group,
+                                planes_per_slice: slab,
+                                planes_per_dispatch: planes,
+                                slice: extent,
+                                ray_state_bytes: ray_state,
+                                deposit_bytes: deposit,
+                                slice_bytes: slots as u64 * slice_bytes,
+                                staging_bytes: staging,
+                                table_bytes,
+                            });
+                        }
                     }
                 }
             }
         }
     }
-    let (_, _, _, needed) = cost(1, 1, 1, 1);
+    // Nothing fits: name the device limit when that is what stands in the way, else the budget.
+    let [source, fluence, density] = slot(1).2;
+    for (what, bytes) in [
+        ("one plane of the slice's source", source),
+        ("one plane of the slice's fluence", fluence),
+        ("one plane of the slice's density", density),
+    ] {
+        if bytes > max_range {
+            return Err(SolveError::DeviceLimit { what: what.to_string(), bytes, limit: max_range });
+        }
+    }
+    let (_, _, _, _, needed) = cost(1, 1, 1, 1, 1);
     Err(SolveError::BudgetTooSmall { budget, needed })
 }

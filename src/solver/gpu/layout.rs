@@ -7,6 +7,7 @@ pub const FLAG_BOUNDARY: u32 = 1;
 pub const FLAG_GAIN: u32 = 2;
 pub const FLAG_EMIT: u32 = 4;
 pub const FLAG_LAST_SLICE: u32 = 8;
+pub const FLAG_VACUUM: u32 = 16;
 
 /// Push constants of `propagate.comp` and `collect.comp`. Keep in sync with `Push` in
 /// glsl/common.glsl.
@@ -32,7 +33,8 @@ pub struct SweepPush {
     pub dir_base: u32,
     /// First direction of the dispatch in the pass's ray buffers.
     pub ray_base: u32,
-    pub pad2: u32,
+    /// Bits 0–7: the first local plane of the bricks' slab along the axis; bits 8–15: its planes.
+    pub slab: u32,
     pub sigma_t: [f32; 4],
     pub sigma_s: [f32; 4],
     pub emission: [f32; 4],

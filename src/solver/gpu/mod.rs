@@ -17,7 +17,10 @@
 //!
 //! With two slots (the memory plan decides, see [`budget`]) the steps of neighbouring slices
 //! overlap: slice l+1 is gathered and uploaded, and slice l−1 downloaded and scattered, while slice
-//! l computes. Transfer submissions go to a dedicated transfer queue when the device has one, else
+//! l computes. When a whole slice does not fit the budget it is streamed as sub-slices of fewer
+//! planes (each slot then holds that slab of each occupied brick). Only occupied bricks travel; a
+//! (sub-)slice without any is vacuum: it takes no slot and no transfer, and its compute step only
+//! moves the rays across it. Transfer submissions go to a dedicated transfer queue when the device has one, else
 //! to the compute queue as a second submission stream ordered by the same timeline semaphores.
 //! With one slot each slice completes before the next starts. Slots are reused against timeline
 //! values, never by idling the device.
@@ -42,7 +45,7 @@ use budget::MemoryPlan;
 use copier::{Copier, Ticket};
 use gpu_allocator::MemoryLocation;
 use layout::*;
-use slice::{SliceLayout, BRICK_BYTES};
+use slice::SliceLayout;
 use std::sync::Arc;
 use tables::SweepTables;
 
@@ -98,6 +101,8 @@ struct Shared {
     rays_out: Buffer,
     deposit: Buffer,
     tallies: Buffer,
+    /// Bound in place of the slot buffers when a vacuum slice computes (never read).
+    vacuum: Buffer,
 }
 
 /// The three timelines of the pipeline; each slice gets the next value on all three.
@@ -117,6 +122,10 @@ pub struct GpuBackend<'a> {
     timelines: Option<Timelines>,
     /// The last value handed out on the timelines.
     value: u64,
+    /// The last values submitted to signal the upload and the download timelines (vacuum slices
+    /// skip both).
+    upload_value: u64,
+    download_value: u64,
     slots: Vec<Slot>,
     shared: Option<Shared>,
     face_tables: Vec<SweepTables>,
@@ -165,9 +174,10 @@ impl<'a> GpuBackend<'a> {
             | vk::BufferUsageFlags::TRANSFER_DST
             | vk::BufferUsageFlags::TRANSFER_SRC;
         let gpu = MemoryLocation::GpuOnly;
-        let source_bytes = extent.occupied * comps * BRICK_BYTES;
-        let fluence_bytes = extent.bricks * c * BRICK_BYTES;
-        let upload_bytes = (extent.bricks * 4).next_multiple_of(16) + extent.occupied * BRICK_BYTES + 2 * source_bytes + fluence_bytes;
+        let per_component = extent.occupied * slice::slab_bytes(memory.planes_per_slice);
+        let source_bytes = per_component * comps;
+        let fluence_bytes = per_component * c;
+        let upload_bytes = (extent.bricks * 4).next_multiple_of(16) + per_component + 2 * source_bytes + fluence_bytes;
 
         let shared = create_buffers(
             &ctx,
@@ -177,12 +187,13 @@ impl<'a> GpuBackend<'a> {
                 ("rays out", ray_bytes, storage, gpu),
                 ("deposit", memory.deposit_bytes, storage, gpu),
                 ("tally staging", 2 * ray_bytes, vk::BufferUsageFlags::TRANSFER_DST, MemoryLocation::GpuToCpu),
+                ("vacuum", 16, storage, gpu),
             ],
         )?;
         let mut it = shared.into_iter();
-        let shared = match (it.next(), it.next(), it.next(), it.next(), it.next()) {
-            (Some(rays), Some(rays_in), Some(rays_out), Some(deposit), Some(tallies)) => {
-                Shared { rays, rays_in, rays_out, deposit, tallies }
+        let shared = match (it.next(), it.next(), it.next(), it.next(), it.next(), it.next()) {
+            (Some(rays), Some(rays_in), Some(rays_out), Some(deposit), Some(tallies), Some(vacuum)) => {
+                Shared { rays, rays_in, rays_out, deposit, tallies, vacuum }
             }
             _ => return Err(SolveError::Internal("shared buffers")),
         };
@@ -195,6 +206,8 @@ impl<'a> GpuBackend<'a> {
             collect: None,
             timelines: None,
             value: 0,
+            upload_value: 0,
+            download_value: 0,
             slots: Vec::new(),
             shared: Some(shared),
             face_tables: Vec::new(),
@@ -206,8 +219,10 @@ impl<'a> GpuBackend<'a> {
             profiler: None,
         };
         if options.profile {
-            // Three intervals per slice; a pass never has more slices than the longest axis has bricks.
-            let slices = plan.dims.iter().map(|d| d.div_ceil(BRICK_EDGE)).max().unwrap_or(1);
+            // Three intervals per sub-slice; a pass never has more slices than the longest axis has
+            // bricks, each cut into sub-slices of `planes_per_slice` planes.
+            let bricks = plan.dims.iter().map(|d| d.div_ceil(BRICK_EDGE)).max().unwrap_or(1);
+            let slices = bricks * (BRICK_EDGE / memory.planes_per_slice);
             backend.profiler = Some(profile::Profiler::new(&ctx, 6 * slices + 6)?);
         }
         // From here on, `backend` owns everything made and frees it on drop if a step fails.
@@ -216,7 +231,7 @@ impl<'a> GpuBackend<'a> {
                 &ctx,
                 &[
                     (&format!("slot {i} slot table"), extent.bricks * 4, storage, gpu),
-                    (&format!("slot {i} density"), extent.occupied * BRICK_BYTES, storage, gpu),
+                    (&format!("slot {i} density"), per_component, storage, gpu),
                     (&format!("slot {i} source prev"), source_bytes, storage, gpu),
                     (&format!("slot {i} source next"), source_bytes, storage, gpu),
                     (&format!("slot {i} fluence"), fluence_bytes, storage, gpu),
@@ -266,6 +281,7 @@ impl<'a> GpuBackend<'a> {
             slices_in_flight = memory.slices_in_flight,
             directions_per_pass = memory.directions_per_pass,
             directions_per_dispatch = memory.directions_per_dispatch,
+            planes_per_slice = memory.planes_per_slice,
             planes_per_dispatch = memory.planes_per_dispatch,
             "GPU backend ready"
         );
@@ -312,6 +328,7 @@ impl<'a> GpuBackend<'a> {
         t.compute.wait(&self.ctx, v, WAIT_FOREVER)?;
         t.upload.signal(&self.ctx, v)?;
         t.download.signal(&self.ctx, v)?;
+        (self.upload_value, self.download_value) = (v, v);
         self.ctx.collect_garbage()?;
         Ok(())
     }
@@ -332,17 +349,26 @@ impl<'a> GpuBackend<'a> {
 
     /// Streams every slice of the face through the slots for the directions `pass_dirs`.
     fn stream_pass(&mut self, tables: &SweepTables, sweep: &FaceSweep, pass_dirs: std::ops::Range<u32>, flags: u32) -> Result<(), SolveError> {
-        let slices = sweep.slices(BRICK_EDGE);
+        let slices = sweep.slices(BRICK_EDGE, self.memory.planes_per_slice);
         let n_slots = self.slots.len();
+        let mut filled = 0;
         let gain = flags & FLAG_GAIN != 0;
         let (c, comps) = (self.plan.channels as u64, self.plan.source_components() as u64);
         // The slot of the slice computed in the previous iteration: its download is submitted after
         // this iteration's upload, so the transfer queue can upload the next slice while it computes.
         let mut to_download: Option<usize> = None;
         for (i, range) in slices.iter().enumerate() {
-            let s = i % n_slots;
-            self.retire_slot(s)?;
+            let (first, last) = (i == 0, i + 1 == slices.len());
             let layout = SliceLayout::new(self.store, sweep, *range, gain, c, comps);
+            if layout.is_vacuum() {
+                self.value += 1;
+                let v = self.value;
+                self.submit_compute(None, &layout, tables, sweep, pass_dirs.clone(), flags, first, last, v)?;
+                continue;
+            }
+            let s = filled % n_slots;
+            filled += 1;
+            self.retire_slot(s)?;
             self.gather(s, &layout)?;
             self.value += 1;
             let v = self.value;
@@ -351,7 +377,7 @@ impl<'a> GpuBackend<'a> {
                 std::process::abort();
             }
             self.submit_upload(s, &layout, v)?;
-            self.submit_compute(s, &layout, tables, sweep, pass_dirs.clone(), flags, i == 0, i + 1 == slices.len(), v)?;
+            self.submit_compute(Some(s), &layout, tables, sweep, pass_dirs.clone(), flags, first, last, v)?;
             self.slots[s].pending = Some((v, layout));
             if n_slots == 1 {
                 self.submit_download(s)?;
@@ -415,25 +441,24 @@ impl<'a> GpuBackend<'a> {
         let mark = self.profiler.as_mut().and_then(|p| p.begin(&mut rec, profile::Work::Upload, layout.upload_bytes()));
         let copy = |src: u64, size: u64| [vk::BufferCopy { src_offset: src, dst_offset: 0, size }];
         rec.copy_buffer(&slot.upload, &slot.slot_table, &copy(0, layout.slot_table_bytes()));
-        if layout.occ() > 0 {
-            rec.copy_buffer(&slot.upload, &slot.density, &copy(layout.density_offset(), layout.density_bytes()));
-            if layout.gain {
-                rec.copy_buffer(&slot.upload, &slot.source_prev, &copy(layout.prev_offset(), layout.source_bytes()));
-            }
-            rec.copy_buffer(&slot.upload, &slot.source_next, &copy(layout.next_offset(), layout.source_bytes()));
+        rec.copy_buffer(&slot.upload, &slot.density, &copy(layout.density_offset(), layout.density_bytes()));
+        if layout.gain {
+            rec.copy_buffer(&slot.upload, &slot.source_prev, &copy(layout.prev_offset(), layout.source_bytes()));
         }
+        rec.copy_buffer(&slot.upload, &slot.source_next, &copy(layout.next_offset(), layout.source_bytes()));
         rec.copy_buffer(&slot.upload, &slot.fluence, &copy(layout.fluence_offset(), layout.fluence_bytes()));
         if let Some(p) = self.profiler.as_mut() {
             p.end(&mut rec, mark);
         }
         rec.submit(queue, &[], (&self.timelines()?.upload, v))?;
+        self.upload_value = v;
         Ok(())
     }
 
     #[allow(clippy::too_many_arguments)]
     fn submit_compute(
         &mut self,
-        s: usize,
+        s: Option<usize>,
         layout: &SliceLayout,
         tables: &SweepTables,
         sweep: &FaceSweep,
@@ -444,8 +469,14 @@ impl<'a> GpuBackend<'a> {
         v: u64,
     ) -> Result<(), SolveError> {
         let plan = self.plan;
-        let slot = &self.slots[s];
+        let slot = s.map(|s| &self.slots[s]);
         let shared = self.shared.as_ref().ok_or(SolveError::Internal("shared buffers released"))?;
+        // A vacuum slice binds a dummy in place of the slot buffers its kernel never reads.
+        let (slot_table, density, source_prev) = match slot {
+            Some(slot) => (&slot.slot_table, &slot.density, &slot.source_prev),
+            None => (&shared.vacuum, &shared.vacuum, &shared.vacuum),
+        };
+        let vacuum = if slot.is_none() { FLAG_VACUUM } else { 0 };
         let propagate = self.propagate.as_ref().ok_or(SolveError::Internal("pipeline released"))?;
         let collect = self.collect.as_ref().ok_or(SolveError::Internal("pipeline released"))?;
         let queue = self.ctx.compute_queue();
@@ -478,7 +509,7 @@ impl<'a> GpuBackend<'a> {
             flags,
             dir_base: 0,
             ray_base: 0,
-            pad2: 0,
+            slab: layout.range.slab_lo | layout.range.slab_planes << 8,
             sigma_t: vec4(&|ch| coefficient(ch).0),
             sigma_s: vec4(&|ch| coefficient(ch).1),
             emission: vec4(&|ch| coefficient(ch).2 * plan.medium.emission[ch]),
@@ -497,15 +528,15 @@ impl<'a> GpuBackend<'a> {
                 let t1 = (t0 + chunk).min(range.t1);
                 push.t0 = t0;
                 push.t1 = t1;
-                push.flags = flags | if last && t1 == range.t1 { FLAG_LAST_SLICE } else { 0 };
+                push.flags = flags | vacuum | if last && t1 == range.t1 { FLAG_LAST_SLICE } else { 0 };
                 rec.dispatch(
                     propagate,
                     &[
                         BufferRange::from(&tables.directions),
                         BufferRange::from(&tables.offsets),
-                        BufferRange::from(&slot.slot_table),
-                        BufferRange::from(&slot.density),
-                        BufferRange::from(&slot.source_prev),
+                        BufferRange::from(slot_table),
+                        BufferRange::from(density),
+                        BufferRange::from(source_prev),
                         BufferRange::from(&shared.rays),
                         BufferRange::from(&shared.rays_in),
                         BufferRange::from(&shared.rays_out),
@@ -515,21 +546,23 @@ impl<'a> GpuBackend<'a> {
                     [sweep.n[1].div_ceil(16), sweep.n[2].div_ceil(4), n],
                 )?;
                 rec.compute_to_compute();
-                rec.dispatch(
-                    collect,
-                    &[
-                        BufferRange::from(&tables.directions),
-                        BufferRange::from(&tables.rows),
-                        BufferRange::from(&slot.slot_table),
-                        BufferRange::from(&slot.density),
-                        BufferRange::from(&shared.deposit),
-                        BufferRange::from(&slot.source_next),
-                        BufferRange::from(&slot.fluence),
-                    ],
-                    bytemuck::bytes_of(&push),
-                    [sweep.n[1].div_ceil(16), sweep.n[2].div_ceil(4), t1 - t0],
-                )?;
-                rec.compute_to_compute();
+                if let Some(slot) = slot {
+                    rec.dispatch(
+                        collect,
+                        &[
+                            BufferRange::from(&tables.directions),
+                            BufferRange::from(&tables.rows),
+                            BufferRange::from(&slot.slot_table),
+                            BufferRange::from(&slot.density),
+                            BufferRange::from(&shared.deposit),
+                            BufferRange::from(&slot.source_next),
+                            BufferRange::from(&slot.fluence),
+                        ],
+                        bytemuck::bytes_of(&push),
+                        [sweep.n[1].div_ceil(16), sweep.n[2].div_ceil(4), t1 - t0],
+                    )?;
+                    rec.compute_to_compute();
+                }
                 t0 = t1;
             }
             base += n;
@@ -538,7 +571,9 @@ impl<'a> GpuBackend<'a> {
             p.end(&mut rec, mark);
         }
         let t = self.timelines.as_ref().ok_or(SolveError::Internal("timelines released"))?;
-        rec.submit(queue, &[(&t.upload, v, vk::PipelineStageFlags2::COMPUTE_SHADER)], (&t.compute, v))?;
+        let waits = [(&t.upload, v, vk::PipelineStageFlags2::COMPUTE_SHADER)];
+        // A vacuum slice waits for no upload: the compute queue's own order is enough.
+        rec.submit(queue, if slot.is_some() { &waits } else { &[] }, (&t.compute, v))?;
         Ok(())
     }
 
@@ -556,9 +591,7 @@ impl<'a> GpuBackend<'a> {
         let next = layout.source_bytes();
         let bytes = next + layout.fluence_bytes();
         let mark = self.profiler.as_mut().and_then(|p| p.begin(&mut rec, profile::Work::Download, bytes));
-        if layout.occ() > 0 {
-            rec.copy_buffer(&slot.source_next, &slot.download, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: next }]);
-        }
+        rec.copy_buffer(&slot.source_next, &slot.download, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: next }]);
         rec.copy_buffer(&slot.fluence, &slot.download, &[vk::BufferCopy { src_offset: 0, dst_offset: next, size: layout.fluence_bytes() }]);
         rec.transfer_to_host();
         if let Some(p) = self.profiler.as_mut() {
@@ -566,6 +599,7 @@ impl<'a> GpuBackend<'a> {
         }
         let t = self.timelines.as_ref().ok_or(SolveError::Internal("timelines released"))?;
         rec.submit(queue, &[(&t.compute, v, vk::PipelineStageFlags2::TRANSFER)], (&t.download, v))?;
+        self.download_value = v;
         Ok(())
     }
 
@@ -601,8 +635,9 @@ impl<'a> GpuBackend<'a> {
     /// Frees every device resource (waits for the last submission first).
     fn release(&mut self) {
         if let Some(t) = self.timelines.as_ref() {
-            for timeline in [&t.upload, &t.compute, &t.download] {
-                if let Err(e) = timeline.wait(&self.ctx, self.value, WAIT_FOREVER) {
+            let last = [(&t.upload, self.upload_value), (&t.compute, self.value), (&t.download, self.download_value)];
+            for (timeline, value) in last {
+                if let Err(e) = timeline.wait(&self.ctx, value, WAIT_FOREVER) {
                     tracing::warn!("waiting for the last submission failed: {e}");
                 }
             }
@@ -621,7 +656,7 @@ impl<'a> GpuBackend<'a> {
             }
         }
         if let Some(shared) = self.shared.take() {
-            for b in [shared.rays, shared.rays_in, shared.rays_out, shared.deposit, shared.tallies] {
+            for b in [shared.rays, shared.rays_in, shared.rays_out, shared.deposit, shared.tallies, shared.vacuum] {
                 self.ctx.destroy_buffer(b);
             }
         }

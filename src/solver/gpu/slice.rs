@@ -1,16 +1,27 @@
-//! One slice of bricks on its way through a slot: which bricks, where each lands in the staging
-//! buffers, and the copy regions between the store and the staging.
+//! One slice (or sub-slice) of bricks on its way through a slot: which bricks, where each lands in
+//! the staging buffers, and the copy regions between the store and the staging.
 //!
-//! Upload staging: `[slot table, padded to 16 B][density: occupied][previous source: occupied, only
-//! when rays gain it][new source: occupied][fluence: all bricks]`; the device slot buffers hold the
-//! same blocks, each at offset 0 of its own buffer. Download staging: `[new source][fluence]`.
+//! Only occupied bricks travel: empty bricks hold no medium, no source and no fluence. Of each
+//! occupied brick the slot holds the slab of local planes the (sub-)slice covers: `planes × 256`
+//! voxels per component, in the brick's own x-fastest order with the sweep axis cut to the slab (a
+//! whole slice's slab is the whole brick, copied as is). See `slab_index` in `glsl/common.glsl`.
+//!
+//! Upload staging: `[slot table, padded to 16 B][density][previous source, only when rays gain it]
+//! [new source][fluence]`, each block over the occupied bricks in slice order; the device slot
+//! buffers hold the same blocks, each at offset 0 of its own buffer. Download staging:
+//! `[new source][fluence]`.
 
 use super::copier::Region;
 use crate::solver::fields::StoreFields;
 use crate::solver::sweep::{FaceSweep, SliceRange};
-use crate::store::{BrickStore, BRICK_VOXELS};
+use crate::store::{BrickStore, BRICK_EDGE, BRICK_VOXELS};
 
 pub const BRICK_BYTES: u64 = BRICK_VOXELS as u64 * 4;
+
+/// Bytes of one component of one brick's slab of `planes` planes.
+pub fn slab_bytes(planes: u32) -> u64 {
+    BRICK_BYTES / BRICK_EDGE as u64 * planes as u64
+}
 
 pub struct SliceLayout {
     pub range: SliceRange,
@@ -25,6 +36,8 @@ pub struct SliceLayout {
     pub gain: bool,
     pub channels: u64,
     pub comps: u64,
+    /// The sweep axis (0, 1, 2 for x, y, z).
+    pub axis: usize,
 }
 
 impl SliceLayout {
@@ -53,7 +66,16 @@ impl SliceLayout {
                 slots.push(-1);
             }
         }
-        SliceLayout { range, bricks, occupied, slots, bricks_b, bricks_c, gain, channels, comps }
+        SliceLayout { range, bricks, occupied, slots, bricks_b, bricks_c, gain, channels, comps, axis: face.axis }
+    }
+
+    /// No occupied brick: the rays cross vacuum, nothing travels and nothing is collected.
+    pub fn is_vacuum(&self) -> bool {
+        self.occupied.is_empty()
+    }
+
+    fn slab(&self) -> u64 {
+        slab_bytes(self.range.slab_planes)
     }
 
     pub fn dense(&self) -> u64 {
@@ -73,15 +95,15 @@ impl SliceLayout {
     }
 
     pub fn density_bytes(&self) -> u64 {
-        self.occ() * BRICK_BYTES
+        self.occ() * self.slab()
     }
 
     pub fn source_bytes(&self) -> u64 {
-        self.occ() * self.comps * BRICK_BYTES
+        self.occ() * self.comps * self.slab()
     }
 
     pub fn fluence_bytes(&self) -> u64 {
-        self.dense() * self.channels * BRICK_BYTES
+        self.occ() * self.channels * self.slab()
     }
 
     pub fn prev_offset(&self) -> u64 {
@@ -103,27 +125,30 @@ impl SliceLayout {
     /// Regions that fill the upload staging (at `staging`) from the store, all but the slot table
     /// (the caller writes that small table itself).
     pub fn gather(&self, store: &BrickStore, fields: &mut StoreFields, staging: *mut u8) -> Vec<Region> {
-        let mut regions = Vec::with_capacity(self.occupied.len() * 3 + self.bricks.len());
-        let block = (self.comps * BRICK_BYTES) as usize;
-        let next_base = fields.source_next.as_mut_slice().as_mut_ptr() as *const u8;
-        let prev_base = fields.source_prev.as_mut_slice().as_mut_ptr() as *const u8;
-        let fluence_base = fields.fluence.as_mut_slice().as_mut_ptr() as *const u8;
+        let mut regions = Vec::new();
+        let (c, comps, slab) = (self.channels as usize, self.comps as usize, self.slab() as usize);
+        let next_base = fields.source_next.as_mut_slice().as_mut_ptr() as *mut u8;
+        let prev_base = fields.source_prev.as_mut_slice().as_mut_ptr() as *mut u8;
+        let fluence_base = fields.fluence.as_mut_slice().as_mut_ptr() as *mut u8;
         let at = |offset: u64| -> *mut u8 { staging.wrapping_add(offset as usize) };
+        let (prev, next, fluence) = (self.prev_offset(), self.next_offset(), self.fluence_offset());
         for (i, &b) in self.occupied.iter().enumerate() {
             if let Some(density) = store.density_brick(b) {
-                regions.push(Region { src: density.as_ptr() as *const u8, dst: at(self.density_offset() + i as u64 * BRICK_BYTES), len: BRICK_BYTES as usize });
+                let dst = at(self.density_offset() + (i * slab) as u64);
+                self.slab_regions(density.as_ptr() as *mut u8, dst, 1, true, &mut regions);
             }
             if let Some(k) = fields.source_next.stored_index(b) {
+                let block = comps * BRICK_BYTES as usize;
                 if self.gain {
-                    regions.push(Region { src: prev_base.wrapping_add(k * block), dst: at(self.prev_offset() + (i * block) as u64), len: block });
+                    let dst = at(prev + (i * comps * slab) as u64);
+                    self.slab_regions(prev_base.wrapping_add(k * block), dst, comps, true, &mut regions);
                 }
-                regions.push(Region { src: next_base.wrapping_add(k * block), dst: at(self.next_offset() + (i * block) as u64), len: block });
+                let dst = at(next + (i * comps * slab) as u64);
+                self.slab_regions(next_base.wrapping_add(k * block), dst, comps, true, &mut regions);
             }
-        }
-        let fblock = (self.channels * BRICK_BYTES) as usize;
-        for (i, &b) in self.bricks.iter().enumerate() {
             if let Some(k) = fields.fluence.stored_index(b) {
-                regions.push(Region { src: fluence_base.wrapping_add(k * fblock), dst: at(self.fluence_offset() + (i * fblock) as u64), len: fblock });
+                let dst = at(fluence + (i * c * slab) as u64);
+                self.slab_regions(fluence_base.wrapping_add(k * c * BRICK_BYTES as usize), dst, c, true, &mut regions);
             }
         }
         regions
@@ -131,22 +156,55 @@ impl SliceLayout {
 
     /// Regions that return the download staging (at `staging`) to the store.
     pub fn scatter(&self, fields: &mut StoreFields, staging: *const u8) -> Vec<Region> {
-        let mut regions = Vec::with_capacity(self.occupied.len() + self.bricks.len());
-        let block = (self.comps * BRICK_BYTES) as usize;
+        let mut regions = Vec::new();
+        let (c, comps, slab) = (self.channels as usize, self.comps as usize, self.slab() as usize);
         let next_base = fields.source_next.as_mut_slice().as_mut_ptr() as *mut u8;
         let fluence_base = fields.fluence.as_mut_slice().as_mut_ptr() as *mut u8;
+        let staging = staging as *mut u8;
+        let fluence = self.source_bytes() as usize;
         for (i, &b) in self.occupied.iter().enumerate() {
             if let Some(k) = fields.source_next.stored_index(b) {
-                regions.push(Region { src: staging.wrapping_add(i * block), dst: next_base.wrapping_add(k * block), len: block });
+                let block = comps * BRICK_BYTES as usize;
+                let src = staging.wrapping_add(i * comps * slab);
+                self.slab_regions(next_base.wrapping_add(k * block), src, comps, false, &mut regions);
             }
-        }
-        let fblock = (self.channels * BRICK_BYTES) as usize;
-        let off = self.source_bytes() as usize;
-        for (i, &b) in self.bricks.iter().enumerate() {
             if let Some(k) = fields.fluence.stored_index(b) {
-                regions.push(Region { src: staging.wrapping_add(off + i * fblock), dst: fluence_base.wrapping_add(k * fblock), len: fblock });
+                let src = staging.wrapping_add(fluence + i * c * slab);
+                self.slab_regions(fluence_base.wrapping_add(k * c * BRICK_BYTES as usize), src, c, false, &mut regions);
             }
         }
         regions
+    }
+
+    /// The copies between `components` brick blocks at `brick` (4096 voxels each, x fastest) and
+    /// their slabs at `slab` (this range's planes, component after component): brick → slab when
+    /// `to_slab`, else back.
+    fn slab_regions(&self, brick: *mut u8, slab: *mut u8, components: usize, to_slab: bool, out: &mut Vec<Region>) {
+        let (lo, n) = (self.range.slab_lo as usize, self.range.slab_planes as usize);
+        let edge = BRICK_EDGE as usize;
+        let pair = |b: *mut u8, s: *mut u8, len, runs, b_stride, s_stride| {
+            if to_slab {
+                Region { src: b, dst: s, len, runs, src_stride: b_stride, dst_stride: s_stride }
+            } else {
+                Region { src: s, dst: b, len, runs, src_stride: s_stride, dst_stride: b_stride }
+            }
+        };
+        if n == edge {
+            let len = components * BRICK_BYTES as usize;
+            out.push(pair(brick, slab, len, 1, 0, 0));
+            return;
+        }
+        let slab_len = slab_bytes(n as u32) as usize;
+        for k in 0..components {
+            let b = brick.wrapping_add(k * BRICK_BYTES as usize);
+            let s = slab.wrapping_add(k * slab_len);
+            // Runs along x (4 bytes a voxel): whole x–y planes for z, rows of 16 for y, n voxels for x.
+            let region = match self.axis {
+                2 => pair(b.wrapping_add(lo * edge * edge * 4), s, slab_len, 1, 0, 0),
+                1 => pair(b.wrapping_add(lo * edge * 4), s, n * edge * 4, edge, edge * edge * 4, n * edge * 4),
+                _ => pair(b.wrapping_add(lo * 4), s, n * 4, edge * edge, edge * 4, n * 4),
+            };
+            out.push(region);
+        }
     }
 }
