@@ -37,27 +37,66 @@ pub struct OrderRecord {
     pub seconds: f64,
 }
 
-/// The orders not propagated, estimated as a geometric series from the last two orders.
+/// The orders not propagated, estimated as a geometric series.
+///
+/// The ratio ρ of successive orders' scattered power is not settled when the order loop would like
+/// to stop: in a thick medium it creeps up toward its limit for hundreds of orders (the faster
+/// decaying modes die out one after the other), by steps that shrink slowly. Using the last ratio
+/// as it is underestimates the tail, and one step of its drift underestimates how far it has still
+/// to go (by 30× at albedo 0.999 in the thick cloud of `tools/scenes/thick_cloud_a0.999.toml`). So
+/// the steps still to come are summed as a geometric series too: with Δ the ratio's last step and
+/// q the ratio of its last two steps, the ratio may still move by d = |Δ|/(1 − |q|). The tail
+/// uses the middle of that range, ρ + ½d (in the direction of Δ), and its uncertainty is half the
+/// tail's change over the range.
 #[derive(Clone, Debug, Serialize)]
 pub struct TailEstimate {
     /// Per channel, the ratio of the last order's scattered power to the previous one's.
     pub ratio: [f64; 3],
-    /// Per channel, ρ/(1 − ρ): the tail in units of the last order.
+    /// Per channel, how far the ratio may still move: |Δρ|/(1 − |q|).
+    pub drift: [f64; 3],
+    /// q: the last step of the ratio over the step before (from the power summed over channels).
+    pub drift_ratio: f64,
+    /// Per channel, ρ̂/(1 − ρ̂) with ρ̂ = ρ ± ½·drift: the tail in units of the last order.
     pub factor: [f64; 3],
     /// Scattered power of the tail (summed over channels).
     pub power: f64,
-    /// How far off the tail may be: last power × |Δρ|/(1 − ρ)², summed over channels.
+    /// How far off the tail may be: half its change as the ratio moves over the drift, summed over
+    /// channels.
     pub uncertainty: f64,
 }
 
+/// Below this a step of the ratio counts as settled (the ratios are f64 quotients of sums over the
+/// volume: far above rounding).
+const SETTLED_STEP: f64 = 1e-10;
+
 /// The tail estimate after the orders in `state`, when the ratios are settled enough to use:
-/// at least three orders, and every scattering channel's ratio in (0, 1).
+/// at least four orders, every scattering channel's ratio in (0, 1), the ratio's steps shrinking
+/// (|q| < 1) and the far end of its drift still below 1.
 pub fn tail_estimate(plan: &Plan, state: &LoopState) -> Option<TailEstimate> {
-    if state.orders_done < 3 {
+    let h = &state.history;
+    if state.orders_done < 4 || h.len() < 4 {
+        return None;
+    }
+    // The drift's shrink ratio q, from the last four orders' power summed over channels (the
+    // checkpointed history keeps no per-channel powers; the channels' decaying modes share the
+    // medium's geometry).
+    let n = h.len();
+    let ratio_at = |i: usize| h[i].new_source_power / h[i - 1].new_source_power;
+    let (step, step_before) = (ratio_at(n - 1) - ratio_at(n - 2), ratio_at(n - 2) - ratio_at(n - 3));
+    let q = if step.abs() <= SETTLED_STEP { 0.0 } else { step / step_before };
+    if !(q.abs() < 1.0) {
         return None;
     }
     let c = plan.channels as usize;
-    let mut t = TailEstimate { ratio: [0.0; 3], factor: [0.0; 3], power: 0.0, uncertainty: 0.0 };
+    let mut t = TailEstimate {
+        ratio: [0.0; 3],
+        drift: [0.0; 3],
+        drift_ratio: q,
+        factor: [0.0; 3],
+        power: 0.0,
+        uncertainty: 0.0,
+    };
+    let tail = |rho: f64| rho / (1.0 - rho);
     for ch in 0..c {
         let (new, before) = (state.last_new_power[ch], state.previous_new_power[ch]);
         if new <= 0.0 {
@@ -67,10 +106,18 @@ pub fn tail_estimate(plan: &Plan, state: &LoopState) -> Option<TailEstimate> {
         if !(rho > 0.0 && rho < 1.0) || !(state.previous_ratio[ch] > 0.0) {
             return None;
         }
+        let delta = rho - state.previous_ratio[ch];
+        let drift = delta.abs() / (1.0 - q.abs());
+        let far = rho + drift.copysign(delta);
+        if !(far < 1.0 && far > 0.0) {
+            return None;
+        }
+        let mid = rho + 0.5 * drift.copysign(delta);
         t.ratio[ch] = rho;
-        t.factor[ch] = rho / (1.0 - rho);
+        t.drift[ch] = drift;
+        t.factor[ch] = tail(mid);
         t.power += new * t.factor[ch];
-        t.uncertainty += new * (rho - state.previous_ratio[ch]).abs() / ((1.0 - rho) * (1.0 - rho));
+        t.uncertainty += 0.5 * new * (tail(far) - tail(rho)).abs();
     }
     Some(t)
 }
