@@ -70,6 +70,11 @@ pub struct Report {
     /// Wall-clock seconds per phase, in order.
     pub seconds: Vec<Phase>,
     pub peak_device_bytes: u64,
+    /// Peak resident memory of the process (VmHWM), when the system reports it: what the solve
+    /// held in RAM at most, memory-mapped pages included.
+    pub peak_resident_bytes: Option<u64>,
+    /// Bytes of the brick store's files (density and solver fields; empty bricks take none).
+    pub store_bytes: u64,
     /// The device memory plan: budget, planned bytes and how the sweeps were cut (GPU only).
     pub device_memory: Option<solver::gpu::budget::MemoryPlan>,
     pub outputs: Vec<String>,
@@ -137,6 +142,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
     };
     let (run, fields) = solver::solve_with(scene, &store, job.backend, job.vk.clone(), gpu, reopen, progress)?;
     let SolveRun { plan, outcome, device, peak_device_bytes, memory, mut phases } = run;
+    let store_bytes = files_bytes(store.dir());
     phases.insert(0, ("store".to_string(), store_seconds));
 
     let t = Instant::now();
@@ -234,9 +240,26 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
         tail: outcome.tail,
         seconds: phases.into_iter().map(|(phase, seconds)| Phase { phase, seconds }).collect(),
         peak_device_bytes,
+        peak_resident_bytes: peak_resident_bytes(),
+        store_bytes,
         device_memory: memory,
         outputs,
     };
     output::write_json_atomic(&job.out.join("report.json"), &report)?;
     Ok(report)
+}
+
+/// Total length of the files in `dir` (not recursive; unreadable entries count as 0).
+fn files_bytes(dir: &Path) -> u64 {
+    std::fs::read_dir(dir)
+        .map(|entries| entries.flatten().filter_map(|e| e.metadata().ok()).filter(|m| m.is_file()).map(|m| m.len()).sum())
+        .unwrap_or(0)
+}
+
+/// The process's peak resident set (VmHWM in /proc/self/status), where the system has it.
+pub fn peak_resident_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
 }

@@ -138,7 +138,7 @@ fn all_empty_volume() {
     assert!(f.as_slice().is_empty());
     assert!(f.brick_mut(0).is_none());
     assert_eq!(f.value([1, 1, 1], 2), 0.0);
-    f.fill_zero();
+    f.fill_zero().unwrap();
     f.flush().expect("flush");
     let reopened = BrickStore::open(&dir).expect("reopen");
     assert_eq!(reopened.occupied_count(), 0);
@@ -268,7 +268,7 @@ fn fields_dense_and_occupied() {
     let mut copy = store.create_field("copy", 2, Coverage::Occupied).expect("field");
     copy.copy_from(&reopened).expect("same shape");
     assert_eq!(copy.as_slice(), reopened.as_slice());
-    copy.fill_zero();
+    copy.fill_zero().unwrap();
     assert!(copy.as_slice().iter().all(|&v| v == 0.0));
 
     let mut dense = store.create_field("fluence", 1, Coverage::Dense).expect("dense");

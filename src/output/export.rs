@@ -195,6 +195,11 @@ fn write_raw(field: &Field, fill: f32, w: &mut impl Write) -> std::io::Result<()
             }
             w.write_all(&row)?;
         }
+        if (z + 1) % BRICK_EDGE == 0 {
+            // A layer of bricks is done: hand its pages back (see `store::Field` on resident memory).
+            field.release_all();
+        }
     }
+    field.release_all();
     Ok(())
 }

@@ -40,6 +40,9 @@ pub struct RenderInputs<'a> {
     pub camera: &'a Camera,
 }
 
+/// Image rows rendered between two hand-backs of the volume's pages.
+const RELEASE_ROWS: usize = 16;
+
 /// Renders `inputs.camera`'s view. Rows are handed out to `available_parallelism` threads; each pixel
 /// depends only on its own ray, so the image is the same whatever the thread count or timing.
 pub fn render(inputs: &RenderInputs) -> Image {
@@ -60,6 +63,12 @@ pub fn render(inputs: &RenderInputs) -> Image {
                     Err(_) => return,
                 };
                 let Some((y, row)) = next else { return };
+                if y % RELEASE_ROWS == 0 {
+                    // Hand back the pages the rows so far read (resident memory stays bounded on
+                    // volumes larger than RAM; see `store::Field`). Other workers refault what they use.
+                    inputs.store.release_all_density();
+                    inputs.source.release_all();
+                }
                 for (x, px) in row.chunks_mut(3).enumerate() {
                     let (origin, dir) = rays.ray(x as u32, y as u32);
                     let l = march_ray(inputs, origin, dir);

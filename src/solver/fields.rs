@@ -137,11 +137,11 @@ impl StoreFields {
         let h3 = plan.voxel_size.powi(3);
         let mut power = [0.0; 3];
         let weight = |k: usize| plan.storage.solid_angle[k / c] * h3;
-        combine(self.source_spare.as_mut_slice(), self.source_total.as_slice(), self.source_next.as_slice(), |_| 1.0, |block, sum| {
+        combine(&mut self.source_spare, &self.source_total, &self.source_next, |_| 1.0, |block, sum| {
             let k = block % comps;
             power[k % c] += weight(k) * sum;
         });
-        combine(self.fluence_spare.as_mut_slice(), self.fluence_total.as_slice(), self.fluence.as_slice(), |_| 1.0, |_, _| {});
+        combine(&mut self.fluence_spare, &self.fluence_total, &self.fluence, |_| 1.0, |_, _| {});
         std::mem::swap(&mut self.source_total, &mut self.source_spare);
         std::mem::swap(&mut self.fluence_total, &mut self.fluence_spare);
         std::mem::swap(&mut self.source_prev, &mut self.source_next);
@@ -175,19 +175,20 @@ impl StoreFields {
         let c = plan.channels as usize;
         let comps = plan.source_components() as usize;
         let f = |ch: usize| factor[ch] as f32;
-        combine(self.source_spare.as_mut_slice(), self.source_total.as_slice(), self.source_prev.as_slice(), |b| f((b % comps) % c), |_, _| {});
-        combine(self.fluence_spare.as_mut_slice(), self.fluence_total.as_slice(), self.fluence.as_slice(), |b| f(b % c), |_, _| {});
+        combine(&mut self.source_spare, &self.source_total, &self.source_prev, |b| f((b % comps) % c), |_, _| {});
+        combine(&mut self.fluence_spare, &self.fluence_total, &self.fluence, |b| f(b % c), |_, _| {});
         std::mem::swap(&mut self.source_total, &mut self.source_spare);
         std::mem::swap(&mut self.fluence_total, &mut self.fluence_spare);
     }
 
     /// Clears the order's accumulators before an order starts.
-    pub fn begin_order(&mut self) {
-        if std::mem::replace(&mut self.clean, true) {
-            return;
+    pub fn begin_order(&mut self) -> Result<(), SolveError> {
+        if !self.clean {
+            self.source_next.fill_zero()?;
+            self.fluence.fill_zero()?;
+            self.clean = true;
         }
-        self.source_next.fill_zero();
-        self.fluence.fill_zero();
+        Ok(())
     }
 
     /// Power emitted in order 0 and absorbed over all committed orders, per channel.
@@ -196,7 +197,11 @@ impl StoreFields {
         let h3 = plan.voxel_size.powi(3);
         let four_pi: f64 = plan.storage.solid_angle.iter().sum();
         let (mut emitted, mut absorbed) = ([0.0; 3], [0.0; 3]);
-        for brick in 0..store.grid().brick_count() {
+        for (n, brick) in store.occupied_bricks().enumerate() {
+            if n % RELEASE_BRICKS == 0 {
+                store.release_all_density();
+                self.fluence_total.release_all();
+            }
             let (Some(density), Some(phi)) = (store.density_brick(brick), self.fluence_total.brick(brick)) else {
                 continue;
             };
@@ -214,21 +219,38 @@ impl StoreFields {
                 absorbed[ch] += sa * rho_phi * h3;
             }
         }
+        store.release_all_density();
+        self.fluence_total.release_all();
         (emitted, absorbed)
     }
 }
 
+/// Bricks a pass over whole fields walks before handing their pages back (see
+/// [`crate::store::Field`] on resident memory): a few tens of MiB per field.
+const RELEASE_BRICKS: usize = 1024;
+
 /// `spare = total + factor(block)·last`, brick-component block by block (4096 values each); calls
-/// `block_sum(block, Σ last)` for each block. With factor 1 this is exactly `total + last`.
-fn combine(spare: &mut [f32], total: &[f32], last: &[f32], factor: impl Fn(usize) -> f32, mut block_sum: impl FnMut(usize, f64)) {
-    let blocks = spare.chunks_mut(BRICK_VOXELS).zip(total.chunks(BRICK_VOXELS)).zip(last.chunks(BRICK_VOXELS));
-    for (block, ((s, t), l)) in blocks.enumerate() {
-        let f = factor(block);
-        let mut sum = 0.0;
-        for ((s, &t), &l) in s.iter_mut().zip(t).zip(l) {
-            *s = t + f * l;
-            sum += l as f64;
+/// `block_sum(block, Σ last)` for each block. With factor 1 this is exactly `total + last`. The
+/// three fields' pages are handed back every [`RELEASE_BRICKS`] bricks.
+fn combine(spare: &mut Field, total: &Field, last: &Field, factor: impl Fn(usize) -> f32, mut block_sum: impl FnMut(usize, f64)) {
+    let bricks = spare.stored_bricks();
+    let per_brick = spare.brick_len();
+    let mut block = 0;
+    for first in (0..bricks).step_by(RELEASE_BRICKS) {
+        let range = first * per_brick..(first + RELEASE_BRICKS).min(bricks) * per_brick;
+        let (s, t, l) = (&mut spare.as_mut_slice()[range.clone()], &total.as_slice()[range.clone()], &last.as_slice()[range]);
+        for ((s, t), l) in s.chunks_mut(BRICK_VOXELS).zip(t.chunks(BRICK_VOXELS)).zip(l.chunks(BRICK_VOXELS)) {
+            let f = factor(block);
+            let mut sum = 0.0;
+            for ((s, &t), &l) in s.iter_mut().zip(t).zip(l) {
+                *s = t + f * l;
+                sum += l as f64;
+            }
+            block_sum(block, sum);
+            block += 1;
         }
-        block_sum(block, sum);
+        for field in [&*spare, total, last] {
+            field.release_stored(first, RELEASE_BRICKS);
+        }
     }
 }

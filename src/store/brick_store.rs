@@ -172,6 +172,25 @@ impl BrickStore {
         self.density_brick(b).map_or(0.0, |d| d[l])
     }
 
+    /// Drops the density pages of occupied slots `first .. first + count` from the resident set
+    /// (the values are kept; see [`Field`]'s docs on resident memory).
+    pub fn release_density(&self, first: usize, count: usize) {
+        let brick = BRICK_VOXELS * 4;
+        #[cfg(unix)]
+        super::field::release_pages(
+            // SAFETY: a read-only shared file mapping keeps its contents under DONTNEED.
+            |o, l| unsafe { self.density.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, o, l) },
+            self.density.len(),
+            first * brick,
+            count * brick,
+        );
+    }
+
+    /// Drops every density page from the resident set.
+    pub fn release_all_density(&self) {
+        self.release_density(0, self.occupied_count());
+    }
+
     fn density_slice(&self) -> &[f32] {
         // The map is page-aligned, so the cast only fails for an empty map (all bricks empty).
         bytemuck::try_cast_slice(&self.density[..]).unwrap_or(&[])

@@ -1,6 +1,13 @@
 //! [`Field`]: a per-voxel quantity with one or more components, in a memory-mapped file beside the
 //! density. Per stored brick: `components × 4096` f32, component-major (`[c][local voxel]`), so one
 //! component of one brick is a contiguous 16 KiB block, as the GPU kernels read it.
+//!
+//! Resident memory: pages of a memory-mapped file count in the process's resident set once touched,
+//! and stay there while memory is plentiful. Passes over fields far larger than RAM therefore hand
+//! back what they are done with ([`Field::release_stored`], [`Field::release_all`]): the pages leave
+//! the resident set but stay in the page cache (dirty ones are written back as usual), so nothing
+//! is lost and the next touch reads them again. Clearing ([`Field::fill_zero`]) truncates the file
+//! instead of writing zeros, so it touches no page at all.
 
 use super::grid::{BrickGrid, BRICK_VOXELS};
 use super::table::BrickTable;
@@ -25,6 +32,7 @@ pub struct Field {
     components: u32,
     coverage: Coverage,
     table: Arc<BrickTable>,
+    file: File,
     map: MmapMut,
 }
 
@@ -82,7 +90,7 @@ impl Field {
         // SAFETY: the field file belongs to the store directory; like every memory-mapped file it must
         // not be truncated by another process while mapped.
         let map = unsafe { MmapMut::map_mut(&file) }.map_err(StoreError::io(&path, "memory-map"))?;
-        Ok(Field { name: name.to_string(), path, components, coverage, table, map })
+        Ok(Field { name: name.to_string(), path, components, coverage, table, file, map })
     }
 
     pub fn components(&self) -> u32 {
@@ -145,8 +153,26 @@ impl Field {
         self.brick(b).map_or(0.0, |d| d[c as usize * BRICK_VOXELS + l])
     }
 
-    pub fn fill_zero(&mut self) {
-        self.as_mut_slice().fill(0.0);
+    /// Sets every value to zero by truncating the file and extending it again: no page is touched,
+    /// the pages in memory are dropped and the file becomes a hole again (no disk used).
+    pub fn fill_zero(&mut self) -> Result<(), StoreError> {
+        let len = self.map.len() as u64;
+        // The map stays valid across the truncation: nothing touches it until the file has its
+        // length back (`&mut self`), and then its pages read as zeros.
+        self.file.set_len(0).map_err(StoreError::io(&self.path, "truncate"))?;
+        self.file.set_len(len).map_err(StoreError::io(&self.path, "size"))
+    }
+
+    /// Drops the pages of stored bricks `first .. first + count` from the resident set (see the
+    /// module docs; the values are kept).
+    pub fn release_stored(&self, first: usize, count: usize) {
+        let brick_bytes = self.brick_len() * 4;
+        release_mut(&self.map, first * brick_bytes, count * brick_bytes);
+    }
+
+    /// Drops every page of the field from the resident set (the values are kept).
+    pub fn release_all(&self) {
+        release_mut(&self.map, 0, self.map.len());
     }
 
     /// Writes the mapped pages back to the file (blocking).
@@ -225,4 +251,30 @@ fn shape(
             message: format!("{components} components make the file larger than 2^64 bytes"),
         })?;
     Ok((path, len))
+}
+
+/// Drops `len` bytes at `offset` of a shared file mapping from the resident set (clamped to the
+/// map). The pages' contents live on in the page cache and the file (MADV_DONTNEED on a *shared
+/// file* mapping never loses data, unlike on private or anonymous memory); a later access faults
+/// them back in. Best effort: a failure only leaves the pages resident.
+pub(crate) fn release_pages(advise: impl FnOnce(usize, usize) -> std::io::Result<()>, map_len: usize, offset: usize, len: usize) {
+    let len = len.min(map_len.saturating_sub(offset));
+    if len > 0 {
+        if let Err(e) = advise(offset, len) {
+            tracing::debug!(offset, len, "madvise(DONTNEED) failed, the pages stay resident: {e}");
+        }
+    }
+}
+
+/// `release_pages` for a writable map.
+fn release_mut(map: &MmapMut, offset: usize, len: usize) {
+    #[cfg(unix)]
+    release_pages(
+        // SAFETY: a shared file mapping keeps its contents under DONTNEED (see `release_pages`),
+        // so no reference into the map ever sees a changed value.
+        |o, l| unsafe { map.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, o, l) },
+        map.len(),
+        offset,
+        len,
+    );
 }

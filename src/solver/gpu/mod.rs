@@ -84,8 +84,8 @@ struct Slot {
     download: Buffer,
     /// The slice whose download into this slot's staging is not yet scattered back.
     pending: Option<(u64, SliceLayout)>,
-    /// The scatter of this slot's download staging still being copied.
-    scattering: Option<Ticket>,
+    /// The scatter of this slot's download staging still being copied, and its slice.
+    scattering: Option<(Ticket, SliceLayout)>,
 }
 
 impl Slot {
@@ -394,10 +394,8 @@ impl<'a> GpuBackend<'a> {
         for s in order {
             self.retire_slot(s)?;
         }
-        for slot in &mut self.slots {
-            if let Some(t) = slot.scattering.take() {
-                t.wait();
-            }
+        for s in 0..n_slots {
+            self.finish_scatter(s);
         }
         if let Some(p) = self.profiler.as_mut() {
             p.collect(&self.ctx)?;
@@ -408,15 +406,34 @@ impl<'a> GpuBackend<'a> {
 
     /// Makes slot `s` free: waits for its last slice's download and scatters it back to the store.
     fn retire_slot(&mut self, s: usize) -> Result<(), SolveError> {
-        if let Some(t) = self.slots[s].scattering.take() {
-            t.wait();
-        }
+        self.finish_scatter(s);
         let Some((v, layout)) = self.slots[s].pending.take() else { return Ok(()) };
         self.timelines()?.download.wait(&self.ctx, v, WAIT_FOREVER)?;
         let staging = self.slots[s].download.mapped().ok_or(SolveError::Internal("download staging is not mapped"))?.as_ptr();
         let regions = layout.scatter(self.fields, staging);
-        self.slots[s].scattering = Some(self.copier.copy(regions));
+        self.slots[s].scattering = Some((self.copier.copy(regions), layout));
         Ok(())
+    }
+
+    /// Waits for slot `s`'s scatter, then hands the pages of its slice's bricks back (they are
+    /// done with until the next pass: this keeps the resident memory to the slices in flight).
+    fn finish_scatter(&mut self, s: usize) {
+        let Some((ticket, layout)) = self.slots[s].scattering.take() else { return };
+        ticket.wait();
+        let fields = &*self.fields;
+        let mut slots = layout.occupied.iter().filter_map(|&b| self.store.slot(b)).map(|k| k as usize).peekable();
+        // Runs of consecutive slots, one release each.
+        while let Some(first) = slots.next() {
+            let mut count = 1;
+            while slots.peek() == Some(&(first + count)) {
+                slots.next();
+                count += 1;
+            }
+            self.store.release_density(first, count);
+            for field in [&fields.source_prev, &fields.source_next, &fields.fluence] {
+                field.release_stored(first, count);
+            }
+        }
     }
 
     /// Fills slot `s`'s upload staging with the slice's bricks (waits for the copies).
@@ -580,9 +597,7 @@ impl<'a> GpuBackend<'a> {
     /// Submits the download of the slice pending in slot `s`.
     fn submit_download(&mut self, s: usize) -> Result<(), SolveError> {
         // The staging is free once the scatter of its previous contents is done.
-        if let Some(t) = self.slots[s].scattering.take() {
-            t.wait();
-        }
+        self.finish_scatter(s);
         let queue = self.ctx.transfer_queue().unwrap_or(self.ctx.compute_queue());
         let slot = &self.slots[s];
         let Some((v, layout)) = slot.pending.as_ref() else { return Ok(()) };
@@ -643,7 +658,7 @@ impl<'a> GpuBackend<'a> {
             }
         }
         for slot in &mut self.slots {
-            if let Some(t) = slot.scattering.take() {
+            if let Some((t, _)) = slot.scattering.take() {
                 t.wait();
             }
         }
@@ -686,7 +701,7 @@ impl Drop for GpuBackend<'_> {
 impl Backend for GpuBackend<'_> {
     fn propagate_order(&mut self, order: u32) -> Result<Tallies, SolveError> {
         let plan = self.plan;
-        self.fields.begin_order();
+        self.fields.begin_order()?;
         let mut tallies = Tallies::default();
         if order == 0 {
             let beams = std::mem::take(&mut self.beam_tables);
