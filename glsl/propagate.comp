@@ -49,7 +49,17 @@ void main() {
     ivec2 prev_o = offsets[base + (pc.t0 == 0u ? 0u : pc.t0 - 1u)];
     int vb = wrap_mod(int(p) + prev_o.x, int(pc.nb));
     int vc = wrap_mod(int(q) + prev_o.y, int(pc.nc));
-    for (uint t = pc.t0; t < pc.t1; ++t) {
+    // Vacuum: the radiance does not change, only wraps matter. Offsets are monotonic in t, so a ray
+    // whose column stays inside [0, n) at the slice's last plane stayed inside all along: nothing
+    // happens to it in this slice and the plane loop is skipped (rays born at plane 0 still loop).
+    uint t_start = pc.t0;
+    if ((pc.flags & FLAG_VACUUM) != 0u && pc.t0 > 0u) {
+        ivec2 o_end = offsets[base + pc.t1 - 1u];
+        int eb = vb + o_end.x - prev_o.x;
+        int ec = vc + o_end.y - prev_o.y;
+        if (eb >= 0 && eb < int(pc.nb) && ec >= 0 && ec < int(pc.nc)) t_start = pc.t1;
+    }
+    for (uint t = t_start; t < pc.t1; ++t) {
         ivec2 o = offsets[base + t];
         bool born = (t == 0u);
         if (t > 0u) {

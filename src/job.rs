@@ -39,6 +39,9 @@ pub struct SolveJob {
     pub keep_store: bool,
     /// Skip rendering the image.
     pub no_image: bool,
+    /// Skip exporting fluence.* and source.* as dense raw volumes (they take 4 bytes per voxel and
+    /// component even where bricks are empty; with `keep_store` the solved fields stay in brick form).
+    pub no_fields: bool,
     /// Device memory budget in bytes; overrides the scene's `solver.device_memory_budget`.
     pub device_memory_budget: Option<u64>,
     /// Continue from the checkpoint in `OUT/.lpm-work` if there is one.
@@ -152,48 +155,50 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
         ["r", "g", "b"].iter().map(|s| s.to_string()).collect()
     };
     let mut outputs = Vec::new();
-    output::export_field(
-        &fields.fluence_total,
-        &store,
-        &job.out,
-        "fluence",
-        &FieldMeta {
-            quantity: "fluence".into(),
-            units: "radiance units × sr (W/m² for radiance in W/m²/sr)".into(),
-            components: channel_names.clone(),
-            description: "fluence φ = ∫L dω over all scattering orders, per voxel".into(),
-        },
-        output::EmptyBricks::NotSolved,
-    )?;
-    outputs.extend(["fluence.raw", "fluence.json", "fluence.nhdr"].map(String::from));
-    let source_names: Vec<String> = if plan.storage.is_isotropic() {
-        channel_names.clone()
-    } else {
-        (0..plan.storage.len()).flat_map(|d| channel_names.iter().map(move |c| format!("d{d}.{c}"))).collect()
-    };
-    output::export_field(
-        &fields.source_total,
-        &store,
-        &job.out,
-        "source",
-        &FieldMeta {
-            quantity: "in-scattered source".into(),
-            units: "radiance per unit length".into(),
-            components: source_names,
-            description: if plan.storage.is_isotropic() {
-                "in-scattered source J = σs∫p·L dω' summed over orders (isotropic: one value per channel)".into()
-            } else {
-                format!(
-                    "in-scattered source J per storage direction summed over orders; {} storage directions ({}×{} cube-face cells per face), component = direction·channels + channel",
-                    plan.storage.len(),
-                    plan.storage.per_face,
-                    plan.storage.per_face
-                )
+    if !job.no_fields {
+        output::export_field(
+            &fields.fluence_total,
+            &store,
+            &job.out,
+            "fluence",
+            &FieldMeta {
+                quantity: "fluence".into(),
+                units: "radiance units × sr (W/m² for radiance in W/m²/sr)".into(),
+                components: channel_names.clone(),
+                description: "fluence φ = ∫L dω over all scattering orders, per voxel".into(),
             },
-        },
-        output::EmptyBricks::Zero,
-    )?;
-    outputs.extend(["source.raw", "source.json", "source.nhdr"].map(String::from));
+            output::EmptyBricks::NotSolved,
+        )?;
+        outputs.extend(["fluence.raw", "fluence.json", "fluence.nhdr"].map(String::from));
+        let source_names: Vec<String> = if plan.storage.is_isotropic() {
+            channel_names.clone()
+        } else {
+            (0..plan.storage.len()).flat_map(|d| channel_names.iter().map(move |c| format!("d{d}.{c}"))).collect()
+        };
+        output::export_field(
+            &fields.source_total,
+            &store,
+            &job.out,
+            "source",
+            &FieldMeta {
+                quantity: "in-scattered source".into(),
+                units: "radiance per unit length".into(),
+                components: source_names,
+                description: if plan.storage.is_isotropic() {
+                    "in-scattered source J = σs∫p·L dω' summed over orders (isotropic: one value per channel)".into()
+                } else {
+                    format!(
+                        "in-scattered source J per storage direction summed over orders; {} storage directions ({}×{} cube-face cells per face), component = direction·channels + channel",
+                        plan.storage.len(),
+                        plan.storage.per_face,
+                        plan.storage.per_face
+                    )
+                },
+            },
+            output::EmptyBricks::Zero,
+        )?;
+        outputs.extend(["source.raw", "source.json", "source.nhdr"].map(String::from));
+    }
     phases.push(("export".to_string(), t.elapsed().as_secs_f64()));
 
     if !job.no_image {

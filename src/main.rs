@@ -48,6 +48,11 @@ enum Command {
         /// Do not render image.exr / image.png.
         #[arg(long)]
         no_image: bool,
+        /// Do not export fluence.* and source.* (dense raw volumes: 4 bytes per voxel and component,
+        /// empty bricks included, which for a large sparse volume can dwarf the brick store). With
+        /// --keep-store the solved fields are kept in brick form in OUT/store.
+        #[arg(long)]
+        no_fields: bool,
         /// Device memory the solver may allocate (slices, ray state, staging), e.g. 256M or 2G
         /// (K/M/G/T = powers of 1024). Default: the scene's solver.device_memory_budget, else half
         /// of the device's memory heap. Smaller budgets cut the sweeps finer; results are identical.
@@ -178,7 +183,7 @@ fn main() {
 
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Solve { scene, out, backend, device, validation, keep_store, no_image, device_memory_budget, resume } => {
+        Command::Solve { scene, out, backend, device, validation, keep_store, no_image, no_fields, device_memory_budget, resume } => {
             let mut vk = ContextOptions::default();
             if let Some(v) = validation {
                 vk.validation = v;
@@ -196,6 +201,7 @@ fn run(cli: Cli) -> Result<()> {
                 vk,
                 keep_store,
                 no_image,
+                no_fields,
                 device_memory_budget,
                 resume,
             };

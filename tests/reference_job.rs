@@ -90,6 +90,7 @@ fn furnace_reference_writes_its_outputs_and_agrees_with_the_solver() {
         vk: ContextOptions::default(),
         keep_store: false,
         no_image: false,
+        no_fields: false,
         device_memory_budget: None,
         resume: false,
     };

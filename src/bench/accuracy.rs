@@ -105,6 +105,7 @@ pub fn run(scene: &Path, out: &Path, opts: &AccuracyOptions, mut log: impl FnMut
                     vk: opts.vk.clone(),
                     keep_store: false,
                     no_image: true,
+                    no_fields: false,
                     device_memory_budget: None,
                     resume: false,
                 },

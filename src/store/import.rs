@@ -67,6 +67,25 @@ impl RawDensity {
             }
         }
         debug_assert!(e.iter().all(|&e| e <= BRICK_EDGE));
+        if brick[0] + 1 == self.grid.bricks[0] && brick[1] + 1 == self.grid.bricks[1] {
+            self.release_layer(brick[2]);
+        }
         Ok(())
+    }
+
+    /// Hands back the pages of brick layer `bz` (16 planes of z) once its last brick is read, so an
+    /// import of a file larger than RAM keeps a bounded resident set (the pages stay in the page
+    /// cache; a brick of the layer still being read elsewhere faults them back in).
+    fn release_layer(&self, bz: u32) {
+        let plane = self.grid.dims[0] as usize * self.grid.dims[1] as usize * 4;
+        let (first, planes) = (bz as usize * BRICK_EDGE as usize, BRICK_EDGE as usize);
+        #[cfg(unix)]
+        super::field::release_pages(
+            // SAFETY: a read-only shared file mapping keeps its contents under DONTNEED.
+            |o, l| unsafe { self.map.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, o, l) },
+            self.map.len(),
+            first * plane,
+            planes * plane,
+        );
     }
 }
