@@ -37,6 +37,7 @@ fn bench_scene() -> Scene {
             tolerance: 1e-4,
             device_memory_budget: None,
             extrapolate_tail: false,
+            storage_precision: StoragePrecision::Auto,
         },
         camera: None,
     }

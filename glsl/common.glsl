@@ -14,7 +14,7 @@ layout(push_constant) uniform Push {
     uint dir_count;     // directions in this dispatch (the face's, or 1 beam)
     uint channels;      // 1 or 3
     uint storage;       // storage directions of the source
-    uint flags;         // FLAG_*
+    uint flags;         // FLAG_*; with FLAG_HALF_SOURCE, bits 16-23: the f16 source's scale exponent + 128
     uint dir_base;      // first direction of this dispatch within the sweep's tables
     uint ray_base;      // index of the dispatch's first direction in the pass's ray buffers
     uint slab;          // bits 0-7: first local plane of the bricks' slab along a; bits 8-15: its planes
@@ -28,6 +28,10 @@ const uint FLAG_GAIN = 2u;       // rays gain the previous order's source
 const uint FLAG_EMIT = 4u;       // rays gain the emission σa·Le
 const uint FLAG_LAST_SLICE = 8u; // the slice ends the sweep: every ray leaves
 const uint FLAG_VACUUM = 16u;    // the slice has no occupied brick: rays only move (no slot buffers)
+// The previous source is f16, two per uint (lower address in the low half), each the source times
+// 2^e with e = ((flags >> 16) & 255) - 128. Keep in sync with `half_source_flags` in
+// src/solver/gpu/layout.rs.
+const uint FLAG_HALF_SOURCE = 32u;
 
 
 // Keep in sync with `GpuDirection` in src/solver/gpu/layout.rs.

@@ -13,11 +13,21 @@ layout(std430, binding = 0) readonly buffer Directions { Direction dirs[]; };
 layout(std430, binding = 1) readonly buffer Offsets { ivec2 offsets[]; };        // [dir][na]
 layout(std430, binding = 2) readonly buffer SlotTable { int medium_slot[]; };    // [slice brick] → slot or −1
 layout(std430, binding = 3) readonly buffer Density { float density[]; };        // [slot][slab voxel]
-layout(std430, binding = 4) readonly buffer SourcePrev { float j_prev[]; };      // [slot][d·C+ch][slab voxel]
+// The previous source: f32 bits, or f16 pairs with FLAG_HALF_SOURCE (see gained_source).
+layout(std430, binding = 4) readonly buffer SourcePrev { uint j_prev[]; };       // [slot][d·C+ch][slab voxel]
 layout(std430, binding = 5) buffer Rays { float ray_l[]; };                      // [dir][ch][ray]
 layout(std430, binding = 6) buffer RaysIn { float ray_in[]; };                   // [dir][ch][ray]
 layout(std430, binding = 7) buffer RaysOut { float ray_out[]; };                 // [dir][ch][ray]
 layout(std430, binding = 8) writeonly buffer Deposit { float deposit[]; };       // [dispatch dir][ch][plane][vc][vb]
+
+// Element i of the previous source. f16 values are unscaled by 2^-e (exact: a power of two); slab
+// voxel counts are multiples of 256, so every brick's components start on a whole uint.
+float gained_source(uint i) {
+    if ((pc.flags & FLAG_HALF_SOURCE) == 0u) return uintBitsToFloat(j_prev[i]);
+    vec2 pair = unpackHalf2x16(j_prev[i >> 1]);
+    int e = int((pc.flags >> 16) & 255u) - 128;
+    return ldexp((i & 1u) == 0u ? pair.x : pair.y, -e);
+}
 
 void main() {
     uint p = gl_GlobalInvocationID.x;
@@ -93,7 +103,7 @@ void main() {
             float j = 0.0;
             if ((pc.flags & FLAG_GAIN) != 0u) {
                 uint comps = pc.storage * C;
-                j = j_prev[(uint(slot) * comps + dir.gain_storage * C + ch) * sv + local];
+                j = gained_source((uint(slot) * comps + dir.gain_storage * C + ch) * sv + local);
                 if ((pc.flags & FLAG_EMIT) != 0u) j += rho * pc.emission[ch];
             }
             float s = dir.path_length;

@@ -149,6 +149,10 @@ enum BenchCommand {
         /// Solver tolerances to try (comma-separated).
         #[arg(long, value_delimiter = ',', default_value = "1e-2,1e-3,1e-4")]
         tolerances: Vec<f64>,
+        /// Storage precisions of the gained source to run each (k, tolerance) with (comma-separated:
+        /// f32, f16, auto).
+        #[arg(long, value_delimiter = ',', value_enum, default_value = "f32,f16")]
+        precisions: Vec<PrecisionArg>,
         /// Monte-Carlo photon counts per channel to try (comma-separated).
         #[arg(long, value_delimiter = ',', default_value = "100000,400000,1600000")]
         samples: Vec<f64>,
@@ -162,6 +166,13 @@ enum BenchCommand {
         #[arg(long, default_value_t = 0.05)]
         max_rel_stderr: f64,
     },
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum PrecisionArg {
+    F32,
+    F16,
+    Auto,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -256,11 +267,19 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Bench {
-            what: BenchCommand::Accuracy { scene, out, k, tolerances, samples, reference_samples, backend, max_rel_stderr },
+            what: BenchCommand::Accuracy { scene, out, k, tolerances, precisions, samples, reference_samples, backend, max_rel_stderr },
         } => {
             let options = lpm::bench::accuracy::AccuracyOptions {
                 directions_per_face: k,
                 tolerances,
+                precisions: precisions
+                    .iter()
+                    .map(|p| match p {
+                        PrecisionArg::F32 => lpm::scene::StoragePrecision::F32,
+                        PrecisionArg::F16 => lpm::scene::StoragePrecision::F16,
+                        PrecisionArg::Auto => lpm::scene::StoragePrecision::Auto,
+                    })
+                    .collect(),
                 photons: samples.iter().map(|&s| s.max(1.0) as u64).collect(),
                 reference_photons: reference_samples.max(1.0) as u64,
                 backend: match backend {
@@ -272,19 +291,20 @@ fn run(cli: Cli) -> Result<()> {
             };
             let report = lpm::bench::accuracy::run(&scene, &out, &options, |line| tracing::info!("{line}"))?;
             println!(
-                "{:<12} {:<22} {:>10} {:>12} {:>12} {:>12}",
-                "method", "setting", "seconds", "rel. L2", "noise-corr.", "bias"
+                "{:<12} {:<26} {:>10} {:>12} {:>12} {:>12} {:>14}",
+                "method", "setting", "seconds", "rel. L2", "noise-corr.", "bias", "device bytes"
             );
             for r in &report.rows {
                 let f = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.3e}"));
                 println!(
-                    "{:<12} {:<22} {:>10.3} {:>12} {:>12} {:>12}",
+                    "{:<12} {:<26} {:>10.3} {:>12} {:>12} {:>12} {:>14}",
                     r.method,
                     r.setting,
                     r.seconds,
                     f(r.relative_l2),
                     f(r.noise_corrected_l2),
-                    f(r.mean_bias)
+                    f(r.mean_bias),
+                    r.peak_device_bytes.map_or("n/a".to_string(), |b| b.to_string())
                 );
             }
             println!("wrote accuracy.json, accuracy.csv, accuracy.png and accuracy.svg to {}", out.display());

@@ -239,10 +239,19 @@ fn bench_accuracy_writes_json_csv_and_plots() {
     assert!(o.status.success(), "{}", stderr(&o));
     let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("accuracy.json")).unwrap()).unwrap();
     let rows = report["rows"].as_array().unwrap();
-    assert_eq!(rows.len(), 4);
+    // Two k × the default precisions (f32, f16), then two photon counts.
+    assert_eq!(rows.len(), 6);
     assert!(rows.iter().all(|r| r["seconds"].as_f64().unwrap() > 0.0 && r["relative_l2"].is_number()));
+    for pair in rows[..4].chunks(2) {
+        let (a, b) = (&pair[0], &pair[1]);
+        assert_eq!((a["storage_precision"].as_str(), b["storage_precision"].as_str()), (Some("f32"), Some("f16")), "{pair:?}");
+        assert!(b["planned_device_bytes"].as_u64().unwrap() < a["planned_device_bytes"].as_u64().unwrap(), "{pair:?}");
+        let (ea, eb) = (a["relative_l2"].as_f64().unwrap(), b["relative_l2"].as_f64().unwrap());
+        assert!((ea - eb).abs() < 1e-2 * ea.max(1e-3), "f16 error {eb} vs f32 error {ea}");
+    }
     let csv = std::fs::read_to_string(out.join("accuracy.csv")).unwrap();
-    assert_eq!(csv.lines().count(), 5);
+    assert_eq!(csv.lines().count(), 7);
+    assert!(csv.lines().next().unwrap().contains("storage_precision,peak_device_bytes"));
     assert!(std::fs::read_to_string(out.join("accuracy.svg")).unwrap().contains("Monte Carlo"));
     assert!(std::fs::metadata(out.join("accuracy.png")).unwrap().len() > 1000);
 }

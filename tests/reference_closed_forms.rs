@@ -23,6 +23,7 @@ fn scene(dims: [u32; 3], h: f64, sigma_t: f64, albedo: f64, g: f64, emission: f6
             tolerance: 1e-3,
             device_memory_budget: None,
             extrapolate_tail: false,
+            storage_precision: StoragePrecision::Auto,
         },
         camera: None,
     }

@@ -1,16 +1,19 @@
 //! `lpm bench accuracy`: time against error for the solver and the Monte-Carlo reference, on the
 //! same axes.
 //!
-//! A long Monte-Carlo run is the reference. The solver runs across directions per face and
-//! tolerances; the Monte-Carlo reference runs again across photon counts (other seeds). Every run
-//! is timed and compared with the reference over the voxels where the reference's relative standard
-//! error is small ([`crate::compare`]). The results go to `accuracy.json`, `accuracy.csv` and a
-//! log-log plot `accuracy.png` / `accuracy.svg` of seconds against relative L2 error.
+//! A long Monte-Carlo run is the reference. The solver runs across directions per face, tolerances
+//! and storage precisions of the gained source (f32 against f16 at otherwise equal settings, with
+//! the device bytes each used); the Monte-Carlo reference runs again across photon counts (other
+//! seeds). Every run is timed and compared with the reference over the voxels where the reference's
+//! relative standard error is small ([`crate::compare`]). The results go to `accuracy.json`,
+//! `accuracy.csv` and a log-log plot `accuracy.png` / `accuracy.svg` of seconds against relative L2
+//! error, one line per directions per face and precision.
 
 use crate::compare::{compare_dirs, CompareOptions, Comparison};
 use crate::job::{self, SolveJob};
 use crate::plot::{Figure, Series, Style};
 use crate::reference::job::{self as reference_job, ReferenceJob};
+use crate::scene::StoragePrecision;
 use crate::solver::BackendKind;
 use crate::vk::ContextOptions;
 use serde::Serialize;
@@ -21,6 +24,8 @@ use std::time::Instant;
 pub struct AccuracyOptions {
     pub directions_per_face: Vec<u32>,
     pub tolerances: Vec<f64>,
+    /// `solver.storage_precision` values to run each (k, tolerance) with.
+    pub precisions: Vec<StoragePrecision>,
     pub photons: Vec<u64>,
     pub reference_photons: u64,
     pub backend: BackendKind,
@@ -32,8 +37,10 @@ pub struct AccuracyOptions {
 pub struct AccuracyRow {
     /// "lpm" or "monte-carlo".
     pub method: String,
-    /// The setting, e.g. "k=5 tol=1e-4" or "photons=1000000".
+    /// The setting, e.g. "k=5 tol=1e-4 f16" or "photons=1000000".
     pub setting: String,
+    /// Solver only: the storage precision of the gained source the plan used ("f16" or "f32").
+    pub storage_precision: Option<String>,
     pub seconds: f64,
     pub relative_l2: Option<f64>,
     pub rmse: Option<f64>,
@@ -46,6 +53,9 @@ pub struct AccuracyRow {
     /// Solver only: orders run and the final residual.
     pub orders: Option<u32>,
     pub residual: Option<f64>,
+    /// Solver on the GPU only: the peak device allocation and the memory plan's bytes.
+    pub peak_device_bytes: Option<u64>,
+    pub planned_device_bytes: Option<u64>,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -92,28 +102,37 @@ pub fn run(scene: &Path, out: &Path, opts: &AccuracyOptions, mut log: impl FnMut
 
     for &k in &opts.directions_per_face {
         for &tolerance in &opts.tolerances {
-            let setting = format!("k={k} tol={tolerance:e}");
-            log(&format!("lpm {setting}"));
-            let dir = runs.join(format!("lpm-k{k}-tol{tolerance:e}"));
-            let scene_copy = with_solver_settings(scene, &dir, k, tolerance)?;
-            let t = Instant::now();
-            let report = job::run(
-                &SolveJob {
-                    scene: scene_copy,
-                    out: dir.clone(),
-                    backend: opts.backend,
-                    vk: opts.vk.clone(),
-                    keep_store: false,
-                    no_image: true,
-                    no_fields: false,
-                    device_memory_budget: None,
-                    resume: false,
-                },
-                |_, _| {},
-            )?;
-            let seconds = t.elapsed().as_secs_f64();
-            let c = compare_dirs(&dir, &reference_dir, &compare_options)?;
-            rows.push(row("lpm", setting, seconds, &c, Some(report.orders), Some(report.final_residual)));
+            for &precision in &opts.precisions {
+                let name = precision_name(precision);
+                let setting = format!("k={k} tol={tolerance:e} {name}");
+                log(&format!("lpm {setting}"));
+                let dir = runs.join(format!("lpm-k{k}-tol{tolerance:e}-{name}"));
+                let scene_copy = with_solver_settings(scene, &dir, k, tolerance, precision)?;
+                let t = Instant::now();
+                let report = job::run(
+                    &SolveJob {
+                        scene: scene_copy,
+                        out: dir.clone(),
+                        backend: opts.backend,
+                        vk: opts.vk.clone(),
+                        keep_store: false,
+                        no_image: true,
+                        no_fields: false,
+                        device_memory_budget: None,
+                        resume: false,
+                    },
+                    |_, _| {},
+                )?;
+                let seconds = t.elapsed().as_secs_f64();
+                let c = compare_dirs(&dir, &reference_dir, &compare_options)?;
+                let mut r = row("lpm", setting, seconds, &c, Some(report.orders), Some(report.final_residual));
+                r.storage_precision = Some(report.plan.storage_precision.name().to_string());
+                if let Some(m) = &report.device_memory {
+                    r.peak_device_bytes = Some(report.peak_device_bytes);
+                    r.planned_device_bytes = Some(m.planned_bytes);
+                }
+                rows.push(r);
+            }
         }
     }
     for (i, &photons) in opts.photons.iter().enumerate() {
@@ -151,6 +170,7 @@ fn row(method: &str, setting: String, seconds: f64, c: &Comparison, orders: Opti
     AccuracyRow {
         method: method.into(),
         setting,
+        storage_precision: None,
         seconds,
         relative_l2: m.relative_l2,
         rmse: m.rmse,
@@ -161,12 +181,23 @@ fn row(method: &str, setting: String, seconds: f64, c: &Comparison, orders: Opti
         voxels_compared: c.fluence.voxels_used,
         orders,
         residual,
+        peak_device_bytes: None,
+        planned_device_bytes: None,
+    }
+}
+
+/// The scene file's spelling of a storage precision.
+pub fn precision_name(p: StoragePrecision) -> &'static str {
+    match p {
+        StoragePrecision::Auto => "auto",
+        StoragePrecision::F16 => "f16",
+        StoragePrecision::F32 => "f32",
     }
 }
 
 /// A copy of the scene with its solver settings replaced, written next to the run. A raw volume's
 /// path is rewritten to the absolute path the loader resolved, so the copy reads the same data.
-fn with_solver_settings(scene: &Path, dir: &Path, k: u32, tolerance: f64) -> Result<PathBuf, AccuracyError> {
+fn with_solver_settings(scene: &Path, dir: &Path, k: u32, tolerance: f64, precision: StoragePrecision) -> Result<PathBuf, AccuracyError> {
     let loaded = crate::scene::Scene::load(scene).map_err(job::JobError::from)?;
     let text = std::fs::read_to_string(scene).map_err(|source| AccuracyError::Write { path: scene.to_path_buf(), source })?;
     let mut value: toml::Value = text
@@ -177,6 +208,7 @@ fn with_solver_settings(scene: &Path, dir: &Path, k: u32, tolerance: f64) -> Res
         if let Some(solver) = solver.as_table_mut() {
             solver.insert("directions_per_face".into(), toml::Value::Integer(k as i64));
             solver.insert("tolerance".into(), toml::Value::Float(tolerance));
+            solver.insert("storage_precision".into(), toml::Value::String(precision_name(precision).into()));
             if solver.get("storage_directions_per_face").and_then(toml::Value::as_integer).is_some_and(|ks| ks > k as i64) {
                 solver.insert("storage_directions_per_face".into(), toml::Value::Integer(k as i64));
             }
@@ -199,11 +231,11 @@ fn write_outputs(out: &Path, report: &AccuracyReport) -> Result<(), AccuracyErro
     crate::output::write_json_atomic(&out.join("accuracy.json"), report)?;
     let opt = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:e}"));
     let mut csv = String::from(
-        "method,setting,seconds,relative_l2,rmse,max_relative_error,mean_bias,reference_noise_l2,noise_corrected_l2,voxels_compared,orders,residual\n",
+        "method,setting,seconds,relative_l2,rmse,max_relative_error,mean_bias,reference_noise_l2,noise_corrected_l2,voxels_compared,orders,residual,storage_precision,peak_device_bytes,planned_device_bytes\n",
     );
     for r in &report.rows {
         csv.push_str(&format!(
-            "{},{},{:e},{},{},{},{},{},{},{},{},{}\n",
+            "{},{},{:e},{},{},{},{},{},{},{},{},{},{},{},{}\n",
             r.method,
             r.setting,
             r.seconds,
@@ -215,25 +247,32 @@ fn write_outputs(out: &Path, report: &AccuracyReport) -> Result<(), AccuracyErro
             opt(r.noise_corrected_l2),
             r.voxels_compared,
             r.orders.map_or(String::new(), |o| o.to_string()),
-            opt(r.residual)
+            opt(r.residual),
+            r.storage_precision.as_deref().unwrap_or(""),
+            r.peak_device_bytes.map_or(String::new(), |b| b.to_string()),
+            r.planned_device_bytes.map_or(String::new(), |b| b.to_string())
         ));
     }
     crate::output::write_atomic(&out.join("accuracy.csv"), |w| std::io::Write::write_all(w, csv.as_bytes()))?;
 
-    // One series per directions-per-face (its points are the tolerances), one for Monte Carlo.
+    // One series per directions-per-face and precision (its points are the tolerances), one for
+    // Monte Carlo. A setting reads "k=… tol=… precision".
     let point = |r: &AccuracyRow| r.relative_l2.map(|e| (r.seconds, e));
+    let line_of = |r: &AccuracyRow| {
+        let words: Vec<&str> = r.setting.split(' ').collect();
+        words.iter().filter(|w| !w.starts_with("tol=")).copied().collect::<Vec<_>>().join(" ")
+    };
     let mut series: Vec<Series> = Vec::new();
-    let mut ks: Vec<&str> = Vec::new();
+    let mut lines: Vec<String> = Vec::new();
     for r in report.rows.iter().filter(|r| r.method == "lpm") {
-        let k = r.setting.split(' ').next().unwrap_or("");
-        if !ks.contains(&k) {
-            ks.push(k);
+        let line = line_of(r);
+        if !lines.contains(&line) {
+            lines.push(line);
         }
     }
-    for k in ks {
-        let prefix = format!("{k} ");
-        let points = report.rows.iter().filter(|r| r.method == "lpm" && r.setting.starts_with(&prefix)).filter_map(point).collect();
-        series.push(Series { name: format!("LPM {k}, tolerances"), points, style: Style::LineAndMarkers });
+    for line in lines {
+        let points = report.rows.iter().filter(|r| r.method == "lpm" && line_of(r) == line).filter_map(point).collect();
+        series.push(Series { name: format!("LPM {line}, tolerances"), points, style: Style::LineAndMarkers });
     }
     series.push(Series {
         name: "Monte Carlo, photon counts".into(),

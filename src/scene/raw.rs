@@ -58,6 +58,7 @@ pub(crate) struct RawSolver {
     pub tolerance: Option<f64>,
     pub device_memory_budget: Option<ByteSize>,
     pub extrapolate_tail: Option<bool>,
+    pub storage_precision: Option<String>,
 }
 
 #[derive(Debug, Deserialize)]

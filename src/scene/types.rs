@@ -83,6 +83,19 @@ pub struct SolverSettings {
     /// Estimate the orders not propagated as a geometric series and add them (for high albedo),
     /// stopping once that estimate is within the tolerance.
     pub extrapolate_tail: bool,
+    /// Precision of the source the rays gain, as stored on the device (`solver.storage_precision`).
+    pub storage_precision: StoragePrecision,
+}
+
+/// `solver.storage_precision`: how the previous order's source (the one the rays gain) is stored
+/// on the device. Accumulators and the brick store stay f32 whatever the choice.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum StoragePrecision {
+    /// The plan decides from the tolerance (f16 when f16's rounding is well below it).
+    #[default]
+    Auto,
+    F16,
+    F32,
 }
 
 #[derive(Clone, Debug, PartialEq)]

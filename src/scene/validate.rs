@@ -5,8 +5,8 @@ use super::raw::{
     ByteSize, Channels, RawCamera, RawLight, RawMedium, RawScene, RawSolver, RawVolume,
 };
 use super::{
-    Camera, Light, Medium, Projection, Scene, SceneError, Shape, SolverSettings, Volume,
-    VolumeSource,
+    Camera, Light, Medium, Projection, Scene, SceneError, Shape, SolverSettings,
+    StoragePrecision, Volume, VolumeSource,
 };
 use glam::DVec3;
 use std::path::{Path, PathBuf};
@@ -32,6 +32,7 @@ pub const DEFAULT_SEED: u64 = 1;
 const SHAPES: &str = "\"sphere\", \"box\", \"cloud\"";
 const LIGHT_KINDS: &str = "\"sky\", \"sun\"";
 const PROJECTIONS: &str = "\"pinhole\", \"orthographic\"";
+const PRECISIONS: &str = "\"auto\", \"f16\", \"f32\"";
 
 pub(crate) struct Validator<'a> {
     pub path: &'a Path,
@@ -336,6 +337,7 @@ impl Validator<'_> {
                 tolerance: DEFAULT_TOLERANCE,
                 device_memory_budget: None,
                 extrapolate_tail: false,
+                storage_precision: StoragePrecision::Auto,
             });
         };
         let k = match s.directions_per_face {
@@ -374,6 +376,17 @@ impl Validator<'_> {
             None => None,
             Some(b) => Some(self.byte_size("solver.device_memory_budget", &b)?),
         };
+        let storage_precision = match s.storage_precision.as_deref() {
+            None | Some("auto") => StoragePrecision::Auto,
+            Some("f16") => StoragePrecision::F16,
+            Some("f32") => StoragePrecision::F32,
+            Some(other) => {
+                return Err(self.err(
+                    "solver.storage_precision",
+                    format!("unknown storage precision \"{other}\", expected one of {PRECISIONS}"),
+                ))
+            }
+        };
         Ok(SolverSettings {
             directions_per_face: k,
             storage_directions_per_face: ks,
@@ -381,6 +394,7 @@ impl Validator<'_> {
             tolerance,
             device_memory_budget,
             extrapolate_tail: s.extrapolate_tail.unwrap_or(false),
+            storage_precision,
         })
     }
 

@@ -4,11 +4,13 @@
 //! It walks exactly the voxels the GPU walks (same offset tables, same wrap rule, same segment
 //! formulas) but keeps every field in memory, so it is meant for volumes that fit in RAM. Its loops
 //! read like the two kernels: `sweep` is `glsl/propagate.comp` and the deposit inside it is
-//! `glsl/collect.comp` applied one direction at a time.
+//! `glsl/collect.comp` applied one direction at a time. When the plan stores the gained source in
+//! f16, the twin rounds it exactly where the GPU does: once per order, before the rays gain it,
+//! with the same power-of-two scale (the GPU rounds its f32 sums, the twin its f64 ones).
 
 use super::energy::Tallies;
 use super::orders::Backend;
-use super::plan::{Plan, SweepDirection};
+use super::plan::{half_scale_exponent, Plan, Precision, SweepDirection};
 use super::segment::segment;
 use super::sweep::{column, FaceSweep};
 use super::SolveError;
@@ -19,6 +21,8 @@ pub struct CpuTwin<'a> {
     density: Vec<f64>,
     /// Sources per voxel, `[voxel][d·C + ch]`.
     j_prev: Vec<f64>,
+    /// The source the rays gain when the plan stores it in f16: `j_prev` rounded (else empty).
+    j_gain: Vec<f64>,
     j_next: Vec<f64>,
     j_total: Vec<f64>,
     /// Fluence per voxel, `[voxel][ch]`: over all orders, and of the order being propagated.
@@ -32,7 +36,9 @@ impl<'a> CpuTwin<'a> {
         let [nx, ny, nz] = plan.dims;
         let voxels = nx as usize * ny as usize * nz as usize;
         let comps = plan.source_components() as usize;
-        let bytes = voxels as u128 * (3 * comps + plan.channels as usize + 1) as u128 * 8;
+        let half = plan.source_precision == Precision::F16;
+        let sources = if half { 4 } else { 3 };
+        let bytes = voxels as u128 * (sources * comps + 2 * plan.channels as usize + 1) as u128 * 8;
         if bytes > 16 << 30 {
             return Err(SolveError::TooLargeForCpu { bytes: bytes as u64 });
         }
@@ -48,6 +54,7 @@ impl<'a> CpuTwin<'a> {
             plan,
             density: values,
             j_prev: vec![0.0; voxels * comps],
+            j_gain: if half { vec![0.0; voxels * comps] } else { Vec::new() },
             j_next: vec![0.0; voxels * comps],
             j_total: vec![0.0; voxels * comps],
             fluence: vec![0.0; voxels * plan.channels as usize],
@@ -107,7 +114,8 @@ impl<'a> CpuTwin<'a> {
                         let (st, ss, sa) = coeffs[ch];
                         let mut j = 0.0;
                         if gain {
-                            j = self.j_prev[v * comps + dir.gain_storage as usize * c + ch];
+                            let k = v * comps + dir.gain_storage as usize * c + ch;
+                            j = if self.j_gain.is_empty() { self.j_prev[k] } else { self.j_gain[k] };
                             if emit {
                                 j += rho * sa * plan.medium.emission[ch];
                             }
@@ -140,6 +148,15 @@ impl Backend for CpuTwin<'_> {
         let plan = self.plan;
         let mut tallies = Tallies::default();
         self.fluence_order.iter_mut().for_each(|f| *f = 0.0);
+        if plan.source_precision == Precision::F16 {
+            // What the GPU's copy workers do to the source during the gather.
+            let largest = self.j_prev.iter().fold(0f64, |m, &j| m.max(j.abs()));
+            let e = half_scale_exponent(largest as f32);
+            let (scale, unscale) = (2f64.powi(e), 2f64.powi(-e));
+            for (g, &j) in self.j_gain.iter_mut().zip(&self.j_prev) {
+                *g = half::f16::from_f64(j * scale).to_f64() * unscale;
+            }
+        }
         if order == 0 {
             for beam in &plan.beams {
                 tallies.add(&self.sweep(beam, true, false, false));

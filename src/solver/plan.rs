@@ -4,14 +4,19 @@
 //! - storage directions for the source: 1 when the medium is isotropic (g = 0), else k_s×k_s per face;
 //! - emission: only when some channel emits;
 //! - empty bricks: known from the store; they hold no medium and no source;
-//! - the sun(s): each a collimated beam swept along its own direction.
+//! - the sun(s): each a collimated beam swept along its own direction;
+//! - the storage precision of the source the rays gain (the previous order's): f16 when the
+//!   tolerance is at least [`F16_MIN_TOLERANCE`] (`solver.storage_precision = "auto"`), else f32.
+//!   Only that source is rounded, once per order as the rays gain it, and scaled by a power of two
+//!   chosen per order from its largest value ([`half_scale_exponent`]) so that f16's range never
+//!   clips it; the accumulators and the brick store stay f32.
 //!
 //! Everything both backends need to sweep a face is derived here ([`SweepDirection`]) so that the
 //! CPU twin and the GPU driver consume identical tables.
 
 use super::sweep::{lateral_slope, offsets, plane_path_length, FaceSweep};
 use crate::quadrature::{cube_face_of, phase, PropagationSet, StorageSet};
-use crate::scene::{Light, Medium, Scene};
+use crate::scene::{Light, Medium, Scene, StoragePrecision};
 use glam::DVec3;
 use serde::Serialize;
 
@@ -37,6 +42,56 @@ pub struct SweepDirection {
     pub power_per_radiance: f64,
 }
 
+/// The smallest tolerance at which `storage_precision = "auto"` stores the gained source in f16:
+/// f16 rounds to within 2^-11 ≈ 4.9e-4 relative, about half of it, and the rounding errors of
+/// neighbouring voxels and directions average out further in the fluence.
+pub const F16_MIN_TOLERANCE: f64 = 1e-3;
+
+/// How the source the rays gain is stored on the device (and rounded in the CPU twin).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Precision {
+    F16,
+    F32,
+}
+
+impl Precision {
+    /// "f16" or "f32".
+    pub fn name(self) -> &'static str {
+        match self {
+            Precision::F16 => "f16",
+            Precision::F32 => "f32",
+        }
+    }
+
+    /// Bytes of one stored value.
+    pub fn bytes(self) -> u64 {
+        match self {
+            Precision::F16 => 2,
+            Precision::F32 => 4,
+        }
+    }
+}
+
+/// The power of two e such that `max · 2^e` lies in [2^13, 2^14): values scaled by it fit f16
+/// (largest finite 65504) with room to spare, and keep f16's full relative precision down to
+/// 2^-27 of the largest. `max` ≤ 0 (a zero source) gives 0. The result lies in [−114, 127], so
+/// 2^e and 2^−e are normal f32 numbers (the scaling is exact) and e fits the shader's 8-bit field.
+pub fn half_scale_exponent(max: f32) -> i32 {
+    if max.is_nan() || max <= 0.0 || max == f32::INFINITY {
+        return 0;
+    }
+    let m = max.max(f32::MIN_POSITIVE);
+    // m ∈ [2^(k−1), 2^k) with k = biased exponent − 126.
+    let k = ((m.to_bits() >> 23) & 0xff) as i32 - 126;
+    (14 - k).clamp(-126, 127)
+}
+
+/// 2^e as an f32, exactly (e in [−126, 127], the range of [`half_scale_exponent`]).
+pub fn power_of_two(e: i32) -> f32 {
+    f32::from_bits(((e.clamp(-126, 127) + 127) as u32) << 23)
+}
+
 #[derive(Clone, Debug)]
 pub struct Plan {
     pub dims: [u32; 3],
@@ -56,6 +111,8 @@ pub struct Plan {
     pub extrapolate_tail: bool,
     pub bricks_total: usize,
     pub bricks_empty: usize,
+    /// Storage precision of the source the rays gain (the previous order's).
+    pub source_precision: Precision,
     /// Why each choice was made, for the report.
     pub reasons: Vec<String>,
 }
@@ -77,6 +134,8 @@ pub struct PlanSummary {
     pub max_orders: u32,
     pub tolerance: f64,
     pub extrapolate_tail: bool,
+    /// "f16" or "f32": how the source the rays gain is stored on the device.
+    pub storage_precision: Precision,
     pub reasons: Vec<String>,
 }
 
@@ -176,7 +235,33 @@ impl Plan {
             "no emission term: the medium does not emit".into()
         });
         reasons.push(format!("{bricks_empty} of {bricks_total} bricks are empty: no medium or source stored"));
-        reasons.push("fields stored in f32 (f16 storage is not implemented yet)".into());
+        let tolerance = scene.solver.tolerance;
+        let (source_precision, why) = match scene.solver.storage_precision {
+            StoragePrecision::F16 => (Precision::F16, "storage_precision = \"f16\" in the scene".to_string()),
+            StoragePrecision::F32 => (Precision::F32, "storage_precision = \"f32\" in the scene".to_string()),
+            StoragePrecision::Auto if tolerance >= F16_MIN_TOLERANCE => (
+                Precision::F16,
+                format!(
+                    "auto: the tolerance {tolerance:e} is at least {F16_MIN_TOLERANCE:e}, so f16's relative \
+                     rounding (2^-11 ≈ 4.9e-4) stays below it"
+                ),
+            ),
+            StoragePrecision::Auto => (
+                Precision::F32,
+                format!(
+                    "auto: the tolerance {tolerance:e} is below {F16_MIN_TOLERANCE:e}, so f16's relative \
+                     rounding (2^-11 ≈ 4.9e-4) could show in the result"
+                ),
+            ),
+        };
+        reasons.push(match source_precision {
+            Precision::F16 => format!(
+                "the source the rays gain is stored in f16, scaled per order by a power of two ({why}): \
+                 half the bytes of that source on the device and in the upload; accumulators and the \
+                 store stay f32"
+            ),
+            Precision::F32 => format!("the source the rays gain is stored in f32 ({why}); all fields are f32"),
+        });
 
         Plan {
             dims,
@@ -193,6 +278,7 @@ impl Plan {
             extrapolate_tail: scene.solver.extrapolate_tail,
             bricks_total,
             bricks_empty,
+            source_precision,
             reasons,
         }
     }
@@ -225,6 +311,7 @@ impl Plan {
             max_orders: self.max_orders,
             tolerance: self.tolerance,
             extrapolate_tail: self.extrapolate_tail,
+            storage_precision: self.source_precision,
             reasons: self.reasons.clone(),
         }
     }

@@ -170,6 +170,20 @@ impl Field {
         release_mut(&self.map, first * brick_bytes, count * brick_bytes);
     }
 
+    /// The largest |value| (0 for an empty field), read a few MiB at a time and handed back as it
+    /// goes, so the scan keeps the resident set bounded.
+    pub fn max_abs(&self) -> f32 {
+        const BRICKS: usize = 1024;
+        let per_brick = self.brick_len();
+        let values = self.as_slice();
+        let mut max = 0f32;
+        for (n, chunk) in values.chunks(BRICKS * per_brick).enumerate() {
+            max = chunk.iter().fold(max, |m, &v| m.max(v.abs()));
+            self.release_stored(n * BRICKS, BRICKS);
+        }
+        max
+    }
+
     /// Drops every page of the field from the resident set (the values are kept).
     pub fn release_all(&self) {
         release_mut(&self.map, 0, self.map.len());

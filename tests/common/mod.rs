@@ -19,6 +19,7 @@ pub fn scene(shape: Shape, dims: [u32; 3], sigma_t: [f64; 3], albedo: [f64; 3], 
             tolerance: 1e-6,
             device_memory_budget: None,
             extrapolate_tail: false,
+            storage_precision: StoragePrecision::Auto,
         },
         camera: None,
     }

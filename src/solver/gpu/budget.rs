@@ -12,6 +12,9 @@
 //! - **directions per dispatch** and **planes per dispatch**: the deposit buffer holds that many
 //!   directions and planes; free but for smaller dispatches.
 //!
+//! The previous source (the one the rays gain) counts at its storage precision: half the bytes of
+//! the new source when the plan stores it in f16, in the slot and in its upload staging.
+//!
 //! None of them changes the result: rays carry their radiance from plane to plane whatever the
 //! cut, and every voxel receives each direction's contribution as its own addition, in direction
 //! order (see `glsl/collect.comp`), so fluence and source are bitwise identical at any budget. The
@@ -116,13 +119,14 @@ pub fn plan_memory(
     let table_bytes = sets.iter().sum::<u64>() + sets.iter().copied().max().unwrap_or(0);
     let slot_bytes = (extent.bricks * 4).next_multiple_of(16);
     // One slot for sub-slices of `slab` planes: its device bytes (the slot table, then density, the
-    // previous and the new source and the fluence of the occupied bricks' slabs), its download
-    // bytes, and the sizes of its three largest buffers.
+    // previous source at its precision, the new source and the fluence of the occupied bricks'
+    // slabs), its download bytes, and the sizes of its three largest buffers.
     let slot = |slab: u32| {
         let per_component = extent.occupied * BRICK_BYTES / BRICK_EDGE as u64 * slab as u64;
         let source = per_component * comps;
+        let prev = source / 4 * plan.source_precision.bytes();
         let fluence = per_component * c;
-        (slot_bytes + per_component + 2 * source + fluence, source + fluence, [source, fluence, per_component])
+        (slot_bytes + per_component + prev + source + fluence, source + fluence, [source, fluence, per_component])
     };
     let cost = |slots: u32, pass: u32, slab: u32, group: u32, planes: u32| -> (u64, u64, u64, u64, u64) {
         let (slice_bytes, download, _) = slot(slab);

@@ -6,6 +6,9 @@
 //! hands it to the pool through a crossbeam channel; it gets back a [`Ticket`] to wait on only when
 //! it needs the bytes (before submitting the upload, before handing the store to the next pass).
 //!
+//! A region may convert while it copies ([`Convert`]): the previous order's source travels to the
+//! device as f16 when the plan says so, rounded here, on the workers, during the gather.
+//!
 //! Safety model: a region is a pair of raw pointers into memory that outlives the copy (a mapped
 //! staging buffer or a memory-mapped field owned by the backend, neither freed nor remapped while
 //! a ticket is outstanding), and the pipeline never has two copies in flight that touch the same
@@ -15,8 +18,19 @@
 use crossbeam_channel::{bounded, unbounded, Receiver, Sender};
 use std::thread::JoinHandle;
 
-/// `runs` copies of `len` contiguous bytes, run i from `src + i·src_stride` to `dst + i·dst_stride`
-/// (one run: a plain contiguous copy). Strided runs cut a slab of planes out of a brick.
+/// What a region does to the bytes it moves.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Convert {
+    /// A plain copy.
+    Copy,
+    /// f32 values in, each multiplied by `scale` (a power of two: exact) and rounded to the nearest
+    /// f16 out; a run then writes half the bytes it reads.
+    F32ToF16 { scale: f32 },
+}
+
+/// `runs` copies of `len` contiguous source bytes, run i from `src + i·src_stride` to
+/// `dst + i·dst_stride` (one run: a plain contiguous copy). Strided runs cut a slab of planes out of
+/// a brick. With [`Convert::F32ToF16`] a run writes `len / 2` bytes.
 #[derive(Clone, Copy, Debug)]
 pub struct Region {
     pub src: *const u8,
@@ -25,6 +39,7 @@ pub struct Region {
     pub runs: usize,
     pub src_stride: usize,
     pub dst_stride: usize,
+    pub convert: Convert,
 }
 
 impl Region {
@@ -35,15 +50,38 @@ impl Region {
     /// may overlap another region being copied at the same time (see the module docs).
     unsafe fn perform(&self) {
         for i in 0..self.runs {
-            // SAFETY: the caller's contract.
-            unsafe {
-                std::ptr::copy_nonoverlapping(
-                    self.src.wrapping_add(i * self.src_stride),
-                    self.dst.wrapping_add(i * self.dst_stride),
-                    self.len,
-                )
-            };
+            let (src, dst) = (self.src.wrapping_add(i * self.src_stride), self.dst.wrapping_add(i * self.dst_stride));
+            match self.convert {
+                // SAFETY: the caller's contract.
+                Convert::Copy => unsafe { std::ptr::copy_nonoverlapping(src, dst, self.len) },
+                // SAFETY: the caller's contract (`len` bytes readable at src, `len / 2` writable at dst).
+                Convert::F32ToF16 { scale } => unsafe { to_f16(src, dst, self.len / 4, scale) },
+            }
         }
+    }
+}
+
+/// Rounds `n` f32 values at `src`, times `scale`, to f16 at `dst` (round to nearest even), in
+/// blocks through the stack so that `half` can use the CPU's conversion instructions.
+///
+/// # Safety
+/// `4n` bytes readable at `src`, `2n` bytes writable at `dst`, not overlapping (no alignment needed).
+unsafe fn to_f16(src: *const u8, dst: *mut u8, n: usize, scale: f32) {
+    use half::slice::HalfFloatSliceExt;
+    const BLOCK: usize = 256;
+    let mut values = [0f32; BLOCK];
+    let mut halves = [half::f16::ZERO; BLOCK];
+    let mut done = 0;
+    while done < n {
+        let m = BLOCK.min(n - done);
+        for (k, v) in values[..m].iter_mut().enumerate() {
+            // SAFETY: within the 4n bytes at src.
+            *v = unsafe { (src.add(4 * (done + k)) as *const f32).read_unaligned() } * scale;
+        }
+        halves[..m].convert_from_f32_slice(&values[..m]);
+        // SAFETY: within the 2n bytes at dst; u8 needs no alignment.
+        unsafe { std::ptr::copy_nonoverlapping(halves.as_ptr() as *const u8, dst.add(2 * done), 2 * m) };
+        done += m;
     }
 }
 
@@ -148,7 +186,15 @@ mod tests {
         let src: Vec<u8> = (0..=255).cycle().take(10_000).collect();
         let mut dst = vec![0u8; 10_000];
         let regions: Vec<Region> = (0..100)
-            .map(|i| Region { src: src[i * 100..].as_ptr(), dst: dst[i * 100..].as_mut_ptr(), len: 100, runs: 1, src_stride: 0, dst_stride: 0 })
+            .map(|i| Region {
+                src: src[i * 100..].as_ptr(),
+                dst: dst[i * 100..].as_mut_ptr(),
+                len: 100,
+                runs: 1,
+                src_stride: 0,
+                dst_stride: 0,
+                convert: Convert::Copy,
+            })
             .collect();
         copier.copy(regions).wait();
         assert_eq!(src, dst);
@@ -161,8 +207,37 @@ mod tests {
         let copier = Copier::new(1);
         let src: Vec<u8> = (0..16).collect();
         let mut dst = vec![0u8; 4];
-        let region = Region { src: src[2..].as_ptr(), dst: dst.as_mut_ptr(), len: 1, runs: 4, src_stride: 4, dst_stride: 1 };
+        let region =
+            Region { src: src[2..].as_ptr(), dst: dst.as_mut_ptr(), len: 1, runs: 4, src_stride: 4, dst_stride: 1, convert: Convert::Copy };
         copier.copy(vec![region]).wait();
         assert_eq!(dst, [2, 6, 10, 14]);
+    }
+
+    #[test]
+    fn strided_runs_convert_to_scaled_f16() {
+        // Columns 1–2 of a 600×3 row-major f32 matrix (more than one conversion block), scaled by
+        // 2^3 and rounded to f16 into a packed 600×2 matrix.
+        let copier = Copier::new(2);
+        let (rows, cols) = (600usize, 3usize);
+        let src: Vec<f32> = (0..rows * cols).map(|i| 1.0 + i as f32 / 7.0).collect();
+        let mut dst = vec![0u16; rows * 2];
+        let region = Region {
+            src: src[1..].as_ptr() as *const u8,
+            dst: dst.as_mut_ptr() as *mut u8,
+            len: 2 * 4,
+            runs: rows,
+            src_stride: cols * 4,
+            dst_stride: 2 * 2,
+            convert: Convert::F32ToF16 { scale: 8.0 },
+        };
+        copier.copy(vec![region]).wait();
+        for r in 0..rows {
+            for c in 0..2 {
+                let expected = half::f16::from_f32(src[r * cols + 1 + c] * 8.0);
+                assert_eq!(dst[r * 2 + c], expected.to_bits(), "row {r} column {c}");
+            }
+        }
+        // Round to nearest even: 1 + 2^-11 is a tie between 1 and 1 + 2^-10.
+        assert_eq!(half::f16::from_f32(1.0 + 2f32.powi(-11)), half::f16::ONE);
     }
 }

@@ -8,6 +8,17 @@ pub const FLAG_GAIN: u32 = 2;
 pub const FLAG_EMIT: u32 = 4;
 pub const FLAG_LAST_SLICE: u32 = 8;
 pub const FLAG_VACUUM: u32 = 16;
+/// The previous source is stored as f16 pairs, scaled by 2^e with e in bits 16–23 of `flags`
+/// (biased by 128; see [`half_source_flags`]).
+pub const FLAG_HALF_SOURCE: u32 = 32;
+pub const HALF_SCALE_SHIFT: u32 = 16;
+pub const HALF_SCALE_BIAS: i32 = 128;
+
+/// The `flags` bits that tell the shader the previous source is f16, scaled by 2^`exponent`.
+/// Keep in sync with `gained_source` in glsl/common.glsl.
+pub fn half_source_flags(exponent: i32) -> u32 {
+    FLAG_HALF_SOURCE | (((exponent + HALF_SCALE_BIAS) as u32 & 0xff) << HALF_SCALE_SHIFT)
+}
 
 /// Push constants of `propagate.comp` and `collect.comp`. Keep in sync with `Push` in
 /// glsl/common.glsl.
@@ -28,6 +39,7 @@ pub struct SweepPush {
     pub dir_count: u32,
     pub channels: u32,
     pub storage: u32,
+    /// FLAG_* bits; with FLAG_HALF_SOURCE, bits 16–23 hold the f16 source's scale exponent.
     pub flags: u32,
     /// First direction of the dispatch in the sweep's tables.
     pub dir_base: u32,

@@ -7,6 +7,8 @@
 //!
 //! 1. **gather** (host copy workers): its bricks (medium, previous source, the new source and fluence
 //!    accumulated so far) from the memory-mapped store into the pinned upload staging of a slot;
+//!    the previous source is rounded to f16 on the way when the plan stores it so (scaled by a
+//!    power of two chosen per order from its largest value, undone exactly by the shader);
 //! 2. **upload** (transfer queue): staging → the slot's device buffers; signals `upload = v`;
 //! 3. **compute** (compute queue, waits `upload ≥ v`): `propagate.comp` marches the rays through the
 //!    slice's planes writing segment averages into the deposit buffer, `collect.comp` folds them into
@@ -35,7 +37,7 @@ mod tables;
 use super::energy::Tallies;
 use super::fields::StoreFields;
 use super::orders::Backend;
-use super::plan::{Plan, SweepDirection};
+use super::plan::{half_scale_exponent, power_of_two, Plan, Precision, SweepDirection};
 use super::sweep::FaceSweep;
 use super::SolveError;
 use crate::store::{BrickStore, BRICK_EDGE};
@@ -134,6 +136,8 @@ pub struct GpuBackend<'a> {
     copier: Copier,
     /// The scene digest checkpoints are written under; `None`: no checkpoints.
     checkpoint_digest: Option<String>,
+    /// The f16 previous source's scale exponent for the order being propagated (`None`: f32).
+    half_exponent: Option<i32>,
     /// Test hook: abort the process when this many slices have been submitted (simulates a kill).
     abort_at_slice: Option<u64>,
     profiler: Option<profile::Profiler>,
@@ -176,8 +180,9 @@ impl<'a> GpuBackend<'a> {
         let gpu = MemoryLocation::GpuOnly;
         let per_component = extent.occupied * slice::slab_bytes(memory.planes_per_slice);
         let source_bytes = per_component * comps;
+        let prev_bytes = source_bytes / 4 * plan.source_precision.bytes();
         let fluence_bytes = per_component * c;
-        let upload_bytes = (extent.bricks * 4).next_multiple_of(16) + per_component + 2 * source_bytes + fluence_bytes;
+        let upload_bytes = (extent.bricks * 4).next_multiple_of(16) + per_component + prev_bytes + source_bytes + fluence_bytes;
 
         let shared = create_buffers(
             &ctx,
@@ -215,6 +220,7 @@ impl<'a> GpuBackend<'a> {
             memory,
             copier: Copier::new(std::thread::available_parallelism().map_or(2, |n| n.get()).min(8)),
             checkpoint_digest: None,
+            half_exponent: None,
             abort_at_slice: std::env::var("LPM_TEST_ABORT_AT_SLICE").ok().and_then(|v| v.parse().ok()),
             profiler: None,
         };
@@ -232,7 +238,7 @@ impl<'a> GpuBackend<'a> {
                 &[
                     (&format!("slot {i} slot table"), extent.bricks * 4, storage, gpu),
                     (&format!("slot {i} density"), per_component, storage, gpu),
-                    (&format!("slot {i} source prev"), source_bytes, storage, gpu),
+                    (&format!("slot {i} source prev"), prev_bytes, storage, gpu),
                     (&format!("slot {i} source next"), source_bytes, storage, gpu),
                     (&format!("slot {i} fluence"), fluence_bytes, storage, gpu),
                     (&format!("slot {i} upload staging"), upload_bytes, vk::BufferUsageFlags::TRANSFER_SRC, MemoryLocation::CpuToGpu),
@@ -359,7 +365,8 @@ impl<'a> GpuBackend<'a> {
         let mut to_download: Option<usize> = None;
         for (i, range) in slices.iter().enumerate() {
             let (first, last) = (i == 0, i + 1 == slices.len());
-            let layout = SliceLayout::new(self.store, sweep, *range, gain, c, comps);
+            let half = if gain { self.half_exponent.map(power_of_two) } else { None };
+            let layout = SliceLayout::new(self.store, sweep, *range, gain, c, comps, half);
             if layout.is_vacuum() {
                 self.value += 1;
                 let v = self.value;
@@ -460,7 +467,7 @@ impl<'a> GpuBackend<'a> {
         rec.copy_buffer(&slot.upload, &slot.slot_table, &copy(0, layout.slot_table_bytes()));
         rec.copy_buffer(&slot.upload, &slot.density, &copy(layout.density_offset(), layout.density_bytes()));
         if layout.gain {
-            rec.copy_buffer(&slot.upload, &slot.source_prev, &copy(layout.prev_offset(), layout.source_bytes()));
+            rec.copy_buffer(&slot.upload, &slot.source_prev, &copy(layout.prev_offset(), layout.prev_bytes()));
         }
         rec.copy_buffer(&slot.upload, &slot.source_next, &copy(layout.next_offset(), layout.source_bytes()));
         rec.copy_buffer(&slot.upload, &slot.fluence, &copy(layout.fluence_offset(), layout.fluence_bytes()));
@@ -494,6 +501,10 @@ impl<'a> GpuBackend<'a> {
             None => (&shared.vacuum, &shared.vacuum, &shared.vacuum),
         };
         let vacuum = if slot.is_none() { FLAG_VACUUM } else { 0 };
+        let half = match self.half_exponent {
+            Some(e) if flags & FLAG_GAIN != 0 => half_source_flags(e),
+            _ => 0,
+        };
         let propagate = self.propagate.as_ref().ok_or(SolveError::Internal("pipeline released"))?;
         let collect = self.collect.as_ref().ok_or(SolveError::Internal("pipeline released"))?;
         let queue = self.ctx.compute_queue();
@@ -545,7 +556,7 @@ impl<'a> GpuBackend<'a> {
                 let t1 = (t0 + chunk).min(range.t1);
                 push.t0 = t0;
                 push.t1 = t1;
-                push.flags = flags | vacuum | if last && t1 == range.t1 { FLAG_LAST_SLICE } else { 0 };
+                push.flags = flags | vacuum | half | if last && t1 == range.t1 { FLAG_LAST_SLICE } else { 0 };
                 rec.dispatch(
                     propagate,
                     &[
@@ -702,6 +713,9 @@ impl Backend for GpuBackend<'_> {
     fn propagate_order(&mut self, order: u32) -> Result<Tallies, SolveError> {
         let plan = self.plan;
         self.fields.begin_order()?;
+        // The scale of this order's f16 source, from its largest value (exact: a power of two).
+        self.half_exponent = (plan.source_precision == Precision::F16)
+            .then(|| half_scale_exponent(self.fields.source_prev.max_abs()));
         let mut tallies = Tallies::default();
         if order == 0 {
             let beams = std::mem::take(&mut self.beam_tables);

@@ -9,9 +9,11 @@
 //! Upload staging: `[slot table, padded to 16 B][density][previous source, only when rays gain it]
 //! [new source][fluence]`, each block over the occupied bricks in slice order; the device slot
 //! buffers hold the same blocks, each at offset 0 of its own buffer. Download staging:
-//! `[new source][fluence]`.
+//! `[new source][fluence]`. The previous source is f32 like the rest, or f16 when the plan says so
+//! (the same slab layout at 2 bytes a value, rounded by the copy workers during the gather; a slab
+//! holds a multiple of 256 voxels, so its f16 values pair up into whole 32-bit words).
 
-use super::copier::Region;
+use super::copier::{Convert, Region};
 use crate::solver::fields::StoreFields;
 use crate::solver::sweep::{FaceSweep, SliceRange};
 use crate::store::{BrickStore, BRICK_EDGE, BRICK_VOXELS};
@@ -38,10 +40,21 @@ pub struct SliceLayout {
     pub comps: u64,
     /// The sweep axis (0, 1, 2 for x, y, z).
     pub axis: usize,
+    /// `Some(scale)`: the previous source travels as f16, times `scale` (a power of two).
+    pub prev_half_scale: Option<f32>,
 }
 
 impl SliceLayout {
-    pub fn new(store: &BrickStore, sweep: &FaceSweep, range: SliceRange, gain: bool, channels: u64, comps: u64) -> Self {
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        store: &BrickStore,
+        sweep: &FaceSweep,
+        range: SliceRange,
+        gain: bool,
+        channels: u64,
+        comps: u64,
+        prev_half_scale: Option<f32>,
+    ) -> Self {
         let grid = *store.grid();
         let face = sweep.geometry();
         let bricks_b = grid.bricks[face.lateral[0]];
@@ -66,7 +79,7 @@ impl SliceLayout {
                 slots.push(-1);
             }
         }
-        SliceLayout { range, bricks, occupied, slots, bricks_b, bricks_c, gain, channels, comps, axis: face.axis }
+        SliceLayout { range, bricks, occupied, slots, bricks_b, bricks_c, gain, channels, comps, axis: face.axis, prev_half_scale }
     }
 
     /// No occupied brick: the rays cross vacuum, nothing travels and nothing is collected.
@@ -102,6 +115,15 @@ impl SliceLayout {
         self.occ() * self.comps * self.slab()
     }
 
+    /// Bytes of the previous source (f16: half of [`Self::source_bytes`]).
+    pub fn prev_bytes(&self) -> u64 {
+        if self.prev_half_scale.is_some() {
+            self.source_bytes() / 2
+        } else {
+            self.source_bytes()
+        }
+    }
+
     pub fn fluence_bytes(&self) -> u64 {
         self.occ() * self.channels * self.slab()
     }
@@ -111,7 +133,7 @@ impl SliceLayout {
     }
 
     pub fn next_offset(&self) -> u64 {
-        self.prev_offset() + if self.gain { self.source_bytes() } else { 0 }
+        self.prev_offset() + if self.gain { self.prev_bytes() } else { 0 }
     }
 
     pub fn fluence_offset(&self) -> u64 {
@@ -135,20 +157,21 @@ impl SliceLayout {
         for (i, &b) in self.occupied.iter().enumerate() {
             if let Some(density) = store.density_brick(b) {
                 let dst = at(self.density_offset() + (i * slab) as u64);
-                self.slab_regions(density.as_ptr() as *mut u8, dst, 1, true, &mut regions);
+                self.slab_regions(density.as_ptr() as *mut u8, dst, 1, true, None, &mut regions);
             }
             if let Some(k) = fields.source_next.stored_index(b) {
                 let block = comps * BRICK_BYTES as usize;
                 if self.gain {
-                    let dst = at(prev + (i * comps * slab) as u64);
-                    self.slab_regions(prev_base.wrapping_add(k * block), dst, comps, true, &mut regions);
+                    let prev_slab = if self.prev_half_scale.is_some() { slab / 2 } else { slab };
+                    let dst = at(prev + (i * comps * prev_slab) as u64);
+                    self.slab_regions(prev_base.wrapping_add(k * block), dst, comps, true, self.prev_half_scale, &mut regions);
                 }
                 let dst = at(next + (i * comps * slab) as u64);
-                self.slab_regions(next_base.wrapping_add(k * block), dst, comps, true, &mut regions);
+                self.slab_regions(next_base.wrapping_add(k * block), dst, comps, true, None, &mut regions);
             }
             if let Some(k) = fields.fluence.stored_index(b) {
                 let dst = at(fluence + (i * c * slab) as u64);
-                self.slab_regions(fluence_base.wrapping_add(k * c * BRICK_BYTES as usize), dst, c, true, &mut regions);
+                self.slab_regions(fluence_base.wrapping_add(k * c * BRICK_BYTES as usize), dst, c, true, None, &mut regions);
             }
         }
         regions
@@ -166,27 +189,35 @@ impl SliceLayout {
             if let Some(k) = fields.source_next.stored_index(b) {
                 let block = comps * BRICK_BYTES as usize;
                 let src = staging.wrapping_add(i * comps * slab);
-                self.slab_regions(next_base.wrapping_add(k * block), src, comps, false, &mut regions);
+                self.slab_regions(next_base.wrapping_add(k * block), src, comps, false, None, &mut regions);
             }
             if let Some(k) = fields.fluence.stored_index(b) {
                 let src = staging.wrapping_add(fluence + i * c * slab);
-                self.slab_regions(fluence_base.wrapping_add(k * c * BRICK_BYTES as usize), src, c, false, &mut regions);
+                self.slab_regions(fluence_base.wrapping_add(k * c * BRICK_BYTES as usize), src, c, false, None, &mut regions);
             }
         }
         regions
     }
 
-    /// The copies between `components` brick blocks at `brick` (4096 voxels each, x fastest) and
-    /// their slabs at `slab` (this range's planes, component after component): brick → slab when
-    /// `to_slab`, else back.
-    fn slab_regions(&self, brick: *mut u8, slab: *mut u8, components: usize, to_slab: bool, out: &mut Vec<Region>) {
+    /// The copies between `components` brick blocks at `brick` (4096 f32 voxels each, x fastest)
+    /// and their slabs at `slab` (this range's planes, component after component): brick → slab
+    /// when `to_slab`, else back. `half = Some(scale)` (brick → slab only): the slab holds the
+    /// values times `scale`, rounded to f16 (2 bytes a voxel, same layout).
+    #[allow(clippy::too_many_arguments)]
+    fn slab_regions(&self, brick: *mut u8, slab: *mut u8, components: usize, to_slab: bool, half: Option<f32>, out: &mut Vec<Region>) {
+        debug_assert!(to_slab || half.is_none(), "only the gather converts");
         let (lo, n) = (self.range.slab_lo as usize, self.range.slab_planes as usize);
         let edge = BRICK_EDGE as usize;
+        let (convert, sb) = match half {
+            Some(scale) => (Convert::F32ToF16 { scale }, 2),
+            None => (Convert::Copy, 4),
+        };
+        // `len`: bytes a run reads on the brick side (4 a voxel); the slab side has `sb` a voxel.
         let pair = |b: *mut u8, s: *mut u8, len, runs, b_stride, s_stride| {
             if to_slab {
-                Region { src: b, dst: s, len, runs, src_stride: b_stride, dst_stride: s_stride }
+                Region { src: b, dst: s, len, runs, src_stride: b_stride, dst_stride: s_stride, convert }
             } else {
-                Region { src: s, dst: b, len, runs, src_stride: s_stride, dst_stride: b_stride }
+                Region { src: s, dst: b, len, runs, src_stride: s_stride, dst_stride: b_stride, convert }
             }
         };
         if n == edge {
@@ -194,15 +225,15 @@ impl SliceLayout {
             out.push(pair(brick, slab, len, 1, 0, 0));
             return;
         }
-        let slab_len = slab_bytes(n as u32) as usize;
+        let slab_voxels = edge * edge * n;
         for k in 0..components {
             let b = brick.wrapping_add(k * BRICK_BYTES as usize);
-            let s = slab.wrapping_add(k * slab_len);
-            // Runs along x (4 bytes a voxel): whole x–y planes for z, rows of 16 for y, n voxels for x.
+            let s = slab.wrapping_add(k * slab_voxels * sb);
+            // Runs along x: whole x–y planes for z, rows of 16 for y, n voxels for x.
             let region = match self.axis {
-                2 => pair(b.wrapping_add(lo * edge * edge * 4), s, slab_len, 1, 0, 0),
-                1 => pair(b.wrapping_add(lo * edge * 4), s, n * edge * 4, edge, edge * edge * 4, n * edge * 4),
-                _ => pair(b.wrapping_add(lo * 4), s, n * 4, edge * edge, edge * 4, n * 4),
+                2 => pair(b.wrapping_add(lo * edge * edge * 4), s, slab_voxels * 4, 1, 0, 0),
+                1 => pair(b.wrapping_add(lo * edge * 4), s, n * edge * 4, edge, edge * edge * 4, n * edge * sb),
+                _ => pair(b.wrapping_add(lo * 4), s, n * 4, edge * edge, edge * 4, n * sb),
             };
             out.push(region);
         }
