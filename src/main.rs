@@ -369,9 +369,18 @@ fn info(dir: &std::path::Path, json: bool) -> Result<()> {
     println!("device    peak allocation {} bytes", r["peak_device_bytes"]);
     if let Some(m) = r.get("device_memory").filter(|m| !m.is_null()) {
         println!(
-            "memory    budget {} bytes, planned {}; {} direction(s) per pass, {} per dispatch, {} plane(s) per dispatch",
-            m["budget_bytes"], m["planned_bytes"], m["directions_per_pass"], m["directions_per_dispatch"], m["planes_per_dispatch"]
+            "memory    budget {} bytes, planned {}; {} slice(s) in flight, {} direction(s) per pass, {} plane(s) per slice, {} direction(s) and {} plane(s) per dispatch",
+            m["budget_bytes"],
+            m["planned_bytes"],
+            m["slices_in_flight"],
+            m["directions_per_pass"],
+            m["planes_per_slice"],
+            m["directions_per_dispatch"],
+            m["planes_per_dispatch"]
         );
+    }
+    if let Some(peak) = r.get("peak_resident_bytes").and_then(|p| p.as_u64()) {
+        println!("host      peak resident {peak} bytes; brick store {} bytes", r["store_bytes"]);
     }
     if let Some(phases) = r["seconds"].as_array() {
         let line: Vec<String> = phases.iter().map(|p| format!("{} {:.3}s", p["phase"].as_str().unwrap_or("?"), p["seconds"].as_f64().unwrap_or(0.0))).collect();
