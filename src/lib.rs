@@ -5,6 +5,10 @@
 //! Propagation Maps (a discrete-ordinates method) in the parallel, streamed form of Gruson et al. 2012:
 //! the volume is tiled into 16³ bricks kept in memory-mapped files, and each of the six cube faces is
 //! swept slice of bricks by slice of bricks, the ray state travelling with the sweep on the device.
+//! Only occupied bricks are stored, streamed and solved (empty space is crossed by the rays but holds
+//! no medium, source or fluence); a slice that does not fit the device budget is streamed as
+//! sub-slices of fewer planes; and every pass over the memory-mapped files hands its pages back, so
+//! neither device nor host memory grows with the volume (see [`solver::gpu`] and [`store::Field`]).
 //!
 //! ## Layout (each layer only uses the ones above it)
 //!

@@ -6,7 +6,9 @@
 //! (`bricks.json`) and takes no space on disk, and the solver skips it. Every other per-voxel
 //! quantity (sources, fluence, accumulators) is a [`Field`]: a memory-mapped file holding, for each
 //! stored brick, `components × 4096` f32 values, component-major. A field either covers every brick
-//! ([`Coverage::Dense`]) or only the occupied ones ([`Coverage::Occupied`], indexed by slot).
+//! ([`Coverage::Dense`]) or only the occupied ones ([`Coverage::Occupied`], indexed by slot). The
+//! solver's fields are all `Occupied`. Passes over fields hand their pages back to keep the resident
+//! set bounded (see [`Field`]).
 //!
 //! Files in a store directory:
 //!
