@@ -25,12 +25,14 @@
 //! moves the rays across it. Transfer submissions go to a dedicated transfer queue when the device has one, else
 //! to the compute queue as a second submission stream ordered by the same timeline semaphores.
 //! With one slot each slice completes before the next starts. Slots are reused against timeline
-//! values, never by idling the device.
+//! values, never by idling the device. A long order logs its progress in passes now and then
+//! ([`progress`]).
 
 pub mod budget;
 mod copier;
 mod layout;
 pub mod profile;
+mod progress;
 mod slice;
 mod tables;
 
@@ -141,6 +143,8 @@ pub struct GpuBackend<'a> {
     /// Test hook: abort the process when this many slices have been submitted (simulates a kill).
     abort_at_slice: Option<u64>,
     profiler: Option<profile::Profiler>,
+    /// Passes done in the order being propagated (logged now and then).
+    progress: Option<progress::PassProgress>,
 }
 
 fn create_buffers(ctx: &Context, specs: &[(&str, u64, vk::BufferUsageFlags, MemoryLocation)]) -> Result<Vec<Buffer>, SolveError> {
@@ -223,6 +227,7 @@ impl<'a> GpuBackend<'a> {
             half_exponent: None,
             abort_at_slice: std::env::var("LPM_TEST_ABORT_AT_SLICE").ok().and_then(|v| v.parse().ok()),
             profiler: None,
+            progress: None,
         };
         if options.profile {
             // Three intervals per sub-slice; a pass never has more slices than the longest axis has
@@ -348,6 +353,9 @@ impl<'a> GpuBackend<'a> {
         for first in (0..dirs.len()).step_by(pass) {
             let pass_dirs = first as u32..(first + pass).min(dirs.len()) as u32;
             self.stream_pass(tables, &sweep, pass_dirs.clone(), flags)?;
+            if let Some(p) = self.progress.as_mut() {
+                p.pass_done();
+            }
             tallies.add(&self.read_tallies(&sweep, &dirs[pass_dirs.start as usize..pass_dirs.end as usize])?);
         }
         Ok(tallies)
@@ -716,6 +724,9 @@ impl Backend for GpuBackend<'_> {
         // The scale of this order's f16 source, from its largest value (exact: a power of two).
         self.half_exponent = (plan.source_precision == Precision::F16)
             .then(|| half_scale_exponent(self.fields.source_prev.max_abs()));
+        let face_dirs: Vec<usize> = plan.faces.iter().map(Vec::len).collect();
+        let passes = progress::passes_per_order(order, &face_dirs, plan.beams.len(), self.memory.directions_per_pass);
+        self.progress = Some(progress::PassProgress::new(order, passes));
         let mut tallies = Tallies::default();
         if order == 0 {
             let beams = std::mem::take(&mut self.beam_tables);
