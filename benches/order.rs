@@ -38,6 +38,7 @@ fn bench_scene() -> Scene {
             device_memory_budget: None,
             extrapolate_tail: false,
             storage_precision: StoragePrecision::Auto,
+            plan: PlanMode::Auto,
         },
         camera: None,
     }

@@ -134,8 +134,8 @@ enum BenchCommand {
         #[arg(long)]
         json: Option<PathBuf>,
     },
-    /// Time against error: the solver across directions per face and tolerances, and the Monte-Carlo
-    /// reference across photon counts, each timed and compared with a long Monte-Carlo run; writes
+    /// Time against error: the solver across directions per face, tolerances, storage precisions and
+    /// plans, and the Monte-Carlo reference across photon counts, each timed and compared with a long Monte-Carlo run; writes
     /// accuracy.json, accuracy.csv, accuracy.png and accuracy.svg (log-log) into --out.
     Accuracy {
         /// The scene file (TOML).
@@ -153,6 +153,11 @@ enum BenchCommand {
         /// f32, f16, auto).
         #[arg(long, value_delimiter = ',', value_enum, default_value = "f32,f16")]
         precisions: Vec<PrecisionArg>,
+        /// Plans to run each (k, tolerance, precision) with (comma-separated: auto, full). "full"
+        /// sets `solver.plan = "full"`: 3 channels and per-face storage directions even for a grey,
+        /// isotropic scene, f32 storage under `auto` precision; it shows what the plan saves.
+        #[arg(long, value_delimiter = ',', value_enum, default_value = "auto")]
+        plans: Vec<PlanArg>,
         /// Monte-Carlo photon counts per channel to try (comma-separated).
         #[arg(long, value_delimiter = ',', default_value = "100000,400000,1600000")]
         samples: Vec<f64>,
@@ -173,6 +178,12 @@ enum PrecisionArg {
     F32,
     F16,
     Auto,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum PlanArg {
+    Auto,
+    Full,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -267,7 +278,7 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Bench {
-            what: BenchCommand::Accuracy { scene, out, k, tolerances, precisions, samples, reference_samples, backend, max_rel_stderr },
+            what: BenchCommand::Accuracy { scene, out, k, tolerances, precisions, plans, samples, reference_samples, backend, max_rel_stderr },
         } => {
             let options = lpm::bench::accuracy::AccuracyOptions {
                 directions_per_face: k,
@@ -278,6 +289,13 @@ fn run(cli: Cli) -> Result<()> {
                         PrecisionArg::F32 => lpm::scene::StoragePrecision::F32,
                         PrecisionArg::F16 => lpm::scene::StoragePrecision::F16,
                         PrecisionArg::Auto => lpm::scene::StoragePrecision::Auto,
+                    })
+                    .collect(),
+                plans: plans
+                    .iter()
+                    .map(|p| match p {
+                        PlanArg::Auto => lpm::scene::PlanMode::Auto,
+                        PlanArg::Full => lpm::scene::PlanMode::Full,
                     })
                     .collect(),
                 photons: samples.iter().map(|&s| s.max(1.0) as u64).collect(),
@@ -291,13 +309,13 @@ fn run(cli: Cli) -> Result<()> {
             };
             let report = lpm::bench::accuracy::run(&scene, &out, &options, |line| tracing::info!("{line}"))?;
             println!(
-                "{:<12} {:<26} {:>10} {:>12} {:>12} {:>12} {:>14}",
+                "{:<12} {:<31} {:>10} {:>12} {:>12} {:>12} {:>14}",
                 "method", "setting", "seconds", "rel. L2", "noise-corr.", "bias", "device bytes"
             );
             for r in &report.rows {
                 let f = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.3e}"));
                 println!(
-                    "{:<12} {:<26} {:>10.3} {:>12} {:>12} {:>12} {:>14}",
+                    "{:<12} {:<31} {:>10.3} {:>12} {:>12} {:>12} {:>14}",
                     r.method,
                     r.setting,
                     r.seconds,

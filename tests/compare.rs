@@ -151,3 +151,39 @@ fn the_reference_standard_error_masks_noisy_and_dark_voxels() {
     let msg = compare_dirs(&a, &b, &CompareOptions::default()).unwrap_err().to_string();
     assert!(msg.contains("fluence_stderr.json"), "{msg}");
 }
+
+/// A directory whose fluence has the given component names (and standard errors when given).
+fn named_dir(root: &Path, name: &str, dims: [u32; 3], names: &[&str], fluence: &[f32], stderr: Option<&[f32]>) -> PathBuf {
+    let d = root.join(name);
+    std::fs::create_dir_all(&d).unwrap();
+    let meta = FieldMeta { components: names.iter().map(|s| s.to_string()).collect(), ..meta(0) };
+    export_dense(fluence, dims, 0.5, &d, "fluence", &meta).unwrap();
+    if let Some(se) = stderr {
+        export_dense(se, dims, 0.5, &d, "fluence_stderr", &meta).unwrap();
+    }
+    d
+}
+
+#[test]
+fn a_grey_reference_is_compared_with_each_channel_of_an_rgb_candidate() {
+    // A grey scene solved with `solver.plan = "full"` has r, g, b channels; its reference has one.
+    let root = temp_dir("compare-grey-rgb");
+    let dims = [3, 2, 2];
+    let grey = field(12);
+    let se: Vec<f32> = grey.iter().map(|v| v * 0.01).collect();
+    let b = named_dir(&root, "b", dims, &["grey"], &grey, Some(&se));
+    let rgb: Vec<f32> = grey.iter().flat_map(|&v| [v, v * 1.1, v]).collect();
+    let a = named_dir(&root, "a", dims, &["r", "g", "b"], &rgb, None);
+    let c = compare_dirs(&a, &b, &CompareOptions::default()).unwrap();
+    assert_eq!((c.fluence.components, c.fluence.voxels_used, c.fluence.metrics.values), (3, 12, 36));
+    // Only g is off, by 10 %: ‖a − b‖/‖b‖ = 0.1/√3 over the three channels.
+    let l2 = c.fluence.metrics.relative_l2.unwrap();
+    assert!((l2 - 0.1 / 3f64.sqrt()).abs() < 1e-6, "{l2}");
+    // The reference's noise counts once per channel compared: 1 % relative, as for one channel.
+    assert!((c.fluence.reference_noise_relative_l2.unwrap() - 0.01).abs() < 1e-6, "{c:?}");
+    assert!(c.notes.iter().any(|n| n.contains("reference is grey")), "{:?}", c.notes);
+
+    // Only "grey" against "r", "g", "b": other names with other counts are still a mismatch.
+    let other = named_dir(&root, "other", dims, &["c0", "c1", "c2"], &rgb, None);
+    assert!(matches!(compare_dirs(&other, &b, &CompareOptions::default()), Err(CompareError::Mismatch { .. })));
+}

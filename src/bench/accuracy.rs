@@ -1,19 +1,20 @@
 //! `lpm bench accuracy`: time against error for the solver and the Monte-Carlo reference, on the
 //! same axes.
 //!
-//! A long Monte-Carlo run is the reference. The solver runs across directions per face, tolerances
-//! and storage precisions of the gained source (f32 against f16 at otherwise equal settings, with
-//! the device bytes each used); the Monte-Carlo reference runs again across photon counts (other
-//! seeds). Every run is timed and compared with the reference over the voxels where the reference's
+//! A long Monte-Carlo run is the reference. The solver runs across directions per face, tolerances,
+//! storage precisions of the gained source (f32 against f16 at otherwise equal settings, with the
+//! device bytes each used) and plans (`solver.plan`: "auto" models only what the scene needs,
+//! "full" turns those reductions off, so each auto run can be set against its full twin); the
+//! Monte-Carlo reference runs again across photon counts (other seeds). Every run is timed and compared with the reference over the voxels where the reference's
 //! relative standard error is small ([`crate::compare`]). The results go to `accuracy.json`,
 //! `accuracy.csv` and a log-log plot `accuracy.png` / `accuracy.svg` of seconds against relative L2
-//! error, one line per directions per face and precision.
+//! error, one line per directions per face, precision and plan.
 
 use crate::compare::{compare_dirs, CompareOptions, Comparison};
 use crate::job::{self, SolveJob};
 use crate::plot::{Figure, Series, Style};
 use crate::reference::job::{self as reference_job, ReferenceJob};
-use crate::scene::StoragePrecision;
+use crate::scene::{PlanMode, StoragePrecision};
 use crate::solver::BackendKind;
 use crate::vk::ContextOptions;
 use serde::Serialize;
@@ -26,6 +27,8 @@ pub struct AccuracyOptions {
     pub tolerances: Vec<f64>,
     /// `solver.storage_precision` values to run each (k, tolerance) with.
     pub precisions: Vec<StoragePrecision>,
+    /// `solver.plan` values to run each (k, tolerance, precision) with.
+    pub plans: Vec<PlanMode>,
     pub photons: Vec<u64>,
     pub reference_photons: u64,
     pub backend: BackendKind,
@@ -41,6 +44,11 @@ pub struct AccuracyRow {
     pub setting: String,
     /// Solver only: the storage precision of the gained source the plan used ("f16" or "f32").
     pub storage_precision: Option<String>,
+    /// Solver only: `solver.plan` ("auto" or "full"), and the channels and storage directions the
+    /// plan modelled with it.
+    pub plan: Option<String>,
+    pub channels: Option<u32>,
+    pub storage_directions: Option<u32>,
     pub seconds: f64,
     pub relative_l2: Option<f64>,
     pub rmse: Option<f64>,
@@ -100,38 +108,17 @@ pub fn run(scene: &Path, out: &Path, opts: &AccuracyOptions, mut log: impl FnMut
     let compare_options = CompareOptions { max_relative_stderr: opts.max_relative_stderr };
     let mut rows = Vec::new();
 
+    // Name the plan in settings and run directories only when it varies from the default, so a
+    // study without `--plans` reads as before.
+    let name_plans = opts.plans.iter().any(|&p| p != PlanMode::Auto);
     for &k in &opts.directions_per_face {
         for &tolerance in &opts.tolerances {
             for &precision in &opts.precisions {
-                let name = precision_name(precision);
-                let setting = format!("k={k} tol={tolerance:e} {name}");
-                log(&format!("lpm {setting}"));
-                let dir = runs.join(format!("lpm-k{k}-tol{tolerance:e}-{name}"));
-                let scene_copy = with_solver_settings(scene, &dir, k, tolerance, precision)?;
-                let t = Instant::now();
-                let report = job::run(
-                    &SolveJob {
-                        scene: scene_copy,
-                        out: dir.clone(),
-                        backend: opts.backend,
-                        vk: opts.vk.clone(),
-                        keep_store: false,
-                        no_image: true,
-                        no_fields: false,
-                        device_memory_budget: None,
-                        resume: false,
-                    },
-                    |_, _| {},
-                )?;
-                let seconds = t.elapsed().as_secs_f64();
-                let c = compare_dirs(&dir, &reference_dir, &compare_options)?;
-                let mut r = row("lpm", setting, seconds, &c, Some(report.orders), Some(report.final_residual));
-                r.storage_precision = Some(report.plan.storage_precision.name().to_string());
-                if let Some(m) = &report.device_memory {
-                    r.peak_device_bytes = Some(report.peak_device_bytes);
-                    r.planned_device_bytes = Some(m.planned_bytes);
+                for &plan in &opts.plans {
+                    let run = SolverRun { k, tolerance, precision, plan, name_plan: name_plans };
+                    log(&format!("lpm {}", run.setting()));
+                    rows.push(solver_row(scene, &runs, &reference_dir, &run, opts, &compare_options)?);
                 }
-                rows.push(r);
             }
         }
     }
@@ -164,6 +151,71 @@ pub fn run(scene: &Path, out: &Path, opts: &AccuracyOptions, mut log: impl FnMut
     Ok(report)
 }
 
+/// One solver run of the study: its settings.
+struct SolverRun {
+    k: u32,
+    tolerance: f64,
+    precision: StoragePrecision,
+    plan: PlanMode,
+    /// Whether the setting and the run's directory name the plan.
+    name_plan: bool,
+}
+
+impl SolverRun {
+    /// E.g. "k=3 tol=1e-3 f16", or "k=3 tol=1e-3 auto plan=full".
+    fn setting(&self) -> String {
+        let (k, tolerance, precision) = (self.k, self.tolerance, precision_name(self.precision));
+        let plan = if self.name_plan { format!(" plan={}", self.plan.name()) } else { String::new() };
+        format!("k={k} tol={tolerance:e} {precision}{plan}")
+    }
+
+    fn dir_name(&self) -> String {
+        let (k, tolerance, precision) = (self.k, self.tolerance, precision_name(self.precision));
+        let plan = if self.name_plan { format!("-{}", self.plan.name()) } else { String::new() };
+        format!("lpm-k{k}-tol{tolerance:e}-{precision}{plan}")
+    }
+}
+
+/// Solves the scene with `run`'s settings, times it and compares it with the reference.
+fn solver_row(
+    scene: &Path,
+    runs: &Path,
+    reference_dir: &Path,
+    run: &SolverRun,
+    opts: &AccuracyOptions,
+    compare_options: &CompareOptions,
+) -> Result<AccuracyRow, AccuracyError> {
+    let dir = runs.join(run.dir_name());
+    let scene_copy = with_solver_settings(scene, &dir, run)?;
+    let t = Instant::now();
+    let report = job::run(
+        &SolveJob {
+            scene: scene_copy,
+            out: dir.clone(),
+            backend: opts.backend,
+            vk: opts.vk.clone(),
+            keep_store: false,
+            no_image: true,
+            no_fields: false,
+            device_memory_budget: None,
+            resume: false,
+        },
+        |_, _| {},
+    )?;
+    let seconds = t.elapsed().as_secs_f64();
+    let c = compare_dirs(&dir, reference_dir, compare_options)?;
+    let mut r = row("lpm", run.setting(), seconds, &c, Some(report.orders), Some(report.final_residual));
+    r.storage_precision = Some(report.plan.storage_precision.name().to_string());
+    r.plan = Some(report.plan.mode.clone());
+    r.channels = Some(report.plan.channels);
+    r.storage_directions = Some(report.plan.storage_directions as u32);
+    if let Some(m) = &report.device_memory {
+        r.peak_device_bytes = Some(report.peak_device_bytes);
+        r.planned_device_bytes = Some(m.planned_bytes);
+    }
+    Ok(r)
+}
+
 /// One row of the study from a run's comparison with the reference.
 fn row(method: &str, setting: String, seconds: f64, c: &Comparison, orders: Option<u32>, residual: Option<f64>) -> AccuracyRow {
     let m = &c.fluence.metrics;
@@ -171,6 +223,9 @@ fn row(method: &str, setting: String, seconds: f64, c: &Comparison, orders: Opti
         method: method.into(),
         setting,
         storage_precision: None,
+        plan: None,
+        channels: None,
+        storage_directions: None,
         seconds,
         relative_l2: m.relative_l2,
         rmse: m.rmse,
@@ -197,7 +252,8 @@ pub fn precision_name(p: StoragePrecision) -> &'static str {
 
 /// A copy of the scene with its solver settings replaced, written next to the run. A raw volume's
 /// path is rewritten to the absolute path the loader resolved, so the copy reads the same data.
-fn with_solver_settings(scene: &Path, dir: &Path, k: u32, tolerance: f64, precision: StoragePrecision) -> Result<PathBuf, AccuracyError> {
+fn with_solver_settings(scene: &Path, dir: &Path, run: &SolverRun) -> Result<PathBuf, AccuracyError> {
+    let (k, tolerance, precision) = (run.k, run.tolerance, run.precision);
     let loaded = crate::scene::Scene::load(scene).map_err(job::JobError::from)?;
     let text = std::fs::read_to_string(scene).map_err(|source| AccuracyError::Write { path: scene.to_path_buf(), source })?;
     let mut value: toml::Value = text
@@ -209,6 +265,7 @@ fn with_solver_settings(scene: &Path, dir: &Path, k: u32, tolerance: f64, precis
             solver.insert("directions_per_face".into(), toml::Value::Integer(k as i64));
             solver.insert("tolerance".into(), toml::Value::Float(tolerance));
             solver.insert("storage_precision".into(), toml::Value::String(precision_name(precision).into()));
+            solver.insert("plan".into(), toml::Value::String(run.plan.name().into()));
             if solver.get("storage_directions_per_face").and_then(toml::Value::as_integer).is_some_and(|ks| ks > k as i64) {
                 solver.insert("storage_directions_per_face".into(), toml::Value::Integer(k as i64));
             }
@@ -231,11 +288,11 @@ fn write_outputs(out: &Path, report: &AccuracyReport) -> Result<(), AccuracyErro
     crate::output::write_json_atomic(&out.join("accuracy.json"), report)?;
     let opt = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:e}"));
     let mut csv = String::from(
-        "method,setting,seconds,relative_l2,rmse,max_relative_error,mean_bias,reference_noise_l2,noise_corrected_l2,voxels_compared,orders,residual,storage_precision,peak_device_bytes,planned_device_bytes\n",
+        "method,setting,seconds,relative_l2,rmse,max_relative_error,mean_bias,reference_noise_l2,noise_corrected_l2,voxels_compared,orders,residual,storage_precision,peak_device_bytes,planned_device_bytes,plan,channels,storage_directions\n",
     );
     for r in &report.rows {
         csv.push_str(&format!(
-            "{},{},{:e},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+            "{},{},{:e},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
             r.method,
             r.setting,
             r.seconds,
@@ -250,13 +307,16 @@ fn write_outputs(out: &Path, report: &AccuracyReport) -> Result<(), AccuracyErro
             opt(r.residual),
             r.storage_precision.as_deref().unwrap_or(""),
             r.peak_device_bytes.map_or(String::new(), |b| b.to_string()),
-            r.planned_device_bytes.map_or(String::new(), |b| b.to_string())
+            r.planned_device_bytes.map_or(String::new(), |b| b.to_string()),
+            r.plan.as_deref().unwrap_or(""),
+            r.channels.map_or(String::new(), |c| c.to_string()),
+            r.storage_directions.map_or(String::new(), |d| d.to_string())
         ));
     }
     crate::output::write_atomic(&out.join("accuracy.csv"), |w| std::io::Write::write_all(w, csv.as_bytes()))?;
 
-    // One series per directions-per-face and precision (its points are the tolerances), one for
-    // Monte Carlo. A setting reads "k=… tol=… precision".
+    // One series per directions-per-face, precision and plan (its points are the tolerances), one
+    // for Monte Carlo. A setting reads "k=… tol=… precision[ plan=…]".
     let point = |r: &AccuracyRow| r.relative_l2.map(|e| (r.seconds, e));
     let line_of = |r: &AccuracyRow| {
         let words: Vec<&str> = r.setting.split(' ').collect();

@@ -2,7 +2,9 @@
 //! `lpm solve` output), B the reference (say an `lpm reference` output).
 //!
 //! **Fluence.** `fluence.json` / `fluence.raw` of both are read ([`output::read_raw_field`]); their
-//! dims and components must match. When B has `fluence_stderr.*` (a Monte-Carlo reference), only the
+//! dims and components must match, except that a grey reference (one component named "grey") is
+//! compared with each channel of an r, g, b candidate: a grey scene solved with `solver.plan =
+//! "full"` against a reference of the same scene, which models it with one channel. When B has `fluence_stderr.*` (a Monte-Carlo reference), only the
 //! voxels where every component of the reference is > 0 with a relative standard error ≤
 //! [`CompareOptions::max_relative_stderr`] are compared: elsewhere the reference is too noisy to
 //! judge the candidate by. Otherwise every voxel is compared. Voxels either side left unsolved (NaN
@@ -71,6 +73,7 @@ pub struct Comparison {
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct FluenceComparison {
     pub dims: [u32; 3],
+    /// Components compared per voxel (the candidate's).
     pub components: u32,
     /// The threshold applied when the reference has standard errors; `None` when it has none.
     pub max_relative_stderr: Option<f64>,
@@ -113,13 +116,19 @@ pub fn compare_dirs(a: &Path, b: &Path, opts: &CompareOptions) -> Result<Compari
     if info_a.dims != info_b.dims {
         return Err(mismatch("dims", format!("{:?}", info_a.dims), format!("{:?}", info_b.dims), "fluence.json"));
     }
-    if info_a.components != info_b.components {
+    let mut notes = Vec::new();
+    let broadcast = grey_against_rgb(&info_a.component_names, &info_b.component_names);
+    if broadcast {
+        notes.push("the reference is grey: each of the candidate's r, g, b channels is compared with it".into());
+    } else if info_a.components != info_b.components {
         let (x, y) = (info_a.components.to_string(), info_b.components.to_string());
         return Err(mismatch("components", x, y, "fluence.json"));
     }
-    let c = info_b.components as usize;
+    // Values per voxel in the candidate and the reference, and the reference value each candidate
+    // component is compared with.
+    let (ca, c) = (info_a.components as usize, info_b.components as usize);
+    let ref_of = |k: usize| if broadcast { 0 } else { k };
     let voxels_total = values_b.len() as u64 / c as u64;
-    let mut notes = Vec::new();
 
     let stderr = if b.join("fluence_stderr.json").exists() {
         let (info_s, se) = output::read_raw_field(b, "fluence_stderr")?;
@@ -142,7 +151,7 @@ pub fn compare_dirs(a: &Path, b: &Path, opts: &CompareOptions) -> Result<Compari
     let mut not_solved = 0u64;
     let unsolved = |v: &[f32]| v.iter().all(|x| x.is_nan());
     let (mut noise_sq, mut ref_sq) = (0.0f64, 0.0f64);
-    for (v, (va, vb)) in values_a.chunks_exact(c).zip(values_b.chunks_exact(c)).enumerate() {
+    for (v, (va, vb)) in values_a.chunks_exact(ca).zip(values_b.chunks_exact(c)).enumerate() {
         if unsolved(va) || unsolved(vb) {
             not_solved += 1;
             continue;
@@ -154,16 +163,16 @@ pub fn compare_dirs(a: &Path, b: &Path, opts: &CompareOptions) -> Result<Compari
         };
         if keep {
             used += 1;
-            va.iter().zip(vb).for_each(|(&x, &y)| acc.add(x, y));
+            va.iter().enumerate().for_each(|(k, &x)| acc.add(x, vb[ref_of(k)]));
             if let Some(se) = &stderr {
-                for k in 0..c {
-                    noise_sq += (se[v * c + k] as f64).powi(2);
-                    ref_sq += (vb[k] as f64).powi(2);
+                for k in 0..ca {
+                    noise_sq += (se[v * c + ref_of(k)] as f64).powi(2);
+                    ref_sq += (vb[ref_of(k)] as f64).powi(2);
                 }
             }
         }
     }
-    let non_finite = values_a.chunks_exact(c).filter(|v| !unsolved(v)).flatten().filter(|v| !v.is_finite()).count();
+    let non_finite = values_a.chunks_exact(ca).filter(|v| !unsolved(v)).flatten().filter(|v| !v.is_finite()).count();
     if non_finite > 0 {
         notes.push(format!("the candidate's fluence has {non_finite} non-finite value(s)"));
     }
@@ -178,7 +187,7 @@ pub fn compare_dirs(a: &Path, b: &Path, opts: &CompareOptions) -> Result<Compari
     };
     let fluence = FluenceComparison {
         dims: info_b.dims,
-        components: info_b.components,
+        components: info_a.components,
         max_relative_stderr: stderr.is_some().then_some(threshold),
         voxels_total,
         voxels_used: used,
@@ -201,4 +210,10 @@ pub fn compare_dirs(a: &Path, b: &Path, opts: &CompareOptions) -> Result<Compari
 /// Writes `comparison` as pretty JSON to `path`, atomically.
 pub fn write_comparison_json(path: &Path, comparison: &Comparison) -> Result<(), OutputError> {
     output::write_json_atomic(path, comparison)
+}
+
+/// True when the reference is grey and the candidate has r, g, b channels: a grey scene solved
+/// with `solver.plan = "full"`, whose three channels each stand for the reference's one.
+fn grey_against_rgb(candidate: &[String], reference: &[String]) -> bool {
+    reference == ["grey"] && candidate == ["r", "g", "b"]
 }

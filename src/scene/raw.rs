@@ -59,6 +59,7 @@ pub(crate) struct RawSolver {
     pub device_memory_budget: Option<ByteSize>,
     pub extrapolate_tail: Option<bool>,
     pub storage_precision: Option<String>,
+    pub plan: Option<String>,
 }
 
 #[derive(Debug, Deserialize)]

@@ -85,6 +85,32 @@ pub struct SolverSettings {
     pub extrapolate_tail: bool,
     /// Precision of the source the rays gain, as stored on the device (`solver.storage_precision`).
     pub storage_precision: StoragePrecision,
+    /// Whether the plan may reduce what it models to what the scene needs (`solver.plan`).
+    pub plan: PlanMode,
+}
+
+/// `solver.plan`: whether the plan models only what the scene needs, or everything. `Full` exists
+/// to measure what the reductions save and to show they cost no accuracy (`lpm bench accuracy
+/// --plans auto,full`); a solve has no other reason to use it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum PlanMode {
+    /// 1 channel for a grey scene, 1 storage direction for an isotropic medium, f16 storage of the
+    /// gained source when the tolerance allows (`storage_precision = "auto"`).
+    #[default]
+    Auto,
+    /// None of those reductions: 3 channels, k_s×k_s storage directions per face, and f32 storage
+    /// unless `storage_precision` names f16. Empty bricks are still skipped (that is exact).
+    Full,
+}
+
+impl PlanMode {
+    /// The scene file's spelling: "auto" or "full".
+    pub fn name(self) -> &'static str {
+        match self {
+            PlanMode::Auto => "auto",
+            PlanMode::Full => "full",
+        }
+    }
 }
 
 /// `solver.storage_precision`: how the previous order's source (the one the rays gain) is stored

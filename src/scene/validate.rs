@@ -5,7 +5,7 @@ use super::raw::{
     ByteSize, Channels, RawCamera, RawLight, RawMedium, RawScene, RawSolver, RawVolume,
 };
 use super::{
-    Camera, Light, Medium, Projection, Scene, SceneError, Shape, SolverSettings,
+    Camera, Light, Medium, PlanMode, Projection, Scene, SceneError, Shape, SolverSettings,
     StoragePrecision, Volume, VolumeSource,
 };
 use glam::DVec3;
@@ -33,6 +33,7 @@ const SHAPES: &str = "\"sphere\", \"box\", \"cloud\"";
 const LIGHT_KINDS: &str = "\"sky\", \"sun\"";
 const PROJECTIONS: &str = "\"pinhole\", \"orthographic\"";
 const PRECISIONS: &str = "\"auto\", \"f16\", \"f32\"";
+const PLAN_MODES: &str = "\"auto\", \"full\"";
 
 pub(crate) struct Validator<'a> {
     pub path: &'a Path,
@@ -338,6 +339,7 @@ impl Validator<'_> {
                 device_memory_budget: None,
                 extrapolate_tail: false,
                 storage_precision: StoragePrecision::Auto,
+                plan: PlanMode::Auto,
             });
         };
         let k = match s.directions_per_face {
@@ -387,6 +389,16 @@ impl Validator<'_> {
                 ))
             }
         };
+        let plan = match s.plan.as_deref() {
+            None | Some("auto") => PlanMode::Auto,
+            Some("full") => PlanMode::Full,
+            Some(other) => {
+                return Err(self.err(
+                    "solver.plan",
+                    format!("unknown plan \"{other}\", expected one of {PLAN_MODES}"),
+                ))
+            }
+        };
         Ok(SolverSettings {
             directions_per_face: k,
             storage_directions_per_face: ks,
@@ -395,6 +407,7 @@ impl Validator<'_> {
             device_memory_budget,
             extrapolate_tail: s.extrapolate_tail.unwrap_or(false),
             storage_precision,
+            plan,
         })
     }
 

@@ -11,12 +11,18 @@
 //!   chosen per order from its largest value ([`half_scale_exponent`]) so that f16's range never
 //!   clips it; the accumulators and the brick store stay f32.
 //!
+//! `solver.plan = "full"` turns the reductions off (3 channels, k_s×k_s storage directions per
+//! face, f32 unless `storage_precision` names f16) so that `lpm bench accuracy --plans auto,full`
+//! can show what they save and that they cost no accuracy. It keeps what is exact: empty bricks
+//! are still skipped (no medium, no source: rays cross them unchanged) and no emission term is
+//! added when nothing emits.
+//!
 //! Everything both backends need to sweep a face is derived here ([`SweepDirection`]) so that the
 //! CPU twin and the GPU driver consume identical tables.
 
 use super::sweep::{lateral_slope, offsets, plane_path_length, FaceSweep};
 use crate::quadrature::{cube_face_of, phase, PropagationSet, StorageSet};
-use crate::scene::{Light, Medium, Scene, StoragePrecision};
+use crate::scene::{Light, Medium, PlanMode, Scene, StoragePrecision};
 use glam::DVec3;
 use serde::Serialize;
 
@@ -113,6 +119,8 @@ pub struct Plan {
     pub bricks_empty: usize,
     /// Storage precision of the source the rays gain (the previous order's).
     pub source_precision: Precision,
+    /// `solver.plan`: whether the reductions above were allowed.
+    pub mode: PlanMode,
     /// Why each choice was made, for the report.
     pub reasons: Vec<String>,
 }
@@ -136,6 +144,8 @@ pub struct PlanSummary {
     pub extrapolate_tail: bool,
     /// "f16" or "f32": how the source the rays gain is stored on the device.
     pub storage_precision: Precision,
+    /// "auto" (model only what the scene needs) or "full" (`solver.plan`: reductions off).
+    pub mode: String,
     pub reasons: Vec<String>,
 }
 
@@ -143,31 +153,21 @@ impl Plan {
     /// Decides the plan for `scene`; `bricks_empty` comes from the brick store.
     pub fn new(scene: &Scene, bricks_total: usize, bricks_empty: usize) -> Plan {
         let mut reasons = Vec::new();
+        let full = scene.solver.plan == PlanMode::Full;
+        if full {
+            reasons.push(FULL_PLAN_REASON.into());
+        }
         let dims = scene.volume.dims;
         let h = scene.volume.voxel_size;
         let medium = scene.medium.clone();
-        let grey = medium.is_grey() && scene.lights.iter().all(Light::is_grey);
-        let channels = if grey { 1 } else { 3 };
-        reasons.push(if grey {
-            "1 channel: the medium and every light are grey".to_string()
-        } else {
-            "3 channels: the medium or a light differs between r, g and b".to_string()
-        });
+        let channels = choose_channels(scene, full, &mut reasons);
 
         let k = scene.solver.directions_per_face;
         let propagation = PropagationSet::new(k);
-        let storage = if medium.g == 0.0 {
-            reasons.push("1 storage direction: the medium scatters isotropically (g = 0)".into());
-            StorageSet::isotropic(&propagation)
-        } else {
-            let ks = scene.solver.storage_directions_per_face.unwrap_or(k.min(2));
-            reasons.push(format!(
-                "{} storage directions ({ks}×{ks} per face): the medium is anisotropic (g = {})",
-                6 * ks * ks,
-                medium.g
-            ));
-            StorageSet::per_face(&propagation, ks)
-        };
+        let storage = choose_storage(scene, &propagation, full, &mut reasons);
+        // For g = 0 the matrix is uniform over the storage directions whatever their number, so a
+        // full plan's per-face source of an isotropic medium holds the same value in every
+        // direction (to rounding) and the rays gain what the single isotropic value would give.
         let collect = phase::collect_matrix(&propagation, &storage, medium.g);
         let s = storage.len();
 
@@ -234,34 +234,11 @@ impl Plan {
         } else {
             "no emission term: the medium does not emit".into()
         });
-        reasons.push(format!("{bricks_empty} of {bricks_total} bricks are empty: no medium or source stored"));
-        let tolerance = scene.solver.tolerance;
-        let (source_precision, why) = match scene.solver.storage_precision {
-            StoragePrecision::F16 => (Precision::F16, "storage_precision = \"f16\" in the scene".to_string()),
-            StoragePrecision::F32 => (Precision::F32, "storage_precision = \"f32\" in the scene".to_string()),
-            StoragePrecision::Auto if tolerance >= F16_MIN_TOLERANCE => (
-                Precision::F16,
-                format!(
-                    "auto: the tolerance {tolerance:e} is at least {F16_MIN_TOLERANCE:e}, so f16's relative \
-                     rounding (2^-11 ≈ 4.9e-4) stays below it"
-                ),
-            ),
-            StoragePrecision::Auto => (
-                Precision::F32,
-                format!(
-                    "auto: the tolerance {tolerance:e} is below {F16_MIN_TOLERANCE:e}, so f16's relative \
-                     rounding (2^-11 ≈ 4.9e-4) could show in the result"
-                ),
-            ),
-        };
-        reasons.push(match source_precision {
-            Precision::F16 => format!(
-                "the source the rays gain is stored in f16, scaled per order by a power of two ({why}): \
-                 half the bytes of that source on the device and in the upload; accumulators and the \
-                 store stay f32"
-            ),
-            Precision::F32 => format!("the source the rays gain is stored in f32 ({why}); all fields are f32"),
-        });
+        reasons.push(format!(
+            "{bricks_empty} of {bricks_total} bricks are empty: no medium or source stored{}",
+            if full { " (kept under plan = \"full\": skipping them is exact)" } else { "" }
+        ));
+        let source_precision = choose_precision(scene, full, &mut reasons);
 
         Plan {
             dims,
@@ -279,6 +256,7 @@ impl Plan {
             bricks_total,
             bricks_empty,
             source_precision,
+            mode: scene.solver.plan,
             reasons,
         }
     }
@@ -312,7 +290,82 @@ impl Plan {
             tolerance: self.tolerance,
             extrapolate_tail: self.extrapolate_tail,
             storage_precision: self.source_precision,
+            mode: self.mode.name().to_string(),
             reasons: self.reasons.clone(),
         }
     }
+}
+
+/// The first reason of a `plan = "full"` plan: what it turns off and what it keeps.
+pub const FULL_PLAN_REASON: &str = "plan = \"full\": the plan's reductions are off — 3 channels, \
+     k_s×k_s storage directions per face and f32 storage of the gained source (unless \
+     storage_precision names f16), whatever the scene needs; kept: empty bricks are skipped and \
+     the emission term is left out when nothing emits (both exact: they add nothing)";
+
+/// 1 channel when the medium and every light are grey (and the plan may reduce), else 3.
+fn choose_channels(scene: &Scene, full: bool, reasons: &mut Vec<String>) -> u32 {
+    let grey = scene.medium.is_grey() && scene.lights.iter().all(Light::is_grey);
+    let (channels, why) = match (grey, full) {
+        (true, false) => (1, "1 channel: the medium and every light are grey"),
+        (true, true) => (3, "3 channels: plan = \"full\" (the medium and every light are grey, so 1 would do)"),
+        (false, _) => (3, "3 channels: the medium or a light differs between r, g and b"),
+    };
+    reasons.push(why.into());
+    channels
+}
+
+/// One storage direction for an isotropic medium (when the plan may reduce), else k_s×k_s per face
+/// with k_s = `solver.storage_directions_per_face` or min(k, 2).
+fn choose_storage(scene: &Scene, propagation: &PropagationSet, full: bool, reasons: &mut Vec<String>) -> StorageSet {
+    let g = scene.medium.g;
+    if g == 0.0 && !full {
+        reasons.push("1 storage direction: the medium scatters isotropically (g = 0)".into());
+        return StorageSet::isotropic(propagation);
+    }
+    let k = propagation.k;
+    let ks = scene.solver.storage_directions_per_face.unwrap_or(k.min(2));
+    let why = if g == 0.0 {
+        "plan = \"full\" (the medium scatters isotropically, so 1 would do)".to_string()
+    } else {
+        format!("the medium is anisotropic (g = {g})")
+    };
+    reasons.push(format!("{} storage directions ({ks}×{ks} per face): {why}", 6 * ks * ks));
+    StorageSet::per_face(propagation, ks)
+}
+
+/// The storage precision of the gained source: as `solver.storage_precision` says, or under
+/// `auto` f16 when the tolerance allows it, except in a full plan, which keeps f32.
+fn choose_precision(scene: &Scene, full: bool, reasons: &mut Vec<String>) -> Precision {
+    let tolerance = scene.solver.tolerance;
+    let (precision, why) = match scene.solver.storage_precision {
+        StoragePrecision::F16 => (Precision::F16, "storage_precision = \"f16\" in the scene".to_string()),
+        StoragePrecision::F32 => (Precision::F32, "storage_precision = \"f32\" in the scene".to_string()),
+        StoragePrecision::Auto if full => (
+            Precision::F32,
+            "auto under plan = \"full\": f16 is one of the reductions it turns off".to_string(),
+        ),
+        StoragePrecision::Auto if tolerance >= F16_MIN_TOLERANCE => (
+            Precision::F16,
+            format!(
+                "auto: the tolerance {tolerance:e} is at least {F16_MIN_TOLERANCE:e}, so f16's relative \
+                 rounding (2^-11 ≈ 4.9e-4) stays below it"
+            ),
+        ),
+        StoragePrecision::Auto => (
+            Precision::F32,
+            format!(
+                "auto: the tolerance {tolerance:e} is below {F16_MIN_TOLERANCE:e}, so f16's relative \
+                 rounding (2^-11 ≈ 4.9e-4) could show in the result"
+            ),
+        ),
+    };
+    reasons.push(match precision {
+        Precision::F16 => format!(
+            "the source the rays gain is stored in f16, scaled per order by a power of two ({why}): \
+             half the bytes of that source on the device and in the upload; accumulators and the \
+             store stay f32"
+        ),
+        Precision::F32 => format!("the source the rays gain is stored in f32 ({why}); all fields are f32"),
+    });
+    precision
 }

@@ -20,6 +20,7 @@ pub fn scene(shape: Shape, dims: [u32; 3], sigma_t: [f64; 3], albedo: [f64; 3], 
             device_memory_budget: None,
             extrapolate_tail: false,
             storage_precision: StoragePrecision::Auto,
+            plan: PlanMode::Auto,
         },
         camera: None,
     }
