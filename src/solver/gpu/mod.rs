@@ -564,7 +564,14 @@ impl<'a> GpuBackend<'a> {
                 let t1 = (t0 + chunk).min(range.t1);
                 push.t0 = t0;
                 push.t1 = t1;
-                push.flags = flags | vacuum | half | if last && t1 == range.t1 { FLAG_LAST_SLICE } else { 0 };
+                let last_chunk = last && t1 == range.t1;
+                push.flags = flags | vacuum | half | if last_chunk { FLAG_LAST_SLICE } else { 0 };
+                // Across vacuum, rays that do not move sideways keep everything: the kernel would
+                // only read and write back the ray state (a big share of a sparse volume's time).
+                if slot.is_none() && !last_chunk && tables.still(base..base + n, t0, t1) {
+                    t0 = t1;
+                    continue;
+                }
                 rec.dispatch(
                     propagate,
                     &[

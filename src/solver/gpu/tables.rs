@@ -13,6 +13,8 @@ pub struct SweepTables {
     pub directions: Buffer,
     pub offsets: Buffer,
     pub rows: Buffer,
+    /// The offsets again, on the host: `offsets_host[dir]` per plane (see [`SweepTables::still`]).
+    offsets_host: Vec<Vec<[i32; 2]>>,
 }
 
 impl SweepTables {
@@ -28,6 +30,7 @@ impl SweepTables {
             })
             .collect();
         let offsets: Vec<[i32; 2]> = dirs.iter().flat_map(|d| d.offsets.iter().copied()).collect();
+        let offsets_host = dirs.iter().map(|d| d.offsets.clone()).collect();
         let rows: Vec<f32> = dirs.iter().flat_map(|d| d.collect_row.iter().map(|&v| v as f32)).collect();
         let parts: [&[u8]; 3] = [bytemuck::cast_slice(&gpu_dirs), bytemuck::cast_slice(&offsets), bytemuck::cast_slice(&rows)];
 
@@ -68,9 +71,21 @@ impl SweepTables {
         }
         let mut it = made.into_iter();
         match (it.next(), it.next(), it.next()) {
-            (Some(directions), Some(offsets), Some(rows)) => Ok(SweepTables { directions, offsets, rows }),
+            (Some(directions), Some(offsets), Some(rows)) => Ok(SweepTables { directions, offsets, rows, offsets_host }),
             _ => Err(SolveError::Internal("table buffers")),
         }
+    }
+
+    /// True when none of the directions `dirs` moves laterally from plane `t0 − 1` to plane
+    /// `t1 − 1` (`t0 > 0`): across a vacuum stretch no ray of theirs wraps, so nothing about them
+    /// changes there and the dispatch can be left out (an axis-aligned direction never moves).
+    pub fn still(&self, dirs: std::ops::Range<u32>, t0: u32, t1: u32) -> bool {
+        t0 > 0
+            && t1 > t0
+            && dirs.into_iter().all(|d| {
+                let o = &self.offsets_host[d as usize];
+                o.get(t0 as usize - 1).is_some() && o.get(t0 as usize - 1) == o.get(t1 as usize - 1)
+            })
     }
 
     pub fn destroy(self, ctx: &Context) {
