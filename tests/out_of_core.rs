@@ -53,5 +53,8 @@ fn a_volume_larger_than_the_resident_set_is_streamed_for_one_order() {
     assert!(peak < raw_bytes / 3, "peak resident {peak} bytes for a {raw_bytes}-byte volume");
     // --no-fields: no dense exports.
     assert!(!out.join("fluence.raw").exists() && !out.join("source.raw").exists());
+    let info = lpm_command(&["info", out.to_str().unwrap()]).output().expect("run lpm info");
+    let text = String::from_utf8_lossy(&info.stdout);
+    assert!(info.status.success() && text.contains("fluence   not exported (solved with --no-fields)"), "{text}");
     let _ = std::fs::remove_dir_all(&dir);
 }
