@@ -22,7 +22,7 @@
 //! l computes. When a whole slice does not fit the budget it is streamed as sub-slices of fewer
 //! planes (each slot then holds that slab of each occupied brick). Only occupied bricks travel; a
 //! (sub-)slice without any is vacuum: it takes no slot and no transfer, and its compute step only
-//! moves the rays across it. Transfer submissions go to a dedicated transfer queue when the device has one, else
+//! moves the rays across it (and is left out for directions that do not move sideways there). Transfer submissions go to a dedicated transfer queue when the device has one, else
 //! to the compute queue as a second submission stream ordered by the same timeline semaphores.
 //! With one slot each slice completes before the next starts. Slots are reused against timeline
 //! values, never by idling the device. A long order logs its progress in passes now and then
