@@ -404,7 +404,7 @@ fn info(dir: &std::path::Path, json: bool) -> Result<()> {
         let line: Vec<String> = phases.iter().map(|p| format!("{} {:.3}s", p["phase"].as_str().unwrap_or("?"), p["seconds"].as_f64().unwrap_or(0.0))).collect();
         println!("time      {}", line.join(", "));
     }
-    let written = |name: &str| r["outputs"].as_array().is_none_or(|o| o.iter().any(|f| f.as_str() == Some(name)));
+    let written = |name: &str| r["outputs"].as_array().map_or(true, |o| o.iter().any(|f| f.as_str() == Some(name)));
     for base in ["fluence", "source"] {
         if !written(&format!("{base}.json")) {
             println!("{base:<9} not exported (solved with --no-fields)");
