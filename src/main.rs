@@ -149,6 +149,11 @@ enum BenchCommand {
         /// Solver tolerances to try (comma-separated).
         #[arg(long, value_delimiter = ',', default_value = "1e-2,1e-3,1e-4")]
         tolerances: Vec<f64>,
+        /// Order caps (`solver.max_orders`) to run each (k, tolerance) with (comma-separated);
+        /// default: the scene's own cap. A cap cuts the order series short: its error against the
+        /// reference shows what each further order buys.
+        #[arg(long, value_delimiter = ',')]
+        max_orders: Vec<u32>,
         /// Storage precisions of the gained source to run each (k, tolerance) with (comma-separated:
         /// f32, f16, auto).
         #[arg(long, value_delimiter = ',', value_enum, default_value = "f32,f16")]
@@ -278,11 +283,12 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Bench {
-            what: BenchCommand::Accuracy { scene, out, k, tolerances, precisions, plans, samples, reference_samples, backend, max_rel_stderr },
+            what: BenchCommand::Accuracy { scene, out, k, tolerances, max_orders, precisions, plans, samples, reference_samples, backend, max_rel_stderr },
         } => {
             let options = lpm::bench::accuracy::AccuracyOptions {
                 directions_per_face: k,
                 tolerances,
+                max_orders,
                 precisions: precisions
                     .iter()
                     .map(|p| match p {

@@ -255,3 +255,27 @@ fn bench_accuracy_writes_json_csv_and_plots() {
     assert!(std::fs::read_to_string(out.join("accuracy.svg")).unwrap().contains("Monte Carlo"));
     assert!(std::fs::metadata(out.join("accuracy.png")).unwrap().len() > 1000);
 }
+
+#[test]
+fn bench_accuracy_order_caps_cut_the_series_short() {
+    let dir = temp_dir("cli-accuracy-caps");
+    let text = SMALL.replace("dims = [20, 17, 23]", "dims = [10, 10, 10]").replace("sigma_t = [1.0, 0.8, 0.6]", "sigma_t = 1.5");
+    let scene = write_scene(&dir, &text);
+    let out = dir.join("acc");
+    let o = lpm(&[
+        "bench", "accuracy", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--k", "2", "--tolerances", "1e-4",
+        "--max-orders", "1,4", "--precisions", "f32", "--samples", "2e4", "--reference-samples", "1e6", "--max-rel-stderr", "0.2",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("accuracy.json")).unwrap()).unwrap();
+    let rows = report["rows"].as_array().unwrap();
+    // Two caps, then one photon count.
+    assert_eq!(rows.len(), 3);
+    let (one, four) = (&rows[0], &rows[1]);
+    assert_eq!(one["setting"], "k=2 tol=1e-4 max_orders=1 f32");
+    assert_eq!((one["orders"].as_u64(), four["orders"].as_u64()), (Some(1), Some(4)), "{rows:?}");
+    // Single scattering alone misses the multiply scattered light (albedo 0.8): a larger error.
+    let (e1, e4) = (one["relative_l2"].as_f64().unwrap(), four["relative_l2"].as_f64().unwrap());
+    assert!(e1 > 2.0 * e4, "cap 1: {e1}, cap 4: {e4}");
+    assert!(out.join("runs/lpm-k2-tol1e-4-orders1-f32/report.json").exists());
+}

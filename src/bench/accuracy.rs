@@ -2,6 +2,7 @@
 //! same axes.
 //!
 //! A long Monte-Carlo run is the reference. The solver runs across directions per face, tolerances,
+//! order caps (optional: `--max-orders`, else the scene's own cap),
 //! storage precisions of the gained source (f32 against f16 at otherwise equal settings, with the
 //! device bytes each used) and plans (`solver.plan`: "auto" models only what the scene needs,
 //! "full" turns those reductions off, so each auto run can be set against its full twin); the
@@ -25,6 +26,8 @@ use std::time::Instant;
 pub struct AccuracyOptions {
     pub directions_per_face: Vec<u32>,
     pub tolerances: Vec<f64>,
+    /// `solver.max_orders` values to run each (k, tolerance) with; empty: the scene's own cap.
+    pub max_orders: Vec<u32>,
     /// `solver.storage_precision` values to run each (k, tolerance) with.
     pub precisions: Vec<StoragePrecision>,
     /// `solver.plan` values to run each (k, tolerance, precision) with.
@@ -111,13 +114,17 @@ pub fn run(scene: &Path, out: &Path, opts: &AccuracyOptions, mut log: impl FnMut
     // Name the plan in settings and run directories only when it varies from the default, so a
     // study without `--plans` reads as before.
     let name_plans = opts.plans.iter().any(|&p| p != PlanMode::Auto);
+    let caps: Vec<Option<u32>> =
+        if opts.max_orders.is_empty() { vec![None] } else { opts.max_orders.iter().map(|&c| Some(c)).collect() };
     for &k in &opts.directions_per_face {
         for &tolerance in &opts.tolerances {
-            for &precision in &opts.precisions {
-                for &plan in &opts.plans {
-                    let run = SolverRun { k, tolerance, precision, plan, name_plan: name_plans };
-                    log(&format!("lpm {}", run.setting()));
-                    rows.push(solver_row(scene, &runs, &reference_dir, &run, opts, &compare_options)?);
+            for &max_orders in &caps {
+                for &precision in &opts.precisions {
+                    for &plan in &opts.plans {
+                        let run = SolverRun { k, tolerance, max_orders, precision, plan, name_plan: name_plans };
+                        log(&format!("lpm {}", run.setting()));
+                        rows.push(solver_row(scene, &runs, &reference_dir, &run, opts, &compare_options)?);
+                    }
                 }
             }
         }
@@ -155,6 +162,8 @@ pub fn run(scene: &Path, out: &Path, opts: &AccuracyOptions, mut log: impl FnMut
 struct SolverRun {
     k: u32,
     tolerance: f64,
+    /// `None`: the scene's own order cap.
+    max_orders: Option<u32>,
     precision: StoragePrecision,
     plan: PlanMode,
     /// Whether the setting and the run's directory name the plan.
@@ -162,17 +171,19 @@ struct SolverRun {
 }
 
 impl SolverRun {
-    /// E.g. "k=3 tol=1e-3 f16", or "k=3 tol=1e-3 auto plan=full".
+    /// E.g. "k=3 tol=1e-3 f16", "k=3 tol=1e-3 max_orders=4 f16" or "k=3 tol=1e-3 auto plan=full".
     fn setting(&self) -> String {
         let (k, tolerance, precision) = (self.k, self.tolerance, precision_name(self.precision));
+        let cap = self.max_orders.map_or(String::new(), |c| format!(" max_orders={c}"));
         let plan = if self.name_plan { format!(" plan={}", self.plan.name()) } else { String::new() };
-        format!("k={k} tol={tolerance:e} {precision}{plan}")
+        format!("k={k} tol={tolerance:e}{cap} {precision}{plan}")
     }
 
     fn dir_name(&self) -> String {
         let (k, tolerance, precision) = (self.k, self.tolerance, precision_name(self.precision));
+        let cap = self.max_orders.map_or(String::new(), |c| format!("-orders{c}"));
         let plan = if self.name_plan { format!("-{}", self.plan.name()) } else { String::new() };
-        format!("lpm-k{k}-tol{tolerance:e}-{precision}{plan}")
+        format!("lpm-k{k}-tol{tolerance:e}{cap}-{precision}{plan}")
     }
 }
 
@@ -266,6 +277,9 @@ fn with_solver_settings(scene: &Path, dir: &Path, run: &SolverRun) -> Result<Pat
             solver.insert("tolerance".into(), toml::Value::Float(tolerance));
             solver.insert("storage_precision".into(), toml::Value::String(precision_name(precision).into()));
             solver.insert("plan".into(), toml::Value::String(run.plan.name().into()));
+            if let Some(cap) = run.max_orders {
+                solver.insert("max_orders".into(), toml::Value::Integer(cap as i64));
+            }
             if solver.get("storage_directions_per_face").and_then(toml::Value::as_integer).is_some_and(|ks| ks > k as i64) {
                 solver.insert("storage_directions_per_face".into(), toml::Value::Integer(k as i64));
             }
@@ -320,7 +334,7 @@ fn write_outputs(out: &Path, report: &AccuracyReport) -> Result<(), AccuracyErro
     let point = |r: &AccuracyRow| r.relative_l2.map(|e| (r.seconds, e));
     let line_of = |r: &AccuracyRow| {
         let words: Vec<&str> = r.setting.split(' ').collect();
-        words.iter().filter(|w| !w.starts_with("tol=")).copied().collect::<Vec<_>>().join(" ")
+        words.iter().filter(|w| !w.starts_with("tol=") && !w.starts_with("max_orders=")).copied().collect::<Vec<_>>().join(" ")
     };
     let mut series: Vec<Series> = Vec::new();
     let mut lines: Vec<String> = Vec::new();
