@@ -176,14 +176,7 @@ impl BrickStore {
     /// (the values are kept; see [`Field`]'s docs on resident memory).
     pub fn release_density(&self, first: usize, count: usize) {
         let brick = BRICK_VOXELS * 4;
-        #[cfg(unix)]
-        super::field::release_pages(
-            // SAFETY: a read-only shared file mapping keeps its contents under DONTNEED.
-            |o, l| unsafe { self.density.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, o, l) },
-            self.density.len(),
-            first * brick,
-            count * brick,
-        );
+        super::field::release_read_only(&self.density, first * brick, count * brick);
     }
 
     /// Drops every density page from the resident set.

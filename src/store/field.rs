@@ -271,13 +271,25 @@ fn shape(
 /// map). The pages' contents live on in the page cache and the file (MADV_DONTNEED on a *shared
 /// file* mapping never loses data, unlike on private or anonymous memory); a later access faults
 /// them back in. Best effort: a failure only leaves the pages resident.
-pub(crate) fn release_pages(advise: impl FnOnce(usize, usize) -> std::io::Result<()>, map_len: usize, offset: usize, len: usize) {
+fn release_pages(advise: impl FnOnce(usize, usize) -> std::io::Result<()>, map_len: usize, offset: usize, len: usize) {
     let len = len.min(map_len.saturating_sub(offset));
     if len > 0 {
         if let Err(e) = advise(offset, len) {
             tracing::debug!(offset, len, "madvise(DONTNEED) failed, the pages stay resident: {e}");
         }
     }
+}
+
+/// `release_pages` for a read-only map (the density bricks, a raw volume being imported).
+pub(crate) fn release_read_only(map: &memmap2::Mmap, offset: usize, len: usize) {
+    #[cfg(unix)]
+    release_pages(
+        // SAFETY: a read-only shared file mapping keeps its contents under DONTNEED.
+        |o, l| unsafe { map.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, o, l) },
+        map.len(),
+        offset,
+        len,
+    );
 }
 
 /// `release_pages` for a writable map.

@@ -79,13 +79,6 @@ impl RawDensity {
     fn release_layer(&self, bz: u32) {
         let plane = self.grid.dims[0] as usize * self.grid.dims[1] as usize * 4;
         let (first, planes) = (bz as usize * BRICK_EDGE as usize, BRICK_EDGE as usize);
-        #[cfg(unix)]
-        super::field::release_pages(
-            // SAFETY: a read-only shared file mapping keeps its contents under DONTNEED.
-            |o, l| unsafe { self.map.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, o, l) },
-            self.map.len(),
-            first * plane,
-            planes * plane,
-        );
+        super::field::release_read_only(&self.map, first * plane, planes * plane);
     }
 }

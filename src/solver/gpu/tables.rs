@@ -84,7 +84,7 @@ impl SweepTables {
             && t1 > t0
             && dirs.into_iter().all(|d| {
                 let o = &self.offsets_host[d as usize];
-                o.get(t0 as usize - 1).is_some() && o.get(t0 as usize - 1) == o.get(t1 as usize - 1)
+                matches!((o.get(t0 as usize - 1), o.get(t1 as usize - 1)), (Some(a), Some(b)) if a == b)
             })
     }
 
