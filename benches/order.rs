@@ -24,7 +24,11 @@ fn bench_scene() -> Scene {
     let n = env_u32("LPM_BENCH_DIMS", 64);
     Scene {
         path: PathBuf::from("bench"),
-        volume: Volume { source: VolumeSource::Procedural { shape: Shape::Cloud, seed: 1 }, dims: [n; 3], voxel_size: 1.0 },
+        volume: Volume {
+            source: VolumeSource::Procedural { shape: Shape::Cloud, seed: 1 },
+            dims: [n; 3],
+            voxel_size: 1.0,
+        },
         medium: Medium { sigma_t: [0.5, 0.4, 0.3], albedo: [0.9; 3], g: 0.0, emission: [0.0; 3] },
         lights: vec![
             Light::Sky { radiance: [1.0; 3] },
@@ -61,7 +65,8 @@ fn order(c: &mut Criterion) {
     let label = format!("gpu [{}]", ctx.device_name());
     let mut fields = StoreFields::create(&store, &plan).expect("fields");
     {
-        let mut gpu = GpuBackend::new(ctx.clone(), &plan, &store, &mut fields, lpm::solver::gpu::GpuOptions::default()).expect("GPU backend");
+        let mut gpu = GpuBackend::new(ctx.clone(), &plan, &store, &mut fields, lpm::solver::gpu::GpuOptions::default())
+            .expect("GPU backend");
         gpu.propagate_order(0).expect("order 0");
         gpu.finish_order().expect("finish");
         group.bench_function(label, |b| b.iter(|| gpu.propagate_order(1).expect("order")));

@@ -149,11 +149,8 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
     phases.insert(0, ("store".to_string(), store_seconds));
 
     let t = Instant::now();
-    let channel_names: Vec<String> = if plan.channels == 1 {
-        vec!["grey".into()]
-    } else {
-        ["r", "g", "b"].iter().map(|s| s.to_string()).collect()
-    };
+    let channel_names: Vec<String> =
+        if plan.channels == 1 { vec!["grey".into()] } else { ["r", "g", "b"].iter().map(|s| s.to_string()).collect() };
     let mut outputs = Vec::new();
     if !job.no_fields {
         output::export_field(
@@ -257,7 +254,9 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
 /// Total length of the files in `dir` (not recursive; unreadable entries count as 0).
 fn files_bytes(dir: &Path) -> u64 {
     std::fs::read_dir(dir)
-        .map(|entries| entries.flatten().filter_map(|e| e.metadata().ok()).filter(|m| m.is_file()).map(|m| m.len()).sum())
+        .map(|entries| {
+            entries.flatten().filter_map(|e| e.metadata().ok()).filter(|m| m.is_file()).map(|m| m.len()).sum()
+        })
         .unwrap_or(0)
 }
 

@@ -210,7 +210,18 @@ fn main() {
 
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Solve { scene, out, backend, device, validation, keep_store, no_image, no_fields, device_memory_budget, resume } => {
+        Command::Solve {
+            scene,
+            out,
+            backend,
+            device,
+            validation,
+            keep_store,
+            no_image,
+            no_fields,
+            device_memory_budget,
+            resume,
+        } => {
             let mut vk = ContextOptions::default();
             if let Some(v) = validation {
                 vk.validation = v;
@@ -262,7 +273,14 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Info { dir, json } => info(&dir, json),
         Command::Reference { scene, out, samples, seed, image_spp, threads } => {
-            let job = lpm::reference::job::ReferenceJob { scene, out: out.clone(), photons: samples, seed, threads, image_samples_per_pixel: image_spp };
+            let job = lpm::reference::job::ReferenceJob {
+                scene,
+                out: out.clone(),
+                photons: samples,
+                seed,
+                threads,
+                image_samples_per_pixel: image_spp,
+            };
             let report = lpm::reference::job::run(&job)?;
             println!(
                 "reference of {} with {} photons per channel in {:.1} s, mean relative standard error {}; outputs in {}",
@@ -275,7 +293,11 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Compare { a, b, json, max_rel_stderr } => {
-            let c = lpm::compare::compare_dirs(&a, &b, &lpm::compare::CompareOptions { max_relative_stderr: max_rel_stderr })?;
+            let c = lpm::compare::compare_dirs(
+                &a,
+                &b,
+                &lpm::compare::CompareOptions { max_relative_stderr: max_rel_stderr },
+            )?;
             println!("{c}");
             if let Some(path) = json {
                 lpm::compare::write_comparison_json(&path, &c)?;
@@ -283,7 +305,20 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Bench {
-            what: BenchCommand::Accuracy { scene, out, k, tolerances, max_orders, precisions, plans, samples, reference_samples, backend, max_rel_stderr },
+            what:
+                BenchCommand::Accuracy {
+                    scene,
+                    out,
+                    k,
+                    tolerances,
+                    max_orders,
+                    precisions,
+                    plans,
+                    samples,
+                    reference_samples,
+                    backend,
+                    max_rel_stderr,
+                },
         } => {
             let options = lpm::bench::accuracy::AccuracyOptions {
                 directions_per_face: k,
@@ -365,11 +400,15 @@ fn info(dir: &std::path::Path, json: bool) -> Result<()> {
         println!("{text}");
         return Ok(());
     }
-    let r: serde_json::Value = serde_json::from_str(&text).with_context(|| format!("{} is not valid JSON", path.display()))?;
+    let r: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("{} is not valid JSON", path.display()))?;
     let Some(plan) = r.get("plan") else { bail!("{}: no plan in the report", path.display()) };
     println!("scene     {}", r["scene"].as_str().unwrap_or("?"));
     println!("backend   {} on {}", r["backend"].as_str().unwrap_or("?"), r["device"].as_str().unwrap_or("?"));
-    println!("volume    {} voxels of {}, {} of {} bricks empty", plan["dims"], plan["voxel_size"], plan["bricks_empty"], plan["bricks_total"]);
+    println!(
+        "volume    {} voxels of {}, {} of {} bricks empty",
+        plan["dims"], plan["voxel_size"], plan["bricks_empty"], plan["bricks_total"]
+    );
     println!(
         "plan      {} channel(s), {} propagation and {} storage direction(s)",
         plan["channels"], plan["propagation_directions"], plan["storage_directions"]
@@ -388,7 +427,10 @@ fn info(dir: &std::path::Path, json: bool) -> Result<()> {
     );
     println!("energy    relative imbalance {}", r["energy"]["relative_imbalance"]);
     if let Some(t) = r.get("tail").filter(|t| !t.is_null()) {
-        println!("tail      geometric tail added: ratio {}, power {}, uncertainty {}", t["ratio"], t["power"], t["uncertainty"]);
+        println!(
+            "tail      geometric tail added: ratio {}, power {}, uncertainty {}",
+            t["ratio"], t["power"], t["uncertainty"]
+        );
     }
     println!("device    peak allocation {} bytes", r["peak_device_bytes"]);
     if let Some(m) = r.get("device_memory").filter(|m| !m.is_null()) {
@@ -407,7 +449,10 @@ fn info(dir: &std::path::Path, json: bool) -> Result<()> {
         println!("host      peak resident {peak} bytes; brick store {} bytes", r["store_bytes"]);
     }
     if let Some(phases) = r["seconds"].as_array() {
-        let line: Vec<String> = phases.iter().map(|p| format!("{} {:.3}s", p["phase"].as_str().unwrap_or("?"), p["seconds"].as_f64().unwrap_or(0.0))).collect();
+        let line: Vec<String> = phases
+            .iter()
+            .map(|p| format!("{} {:.3}s", p["phase"].as_str().unwrap_or("?"), p["seconds"].as_f64().unwrap_or(0.0)))
+            .collect();
         println!("time      {}", line.join(", "));
     }
     let written = |name: &str| r["outputs"].as_array().map_or(true, |o| o.iter().any(|f| f.as_str() == Some(name)));

@@ -8,7 +8,13 @@ use lpm::solver::BackendKind::Gpu;
 use lpm::solver::SolveError;
 
 fn cloud() -> Scene {
-    let mut s = scene(Shape::Cloud, [34, 30, 38], [0.9, 0.7, 0.5], [0.9, 0.8, 0.7], vec![sky(0.5), sun([0.4, -0.3, 1.0], [2.0; 3])]);
+    let mut s = scene(
+        Shape::Cloud,
+        [34, 30, 38],
+        [0.9, 0.7, 0.5],
+        [0.9, 0.8, 0.7],
+        vec![sky(0.5), sun([0.4, -0.3, 1.0], [2.0; 3])],
+    );
     s.medium.g = 0.5;
     s.solver.directions_per_face = 3;
     s.solver.storage_directions_per_face = Some(2);
@@ -58,7 +64,13 @@ fn any_budget_gives_bitwise_the_same_fluence_and_source() {
         assert!(solved.run.peak_device_bytes <= budget, "peak {} over budget {budget}", solved.run.peak_device_bytes);
         assert!(bits(&solved) == bits(&reference), "budget {budget} ({m:?}) changed the result");
         eprintln!("budget {budget}: {m:?}");
-        cuts.push((m.slices_in_flight, m.directions_per_pass, m.planes_per_slice, m.directions_per_dispatch, m.planes_per_dispatch));
+        cuts.push((
+            m.slices_in_flight,
+            m.directions_per_pass,
+            m.planes_per_slice,
+            m.directions_per_dispatch,
+            m.planes_per_dispatch,
+        ));
     }
     // The smallest budget: one slice at a time, one direction per pass, sub-slices of one plane.
     assert_eq!(full.slices_in_flight, 2);
@@ -78,7 +90,8 @@ fn pipelined_and_serial_schedules_agree_bitwise() {
     let store = lpm::solver::build_store(&scene, &dir.join("store")).unwrap();
     let run = |slots: u32| {
         let options = lpm::solver::gpu::GpuOptions { max_slices_in_flight: slots, ..Default::default() };
-        let (run, fields) = lpm::solver::solve_with(&scene, &store, Gpu, validated(), options, false, |_, _| {}).unwrap();
+        let (run, fields) =
+            lpm::solver::solve_with(&scene, &store, Gpu, validated(), options, false, |_, _| {}).unwrap();
         assert_eq!(run.memory.unwrap().slices_in_flight, slots);
         (fields.fluence_total.as_slice().to_vec(), fields.source_total.as_slice().to_vec())
     };

@@ -61,19 +61,31 @@ fn solve_writes_every_output_with_the_documented_layout() {
     let out = dir.join("out");
     let o = lpm(&["solve", scene.to_str().unwrap(), "--out", out.to_str().unwrap()]);
     assert!(o.status.success(), "{}", stderr(&o));
-    for f in ["fluence.raw", "fluence.json", "fluence.nhdr", "source.raw", "source.json", "source.nhdr", "image.exr", "image.png", "report.json"] {
+    for f in [
+        "fluence.raw",
+        "fluence.json",
+        "fluence.nhdr",
+        "source.raw",
+        "source.json",
+        "source.nhdr",
+        "image.exr",
+        "image.png",
+        "report.json",
+    ] {
         assert!(out.join(f).is_file(), "{f} missing");
     }
     // RGB (the medium is not grey), original dims, channel fastest.
     let raw = std::fs::metadata(out.join("fluence.raw")).unwrap().len();
     assert_eq!(raw, 20 * 17 * 23 * 3 * 4);
-    let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("fluence.json")).unwrap()).unwrap();
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("fluence.json")).unwrap()).unwrap();
     assert_eq!(json["dims"], serde_json::json!([20, 17, 23]));
     assert_eq!(json["components"], 3);
     assert_eq!(json["voxel_size"], 0.5);
     let nhdr = std::fs::read_to_string(out.join("fluence.nhdr")).unwrap();
     assert!(nhdr.starts_with("NRRD") && nhdr.contains("sizes: 3 20 17 23"), "{nhdr}");
-    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
     assert_eq!(report["plan"]["channels"], 3);
     assert_eq!(report["plan"]["propagation_directions"], 24);
     assert!(report["plan"]["bricks_total"].as_u64().unwrap() > 0);
@@ -83,7 +95,12 @@ fn solve_writes_every_output_with_the_documented_layout() {
     assert!(report["device"].as_str().unwrap().len() > 3);
     assert!(report["seconds"].as_array().unwrap().len() >= 4);
     // No temporary files or store left behind.
-    let leftovers: Vec<_> = std::fs::read_dir(&out).unwrap().filter_map(|e| e.ok()).map(|e| e.file_name().to_string_lossy().into_owned()).filter(|n| n.contains("tmp") || n.starts_with('.')).collect();
+    let leftovers: Vec<_> = std::fs::read_dir(&out)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.contains("tmp") || n.starts_with('.'))
+        .collect();
     assert!(leftovers.is_empty(), "{leftovers:?}");
 
     let o = lpm(&["info", out.to_str().unwrap()]);
@@ -178,7 +195,9 @@ fn a_failed_solve_leaves_earlier_outputs_untouched() {
 #[test]
 fn reference_compare_and_bench_stream_from_the_command_line() {
     let dir = temp_dir("cli-ref");
-    let text = SMALL.replace("dims = [20, 17, 23]", "dims = [10, 9, 8]").replace("directions_per_face = 2", "directions_per_face = 3");
+    let text = SMALL
+        .replace("dims = [20, 17, 23]", "dims = [10, 9, 8]")
+        .replace("directions_per_face = 2", "directions_per_face = 3");
     let scene = write_scene(&dir, &text);
     let s = scene.to_str().unwrap();
     let (solved, reference) = (dir.join("solved"), dir.join("reference"));
@@ -201,7 +220,15 @@ fn reference_compare_and_bench_stream_from_the_command_line() {
     assert!(o.status.success(), "{}", stderr(&o));
     let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let order = &report["orders"][0];
-    for key in ["upload_seconds", "compute_seconds", "download_seconds", "hidden_transfer_fraction", "upload_bytes_per_second", "download_bytes_per_second", "updates_per_second"] {
+    for key in [
+        "upload_seconds",
+        "compute_seconds",
+        "download_seconds",
+        "hidden_transfer_fraction",
+        "upload_bytes_per_second",
+        "download_bytes_per_second",
+        "updates_per_second",
+    ] {
         assert!(order[key].is_number(), "{key} missing in {report}");
     }
     assert!(order["compute_seconds"].as_f64().unwrap() > 0.0);
@@ -213,13 +240,30 @@ fn device_memory_budget_flag_and_too_small_budget() {
     let dir = temp_dir("cli-budget");
     let scene = write_scene(&dir, SMALL);
     let out = dir.join("out");
-    let o = lpm(&["solve", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--no-image", "--device-memory-budget", "16K"]);
+    let o = lpm(&[
+        "solve",
+        scene.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--no-image",
+        "--device-memory-budget",
+        "16K",
+    ]);
     assert_eq!(o.status.code(), Some(1));
     let err = stderr(&o);
     assert!(err.contains("too small") && err.contains("--device-memory-budget"), "{err}");
-    let o = lpm(&["solve", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--no-image", "--device-memory-budget", "64M"]);
+    let o = lpm(&[
+        "solve",
+        scene.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--no-image",
+        "--device-memory-budget",
+        "64M",
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
     assert_eq!(report["device_memory"]["budget_bytes"], 64 << 20);
     assert!(report["device_memory"]["planned_bytes"].as_u64().unwrap() <= 64 << 20);
     let o = lpm(&["solve", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--device-memory-budget", "lots"]);
@@ -229,22 +273,41 @@ fn device_memory_budget_flag_and_too_small_budget() {
 #[test]
 fn bench_accuracy_writes_json_csv_and_plots() {
     let dir = temp_dir("cli-accuracy");
-    let text = SMALL.replace("dims = [20, 17, 23]", "dims = [8, 8, 8]").replace("sigma_t = [1.0, 0.8, 0.6]", "sigma_t = 0.8");
+    let text =
+        SMALL.replace("dims = [20, 17, 23]", "dims = [8, 8, 8]").replace("sigma_t = [1.0, 0.8, 0.6]", "sigma_t = 0.8");
     let scene = write_scene(&dir, &text);
     let out = dir.join("acc");
     let o = lpm(&[
-        "bench", "accuracy", scene.to_str().unwrap(), "--out", out.to_str().unwrap(),
-        "--k", "1,2", "--tolerances", "1e-2", "--samples", "2e4,8e4", "--reference-samples", "4e5", "--max-rel-stderr", "0.2",
+        "bench",
+        "accuracy",
+        scene.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--k",
+        "1,2",
+        "--tolerances",
+        "1e-2",
+        "--samples",
+        "2e4,8e4",
+        "--reference-samples",
+        "4e5",
+        "--max-rel-stderr",
+        "0.2",
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("accuracy.json")).unwrap()).unwrap();
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("accuracy.json")).unwrap()).unwrap();
     let rows = report["rows"].as_array().unwrap();
     // Two k × the default precisions (f32, f16), then two photon counts.
     assert_eq!(rows.len(), 6);
     assert!(rows.iter().all(|r| r["seconds"].as_f64().unwrap() > 0.0 && r["relative_l2"].is_number()));
     for pair in rows[..4].chunks(2) {
         let (a, b) = (&pair[0], &pair[1]);
-        assert_eq!((a["storage_precision"].as_str(), b["storage_precision"].as_str()), (Some("f32"), Some("f16")), "{pair:?}");
+        assert_eq!(
+            (a["storage_precision"].as_str(), b["storage_precision"].as_str()),
+            (Some("f32"), Some("f16")),
+            "{pair:?}"
+        );
         assert!(b["planned_device_bytes"].as_u64().unwrap() < a["planned_device_bytes"].as_u64().unwrap(), "{pair:?}");
         let (ea, eb) = (a["relative_l2"].as_f64().unwrap(), b["relative_l2"].as_f64().unwrap());
         assert!((ea - eb).abs() < 1e-2 * ea.max(1e-3), "f16 error {eb} vs f32 error {ea}");
@@ -259,15 +322,35 @@ fn bench_accuracy_writes_json_csv_and_plots() {
 #[test]
 fn bench_accuracy_order_caps_cut_the_series_short() {
     let dir = temp_dir("cli-accuracy-caps");
-    let text = SMALL.replace("dims = [20, 17, 23]", "dims = [10, 10, 10]").replace("sigma_t = [1.0, 0.8, 0.6]", "sigma_t = 1.5");
+    let text = SMALL
+        .replace("dims = [20, 17, 23]", "dims = [10, 10, 10]")
+        .replace("sigma_t = [1.0, 0.8, 0.6]", "sigma_t = 1.5");
     let scene = write_scene(&dir, &text);
     let out = dir.join("acc");
     let o = lpm(&[
-        "bench", "accuracy", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--k", "2", "--tolerances", "1e-4",
-        "--max-orders", "1,4", "--precisions", "f32", "--samples", "2e4", "--reference-samples", "1e6", "--max-rel-stderr", "0.2",
+        "bench",
+        "accuracy",
+        scene.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--k",
+        "2",
+        "--tolerances",
+        "1e-4",
+        "--max-orders",
+        "1,4",
+        "--precisions",
+        "f32",
+        "--samples",
+        "2e4",
+        "--reference-samples",
+        "1e6",
+        "--max-rel-stderr",
+        "0.2",
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("accuracy.json")).unwrap()).unwrap();
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("accuracy.json")).unwrap()).unwrap();
     let rows = report["rows"].as_array().unwrap();
     // Two caps, then one photon count.
     assert_eq!(rows.len(), 3);

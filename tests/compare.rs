@@ -41,7 +41,10 @@ fn identical_directories_give_zero_errors() {
     let m = &c.fluence.metrics;
     assert_eq!((c.fluence.voxels_total, c.fluence.voxels_used, c.fluence.voxels_excluded), (24, 24, 0));
     assert_eq!(m.values, 72);
-    assert_eq!((m.relative_l2, m.rmse, m.max_relative_error, m.mean_bias), (Some(0.0), Some(0.0), Some(0.0), Some(0.0)));
+    assert_eq!(
+        (m.relative_l2, m.rmse, m.max_relative_error, m.mean_bias),
+        (Some(0.0), Some(0.0), Some(0.0), Some(0.0))
+    );
     assert_eq!(c.fluence.max_relative_stderr, None);
     assert!(c.image.is_none() && c.notes.is_empty(), "{c:?}");
     let text = c.to_string();
@@ -153,7 +156,14 @@ fn the_reference_standard_error_masks_noisy_and_dark_voxels() {
 }
 
 /// A directory whose fluence has the given component names (and standard errors when given).
-fn named_dir(root: &Path, name: &str, dims: [u32; 3], names: &[&str], fluence: &[f32], stderr: Option<&[f32]>) -> PathBuf {
+fn named_dir(
+    root: &Path,
+    name: &str,
+    dims: [u32; 3],
+    names: &[&str],
+    fluence: &[f32],
+    stderr: Option<&[f32]>,
+) -> PathBuf {
     let d = root.join(name);
     std::fs::create_dir_all(&d).unwrap();
     let meta = FieldMeta { components: names.iter().map(|s| s.to_string()).collect(), ..meta(0) };

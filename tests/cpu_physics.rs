@@ -23,7 +23,13 @@ fn furnace_fluence_is_four_pi() {
 
 #[test]
 fn energy_balances_with_sun_sky_and_absorption() {
-    let mut scene = scene(Shape::Sphere, [9, 11, 8], [0.8, 0.5, 0.3], [0.9, 0.7, 0.5], vec![sky(0.7), sun([0.3, 1.0, 0.2], [2.0, 1.5, 1.0])]);
+    let mut scene = scene(
+        Shape::Sphere,
+        [9, 11, 8],
+        [0.8, 0.5, 0.3],
+        [0.9, 0.7, 0.5],
+        vec![sky(0.7), sun([0.3, 1.0, 0.2], [2.0, 1.5, 1.0])],
+    );
     scene.medium.emission = [0.2, 0.0, 0.1];
     scene.medium.g = 0.6;
     let plan = Plan::new(&scene, 1, 0);
@@ -36,5 +42,9 @@ fn energy_balances_with_sun_sky_and_absorption() {
 fn lpm_density_sphere(dims: [u32; 3], v: [u32; 3]) -> f32 {
     let r = 0.4 * *dims.iter().min().unwrap() as f64;
     let d2: f64 = (0..3).map(|a| (v[a] as f64 + 0.5 - dims[a] as f64 / 2.0).powi(2)).sum();
-    if d2 <= r * r { 1.0 } else { 0.0 }
+    if d2 <= r * r {
+        1.0
+    } else {
+        0.0
+    }
 }

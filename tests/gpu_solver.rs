@@ -21,7 +21,13 @@ fn gpu_vs_cpu(name: &str, mut scene: Scene, orders: u32) -> f64 {
 
 #[test]
 fn gpu_matches_cpu_twin_on_rgb_cloud_with_sun_and_sky() {
-    let mut scene = scene(Shape::Cloud, [40, 36, 44], [0.9, 0.7, 0.5], [0.95, 0.9, 0.8], vec![sky(0.4), sun([0.3, 1.0, 0.2], [3.0, 2.8, 2.5])]);
+    let mut scene = scene(
+        Shape::Cloud,
+        [40, 36, 44],
+        [0.9, 0.7, 0.5],
+        [0.95, 0.9, 0.8],
+        vec![sky(0.4), sun([0.3, 1.0, 0.2], [3.0, 2.8, 2.5])],
+    );
     scene.solver.directions_per_face = 4;
     let err = gpu_vs_cpu("rgb-cloud", scene, 8);
     assert!(err <= 1e-4, "relative L2 {err}");
@@ -29,7 +35,8 @@ fn gpu_matches_cpu_twin_on_rgb_cloud_with_sun_and_sky() {
 
 #[test]
 fn gpu_matches_cpu_twin_on_anisotropic_cloud() {
-    let mut scene = scene(Shape::Cloud, [32, 30, 34], [0.8; 3], [0.9; 3], vec![sky(0.3), sun([-0.5, 0.4, 1.0], [2.0; 3])]);
+    let mut scene =
+        scene(Shape::Cloud, [32, 30, 34], [0.8; 3], [0.9; 3], vec![sky(0.3), sun([-0.5, 0.4, 1.0], [2.0; 3])]);
     scene.medium.g = 0.7;
     scene.solver.directions_per_face = 4;
     scene.solver.storage_directions_per_face = Some(2);
@@ -39,7 +46,8 @@ fn gpu_matches_cpu_twin_on_anisotropic_cloud() {
 
 #[test]
 fn dims_not_multiple_of_sixteen_match_the_twin() {
-    let mut scene = scene(Shape::Sphere, [37, 20, 53], [0.6; 3], [0.8; 3], vec![sky(1.0), sun([1.0, 1.0, 0.0], [1.0; 3])]);
+    let mut scene =
+        scene(Shape::Sphere, [37, 20, 53], [0.6; 3], [0.8; 3], vec![sky(1.0), sun([1.0, 1.0, 0.0], [1.0; 3])]);
     scene.solver.directions_per_face = 2;
     let err = gpu_vs_cpu("odd-dims", scene, 5);
     assert!(err <= 1e-4, "relative L2 {err}");
@@ -58,7 +66,13 @@ fn furnace_fluence_is_four_pi_on_the_gpu() {
 
 #[test]
 fn energy_balances_on_the_gpu() {
-    let mut scene = scene(Shape::Cloud, [30, 28, 26], [1.2, 0.9, 0.6], [0.9, 0.6, 0.3], vec![sky(0.5), sun([0.2, -0.4, 1.0], [2.0, 1.0, 3.0])]);
+    let mut scene = scene(
+        Shape::Cloud,
+        [30, 28, 26],
+        [1.2, 0.9, 0.6],
+        [0.9, 0.6, 0.3],
+        vec![sky(0.5), sun([0.2, -0.4, 1.0], [2.0, 1.0, 3.0])],
+    );
     scene.medium.emission = [0.0, 0.3, 0.1];
     scene.solver.tolerance = 1e-5;
     let s = solve("energy", &scene, Gpu);
@@ -69,7 +83,8 @@ fn energy_balances_on_the_gpu() {
 
 #[test]
 fn two_gpu_solves_are_bitwise_identical() {
-    let mut scene = scene(Shape::Cloud, [33, 17, 21], [0.7, 0.6, 0.5], [0.9; 3], vec![sky(1.0), sun([0.1, 0.2, 1.0], [2.0; 3])]);
+    let mut scene =
+        scene(Shape::Cloud, [33, 17, 21], [0.7, 0.6, 0.5], [0.9; 3], vec![sky(1.0), sun([0.1, 0.2, 1.0], [2.0; 3])]);
     scene.medium.g = 0.4;
     scene.solver.max_orders = 4;
     let a = solve("det-a", &scene, Gpu).fluence_all();
@@ -93,7 +108,8 @@ fn empty_volume_is_streamed_but_not_solved() {
 fn empty_voxels_of_an_occupied_brick_see_the_sky() {
     // One faint voxel makes its brick occupied; its empty voxels are solved (and see the whole sky),
     // the other bricks are not.
-    let scene = raw_scene("faint-raw", [20, 18, 17], 1.0, 0.9, vec![sky(2.0)], |v| if v == [0, 0, 0] { 1e-9 } else { 0.0 });
+    let scene =
+        raw_scene("faint-raw", [20, 18, 17], 1.0, 0.9, vec![sky(2.0)], |v| if v == [0, 0, 0] { 1e-9 } else { 0.0 });
     let s = solve("faint", &scene, Gpu);
     assert_eq!(s.run.plan.bricks_empty + 1, s.run.plan.bricks_total);
     for (b, v) in [(0, [3u32, 9, 15]), (1, [17, 2, 2])] {
@@ -107,7 +123,15 @@ fn empty_voxels_of_an_occupied_brick_see_the_sky() {
 
 #[test]
 fn single_dense_voxel_is_stable_and_matches_the_twin() {
-    let mut scene = raw_scene("dense-voxel-raw", [17, 17, 17], 1.0, 0.9, vec![sky(2.0)], |v| if v == [8, 8, 8] { 1e4 } else { 0.0 });
+    let mut scene =
+        raw_scene(
+            "dense-voxel-raw",
+            [17, 17, 17],
+            1.0,
+            0.9,
+            vec![sky(2.0)],
+            |v| if v == [8, 8, 8] { 1e4 } else { 0.0 },
+        );
     scene.solver.max_orders = 6;
     scene.solver.tolerance = 1e-30;
     scene.lights.push(sun([0.2, 0.3, 1.0], [5.0; 3]));
@@ -141,7 +165,15 @@ fn exact_absorber_fluence(sigma: f64, n: [f64; 3], x: [f64; 3]) -> f64 {
         .map(|d| {
             let w = d.omega.to_array();
             let dist = (0..3)
-                .map(|a| if w[a] > 0.0 { x[a] / w[a] } else if w[a] < 0.0 { (x[a] - n[a]) / w[a] } else { f64::INFINITY })
+                .map(|a| {
+                    if w[a] > 0.0 {
+                        x[a] / w[a]
+                    } else if w[a] < 0.0 {
+                        (x[a] - n[a]) / w[a]
+                    } else {
+                        f64::INFINITY
+                    }
+                })
                 .fold(f64::INFINITY, f64::min);
             d.solid_angle * (-sigma * dist).exp()
         })

@@ -91,7 +91,10 @@ fn optical_thickness_from_1e_minus_6_to_1e4_per_voxel() {
         let (gpu, _, err) = gpu_and_cpu(&format!("tau{tau:e}"), &sc, 6);
         let imb = assert_balance(&format!("τ = {tau:e}"), &gpu, 1e-5);
         let max = gpu.fluence_all().into_iter().fold(0.0, f64::max);
-        eprintln!("τ = {tau:e}: GPU vs CPU relative L2 {err:.2e}, relative imbalance {imb:.2e}, max φ/4π {:.6}", max / (4.0 * PI));
+        eprintln!(
+            "τ = {tau:e}: GPU vs CPU relative L2 {err:.2e}, relative imbalance {imb:.2e}, max φ/4π {:.6}",
+            max / (4.0 * PI)
+        );
         assert!(err <= 1e-4, "τ = {tau:e}: relative L2 {err}");
         assert!(max <= 4.0 * PI * (1.0 + 1e-5), "τ = {tau:e}: max fluence {max} above the furnace value");
 
@@ -152,7 +155,11 @@ fn albedo_up_to_0_9999_with_capped_orders_balances_and_is_monotone() {
         let e = s.run.outcome.energy;
         let imb = assert_balance(&format!("albedo {a}"), &s, 1e-5);
         let tail = e.unpropagated[0] / e.boundary_in[0];
-        eprintln!("albedo {a}: {} orders, imbalance {imb:.2e}, unpropagated/in {tail:.3e}, centre φ/4π {:.5}", s.run.outcome.orders, s.fluence(c, 0) / (4.0 * PI));
+        eprintln!(
+            "albedo {a}: {} orders, imbalance {imb:.2e}, unpropagated/in {tail:.3e}, centre φ/4π {:.5}",
+            s.run.outcome.orders,
+            s.fluence(c, 0) / (4.0 * PI)
+        );
         if a >= 0.99 {
             // 12 orders do not converge here: the books only close because the truncated tail is
             // counted.
@@ -218,7 +225,10 @@ fn albedo_0_99_centre_matches_the_monte_carlo_reference() {
         100.0 * (lpm_block - mc_block) / mc_block
     );
     assert!((lpm - mc).abs() <= 3.0 * se + 0.05 * mc, "LPM {lpm} vs MC {mc} ± {se}");
-    assert!((lpm_block - mc_block).abs() <= 3.0 * se_block + 0.05 * mc_block, "block: LPM {lpm_block} vs MC {mc_block} ± {se_block}");
+    assert!(
+        (lpm_block - mc_block).abs() <= 3.0 * se_block + 0.05 * mc_block,
+        "block: LPM {lpm_block} vs MC {mc_block} ± {se_block}"
+    );
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -237,7 +247,11 @@ fn strong_anisotropy_balances_matches_the_twin_and_forward_scattering_transmits_
     let gs = [-0.9, 0.0, 0.9, 0.99];
     for g in gs {
         let mut sc = raw_scene(&format!("aniso{g}"), [n; 3], 1.0, 0.95, vec![sun([0.2, 0.1, 1.0], [3.0; 3])], |v| {
-            if (4..8).contains(&v[2]) { 1.0 } else { 0.0 }
+            if (4..8).contains(&v[2]) {
+                1.0
+            } else {
+                0.0
+            }
         });
         sc.medium.g = g;
         sc.solver.directions_per_face = 4;
@@ -268,12 +282,19 @@ fn vacuum_gap_between_dense_slabs() {
     // x ∈ [16, 32) holds no medium at all.
     let dims = [40, 12, 12];
     let sc = raw_scene("gap", dims, 4.0, 0.9, vec![sky(1.0), sun([0.6, 0.3, 0.5], [2.0; 3])], |v| {
-        if (2..12).contains(&v[0]) || (32..38).contains(&v[0]) { 1.0 } else { 0.0 }
+        if (2..12).contains(&v[0]) || (32..38).contains(&v[0]) {
+            1.0
+        } else {
+            0.0
+        }
     });
     let (gpu, cpu, err) = gpu_and_cpu("gap", &sc, 6);
     assert!(gpu.run.plan.bricks_empty >= 1, "{}", gpu.run.plan.bricks_empty);
     let imb = assert_balance("gap", &gpu, 1e-5);
-    eprintln!("vacuum gap: GPU vs CPU relative L2 {err:.2e}, imbalance {imb:.2e}, {} of {} bricks empty", gpu.run.plan.bricks_empty, gpu.run.plan.bricks_total);
+    eprintln!(
+        "vacuum gap: GPU vs CPU relative L2 {err:.2e}, imbalance {imb:.2e}, {} of {} bricks empty",
+        gpu.run.plan.bricks_empty, gpu.run.plan.bricks_total
+    );
     assert!(err <= 1e-4, "relative L2 {err}");
     // The empty brick is not solved: no fluence and no source stored (light crosses it all the
     // same: the far slab matches the twin, which solves every voxel). Empty voxels inside occupied
@@ -304,7 +325,11 @@ fn vacuum_gap_crossed_by_axis_aligned_rays() {
     let dims = [56, 12, 12];
     for k in [1, 2] {
         let mut sc = raw_scene("gap-axis", dims, 2.0, 0.8, vec![sky(1.0)], |v| {
-            if (2..12).contains(&v[0]) || (48..54).contains(&v[0]) { 1.0 } else { 0.0 }
+            if (2..12).contains(&v[0]) || (48..54).contains(&v[0]) {
+                1.0
+            } else {
+                0.0
+            }
         });
         sc.solver.directions_per_face = k;
         let (gpu, _cpu, err) = gpu_and_cpu("gap-axis", &sc, 3);
@@ -328,7 +353,11 @@ fn single_dense_voxel_casts_a_shadow_along_the_beam() {
     let dense = [6, 7, 5];
     let e_sun = 5.0;
     let sc = raw_scene("dense1e3", dims, 1.0, 0.9, vec![sky(1.0), sun([0.3, -0.2, 1.0], [e_sun; 3])], |v| {
-        if v == dense { 1e3 } else { 0.0 }
+        if v == dense {
+            1e3
+        } else {
+            0.0
+        }
     });
     let (gpu, _, err) = gpu_and_cpu("dense1e3", &sc, 6);
     let imb = assert_balance("dense voxel", &gpu, 1e-5);
@@ -347,7 +376,8 @@ fn single_dense_voxel_casts_a_shadow_along_the_beam() {
     let (b, c) = (f.lateral[0], f.lateral[1]);
     let o0 = beam.offsets[t0 as usize];
     let o1 = beam.offsets[t0 as usize + 1];
-    let behind = sweep.voxel(t0 + 1, (dense[b] as i32 + o1[0] - o0[0]) as u32, (dense[c] as i32 + o1[1] - o0[1]) as u32);
+    let behind =
+        sweep.voxel(t0 + 1, (dense[b] as i32 + o1[0] - o0[0]) as u32, (dense[c] as i32 + o1[1] - o0[1]) as u32);
     let mut beside = behind;
     beside[b] -= 3;
     let (phi_behind, phi_beside) = (gpu.fluence(behind, 0), gpu.fluence(beside, 0));
@@ -373,7 +403,11 @@ fn thin_sheet_at_thirty_degrees() {
     let t30 = (30.0f64).to_radians().tan();
     let sheet = move |v: [u32; 3]| (cc + t30 * (v[0] as f64 - cc)).round() as u32 == v[2];
     let sc = raw_scene("sheet", [n; 3], 3.0, 0.9, vec![sky(0.5), sun([0.3, 0.5, 1.0], [2.0; 3])], move |v| {
-        if sheet(v) { 1.0 } else { 0.0 }
+        if sheet(v) {
+            1.0
+        } else {
+            0.0
+        }
     });
     let (gpu, _, err) = gpu_and_cpu("sheet", &sc, 6);
     let imb = assert_balance("sheet", &gpu, 1e-5);
@@ -516,7 +550,10 @@ fn sun_at_grazing_axial_and_diagonal_angles_matches_exact_beer_lambert() {
                 }
             }
         }
-        assert!(unambiguous_through(s, nf, stated, axis) && birth_plane(beam, sc.volume.dims, stated).0 == 0, "{stated:?}");
+        assert!(
+            unambiguous_through(s, nf, stated, axis) && birth_plane(beam, sc.volume.dims, stated).0 == 0,
+            "{stated:?}"
+        );
         let (got, exact) = (gpu.fluence(stated, 0), exact_beam_average(s, nf, sigma, e, stated));
         let path = distance_to_sun_side(s, nf, stated.map(|c| c as f64 + 0.5)).0;
         eprintln!(
@@ -529,4 +566,3 @@ fn sun_at_grazing_axial_and_diagonal_angles_matches_exact_beer_lambert() {
         assert!(count >= 16, "{count}");
     }
 }
-

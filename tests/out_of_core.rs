@@ -13,7 +13,8 @@ fn sparse_raw(path: &std::path::Path) -> u64 {
     let mut f = std::fs::File::create(path).expect("create raw");
     let bytes = DIMS.iter().product::<u64>() * 4;
     f.set_len(bytes).expect("size the raw");
-    let row: Vec<u8> = std::iter::repeat(1.0f32.to_le_bytes()).take((BLOB.end - BLOB.start) as usize).flatten().collect();
+    let row: Vec<u8> =
+        std::iter::repeat(1.0f32.to_le_bytes()).take((BLOB.end - BLOB.start) as usize).flatten().collect();
     for z in 240..260 {
         for y in BLOB {
             f.seek(SeekFrom::Start(((z * DIMS[1] + y) * DIMS[0] + BLOB.start) * 4)).expect("seek");
@@ -34,9 +35,10 @@ fn a_volume_larger_than_the_resident_set_is_streamed_for_one_order() {
          [solver]\ndirections_per_face = 1\nmax_orders = 1\n",
     );
     let out = dir.join("out");
-    let status = lpm_command(&["solve", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--no-image", "--no-fields"])
-        .status()
-        .expect("run lpm");
+    let status =
+        lpm_command(&["solve", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--no-image", "--no-fields"])
+            .status()
+            .expect("run lpm");
     assert!(status.success());
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).expect("report")).expect("json");

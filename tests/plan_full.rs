@@ -100,8 +100,14 @@ fn the_full_plan_says_what_it_turned_off_and_what_it_kept() {
 
     let reasons = full.reasons.join("\n");
     assert!(reasons.starts_with("plan = \"full\": the plan's reductions are off"), "{reasons}");
-    assert!(reasons.contains("3 channels: plan = \"full\" (the medium and every light are grey, so 1 would do)"), "{reasons}");
-    assert!(reasons.contains("24 storage directions (2×2 per face): plan = \"full\" (the medium scatters isotropically"), "{reasons}");
+    assert!(
+        reasons.contains("3 channels: plan = \"full\" (the medium and every light are grey, so 1 would do)"),
+        "{reasons}"
+    );
+    assert!(
+        reasons.contains("24 storage directions (2×2 per face): plan = \"full\" (the medium scatters isotropically"),
+        "{reasons}"
+    );
     assert!(reasons.contains("stored in f32 (auto under plan = \"full\""), "{reasons}");
     assert!(reasons.contains("3 of 8 bricks are empty") && reasons.contains("kept under plan = \"full\""), "{reasons}");
     assert!(!auto.reasons.join("\n").contains("full"), "{:?}", auto.reasons);
@@ -136,12 +142,17 @@ fn report_info_and_compare_of_a_full_solve() {
     let full_scene = write_scene_as(&dir, "full.toml", &format!("{CLI_SCENE}plan = \"full\"\n"));
     let (auto_out, full_out) = (dir.join("out-auto"), dir.join("out-full"));
     for (scene, out) in [(&auto_scene, &auto_out), (&full_scene, &full_out)] {
-        let o = lpm_command(&["solve", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--no-image"]).output().unwrap();
+        let o = lpm_command(&["solve", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--no-image"])
+            .output()
+            .unwrap();
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     }
     let report = read_json(&full_out.join("report.json"));
     let plan = &report["plan"];
-    assert_eq!((plan["mode"].as_str(), plan["channels"].as_u64(), plan["storage_directions"].as_u64()), (Some("full"), Some(3), Some(24)));
+    assert_eq!(
+        (plan["mode"].as_str(), plan["channels"].as_u64(), plan["storage_directions"].as_u64()),
+        (Some("full"), Some(3), Some(24))
+    );
     assert_eq!(plan["storage_precision"], "f32");
     assert_eq!(read_json(&auto_out.join("report.json"))["plan"]["mode"], "auto");
     assert_eq!(read_json(&full_out.join("fluence.json"))["component_names"], serde_json::json!(["r", "g", "b"]));
@@ -153,9 +164,15 @@ fn report_info_and_compare_of_a_full_solve() {
 
     // `lpm compare` sets each of the full solve's channels against the grey one.
     let json = dir.join("compare.json");
-    let o = lpm_command(&["compare", full_out.to_str().unwrap(), auto_out.to_str().unwrap(), "--json", json.to_str().unwrap()])
-        .output()
-        .unwrap();
+    let o = lpm_command(&[
+        "compare",
+        full_out.to_str().unwrap(),
+        auto_out.to_str().unwrap(),
+        "--json",
+        json.to_str().unwrap(),
+    ])
+    .output()
+    .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let c = read_json(&json);
     let l2 = c["fluence"]["metrics"]["relative_l2"].as_f64().unwrap();
@@ -174,8 +191,25 @@ fn bench_accuracy_runs_each_setting_with_each_plan() {
     let scene = write_scene(&dir, &CLI_SCENE.replace("dims = [12, 10, 9]", "dims = [8, 8, 8]"));
     let out = dir.join("acc");
     let o = lpm_command(&[
-        "bench", "accuracy", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--k", "2", "--tolerances", "1e-2",
-        "--precisions", "auto", "--plans", "auto,full", "--samples", "2e4", "--reference-samples", "4e5", "--max-rel-stderr", "0.2",
+        "bench",
+        "accuracy",
+        scene.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--k",
+        "2",
+        "--tolerances",
+        "1e-2",
+        "--precisions",
+        "auto",
+        "--plans",
+        "auto,full",
+        "--samples",
+        "2e4",
+        "--reference-samples",
+        "4e5",
+        "--max-rel-stderr",
+        "0.2",
     ])
     .output()
     .unwrap();
@@ -186,7 +220,9 @@ fn bench_accuracy_runs_each_setting_with_each_plan() {
     let (auto, full) = (&rows[0], &rows[1]);
     assert_eq!(auto["setting"], "k=2 tol=1e-2 auto plan=auto");
     assert_eq!(full["setting"], "k=2 tol=1e-2 auto plan=full");
-    let facts = |r: &serde_json::Value| (r["plan"].clone(), r["channels"].as_u64(), r["storage_directions"].as_u64(), r["storage_precision"].clone());
+    let facts = |r: &serde_json::Value| {
+        (r["plan"].clone(), r["channels"].as_u64(), r["storage_directions"].as_u64(), r["storage_precision"].clone())
+    };
     assert_eq!(facts(auto), ("auto".into(), Some(1), Some(1), "f16".into()));
     assert_eq!(facts(full), ("full".into(), Some(3), Some(24), "f32".into()));
     assert!(full["peak_device_bytes"].as_u64().unwrap() > auto["peak_device_bytes"].as_u64().unwrap());
@@ -203,7 +239,10 @@ fn bench_accuracy_runs_each_setting_with_each_plan() {
 }
 
 fn load(text: &str) -> Result<Scene, SceneError> {
-    Scene::from_toml_str(&format!("[volume]\nprocedural = \"box\"\ndims = [8, 8, 8]\n[medium]\nsigma_t = 0.5\nalbedo = 0.9\n{text}"), Path::new("p.toml"))
+    Scene::from_toml_str(
+        &format!("[volume]\nprocedural = \"box\"\ndims = [8, 8, 8]\n[medium]\nsigma_t = 0.5\nalbedo = 0.9\n{text}"),
+        Path::new("p.toml"),
+    )
 }
 
 #[test]

@@ -11,21 +11,23 @@ fn accuracy_figure() -> Figure {
     fig.log_x = true;
     fig.log_y = true;
     let lpm = |k: f64| -> Vec<(f64, f64)> {
-        (0..6).map(|i| {
-            let n = 2f64.powi(i);
-            (0.4 * n * k, 0.08 / (n * k).powf(0.9) + 2e-4)
-        })
-        .collect()
+        (0..6)
+            .map(|i| {
+                let n = 2f64.powi(i);
+                (0.4 * n * k, 0.08 / (n * k).powf(0.9) + 2e-4)
+            })
+            .collect()
     };
     fig.series.push(Series::new("LPM k=4", lpm(1.0), Style::LineAndMarkers));
     fig.series.push(Series::new("LPM k=8", lpm(3.0), Style::LineAndMarkers));
     fig.series.push(Series::new(
         "Monte-Carlo",
-        (0..7).map(|i| {
-            let t = 0.3 * 3f64.powi(i);
-            (t, 0.3 / t.sqrt())
-        })
-        .collect(),
+        (0..7)
+            .map(|i| {
+                let t = 0.3 * 3f64.powi(i);
+                (t, 0.3 / t.sqrt())
+            })
+            .collect(),
         Style::LineAndMarkers,
     ));
     fig.series.push(Series::new("CPU twin", vec![(30.0, 3e-3), (120.0, 8e-4), (480.0, 3e-4)], Style::Markers));
@@ -126,9 +128,8 @@ fn every_series_colour_is_drawn() {
 fn title_text_is_drawn_in_the_title_band() {
     let fig = accuracy_figure();
     let (w, _, rgb) = fig.to_rgb8();
-    let band = |rgb: &[u8]| -> usize {
-        rgb[..(w * 40 * 3) as usize].chunks(3).filter(|p| *p != [255, 255, 255]).count()
-    };
+    let band =
+        |rgb: &[u8]| -> usize { rgb[..(w * 40 * 3) as usize].chunks(3).filter(|p| *p != [255, 255, 255]).count() };
     let with_title = band(&rgb);
     assert!(with_title > 200, "{with_title} title pixels");
     // A blank title keeps the same layout and leaves the band empty.
@@ -203,8 +204,10 @@ fn writes_are_atomic() {
     fig.write_svg(&dir.join("fig.svg")).expect("write svg");
     fig.write_png(&dir.join("fig.png")).expect("write png");
     fig.write_png(&dir.join("fig.png")).expect("overwrite png");
-    let mut names: Vec<String> =
-        fs::read_dir(&dir).expect("list").map(|e| e.expect("entry").file_name().to_string_lossy().into_owned()).collect();
+    let mut names: Vec<String> = fs::read_dir(&dir)
+        .expect("list")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+        .collect();
     names.sort();
     assert_eq!(names, ["fig.png", "fig.svg"]);
     assert_eq!(fs::read_to_string(dir.join("fig.svg")).expect("read svg"), fig.to_svg());
@@ -227,8 +230,16 @@ fn example_figure_is_rendered_for_inspection() {
     fig.write_png(&target.join("plot-example.png")).expect("write example png");
     fig.write_svg(&target.join("plot-example.svg")).expect("write example svg");
     let mut lin = Figure::new("Linear axes, one skipped", "order", "fluence");
-    lin.series.push(Series::new("a", (0..12).map(|i| (i as f64, (i as f64 * 0.6).sin() * 3.0)).collect(), Style::LineAndMarkers));
-    lin.series.push(Series::new("b", (0..12).map(|i| (i as f64, (i as f64 * 0.3).cos() * 2.0 + 0.5)).collect(), Style::Markers));
+    lin.series.push(Series::new(
+        "a",
+        (0..12).map(|i| (i as f64, (i as f64 * 0.6).sin() * 3.0)).collect(),
+        Style::LineAndMarkers,
+    ));
+    lin.series.push(Series::new(
+        "b",
+        (0..12).map(|i| (i as f64, (i as f64 * 0.3).cos() * 2.0 + 0.5)).collect(),
+        Style::Markers,
+    ));
     lin.series.push(Series::new("c", vec![(2.0, f64::NAN), (3.0, 1.0)], Style::Markers));
     lin.width = 640;
     lin.height = 420;

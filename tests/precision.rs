@@ -42,7 +42,11 @@ fn f16_on_the_gpu_matches_the_f16_twin_at_any_budget() {
     let sub = solve("f16-aniso-gpu-sub", &tight, Gpu);
     let m = sub.run.memory.expect("memory plan");
     assert!(m.planes_per_slice < 16, "{m:?}");
-    assert!(m.planned_bytes <= budget && sub.run.peak_device_bytes <= budget, "{m:?}, peak {}", sub.run.peak_device_bytes);
+    assert!(
+        m.planned_bytes <= budget && sub.run.peak_device_bytes <= budget,
+        "{m:?}, peak {}",
+        sub.run.peak_device_bytes
+    );
     assert!(bits(&sub) == bits(&gpu), "sub-slices changed the f16 result");
 
     let twin16 = solve("f16-aniso-cpu", &scene, Cpu);
@@ -56,12 +60,21 @@ fn f16_on_the_gpu_matches_the_f16_twin_at_any_budget() {
     // The twin's rounding is real (and the GPU follows it, not the f32 path).
     assert!(rounding > 0.0);
     let gpu_vs_f32_twin = relative_l2(&g, &t32);
-    assert!(err < gpu_vs_f32_twin, "the GPU should be closer to the f16 twin ({err}) than to the f32 one ({gpu_vs_f32_twin})");
+    assert!(
+        err < gpu_vs_f32_twin,
+        "the GPU should be closer to the f16 twin ({err}) than to the f32 one ({gpu_vs_f32_twin})"
+    );
 }
 
 #[test]
 fn f16_rgb_cloud_with_sun_and_sky_matches_the_f16_twin() {
-    let mut scene = scene(Shape::Cloud, [40, 36, 44], [0.9, 0.7, 0.5], [0.95, 0.9, 0.8], vec![sky(0.4), sun([0.3, 1.0, 0.2], [3.0, 2.8, 2.5])]);
+    let mut scene = scene(
+        Shape::Cloud,
+        [40, 36, 44],
+        [0.9, 0.7, 0.5],
+        [0.95, 0.9, 0.8],
+        vec![sky(0.4), sun([0.3, 1.0, 0.2], [3.0, 2.8, 2.5])],
+    );
     scene.solver.directions_per_face = 4;
     scene.solver.max_orders = 8;
     scene.solver.tolerance = 1e-30;
@@ -75,7 +88,8 @@ fn f16_rgb_cloud_with_sun_and_sky_matches_the_f16_twin() {
 
 #[test]
 fn f16_and_f32_differ_by_less_than_the_tolerance_and_f16_saves_bytes() {
-    let mut scene = scene(Shape::Cloud, [40, 36, 44], [1.2; 3], [0.95; 3], vec![sky(0.5), sun([0.2, -0.4, 1.0], [3.0; 3])]);
+    let mut scene =
+        scene(Shape::Cloud, [40, 36, 44], [1.2; 3], [0.95; 3], vec![sky(0.5), sun([0.2, -0.4, 1.0], [3.0; 3])]);
     scene.solver.directions_per_face = 3;
     scene.solver.tolerance = 1e-3;
     // `auto` at tolerance 1e-3 picks f16.
@@ -153,7 +167,10 @@ fn auto_picks_f16_from_the_tolerance_and_says_why() {
         let plan = plan_for(tolerance, StoragePrecision::Auto);
         assert_eq!(plan.source_precision, Precision::F16);
         let why = precision_reason(&plan);
-        assert!(why.contains("f16") && why.contains("auto") && why.contains("tolerance") && why.contains("4.9e-4"), "{why}");
+        assert!(
+            why.contains("f16") && why.contains("auto") && why.contains("tolerance") && why.contains("4.9e-4"),
+            "{why}"
+        );
     }
     for tolerance in [9.9e-4, 1e-4, 1e-6] {
         let plan = plan_for(tolerance, StoragePrecision::Auto);
@@ -182,9 +199,12 @@ fn the_report_and_info_state_the_precision_and_why() {
             ),
         );
         let out = dir.join(format!("out-{expected}"));
-        let o = lpm_command(&["solve", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--no-image"]).output().unwrap();
+        let o = lpm_command(&["solve", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--no-image"])
+            .output()
+            .unwrap();
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+        let report: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
         assert_eq!(report["plan"]["storage_precision"], expected);
         let reasons = report["plan"]["reasons"].as_array().unwrap();
         assert!(reasons.iter().any(|r| r.as_str().unwrap().contains(&format!("stored in {expected}"))), "{reasons:?}");
@@ -195,7 +215,10 @@ fn the_report_and_info_state_the_precision_and_why() {
 }
 
 fn load(text: &str) -> Result<Scene, SceneError> {
-    Scene::from_toml_str(&format!("[volume]\nprocedural = \"box\"\ndims = [8, 8, 8]\n[medium]\nsigma_t = 0.5\nalbedo = 0.9\n{text}"), Path::new("p.toml"))
+    Scene::from_toml_str(
+        &format!("[volume]\nprocedural = \"box\"\ndims = [8, 8, 8]\n[medium]\nsigma_t = 0.5\nalbedo = 0.9\n{text}"),
+        Path::new("p.toml"),
+    )
 }
 
 #[test]

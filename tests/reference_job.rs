@@ -49,11 +49,22 @@ fn furnace_reference_writes_its_outputs_and_agrees_with_the_solver() {
     let reference = dir.join("reference");
     let report = run(&job(scene.clone(), reference.clone(), 2_000_000, 16)).expect("reference job");
 
-    let files = ["fluence.raw", "fluence.json", "fluence.nhdr", "fluence_stderr.raw", "fluence_stderr.json", "fluence_stderr.nhdr", "image.exr", "image.png", "report.json"];
+    let files = [
+        "fluence.raw",
+        "fluence.json",
+        "fluence.nhdr",
+        "fluence_stderr.raw",
+        "fluence_stderr.json",
+        "fluence_stderr.nhdr",
+        "image.exr",
+        "image.png",
+        "report.json",
+    ];
     for f in files {
         assert!(reference.join(f).is_file(), "{f} missing");
     }
-    let names: Vec<String> = std::fs::read_dir(&reference).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    let names: Vec<String> =
+        std::fs::read_dir(&reference).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
     assert_eq!(names.len(), files.len(), "unexpected files: {names:?}");
     for base in ["fluence", "fluence_stderr"] {
         assert_eq!(std::fs::metadata(reference.join(format!("{base}.raw"))).unwrap().len(), 64 * 4);

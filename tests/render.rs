@@ -113,11 +113,7 @@ fn pure_absorber_follows_beer_lambert() {
         for ch in 0..3 {
             let expected = bg[ch] * (-sigma_t[ch] * length).exp();
             let err = (centre[ch] as f64 - expected).abs();
-            assert!(
-                err <= 1e-5 * expected.max(1e-3),
-                "dir {dir_} channel {ch}: {} vs {expected}",
-                centre[ch]
-            );
+            assert!(err <= 1e-5 * expected.max(1e-3), "dir {dir_} channel {ch}: {} vs {expected}", centre[ch]);
         }
     }
 }
@@ -240,8 +236,7 @@ fn exr_and_png_are_written_atomically_and_read_back() {
     assert!(buf[frame.buffer_size() - 1] > 200, "bright pixels are near white");
 
     // Only the two finished files remain: no temporaries.
-    let mut names: Vec<_> =
-        fs::read_dir(&*dir).expect("dir").map(|e| e.expect("entry").file_name()).collect();
+    let mut names: Vec<_> = fs::read_dir(&*dir).expect("dir").map(|e| e.expect("entry").file_name()).collect();
     names.sort();
     assert_eq!(names, vec!["view.exr", "view.png"]);
 

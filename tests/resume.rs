@@ -47,7 +47,8 @@ fn killed_solve_resumes_to_the_same_bits() {
     let o = lpm(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image"], Some(70));
     assert!(!o.status.success(), "the solve should have been killed");
     let checkpoint: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(cut.join(".lpm-work/checkpoint.json")).expect("checkpoint")).unwrap();
+        serde_json::from_str(&std::fs::read_to_string(cut.join(".lpm-work/checkpoint.json")).expect("checkpoint"))
+            .unwrap();
     let done = checkpoint["state"]["orders_done"].as_u64().unwrap();
     assert!((1..5).contains(&done), "killed after {done} orders");
     for f in ["fluence.raw", "source.raw", "report.json"] {
@@ -57,9 +58,13 @@ fn killed_solve_resumes_to_the_same_bits() {
     let o = lpm(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image", "--resume"], None);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     for f in ["fluence.raw", "source.raw"] {
-        assert!(std::fs::read(whole.join(f)).unwrap() == std::fs::read(cut.join(f)).unwrap(), "{f} differs after resume");
+        assert!(
+            std::fs::read(whole.join(f)).unwrap() == std::fs::read(cut.join(f)).unwrap(),
+            "{f} differs after resume"
+        );
     }
-    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(cut.join("report.json")).unwrap()).unwrap();
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(cut.join("report.json")).unwrap()).unwrap();
     assert_eq!(report["orders"], 5);
     assert_eq!(report["history"].as_array().unwrap().len(), 5);
     assert!(!cut.join(".lpm-work").exists(), "the work store is removed after success");
@@ -73,7 +78,8 @@ fn resume_with_nothing_to_resume_starts_fresh_and_cpu_refuses() {
     let out = dir.join("out");
     let o = lpm(&["solve", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--no-image", "--resume"], None);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let o = lpm(&["solve", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--resume", "--backend", "cpu"], None);
+    let o =
+        lpm(&["solve", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--resume", "--backend", "cpu"], None);
     assert_eq!(o.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&o.stderr).contains("--resume needs the GPU backend"));
 }

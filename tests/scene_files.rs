@@ -58,11 +58,7 @@ fn every_shipped_scene_loads() {
         let scene = Scene::load(&path).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(scene.path, path);
         let text = std::fs::read_to_string(&path).expect("read");
-        assert!(
-            text.starts_with('#'),
-            "{} should document itself in leading comments",
-            path.display()
-        );
+        assert!(text.starts_with('#'), "{} should document itself in leading comments", path.display());
         n += 1;
     }
     assert!(n >= 4, "expected at least 4 scenes, found {n}");
@@ -74,34 +70,16 @@ fn shipped_scenes_say_what_the_brief_says() {
 
     let demo = s("demo_cloud.toml");
     assert_eq!(demo.volume.dims, [64; 3]);
-    assert!(matches!(
-        demo.volume.source,
-        VolumeSource::Procedural {
-            shape: Shape::Cloud,
-            ..
-        }
-    ));
+    assert!(matches!(demo.volume.source, VolumeSource::Procedural { shape: Shape::Cloud, .. }));
     assert_eq!(demo.solver.directions_per_face, 4);
     assert!(demo.lights.iter().any(|l| matches!(l, Light::Sun { .. })));
     assert!(demo.lights.iter().any(|l| matches!(l, Light::Sky { .. })));
-    assert!(matches!(
-        demo.camera,
-        Some(Camera {
-            projection: Projection::Pinhole { .. },
-            ..
-        })
-    ));
+    assert!(matches!(demo.camera, Some(Camera { projection: Projection::Pinhole { .. }, .. })));
 
     let furnace = s("furnace_box.toml");
     assert_eq!(furnace.medium.albedo, [1.0; 3]);
     assert_eq!(furnace.lights, vec![Light::Sky { radiance: [1.0; 3] }]);
-    assert!(matches!(
-        furnace.volume.source,
-        VolumeSource::Procedural {
-            shape: Shape::Box,
-            ..
-        }
-    ));
+    assert!(matches!(furnace.volume.source, VolumeSource::Procedural { shape: Shape::Box, .. }));
 
     let absorber = s("absorber_sphere.toml");
     assert_eq!(absorber.medium.albedo, [0.0; 3]);
@@ -119,13 +97,7 @@ fn shipped_scenes_say_what_the_brief_says() {
 fn defaults_are_applied() {
     let s = load(&with("")).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(s.path, Path::new(FILE));
-    assert_eq!(
-        s.volume.source,
-        VolumeSource::Procedural {
-            shape: Shape::Sphere,
-            seed: 1
-        }
-    );
+    assert_eq!(s.volume.source, VolumeSource::Procedural { shape: Shape::Sphere, seed: 1 });
     assert_eq!(s.volume.voxel_size, 1.0);
     assert_eq!(s.medium.g, 0.0);
     assert_eq!(s.medium.emission, [0.0; 3]);
@@ -147,10 +119,7 @@ fn sun_direction_is_normalised_and_channels_expand() {
     ))
     .unwrap_or_else(|e| panic!("{e}"));
     match &s.lights[0] {
-        Light::Sun {
-            direction,
-            irradiance,
-        } => {
+        Light::Sun { direction, irradiance } => {
             assert!((direction.length() - 1.0).abs() < 1e-12);
             assert!((direction.y - 0.6).abs() < 1e-12 && (direction.z - 0.8).abs() < 1e-12);
             assert_eq!(*irradiance, [1.0, 2.0, 3.0]);
@@ -170,23 +139,15 @@ fn budgets_and_camera_defaults() {
     assert_eq!(s.solver.device_memory_budget, Some(256 * 1024 * 1024));
     assert_eq!(s.solver.storage_directions_per_face, Some(2));
     let cam = s.camera.expect("camera");
-    assert_eq!(
-        cam.projection,
-        Projection::Pinhole {
-            fov_y_degrees: 40.0
-        }
-    );
+    assert_eq!(cam.projection, Projection::Pinhole { fov_y_degrees: 40.0 });
     assert_eq!((cam.width, cam.height), (512, 512));
     assert_eq!(cam.up, glam::DVec3::Z);
 
-    let s =
-        load(&with("[solver]\ndevice_memory_budget = 1000\n")).unwrap_or_else(|e| panic!("{e}"));
+    let s = load(&with("[solver]\ndevice_memory_budget = 1000\n")).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(s.solver.device_memory_budget, Some(1000));
 
-    let s = load(&with(
-        "[camera]\nprojection = \"orthographic\"\nposition = [4, -20, 4]\nlook_at = [4, 4, 4]\n",
-    ))
-    .unwrap_or_else(|e| panic!("{e}"));
+    let s = load(&with("[camera]\nprojection = \"orthographic\"\nposition = [4, -20, 4]\nlook_at = [4, 4, 4]\n"))
+        .unwrap_or_else(|e| panic!("{e}"));
     match s.camera.map(|c| c.projection) {
         // The default fits the whole 8³ volume: its diagonal.
         Some(Projection::Orthographic { height }) => {
@@ -200,8 +161,7 @@ fn budgets_and_camera_defaults() {
 
 #[test]
 fn missing_scene_file() {
-    let err =
-        Scene::load(Path::new("/nonexistent/dir/missing_scene.toml")).expect_err("missing file");
+    let err = Scene::load(Path::new("/nonexistent/dir/missing_scene.toml")).expect_err("missing file");
     assert_eq!(
         err.to_string(),
         "cannot read scene file /nonexistent/dir/missing_scene.toml: No such file or directory"
@@ -210,40 +170,21 @@ fn missing_scene_file() {
 
 #[test]
 fn syntax_error_names_file_and_line() {
-    let err = rejects(
-        &format!("{VOLUME}[medium\nsigma_t = 1\n"),
-        "line 4",
-        "invalid table header",
-    );
-    assert!(
-        matches!(err, SceneError::Parse { line: Some(4), .. }),
-        "{err:?}"
-    );
+    let err = rejects(&format!("{VOLUME}[medium\nsigma_t = 1\n"), "line 4", "invalid table header");
+    assert!(matches!(err, SceneError::Parse { line: Some(4), .. }), "{err:?}");
 }
 
 #[test]
 fn unknown_key() {
-    let err = rejects(
-        &with("colour = 3\n"),
-        "medium.colour",
-        "unknown field `colour`",
-    );
+    let err = rejects(&with("colour = 3\n"), "medium.colour", "unknown field `colour`");
     assert!(err.to_string().contains("line 7"), "{err}");
-    rejects(
-        &with("[lighting]\nkind = 1\n"),
-        "lighting",
-        "unknown field `lighting`",
-    );
+    rejects(&with("[lighting]\nkind = 1\n"), "lighting", "unknown field `lighting`");
     rejects(
         &with("[[lights]]\nkind = \"sky\"\nradiance = 1\nbrightness = 2\n"),
         "lights[0].brightness",
         "unknown field",
     );
-    rejects(
-        &with("[camera]\nposition = [0,0,0]\nlook_at = [1,0,0]\nfov = 30\n"),
-        "camera.fov",
-        "unknown field `fov`",
-    );
+    rejects(&with("[camera]\nposition = [0,0,0]\nlook_at = [1,0,0]\nfov = 30\n"), "camera.fov", "unknown field `fov`");
 }
 
 #[test]
@@ -251,63 +192,35 @@ fn wrong_type() {
     let text = format!("{VOLUME}[medium]\nsigma_t = 0.5\nalbedo = \"high\"\n");
     let err = rejects(&text, "medium.albedo", "invalid type: string \"high\"");
     assert!(err.to_string().contains("line 6"), "{err}");
-    rejects(
-        &format!("{VOLUME}[medium]\nsigma_t = [1, 2]\nalbedo = 1\n"),
-        "medium.sigma_t",
-        "invalid length 2",
-    );
+    rejects(&format!("{VOLUME}[medium]\nsigma_t = [1, 2]\nalbedo = 1\n"), "medium.sigma_t", "invalid length 2");
     rejects(
         &format!("[volume]\nprocedural = \"box\"\ndims = [8, \"8\", 8]\n{MEDIUM}"),
         "volume.dims",
         "invalid type: string",
     );
-    rejects(
-        &with("[solver]\nmax_orders = 1.5\n"),
-        "solver.max_orders",
-        "invalid type: floating point",
-    );
+    rejects(&with("[solver]\nmax_orders = 1.5\n"), "solver.max_orders", "invalid type: floating point");
 }
 
 #[test]
 fn missing_required_keys() {
-    rejects(
-        &format!("[volume]\nprocedural = \"box\"\n{MEDIUM}"),
-        "volume.dims",
-        "missing field `dims`",
-    );
+    rejects(&format!("[volume]\nprocedural = \"box\"\n{MEDIUM}"), "volume.dims", "missing field `dims`");
     rejects(VOLUME, "medium", "missing field `medium`");
-    rejects(
-        &with("[[lights]]\nkind = \"sun\"\nirradiance = 1\n"),
-        "lights[0].direction",
-        "is required",
-    );
+    rejects(&with("[[lights]]\nkind = \"sun\"\nirradiance = 1\n"), "lights[0].direction", "is required");
 }
 
 // ---- value errors ---------------------------------------------------------------------------
 
 #[test]
 fn nan_and_inf_are_rejected() {
-    rejects(
-        &format!("{VOLUME}[medium]\nsigma_t = nan\nalbedo = 1\n"),
-        "medium.sigma_t",
-        "finite",
-    );
-    rejects(
-        &format!("{VOLUME}[medium]\nsigma_t = 1\nalbedo = [0.5, inf, 0.5]\n"),
-        "medium.albedo[1]",
-        "finite",
-    );
+    rejects(&format!("{VOLUME}[medium]\nsigma_t = nan\nalbedo = 1\n"), "medium.sigma_t", "finite");
+    rejects(&format!("{VOLUME}[medium]\nsigma_t = 1\nalbedo = [0.5, inf, 0.5]\n"), "medium.albedo[1]", "finite");
     rejects(&with("g = -nan\n"), "medium.g", "finite");
     rejects(
         &with("[[lights]]\nkind = \"sun\"\ndirection = [0, inf, 1]\nirradiance = 1\n"),
         "lights[0].direction[1]",
         "finite",
     );
-    rejects(
-        &with("[[lights]]\nkind = \"sky\"\nradiance = inf\n"),
-        "lights[0].radiance",
-        "finite",
-    );
+    rejects(&with("[[lights]]\nkind = \"sky\"\nradiance = inf\n"), "lights[0].radiance", "finite");
     rejects(
         &format!("[volume]\nprocedural = \"box\"\ndims = [8,8,8]\nvoxel_size = nan\n{MEDIUM}"),
         "volume.voxel_size",
@@ -317,59 +230,29 @@ fn nan_and_inf_are_rejected() {
 
 #[test]
 fn negative_sigma_t() {
-    rejects(
-        &format!("{VOLUME}[medium]\nsigma_t = -0.5\nalbedo = 1\n"),
-        "medium.sigma_t",
-        "must be ≥ 0, got -0.5",
-    );
-    rejects(
-        &format!("{VOLUME}[medium]\nsigma_t = 1e13\nalbedo = 1\n"),
-        "medium.sigma_t",
-        "must be ≤",
-    );
+    rejects(&format!("{VOLUME}[medium]\nsigma_t = -0.5\nalbedo = 1\n"), "medium.sigma_t", "must be ≥ 0, got -0.5");
+    rejects(&format!("{VOLUME}[medium]\nsigma_t = 1e13\nalbedo = 1\n"), "medium.sigma_t", "must be ≤");
 }
 
 #[test]
 fn albedo_above_one() {
-    let err = load(&format!(
-        "{VOLUME}[medium]\nsigma_t = 1\nalbedo = [0.5, 1.5, 0.5]\n"
-    ))
-    .expect_err("albedo");
-    assert_eq!(
-        err.to_string(),
-        "scene.toml: medium.albedo[1]: must be in [0, 1], got 1.5"
-    );
+    let err = load(&format!("{VOLUME}[medium]\nsigma_t = 1\nalbedo = [0.5, 1.5, 0.5]\n")).expect_err("albedo");
+    assert_eq!(err.to_string(), "scene.toml: medium.albedo[1]: must be in [0, 1], got 1.5");
     assert_eq!(err.key(), Some("medium.albedo[1]"));
-    rejects(
-        &format!("{VOLUME}[medium]\nsigma_t = 1\nalbedo = -0.1\n"),
-        "medium.albedo",
-        "must be in [0, 1]",
-    );
+    rejects(&format!("{VOLUME}[medium]\nsigma_t = 1\nalbedo = -0.1\n"), "medium.albedo", "must be in [0, 1]");
 }
 
 #[test]
 fn g_must_be_open_interval() {
     rejects(&with("g = 1\n"), "medium.g", "must be in (-1, 1), got 1");
-    rejects(
-        &with("g = -1.0\n"),
-        "medium.g",
-        "must be in (-1, 1), got -1",
-    );
+    rejects(&with("g = -1.0\n"), "medium.g", "must be in (-1, 1), got -1");
     assert!(load(&with("g = 0.99\n")).is_ok());
 }
 
 #[test]
 fn emission_and_lights_non_negative() {
-    rejects(
-        &with("emission = [0, -1, 0]\n"),
-        "medium.emission[1]",
-        "must be ≥ 0",
-    );
-    rejects(
-        &with("[[lights]]\nkind = \"sky\"\nradiance = -1\n"),
-        "lights[0].radiance",
-        "must be ≥ 0",
-    );
+    rejects(&with("emission = [0, -1, 0]\n"), "medium.emission[1]", "must be ≥ 0");
+    rejects(&with("[[lights]]\nkind = \"sky\"\nradiance = -1\n"), "lights[0].radiance", "must be ≥ 0");
     rejects(
         &with("[[lights]]\nkind = \"sky\"\nradiance = 1\n[[lights]]\nkind = \"sun\"\ndirection = [0,0,1]\nirradiance = [1, 1, -2]\n"),
         "lights[1].irradiance[2]",
@@ -388,11 +271,7 @@ fn zero_sun_direction() {
 
 #[test]
 fn unknown_light_kind_lists_valid_kinds() {
-    rejects(
-        &with("[[lights]]\nkind = \"moon\"\n"),
-        "lights[0].kind",
-        "\"sky\", \"sun\"",
-    );
+    rejects(&with("[[lights]]\nkind = \"moon\"\n"), "lights[0].kind", "\"sky\", \"sun\"");
     rejects(
         &with("[[lights]]\nkind = \"sky\"\nradiance = 1\ndirection = [0,0,1]\n"),
         "lights[0].direction",
@@ -407,11 +286,7 @@ fn volume_source_exactly_one() {
         "volume",
         "both are set",
     );
-    rejects(
-        &format!("[volume]\ndims = [8, 8, 8]\n{MEDIUM}"),
-        "volume",
-        "neither is set",
-    );
+    rejects(&format!("[volume]\ndims = [8, 8, 8]\n{MEDIUM}"), "volume", "neither is set");
     rejects(
         &format!("[volume]\nprocedural = \"torus\"\ndims = [8, 8, 8]\n{MEDIUM}"),
         "volume.procedural",
@@ -431,21 +306,14 @@ fn dims_limits() {
         "volume.dims[0]",
         "got 100000",
     );
-    rejects(
-        &format!("[volume]\nprocedural = \"box\"\ndims = [-8, 8, 8]\n{MEDIUM}"),
-        "volume.dims[0]",
-        "got -8",
-    );
+    rejects(&format!("[volume]\nprocedural = \"box\"\ndims = [-8, 8, 8]\n{MEDIUM}"), "volume.dims[0]", "got -8");
     rejects(
         &format!("[volume]\nprocedural = \"box\"\ndims = [65536, 65536, 65536]\n{MEDIUM}"),
         "volume.dims",
         "more than the limit of 2^40",
     );
     // Exactly 2^40 is allowed (the check is on the voxel count, not on memory).
-    assert!(load(&format!(
-        "[volume]\nprocedural = \"box\"\ndims = [65536, 65536, 256]\n{MEDIUM}"
-    ))
-    .is_ok());
+    assert!(load(&format!("[volume]\nprocedural = \"box\"\ndims = [65536, 65536, 256]\n{MEDIUM}")).is_ok());
     rejects(
         &format!("[volume]\nprocedural = \"box\"\ndims = [8, 8, 8]\nvoxel_size = 0\n{MEDIUM}"),
         "volume.voxel_size",
@@ -460,81 +328,41 @@ fn bad_budget_string() {
         "solver.device_memory_budget",
         "invalid byte size \"lots\"",
     );
-    rejects(
-        &with("[solver]\ndevice_memory_budget = \"12X\"\n"),
-        "solver.device_memory_budget",
-        "unknown suffix",
-    );
-    rejects(
-        &with("[solver]\ndevice_memory_budget = 0\n"),
-        "solver.device_memory_budget",
-        "must be > 0",
-    );
-    rejects(
-        &with("[solver]\ndevice_memory_budget = \"0G\"\n"),
-        "solver.device_memory_budget",
-        "must be > 0",
-    );
+    rejects(&with("[solver]\ndevice_memory_budget = \"12X\"\n"), "solver.device_memory_budget", "unknown suffix");
+    rejects(&with("[solver]\ndevice_memory_budget = 0\n"), "solver.device_memory_budget", "must be > 0");
+    rejects(&with("[solver]\ndevice_memory_budget = \"0G\"\n"), "solver.device_memory_budget", "must be > 0");
 }
 
 #[test]
 fn solver_ranges() {
-    rejects(
-        &with("[solver]\ndirections_per_face = 33\n"),
-        "solver.directions_per_face",
-        "must be in 1..=32, got 33",
-    );
+    rejects(&with("[solver]\ndirections_per_face = 33\n"), "solver.directions_per_face", "must be in 1..=32, got 33");
     rejects(
         &with("[solver]\ndirections_per_face = 3\nstorage_directions_per_face = 4\n"),
         "solver.storage_directions_per_face",
         "≤",
     );
-    rejects(
-        &with("[solver]\nmax_orders = 0\n"),
-        "solver.max_orders",
-        "must be in 1..=100000",
-    );
-    rejects(
-        &with("[solver]\ntolerance = 1\n"),
-        "solver.tolerance",
-        "must be in (0, 1), got 1",
-    );
+    rejects(&with("[solver]\nmax_orders = 0\n"), "solver.max_orders", "must be in 1..=100000");
+    rejects(&with("[solver]\ntolerance = 1\n"), "solver.tolerance", "must be in (0, 1), got 1");
 }
 
 #[test]
 fn camera_rules() {
     let cam = |body: &str| with(&format!("[camera]\n{body}"));
-    rejects(
-        &cam("position = [1,2,3]\nlook_at = [1,2,3]\n"),
-        "camera.look_at",
-        "must differ from camera.position",
-    );
-    rejects(
-        &cam("position = [0,0,0]\nlook_at = [0,0,5]\n"),
-        "camera.up",
-        "parallel",
-    );
-    rejects(
-        &cam("position = [0,0,0]\nlook_at = [1,0,0]\nwidth = 0\n"),
-        "camera.width",
-        "must be in 1..=16384, got 0",
-    );
-    rejects(
-        &cam("position = [0,0,0]\nlook_at = [1,0,0]\nheight = 20000\n"),
-        "camera.height",
-        "got 20000",
-    );
-    rejects(
-        &cam("position = [0,0,0]\nlook_at = [1,0,0]\nfov_y = 180\n"),
-        "camera.fov_y",
-        "must be in (0, 180)",
-    );
+    rejects(&cam("position = [1,2,3]\nlook_at = [1,2,3]\n"), "camera.look_at", "must differ from camera.position");
+    rejects(&cam("position = [0,0,0]\nlook_at = [0,0,5]\n"), "camera.up", "parallel");
+    rejects(&cam("position = [0,0,0]\nlook_at = [1,0,0]\nwidth = 0\n"), "camera.width", "must be in 1..=16384, got 0");
+    rejects(&cam("position = [0,0,0]\nlook_at = [1,0,0]\nheight = 20000\n"), "camera.height", "got 20000");
+    rejects(&cam("position = [0,0,0]\nlook_at = [1,0,0]\nfov_y = 180\n"), "camera.fov_y", "must be in (0, 180)");
     rejects(
         &cam("projection = \"fisheye\"\nposition = [0,0,0]\nlook_at = [1,0,0]\n"),
         "camera.projection",
         "\"pinhole\", \"orthographic\"",
     );
-    rejects(&cam("projection = \"orthographic\"\nposition = [0,0,0]\nlook_at = [1,0,0]\nview_height = -1\n"), "camera.view_height", "must be > 0");
+    rejects(
+        &cam("projection = \"orthographic\"\nposition = [0,0,0]\nlook_at = [1,0,0]\nview_height = -1\n"),
+        "camera.view_height",
+        "must be > 0",
+    );
 }
 
 // ---- raw files ------------------------------------------------------------------------------
@@ -550,48 +378,26 @@ fn raw_file_relative_to_scene_and_checked() {
     // Relative paths resolve against the scene file's directory.
     std::fs::write(&path, scene("density.raw")).expect("write scene");
     let s = Scene::load(&path).unwrap_or_else(|e| panic!("{e}"));
-    assert_eq!(
-        s.volume.source,
-        VolumeSource::Raw {
-            path: dir.join("density.raw")
-        }
-    );
+    assert_eq!(s.volume.source, VolumeSource::Raw { path: dir.join("density.raw") });
 
     // Missing file: named, with the reason.
     std::fs::write(&path, scene("nope.raw")).expect("write scene");
     let err = Scene::load(&path).expect_err("missing raw");
     let msg = err.to_string();
     assert!(msg.contains(FILE) && msg.contains("volume.raw"), "{msg}");
-    assert!(
-        msg.contains("nope.raw") && msg.contains("No such file or directory"),
-        "{msg}"
-    );
+    assert!(msg.contains("nope.raw") && msg.contains("No such file or directory"), "{msg}");
     assert!(matches!(err, SceneError::RawFile { .. }));
 
     // Wrong size: expected vs actual bytes.
     std::fs::write(&path, scene("short.raw")).expect("write scene");
     let err = Scene::load(&path).expect_err("short raw");
     let msg = err.to_string();
-    assert!(
-        msg.contains(FILE) && msg.contains("volume.raw") && msg.contains("short.raw"),
-        "{msg}"
-    );
+    assert!(msg.contains(FILE) && msg.contains("volume.raw") && msg.contains("short.raw"), "{msg}");
     assert!(msg.contains("has 100 bytes, expected 256"), "{msg}");
-    assert!(matches!(
-        err,
-        SceneError::RawSize {
-            expected: 256,
-            actual: 100,
-            ..
-        }
-    ));
+    assert!(matches!(err, SceneError::RawSize { expected: 256, actual: 100, .. }));
 
     // A seed makes no sense for raw data.
-    rejects(
-        &format!("[volume]\nraw = \"x.raw\"\nseed = 3\ndims = [2, 4, 8]\n{MEDIUM}"),
-        "volume.seed",
-        "only applies",
-    );
+    rejects(&format!("[volume]\nraw = \"x.raw\"\nseed = 3\ndims = [2, 4, 8]\n{MEDIUM}"), "volume.seed", "only applies");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -616,19 +422,10 @@ fn cloud_is_deterministic_and_seeded() {
     let b = cloud_volume(5, dims);
     assert_eq!(a, b);
     let c = cloud_volume(6, dims);
-    let differing = a
-        .iter()
-        .zip(&c)
-        .filter(|(x, y)| (*x - *y).abs() > 0.05)
-        .count();
-    assert!(
-        differing > a.len() / 100,
-        "seeds 5 and 6 give nearly the same cloud ({differing} voxels differ)"
-    );
+    let differing = a.iter().zip(&c).filter(|(x, y)| (*x - *y).abs() > 0.05).count();
+    assert!(differing > a.len() / 100, "seeds 5 and 6 give nearly the same cloud ({differing} voxels differ)");
     // Same values from another thread (no hidden per-thread state leaks into results).
-    let d = std::thread::spawn(move || cloud_volume(5, dims))
-        .join()
-        .expect("thread");
+    let d = std::thread::spawn(move || cloud_volume(5, dims)).join().expect("thread");
     assert_eq!(a, d);
 }
 
@@ -665,10 +462,7 @@ fn cloud_border_empty_and_middle_dense() {
             }
         }
         assert!(max_middle > 0.3, "seed {seed}: middle max {max_middle}");
-        assert!(
-            empty > v.len() / 2,
-            "seed {seed}: the cloud should leave most of the volume empty"
-        );
+        assert!(empty > v.len() / 2, "seed {seed}: the cloud should leave most of the volume empty");
     }
 }
 
@@ -676,9 +470,7 @@ fn cloud_border_empty_and_middle_dense() {
 fn cloud_shape_is_resolution_independent() {
     // The same normalised point at two resolutions sees the same density (to interpolation).
     let lo = density(Shape::Cloud, 4, [32; 3], [16, 16, 14]);
-    let hi = (density(Shape::Cloud, 4, [64; 3], [32, 32, 28])
-        + density(Shape::Cloud, 4, [64; 3], [31, 31, 27]))
-        / 2.0;
+    let hi = (density(Shape::Cloud, 4, [64; 3], [32, 32, 28]) + density(Shape::Cloud, 4, [64; 3], [31, 31, 27])) / 2.0;
     assert!((lo - hi).abs() < 0.2, "{lo} vs {hi}");
 }
 
@@ -698,10 +490,7 @@ fn sphere_occupancy() {
     }
     let fraction = inside as f64 / 64f64.powi(3);
     let expected = 4.0 / 3.0 * std::f64::consts::PI * 0.4f64.powi(3);
-    assert!(
-        (fraction - expected).abs() < 0.005,
-        "{fraction} vs {expected}"
-    );
+    assert!((fraction - expected).abs() < 0.005, "{fraction} vs {expected}");
 }
 
 #[test]

@@ -28,16 +28,10 @@ fn committed_spirv_matches_glsl() {
     assert!(!sources.is_empty(), "no glsl/*.comp found");
 
     // Never skip: a missing compiler must not turn into a silently passing test.
-    let version = Command::new("glslangValidator")
-        .arg("--version")
-        .current_dir(&root)
-        .output();
+    let version = Command::new("glslangValidator").arg("--version").current_dir(&root).output();
     match version {
         Ok(o) if o.status.success() => {}
-        Ok(o) => panic!(
-            "glslangValidator --version failed ({}); install the Debian package glslang-tools",
-            o.status
-        ),
+        Ok(o) => panic!("glslangValidator --version failed ({}); install the Debian package glslang-tools", o.status),
         Err(e) => {
             panic!("glslangValidator not found ({e}); install the Debian package glslang-tools")
         }
@@ -75,9 +69,5 @@ fn committed_spirv_matches_glsl() {
             stale.push(format!("spirv/{spv}.spv has no source glsl/{spv}.comp"));
         }
     }
-    assert!(
-        stale.is_empty(),
-        "{}\nrun tools/compile_shaders.sh (and delete orphaned .spv files)",
-        stale.join("\n")
-    );
+    assert!(stale.is_empty(), "{}\nrun tools/compile_shaders.sh (and delete orphaned .spv files)", stale.join("\n"));
 }

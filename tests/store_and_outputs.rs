@@ -1,7 +1,7 @@
 //! The brick store, its importers, and the exported field files.
 
 use lpm::output::{
-    export_field, EmptyBricks, read_field_json, read_raw_field, write_atomic, write_json_atomic, FieldMeta,
+    export_field, read_field_json, read_raw_field, write_atomic, write_json_atomic, EmptyBricks, FieldMeta,
 };
 use lpm::store::{raw_density, BrickGrid, BrickStore, Coverage, StoreError, BRICK_EDGE, BRICK_VOXELS};
 use std::fs;
@@ -33,9 +33,7 @@ fn test_dir(name: &str) -> TestDir {
 
 /// Fills a brick from a function of the global voxel coordinates (evaluated on the padding too, so
 /// the store's zeroing of voxels beyond dims is exercised).
-fn fill_from(
-    f: impl Fn([u32; 3]) -> f32 + Sync,
-) -> impl Fn([u32; 3], &mut [f32]) -> Result<(), StoreError> + Sync {
+fn fill_from(f: impl Fn([u32; 3]) -> f32 + Sync) -> impl Fn([u32; 3], &mut [f32]) -> Result<(), StoreError> + Sync {
     move |b, out| {
         for z in 0..16 {
             for y in 0..16 {
@@ -75,8 +73,7 @@ fn brick_math_round_trips() {
         if g.bricks[0] > 1 {
             assert_eq!(g.brick_index([1, 0, 0]), 1);
         }
-        for v in [[0, 0, 0], [dims[0] - 1, dims[1] - 1, dims[2] - 1], [dims[0] / 2, dims[1] / 3, dims[2] / 5]]
-        {
+        for v in [[0, 0, 0], [dims[0] - 1, dims[1] - 1, dims[2] - 1], [dims[0] / 2, dims[1] / 3, dims[2] / 5]] {
             let (b, l) = g.locate(v);
             let bc = g.brick_coords(b);
             assert_eq!(l, (v[0] % 16 + 16 * (v[1] % 16) + 256 * (v[2] % 16)) as usize);
@@ -114,8 +111,7 @@ fn dims_not_multiple_of_16_and_empty_bricks_take_no_space() {
         }
     }
     // Padding voxels (beyond dims) were forced to zero though fill wrote there.
-    let fill_everywhere =
-        BrickStore::create_with(&test_dir("padding"), DIMS, 1.0, fill_from(|_| 2.0)).expect("create");
+    let fill_everywhere = BrickStore::create_with(&test_dir("padding"), DIMS, 1.0, fill_from(|_| 2.0)).expect("create");
     let last = g.brick_index([2, 1, 3]);
     let d = fill_everywhere.density_brick(last).expect("occupied");
     assert_eq!(d[0], 2.0);
@@ -188,8 +184,8 @@ fn raw_import_round_trips() {
     let raw_path = dir.join("in.raw");
     write_raw(&raw_path, &values);
     let raw = raw_density(&raw_path, dims).expect("raw");
-    let store = BrickStore::create_with(&dir.join("store"), dims, 1.0, |b, out| raw.fill_brick(b, out))
-        .expect("import");
+    let store =
+        BrickStore::create_with(&dir.join("store"), dims, 1.0, |b, out| raw.fill_brick(b, out)).expect("import");
     for z in 0..dims[2] {
         for y in 0..dims[1] {
             for x in 0..dims[0] {
@@ -283,8 +279,7 @@ fn fields_dense_and_occupied() {
 #[test]
 fn export_field_layout_json_and_nhdr() {
     let dir = test_dir("export");
-    let store =
-        BrickStore::create_with(&dir.join("store"), DIMS, 0.5, fill_from(corner_density)).expect("create");
+    let store = BrickStore::create_with(&dir.join("store"), DIMS, 0.5, fill_from(corner_density)).expect("create");
     let g = *store.grid();
     let value = |v: [u32; 3], c: u32| (v[0] + 100 * v[1] + 10_000 * v[2]) as f32 + 0.25 * c as f32;
     let mut f = store.create_field("fluence", 3, Coverage::Occupied).expect("field");

@@ -96,7 +96,12 @@ pub enum AccuracyError {
 }
 
 /// Runs the whole study; `log(line)` reports progress.
-pub fn run(scene: &Path, out: &Path, opts: &AccuracyOptions, mut log: impl FnMut(&str)) -> Result<AccuracyReport, AccuracyError> {
+pub fn run(
+    scene: &Path,
+    out: &Path,
+    opts: &AccuracyOptions,
+    mut log: impl FnMut(&str),
+) -> Result<AccuracyReport, AccuracyError> {
     let runs = out.join("runs");
     let reference_dir = runs.join("reference");
     log(&format!("reference: Monte Carlo with {} photons per channel", opts.reference_photons));
@@ -228,7 +233,14 @@ fn solver_row(
 }
 
 /// One row of the study from a run's comparison with the reference.
-fn row(method: &str, setting: String, seconds: f64, c: &Comparison, orders: Option<u32>, residual: Option<f64>) -> AccuracyRow {
+fn row(
+    method: &str,
+    setting: String,
+    seconds: f64,
+    c: &Comparison,
+    orders: Option<u32>,
+    residual: Option<f64>,
+) -> AccuracyRow {
     let m = &c.fluence.metrics;
     AccuracyRow {
         method: method.into(),
@@ -266,7 +278,8 @@ pub fn precision_name(p: StoragePrecision) -> &'static str {
 fn with_solver_settings(scene: &Path, dir: &Path, run: &SolverRun) -> Result<PathBuf, AccuracyError> {
     let (k, tolerance, precision) = (run.k, run.tolerance, run.precision);
     let loaded = crate::scene::Scene::load(scene).map_err(job::JobError::from)?;
-    let text = std::fs::read_to_string(scene).map_err(|source| AccuracyError::Write { path: scene.to_path_buf(), source })?;
+    let text =
+        std::fs::read_to_string(scene).map_err(|source| AccuracyError::Write { path: scene.to_path_buf(), source })?;
     let mut value: toml::Value = text
         .parse()
         .map_err(|e: toml::de::Error| AccuracyError::Scene { path: scene.to_path_buf(), message: e.to_string() })?;
@@ -280,7 +293,11 @@ fn with_solver_settings(scene: &Path, dir: &Path, run: &SolverRun) -> Result<Pat
             if let Some(cap) = run.max_orders {
                 solver.insert("max_orders".into(), toml::Value::Integer(cap as i64));
             }
-            if solver.get("storage_directions_per_face").and_then(toml::Value::as_integer).is_some_and(|ks| ks > k as i64) {
+            if solver
+                .get("storage_directions_per_face")
+                .and_then(toml::Value::as_integer)
+                .is_some_and(|ks| ks > k as i64)
+            {
                 solver.insert("storage_directions_per_face".into(), toml::Value::Integer(k as i64));
             }
         }
@@ -293,7 +310,8 @@ fn with_solver_settings(scene: &Path, dir: &Path, run: &SolverRun) -> Result<Pat
     std::fs::create_dir_all(dir).map_err(|source| AccuracyError::Write { path: dir.to_path_buf(), source })?;
     let copy = dir.join("scene.toml");
     // `Value::to_string` writes an inline table; serialise as a document instead.
-    let text = toml::to_string(&value).map_err(|e| AccuracyError::Scene { path: copy.clone(), message: e.to_string() })?;
+    let text =
+        toml::to_string(&value).map_err(|e| AccuracyError::Scene { path: copy.clone(), message: e.to_string() })?;
     crate::output::write_atomic(&copy, |w| std::io::Write::write_all(w, text.as_bytes()))?;
     Ok(copy)
 }
@@ -334,7 +352,12 @@ fn write_outputs(out: &Path, report: &AccuracyReport) -> Result<(), AccuracyErro
     let point = |r: &AccuracyRow| r.relative_l2.map(|e| (r.seconds, e));
     let line_of = |r: &AccuracyRow| {
         let words: Vec<&str> = r.setting.split(' ').collect();
-        words.iter().filter(|w| !w.starts_with("tol=") && !w.starts_with("max_orders=")).copied().collect::<Vec<_>>().join(" ")
+        words
+            .iter()
+            .filter(|w| !w.starts_with("tol=") && !w.starts_with("max_orders="))
+            .copied()
+            .collect::<Vec<_>>()
+            .join(" ")
     };
     let mut series: Vec<Series> = Vec::new();
     let mut lines: Vec<String> = Vec::new();

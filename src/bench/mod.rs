@@ -51,7 +51,13 @@ pub struct StreamReport {
 }
 
 /// Runs `orders` orders of `scene_path` with the stream profiled.
-pub fn stream(scene_path: &Path, orders: u32, budget: Option<u64>, vk: ContextOptions, work: &Path) -> Result<StreamReport, JobError> {
+pub fn stream(
+    scene_path: &Path,
+    orders: u32,
+    budget: Option<u64>,
+    vk: ContextOptions,
+    work: &Path,
+) -> Result<StreamReport, JobError> {
     let mut scene = Scene::load(scene_path)?;
     if budget.is_some() {
         scene.solver.device_memory_budget = budget;
@@ -61,7 +67,13 @@ pub fn stream(scene_path: &Path, orders: u32, budget: Option<u64>, vk: ContextOp
     result
 }
 
-fn run_stream(scene: &Scene, scene_path: &Path, orders: u32, vk: ContextOptions, work: &Path) -> Result<StreamReport, JobError> {
+fn run_stream(
+    scene: &Scene,
+    scene_path: &Path,
+    orders: u32,
+    vk: ContextOptions,
+    work: &Path,
+) -> Result<StreamReport, JobError> {
     let store = solver::build_store(scene, work)?;
     let total = store.grid().brick_count();
     let plan = Plan::new(scene, total, total - store.occupied_count());
@@ -102,7 +114,8 @@ fn run_stream(scene: &Scene, scene_path: &Path, orders: u32, vk: ContextOptions,
     let note = if limits.is_cpu {
         "CPU Vulkan device (e.g. lavapipe): transfers and compute share the host's cores and run one after the other, so the overlap and bandwidth figures say nothing about a GPU; the updates/s figure is a CPU figure".to_string()
     } else if ctx.transfer_queue().is_none() {
-        "no queue besides the compute queue: transfers are ordered after compute on one queue, so little can overlap".to_string()
+        "no queue besides the compute queue: transfers are ordered after compute on one queue, so little can overlap"
+            .to_string()
     } else {
         "transfers run on a dedicated queue; hidden_transfer_fraction is the share of transfer time overlapped by compute".to_string()
     };

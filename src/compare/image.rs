@@ -28,7 +28,11 @@ fn read_exr(path: &Path) -> Result<Rgb, CompareError> {
 
 /// Metrics of `a/image.exr` against `b/image.exr` when both exist with the same size; otherwise
 /// `None` and a note (none when neither directory has an image).
-pub(super) fn compare_images(a: &Path, b: &Path, notes: &mut Vec<String>) -> Result<Option<ImageComparison>, CompareError> {
+pub(super) fn compare_images(
+    a: &Path,
+    b: &Path,
+    notes: &mut Vec<String>,
+) -> Result<Option<ImageComparison>, CompareError> {
     let (pa, pb) = (a.join("image.exr"), b.join("image.exr"));
     match (pa.exists(), pb.exists()) {
         (false, false) => return Ok(None),

@@ -177,7 +177,10 @@ pub fn compare_dirs(a: &Path, b: &Path, opts: &CompareOptions) -> Result<Compari
         notes.push(format!("the candidate's fluence has {non_finite} non-finite value(s)"));
     }
     if used == 0 {
-        notes.push("no voxel was compared: the reference has no voxel with fluence > 0 and a small enough standard error".into());
+        notes.push(
+            "no voxel was compared: the reference has no voxel with fluence > 0 and a small enough standard error"
+                .into(),
+        );
     }
     let metrics = acc.finish();
     let noise = (stderr.is_some() && ref_sq > 0.0).then(|| (noise_sq / ref_sq).sqrt());
@@ -198,13 +201,7 @@ pub fn compare_dirs(a: &Path, b: &Path, opts: &CompareOptions) -> Result<Compari
         noise_corrected_relative_l2: corrected,
     };
     let image = image::compare_images(a, b, &mut notes)?;
-    Ok(Comparison {
-        candidate: a.display().to_string(),
-        reference: b.display().to_string(),
-        fluence,
-        image,
-        notes,
-    })
+    Ok(Comparison { candidate: a.display().to_string(), reference: b.display().to_string(), fluence, image, notes })
 }
 
 /// Writes `comparison` as pretty JSON to `path`, atomically.

@@ -22,8 +22,8 @@ pub fn write_atomic(
 
 /// Writes `value` as pretty-printed JSON (with a final newline), atomically.
 pub fn write_json_atomic(path: &Path, value: &impl Serialize) -> Result<(), OutputError> {
-    let mut bytes = serde_json::to_vec_pretty(value)
-        .map_err(|source| OutputError::Json { path: path.to_path_buf(), source })?;
+    let mut bytes =
+        serde_json::to_vec_pretty(value).map_err(|source| OutputError::Json { path: path.to_path_buf(), source })?;
     bytes.push(b'\n');
     write_atomic(path, |w| w.write_all(&bytes))
 }

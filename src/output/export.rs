@@ -52,8 +52,7 @@ pub enum EmptyBricks {
 }
 
 /// The `not_solved` note of an export whose empty bricks read as NaN.
-pub const NOT_SOLVED: &str =
-    "NaN marks the voxels of empty 16³ bricks (no medium): the solver does not solve there";
+pub const NOT_SOLVED: &str = "NaN marks the voxels of empty 16³ bricks (no medium): the solver does not solve there";
 
 /// The `layout` string of every exported field.
 pub const LAYOUT: &str = "component fastest, then x, then y, then z";

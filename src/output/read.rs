@@ -7,13 +7,10 @@ use std::path::Path;
 
 /// Reads and checks `<base>.json`: known dtype, endianness and layout, consistent components.
 pub fn read_field_json(path: &Path) -> Result<FieldInfo, OutputError> {
-    let bytes = fs::read(path).map_err(|source| OutputError::Io {
-        path: path.to_path_buf(),
-        action: "read",
-        source,
-    })?;
-    let info: FieldInfo = serde_json::from_slice(&bytes)
-        .map_err(|source| OutputError::Json { path: path.to_path_buf(), source })?;
+    let bytes =
+        fs::read(path).map_err(|source| OutputError::Io { path: path.to_path_buf(), action: "read", source })?;
+    let info: FieldInfo =
+        serde_json::from_slice(&bytes).map_err(|source| OutputError::Json { path: path.to_path_buf(), source })?;
     let invalid = |message: String| OutputError::Invalid { path: path.to_path_buf(), message };
     if info.dtype != "f32" || info.endianness != "little" || info.layout != LAYOUT {
         return Err(invalid(format!(
@@ -39,11 +36,8 @@ pub fn read_field_json(path: &Path) -> Result<FieldInfo, OutputError> {
 pub fn read_raw_field(dir: &Path, base: &str) -> Result<(FieldInfo, Vec<f32>), OutputError> {
     let info = read_field_json(&dir.join(format!("{base}.json")))?;
     let raw_path = dir.join(&info.file);
-    let bytes = fs::read(&raw_path).map_err(|source| OutputError::Io {
-        path: raw_path.clone(),
-        action: "read",
-        source,
-    })?;
+    let bytes =
+        fs::read(&raw_path).map_err(|source| OutputError::Io { path: raw_path.clone(), action: "read", source })?;
     let expected = info.dims.iter().try_fold(info.components as u64 * 4, |acc, &d| acc.checked_mul(d as u64));
     if expected != Some(bytes.len() as u64) {
         return Err(OutputError::Invalid {

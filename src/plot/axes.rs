@@ -135,9 +135,7 @@ pub fn log_minor_ticks(lo: f64, hi: f64) -> Vec<f64> {
         return Vec::new();
     }
     match decades(lo, hi) {
-        Some((e0, e1, step)) if step > 1 => {
-            (e0..=e1).filter(|e| e.rem_euclid(step) != 0).map(decade).collect()
-        }
+        Some((e0, e1, step)) if step > 1 => (e0..=e1).filter(|e| e.rem_euclid(step) != 0).map(decade).collect(),
         _ => {
             let first = (lo.log10() + 1e-9).floor() as i32;
             let last = (hi.log10() - 1e-9).floor() as i32;

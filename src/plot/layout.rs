@@ -203,17 +203,7 @@ pub(crate) struct Layout {
 }
 
 fn text(text: &str, x: f64, y: f64, anchor: Anchor, class: &'static str) -> Text {
-    Text {
-        text: text.to_string(),
-        x,
-        y,
-        anchor,
-        scale: TEXT_SCALE,
-        color: INK,
-        vertical: false,
-        bold: false,
-        class,
-    }
+    Text { text: text.to_string(), x, y, anchor, scale: TEXT_SCALE, color: INK, vertical: false, bold: false, class }
 }
 
 fn cap(scale: u32) -> f64 {

@@ -2,7 +2,9 @@
 //! Bresenham with a square brush, filled shapes by pixel-centre tests, text from the bitmap font.
 
 use super::font;
-use super::layout::{Layout, Rect, Rgb, Shape, Text, BACKGROUND, GRID_MAJOR, GRID_MINOR, INK, LEGEND_BORDER, LINE_WIDTH, P};
+use super::layout::{
+    Layout, Rect, Rgb, Shape, Text, BACKGROUND, GRID_MAJOR, GRID_MINOR, INK, LEGEND_BORDER, LINE_WIDTH, P,
+};
 
 /// Draws `layout` into a new row-major RGB8 buffer of `layout.width × layout.height` pixels.
 pub(crate) fn render(layout: &Layout) -> Vec<u8> {

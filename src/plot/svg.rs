@@ -2,7 +2,9 @@
 //! font-family sans-serif); everything is shifted by half a pixel so that 1 px lines on pixel
 //! centres are crisp and match the raster rendering.
 
-use super::layout::{Anchor, Layout, Rect, Rgb, Shape, Text, BACKGROUND, GRID_MAJOR, GRID_MINOR, INK, LEGEND_BORDER, LINE_WIDTH, P};
+use super::layout::{
+    Anchor, Layout, Rect, Rgb, Shape, Text, BACKGROUND, GRID_MAJOR, GRID_MINOR, INK, LEGEND_BORDER, LINE_WIDTH, P,
+};
 use std::fmt::Write;
 
 /// SVG font size per bitmap-font scale step: a sans-serif capital is about 0.72 em, the bitmap

@@ -102,7 +102,12 @@ pub fn run(job: &ReferenceJob) -> Result<ReferenceReport, ReferenceJobError> {
 }
 
 /// Samples, runs and writes every output into `stage`.
-fn run_in(job: &ReferenceJob, scene: &Scene, stage: &Path, start: Instant) -> Result<ReferenceReport, ReferenceJobError> {
+fn run_in(
+    job: &ReferenceJob,
+    scene: &Scene,
+    stage: &Path,
+    start: Instant,
+) -> Result<ReferenceReport, ReferenceJobError> {
     let dims = scene.volume.dims;
     let h = scene.volume.voxel_size;
     let grey = scene.medium.is_grey() && scene.lights.iter().all(|l| l.is_grey());
@@ -181,11 +186,8 @@ fn raw_densities(path: &Path, dims: [u32; 3]) -> Result<Vec<f32>, StoreError> {
 
 /// Writes the fields and the image into `dir`; returns the names written, `report.json` last.
 fn write_outputs(result: &ReferenceResult, voxel_size: f64, dir: &Path) -> Result<Vec<String>, OutputError> {
-    let names: Vec<String> = if result.channels == 1 {
-        vec!["grey".into()]
-    } else {
-        ["r", "g", "b"].map(String::from).to_vec()
-    };
+    let names: Vec<String> =
+        if result.channels == 1 { vec!["grey".into()] } else { ["r", "g", "b"].map(String::from).to_vec() };
     let photons = result.photons;
     let fields = [
         (

@@ -18,15 +18,13 @@ pub fn default_camera(dims: [u32; 3], voxel_size: f64) -> Camera {
     let centre = extent * 0.5;
     let up = DVec3::Y;
     let (elevation, azimuth) = (30f64.to_radians(), 45f64.to_radians());
-    let to_eye =
-        DVec3::new(elevation.cos() * azimuth.sin(), elevation.sin(), elevation.cos() * azimuth.cos());
+    let to_eye = DVec3::new(elevation.cos() * azimuth.sin(), elevation.sin(), elevation.cos() * azimuth.cos());
     let frame = Frame::new(-to_eye, up);
 
     // Corners relative to the centre, in camera coordinates (right, up, toward the eye).
     let corners: Vec<DVec3> = (0..8)
         .map(|i| {
-            let c =
-                DVec3::new((i & 1) as f64, ((i >> 1) & 1) as f64, ((i >> 2) & 1) as f64) * extent - centre;
+            let c = DVec3::new((i & 1) as f64, ((i >> 1) & 1) as f64, ((i >> 2) & 1) as f64) * extent - centre;
             DVec3::new(c.dot(frame.right), c.dot(frame.up), c.dot(to_eye))
         })
         .collect();

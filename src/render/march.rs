@@ -148,7 +148,10 @@ mod tests {
         }
         let at_centre = trilinear(DVec3::new(1.5, 1.5, 2.5), dims);
         let main = at_centre.iter().find(|(v, _)| *v == [1, 1, 2]).unwrap();
-        assert!((at_centre.iter().filter(|(v, _)| *v == [1, 1, 2]).map(|x| x.1).sum::<f64>() - 1.0).abs() < 1e-12, "{main:?}");
+        assert!(
+            (at_centre.iter().filter(|(v, _)| *v == [1, 1, 2]).map(|x| x.1).sum::<f64>() - 1.0).abs() < 1e-12,
+            "{main:?}"
+        );
     }
 
     #[test]

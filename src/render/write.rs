@@ -38,8 +38,7 @@ pub fn write_exr(path: &Path, img: &Image) -> Result<(), OutputError> {
 /// sRGB-encoded. Atomic.
 pub fn write_png(path: &Path, img: &Image, exposure: f64) -> Result<(), OutputError> {
     check(path, img)?;
-    let bytes: Vec<u8> =
-        img.rgb.iter().map(|&v| (srgb_encode(tone_map(v, exposure)) * 255.0 + 0.5) as u8).collect();
+    let bytes: Vec<u8> = img.rgb.iter().map(|&v| (srgb_encode(tone_map(v, exposure)) * 255.0 + 0.5) as u8).collect();
     write_atomic(path, |out| {
         let mut encoder = png::Encoder::new(out, img.width, img.height);
         encoder.set_color(png::ColorType::Rgb);

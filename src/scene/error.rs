@@ -37,11 +37,7 @@ pub enum SceneError {
 
     /// A value parsed but is out of range or inconsistent with another value.
     #[error("{}: {key}: {problem}", .path.display())]
-    Invalid {
-        path: PathBuf,
-        key: String,
-        problem: String,
-    },
+    Invalid { path: PathBuf, key: String, problem: String },
 
     /// The raw density file named by `volume.raw` cannot be read (usually: it does not exist).
     #[error("{}: {key}: cannot read raw density file {}: {}", .path.display(), .raw_path.display(), io_reason(.source))]
@@ -59,14 +55,7 @@ pub enum SceneError {
         "{}: {key}: raw density file {} has {actual} bytes, expected {expected} ({} × {} × {} voxels × 4 bytes)",
         .path.display(), .raw_path.display(), .dims[0], .dims[1], .dims[2]
     )]
-    RawSize {
-        path: PathBuf,
-        key: String,
-        raw_path: PathBuf,
-        dims: [u32; 3],
-        expected: u64,
-        actual: u64,
-    },
+    RawSize { path: PathBuf, key: String, raw_path: PathBuf, dims: [u32; 3], expected: u64, actual: u64 },
 }
 
 impl SceneError {
@@ -86,9 +75,9 @@ impl SceneError {
         match self {
             SceneError::Read { .. } => None,
             SceneError::Parse { key, .. } => key.as_deref(),
-            SceneError::Invalid { key, .. }
-            | SceneError::RawFile { key, .. }
-            | SceneError::RawSize { key, .. } => Some(key),
+            SceneError::Invalid { key, .. } | SceneError::RawFile { key, .. } | SceneError::RawSize { key, .. } => {
+                Some(key)
+            }
         }
     }
 }
@@ -102,12 +91,7 @@ fn io_reason(e: &io::Error) -> String {
     }
 }
 
-fn parse_display(
-    line: Option<usize>,
-    column: Option<usize>,
-    key: Option<&str>,
-    message: &str,
-) -> String {
+fn parse_display(line: Option<usize>, column: Option<usize>, key: Option<&str>, message: &str) -> String {
     let mut out = String::new();
     match (line, column) {
         (Some(l), Some(c)) => out.push_str(&format!("line {l}, column {c}: ")),
@@ -141,10 +125,7 @@ mod tests {
             key: "medium.albedo[1]".into(),
             problem: "must be in [0, 1], got 1.5".into(),
         };
-        assert_eq!(
-            e.to_string(),
-            "scene.toml: medium.albedo[1]: must be in [0, 1], got 1.5"
-        );
+        assert_eq!(e.to_string(), "scene.toml: medium.albedo[1]: must be in [0, 1], got 1.5");
         assert_eq!(e.key(), Some("medium.albedo[1]"));
     }
 
@@ -157,9 +138,6 @@ mod tests {
             key: Some("volume.dimz".into()),
             message: "unknown field `dimz`".into(),
         };
-        assert_eq!(
-            e.to_string(),
-            "s.toml: line 3, column 1: volume.dimz: unknown field `dimz`"
-        );
+        assert_eq!(e.to_string(), "s.toml: line 3, column 1: volume.dimz: unknown field `dimz`");
     }
 }

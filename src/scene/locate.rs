@@ -94,19 +94,12 @@ fn parse_header(line: &str) -> Option<Header> {
 fn parse_key(line: &str) -> Option<String> {
     let t = line.trim_start();
     let first = t.chars().next()?;
-    if !(first.is_ascii_alphanumeric()
-        || first == '_'
-        || first == '-'
-        || first == '"'
-        || first == '\'')
-    {
+    if !(first.is_ascii_alphanumeric() || first == '_' || first == '-' || first == '"' || first == '\'') {
         return None;
     }
     let eq = t.find('=')?;
     let key = &t[..eq];
-    let ok = key
-        .chars()
-        .all(|c| c.is_ascii_alphanumeric() || "_-.\"' \t".contains(c));
+    let ok = key.chars().all(|c| c.is_ascii_alphanumeric() || "_-.\"' \t".contains(c));
     if !ok {
         return None;
     }
@@ -114,10 +107,7 @@ fn parse_key(line: &str) -> Option<String> {
 }
 
 fn normalise_key(key: &str) -> String {
-    key.split('.')
-        .map(|part| part.trim().trim_matches(|c| c == '"' || c == '\''))
-        .collect::<Vec<_>>()
-        .join(".")
+    key.split('.').map(|part| part.trim().trim_matches(|c| c == '"' || c == '\'')).collect::<Vec<_>>().join(".")
 }
 
 #[cfg(test)]
@@ -127,35 +117,17 @@ mod tests {
     const TEXT: &str = "top = 1\n[volume]\ndims = [1,\n  2, 3]\n[[lights]]\nkind = \"sky\"\n[[lights]]\n kind = \"sun\"\n \"dir\" = 3\n";
 
     fn offset_of(needle: &str, nth: usize) -> usize {
-        TEXT.match_indices(needle)
-            .nth(nth)
-            .map(|(i, _)| i)
-            .unwrap_or(usize::MAX)
+        TEXT.match_indices(needle).nth(nth).map(|(i, _)| i).unwrap_or(usize::MAX)
     }
 
     #[test]
     fn keys_and_tables() {
         assert_eq!(key_at(TEXT, 0).as_deref(), Some("top"));
-        assert_eq!(
-            key_at(TEXT, offset_of("[volume]", 0)).as_deref(),
-            Some("volume")
-        );
-        assert_eq!(
-            key_at(TEXT, offset_of("2, 3", 0)).as_deref(),
-            Some("volume.dims")
-        );
-        assert_eq!(
-            key_at(TEXT, offset_of("\"sky\"", 0)).as_deref(),
-            Some("lights[0].kind")
-        );
-        assert_eq!(
-            key_at(TEXT, offset_of("\"sun\"", 0)).as_deref(),
-            Some("lights[1].kind")
-        );
-        assert_eq!(
-            key_at(TEXT, offset_of("3\n", 1)).as_deref(),
-            Some("lights[1].dir")
-        );
+        assert_eq!(key_at(TEXT, offset_of("[volume]", 0)).as_deref(), Some("volume"));
+        assert_eq!(key_at(TEXT, offset_of("2, 3", 0)).as_deref(), Some("volume.dims"));
+        assert_eq!(key_at(TEXT, offset_of("\"sky\"", 0)).as_deref(), Some("lights[0].kind"));
+        assert_eq!(key_at(TEXT, offset_of("\"sun\"", 0)).as_deref(), Some("lights[1].kind"));
+        assert_eq!(key_at(TEXT, offset_of("3\n", 1)).as_deref(), Some("lights[1].dir"));
     }
 
     #[test]

@@ -43,10 +43,8 @@ impl Scene {
     /// Reads and validates the scene file at `path`. Relative `volume.raw` paths are resolved
     /// against the scene file's directory.
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
-        let text = std::fs::read_to_string(path).map_err(|source| SceneError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let text =
+            std::fs::read_to_string(path).map_err(|source| SceneError::Read { path: path.to_path_buf(), source })?;
         Scene::from_toml_str(&text, path)
     }
 
@@ -64,13 +62,7 @@ impl Scene {
 /// the reported span.
 fn parse_error(path: &Path, text: &str, e: &toml::de::Error) -> SceneError {
     // toml's messages may span lines ("invalid table header\nexpected `.`, `]`"): keep one line.
-    let message = e
-        .message()
-        .trim_end()
-        .lines()
-        .map(str::trim)
-        .collect::<Vec<_>>()
-        .join("; ");
+    let message = e.message().trim_end().lines().map(str::trim).collect::<Vec<_>>().join("; ");
     let (mut line, mut column, mut key) = match e.span() {
         Some(span) => {
             let (l, c) = locate::line_column(text, span.start);
@@ -80,10 +72,7 @@ fn parse_error(path: &Path, text: &str, e: &toml::de::Error) -> SceneError {
     };
     // "missing field `x`" points at the table that lacks it: name the missing key itself. The
     // top-level tables are required by name, and their span is the whole document.
-    if let Some(field) = message
-        .strip_prefix("missing field `")
-        .and_then(|r| r.split('`').next())
-    {
+    if let Some(field) = message.strip_prefix("missing field `").and_then(|r| r.split('`').next()) {
         if TOP_LEVEL_REQUIRED.contains(&field) {
             key = Some(field.to_string());
             line = None;
@@ -96,13 +85,7 @@ fn parse_error(path: &Path, text: &str, e: &toml::de::Error) -> SceneError {
             });
         }
     }
-    SceneError::Parse {
-        path: path.to_path_buf(),
-        line,
-        column,
-        key,
-        message,
-    }
+    SceneError::Parse { path: path.to_path_buf(), line, column, key, message }
 }
 
 /// Top-level tables that every scene must have.

@@ -51,11 +51,7 @@ thread_local! {
 /// # Panics
 /// If `out.len() != 4096`.
 pub fn fill_brick(shape: Shape, seed: u64, dims: [u32; 3], brick: [u32; 3], out: &mut [f32]) {
-    assert_eq!(
-        out.len(),
-        BRICK_VOXELS,
-        "fill_brick: a brick holds 16³ = 4096 voxels"
-    );
+    assert_eq!(out.len(), BRICK_VOXELS, "fill_brick: a brick holds 16³ = 4096 voxels");
     let cloud = match shape {
         Shape::Cloud => Some(Cloud::new(seed)),
         _ => None,
@@ -65,11 +61,7 @@ pub fn fill_brick(shape: Shape, seed: u64, dims: [u32; 3], brick: [u32; 3], out:
         for y in 0..BRICK_EDGE {
             for x in 0..BRICK_EDGE {
                 let i = (x + BRICK_EDGE * y + BRICK_EDGE * BRICK_EDGE * z) as usize;
-                let g = [
-                    origin[0] + u64::from(x),
-                    origin[1] + u64::from(y),
-                    origin[2] + u64::from(z),
-                ];
+                let g = [origin[0] + u64::from(x), origin[1] + u64::from(y), origin[2] + u64::from(z)];
                 if (0..3).any(|a| g[a] >= u64::from(dims[a])) {
                     out[i] = 0.0;
                     continue;
@@ -159,14 +151,9 @@ impl Cloud {
         let mut puffs = [([0.0; 3], 0.0); PUFFS];
         let phase = rng.unit() * std::f64::consts::TAU;
         for (i, p) in puffs.iter_mut().enumerate() {
-            let angle =
-                phase + std::f64::consts::TAU * (i as f64 + 0.35 * rng.unit()) / PUFFS as f64;
+            let angle = phase + std::f64::consts::TAU * (i as f64 + 0.35 * rng.unit()) / PUFFS as f64;
             let dist = 0.06 + 0.13 * rng.unit();
-            let centre = [
-                0.5 + dist * angle.cos(),
-                0.5 + dist * angle.sin(),
-                0.5 + 0.1 * rng.unit(),
-            ];
+            let centre = [0.5 + dist * angle.cos(), 0.5 + dist * angle.sin(), 0.5 + 0.1 * rng.unit()];
             *p = (centre, 0.13 + 0.07 * rng.unit());
         }
         // Each smooth_max adds at most k/4 above the larger argument; an ellipsoid field 1 − |q| is
@@ -184,15 +171,7 @@ impl Cloud {
             grow(c, puff_radii(r));
         }
         bounds[2][0] = bounds[2][0].max(BASE_Z - NOISE_AMPLITUDE / BASE_SLOPE - 1e-6);
-        Cloud {
-            seed,
-            keys,
-            offsets,
-            weights,
-            remaining,
-            puffs,
-            bounds,
-        }
+        Cloud { seed, keys, offsets, weights, remaining, puffs, bounds }
     }
 
     /// Density of voxel `v` of a `dims` volume (which must lie inside `dims`), in [0, 1].
@@ -203,10 +182,7 @@ impl Cloud {
 
     /// Density at normalised position `p` ∈ [0, 1]³ (z up).
     pub fn density_at(&self, p: [f64; 3]) -> f64 {
-        let edge = p
-            .iter()
-            .map(|&c| c.min(1.0 - c))
-            .fold(f64::INFINITY, f64::min);
+        let edge = p.iter().map(|&c| c.min(1.0 - c)).fold(f64::INFINITY, f64::min);
         if !(edge > BORDER) {
             return 0.0;
         }
@@ -223,18 +199,8 @@ impl Cloud {
         let mut freq = BASE_FREQUENCY;
         for o in 0..OCTAVES {
             let off = self.offsets[o];
-            let v = value_noise(
-                p[0] * freq + off[0],
-                p[1] * freq + off[1],
-                p[2] * freq + off[2],
-                self.keys[o],
-            );
-            n += self.weights[o]
-                * if o < BILLOW_OCTAVES {
-                    2.0 * v.abs() - 1.0
-                } else {
-                    v
-                };
+            let v = value_noise(p[0] * freq + off[0], p[1] * freq + off[1], p[2] * freq + off[2], self.keys[o]);
+            n += self.weights[o] * if o < BILLOW_OCTAVES { 2.0 * v.abs() - 1.0 } else { v };
             freq *= LACUNARITY;
             let r = self.remaining[o];
             if s + NOISE_AMPLITUDE * (n + r) <= 0.0 {
@@ -294,14 +260,7 @@ fn value_noise(x: f64, y: f64, z: f64, key: u32) -> f64 {
     let (fx, fy, fz) = (x.floor(), y.floor(), z.floor());
     let (ix, iy, iz) = (fx as i32, fy as i32, fz as i32);
     let (u, v, w) = (fade(x - fx), fade(y - fy), fade(z - fz));
-    let l = |dx: i32, dy: i32, dz: i32| {
-        lattice(
-            ix.wrapping_add(dx),
-            iy.wrapping_add(dy),
-            iz.wrapping_add(dz),
-            key,
-        )
-    };
+    let l = |dx: i32, dy: i32, dz: i32| lattice(ix.wrapping_add(dx), iy.wrapping_add(dy), iz.wrapping_add(dz), key);
     let x00 = lerp(l(0, 0, 0), l(1, 0, 0), u);
     let x10 = lerp(l(0, 1, 0), l(1, 1, 0), u);
     let x01 = lerp(l(0, 0, 1), l(1, 0, 1), u);
@@ -379,10 +338,7 @@ mod tests {
                 for y in 0..16 {
                     for x in 0..16 {
                         let v = [16 + x, 16 + y, z];
-                        assert_eq!(
-                            out[(x + 16 * y + 256 * z) as usize],
-                            density(shape, 9, dims, v)
-                        );
+                        assert_eq!(out[(x + 16 * y + 256 * z) as usize], density(shape, 9, dims, v));
                     }
                 }
             }

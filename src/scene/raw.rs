@@ -105,9 +105,7 @@ impl<'de> Deserialize<'de> for Channels {
             fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Channels, A::Error> {
                 let mut rgb = [0.0; 3];
                 for (i, c) in rgb.iter_mut().enumerate() {
-                    *c = seq
-                        .next_element::<f64>()?
-                        .ok_or_else(|| de::Error::invalid_length(i, &self))?;
+                    *c = seq.next_element::<f64>()?.ok_or_else(|| de::Error::invalid_length(i, &self))?;
                 }
                 let mut extra = 0;
                 while seq.next_element::<de::IgnoredAny>()?.is_some() {

@@ -30,9 +30,14 @@ pub struct Volume {
 
 #[derive(Clone, Debug, PartialEq)]
 pub enum VolumeSource {
-    Procedural { shape: Shape, seed: u64 },
+    Procedural {
+        shape: Shape,
+        seed: u64,
+    },
     /// Little-endian f32, x fastest, then y, then z; an absolute path (resolved against the scene file).
-    Raw { path: PathBuf },
+    Raw {
+        path: PathBuf,
+    },
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

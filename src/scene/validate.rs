@@ -1,12 +1,10 @@
 //! Stage two: raw serde structs → typed, checked [`Scene`] values. Every check names the dotted key
 //! of the value it rejects; defaults are applied here (and only here).
 
-use super::raw::{
-    ByteSize, Channels, RawCamera, RawLight, RawMedium, RawScene, RawSolver, RawVolume,
-};
+use super::raw::{ByteSize, Channels, RawCamera, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
 use super::{
-    Camera, Light, Medium, PlanMode, Projection, Scene, SceneError, Shape, SolverSettings,
-    StoragePrecision, Volume, VolumeSource,
+    Camera, Light, Medium, PlanMode, Projection, Scene, SceneError, Shape, SolverSettings, StoragePrecision, Volume,
+    VolumeSource,
 };
 use glam::DVec3;
 use std::path::{Path, PathBuf};
@@ -43,32 +41,16 @@ type R<T> = Result<T, SceneError>;
 
 impl Validator<'_> {
     fn err(&self, key: impl Into<String>, problem: impl Into<String>) -> SceneError {
-        SceneError::Invalid {
-            path: self.path.to_path_buf(),
-            key: key.into(),
-            problem: problem.into(),
-        }
+        SceneError::Invalid { path: self.path.to_path_buf(), key: key.into(), problem: problem.into() }
     }
 
     pub fn scene(&self, raw: RawScene) -> R<Scene> {
         let volume = self.volume(raw.volume)?;
         let medium = self.medium(raw.medium)?;
-        let lights = raw
-            .lights
-            .into_iter()
-            .enumerate()
-            .map(|(i, l)| self.light(i, l))
-            .collect::<R<Vec<_>>>()?;
+        let lights = raw.lights.into_iter().enumerate().map(|(i, l)| self.light(i, l)).collect::<R<Vec<_>>>()?;
         let solver = self.solver(raw.solver)?;
         let camera = raw.camera.map(|c| self.camera(c, &volume)).transpose()?;
-        Ok(Scene {
-            path: self.path.to_path_buf(),
-            volume,
-            medium,
-            lights,
-            solver,
-            camera,
-        })
+        Ok(Scene { path: self.path.to_path_buf(), volume, medium, lights, solver, camera })
     }
 
     // ---- scalar helpers -------------------------------------------------------------------
@@ -161,16 +143,10 @@ impl Validator<'_> {
         };
         let source = match (v.procedural, v.raw) {
             (Some(_), Some(_)) => {
-                return Err(self.err(
-                    "volume",
-                    "set exactly one of `procedural` and `raw`, but both are set",
-                ))
+                return Err(self.err("volume", "set exactly one of `procedural` and `raw`, but both are set"))
             }
             (None, None) => {
-                return Err(self.err(
-                    "volume",
-                    "set exactly one of `procedural` and `raw`, but neither is set",
-                ))
+                return Err(self.err("volume", "set exactly one of `procedural` and `raw`, but neither is set"))
             }
             (Some(name), None) => {
                 let shape = match name.as_str() {
@@ -178,36 +154,26 @@ impl Validator<'_> {
                     "box" => Shape::Box,
                     "cloud" => Shape::Cloud,
                     other => {
-                        return Err(self.err(
-                            "volume.procedural",
-                            format!("unknown shape \"{other}\", expected one of {SHAPES}"),
-                        ))
+                        return Err(self
+                            .err("volume.procedural", format!("unknown shape \"{other}\", expected one of {SHAPES}")))
                     }
                 };
                 let seed = match v.seed {
                     None => DEFAULT_SEED,
-                    Some(s) => u64::try_from(s)
-                        .map_err(|_| self.err("volume.seed", format!("must be ≥ 0, got {s}")))?,
+                    Some(s) => {
+                        u64::try_from(s).map_err(|_| self.err("volume.seed", format!("must be ≥ 0, got {s}")))?
+                    }
                 };
                 VolumeSource::Procedural { shape, seed }
             }
             (None, Some(raw)) => {
                 if v.seed.is_some() {
-                    return Err(self.err(
-                        "volume.seed",
-                        "only applies to a procedural volume, not to `raw`",
-                    ));
+                    return Err(self.err("volume.seed", "only applies to a procedural volume, not to `raw`"));
                 }
-                VolumeSource::Raw {
-                    path: self.raw_file(&raw, dims, voxels)?,
-                }
+                VolumeSource::Raw { path: self.raw_file(&raw, dims, voxels)? }
             }
         };
-        Ok(Volume {
-            source,
-            dims,
-            voxel_size,
-        })
+        Ok(Volume { source, dims, voxel_size })
     }
 
     /// Resolves `raw` against the scene file's directory and checks the file's size.
@@ -243,9 +209,8 @@ impl Validator<'_> {
     }
 
     fn medium(&self, m: RawMedium) -> R<Medium> {
-        let sigma_t = self.channels("medium.sigma_t", m.sigma_t, |k, v| {
-            self.non_negative(k, v, Some(MAX_MAGNITUDE))
-        })?;
+        let sigma_t =
+            self.channels("medium.sigma_t", m.sigma_t, |k, v| self.non_negative(k, v, Some(MAX_MAGNITUDE)))?;
         let albedo = self.channels("medium.albedo", m.albedo, |k, v| {
             let v = self.finite(k, v)?;
             if (0.0..=1.0).contains(&v) {
@@ -268,12 +233,7 @@ impl Validator<'_> {
             None => [0.0; 3],
             Some(e) => self.channels("medium.emission", e, |k, v| self.non_negative(k, v, None))?,
         };
-        Ok(Medium {
-            sigma_t,
-            albedo,
-            g,
-            emission,
-        })
+        Ok(Medium { sigma_t, albedo, g, emission })
     }
 
     fn light(&self, i: usize, l: RawLight) -> R<Light> {
@@ -285,16 +245,13 @@ impl Validator<'_> {
                 Ok(())
             }
         };
-        let missing =
-            |name: &str, kind: &str| self.err(key(name), format!("is required for a {kind} light"));
+        let missing = |name: &str, kind: &str| self.err(key(name), format!("is required for a {kind} light"));
         match l.kind.as_str() {
             "sky" => {
                 reject_extra("direction", l.direction.is_some(), "sky")?;
                 reject_extra("irradiance", l.irradiance.is_some(), "sky")?;
                 let radiance = l.radiance.ok_or_else(|| missing("radiance", "sky"))?;
-                let radiance = self.channels(&key("radiance"), radiance, |k, v| {
-                    self.non_negative(k, v, None)
-                })?;
+                let radiance = self.channels(&key("radiance"), radiance, |k, v| self.non_negative(k, v, None))?;
                 Ok(Light::Sky { radiance })
             }
             "sun" => {
@@ -304,28 +261,19 @@ impl Validator<'_> {
                 let d = self.vec3(&dkey, direction)?;
                 let len = d.length();
                 if len == 0.0 {
-                    return Err(self.err(
-                        dkey,
-                        "must not be the zero vector (it points toward the sun)",
-                    ));
+                    return Err(self.err(dkey, "must not be the zero vector (it points toward the sun)"));
                 }
                 let direction = d / len;
                 if !direction.is_finite() {
                     return Err(self.err(dkey, format!("cannot be normalised, got {d}")));
                 }
                 let irradiance = l.irradiance.ok_or_else(|| missing("irradiance", "sun"))?;
-                let irradiance = self.channels(&key("irradiance"), irradiance, |k, v| {
-                    self.non_negative(k, v, None)
-                })?;
-                Ok(Light::Sun {
-                    direction,
-                    irradiance,
-                })
+                let irradiance = self.channels(&key("irradiance"), irradiance, |k, v| self.non_negative(k, v, None))?;
+                Ok(Light::Sun { direction, irradiance })
             }
-            other => Err(self.err(
-                key("kind"),
-                format!("unknown light kind \"{other}\", expected one of {LIGHT_KINDS}"),
-            )),
+            other => {
+                Err(self.err(key("kind"), format!("unknown light kind \"{other}\", expected one of {LIGHT_KINDS}")))
+            }
         }
     }
 
@@ -344,9 +292,7 @@ impl Validator<'_> {
         };
         let k = match s.directions_per_face {
             None => DEFAULT_DIRECTIONS_PER_FACE,
-            Some(k) => {
-                self.int_range("solver.directions_per_face", k, 1, MAX_DIRECTIONS_PER_FACE)?
-            }
+            Some(k) => self.int_range("solver.directions_per_face", k, 1, MAX_DIRECTIONS_PER_FACE)?,
         };
         let ks = match s.storage_directions_per_face {
             None => None,
@@ -393,10 +339,7 @@ impl Validator<'_> {
             None | Some("auto") => PlanMode::Auto,
             Some("full") => PlanMode::Full,
             Some(other) => {
-                return Err(self.err(
-                    "solver.plan",
-                    format!("unknown plan \"{other}\", expected one of {PLAN_MODES}"),
-                ))
+                return Err(self.err("solver.plan", format!("unknown plan \"{other}\", expected one of {PLAN_MODES}")))
             }
         };
         Ok(SolverSettings {
@@ -436,20 +379,14 @@ impl Validator<'_> {
         let projection = match c.projection.as_deref().unwrap_or("pinhole") {
             "pinhole" => {
                 if c.view_height.is_some() {
-                    return Err(self.err(
-                        "camera.view_height",
-                        "only applies to an orthographic camera",
-                    ));
+                    return Err(self.err("camera.view_height", "only applies to an orthographic camera"));
                 }
                 let fov = match c.fov_y {
                     None => DEFAULT_FOV_Y_DEGREES,
                     Some(f) => {
                         let f = self.finite("camera.fov_y", f)?;
                         if f <= 0.0 || f >= 180.0 {
-                            return Err(self.err(
-                                "camera.fov_y",
-                                format!("must be in (0, 180) degrees, got {f}"),
-                            ));
+                            return Err(self.err("camera.fov_y", format!("must be in (0, 180) degrees, got {f}")));
                         }
                         f
                     }
@@ -481,10 +418,7 @@ impl Validator<'_> {
         };
         let view = look_at - position;
         if view.length_squared() == 0.0 || !view.is_finite() {
-            return Err(self.err(
-                "camera.look_at",
-                format!("must differ from camera.position, both are {position}"),
-            ));
+            return Err(self.err("camera.look_at", format!("must differ from camera.position, both are {position}")));
         }
         if up.length_squared() == 0.0 {
             return Err(self.err("camera.up", "must not be the zero vector"));
@@ -504,25 +438,14 @@ impl Validator<'_> {
             None => DEFAULT_IMAGE_SIZE,
             Some(h) => self.int_range("camera.height", h, 1, MAX_IMAGE_SIZE)?,
         };
-        Ok(Camera {
-            projection,
-            position,
-            look_at,
-            up,
-            width,
-            height,
-        })
+        Ok(Camera { projection, position, look_at, up, width, height })
     }
 }
 
 /// The orthographic view height that fits the whole volume whatever the view direction: the
 /// length of the volume's diagonal in world units.
 pub fn default_orthographic_height(volume: &Volume) -> f64 {
-    let d = DVec3::new(
-        f64::from(volume.dims[0]),
-        f64::from(volume.dims[1]),
-        f64::from(volume.dims[2]),
-    );
+    let d = DVec3::new(f64::from(volume.dims[0]), f64::from(volume.dims[1]), f64::from(volume.dims[2]));
     d.length() * volume.voxel_size
 }
 
@@ -530,9 +453,7 @@ pub fn default_orthographic_height(volume: &Volume) -> f64 {
 /// 1024, case-insensitive, optional `B`/`iB`). Fractions are rounded down to whole bytes.
 pub fn parse_byte_size(text: &str) -> Result<u64, String> {
     let s = text.trim();
-    let split = s
-        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
-        .unwrap_or(s.len());
+    let split = s.find(|c: char| !(c.is_ascii_digit() || c == '.')).unwrap_or(s.len());
     let (number, suffix) = s.split_at(split);
     if number.is_empty() {
         return Err("no number".into());
@@ -547,9 +468,7 @@ pub fn parse_byte_size(text: &str) -> Result<u64, String> {
         _ => return Err(format!("unknown suffix \"{}\"", suffix)),
     };
     let bytes = if number.contains('.') {
-        let v: f64 = number
-            .parse()
-            .map_err(|_| format!("\"{number}\" is not a number"))?;
+        let v: f64 = number.parse().map_err(|_| format!("\"{number}\" is not a number"))?;
         let b = v * (1u64 << shift) as f64;
         if !(b < u64::MAX as f64) {
             return Err("too large".into());
@@ -557,8 +476,7 @@ pub fn parse_byte_size(text: &str) -> Result<u64, String> {
         b.floor() as u64
     } else {
         let v: u64 = number.parse().map_err(|_| "too large".to_string())?;
-        v.checked_mul(1u64 << shift)
-            .ok_or_else(|| "too large".to_string())?
+        v.checked_mul(1u64 << shift).ok_or_else(|| "too large".to_string())?
     };
     if bytes == 0 {
         return Err("must be > 0".into());

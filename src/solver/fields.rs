@@ -105,7 +105,8 @@ impl StoreFields {
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
             Err(source) => return Err(StoreError::Io { path, action: "read", source }.into()),
         };
-        let cp: Checkpoint = serde_json::from_str(&text).map_err(|source| StoreError::Json { path: path.clone(), source })?;
+        let cp: Checkpoint =
+            serde_json::from_str(&text).map_err(|source| StoreError::Json { path: path.clone(), source })?;
         if cp.version != CHECKPOINT_VERSION || cp.digest != digest {
             return Err(SolveError::CheckpointMismatch { path });
         }
@@ -137,10 +138,16 @@ impl StoreFields {
         let h3 = plan.voxel_size.powi(3);
         let mut power = [0.0; 3];
         let weight = |k: usize| plan.storage.solid_angle[k / c] * h3;
-        combine(&mut self.source_spare, &self.source_total, &self.source_next, |_| 1.0, |block, sum| {
-            let k = block % comps;
-            power[k % c] += weight(k) * sum;
-        });
+        combine(
+            &mut self.source_spare,
+            &self.source_total,
+            &self.source_next,
+            |_| 1.0,
+            |block, sum| {
+                let k = block % comps;
+                power[k % c] += weight(k) * sum;
+            },
+        );
         combine(&mut self.fluence_spare, &self.fluence_total, &self.fluence, |_| 1.0, |_, _| {});
         std::mem::swap(&mut self.source_total, &mut self.source_spare);
         std::mem::swap(&mut self.fluence_total, &mut self.fluence_spare);
@@ -232,13 +239,20 @@ const RELEASE_BRICKS: usize = 1024;
 /// `spare = total + factor(block)·last`, brick-component block by block (4096 values each); calls
 /// `block_sum(block, Σ last)` for each block. With factor 1 this is exactly `total + last`. The
 /// three fields' pages are handed back every [`RELEASE_BRICKS`] bricks.
-fn combine(spare: &mut Field, total: &Field, last: &Field, factor: impl Fn(usize) -> f32, mut block_sum: impl FnMut(usize, f64)) {
+fn combine(
+    spare: &mut Field,
+    total: &Field,
+    last: &Field,
+    factor: impl Fn(usize) -> f32,
+    mut block_sum: impl FnMut(usize, f64),
+) {
     let bricks = spare.stored_bricks();
     let per_brick = spare.brick_len();
     let mut block = 0;
     for first in (0..bricks).step_by(RELEASE_BRICKS) {
         let range = first * per_brick..(first + RELEASE_BRICKS).min(bricks) * per_brick;
-        let (s, t, l) = (&mut spare.as_mut_slice()[range.clone()], &total.as_slice()[range.clone()], &last.as_slice()[range]);
+        let (s, t, l) =
+            (&mut spare.as_mut_slice()[range.clone()], &total.as_slice()[range.clone()], &last.as_slice()[range]);
         for ((s, t), l) in s.chunks_mut(BRICK_VOXELS).zip(t.chunks(BRICK_VOXELS)).zip(l.chunks(BRICK_VOXELS)) {
             let f = factor(block);
             let mut sum = 0.0;

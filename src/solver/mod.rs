@@ -34,7 +34,9 @@ pub enum SolveError {
     Vulkan(#[from] VkError),
     #[error("the CPU backend keeps the whole volume in memory and would need {} MiB; use the GPU backend", bytes >> 20)]
     TooLargeForCpu { bytes: u64 },
-    #[error("{what} needs {bytes} bytes in one buffer, but this device binds at most {limit} bytes per storage buffer")]
+    #[error(
+        "{what} needs {bytes} bytes in one buffer, but this device binds at most {limit} bytes per storage buffer"
+    )]
     DeviceLimit { what: String, bytes: u64, limit: u64 },
     #[error("the device memory budget of {budget} bytes is too small: the smallest unit (one slice of bricks, one direction, one plane) needs {needed} bytes; raise --device-memory-budget to at least {needed}")]
     BudgetTooSmall { budget: u64, needed: u64 },
@@ -166,8 +168,7 @@ pub fn solve_with(
             let t = Instant::now();
             let ctx = Context::new(vk_options)?;
             let device = format!("{} ({})", ctx.device_name(), ctx.driver_description());
-            let mut gpu =
-                gpu::GpuBackend::new(ctx.clone(), &plan, store, &mut fields, gpu_options)?;
+            let mut gpu = gpu::GpuBackend::new(ctx.clone(), &plan, store, &mut fields, gpu_options)?;
             memory = Some(gpu.memory_plan());
             if gpu_options.checkpoints {
                 gpu.enable_checkpoints(digest.clone());

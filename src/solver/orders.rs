@@ -176,7 +176,8 @@ pub fn run_orders(
         for c in 0..3 {
             state.total_power[c] += new[c];
             let last = state.last_new_power[c];
-            state.previous_ratio[c] = if state.previous_new_power[c] > 0.0 { last / state.previous_new_power[c] } else { 0.0 };
+            state.previous_ratio[c] =
+                if state.previous_new_power[c] > 0.0 { last / state.previous_new_power[c] } else { 0.0 };
             state.previous_new_power[c] = last;
         }
         state.last_new_power = new;

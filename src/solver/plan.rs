@@ -179,21 +179,22 @@ impl Plan {
         }
         // Everything about one swept direction that follows from its geometry; `weight` is its
         // solid angle (a beam: 1, its boundary value being an irradiance).
-        let swept = |face: usize, omega: DVec3, weight: f64, boundary: [f64; 3], gain_storage: u32, collect_row: Vec<f64>| {
-            let path_length = plane_path_length(face, omega, h);
-            SweepDirection {
-                face,
-                omega,
-                path_length,
-                offsets: offsets(lateral_slope(face, omega), FaceSweep::new(face, dims).n[0]),
-                fluence_weight: weight,
-                boundary,
-                gain_storage,
-                collect_row,
-                // A ray's tube has cross-section h²·|ω_a| = h³/path_length.
-                power_per_radiance: h * h * h / path_length * weight,
-            }
-        };
+        let swept =
+            |face: usize, omega: DVec3, weight: f64, boundary: [f64; 3], gain_storage: u32, collect_row: Vec<f64>| {
+                let path_length = plane_path_length(face, omega, h);
+                SweepDirection {
+                    face,
+                    omega,
+                    path_length,
+                    offsets: offsets(lateral_slope(face, omega), FaceSweep::new(face, dims).n[0]),
+                    fluence_weight: weight,
+                    boundary,
+                    gain_storage,
+                    collect_row,
+                    // A ray's tube has cross-section h²·|ω_a| = h³/path_length.
+                    power_per_radiance: h * h * h / path_length * weight,
+                }
+            };
         let faces = (0..6)
             .map(|face| {
                 let start = face * propagation.per_face();
@@ -340,10 +341,9 @@ fn choose_precision(scene: &Scene, full: bool, reasons: &mut Vec<String>) -> Pre
     let (precision, why) = match scene.solver.storage_precision {
         StoragePrecision::F16 => (Precision::F16, "storage_precision = \"f16\" in the scene".to_string()),
         StoragePrecision::F32 => (Precision::F32, "storage_precision = \"f32\" in the scene".to_string()),
-        StoragePrecision::Auto if full => (
-            Precision::F32,
-            "auto under plan = \"full\": f16 is one of the reductions it turns off".to_string(),
-        ),
+        StoragePrecision::Auto if full => {
+            (Precision::F32, "auto under plan = \"full\": f16 is one of the reductions it turns off".to_string())
+        }
         StoragePrecision::Auto if tolerance >= F16_MIN_TOLERANCE => (
             Precision::F16,
             format!(

@@ -96,7 +96,13 @@ impl FaceSweep {
                 let hi = (lo + p).min(real);
                 // Coordinate along the axis c = ba·e + local; t = c (positive) or na − 1 − c.
                 let (t0, t1) = if positive { (ba * e + lo, ba * e + hi) } else { (na - ba * e - hi, na - ba * e - lo) };
-                out.push(SliceRange { brick_a: ba as u32, t0: t0 as u32, t1: t1 as u32, slab_lo: lo as u32, slab_planes: p as u32 });
+                out.push(SliceRange {
+                    brick_a: ba as u32,
+                    t0: t0 as u32,
+                    t1: t1 as u32,
+                    slab_lo: lo as u32,
+                    slab_planes: p as u32,
+                });
             }
         }
         out

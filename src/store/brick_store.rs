@@ -50,11 +50,7 @@ impl BrickStore {
         // be opened as a mix of the old table and the new densities.
         match fs::remove_file(&table_path) {
             Err(e) if e.kind() != io::ErrorKind::NotFound => {
-                return Err(StoreError::Io {
-                    path: table_path,
-                    action: "remove the previous table",
-                    source: e,
-                })
+                return Err(StoreError::Io { path: table_path, action: "remove the previous table", source: e })
             }
             _ => {}
         }
@@ -115,10 +111,7 @@ impl BrickStore {
         if actual != expected {
             return Err(StoreError::Corrupt {
                 path: density_path,
-                message: format!(
-                    "{actual} bytes, but {} occupied bricks need {expected} bytes",
-                    table.occupied()
-                ),
+                message: format!("{actual} bytes, but {} occupied bricks need {expected} bytes", table.occupied()),
             });
         }
         // SAFETY: the mapping is read-only and the store owns its directory; like every memory-mapped

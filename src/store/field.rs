@@ -65,8 +65,7 @@ impl Field {
         coverage: Coverage,
     ) -> Result<Field, StoreError> {
         let (path, len) = shape(dir, &table, name, components, coverage)?;
-        let file =
-            OpenOptions::new().read(true).write(true).open(&path).map_err(StoreError::io(&path, "open"))?;
+        let file = OpenOptions::new().read(true).write(true).open(&path).map_err(StoreError::io(&path, "open"))?;
         let actual = file.metadata().map_err(StoreError::io(&path, "read the size of"))?.len();
         if actual != len {
             return Err(StoreError::FieldShape {
@@ -206,10 +205,7 @@ impl Field {
 
     /// Copies every value of `other`, which must have the same components, coverage and brick table.
     pub fn copy_from(&mut self, other: &Field) -> Result<(), StoreError> {
-        if self.components != other.components
-            || self.coverage != other.coverage
-            || *self.table != *other.table
-        {
+        if self.components != other.components || self.coverage != other.coverage || *self.table != *other.table {
             return Err(StoreError::FieldShape {
                 path: self.path.clone(),
                 message: format!(
@@ -253,10 +249,7 @@ fn shape(
     }
     let path = dir.join(format!("{name}.field"));
     if components == 0 {
-        return Err(StoreError::FieldShape {
-            path,
-            message: "a field needs at least one component".to_string(),
-        });
+        return Err(StoreError::FieldShape { path, message: "a field needs at least one component".to_string() });
     }
     let len = (stored_bricks(table, coverage) as u64)
         .checked_mul(components as u64 * BRICK_VOXELS as u64 * 4)

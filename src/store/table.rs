@@ -79,8 +79,8 @@ impl BrickTable {
 
     /// Parses and checks `bricks.json` (read from `path`, used in messages).
     pub fn from_json(path: &Path, bytes: &[u8]) -> Result<Self, StoreError> {
-        let j: BricksJson = serde_json::from_slice(bytes)
-            .map_err(|source| StoreError::Json { path: path.to_path_buf(), source })?;
+        let j: BricksJson =
+            serde_json::from_slice(bytes).map_err(|source| StoreError::Json { path: path.to_path_buf(), source })?;
         let bad = |message: String| StoreError::Corrupt { path: path.to_path_buf(), message };
         if j.format != FORMAT || j.version != VERSION {
             return Err(bad(format!(

@@ -34,22 +34,14 @@ pub struct BufferRange<'a> {
 impl<'a> BufferRange<'a> {
     /// `range` bytes of `buffer` from `offset`.
     pub fn new(buffer: &'a Buffer, offset: u64, range: u64) -> Self {
-        BufferRange {
-            buffer,
-            offset,
-            range,
-        }
+        BufferRange { buffer, offset, range }
     }
 }
 
 impl<'a> From<&'a Buffer> for BufferRange<'a> {
     /// The whole buffer.
     fn from(buffer: &'a Buffer) -> Self {
-        BufferRange {
-            buffer,
-            offset: 0,
-            range: buffer.size(),
-        }
+        BufferRange { buffer, offset: 0, range: buffer.size() }
     }
 }
 
@@ -98,11 +90,7 @@ impl Recorder {
             ctx: Arc::clone(ctx),
             family: queue_family,
             cb: vk::CommandBuffer::null(),
-            resources: Some(CommandResources {
-                name: name.to_owned(),
-                command_pool,
-                descriptor_pools: Vec::new(),
-            }),
+            resources: Some(CommandResources { name: name.to_owned(), command_pool, descriptor_pools: Vec::new() }),
         };
         let alloc_info = vk::CommandBufferAllocateInfo::default()
             .command_pool(command_pool)
@@ -112,13 +100,9 @@ impl Recorder {
         let cbs = unsafe { device.allocate_command_buffers(&alloc_info) }
             .op_with(|| format!("allocating the command buffer of `{name}`"))?;
         rec.cb = cbs.first().copied().ok_or_else(|| {
-            VkError::from_vk(
-                format!("allocating the command buffer of `{name}`"),
-                vk::Result::ERROR_UNKNOWN,
-            )
+            VkError::from_vk(format!("allocating the command buffer of `{name}`"), vk::Result::ERROR_UNKNOWN)
         })?;
-        let begin = vk::CommandBufferBeginInfo::default()
-            .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
+        let begin = vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
         // SAFETY: freshly allocated command buffer.
         unsafe { device.begin_command_buffer(rec.cb, &begin) }
             .op_with(|| format!("beginning command buffer `{name}`"))?;
@@ -165,11 +149,7 @@ impl Recorder {
                 p.push_constant_bytes
             )));
         }
-        for (axis, (&g, &max)) in groups
-            .iter()
-            .zip(limits.max_workgroup_count.iter())
-            .enumerate()
-        {
+        for (axis, (&g, &max)) in groups.iter().zip(limits.max_workgroup_count.iter()).enumerate() {
             if g > max {
                 return Err(VkError::LimitExceeded(format!(
                     "dispatch of `{name}`: {g} workgroups along axis {axis} exceeds maxComputeWorkGroupCount[{axis}] = {max}; split the dispatch"
@@ -189,8 +169,7 @@ impl Recorder {
                     "dispatch of `{name}`: binding {binding} (`{buf}`) has an empty range"
                 )));
             }
-            let inside =
-                matches!(r.offset.checked_add(r.range), Some(end) if end <= r.buffer.size());
+            let inside = matches!(r.offset.checked_add(r.range), Some(end) if end <= r.buffer.size());
             if !inside {
                 return Err(VkError::InvalidArgument(format!(
                     "dispatch of `{name}`: binding {binding} range {}..+{} is outside `{buf}` ({} bytes)",
@@ -215,51 +194,31 @@ impl Recorder {
     fn allocate_set(&mut self, p: &ComputePipeline) -> Result<vk::DescriptorSet, VkError> {
         let device = self.ctx.device();
         let set_layouts = [p.set_layout];
-        if let Some(&pool) = self
-            .resources
-            .as_ref()
-            .and_then(|r| r.descriptor_pools.last())
-        {
-            let info = vk::DescriptorSetAllocateInfo::default()
-                .descriptor_pool(pool)
-                .set_layouts(&set_layouts);
+        if let Some(&pool) = self.resources.as_ref().and_then(|r| r.descriptor_pools.last()) {
+            let info = vk::DescriptorSetAllocateInfo::default().descriptor_pool(pool).set_layouts(&set_layouts);
             // SAFETY: live pool and layout.
             match unsafe { device.allocate_descriptor_sets(&info) } {
                 Ok(sets) if !sets.is_empty() => return Ok(sets[0]),
-                Ok(_)
-                | Err(vk::Result::ERROR_OUT_OF_POOL_MEMORY)
-                | Err(vk::Result::ERROR_FRAGMENTED_POOL) => {}
-                Err(r) => {
-                    return Err(VkError::from_vk(
-                        format!("allocating a descriptor set for `{}`", p.name()),
-                        r,
-                    ))
-                }
+                Ok(_) | Err(vk::Result::ERROR_OUT_OF_POOL_MEMORY) | Err(vk::Result::ERROR_FRAGMENTED_POOL) => {}
+                Err(r) => return Err(VkError::from_vk(format!("allocating a descriptor set for `{}`", p.name()), r)),
             }
         }
         let sizes = [vk::DescriptorPoolSize::default()
             .ty(vk::DescriptorType::STORAGE_BUFFER)
             .descriptor_count(DESCRIPTORS_PER_POOL.max(p.storage_buffers))];
-        let pool_info = vk::DescriptorPoolCreateInfo::default()
-            .max_sets(SETS_PER_POOL)
-            .pool_sizes(&sizes);
+        let pool_info = vk::DescriptorPoolCreateInfo::default().max_sets(SETS_PER_POOL).pool_sizes(&sizes);
         // SAFETY: `sizes` outlives the call.
         let pool = unsafe { device.create_descriptor_pool(&pool_info, None) }
             .op_with(|| format!("creating a descriptor pool for `{}`", self.name()))?;
         if let Some(r) = self.resources.as_mut() {
             r.descriptor_pools.push(pool);
         }
-        let info = vk::DescriptorSetAllocateInfo::default()
-            .descriptor_pool(pool)
-            .set_layouts(&set_layouts);
+        let info = vk::DescriptorSetAllocateInfo::default().descriptor_pool(pool).set_layouts(&set_layouts);
         // SAFETY: live, empty pool sized for this layout.
         let sets = unsafe { device.allocate_descriptor_sets(&info) }
             .op_with(|| format!("allocating a descriptor set for `{}`", p.name()))?;
         sets.first().copied().ok_or_else(|| {
-            VkError::from_vk(
-                format!("allocating a descriptor set for `{}`", p.name()),
-                vk::Result::ERROR_UNKNOWN,
-            )
+            VkError::from_vk(format!("allocating a descriptor set for `{}`", p.name()), vk::Result::ERROR_UNKNOWN)
         })
     }
 
@@ -273,21 +232,12 @@ impl Recorder {
         groups: [u32; 3],
     ) -> Result<(), VkError> {
         self.check_dispatch(p, buffers, push_constants, groups)?;
-        let set = if buffers.is_empty() {
-            None
-        } else {
-            Some(self.allocate_set(p)?)
-        };
+        let set = if buffers.is_empty() { None } else { Some(self.allocate_set(p)?) };
         let device = self.ctx.device();
         if let Some(set) = set {
             let infos: Vec<[vk::DescriptorBufferInfo; 1]> = buffers
                 .iter()
-                .map(|r| {
-                    [vk::DescriptorBufferInfo::default()
-                        .buffer(r.buffer.raw())
-                        .offset(r.offset)
-                        .range(r.range)]
-                })
+                .map(|r| [vk::DescriptorBufferInfo::default().buffer(r.buffer.raw()).offset(r.offset).range(r.range)])
                 .collect();
             let writes: Vec<vk::WriteDescriptorSet> = infos
                 .iter()
@@ -307,23 +257,10 @@ impl Recorder {
         unsafe {
             device.cmd_bind_pipeline(self.cb, vk::PipelineBindPoint::COMPUTE, p.raw);
             if let Some(set) = set {
-                device.cmd_bind_descriptor_sets(
-                    self.cb,
-                    vk::PipelineBindPoint::COMPUTE,
-                    p.layout,
-                    0,
-                    &[set],
-                    &[],
-                );
+                device.cmd_bind_descriptor_sets(self.cb, vk::PipelineBindPoint::COMPUTE, p.layout, 0, &[set], &[]);
             }
             if !push_constants.is_empty() {
-                device.cmd_push_constants(
-                    self.cb,
-                    p.layout,
-                    vk::ShaderStageFlags::COMPUTE,
-                    0,
-                    push_constants,
-                );
+                device.cmd_push_constants(self.cb, p.layout, vk::ShaderStageFlags::COMPUTE, 0, push_constants);
             }
             device.cmd_dispatch(self.cb, groups[0], groups[1], groups[2]);
         }
@@ -333,22 +270,14 @@ impl Recorder {
     /// Copies regions from `src` to `dst` (needs TRANSFER_SRC / TRANSFER_DST usage).
     pub fn copy_buffer(&mut self, src: &Buffer, dst: &Buffer, regions: &[vk::BufferCopy]) {
         // SAFETY: recording; regions are checked by validation.
-        unsafe {
-            self.ctx
-                .device()
-                .cmd_copy_buffer(self.cb, src.raw(), dst.raw(), regions)
-        };
+        unsafe { self.ctx.device().cmd_copy_buffer(self.cb, src.raw(), dst.raw(), regions) };
     }
 
     /// Fills `size` bytes of `dst` from `offset` with the 32-bit `value` (offsets and size multiples
     /// of 4; `vk::WHOLE_SIZE` for the rest of the buffer). Counts as a transfer (clear) write.
     pub fn fill_buffer(&mut self, dst: &Buffer, offset: u64, size: u64, value: u32) {
         // SAFETY: recording.
-        unsafe {
-            self.ctx
-                .device()
-                .cmd_fill_buffer(self.cb, dst.raw(), offset, size, value)
-        };
+        unsafe { self.ctx.device().cmd_fill_buffer(self.cb, dst.raw(), offset, size, value) };
     }
 
     /// A global memory barrier between the given stages and accesses.
@@ -366,11 +295,7 @@ impl Recorder {
             .dst_access_mask(dst_access)];
         let dep = vk::DependencyInfo::default().memory_barriers(&barriers);
         // SAFETY: `barriers` outlives the call.
-        unsafe {
-            self.ctx
-                .sync2
-                .cmd_pipeline_barrier2(self.ctx.device(), self.cb, &dep)
-        };
+        unsafe { self.ctx.sync2.cmd_pipeline_barrier2(self.ctx.device(), self.cb, &dep) };
     }
 
     /// Compute writes → later compute reads and writes.
@@ -433,26 +358,13 @@ impl Recorder {
     /// Resets `count` queries of `pool` from `first` (required before writing them again).
     pub fn reset_queries(&mut self, pool: &TimestampQueryPool, first: u32, count: u32) {
         // SAFETY: recording.
-        unsafe {
-            self.ctx
-                .device()
-                .cmd_reset_query_pool(self.cb, pool.raw, first, count)
-        };
+        unsafe { self.ctx.device().cmd_reset_query_pool(self.cb, pool.raw, first, count) };
     }
 
     /// Writes a timestamp into query `index` when all earlier commands have passed `stage`.
-    pub fn write_timestamp(
-        &mut self,
-        pool: &TimestampQueryPool,
-        index: u32,
-        stage: vk::PipelineStageFlags2,
-    ) {
+    pub fn write_timestamp(&mut self, pool: &TimestampQueryPool, index: u32, stage: vk::PipelineStageFlags2) {
         // SAFETY: recording.
-        unsafe {
-            self.ctx
-                .sync2
-                .cmd_write_timestamp2(self.ctx.device(), self.cb, stage, pool.raw, index)
-        };
+        unsafe { self.ctx.sync2.cmd_write_timestamp2(self.ctx.device(), self.cb, stage, pool.raw, index) };
     }
 
     /// Ends recording and submits to `queue`, waiting on each `(timeline, value, stage)` before
@@ -474,16 +386,12 @@ impl Recorder {
         }
         let device = self.ctx.device();
         // SAFETY: recording state.
-        unsafe { device.end_command_buffer(self.cb) }
-            .op_with(|| format!("ending command buffer `{name}`"))?;
+        unsafe { device.end_command_buffer(self.cb) }.op_with(|| format!("ending command buffer `{name}`"))?;
 
         let wait_infos: Vec<vk::SemaphoreSubmitInfo> = waits
             .iter()
             .map(|(t, value, stage)| {
-                vk::SemaphoreSubmitInfo::default()
-                    .semaphore(t.raw())
-                    .value(*value)
-                    .stage_mask(*stage)
+                vk::SemaphoreSubmitInfo::default().semaphore(t.raw()).value(*value).stage_mask(*stage)
             })
             .collect();
         let signal_infos = [vk::SemaphoreSubmitInfo::default()
@@ -503,8 +411,7 @@ impl Recorder {
         }
         tracing::trace!(name = %name, signal = signal.1, "submitted");
         if let Some(res) = self.resources.take() {
-            self.ctx
-                .retire(Garbage::Commands(res), signal.0.raw(), signal.1);
+            self.ctx.retire(Garbage::Commands(res), signal.0.raw(), signal.1);
         }
         // Submission is the natural moment to free what earlier submissions are done with.
         if let Err(e) = self.ctx.collect_garbage() {

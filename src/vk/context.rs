@@ -43,11 +43,7 @@ impl Default for ContextOptions {
             },
             Err(_) => None,
         };
-        ContextOptions {
-            validation,
-            device_index,
-            force_single_queue: false,
-        }
+        ContextOptions { validation, device_index, force_single_queue: false }
     }
 }
 
@@ -95,16 +91,11 @@ impl Context {
             Err(source) => {
                 // SAFETY: nothing was created from the device yet.
                 unsafe { parts.device.destroy_device(None) };
-                return Err(VkError::Allocation {
-                    name: "allocator".into(),
-                    size: 0,
-                    source,
-                });
+                return Err(VkError::Allocation { name: "allocator".into(), size: 0, source });
             }
         };
-        let debug_utils = instance
-            .validation_enabled()
-            .then(|| ash::ext::debug_utils::Device::new(&instance.raw, &parts.device));
+        let debug_utils =
+            instance.validation_enabled().then(|| ash::ext::debug_utils::Device::new(&instance.raw, &parts.device));
         Ok(Arc::new(Context {
             garbage: Mutex::new(Vec::new()),
             allocator: ManuallyDrop::new(Mutex::new(allocator)),
@@ -191,9 +182,7 @@ impl Context {
     pub(crate) fn set_name<H: vk::Handle>(&self, handle: H, name: &str) {
         let Some(du) = &self.debug_utils else { return };
         let cname = CString::new(name.replace('\0', " ")).unwrap_or_default();
-        let info = vk::DebugUtilsObjectNameInfoEXT::default()
-            .object_handle(handle)
-            .object_name(&cname);
+        let info = vk::DebugUtilsObjectNameInfoEXT::default().object_handle(handle).object_name(&cname);
         // SAFETY: the handle is a live object of this device; cname outlives the call.
         if let Err(e) = unsafe { du.set_debug_utils_object_name(&info) } {
             tracing::debug!(name, %e, "could not name a Vulkan object");
@@ -222,10 +211,7 @@ impl Drop for Context {
         }
         let errors = self.instance.error_messages();
         if !errors.is_empty() {
-            tracing::warn!(
-                count = errors.len(),
-                "Vulkan validation reported errors during this run"
-            );
+            tracing::warn!(count = errors.len(), "Vulkan validation reported errors during this run");
         }
     }
 }

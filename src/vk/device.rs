@@ -159,8 +159,7 @@ pub(crate) fn create(
 ) -> Result<DeviceParts, VkError> {
     let inst = &instance.raw;
     // SAFETY: plain query on a live instance.
-    let physicals =
-        unsafe { inst.enumerate_physical_devices() }.op("listing the Vulkan devices")?;
+    let physicals = unsafe { inst.enumerate_physical_devices() }.op("listing the Vulkan devices")?;
     if physicals.is_empty() {
         return Err(VkError::NoDevice(
             "the loader found no Vulkan device; install `mesa-vulkan-drivers` for the CPU device (lavapipe) or your GPU's driver".into(),
@@ -173,10 +172,7 @@ pub(crate) fn create(
             let props = unsafe { inst.get_physical_device_properties(physical) };
             Candidate {
                 physical,
-                name: props
-                    .device_name_as_c_str()
-                    .map(|c| c.to_string_lossy().into_owned())
-                    .unwrap_or_default(),
+                name: props.device_name_as_c_str().map(|c| c.to_string_lossy().into_owned()).unwrap_or_default(),
                 device_type: props.device_type,
                 api_version: props.api_version,
             }
@@ -189,11 +185,8 @@ pub(crate) fn create(
     let chosen = match device_index {
         Some(i) => {
             let c = candidates.get(i).ok_or_else(|| {
-                let names: Vec<String> = candidates
-                    .iter()
-                    .enumerate()
-                    .map(|(i, c)| format!("{i}: {}", c.name))
-                    .collect();
+                let names: Vec<String> =
+                    candidates.iter().enumerate().map(|(i, c)| format!("{i}: {}", c.name)).collect();
                 VkError::NoDevice(format!(
                     "LPM_DEVICE={i} but there are only {} devices ({})",
                     candidates.len(),
@@ -230,21 +223,11 @@ fn effective_api(instance: &Instance, c: &Candidate) -> u32 {
     c.api_version.min(instance.api_version)
 }
 
-fn device_extensions(
-    instance: &Instance,
-    physical: vk::PhysicalDevice,
-) -> Result<Vec<String>, VkError> {
+fn device_extensions(instance: &Instance, physical: vk::PhysicalDevice) -> Result<Vec<String>, VkError> {
     // SAFETY: plain query.
-    let exts = unsafe { instance.raw.enumerate_device_extension_properties(physical) }
-        .op("listing device extensions")?;
-    Ok(exts
-        .iter()
-        .filter_map(|e| {
-            e.extension_name_as_c_str()
-                .ok()
-                .map(|n| n.to_string_lossy().into_owned())
-        })
-        .collect())
+    let exts =
+        unsafe { instance.raw.enumerate_device_extension_properties(physical) }.op("listing device extensions")?;
+    Ok(exts.iter().filter_map(|e| e.extension_name_as_c_str().ok().map(|n| n.to_string_lossy().into_owned())).collect())
 }
 
 fn has_ext(exts: &[String], name: &CStr) -> bool {
@@ -253,10 +236,7 @@ fn has_ext(exts: &[String], name: &CStr) -> bool {
 }
 
 fn check_support(instance: &Instance, c: &Candidate) -> Result<(), VkError> {
-    let unsupported = |reason: String| VkError::Unsupported {
-        device: c.name.clone(),
-        reason,
-    };
+    let unsupported = |reason: String| VkError::Unsupported { device: c.name.clone(), reason };
     let api = effective_api(instance, c);
     if api < vk::API_VERSION_1_2 {
         return Err(unsupported(format!(
@@ -265,46 +245,24 @@ fn check_support(instance: &Instance, c: &Candidate) -> Result<(), VkError> {
         )));
     }
     if api < vk::API_VERSION_1_3
-        && !has_ext(
-            &device_extensions(instance, c.physical)?,
-            ash::khr::synchronization2::NAME,
-        )
+        && !has_ext(&device_extensions(instance, c.physical)?, ash::khr::synchronization2::NAME)
     {
-        return Err(unsupported(
-            "it has neither Vulkan 1.3 nor VK_KHR_synchronization2".into(),
-        ));
+        return Err(unsupported("it has neither Vulkan 1.3 nor VK_KHR_synchronization2".into()));
     }
     let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
     let mut sync2 = vk::PhysicalDeviceSynchronization2Features::default();
-    let mut f2 = vk::PhysicalDeviceFeatures2::default()
-        .push_next(&mut f12)
-        .push_next(&mut sync2);
+    let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut f12).push_next(&mut sync2);
     // SAFETY: the chained structs are valid for a ≥1.2 device (sync2 checked above).
-    unsafe {
-        instance
-            .raw
-            .get_physical_device_features2(c.physical, &mut f2)
-    };
+    unsafe { instance.raw.get_physical_device_features2(c.physical, &mut f2) };
     if f12.timeline_semaphore == vk::FALSE {
-        return Err(unsupported(
-            "the timelineSemaphore feature is missing".into(),
-        ));
+        return Err(unsupported("the timelineSemaphore feature is missing".into()));
     }
     if sync2.synchronization2 == vk::FALSE {
-        return Err(unsupported(
-            "the synchronization2 feature is missing".into(),
-        ));
+        return Err(unsupported("the synchronization2 feature is missing".into()));
     }
     // SAFETY: plain query.
-    let families = unsafe {
-        instance
-            .raw
-            .get_physical_device_queue_family_properties(c.physical)
-    };
-    if !families
-        .iter()
-        .any(|f| f.queue_flags.contains(vk::QueueFlags::COMPUTE))
-    {
+    let families = unsafe { instance.raw.get_physical_device_queue_family_properties(c.physical) };
+    if !families.iter().any(|f| f.queue_flags.contains(vk::QueueFlags::COMPUTE)) {
         return Err(unsupported("it has no compute queue".into()));
     }
     Ok(())
@@ -316,18 +274,14 @@ fn choose_queues(
     families: &[vk::QueueFamilyProperties],
     force_single_queue: bool,
 ) -> Option<(u32, Option<(u32, u32)>)> {
-    let compute = families
-        .iter()
-        .position(|f| f.queue_flags.contains(vk::QueueFlags::COMPUTE))? as u32;
+    let compute = families.iter().position(|f| f.queue_flags.contains(vk::QueueFlags::COMPUTE))? as u32;
     if force_single_queue {
         return Some((compute, None));
     }
     let dedicated = families.iter().position(|f| {
         f.queue_count > 0
             && f.queue_flags.contains(vk::QueueFlags::TRANSFER)
-            && !f
-                .queue_flags
-                .intersects(vk::QueueFlags::COMPUTE | vk::QueueFlags::GRAPHICS)
+            && !f.queue_flags.intersects(vk::QueueFlags::COMPUTE | vk::QueueFlags::GRAPHICS)
     });
     let transfer = match dedicated {
         Some(fam) => Some((fam as u32, 0)),
@@ -337,20 +291,13 @@ fn choose_queues(
     Some((compute, transfer))
 }
 
-fn open(
-    instance: &Instance,
-    c: &Candidate,
-    force_single_queue: bool,
-) -> Result<DeviceParts, VkError> {
+fn open(instance: &Instance, c: &Candidate, force_single_queue: bool) -> Result<DeviceParts, VkError> {
     let inst = &instance.raw;
     let api = effective_api(instance, c);
     // SAFETY: plain query.
     let families = unsafe { inst.get_physical_device_queue_family_properties(c.physical) };
-    let (compute_family, transfer) =
-        choose_queues(&families, force_single_queue).ok_or_else(|| VkError::Unsupported {
-            device: c.name.clone(),
-            reason: "it has no compute queue".into(),
-        })?;
+    let (compute_family, transfer) = choose_queues(&families, force_single_queue)
+        .ok_or_else(|| VkError::Unsupported { device: c.name.clone(), reason: "it has no compute queue".into() })?;
 
     // One priority per queue of a family; both arrays outlive vkCreateDevice.
     let priorities_one = [1.0f32];
@@ -370,11 +317,8 @@ fn open(
                     .queue_family_index(compute_family)
                     .queue_priorities(&priorities_one),
             );
-            queue_infos.push(
-                vk::DeviceQueueCreateInfo::default()
-                    .queue_family_index(fam)
-                    .queue_priorities(&priorities_one),
-            );
+            queue_infos
+                .push(vk::DeviceQueueCreateInfo::default().queue_family_index(fam).queue_priorities(&priorities_one));
         }
         None => {
             queue_infos.push(
@@ -391,8 +335,7 @@ fn open(
         extensions.push(ash::khr::synchronization2::NAME.as_ptr());
     }
     let mut f12 = vk::PhysicalDeviceVulkan12Features::default().timeline_semaphore(true);
-    let mut sync2_features =
-        vk::PhysicalDeviceSynchronization2Features::default().synchronization2(true);
+    let mut sync2_features = vk::PhysicalDeviceSynchronization2Features::default().synchronization2(true);
     let create_info = vk::DeviceCreateInfo::default()
         .queue_create_infos(&queue_infos)
         .enabled_extension_names(&extensions)
@@ -405,27 +348,17 @@ fn open(
     let get_queue = |family: u32, index: u32| {
         // SAFETY: this (family, index) was requested in queue_infos.
         let raw = unsafe { device.get_device_queue(family, index) };
-        Queue {
-            raw,
-            family,
-            index,
-            lock: Mutex::new(()),
-        }
+        Queue { raw, family, index, lock: Mutex::new(()) }
     };
     let compute = get_queue(compute_family, 0);
     let transfer = transfer.map(|(fam, idx)| get_queue(fam, idx));
-    let sync2 = if use_khr_sync2 {
-        Sync2::Khr(ash::khr::synchronization2::Device::new(inst, &device))
-    } else {
-        Sync2::Core
-    };
+    let sync2 =
+        if use_khr_sync2 { Sync2::Khr(ash::khr::synchronization2::Device::new(inst, &device)) } else { Sync2::Core };
 
     // Properties for limits and reports.
     let mut p11 = vk::PhysicalDeviceVulkan11Properties::default();
     let mut driver = vk::PhysicalDeviceDriverProperties::default();
-    let mut p2 = vk::PhysicalDeviceProperties2::default()
-        .push_next(&mut p11)
-        .push_next(&mut driver);
+    let mut p2 = vk::PhysicalDeviceProperties2::default().push_next(&mut p11).push_next(&mut driver);
     // SAFETY: valid chain for a ≥1.2 device.
     unsafe { inst.get_physical_device_properties2(c.physical, &mut p2) };
     let props = p2.properties;
@@ -450,14 +383,8 @@ fn open(
         min_storage_buffer_offset_alignment: l.min_storage_buffer_offset_alignment,
         max_push_constants_size: l.max_push_constants_size,
     };
-    let driver_name = driver
-        .driver_name_as_c_str()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let driver_info = driver
-        .driver_info_as_c_str()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_default();
+    let driver_name = driver.driver_name_as_c_str().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let driver_info = driver.driver_info_as_c_str().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
     let driver_description = format!(
         "{driver_name} {driver_info} (Vulkan {}, driver version {:#x})",
         version_string(props.api_version),
@@ -488,11 +415,7 @@ mod tests {
     use super::*;
 
     fn fam(flags: vk::QueueFlags, count: u32) -> vk::QueueFamilyProperties {
-        vk::QueueFamilyProperties {
-            queue_flags: flags,
-            queue_count: count,
-            ..Default::default()
-        }
+        vk::QueueFamilyProperties { queue_flags: flags, queue_count: count, ..Default::default() }
     }
 
     #[test]
@@ -501,10 +424,7 @@ mod tests {
         // lavapipe: one family, one queue.
         assert_eq!(choose_queues(&[fam(gct, 1)], false), Some((0, None)));
         // Two queues in the only family: the second one transfers.
-        assert_eq!(
-            choose_queues(&[fam(gct, 2)], false),
-            Some((0, Some((0, 1))))
-        );
+        assert_eq!(choose_queues(&[fam(gct, 2)], false), Some((0, Some((0, 1)))));
         // NVIDIA-like: dedicated transfer family preferred over a 2nd compute queue.
         let fams = [
             fam(gct, 16),
@@ -513,9 +433,6 @@ mod tests {
         ];
         assert_eq!(choose_queues(&fams, false), Some((0, Some((1, 0)))));
         assert_eq!(choose_queues(&fams, true), Some((0, None)));
-        assert_eq!(
-            choose_queues(&[fam(vk::QueueFlags::GRAPHICS, 1)], false),
-            None
-        );
+        assert_eq!(choose_queues(&[fam(vk::QueueFlags::GRAPHICS, 1)], false), None);
     }
 }

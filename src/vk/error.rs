@@ -50,11 +50,7 @@ pub enum VkError {
 
     /// A wait ran out of time.
     #[error("timed out after {timeout_ns} ns waiting for timeline `{name}` to reach {value}")]
-    Timeout {
-        name: String,
-        value: u64,
-        timeout_ns: u64,
-    },
+    Timeout { name: String, value: u64, timeout_ns: u64 },
 
     /// The memory allocator refused an allocation.
     #[error("allocating {size} bytes for `{name}`: {source}")]

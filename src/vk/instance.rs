@@ -35,8 +35,7 @@ pub(crate) struct Instance {
 impl Instance {
     pub(crate) fn new(validation: bool) -> Result<Self, VkError> {
         // SAFETY: loading the system loader library; we trust libvulkan.so.1 to be a Vulkan loader.
-        let entry =
-            unsafe { ash::Entry::load() }.map_err(|e| VkError::LoaderMissing(e.to_string()))?;
+        let entry = unsafe { ash::Entry::load() }.map_err(|e| VkError::LoaderMissing(e.to_string()))?;
 
         // SAFETY: plain query on a loaded entry.
         let loader_version = unsafe { entry.try_enumerate_instance_version() }
@@ -56,11 +55,8 @@ impl Instance {
         let mut extensions: Vec<*const std::ffi::c_char> = Vec::new();
         if validation {
             // SAFETY: plain query.
-            let available = unsafe { entry.enumerate_instance_layer_properties() }
-                .op("listing the instance layers")?;
-            let has_layer = available
-                .iter()
-                .any(|l| l.layer_name_as_c_str().is_ok_and(|n| n == VALIDATION_LAYER));
+            let available = unsafe { entry.enumerate_instance_layer_properties() }.op("listing the instance layers")?;
+            let has_layer = available.iter().any(|l| l.layer_name_as_c_str().is_ok_and(|n| n == VALIDATION_LAYER));
             if !has_layer {
                 return Err(VkError::ValidationLayerMissing);
             }
@@ -68,14 +64,9 @@ impl Instance {
             // VK_EXT_validation_features is provided by the layer itself; VK_EXT_debug_utils by the
             // loader (and the layer). Both are required for what validation is for here.
             // SAFETY: plain query.
-            let layer_exts =
-                unsafe { entry.enumerate_instance_extension_properties(Some(VALIDATION_LAYER)) }
-                    .op("listing the validation layer's extensions")?;
-            let has = |name: &CStr| {
-                layer_exts
-                    .iter()
-                    .any(|e| e.extension_name_as_c_str().is_ok_and(|n| n == name))
-            };
+            let layer_exts = unsafe { entry.enumerate_instance_extension_properties(Some(VALIDATION_LAYER)) }
+                .op("listing the validation layer's extensions")?;
+            let has = |name: &CStr| layer_exts.iter().any(|e| e.extension_name_as_c_str().is_ok_and(|n| n == name));
             if !has(ash::ext::validation_features::NAME) || !has(ash::ext::debug_utils::NAME) {
                 return Err(VkError::ValidationLayerMissing);
             }
@@ -106,14 +97,11 @@ impl Instance {
             .enabled_extension_names(&extensions);
         if validation {
             // The messenger in the chain also reports problems of vkCreateInstance/vkDestroyInstance.
-            create_info = create_info
-                .push_next(&mut validation_features)
-                .push_next(&mut messenger_info);
+            create_info = create_info.push_next(&mut validation_features).push_next(&mut messenger_info);
         }
 
         // SAFETY: every pointer in create_info points to a local that outlives this call.
-        let raw = unsafe { entry.create_instance(&create_info, None) }
-            .op("creating the Vulkan instance")?;
+        let raw = unsafe { entry.create_instance(&create_info, None) }.op("creating the Vulkan instance")?;
 
         let debug = if validation {
             let loader = ash::ext::debug_utils::Instance::new(&entry, &raw);
@@ -137,13 +125,7 @@ impl Instance {
             validation,
             "Vulkan instance created"
         );
-        Ok(Instance {
-            entry,
-            raw,
-            api_version,
-            debug,
-            debug_state,
-        })
+        Ok(Instance { entry, raw, api_version, debug, debug_state })
     }
 
     pub(crate) fn validation_enabled(&self) -> bool {
@@ -170,10 +152,7 @@ impl Drop for Instance {
 
 fn messenger_create_info<'a>(user_data: *mut c_void) -> vk::DebugUtilsMessengerCreateInfoEXT<'a> {
     vk::DebugUtilsMessengerCreateInfoEXT::default()
-        .message_severity(
-            vk::DebugUtilsMessageSeverityFlagsEXT::WARNING
-                | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR,
-        )
+        .message_severity(vk::DebugUtilsMessageSeverityFlagsEXT::WARNING | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR)
         .message_type(
             vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
                 | vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
@@ -209,10 +188,5 @@ unsafe extern "system" fn debug_callback(
 
 /// "1.3.230" from a packed version number.
 pub(crate) fn version_string(v: u32) -> String {
-    format!(
-        "{}.{}.{}",
-        vk::api_version_major(v),
-        vk::api_version_minor(v),
-        vk::api_version_patch(v)
-    )
+    format!("{}.{}.{}", vk::api_version_major(v), vk::api_version_minor(v), vk::api_version_patch(v))
 }

@@ -53,15 +53,10 @@ impl Buffer {
             return None;
         }
         let len = usize::try_from(self.size).ok()?;
-        self.allocation
-            .mapped_slice_mut()
-            .and_then(|s| s.get_mut(..len))
+        self.allocation.mapped_slice_mut().and_then(|s| s.get_mut(..len))
     }
     fn host_visible_by_contract(&self) -> bool {
-        matches!(
-            self.location,
-            MemoryLocation::CpuToGpu | MemoryLocation::GpuToCpu
-        )
+        matches!(self.location, MemoryLocation::CpuToGpu | MemoryLocation::GpuToCpu)
     }
 }
 
@@ -86,15 +81,12 @@ impl Context {
         location: MemoryLocation,
     ) -> Result<Buffer, VkError> {
         if size == 0 {
-            return Err(VkError::InvalidArgument(format!(
-                "buffer `{name}` has size 0"
-            )));
+            return Err(VkError::InvalidArgument(format!("buffer `{name}` has size 0")));
         }
         let families = self.queue_families();
         let mut info = vk::BufferCreateInfo::default().size(size).usage(usage);
         info = if families.len() > 1 {
-            info.sharing_mode(vk::SharingMode::CONCURRENT)
-                .queue_family_indices(&families)
+            info.sharing_mode(vk::SharingMode::CONCURRENT).queue_family_indices(&families)
         } else {
             info.sharing_mode(vk::SharingMode::EXCLUSIVE)
         };
@@ -116,50 +108,30 @@ impl Context {
             Err(source) => {
                 // SAFETY: never used.
                 unsafe { device.destroy_buffer(raw, None) };
-                return Err(VkError::Allocation {
-                    name: name.to_owned(),
-                    size,
-                    source,
-                });
+                return Err(VkError::Allocation { name: name.to_owned(), size, source });
             }
         };
         // SAFETY: the allocation satisfies `requirements` of this buffer.
-        if let Err(r) =
-            unsafe { device.bind_buffer_memory(raw, allocation.memory(), allocation.offset()) }
-        {
+        if let Err(r) = unsafe { device.bind_buffer_memory(raw, allocation.memory(), allocation.offset()) } {
             // SAFETY: never used by the GPU.
             unsafe { device.destroy_buffer(raw, None) };
             if let Err(e) = self.allocator().free(allocation) {
                 tracing::error!(name, %e, "freeing the memory of a buffer that failed to bind");
             }
-            return Err(VkError::from_vk(
-                format!("binding memory to buffer `{name}`"),
-                r,
-            ));
+            return Err(VkError::from_vk(format!("binding memory to buffer `{name}`"), r));
         }
         let bytes = allocation.size();
         let now = self.allocated.fetch_add(bytes, Ordering::Relaxed) + bytes;
         self.peak_allocated.fetch_max(now, Ordering::Relaxed);
         self.set_name(raw, name);
         tracing::trace!(name, size, ?location, "buffer created");
-        Ok(Buffer {
-            raw,
-            allocation,
-            size,
-            name: name.to_owned(),
-            location,
-        })
+        Ok(Buffer { raw, allocation, size, name: name.to_owned(), location })
     }
 
     /// Destroys a buffer now. The caller guarantees the GPU no longer uses it (else use
     /// [`Context::retire_buffer`]).
     pub fn destroy_buffer(&self, buffer: Buffer) {
-        let Buffer {
-            raw,
-            allocation,
-            name,
-            ..
-        } = buffer;
+        let Buffer { raw, allocation, name, .. } = buffer;
         let bytes = allocation.size();
         // SAFETY: by the caller's guarantee the GPU is done with `raw`.
         unsafe { self.device().destroy_buffer(raw, None) };

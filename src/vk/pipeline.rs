@@ -45,17 +45,12 @@ impl ComputePipeline {
 fn spirv_words(name: &str, spirv: &[u8]) -> Result<Vec<u32>, VkError> {
     let bad = |reason: String| VkError::InvalidArgument(format!("SPIR-V of `{name}`: {reason}"));
     if spirv.is_empty() || spirv.len() % 4 != 0 {
-        return Err(bad(format!(
-            "length {} is not a positive multiple of 4",
-            spirv.len()
-        )));
+        return Err(bad(format!("length {} is not a positive multiple of 4", spirv.len())));
     }
     // read_spv accepts either byte order; we only emit little-endian, so require it exactly.
     let magic = u32::from_le_bytes([spirv[0], spirv[1], spirv[2], spirv[3]]);
     if magic != SPIRV_MAGIC {
-        return Err(bad(format!(
-            "bad magic number {magic:#010x} (expected {SPIRV_MAGIC:#010x})"
-        )));
+        return Err(bad(format!("bad magic number {magic:#010x} (expected {SPIRV_MAGIC:#010x})")));
     }
     ash::util::read_spv(&mut Cursor::new(spirv)).map_err(|e| bad(e.to_string()))
 }
@@ -103,24 +98,16 @@ impl Context {
             .stage_flags(vk::ShaderStageFlags::COMPUTE)
             .offset(0)
             .size(push_constant_bytes)];
-        let ranges: &[vk::PushConstantRange] = if push_constant_bytes > 0 {
-            &ranges
-        } else {
-            &[]
-        };
-        let layout_info = vk::PipelineLayoutCreateInfo::default()
-            .set_layouts(&set_layouts)
-            .push_constant_ranges(ranges);
+        let ranges: &[vk::PushConstantRange] = if push_constant_bytes > 0 { &ranges } else { &[] };
+        let layout_info =
+            vk::PipelineLayoutCreateInfo::default().set_layouts(&set_layouts).push_constant_ranges(ranges);
         // SAFETY: arrays outlive the call.
         let layout = match unsafe { device.create_pipeline_layout(&layout_info, None) } {
             Ok(l) => l,
             Err(r) => {
                 // SAFETY: unused.
                 unsafe { device.destroy_descriptor_set_layout(set_layout, None) };
-                return Err(VkError::from_vk(
-                    format!("creating the pipeline layout of `{name}`"),
-                    r,
-                ));
+                return Err(VkError::from_vk(format!("creating the pipeline layout of `{name}`"), r));
             }
         };
 
@@ -134,22 +121,16 @@ impl Context {
                     device.destroy_pipeline_layout(layout, None);
                     device.destroy_descriptor_set_layout(set_layout, None);
                 }
-                return Err(VkError::from_vk(
-                    format!("creating the shader module of `{name}`"),
-                    r,
-                ));
+                return Err(VkError::from_vk(format!("creating the shader module of `{name}`"), r));
             }
         };
         let stage = vk::PipelineShaderStageCreateInfo::default()
             .stage(vk::ShaderStageFlags::COMPUTE)
             .module(module)
             .name(c"main");
-        let infos = [vk::ComputePipelineCreateInfo::default()
-            .stage(stage)
-            .layout(layout)];
+        let infos = [vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout)];
         // SAFETY: all handles alive; `infos` outlives the call.
-        let created =
-            unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &infos, None) };
+        let created = unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &infos, None) };
         // The module is only needed while the pipeline is created.
         // SAFETY: no longer referenced.
         unsafe { device.destroy_shader_module(module, None) };
@@ -165,29 +146,14 @@ impl Context {
                     device.destroy_pipeline_layout(layout, None);
                     device.destroy_descriptor_set_layout(set_layout, None);
                 }
-                return Err(VkError::from_vk(
-                    format!("creating compute pipeline `{name}`"),
-                    r,
-                ));
+                return Err(VkError::from_vk(format!("creating compute pipeline `{name}`"), r));
             }
         };
         self.set_name(raw, name);
         self.set_name(layout, name);
         self.set_name(set_layout, name);
-        tracing::debug!(
-            name,
-            storage_buffers,
-            push_constant_bytes,
-            "compute pipeline created"
-        );
-        Ok(ComputePipeline {
-            raw,
-            layout,
-            set_layout,
-            storage_buffers,
-            push_constant_bytes,
-            name: name.to_owned(),
-        })
+        tracing::debug!(name, storage_buffers, push_constant_bytes, "compute pipeline created");
+        Ok(ComputePipeline { raw, layout, set_layout, storage_buffers, push_constant_bytes, name: name.to_owned() })
     }
 
     /// Destroys a pipeline. Command buffers that used it must have completed (or be retired: they
@@ -197,8 +163,7 @@ impl Context {
         unsafe {
             self.device().destroy_pipeline(p.raw, None);
             self.device().destroy_pipeline_layout(p.layout, None);
-            self.device()
-                .destroy_descriptor_set_layout(p.set_layout, None);
+            self.device().destroy_descriptor_set_layout(p.set_layout, None);
         }
     }
 }
@@ -213,9 +178,6 @@ mod tests {
         assert!(spirv_words("x", &[3, 2, 0x23]).is_err());
         assert!(spirv_words("x", &[0, 0, 0, 0]).is_err());
         let ok = [0x03, 0x02, 0x23, 0x07, 0, 0, 1, 0];
-        assert_eq!(
-            spirv_words("x", &ok).ok(),
-            Some(vec![SPIRV_MAGIC, 0x0001_0000])
-        );
+        assert_eq!(spirv_words("x", &ok).ok(), Some(vec![SPIRV_MAGIC, 0x0001_0000]));
     }
 }

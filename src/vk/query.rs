@@ -44,20 +44,14 @@ impl TimestampQueryPool {
 
 impl Context {
     /// Creates a pool of `count` timestamp queries; fails if the device cannot time compute work.
-    pub fn create_timestamp_pool(
-        &self,
-        name: &str,
-        count: u32,
-    ) -> Result<TimestampQueryPool, VkError> {
+    pub fn create_timestamp_pool(&self, name: &str, count: u32) -> Result<TimestampQueryPool, VkError> {
         if !self.limits().timestamps_supported {
             return Err(VkError::Unsupported {
                 device: self.device_name().to_owned(),
                 reason: "timestamps are not supported on its compute queue".into(),
             });
         }
-        let info = vk::QueryPoolCreateInfo::default()
-            .query_type(vk::QueryType::TIMESTAMP)
-            .query_count(count);
+        let info = vk::QueryPoolCreateInfo::default().query_type(vk::QueryType::TIMESTAMP).query_count(count);
         // SAFETY: valid create info.
         let raw = unsafe { self.device().create_query_pool(&info, None) }
             .op_with(|| format!("creating query pool `{name}`"))?;

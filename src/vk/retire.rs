@@ -34,11 +34,7 @@ impl Context {
     }
 
     pub(crate) fn retire(&self, item: Garbage, semaphore: vk::Semaphore, value: u64) {
-        lock(&self.garbage).push(Retired {
-            semaphore,
-            value,
-            item,
-        });
+        lock(&self.garbage).push(Retired { semaphore, value, item });
     }
 
     /// Number of retired resources not yet freed.
@@ -89,11 +85,7 @@ impl Context {
 
     /// The highest value anything retired on `semaphore` waits for.
     pub(crate) fn max_retired_value(&self, semaphore: vk::Semaphore) -> Option<u64> {
-        lock(&self.garbage)
-            .iter()
-            .filter(|r| r.semaphore == semaphore)
-            .map(|r| r.value)
-            .max()
+        lock(&self.garbage).iter().filter(|r| r.semaphore == semaphore).map(|r| r.value).max()
     }
 
     pub(crate) fn free_now(&self, item: Garbage) {

@@ -33,29 +33,18 @@ impl TimelineSemaphore {
     pub fn wait(&self, ctx: &Context, value: u64, timeout_ns: u64) -> Result<(), VkError> {
         let semaphores = [self.raw];
         let values = [value];
-        let info = vk::SemaphoreWaitInfo::default()
-            .semaphores(&semaphores)
-            .values(&values);
+        let info = vk::SemaphoreWaitInfo::default().semaphores(&semaphores).values(&values);
         // SAFETY: arrays outlive the call; live semaphore.
         match unsafe { ctx.device().wait_semaphores(&info, timeout_ns) } {
             Ok(()) => Ok(()),
-            Err(vk::Result::TIMEOUT) => Err(VkError::Timeout {
-                name: self.name.clone(),
-                value,
-                timeout_ns,
-            }),
-            Err(r) => Err(VkError::from_vk(
-                format!("waiting for timeline `{}` to reach {value}", self.name),
-                r,
-            )),
+            Err(vk::Result::TIMEOUT) => Err(VkError::Timeout { name: self.name.clone(), value, timeout_ns }),
+            Err(r) => Err(VkError::from_vk(format!("waiting for timeline `{}` to reach {value}", self.name), r)),
         }
     }
     /// Sets the value from the host (it must be greater than the current value and than any pending
     /// signal) — releases GPU work waiting on it.
     pub fn signal(&self, ctx: &Context, value: u64) -> Result<(), VkError> {
-        let info = vk::SemaphoreSignalInfo::default()
-            .semaphore(self.raw)
-            .value(value);
+        let info = vk::SemaphoreSignalInfo::default().semaphore(self.raw).value(value);
         // SAFETY: live semaphore.
         unsafe { ctx.device().signal_semaphore(&info) }
             .op_with(|| format!("signalling timeline `{}` to {value}", self.name))
@@ -65,18 +54,14 @@ impl TimelineSemaphore {
 impl Context {
     /// Creates a timeline semaphore starting at `initial`.
     pub fn create_timeline(&self, name: &str, initial: u64) -> Result<TimelineSemaphore, VkError> {
-        let mut type_info = vk::SemaphoreTypeCreateInfo::default()
-            .semaphore_type(vk::SemaphoreType::TIMELINE)
-            .initial_value(initial);
+        let mut type_info =
+            vk::SemaphoreTypeCreateInfo::default().semaphore_type(vk::SemaphoreType::TIMELINE).initial_value(initial);
         let info = vk::SemaphoreCreateInfo::default().push_next(&mut type_info);
         // SAFETY: valid create info.
-        let raw = unsafe { self.device().create_semaphore(&info, None) }
-            .op_with(|| format!("creating timeline `{name}`"))?;
+        let raw =
+            unsafe { self.device().create_semaphore(&info, None) }.op_with(|| format!("creating timeline `{name}`"))?;
         self.set_name(raw, name);
-        Ok(TimelineSemaphore {
-            raw,
-            name: name.to_owned(),
-        })
+        Ok(TimelineSemaphore { raw, name: name.to_owned() })
     }
 
     /// Destroys a timeline. No pending submission may wait on or signal it. Resources retired on it

@@ -35,11 +35,11 @@ pub fn sun(dir: [f64; 3], e: [f64; 3]) -> Light {
 }
 
 use lpm::solver::fields::StoreFields;
-use lpm::solver::{BackendKind, SolveRun};
-use lpm::store::BrickStore;
 use lpm::solver::plan::{Plan, SweepDirection};
 use lpm::solver::segment::e1;
 use lpm::solver::sweep::{column, FaceSweep};
+use lpm::solver::{BackendKind, SolveRun};
+use lpm::store::BrickStore;
 use lpm::vk::ContextOptions;
 
 /// A fresh directory under cargo's per-test temporary area.
@@ -157,7 +157,6 @@ pub fn beer_lambert_over_the_direction_set(sigma: f64, plan: &Plan, v: [u32; 3])
     }
     phi
 }
-
 
 /// The `lpm` binary with validation on, quiet logs and no fault injection.
 pub fn lpm_command(args: &[&str]) -> std::process::Command {

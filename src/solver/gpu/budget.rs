@@ -114,8 +114,12 @@ pub fn plan_memory(
     let table_set = |dirs: &[crate::solver::plan::SweepDirection]| -> u64 {
         dirs.iter().map(|d| 32 + 8 * d.offsets.len() as u64 + 4 * d.collect_row.len() as u64).sum()
     };
-    let sets: Vec<u64> =
-        plan.faces.iter().map(|f| table_set(f)).chain(plan.beams.iter().map(|b| table_set(std::slice::from_ref(b)))).collect();
+    let sets: Vec<u64> = plan
+        .faces
+        .iter()
+        .map(|f| table_set(f))
+        .chain(plan.beams.iter().map(|b| table_set(std::slice::from_ref(b))))
+        .collect();
     let table_bytes = sets.iter().sum::<u64>() + sets.iter().copied().max().unwrap_or(0);
     let slot_bytes = (extent.bricks * 4).next_multiple_of(16);
     // One slot for sub-slices of `slab` planes: its device bytes (the slot table, then density, the

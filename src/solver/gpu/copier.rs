@@ -207,8 +207,15 @@ mod tests {
         let copier = Copier::new(1);
         let src: Vec<u8> = (0..16).collect();
         let mut dst = vec![0u8; 4];
-        let region =
-            Region { src: src[2..].as_ptr(), dst: dst.as_mut_ptr(), len: 1, runs: 4, src_stride: 4, dst_stride: 1, convert: Convert::Copy };
+        let region = Region {
+            src: src[2..].as_ptr(),
+            dst: dst.as_mut_ptr(),
+            len: 1,
+            runs: 4,
+            src_stride: 4,
+            dst_stride: 1,
+            convert: Convert::Copy,
+        };
         copier.copy(vec![region]).wait();
         assert_eq!(dst, [2, 6, 10, 14]);
     }

@@ -147,7 +147,10 @@ pub struct GpuBackend<'a> {
     progress: Option<progress::PassProgress>,
 }
 
-fn create_buffers(ctx: &Context, specs: &[(&str, u64, vk::BufferUsageFlags, MemoryLocation)]) -> Result<Vec<Buffer>, SolveError> {
+fn create_buffers(
+    ctx: &Context,
+    specs: &[(&str, u64, vk::BufferUsageFlags, MemoryLocation)],
+) -> Result<Vec<Buffer>, SolveError> {
     let mut made = Vec::with_capacity(specs.len());
     for &(name, size, usage, location) in specs {
         match ctx.create_buffer(name, size.max(4), usage, location) {
@@ -172,8 +175,13 @@ impl<'a> GpuBackend<'a> {
     ) -> Result<Self, SolveError> {
         let limits = ctx.limits();
         let budget = options.budget.unwrap_or_else(|| budget::default_budget(&limits));
-        let memory =
-            budget::plan_memory(plan, budget::slice_extent(plan, store), &limits, budget, options.max_slices_in_flight)?;
+        let memory = budget::plan_memory(
+            plan,
+            budget::slice_extent(plan, store),
+            &limits,
+            budget,
+            options.max_slices_in_flight,
+        )?;
         let c = plan.channels as u64;
         let comps = plan.source_components() as u64;
         let extent = memory.slice;
@@ -186,7 +194,8 @@ impl<'a> GpuBackend<'a> {
         let source_bytes = per_component * comps;
         let prev_bytes = source_bytes / 4 * plan.source_precision.bytes();
         let fluence_bytes = per_component * c;
-        let upload_bytes = (extent.bricks * 4).next_multiple_of(16) + per_component + prev_bytes + source_bytes + fluence_bytes;
+        let upload_bytes =
+            (extent.bricks * 4).next_multiple_of(16) + per_component + prev_bytes + source_bytes + fluence_bytes;
 
         let shared = create_buffers(
             &ctx,
@@ -246,25 +255,41 @@ impl<'a> GpuBackend<'a> {
                     (&format!("slot {i} source prev"), prev_bytes, storage, gpu),
                     (&format!("slot {i} source next"), source_bytes, storage, gpu),
                     (&format!("slot {i} fluence"), fluence_bytes, storage, gpu),
-                    (&format!("slot {i} upload staging"), upload_bytes, vk::BufferUsageFlags::TRANSFER_SRC, MemoryLocation::CpuToGpu),
-                    (&format!("slot {i} download staging"), source_bytes + fluence_bytes, vk::BufferUsageFlags::TRANSFER_DST, MemoryLocation::GpuToCpu),
+                    (
+                        &format!("slot {i} upload staging"),
+                        upload_bytes,
+                        vk::BufferUsageFlags::TRANSFER_SRC,
+                        MemoryLocation::CpuToGpu,
+                    ),
+                    (
+                        &format!("slot {i} download staging"),
+                        source_bytes + fluence_bytes,
+                        vk::BufferUsageFlags::TRANSFER_DST,
+                        MemoryLocation::GpuToCpu,
+                    ),
                 ],
             )?;
             let mut it = made.into_iter();
             match (it.next(), it.next(), it.next(), it.next(), it.next(), it.next(), it.next()) {
-                (Some(slot_table), Some(density), Some(source_prev), Some(source_next), Some(fluence), Some(upload), Some(download)) => {
-                    backend.slots.push(Slot {
-                        slot_table,
-                        density,
-                        source_prev,
-                        source_next,
-                        fluence,
-                        upload,
-                        download,
-                        pending: None,
-                        scattering: None,
-                    })
-                }
+                (
+                    Some(slot_table),
+                    Some(density),
+                    Some(source_prev),
+                    Some(source_next),
+                    Some(fluence),
+                    Some(upload),
+                    Some(download),
+                ) => backend.slots.push(Slot {
+                    slot_table,
+                    density,
+                    source_prev,
+                    source_next,
+                    fluence,
+                    upload,
+                    download,
+                    pending: None,
+                    scattering: None,
+                }),
                 _ => return Err(SolveError::Internal("slot buffers")),
             }
         }
@@ -362,7 +387,13 @@ impl<'a> GpuBackend<'a> {
     }
 
     /// Streams every slice of the face through the slots for the directions `pass_dirs`.
-    fn stream_pass(&mut self, tables: &SweepTables, sweep: &FaceSweep, pass_dirs: std::ops::Range<u32>, flags: u32) -> Result<(), SolveError> {
+    fn stream_pass(
+        &mut self,
+        tables: &SweepTables,
+        sweep: &FaceSweep,
+        pass_dirs: std::ops::Range<u32>,
+        flags: u32,
+    ) -> Result<(), SolveError> {
         let slices = sweep.slices(BRICK_EDGE, self.memory.planes_per_slice);
         let n_slots = self.slots.len();
         let mut filled = 0;
@@ -424,7 +455,8 @@ impl<'a> GpuBackend<'a> {
         self.finish_scatter(s);
         let Some((v, layout)) = self.slots[s].pending.take() else { return Ok(()) };
         self.timelines()?.download.wait(&self.ctx, v, WAIT_FOREVER)?;
-        let staging = self.slots[s].download.mapped().ok_or(SolveError::Internal("download staging is not mapped"))?.as_ptr();
+        let staging =
+            self.slots[s].download.mapped().ok_or(SolveError::Internal("download staging is not mapped"))?.as_ptr();
         let regions = layout.scatter(self.fields, staging);
         self.slots[s].scattering = Some((self.copier.copy(regions), layout));
         Ok(())
@@ -632,8 +664,16 @@ impl<'a> GpuBackend<'a> {
         let next = layout.source_bytes();
         let bytes = next + layout.fluence_bytes();
         let mark = self.profiler.as_mut().and_then(|p| p.begin(&mut rec, profile::Work::Download, bytes));
-        rec.copy_buffer(&slot.source_next, &slot.download, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: next }]);
-        rec.copy_buffer(&slot.fluence, &slot.download, &[vk::BufferCopy { src_offset: 0, dst_offset: next, size: layout.fluence_bytes() }]);
+        rec.copy_buffer(
+            &slot.source_next,
+            &slot.download,
+            &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: next }],
+        );
+        rec.copy_buffer(
+            &slot.fluence,
+            &slot.download,
+            &[vk::BufferCopy { src_offset: 0, dst_offset: next, size: layout.fluence_bytes() }],
+        );
         rec.transfer_to_host();
         if let Some(p) = self.profiler.as_mut() {
             p.end(&mut rec, mark);
@@ -729,8 +769,8 @@ impl Backend for GpuBackend<'_> {
         let plan = self.plan;
         self.fields.begin_order()?;
         // The scale of this order's f16 source, from its largest value (exact: a power of two).
-        self.half_exponent = (plan.source_precision == Precision::F16)
-            .then(|| half_scale_exponent(self.fields.source_prev.max_abs()));
+        self.half_exponent =
+            (plan.source_precision == Precision::F16).then(|| half_scale_exponent(self.fields.source_prev.max_abs()));
         let face_dirs: Vec<usize> = plan.faces.iter().map(Vec::len).collect();
         let passes = progress::passes_per_order(order, &face_dirs, plan.beams.len(), self.memory.directions_per_pass);
         self.progress = Some(progress::PassProgress::new(order, passes));

@@ -34,7 +34,11 @@ pub struct StreamStats {
 impl StreamStats {
     pub fn hidden_fraction(&self) -> f64 {
         let transfer = self.upload_seconds + self.download_seconds;
-        if transfer > 0.0 { self.hidden_transfer_seconds / transfer } else { 0.0 }
+        if transfer > 0.0 {
+            self.hidden_transfer_seconds / transfer
+        } else {
+            0.0
+        }
     }
 }
 

@@ -79,7 +79,19 @@ impl SliceLayout {
                 slots.push(-1);
             }
         }
-        SliceLayout { range, bricks, occupied, slots, bricks_b, bricks_c, gain, channels, comps, axis: face.axis, prev_half_scale }
+        SliceLayout {
+            range,
+            bricks,
+            occupied,
+            slots,
+            bricks_b,
+            bricks_c,
+            gain,
+            channels,
+            comps,
+            axis: face.axis,
+            prev_half_scale,
+        }
     }
 
     /// No occupied brick: the rays cross vacuum, nothing travels and nothing is collected.
@@ -164,14 +176,28 @@ impl SliceLayout {
                 if self.gain {
                     let prev_slab = if self.prev_half_scale.is_some() { slab / 2 } else { slab };
                     let dst = at(prev + (i * comps * prev_slab) as u64);
-                    self.slab_regions(prev_base.wrapping_add(k * block), dst, comps, true, self.prev_half_scale, &mut regions);
+                    self.slab_regions(
+                        prev_base.wrapping_add(k * block),
+                        dst,
+                        comps,
+                        true,
+                        self.prev_half_scale,
+                        &mut regions,
+                    );
                 }
                 let dst = at(next + (i * comps * slab) as u64);
                 self.slab_regions(next_base.wrapping_add(k * block), dst, comps, true, None, &mut regions);
             }
             if let Some(k) = fields.fluence.stored_index(b) {
                 let dst = at(fluence + (i * c * slab) as u64);
-                self.slab_regions(fluence_base.wrapping_add(k * c * BRICK_BYTES as usize), dst, c, true, None, &mut regions);
+                self.slab_regions(
+                    fluence_base.wrapping_add(k * c * BRICK_BYTES as usize),
+                    dst,
+                    c,
+                    true,
+                    None,
+                    &mut regions,
+                );
             }
         }
         regions
@@ -193,7 +219,14 @@ impl SliceLayout {
             }
             if let Some(k) = fields.fluence.stored_index(b) {
                 let src = staging.wrapping_add(fluence + i * c * slab);
-                self.slab_regions(fluence_base.wrapping_add(k * c * BRICK_BYTES as usize), src, c, false, None, &mut regions);
+                self.slab_regions(
+                    fluence_base.wrapping_add(k * c * BRICK_BYTES as usize),
+                    src,
+                    c,
+                    false,
+                    None,
+                    &mut regions,
+                );
             }
         }
         regions
@@ -204,7 +237,15 @@ impl SliceLayout {
     /// when `to_slab`, else back. `half = Some(scale)` (brick → slab only): the slab holds the
     /// values times `scale`, rounded to f16 (2 bytes a voxel, same layout).
     #[allow(clippy::too_many_arguments)]
-    fn slab_regions(&self, brick: *mut u8, slab: *mut u8, components: usize, to_slab: bool, half: Option<f32>, out: &mut Vec<Region>) {
+    fn slab_regions(
+        &self,
+        brick: *mut u8,
+        slab: *mut u8,
+        components: usize,
+        to_slab: bool,
+        half: Option<f32>,
+        out: &mut Vec<Region>,
+    ) {
         debug_assert!(to_slab || half.is_none(), "only the gather converts");
         let (lo, n) = (self.range.slab_lo as usize, self.range.slab_planes as usize);
         let edge = BRICK_EDGE as usize;

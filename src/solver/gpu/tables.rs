@@ -32,11 +32,13 @@ impl SweepTables {
         let offsets: Vec<[i32; 2]> = dirs.iter().flat_map(|d| d.offsets.iter().copied()).collect();
         let offsets_host = dirs.iter().map(|d| d.offsets.clone()).collect();
         let rows: Vec<f32> = dirs.iter().flat_map(|d| d.collect_row.iter().map(|&v| v as f32)).collect();
-        let parts: [&[u8]; 3] = [bytemuck::cast_slice(&gpu_dirs), bytemuck::cast_slice(&offsets), bytemuck::cast_slice(&rows)];
+        let parts: [&[u8]; 3] =
+            [bytemuck::cast_slice(&gpu_dirs), bytemuck::cast_slice(&offsets), bytemuck::cast_slice(&rows)];
 
         let ctx = backend.ctx.clone();
         let total: u64 = parts.iter().map(|p| p.len() as u64).sum();
-        let mut staging = ctx.create_buffer("tables staging", total, vk::BufferUsageFlags::TRANSFER_SRC, MemoryLocation::CpuToGpu)?;
+        let mut staging =
+            ctx.create_buffer("tables staging", total, vk::BufferUsageFlags::TRANSFER_SRC, MemoryLocation::CpuToGpu)?;
         let usage = vk::BufferUsageFlags::STORAGE_BUFFER | vk::BufferUsageFlags::TRANSFER_DST;
         let mut made = Vec::new();
         let mut result = (|| -> Result<(), SolveError> {
@@ -71,7 +73,9 @@ impl SweepTables {
         }
         let mut it = made.into_iter();
         match (it.next(), it.next(), it.next()) {
-            (Some(directions), Some(offsets), Some(rows)) => Ok(SweepTables { directions, offsets, rows, offsets_host }),
+            (Some(directions), Some(offsets), Some(rows)) => {
+                Ok(SweepTables { directions, offsets, rows, offsets_host })
+            }
             _ => Err(SolveError::Internal("table buffers")),
         }
     }
