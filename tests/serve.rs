@@ -1,7 +1,8 @@
 //! `lpm serve` with real processes and a real HTTP client: the API end to end, `kill -9` and restart
 //! (a queued job and a running job both complete, the running one bitwise equal to an uninterrupted
 //! solve), the queue bound and priorities, token and path-confinement refusals, size limits, and
-//! the OpenAPI document against the routes.
+//! the OpenAPI document against the routes, cancelling a running job, retention.
+#![cfg(feature = "service")]
 mod common;
 use common::{lpm_command, temp_dir};
 use std::io::{BufRead, BufReader};
@@ -262,12 +263,7 @@ fn kill_9_and_restart_lose_nothing_and_resume_bitwise() {
     assert!(checkpoint.exists(), "job A has no checkpoint to resume from");
     // Its solve died with the server (PR_SET_PDEATHSIG): no writer is left in its directory.
     std::thread::sleep(Duration::from_millis(500));
-    let orphans = std::fs::read_dir("/proc")
-        .unwrap()
-        .flatten()
-        .filter_map(|e| std::fs::read(e.path().join("cmdline")).ok())
-        .filter(|c| String::from_utf8_lossy(c).contains(&format!("jobs/{a}/scene.toml")))
-        .count();
+    let orphans = processes_naming(&data.canonicalize().unwrap().join(format!("jobs/{a}/scene.toml")));
     assert_eq!(orphans, 0, "the solve of job A outlived its server");
 
     let server = Server::start(&data, &[]);
@@ -443,5 +439,56 @@ fn openapi_document_matches_the_routes() {
         let concrete = r.path.replace("{id}", "1").replace("{name}", "x");
         assert!(lpm::serve::api::route(r.method, &concrete).is_ok(), "{} {}", r.method, r.path);
         assert!(lpm::serve::api::route("PATCH", &concrete).is_err());
+    }
+}
+
+/// Processes whose command line names `path`.
+fn processes_naming(path: &Path) -> usize {
+    let needle = path.to_string_lossy().into_owned();
+    std::fs::read_dir("/proc")
+        .unwrap()
+        .flatten()
+        .filter_map(|e| std::fs::read(e.path().join("cmdline")).ok())
+        .filter(|c| String::from_utf8_lossy(c).contains(&needle))
+        .count()
+}
+
+#[test]
+fn cancel_a_running_job_and_retention() {
+    let dir = temp_dir("serve-cancel");
+    let data = dir.join("data");
+    // Ended jobs are deleted about 7 s after they end.
+    let server = Server::start(&data, &["--retention-hours", "0.002"]);
+    let url = server.url.clone();
+    let (_, a) = submit(&url, LONGER, "?no_image=true");
+    let a = a["id"].as_i64().unwrap();
+    let j = wait_for(&url, a, Duration::from_secs(300), |j| j["order"].as_i64().is_some_and(|o| o >= 1) || ended(j));
+    assert_eq!(j["state"], "running", "the job ended before it could be cancelled: {j}");
+    let (s, r) = call(agent().delete(&format!("{url}/v1/jobs/{a}")).call());
+    assert_eq!(s, 200);
+    assert_eq!(json(r)["state"], "cancelled");
+    // The solve stops (within the worker's poll) and keeps its checkpoint.
+    let scene = data.canonicalize().unwrap().join(format!("jobs/{a}/scene.toml"));
+    let t = Instant::now();
+    while processes_naming(&scene) > 0 {
+        assert!(t.elapsed() < Duration::from_secs(10), "the cancelled solve is still running");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert!(data.join(format!("jobs/{a}/out/.lpm-work/checkpoint.json")).exists(), "the checkpoint was not kept");
+    assert_eq!(job(&url, a, 0.0)["state"], "cancelled");
+    let (s, _) = call(agent().get(&format!("{url}/v1/jobs/{a}/outputs")).call());
+    assert_eq!(s, 409, "a cancelled job has no outputs");
+
+    // Retention: ended jobs (the cancelled one, and a done one) disappear with their files.
+    let (_, b) = submit(&url, TINY, "?no_image=true");
+    let b = b["id"].as_i64().unwrap();
+    assert_eq!(wait_for(&url, b, Duration::from_secs(300), ended)["state"], "done");
+    let t = Instant::now();
+    for id in [a, b] {
+        while call(agent().get(&format!("{url}/v1/jobs/{id}")).call()).0 != 404 {
+            assert!(t.elapsed() < Duration::from_secs(60), "job {id} outlived the retention limit");
+            std::thread::sleep(Duration::from_millis(200));
+        }
+        assert!(!data.join(format!("jobs/{id}")).exists());
     }
 }

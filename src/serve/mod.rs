@@ -149,12 +149,13 @@ impl Shared {
         let _ = std::fs::remove_dir_all(self.job_dir(id));
     }
 
-    /// Deletes ended jobs past the retention limit (at most once a minute).
+    /// Deletes ended jobs past the retention limit (looked at every quarter of the limit, at most
+    /// once a minute).
     pub fn expire_old_jobs(&self) {
         let Some(retention) = self.opts.retention else { return };
         {
             let mut last = self.last_expiry.lock().unwrap_or_else(|p| p.into_inner());
-            if last.is_some_and(|t| t.elapsed() < Duration::from_secs(60)) {
+            if last.is_some_and(|t| t.elapsed() < (retention / 4).min(Duration::from_secs(60))) {
                 return;
             }
             *last = Some(std::time::Instant::now());

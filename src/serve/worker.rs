@@ -25,7 +25,7 @@ pub fn run(shared: Arc<Shared>, device: Option<usize>) {
         shared.expire_old_jobs();
         match shared.db.claim() {
             Ok(Some(job)) => run_job(&shared, job, device),
-            Ok(None) => shared.wait_for_work(Duration::from_secs(1)),
+            Ok(None) => shared.wait_for_work(Duration::from_millis(500)),
             Err(e) => {
                 tracing::error!("job queue: {e}");
                 std::thread::sleep(Duration::from_secs(1));
