@@ -161,7 +161,7 @@ fn api_end_to_end_with_real_clients() {
     assert_eq!(s, 200);
     assert_eq!(json(r)["status"], "ok");
 
-    let (s, created) = submit(&url, TINY, "?priority=2&no_image=true");
+    let (s, created) = submit(&url, TINY, "?priority=2&no_image=true&device_memory_budget=64M");
     assert_eq!(s, 201, "{created}");
     assert_eq!(created["state"], "queued");
     let id = created["id"].as_i64().unwrap();
@@ -183,6 +183,10 @@ fn api_end_to_end_with_real_clients() {
     for f in ["fluence.raw", "source.raw"] {
         assert!(fetch(&url, id, f) == std::fs::read(direct.join(f)).unwrap(), "{f} differs from a direct solve");
     }
+    // The job's own device memory budget reached the solve.
+    assert_eq!(done["device_memory_budget"], 64 << 20);
+    let report: serde_json::Value = serde_json::from_slice(&fetch(&url, id, "report.json")).unwrap();
+    assert_eq!(report["device_memory"]["budget_bytes"], 64 << 20, "{}", report["device_memory"]);
     let (s, r) = call(agent().get(&format!("{url}/v1/jobs/{id}/outputs/secret.txt")).call());
     assert_eq!(s, 404, "{}", r.into_string().unwrap());
     let (s, _) = call(agent().get(&format!("{url}/v1/jobs/{id}/outputs/..%2Flpm.sqlite")).call());
@@ -485,10 +489,12 @@ fn cancel_a_running_job_and_retention() {
     assert_eq!(wait_for(&url, b, Duration::from_secs(300), ended)["state"], "done");
     let t = Instant::now();
     for id in [a, b] {
-        while call(agent().get(&format!("{url}/v1/jobs/{id}")).call()).0 != 404 {
+        // The row goes first, then the files.
+        while call(agent().get(&format!("{url}/v1/jobs/{id}")).call()).0 != 404
+            || data.join(format!("jobs/{id}")).exists()
+        {
             assert!(t.elapsed() < Duration::from_secs(60), "job {id} outlived the retention limit");
             std::thread::sleep(Duration::from_millis(200));
         }
-        assert!(!data.join(format!("jobs/{id}")).exists());
     }
 }
