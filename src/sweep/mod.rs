@@ -52,6 +52,8 @@ pub enum SweepError {
     Manifest { path: PathBuf, message: String },
     #[error("task {task}: {source}")]
     Scene { task: usize, source: SceneError },
+    #[error(transparent)]
+    BaseScene(SceneError),
     #[error("there is no task {task}: the manifest has {count} (0 to {})", .count.saturating_sub(1))]
     NoTask { task: usize, count: usize },
     #[error("task {task}: its scene changed since it was run; remove {} to run it again", .dir.display())]
@@ -138,8 +140,12 @@ impl Sweep {
         let scene_path = base_dir.join(&raw.scene);
         let scene_text = std::fs::read_to_string(&scene_path)
             .map_err(|source| SweepError::Read { path: scene_path.clone(), source })?;
-        let base: toml::Table = toml::from_str(&scene_text)
-            .map_err(|e| SweepError::Scene { task: 0, source: scene_error(&scene_path, e) })?;
+        // A syntax error is worded by the scene loader, as for `lpm solve`.
+        let base: toml::Table =
+            toml::from_str(&scene_text).map_err(|e| match Scene::from_toml_str(&scene_text, &scene_path) {
+                Err(source) => SweepError::BaseScene(source),
+                Ok(_) => SweepError::Manifest { path: scene_path.clone(), message: e.message().to_string() },
+            })?;
         let scene_dir = scene_path.parent().unwrap_or(&base_dir).to_path_buf();
         let dir = base_dir.join(raw.dir.clone().unwrap_or_else(|| {
             PathBuf::from(format!(
@@ -213,16 +219,6 @@ impl Sweep {
             .collect();
         crate::output::write_json_atomic(&self.dir.join("tasks.json"), &list)?;
         Ok(())
-    }
-}
-
-fn scene_error(path: &Path, e: toml::de::Error) -> SceneError {
-    SceneError::Parse {
-        path: path.to_path_buf(),
-        line: None,
-        column: None,
-        key: None,
-        message: e.message().to_string(),
     }
 }
 
