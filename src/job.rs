@@ -156,6 +156,9 @@ pub fn run(job: &SolveJob, progress: impl FnMut(u32, f64)) -> Result<Report, Job
             let _ = std::fs::remove_dir_all(&work);
         }
     }
+    if result.is_err() && !checkpointed {
+        let _ = std::fs::remove_file(&progress_path);
+    }
     if result.is_err() && created_out && !checkpointed {
         let _ = std::fs::remove_dir(&job.out);
     }
