@@ -405,7 +405,7 @@ fn get(shared: &Shared, id: i64, query: &Query) -> Result<Reply, ApiError> {
     let missing = || ApiError::NotFound(format!("no job {id}"));
     let first = shared.db.get(id)?.ok_or_else(missing)?;
     let wait: f64 = query.parse("wait")?.unwrap_or(0.0);
-    if !(wait >= 0.0) {
+    if wait.is_nan() || wait < 0.0 {
         return Err(ApiError::BadRequest("query parameter wait: must be a number of seconds ≥ 0".into()));
     }
     let limit = Duration::from_secs_f64(wait.min(MAX_WAIT_SECONDS));

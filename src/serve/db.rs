@@ -79,7 +79,7 @@ pub struct Claimed {
 }
 
 pub enum Insert {
-    Accepted(Job),
+    Accepted(Box<Job>),
     /// The queue already holds this many queued jobs.
     Full(u64),
 }
@@ -141,7 +141,7 @@ impl Db {
         let id = tx.last_insert_rowid();
         let row = tx.query_row(&format!("SELECT {JOB_COLUMNS} FROM jobs WHERE id = ?1"), [id], job_from_row)?;
         tx.commit()?;
-        Ok(Insert::Accepted(row))
+        Ok(Insert::Accepted(Box::new(row)))
     }
 
     pub fn get(&self, id: i64) -> rusqlite::Result<Option<Job>> {
