@@ -83,6 +83,19 @@ pub struct Report {
     pub outputs: Vec<String>,
 }
 
+/// `progress.json`: the solve's state after its latest order (this run's orders only).
+#[derive(Debug, Serialize)]
+pub struct Progress<'a> {
+    pub order: u32,
+    pub residual: f64,
+    /// The residual after each order of this run, oldest first.
+    pub residuals: &'a [f64],
+    pub max_orders: u32,
+    pub tolerance: f64,
+    /// Seconds since this run started.
+    pub seconds: f64,
+}
+
 #[derive(Debug, Serialize)]
 pub struct Phase {
     pub phase: String,
@@ -104,6 +117,29 @@ pub fn run(job: &SolveJob, progress: impl FnMut(u32, f64)) -> Result<Report, Job
     if !job.resume {
         let _ = std::fs::remove_dir_all(&work);
     }
+    // OUT/progress.json after each order, for programs watching the solve (`lpm serve`): written
+    // atomically, so a reader sees the last complete order or nothing. Best effort: a failed write
+    // only loses progress reporting, never the solve.
+    let progress_path = job.out.join("progress.json");
+    let _ = std::fs::remove_file(&progress_path);
+    let (max_orders, tolerance, started) = (scene.solver.max_orders, scene.solver.tolerance, Instant::now());
+    let mut progress = progress;
+    let mut residuals = Vec::new();
+    let progress = |order: u32, residual: f64| {
+        residuals.push(residual);
+        let _ = output::write_json_atomic(
+            &progress_path,
+            &Progress {
+                order,
+                residual,
+                residuals: &residuals,
+                max_orders,
+                tolerance,
+                seconds: started.elapsed().as_secs_f64(),
+            },
+        );
+        progress(order, residual);
+    };
     let result = run_in(job, &scene, &work, progress);
     let checkpointed = work.join("checkpoint.json").exists();
     match (&result, job.keep_store) {
@@ -119,6 +155,9 @@ pub fn run(job: &SolveJob, progress: impl FnMut(u32, f64)) -> Result<Report, Job
         _ => {
             let _ = std::fs::remove_dir_all(&work);
         }
+    }
+    if result.is_err() && !checkpointed {
+        let _ = std::fs::remove_file(&progress_path);
     }
     if result.is_err() && created_out && !checkpointed {
         let _ = std::fs::remove_dir(&job.out);

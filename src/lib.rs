@@ -25,6 +25,8 @@
 //! | [`compare`] | accuracy figures of one output directory against another (e.g. a solve against a reference) |
 //! | [`job`] | a whole `lpm solve`: scene → store → solve → exported fields, image, report; checkpoints and resume |
 //! | [`bench`] | `lpm bench`: the profiled stream (JSON) and the time-against-error study |
+//! | `serve` | `lpm serve`: the HTTP job server, its durable SQLite queue and the `submit`/`status`/`fetch` client (cargo feature `service`, on by default) |
+//! | [`sweep`] | `lpm sweep`: frames and parameter sweeps as numbered tasks, one task per run, Slurm array scripts |
 //! | [`plot`] | small dependency-free plots (log/linear axes, series, legend) written as SVG and PNG, with an embedded bitmap font |
 //!
 //! The binary (`src/main.rs`) is a thin CLI over [`job`], [`reference::job`], [`compare`], [`bench`]
@@ -52,6 +54,9 @@ pub mod quadrature;
 pub mod reference;
 pub mod render;
 pub mod scene;
+#[cfg(feature = "service")]
+pub mod serve;
 pub mod solver;
 pub mod store;
+pub mod sweep;
 pub mod vk;

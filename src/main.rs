@@ -28,11 +28,16 @@ struct Cli {
 enum Command {
     /// Solve a scene: writes fluence.*, source.*, image.exr, image.png and report.json to --out.
     Solve {
-        /// The scene file (TOML).
+        /// The scene file (TOML); with --task, a sweep manifest.
         scene: PathBuf,
         /// Output directory (created if missing; existing outputs are replaced atomically).
-        #[arg(long, short)]
-        out: PathBuf,
+        #[arg(long, short, required_unless_present = "task")]
+        out: Option<PathBuf>,
+        /// Run task N of the sweep manifest SCENE into its own directory (see `lpm sweep`); without
+        /// a value, N is taken from SLURM_ARRAY_TASK_ID. Safe to re-run (a done task is skipped, a
+        /// killed one resumes from its checkpoint) and to run concurrently.
+        #[arg(long, num_args = 0..=1, default_missing_value = "slurm", conflicts_with_all = ["out", "resume"])]
+        task: Option<String>,
         /// Where the sweeps run: the Vulkan device, or the f64 CPU twin (a reference for small volumes).
         #[arg(long, value_enum, default_value_t = Backend::Gpu)]
         backend: Backend,
@@ -103,6 +108,101 @@ enum Command {
         #[command(subcommand)]
         what: BenchCommand,
     },
+    /// Expand a sweep manifest (frames and/or parameters) into numbered tasks, each in its own
+    /// directory; write a Slurm array script (--slurm), submit it (--submit), or summarise the
+    /// tasks' states (--status). See README, "Cluster jobs with Slurm".
+    Sweep {
+        /// The manifest (TOML).
+        manifest: PathBuf,
+        /// Write DIR/sweep.sbatch, an `sbatch --array` script running one task per array index.
+        #[arg(long)]
+        slurm: bool,
+        /// Also submit the script with sbatch (implies --slurm).
+        #[arg(long)]
+        submit: bool,
+        /// Summarise done / running / interrupted / failed / pending tasks from their directories.
+        #[arg(long, conflicts_with_all = ["slurm", "submit"])]
+        status: bool,
+    },
+    /// Run the job server: an HTTP/JSON API under /v1 with a durable queue (see README, "Running
+    /// lpm as a service").
+    #[cfg(feature = "service")]
+    Serve {
+        /// Address to listen on. Any non-loopback address needs a token.
+        #[arg(long, default_value = "127.0.0.1:8417")]
+        listen: std::net::SocketAddr,
+        /// The data root: the queue, the jobs' directories, uploaded volumes. Scenes may name
+        /// volumes only under it.
+        #[arg(long, default_value = "lpm-data")]
+        data: PathBuf,
+        /// File holding the bearer token clients must send (else the LPM_SERVE_TOKEN variable).
+        #[arg(long)]
+        token_file: Option<PathBuf>,
+        /// Vulkan device indices to run jobs on, comma-separated (default: the solve's default device).
+        #[arg(long, value_delimiter = ',')]
+        devices: Vec<usize>,
+        /// Jobs run at once per device (0: accept and queue jobs but run none, e.g. while the GPU is serviced).
+        #[arg(long, default_value_t = 1)]
+        workers: usize,
+        /// Most jobs waiting; more are refused with 503 and Retry-After.
+        #[arg(long, default_value_t = 256)]
+        max_queued: u64,
+        /// Largest scene accepted (K/M/G suffixes).
+        #[arg(long, default_value = "1M", value_parser = parse_budget)]
+        max_body: u64,
+        /// Largest volume upload accepted (K/M/G suffixes).
+        #[arg(long, default_value = "4G", value_parser = parse_budget)]
+        max_upload: u64,
+        /// Device memory budget of jobs that name none.
+        #[arg(long, value_parser = parse_budget)]
+        device_memory_budget: Option<u64>,
+        /// Delete ended jobs (and their outputs) this many hours after they end.
+        #[arg(long)]
+        retention_hours: Option<f64>,
+    },
+    /// Submit a scene to a server; prints the job's id (with --wait, waits until it ends).
+    #[cfg(feature = "service")]
+    Submit {
+        scene: PathBuf,
+        #[command(flatten)]
+        server: ServerArgs,
+        /// Higher runs first.
+        #[arg(long, default_value_t = 0)]
+        priority: i64,
+        /// Device memory budget of this job (K/M/G suffixes).
+        #[arg(long)]
+        device_memory_budget: Option<String>,
+        #[arg(long)]
+        no_image: bool,
+        #[arg(long)]
+        no_fields: bool,
+        /// Wait until the job ends; exit 1 unless it is done.
+        #[arg(long)]
+        wait: bool,
+    },
+    /// Print a job's state as JSON (all jobs without ID); --cancel cancels it.
+    #[cfg(feature = "service")]
+    Status {
+        id: Option<i64>,
+        #[command(flatten)]
+        server: ServerArgs,
+        /// Hold until the job changes, at most this many seconds.
+        #[arg(long)]
+        wait: Option<f64>,
+        /// Cancel the job (a running solve stops and keeps its checkpoint); an ended job is deleted.
+        #[arg(long, requires = "id")]
+        cancel: bool,
+    },
+    /// Download a done job's outputs (all, or the NAMEs given) into --out.
+    #[cfg(feature = "service")]
+    Fetch {
+        id: i64,
+        names: Vec<String>,
+        #[command(flatten)]
+        server: ServerArgs,
+        #[arg(long, short)]
+        out: PathBuf,
+    },
     /// Print what a solve wrote to DIR: the plan, orders, residual, energy balance and the fields.
     Info {
         /// An output directory of `lpm solve`.
@@ -111,6 +211,33 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+}
+
+#[cfg(feature = "service")]
+#[derive(clap::Args)]
+struct ServerArgs {
+    /// The server's URL.
+    #[arg(long, env = "LPM_SERVER", default_value = "http://127.0.0.1:8417")]
+    server: String,
+    /// File holding the bearer token (else the LPM_TOKEN variable).
+    #[arg(long)]
+    token_file: Option<PathBuf>,
+}
+
+#[cfg(feature = "service")]
+impl ServerArgs {
+    fn client(&self) -> Result<lpm::serve::client::Client> {
+        let token = match &self.token_file {
+            Some(f) => Some(
+                std::fs::read_to_string(f)
+                    .with_context(|| format!("cannot read the token file {}", f.display()))?
+                    .trim()
+                    .to_string(),
+            ),
+            None => std::env::var("LPM_TOKEN").ok(),
+        };
+        Ok(lpm::serve::client::Client::new(&self.server, token))
+    }
 }
 
 #[derive(Subcommand)]
@@ -221,6 +348,7 @@ fn run(cli: Cli) -> Result<()> {
             no_fields,
             device_memory_budget,
             resume,
+            task,
         } => {
             let mut vk = ContextOptions::default();
             if let Some(v) = validation {
@@ -229,6 +357,25 @@ fn run(cli: Cli) -> Result<()> {
             if device.is_some() {
                 vk.device_index = device;
             }
+            let backend_kind = match backend {
+                Backend::Gpu => BackendKind::Gpu,
+                Backend::Cpu => BackendKind::Cpu,
+            };
+            if let Some(task) = task {
+                let template = SolveJob {
+                    scene: scene.clone(),
+                    out: PathBuf::new(),
+                    backend: backend_kind,
+                    vk,
+                    keep_store,
+                    no_image,
+                    no_fields,
+                    device_memory_budget,
+                    resume: false,
+                };
+                return run_task(&scene, &task, &template);
+            }
+            let Some(out) = out else { bail!("--out is required") };
             let job = SolveJob {
                 scene,
                 out: out.clone(),
@@ -272,6 +419,84 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Info { dir, json } => info(&dir, json),
+        Command::Sweep { manifest, slurm, submit, status } => sweep(&manifest, slurm, submit, status),
+        #[cfg(feature = "service")]
+        Command::Serve {
+            listen,
+            data,
+            token_file,
+            devices,
+            workers,
+            max_queued,
+            max_body,
+            max_upload,
+            device_memory_budget,
+            retention_hours,
+        } => {
+            let mut opts = lpm::serve::ServeOptions::new(listen, data);
+            opts.token = lpm::serve::load_token(token_file.as_deref()).map_err(anyhow::Error::msg)?;
+            opts.devices = devices;
+            opts.workers_per_device = workers;
+            opts.max_queued = max_queued;
+            opts.max_body_bytes = max_body;
+            opts.max_upload_bytes = max_upload;
+            opts.device_memory_budget = device_memory_budget;
+            if let Some(h) = retention_hours {
+                if !(h.is_finite() && h > 0.0) {
+                    bail!("--retention-hours must be a positive number of hours, got {h}");
+                }
+                opts.retention = Some(std::time::Duration::from_secs_f64(h * 3600.0));
+            }
+            lpm::serve::serve(opts)?;
+            Ok(())
+        }
+        #[cfg(feature = "service")]
+        Command::Submit { scene, server, priority, device_memory_budget, no_image, no_fields, wait } => {
+            let client = server.client()?;
+            let mut query = vec![("priority", priority.to_string())];
+            if let Some(b) = device_memory_budget {
+                query.push(("device_memory_budget", b));
+            }
+            if no_image {
+                query.push(("no_image", "true".into()));
+            }
+            if no_fields {
+                query.push(("no_fields", "true".into()));
+            }
+            let job = client.submit(&scene, &query)?;
+            let id = job["id"].as_i64().context("the server answered without a job id")?;
+            println!("{id}");
+            if wait {
+                let job = client.wait_ended(id, |j| {
+                    tracing::info!(
+                        "job {id}: {} order {} residual {}",
+                        j["state"].as_str().unwrap_or("?"),
+                        j["order"],
+                        j["residual"]
+                    )
+                })?;
+                if job["state"] != "done" {
+                    bail!("job {id} {}: {}", job["state"].as_str().unwrap_or("?"), job["error"].as_str().unwrap_or(""));
+                }
+            }
+            Ok(())
+        }
+        #[cfg(feature = "service")]
+        Command::Status { id, server, wait, cancel } => {
+            let client = server.client()?;
+            let value = match (id, cancel) {
+                (Some(id), true) => client.cancel(id)?,
+                _ => client.status(id, wait)?,
+            };
+            println!("{}", serde_json::to_string_pretty(&value)?);
+            Ok(())
+        }
+        #[cfg(feature = "service")]
+        Command::Fetch { id, names, server, out } => {
+            let written = server.client()?.fetch(id, &out, &names)?;
+            println!("fetched {} into {}", written.join(", "), out.display());
+            Ok(())
+        }
         Command::Reference { scene, out, samples, seed, image_spp, threads } => {
             let job = lpm::reference::job::ReferenceJob {
                 scene,
@@ -384,6 +609,54 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
     }
+}
+
+fn run_task(manifest: &std::path::Path, task: &str, template: &SolveJob) -> Result<()> {
+    let index: usize = if task == "slurm" {
+        let v = std::env::var("SLURM_ARRAY_TASK_ID")
+            .context("--task without a number needs SLURM_ARRAY_TASK_ID (set by Slurm in an array job)")?;
+        v.parse().with_context(|| format!("SLURM_ARRAY_TASK_ID is not a task number: {v:?}"))?
+    } else {
+        task.parse().with_context(|| format!("--task: not a task number: {task:?}"))?
+    };
+    let sweep = lpm::sweep::Sweep::load(manifest)?;
+    let dir = lpm::sweep::task_dir(&sweep.dir, index);
+    match lpm::sweep::task::run(&sweep, index, template)? {
+        lpm::sweep::task::RunOutcome::AlreadyDone => println!("task {index} is already done: {}", dir.display()),
+        lpm::sweep::task::RunOutcome::Solved { orders, resumed } => println!(
+            "task {index} solved in {orders} orders{}; outputs in {}",
+            if resumed { " (resumed from its checkpoint)" } else { "" },
+            dir.join("out").display()
+        ),
+    }
+    Ok(())
+}
+
+fn sweep(manifest: &std::path::Path, slurm: bool, submit: bool, status: bool) -> Result<()> {
+    let sweep = lpm::sweep::Sweep::load(manifest)?;
+    if status {
+        let mut counts = std::collections::BTreeMap::new();
+        for t in &sweep.tasks {
+            let (state, error) = lpm::sweep::task::state(&sweep, t.index);
+            *counts.entry(state).or_insert(0usize) += 1;
+            println!("task {:>4}  {:<11} {}", t.index, state.name(), error.unwrap_or_default());
+        }
+        let summary: Vec<String> = counts.iter().map(|(s, n)| format!("{n} {}", s.name())).collect();
+        println!("{} tasks: {}", sweep.tasks.len(), summary.join(", "));
+        return Ok(());
+    }
+    sweep.write()?;
+    println!("{} tasks in {}", sweep.tasks.len(), sweep.dir.display());
+    if slurm || submit {
+        let exe = std::env::current_exe().context("cannot find the lpm executable")?;
+        let script = lpm::sweep::slurm::write_script(&sweep, &exe)?;
+        println!("wrote {}", script.display());
+        if submit {
+            let id = lpm::sweep::slurm::submit(&script)?;
+            println!("submitted Slurm job {id}");
+        }
+    }
+    Ok(())
 }
 
 fn parse_budget(text: &str) -> Result<u64, String> {

@@ -4,7 +4,10 @@
 # glslang/spirv-tools to compile the shaders. Sourced by demo.sh and test.sh.
 set -euo pipefail
 
-packages=(libvulkan1 mesa-vulkan-drivers vulkan-validationlayers glslang-tools spirv-tools)
+# `lpm serve` links the system SQLite (libsqlite3-dev, pkg-config); the Slurm array test starts a
+# single-node slurmctld + slurmd (slurm-wlm) authenticated by munge.
+packages=(libvulkan1 mesa-vulkan-drivers vulkan-validationlayers glslang-tools spirv-tools
+    libsqlite3-dev pkg-config slurm-wlm munge)
 missing=()
 for p in "${packages[@]}"; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -1,0 +1,488 @@
+//! The HTTP API under `/v1`: the route table, request parsing and the handlers.
+//!
+//! [`ROUTES`] is the one list of what the server answers; the dispatcher matches requests against
+//! it and a test checks it against the OpenAPI document (`openapi.json`) both ways. Handlers return
+//! `Result<Reply, ApiError>`; [`ApiError::status`] is the one place errors become status codes, and
+//! every error body is `{"error": "<one line>"}`.
+
+use super::confine::{self, ConfineError};
+use super::db::{self, Cancel, Insert};
+use super::Shared;
+use crate::scene::Scene;
+use std::io::Read;
+use std::path::Path;
+use std::time::{Duration, Instant};
+use tiny_http::{Header, Request, Response};
+
+/// What a route does.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Handler {
+    Health,
+    OpenApi,
+    Submit,
+    List,
+    Get,
+    Cancel,
+    Outputs,
+    Output,
+    Upload,
+}
+
+/// One route: method, path pattern (`{name}` matches one path segment) and handler.
+pub struct Route {
+    pub method: &'static str,
+    pub path: &'static str,
+    pub handler: Handler,
+}
+
+/// Every route the server answers.
+pub const ROUTES: &[Route] = &[
+    Route { method: "GET", path: "/v1/health", handler: Handler::Health },
+    Route { method: "GET", path: "/v1/openapi.json", handler: Handler::OpenApi },
+    Route { method: "POST", path: "/v1/jobs", handler: Handler::Submit },
+    Route { method: "GET", path: "/v1/jobs", handler: Handler::List },
+    Route { method: "GET", path: "/v1/jobs/{id}", handler: Handler::Get },
+    Route { method: "DELETE", path: "/v1/jobs/{id}", handler: Handler::Cancel },
+    Route { method: "GET", path: "/v1/jobs/{id}/outputs", handler: Handler::Outputs },
+    Route { method: "GET", path: "/v1/jobs/{id}/outputs/{name}", handler: Handler::Output },
+    Route { method: "PUT", path: "/v1/volumes/{name}", handler: Handler::Upload },
+];
+
+/// The OpenAPI 3 document served at `/v1/openapi.json`.
+pub const OPENAPI: &str = include_str!("openapi.json");
+
+/// Every way a request fails.
+#[derive(Debug, thiserror::Error)]
+pub enum ApiError {
+    #[error("{0}")]
+    BadRequest(String),
+    #[error("missing or wrong token: send `Authorization: Bearer <token>`")]
+    Unauthorized,
+    #[error("{0}")]
+    NotFound(String),
+    #[error("{method} is not allowed on {path}")]
+    MethodNotAllowed { method: String, path: String },
+    #[error("{0}")]
+    Conflict(String),
+    #[error("the request body is larger than the limit of {0} bytes")]
+    TooLarge(u64),
+    #[error("{0}")]
+    UnsupportedMediaType(String),
+    #[error("the queue is full ({0} jobs waiting): try again later")]
+    QueueFull(u64),
+    #[error("{0}")]
+    Internal(String),
+}
+
+impl ApiError {
+    pub fn status(&self) -> u16 {
+        match self {
+            ApiError::BadRequest(_) => 400,
+            ApiError::Unauthorized => 401,
+            ApiError::NotFound(_) => 404,
+            ApiError::MethodNotAllowed { .. } => 405,
+            ApiError::Conflict(_) => 409,
+            ApiError::TooLarge(_) => 413,
+            ApiError::UnsupportedMediaType(_) => 415,
+            ApiError::QueueFull(_) => 503,
+            ApiError::Internal(_) => 500,
+        }
+    }
+
+    fn into_reply(self) -> Reply {
+        let mut reply = Reply::json(self.status(), &serde_json::json!({ "error": self.to_string() }));
+        if let ApiError::QueueFull(_) = self {
+            reply.headers.push(header("Retry-After", &RETRY_AFTER_SECONDS.to_string()));
+        }
+        if let ApiError::Unauthorized = self {
+            reply.headers.push(header("WWW-Authenticate", "Bearer"));
+        }
+        reply
+    }
+}
+
+impl From<rusqlite::Error> for ApiError {
+    fn from(e: rusqlite::Error) -> Self {
+        ApiError::Internal(format!("job queue: {e}"))
+    }
+}
+
+/// What a client is told to wait before retrying when the queue is full.
+pub const RETRY_AFTER_SECONDS: u32 = 30;
+
+/// The longest a long poll (`GET /v1/jobs/{id}?wait=S`) is held.
+pub const MAX_WAIT_SECONDS: f64 = 60.0;
+
+pub struct Reply {
+    status: u16,
+    headers: Vec<Header>,
+    body: Body,
+}
+
+enum Body {
+    Bytes(Vec<u8>),
+    File(std::fs::File),
+}
+
+fn header(name: &str, value: &str) -> Header {
+    // Names and values here are ASCII chosen by this module, never by a client.
+    Header::from_bytes(name.as_bytes(), value.as_bytes()).expect("ASCII header")
+}
+
+impl Reply {
+    fn json(status: u16, value: &impl serde::Serialize) -> Reply {
+        let mut body = serde_json::to_vec_pretty(value).unwrap_or_default();
+        body.push(b'\n');
+        Reply { status, headers: vec![header("Content-Type", "application/json")], body: Body::Bytes(body) }
+    }
+}
+
+/// Answers one request (called on its own thread).
+pub fn handle(shared: &Shared, mut request: Request) {
+    let reply = match respond(shared, &mut request) {
+        Ok(reply) => reply,
+        Err(e) => e.into_reply(),
+    };
+    let result = match reply.body {
+        Body::Bytes(bytes) => {
+            let mut r = Response::from_data(bytes).with_status_code(reply.status);
+            for h in reply.headers {
+                r.add_header(h);
+            }
+            request.respond(r)
+        }
+        Body::File(file) => {
+            let mut r = Response::from_file(file).with_status_code(reply.status);
+            for h in reply.headers {
+                r.add_header(h);
+            }
+            request.respond(r)
+        }
+    };
+    if let Err(e) = result {
+        tracing::debug!("cannot send a reply: {e}");
+    }
+}
+
+fn respond(shared: &Shared, request: &mut Request) -> Result<Reply, ApiError> {
+    let url = request.url().to_string();
+    let (path, query) = url.split_once('?').unwrap_or((&url, ""));
+    let method = request.method().as_str().to_string();
+    let (handler, params) = route(&method, path)?;
+    if handler != Handler::Health {
+        authorize(shared, request)?;
+    }
+    let query = Query(query);
+    let id = || -> Result<i64, ApiError> {
+        params[0].parse().map_err(|_| ApiError::NotFound(format!("no job {}", params[0])))
+    };
+    match handler {
+        Handler::Health => health(shared),
+        Handler::OpenApi => Ok(Reply {
+            status: 200,
+            headers: vec![header("Content-Type", "application/json")],
+            body: Body::Bytes(OPENAPI.as_bytes().to_vec()),
+        }),
+        Handler::Submit => submit(shared, request, &query),
+        Handler::List => Ok(Reply::json(200, &serde_json::json!({ "jobs": shared.db.list()? }))),
+        Handler::Get => get(shared, id()?, &query),
+        Handler::Cancel => cancel(shared, id()?),
+        Handler::Outputs => Ok(Reply::json(200, &serde_json::json!({ "outputs": outputs(shared, id()?)? }))),
+        Handler::Output => output(shared, id()?, &params[1]),
+        Handler::Upload => upload(shared, request, &params[0]),
+    }
+}
+
+/// The route for `method` and `path`, and the values of its `{…}` segments.
+pub fn route(method: &str, path: &str) -> Result<(Handler, Vec<String>), ApiError> {
+    let segments: Vec<&str> = path.trim_end_matches('/').split('/').collect();
+    let mut path_known = false;
+    for r in ROUTES {
+        let pattern: Vec<&str> = r.path.split('/').collect();
+        if pattern.len() != segments.len() {
+            continue;
+        }
+        let mut params = Vec::new();
+        let matched = pattern.iter().zip(&segments).all(|(p, s)| {
+            if p.starts_with('{') {
+                params.push(percent_decode(s));
+                !s.is_empty()
+            } else {
+                p == s
+            }
+        });
+        if matched {
+            path_known = true;
+            if r.method == method {
+                return Ok((r.handler, params));
+            }
+        }
+    }
+    if path_known {
+        Err(ApiError::MethodNotAllowed { method: method.to_string(), path: path.to_string() })
+    } else {
+        Err(ApiError::NotFound(format!("no such endpoint: {path}")))
+    }
+}
+
+fn percent_decode(s: &str) -> String {
+    let bytes = s.as_bytes();
+    let mut out = Vec::with_capacity(bytes.len());
+    let mut i = 0;
+    while i < bytes.len() {
+        if bytes[i] == b'%' && i + 2 < bytes.len() {
+            if let Some(b) = std::str::from_utf8(&bytes[i + 1..i + 3]).ok().and_then(|h| u8::from_str_radix(h, 16).ok())
+            {
+                out.push(b);
+                i += 3;
+                continue;
+            }
+        }
+        out.push(bytes[i]);
+        i += 1;
+    }
+    String::from_utf8_lossy(&out).into_owned()
+}
+
+struct Query<'a>(&'a str);
+
+impl Query<'_> {
+    fn get(&self, key: &str) -> Option<String> {
+        self.0
+            .split('&')
+            .filter_map(|kv| kv.split_once('=').or(Some((kv, ""))))
+            .find(|(k, _)| *k == key)
+            .map(|(_, v)| percent_decode(v))
+    }
+
+    fn parse<T: std::str::FromStr>(&self, key: &str) -> Result<Option<T>, ApiError> {
+        self.get(key)
+            .map(|v| v.parse().map_err(|_| ApiError::BadRequest(format!("query parameter {key}: cannot parse {v:?}"))))
+            .transpose()
+    }
+
+    fn flag(&self, key: &str) -> Result<bool, ApiError> {
+        match self.get(key).as_deref() {
+            None | Some("false") | Some("0") => Ok(false),
+            Some("") | Some("true") | Some("1") => Ok(true),
+            Some(v) => Err(ApiError::BadRequest(format!("query parameter {key}: expected true or false, got {v:?}"))),
+        }
+    }
+}
+
+fn authorize(shared: &Shared, request: &Request) -> Result<(), ApiError> {
+    let Some(token) = &shared.opts.token else { return Ok(()) };
+    let sent = request
+        .headers()
+        .iter()
+        .find(|h| h.field.equiv("Authorization"))
+        .and_then(|h| h.value.as_str().strip_prefix("Bearer ").map(str::trim).map(str::to_string));
+    match sent {
+        Some(sent) if constant_time_eq(sent.as_bytes(), token.as_bytes()) => Ok(()),
+        _ => Err(ApiError::Unauthorized),
+    }
+}
+
+/// Compares without stopping at the first difference, so timing does not reveal the token.
+fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+fn read_body(request: &mut Request, limit: u64) -> Result<Vec<u8>, ApiError> {
+    if request.body_length().is_some_and(|n| n as u64 > limit) {
+        return Err(ApiError::TooLarge(limit));
+    }
+    let mut body = Vec::new();
+    request
+        .as_reader()
+        .take(limit + 1)
+        .read_to_end(&mut body)
+        .map_err(|e| ApiError::BadRequest(format!("cannot read the request body: {e}")))?;
+    if body.len() as u64 > limit {
+        return Err(ApiError::TooLarge(limit));
+    }
+    Ok(body)
+}
+
+fn content_type(request: &Request) -> String {
+    request
+        .headers()
+        .iter()
+        .find(|h| h.field.equiv("Content-Type"))
+        .map(|h| h.value.as_str().split(';').next().unwrap_or("").trim().to_ascii_lowercase())
+        .unwrap_or_default()
+}
+
+fn health(shared: &Shared) -> Result<Reply, ApiError> {
+    let counts: serde_json::Map<String, serde_json::Value> =
+        shared.db.counts()?.into_iter().map(|(k, v)| (k, v.into())).collect();
+    Ok(Reply::json(200, &serde_json::json!({ "status": "ok", "version": env!("CARGO_PKG_VERSION"), "jobs": counts })))
+}
+
+/// Validates a scene sent by a client as the CLI would (`lpm solve scene.toml`), with its volume
+/// path confined to the data root and made absolute. Returns the text the solve will read.
+pub fn prepare_scene(data: &Path, text: &str) -> Result<(String, Scene), ApiError> {
+    let mut value: toml::Table = match toml::from_str(text) {
+        Ok(v) => v,
+        // Let the scene loader word the syntax error, exactly as the CLI does.
+        Err(_) => {
+            return match validate(text) {
+                Err(e) => Err(e),
+                Ok(_) => Err(ApiError::BadRequest("scene.toml: not a TOML table".into())),
+            }
+        }
+    };
+    let Some(toml::Value::Table(volume)) = value.get_mut("volume") else { return validate(text) };
+    {
+        let Some(toml::Value::String(raw)) = volume.get("raw") else { return validate(text) };
+        {
+            let real = confine::confine(data, Path::new(raw)).map_err(|e| match e {
+                ConfineError::Unresolvable { path, reason } => {
+                    ApiError::BadRequest(format!("scene.toml: volume.raw: {path}: {reason}"))
+                }
+                e => ApiError::BadRequest(format!("scene.toml: volume.raw: {e}")),
+            })?;
+            let real = real
+                .to_str()
+                .ok_or_else(|| ApiError::BadRequest("scene.toml: volume.raw: the path is not UTF-8".into()))?
+                .to_string();
+            volume.insert("raw".into(), toml::Value::String(real));
+        }
+    }
+    // Written anew with the confined absolute path (positions in a later message refer to this text).
+    let text = toml::to_string(&value).map_err(|e| ApiError::Internal(format!("cannot write the scene: {e}")))?;
+    validate(&text)
+}
+
+/// The scene as `lpm solve scene.toml` would load it: the same checks, the same message.
+fn validate(text: &str) -> Result<(String, Scene), ApiError> {
+    let scene = Scene::from_toml_str(text, Path::new("scene.toml")).map_err(|e| ApiError::BadRequest(e.to_string()))?;
+    Ok((text.to_string(), scene))
+}
+
+fn submit(shared: &Shared, request: &mut Request, query: &Query) -> Result<Reply, ApiError> {
+    let kind = content_type(request);
+    if !matches!(kind.as_str(), "application/toml" | "text/toml") {
+        return Err(ApiError::UnsupportedMediaType(format!(
+            "send the scene as Content-Type: application/toml (got {:?}); upload a volume first with PUT /v1/volumes/{{name}} and name it in volume.raw",
+            kind
+        )));
+    }
+    let body = read_body(request, shared.opts.max_body_bytes)?;
+    let text =
+        String::from_utf8(body).map_err(|_| ApiError::BadRequest("scene.toml: the scene is not UTF-8".into()))?;
+    let (scene_text, scene) = prepare_scene(&shared.data, &text)?;
+    let device_memory_budget = match query.get("device_memory_budget") {
+        None => None,
+        Some(v) => Some(match crate::scene::validate::parse_byte_size(&v) {
+            Ok(0) => return Err(ApiError::BadRequest("device_memory_budget: must be more than 0 bytes".into())),
+            Ok(n) => n,
+            Err(e) => return Err(ApiError::BadRequest(format!("device_memory_budget: {e}"))),
+        }),
+    };
+    let job = db::NewJob {
+        scene: scene_text,
+        priority: query.parse("priority")?.unwrap_or(0),
+        device_memory_budget,
+        no_image: query.flag("no_image")?,
+        no_fields: query.flag("no_fields")?,
+        max_orders: scene.solver.max_orders,
+    };
+    match shared.db.insert(&job, shared.opts.max_queued)? {
+        Insert::Accepted(job) => {
+            shared.notify();
+            tracing::info!("job {}: queued (priority {})", job.id, job.priority);
+            let mut reply = Reply::json(201, &serde_json::json!({ "id": job.id, "state": job.state }));
+            reply.headers.push(header("Location", &format!("/v1/jobs/{}", job.id)));
+            Ok(reply)
+        }
+        Insert::Full(n) => Err(ApiError::QueueFull(n)),
+    }
+}
+
+/// The job; with `?wait=S`, held until its state or order changes (at most S seconds).
+fn get(shared: &Shared, id: i64, query: &Query) -> Result<Reply, ApiError> {
+    let missing = || ApiError::NotFound(format!("no job {id}"));
+    let first = shared.db.get(id)?.ok_or_else(missing)?;
+    let wait: f64 = query.parse("wait")?.unwrap_or(0.0);
+    if wait.is_nan() || wait < 0.0 {
+        return Err(ApiError::BadRequest("query parameter wait: must be a number of seconds ≥ 0".into()));
+    }
+    let limit = Duration::from_secs_f64(wait.min(MAX_WAIT_SECONDS));
+    let t = Instant::now();
+    let mut job = first.clone();
+    while t.elapsed() < limit && job.state == first.state && job.order == first.order {
+        shared.wait_for_change(limit.saturating_sub(t.elapsed()).min(Duration::from_millis(250)));
+        job = shared.db.get(id)?.ok_or_else(missing)?;
+    }
+    Ok(Reply::json(200, &job))
+}
+
+fn cancel(shared: &Shared, id: i64) -> Result<Reply, ApiError> {
+    match shared.db.cancel(id)? {
+        Cancel::Cancelled(job) => {
+            shared.notify();
+            tracing::info!("job {id}: cancel requested");
+            Ok(Reply::json(200, &job))
+        }
+        // An ended job: DELETE removes it and its files.
+        Cancel::Ended(job) => {
+            shared.db.delete(id)?;
+            shared.remove_job_files(id);
+            tracing::info!("job {id}: deleted");
+            Ok(Reply::json(200, &serde_json::json!({ "id": job.id, "state": "deleted" })))
+        }
+        Cancel::Missing => Err(ApiError::NotFound(format!("no job {id}"))),
+    }
+}
+
+/// The files the finished solve wrote (the names in its report.json, and report.json).
+fn outputs(shared: &Shared, id: i64) -> Result<Vec<String>, ApiError> {
+    let job = shared.db.get(id)?.ok_or_else(|| ApiError::NotFound(format!("no job {id}")))?;
+    if job.state != "done" {
+        return Err(ApiError::Conflict(format!("job {id} is {}: outputs are there once it is done", job.state)));
+    }
+    let path = shared.job_dir(id).join("out/report.json");
+    let report: serde_json::Value = std::fs::read(&path)
+        .ok()
+        .and_then(|b| serde_json::from_slice(&b).ok())
+        .ok_or_else(|| ApiError::Internal(format!("job {id}: cannot read its report.json")))?;
+    let mut names: Vec<String> =
+        report["outputs"].as_array().into_iter().flatten().filter_map(|v| v.as_str().map(String::from)).collect();
+    if !names.iter().any(|n| n == "report.json") {
+        names.push("report.json".into());
+    }
+    Ok(names)
+}
+
+fn output(shared: &Shared, id: i64, name: &str) -> Result<Reply, ApiError> {
+    let names = outputs(shared, id)?;
+    if !names.iter().any(|n| n == name) {
+        return Err(ApiError::NotFound(format!("job {id} has no output {name:?} (it has {})", names.join(", "))));
+    }
+    let path = shared.job_dir(id).join("out").join(name);
+    let file = std::fs::File::open(&path).map_err(|e| ApiError::Internal(format!("job {id}: {name}: {e}")))?;
+    let kind = match Path::new(name).extension().and_then(|e| e.to_str()) {
+        Some("json") => "application/json",
+        Some("png") => "image/png",
+        Some("nhdr") => "text/plain",
+        _ => "application/octet-stream",
+    };
+    Ok(Reply { status: 200, headers: vec![header("Content-Type", kind)], body: Body::File(file) })
+}
+
+/// Stores a volume file as `DATA/volumes/NAME` (atomically) for scenes to name in `volume.raw`.
+fn upload(shared: &Shared, request: &mut Request, name: &str) -> Result<Reply, ApiError> {
+    if !confine::plain_name(name) {
+        return Err(ApiError::BadRequest(format!(
+            "volume name {name:?}: use letters, digits, '.', '_' and '-' only, not starting with '.'"
+        )));
+    }
+    let body = read_body(request, shared.opts.max_upload_bytes)?;
+    let dir = shared.data.join("volumes");
+    std::fs::create_dir_all(&dir).map_err(|e| ApiError::Internal(format!("cannot create {}: {e}", dir.display())))?;
+    let path = dir.join(name);
+    crate::output::write_atomic(&path, |w| std::io::Write::write_all(w, &body))
+        .map_err(|e| ApiError::Internal(e.to_string()))?;
+    Ok(Reply::json(201, &serde_json::json!({ "path": format!("volumes/{name}"), "bytes": body.len() })))
+}

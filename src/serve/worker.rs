@@ -1,0 +1,209 @@
+//! The workers: each takes the next queued job and runs it as a child `lpm solve` process (the same
+//! executable) into the job's directory, `DATA/jobs/ID/out`, with `--resume` when a checkpoint is
+//! there.
+//!
+//! Why a child process rather than a thread: a solve owns a Vulkan device, memory maps and possibly
+//! gigabytes of host memory; as a process it can be stopped at any moment (cancel) without leaving
+//! the server in an unknown state, and a crash or out-of-memory kill of one solve takes down neither
+//! the server nor the other jobs. The child is told to die with its parent (`PR_SET_PDEATHSIG`), so a
+//! server killed with `kill -9` leaves no orphan solving into a directory the next server will use.
+//! The solve checkpoints after every order; a job stopped for any reason resumes from there, to
+//! bitwise the result an uninterrupted solve gives.
+
+use super::{db, Shared};
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::sync::Arc;
+use std::time::Duration;
+
+/// How often a running job's progress file and state are looked at.
+const POLL: Duration = Duration::from_millis(100);
+
+/// Runs jobs until the process ends. `device` is passed to the solve as `--device`.
+pub fn run(shared: Arc<Shared>, device: Option<usize>) {
+    loop {
+        shared.expire_old_jobs();
+        match shared.db.claim() {
+            Ok(Some(job)) => run_job(&shared, job, device),
+            Ok(None) => shared.wait_for_work(Duration::from_millis(500)),
+            Err(e) => {
+                tracing::error!("job queue: {e}");
+                std::thread::sleep(Duration::from_secs(1));
+            }
+        }
+    }
+}
+
+fn run_job(shared: &Shared, job: db::Claimed, device: Option<usize>) {
+    let id = job.id;
+    match start(shared, &job, device) {
+        Ok(child) => watch(shared, id, child),
+        Err(e) => {
+            tracing::error!("job {id}: {e}");
+            let _ = shared.db.finish(id, "failed", None, None, Some(&e));
+        }
+    }
+}
+
+fn start(shared: &Shared, job: &db::Claimed, device: Option<usize>) -> Result<Child, String> {
+    let dir = shared.job_dir(job.id);
+    let out = dir.join("out");
+    std::fs::create_dir_all(&out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
+    let scene = dir.join("scene.toml");
+    crate::output::write_atomic(&scene, |w| std::io::Write::write_all(w, job.scene.as_bytes()))
+        .map_err(|e| e.to_string())?;
+    let log_path = dir.join("solve.log");
+    let log = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&log_path)
+        .map_err(|e| format!("cannot open {}: {e}", log_path.display()))?;
+    let exe = std::env::current_exe().map_err(|e| format!("cannot find the lpm executable: {e}"))?;
+    let mut cmd = Command::new(exe);
+    cmd.arg("solve").arg(&scene).arg("--out").arg(&out);
+    let resume = crate::job::work_dir(&out).join("checkpoint.json").exists();
+    if resume {
+        cmd.arg("--resume");
+    }
+    if let Some(d) = device {
+        cmd.arg("--device").arg(d.to_string());
+    }
+    if let Some(b) = job.device_memory_budget.or(shared.opts.device_memory_budget) {
+        cmd.arg("--device-memory-budget").arg(b.to_string());
+    }
+    if job.no_image {
+        cmd.arg("--no-image");
+    }
+    if job.no_fields {
+        cmd.arg("--no-fields");
+    }
+    cmd.stdin(Stdio::null()).stdout(Stdio::null()).stderr(log);
+    die_with_parent(&mut cmd);
+    tracing::info!("job {}: solving{}", job.id, if resume { " (resuming from its checkpoint)" } else { "" });
+    cmd.spawn().map_err(|e| format!("cannot start the solve: {e}"))
+}
+
+#[cfg(target_os = "linux")]
+fn die_with_parent(cmd: &mut Command) {
+    use std::os::unix::process::CommandExt;
+    // SAFETY: prctl and getppid are async-signal-safe; nothing else runs between fork and exec.
+    unsafe {
+        cmd.pre_exec(|| {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            // The parent may have died before prctl: then the signal will never come.
+            if libc::getppid() == 1 {
+                return Err(std::io::Error::other("the server exited while starting the solve"));
+            }
+            Ok(())
+        });
+    }
+}
+
+#[cfg(not(target_os = "linux"))]
+fn die_with_parent(_cmd: &mut Command) {}
+
+fn watch(shared: &Shared, id: i64, mut child: Child) {
+    let out = shared.job_dir(id).join("out");
+    let mut last_order = None;
+    let status = loop {
+        match child.try_wait() {
+            Ok(Some(status)) => break Ok(status),
+            Ok(None) => {}
+            Err(e) => break Err(e),
+        }
+        match shared.db.state(id) {
+            Ok(Some(state)) if state == "running" => {}
+            _ => {
+                // Cancelled (or deleted): stop the solve; its checkpoint stays.
+                let _ = child.kill();
+                let _ = child.wait();
+                tracing::info!("job {id}: cancelled");
+                shared.notify();
+                return;
+            }
+        }
+        if let Some(p) = read_progress(&out) {
+            if last_order != Some(p.order) {
+                last_order = Some(p.order);
+                let _ = shared.db.set_progress(id, p.order, p.residual, Some(p.fraction()), p.seconds_left());
+                shared.notify();
+            }
+        }
+        std::thread::sleep(POLL);
+    };
+    let result = match status {
+        Ok(s) if s.success() => match report(&out) {
+            Some((orders, residual)) => shared.db.finish(id, "done", Some(orders), Some(residual), None),
+            None => shared.db.finish(id, "failed", None, None, Some("the solve wrote no readable report.json")),
+        },
+        Ok(s) => {
+            let why = last_error(&shared.job_dir(id).join("solve.log")).unwrap_or_else(|| format!("the solve {s}"));
+            shared.db.finish(id, "failed", None, None, Some(&why))
+        }
+        Err(e) => shared.db.finish(id, "failed", None, None, Some(&format!("cannot wait for the solve: {e}"))),
+    };
+    if let Err(e) = result {
+        tracing::error!("job {id}: {e}");
+    }
+    tracing::info!("job {id}: {}", shared.db.state(id).ok().flatten().unwrap_or_default());
+    shared.notify();
+}
+
+#[derive(serde::Deserialize)]
+struct ProgressFile {
+    order: u32,
+    residual: f64,
+    residuals: Vec<f64>,
+    max_orders: u32,
+    tolerance: f64,
+    seconds: f64,
+}
+
+impl ProgressFile {
+    /// Orders still to go: from the residual's geometric decay when it decays, else the cap.
+    fn orders_left(&self) -> u32 {
+        let cap = self.max_orders.saturating_sub(self.order);
+        let n = self.residuals.len();
+        if n >= 2 && self.residual > self.tolerance {
+            let ratio = self.residuals[n - 1] / self.residuals[n - 2];
+            if ratio > 0.0 && ratio < 1.0 {
+                let more = ((self.tolerance / self.residual).ln() / ratio.ln()).ceil();
+                if more.is_finite() && more >= 0.0 {
+                    return (more as u32).min(cap);
+                }
+            }
+        }
+        if self.residual <= self.tolerance {
+            0
+        } else {
+            cap
+        }
+    }
+
+    fn fraction(&self) -> f64 {
+        let left = self.orders_left() as f64;
+        self.order as f64 / (self.order as f64 + left).max(1.0)
+    }
+
+    fn seconds_left(&self) -> Option<f64> {
+        let done = self.residuals.len();
+        (done > 0).then(|| self.seconds / done as f64 * self.orders_left() as f64)
+    }
+}
+
+fn read_progress(out: &Path) -> Option<ProgressFile> {
+    serde_json::from_slice(&std::fs::read(out.join("progress.json")).ok()?).ok()
+}
+
+fn report(out: &Path) -> Option<(u32, f64)> {
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("report.json")).ok()?).ok()?;
+    Some((r["orders"].as_u64()? as u32, r["final_residual"].as_f64()?))
+}
+
+/// The solve's own one-line message (`lpm: …`), the last in its log.
+fn last_error(log: &Path) -> Option<String> {
+    let text = std::fs::read_to_string(log).ok()?;
+    text.lines().rev().find_map(|l| l.strip_prefix("lpm: ")).map(str::to_string)
+}

@@ -1,0 +1,175 @@
+//! Running one task of a sweep (`lpm solve MANIFEST --task N`), and what `--status` reports.
+//!
+//! Safe to re-run: a task that is done is not solved again; one that was killed (preempted,
+//! requeued, timed out) continues from its checkpoint with `--resume`, to bitwise the result of an
+//! uninterrupted solve. Safe to run concurrently: each task holds an exclusive `flock` on
+//! `task-NNNN/lock` while it runs, so two runs of the same task never share a directory (the second
+//! is refused with a clear message), while different tasks run side by side.
+
+use super::{task_dir, Sweep, SweepError, Task};
+use crate::job::{self, SolveJob};
+use serde::{Deserialize, Serialize};
+use std::fs::File;
+use std::io::Write;
+use std::os::unix::io::AsRawFd;
+use std::path::{Path, PathBuf};
+
+/// `task-NNNN/status.json`.
+#[derive(Debug, Serialize, Deserialize)]
+pub struct TaskStatus {
+    pub state: String,
+    pub orders: Option<u32>,
+    pub error: Option<String>,
+}
+
+/// Creates the task's directory and writes its scene (unless it is already there, the same).
+pub fn prepare(sweep: &Sweep, task: &Task) -> Result<PathBuf, SweepError> {
+    let dir = task_dir(&sweep.dir, task.index);
+    std::fs::create_dir_all(&dir).map_err(|source| SweepError::Io { path: dir.clone(), source })?;
+    let scene = dir.join("scene.toml");
+    match std::fs::read_to_string(&scene) {
+        Ok(old) if old == task.scene => {}
+        Ok(_) if dir.join("out").exists() => return Err(SweepError::Changed { task: task.index, dir }),
+        _ => crate::output::write_atomic(&scene, |w| w.write_all(task.scene.as_bytes()))?,
+    }
+    Ok(dir)
+}
+
+/// An exclusive advisory lock, released when dropped (or when the process dies).
+pub struct Lock(#[allow(dead_code)] File);
+
+pub fn try_lock(path: &Path) -> Result<Option<Lock>, std::io::Error> {
+    let file = std::fs::OpenOptions::new().create(true).truncate(false).write(true).open(path)?;
+    // SAFETY: flock on a descriptor this function owns.
+    let r = unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
+    if r == 0 {
+        Ok(Some(Lock(file)))
+    } else {
+        let e = std::io::Error::last_os_error();
+        if e.raw_os_error() == Some(libc::EWOULDBLOCK) {
+            Ok(None)
+        } else {
+            Err(e)
+        }
+    }
+}
+
+/// How a task is run: the solve's own options (backend, device, …); `scene`, `out` and `resume`
+/// are set per task.
+pub fn run(sweep: &Sweep, index: usize, template: &SolveJob) -> Result<RunOutcome, SweepError> {
+    let task = sweep.task(index)?;
+    let dir = prepare(sweep, task)?;
+    let lock_path = dir.join("lock");
+    let _lock = match try_lock(&lock_path).map_err(|source| SweepError::Io { path: lock_path.clone(), source })? {
+        Some(lock) => lock,
+        None => return Err(SweepError::Busy { task: index, lock: lock_path }),
+    };
+    let out = dir.join("out");
+    if read_status(&dir).is_some_and(|s| s.state == "done") && out.join("report.json").exists() {
+        return Ok(RunOutcome::AlreadyDone);
+    }
+    let checkpoint = job::work_dir(&out).join("checkpoint.json");
+    let resume_from = std::fs::read(&checkpoint)
+        .ok()
+        .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
+        .and_then(|v| v["state"]["orders_done"].as_u64());
+    let attempt = format!(
+        "{:.0} {} (pid {}{})\n",
+        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64()),
+        match resume_from {
+            Some(n) => format!("resumed after order {n}"),
+            None => "started".to_string(),
+        },
+        std::process::id(),
+        std::env::var("SLURM_JOB_ID").map(|j| format!(", Slurm job {j}")).unwrap_or_default()
+    );
+    let log = dir.join("attempts.log");
+    std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&log)
+        .and_then(|mut f| f.write_all(attempt.as_bytes()))
+        .map_err(|source| SweepError::Io { path: log.clone(), source })?;
+    write_status(&dir, &TaskStatus { state: "running".into(), orders: None, error: None })?;
+
+    let mut solve = template.clone();
+    solve.scene = dir.join("scene.toml");
+    solve.out = out;
+    solve.resume = resume_from.is_some();
+    solve.no_image |= sweep.solve.no_image;
+    solve.no_fields |= sweep.solve.no_fields;
+    if solve.device_memory_budget.is_none() {
+        if let Some(b) = &sweep.solve.device_memory_budget {
+            solve.device_memory_budget =
+                Some(crate::scene::validate::parse_byte_size(b).map_err(|m| SweepError::Manifest {
+                    path: sweep.manifest.clone(),
+                    message: format!("solve.device_memory_budget: {m}"),
+                })?);
+        }
+    }
+    match job::run(&solve, |order, residual| {
+        tracing::info!("task {index}: order {order} done, residual {residual:.3e}")
+    }) {
+        Ok(report) => {
+            write_status(&dir, &TaskStatus { state: "done".into(), orders: Some(report.orders), error: None })?;
+            Ok(RunOutcome::Solved { orders: report.orders, resumed: resume_from.is_some() })
+        }
+        Err(e) => {
+            write_status(&dir, &TaskStatus { state: "failed".into(), orders: None, error: Some(e.to_string()) })?;
+            Err(e.into())
+        }
+    }
+}
+
+pub enum RunOutcome {
+    AlreadyDone,
+    Solved { orders: u32, resumed: bool },
+}
+
+fn write_status(dir: &Path, status: &TaskStatus) -> Result<(), SweepError> {
+    crate::output::write_json_atomic(&dir.join("status.json"), status)?;
+    Ok(())
+}
+
+fn read_status(dir: &Path) -> Option<TaskStatus> {
+    serde_json::from_slice(&std::fs::read(dir.join("status.json")).ok()?).ok()
+}
+
+/// What `--status` says of one task.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum State {
+    Pending,
+    Running,
+    /// Started, not running now, not done: killed or preempted; resumes from its checkpoint.
+    Interrupted,
+    Failed,
+    Done,
+}
+
+impl State {
+    pub fn name(self) -> &'static str {
+        match self {
+            State::Pending => "pending",
+            State::Running => "running",
+            State::Interrupted => "interrupted",
+            State::Failed => "failed",
+            State::Done => "done",
+        }
+    }
+}
+
+/// The state of task `index`, from its directory alone.
+pub fn state(sweep: &Sweep, index: usize) -> (State, Option<String>) {
+    let dir = task_dir(&sweep.dir, index);
+    let status = read_status(&dir);
+    let locked = dir.join("lock").exists() && matches!(try_lock(&dir.join("lock")), Ok(None));
+    if locked {
+        return (State::Running, None);
+    }
+    match status {
+        None => (State::Pending, None),
+        Some(s) if s.state == "done" => (State::Done, None),
+        Some(s) if s.state == "failed" => (State::Failed, s.error),
+        Some(_) => (State::Interrupted, None),
+    }
+}

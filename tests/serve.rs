@@ -1,0 +1,500 @@
+//! `lpm serve` with real processes and a real HTTP client: the API end to end, `kill -9` and restart
+//! (a queued job and a running job both complete, the running one bitwise equal to an uninterrupted
+//! solve), the queue bound and priorities, token and path-confinement refusals, size limits, and
+//! the OpenAPI document against the routes, cancelling a running job, retention.
+#![cfg(feature = "service")]
+mod common;
+use common::{lpm_command, temp_dir};
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Stdio};
+use std::time::{Duration, Instant};
+
+const TINY: &str = r#"
+[volume]
+procedural = "sphere"
+dims = [16, 16, 16]
+[medium]
+sigma_t = 0.8
+albedo = 0.8
+[[lights]]
+kind = "sky"
+radiance = 1.0
+[solver]
+directions_per_face = 2
+max_orders = 3
+tolerance = 1e-12
+"#;
+
+/// Slow enough (several orders of a few tenths of a second each) to be killed in the middle.
+const LONGER: &str = r#"
+[volume]
+procedural = "cloud"
+dims = [32, 30, 34]
+seed = 3
+[medium]
+sigma_t = [0.9, 0.7, 0.5]
+albedo = 0.9
+[[lights]]
+kind = "sky"
+radiance = 0.5
+[[lights]]
+kind = "sun"
+direction = [0.4, -0.3, 1.0]
+irradiance = 2.0
+[solver]
+directions_per_face = 3
+max_orders = 8
+tolerance = 1e-12
+"#;
+
+/// A running `lpm serve`, killed (SIGKILL) when dropped.
+struct Server {
+    child: Child,
+    url: String,
+}
+
+impl Server {
+    fn start(data: &Path, extra: &[&str]) -> Server {
+        let mut args = vec!["serve", "--listen", "127.0.0.1:0", "--data", data.to_str().unwrap()];
+        args.extend_from_slice(extra);
+        let mut child = lpm_command(&args)
+            .env("LPM_LOG", "info")
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("start lpm serve");
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).expect("read the server's first line");
+        let url = line
+            .split_whitespace()
+            .find(|w| w.starts_with("http://"))
+            .unwrap_or_else(|| panic!("the server did not say where it listens: {line:?}"))
+            .to_string();
+        Server { child, url }
+    }
+
+    fn kill9(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        self.kill9();
+    }
+}
+
+fn agent() -> ureq::Agent {
+    ureq::AgentBuilder::new().timeout(Duration::from_secs(120)).build()
+}
+
+/// Status and body of any answer, error statuses included.
+fn call(r: Result<ureq::Response, ureq::Error>) -> (u16, ureq::Response) {
+    match r {
+        Ok(r) => (r.status(), r),
+        Err(ureq::Error::Status(s, r)) => (s, r),
+        Err(e) => panic!("transport error: {e}"),
+    }
+}
+
+fn json(r: ureq::Response) -> serde_json::Value {
+    serde_json::from_str(&r.into_string().unwrap()).unwrap()
+}
+
+fn submit(url: &str, scene: &str, query: &str) -> (u16, serde_json::Value) {
+    let (s, r) =
+        call(agent().post(&format!("{url}/v1/jobs{query}")).set("Content-Type", "application/toml").send_string(scene));
+    (s, json(r))
+}
+
+fn job(url: &str, id: i64, wait: f64) -> serde_json::Value {
+    let (s, r) = call(agent().get(&format!("{url}/v1/jobs/{id}?wait={wait}")).call());
+    assert_eq!(s, 200);
+    json(r)
+}
+
+/// Long-polls job `id` until `done(job)` or `limit` passes.
+fn wait_for(url: &str, id: i64, limit: Duration, done: impl Fn(&serde_json::Value) -> bool) -> serde_json::Value {
+    let t = Instant::now();
+    loop {
+        let j = job(url, id, 5.0);
+        if done(&j) {
+            return j;
+        }
+        assert!(t.elapsed() < limit, "job {id} still {j} after {limit:?}");
+    }
+}
+
+fn ended(j: &serde_json::Value) -> bool {
+    matches!(j["state"].as_str(), Some("done" | "failed" | "cancelled"))
+}
+
+/// Solves `scene` directly with the CLI into `dir/name`; returns the output directory.
+fn direct_solve(dir: &Path, name: &str, scene: &str, extra: &[&str]) -> PathBuf {
+    let path = dir.join(format!("{name}.toml"));
+    std::fs::write(&path, scene).unwrap();
+    let out = dir.join(name);
+    let mut args = vec!["solve", path.to_str().unwrap(), "--out", out.to_str().unwrap()];
+    args.extend_from_slice(extra);
+    let o = lpm_command(&args).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    out
+}
+
+fn fetch(url: &str, id: i64, name: &str) -> Vec<u8> {
+    let (s, r) = call(agent().get(&format!("{url}/v1/jobs/{id}/outputs/{name}")).call());
+    assert_eq!(s, 200, "{name}");
+    let mut bytes = Vec::new();
+    std::io::Read::read_to_end(&mut r.into_reader(), &mut bytes).unwrap();
+    bytes
+}
+
+#[test]
+fn api_end_to_end_with_real_clients() {
+    let dir = temp_dir("serve-e2e");
+    let server = Server::start(&dir.join("data"), &[]);
+    let url = server.url.clone();
+
+    let (s, r) = call(agent().get(&format!("{url}/v1/health")).call());
+    assert_eq!(s, 200);
+    assert_eq!(json(r)["status"], "ok");
+
+    let (s, created) = submit(&url, TINY, "?priority=2&no_image=true&device_memory_budget=64M");
+    assert_eq!(s, 201, "{created}");
+    assert_eq!(created["state"], "queued");
+    let id = created["id"].as_i64().unwrap();
+    let done = wait_for(&url, id, Duration::from_secs(300), ended);
+    assert_eq!(done["state"], "done", "{done}");
+    assert_eq!(done["order"], 3);
+    assert_eq!(done["priority"], 2);
+    assert_eq!(done["progress"], 1.0);
+    assert!(done["residual"].as_f64().unwrap() > 0.0);
+
+    // The outputs, streamed, are the bits a direct CLI solve writes.
+    let (s, r) = call(agent().get(&format!("{url}/v1/jobs/{id}/outputs")).call());
+    assert_eq!(s, 200);
+    let names: Vec<String> =
+        json(r)["outputs"].as_array().unwrap().iter().map(|v| v.as_str().unwrap().to_string()).collect();
+    assert!(names.contains(&"fluence.raw".to_string()) && names.contains(&"report.json".to_string()), "{names:?}");
+    assert!(!names.iter().any(|n| n.starts_with("image")), "{names:?}");
+    let direct = direct_solve(&dir, "direct", TINY, &["--no-image"]);
+    for f in ["fluence.raw", "source.raw"] {
+        assert!(fetch(&url, id, f) == std::fs::read(direct.join(f)).unwrap(), "{f} differs from a direct solve");
+    }
+    // The job's own device memory budget reached the solve.
+    assert_eq!(done["device_memory_budget"], 64 << 20);
+    let report: serde_json::Value = serde_json::from_slice(&fetch(&url, id, "report.json")).unwrap();
+    assert_eq!(report["device_memory"]["budget_bytes"], 64 << 20, "{}", report["device_memory"]);
+    let (s, r) = call(agent().get(&format!("{url}/v1/jobs/{id}/outputs/secret.txt")).call());
+    assert_eq!(s, 404, "{}", r.into_string().unwrap());
+    let (s, _) = call(agent().get(&format!("{url}/v1/jobs/{id}/outputs/..%2Flpm.sqlite")).call());
+    assert_eq!(s, 404);
+
+    // The CLI clients: submit --wait, status, fetch.
+    let scene = dir.join("tiny.toml");
+    std::fs::write(&scene, TINY).unwrap();
+    let o = lpm_command(&["submit", scene.to_str().unwrap(), "--server", &url, "--wait"]).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let id2: i64 = String::from_utf8_lossy(&o.stdout).trim().parse().unwrap();
+    let o = lpm_command(&["status", &id2.to_string(), "--server", &url]).output().unwrap();
+    assert!(o.status.success());
+    let status: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(status["state"], "done");
+    let fetched = dir.join("fetched");
+    let o = lpm_command(&["fetch", &id2.to_string(), "fluence.raw", "report.json", "--server", &url, "--out"])
+        .arg(&fetched)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(std::fs::read(fetched.join("fluence.raw")).unwrap() == std::fs::read(direct.join("fluence.raw")).unwrap());
+    let o = lpm_command(&["status", "--server", &url]).output().unwrap();
+    let all: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(all["jobs"].as_array().unwrap().len(), 2);
+
+    // A bad scene: 400 with the CLI's own one-line message.
+    let bad = TINY.replace("albedo = 0.8", "albedo = 1.5");
+    let (s, body) = submit(&url, &bad, "");
+    assert_eq!(s, 400);
+    std::fs::write(dir.join("scene.toml"), &bad).unwrap();
+    let o = lpm_command(&["solve", "scene.toml", "--out", "bad-out"]).current_dir(&dir).output().unwrap();
+    let cli = String::from_utf8_lossy(&o.stderr);
+    let cli_line = cli.lines().find_map(|l| l.strip_prefix("lpm: ")).expect("the CLI's message");
+    assert_eq!(body["error"], cli_line);
+    let (s, body) = submit(&url, "[volume\n", "");
+    assert_eq!(s, 400, "{body}");
+    assert!(body["error"].as_str().unwrap().starts_with("scene.toml: line 1"), "{body}");
+    let (s, _) =
+        call(agent().post(&format!("{url}/v1/jobs")).set("Content-Type", "application/json").send_string("{}"));
+    assert_eq!(s, 415);
+    let (s, body) = submit(&url, TINY, "?priority=high");
+    assert_eq!(s, 400, "{body}");
+
+    // Unknown routes and methods; the OpenAPI document is served.
+    assert_eq!(call(agent().get(&format!("{url}/v1/nothing")).call()).0, 404);
+    assert_eq!(call(agent().put(&format!("{url}/v1/jobs")).call()).0, 405);
+    assert_eq!(call(agent().get(&format!("{url}/v1/jobs/99999")).call()).0, 404);
+    let (s, r) = call(agent().get(&format!("{url}/v1/openapi.json")).call());
+    assert_eq!(s, 200);
+    assert_eq!(r.into_string().unwrap(), lpm::serve::api::OPENAPI);
+
+    // DELETE of an ended job removes it and its files.
+    let (s, r) = call(agent().delete(&format!("{url}/v1/jobs/{id}")).call());
+    assert_eq!(s, 200);
+    assert_eq!(json(r)["state"], "deleted");
+    assert_eq!(call(agent().get(&format!("{url}/v1/jobs/{id}")).call()).0, 404);
+    assert!(!dir.join("data/jobs").join(id.to_string()).exists());
+}
+
+#[test]
+fn kill_9_and_restart_lose_nothing_and_resume_bitwise() {
+    let dir = temp_dir("serve-kill");
+    let data = dir.join("data");
+    let mut server = Server::start(&data, &[]);
+    let url = server.url.clone();
+    let (s, a) = submit(&url, LONGER, "?no_image=true");
+    assert_eq!(s, 201);
+    let (s, b) = submit(&url, TINY, "?no_image=true");
+    assert_eq!(s, 201);
+    let (a, b) = (a["id"].as_i64().unwrap(), b["id"].as_i64().unwrap());
+
+    // Kill the server while job A is running, after its first checkpointed order.
+    let j = wait_for(&url, a, Duration::from_secs(300), |j| j["order"].as_i64().is_some_and(|o| o >= 1) || ended(j));
+    assert_eq!(j["state"], "running", "job A ended before the kill: make LONGER slower ({j})");
+    server.kill9();
+    let checkpoint = data.join(format!("jobs/{a}/out/.lpm-work/checkpoint.json"));
+    assert!(checkpoint.exists(), "job A has no checkpoint to resume from");
+    // Its solve died with the server (PR_SET_PDEATHSIG): no writer is left in its directory.
+    std::thread::sleep(Duration::from_millis(500));
+    let orphans = processes_naming(&data.canonicalize().unwrap().join(format!("jobs/{a}/scene.toml")));
+    assert_eq!(orphans, 0, "the solve of job A outlived its server");
+
+    let server = Server::start(&data, &[]);
+    let url = server.url.clone();
+    let ja = wait_for(&url, a, Duration::from_secs(600), ended);
+    let jb = wait_for(&url, b, Duration::from_secs(300), ended);
+    assert_eq!(ja["state"], "done", "{ja}");
+    assert_eq!(jb["state"], "done", "{jb}");
+    assert_eq!(ja["attempts"], 2, "job A should have been resumed once: {ja}");
+    assert_eq!(ja["order"], 8);
+    let log = std::fs::read_to_string(data.join(format!("jobs/{a}/solve.log"))).unwrap();
+    assert!(!log.contains("nothing to resume"), "job A started over instead of resuming:\n{log}");
+
+    let direct = direct_solve(&dir, "direct", LONGER, &["--no-image"]);
+    for f in ["fluence.raw", "source.raw"] {
+        assert!(fetch(&url, a, f) == std::fs::read(direct.join(f)).unwrap(), "job A: {f} differs after the restart");
+    }
+    let tiny = direct_solve(&dir, "tiny", TINY, &["--no-image"]);
+    assert!(fetch(&url, b, "fluence.raw") == std::fs::read(tiny.join("fluence.raw")).unwrap());
+}
+
+#[test]
+fn queue_bound_priorities_and_cancel() {
+    let dir = temp_dir("serve-queue");
+    let data = dir.join("data");
+    // No workers: jobs wait in the queue.
+    let mut server = Server::start(&data, &["--workers", "0", "--max-queued", "3"]);
+    let url = server.url.clone();
+    let mut ids = Vec::new();
+    for priority in [0, 5, 1] {
+        let (s, j) = submit(&url, TINY, &format!("?priority={priority}&no_image=true&no_fields=true"));
+        assert_eq!(s, 201, "{j}");
+        ids.push(j["id"].as_i64().unwrap());
+    }
+    let (s, r) =
+        call(agent().post(&format!("{url}/v1/jobs")).set("Content-Type", "application/toml").send_string(TINY));
+    assert_eq!(s, 503);
+    assert_eq!(r.header("Retry-After"), Some("30"));
+    assert!(json(r)["error"].as_str().unwrap().contains("queue is full"));
+
+    // Cancel the priority-1 job while queued: room for one more.
+    let (s, r) = call(agent().delete(&format!("{url}/v1/jobs/{}", ids[2])).call());
+    assert_eq!(s, 200);
+    assert_eq!(json(r)["state"], "cancelled");
+    let (s, j) = submit(&url, TINY, "?priority=3&no_image=true&no_fields=true");
+    assert_eq!(s, 201);
+    ids.push(j["id"].as_i64().unwrap());
+
+    // Queued jobs survive kill -9; a server with a worker runs them by priority, then age.
+    server.kill9();
+    let server = Server::start(&data, &[]);
+    let url = server.url.clone();
+    let started: Vec<f64> = [ids[0], ids[1], ids[3]]
+        .iter()
+        .map(|&id| {
+            let j = wait_for(&url, id, Duration::from_secs(300), ended);
+            assert_eq!(j["state"], "done", "{j}");
+            j["started_at"].as_f64().unwrap()
+        })
+        .collect();
+    assert!(started[1] < started[2] && started[2] < started[0], "priority order 5, 3, 0: {started:?}");
+    assert_eq!(job(&url, ids[2], 0.0)["state"], "cancelled");
+}
+
+#[test]
+fn token_confinement_and_limits() {
+    let dir = temp_dir("serve-safety");
+    let data = dir.join("data");
+    std::fs::create_dir_all(&data).unwrap();
+
+    // Any non-loopback address needs a token.
+    let o = lpm_command(&["serve", "--listen", "0.0.0.0:0", "--data", data.to_str().unwrap()])
+        .env_remove("LPM_SERVE_TOKEN")
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("needs a token"), "{}", String::from_utf8_lossy(&o.stderr));
+
+    let token_file = dir.join("token");
+    std::fs::write(&token_file, "s3cret-token\n").unwrap();
+    let server = Server::start(&data, &["--token-file", token_file.to_str().unwrap(), "--max-body", "4K"]);
+    let url = server.url.clone();
+    let post = |auth: Option<&str>, body: &str| {
+        let mut r = agent().post(&format!("{url}/v1/jobs?no_image=true&no_fields=true"));
+        r = r.set("Content-Type", "application/toml");
+        if let Some(a) = auth {
+            r = r.set("Authorization", a);
+        }
+        let (s, r) = call(r.send_string(body));
+        (s, json(r))
+    };
+    assert_eq!(post(None, TINY).0, 401);
+    assert_eq!(post(Some("Bearer wrong"), TINY).0, 401);
+    assert_eq!(call(agent().get(&format!("{url}/v1/jobs")).call()).0, 401);
+    assert_eq!(call(agent().get(&format!("{url}/v1/health")).call()).0, 200);
+    let good = Some("Bearer s3cret-token");
+    assert_eq!(post(good, TINY).0, 201);
+
+    // Volume paths: only under the data root.
+    let raw_scene = |raw: &str| {
+        TINY.replace("procedural = \"sphere\"\ndims = [16, 16, 16]", &format!("raw = \"{raw}\"\ndims = [16, 16, 16]"))
+    };
+    let density: Vec<u8> = (0..16 * 16 * 16).flat_map(|_| 0.5f32.to_le_bytes()).collect();
+    std::fs::write(dir.join("outside.raw"), &density).unwrap();
+    std::os::unix::fs::symlink(dir.join("outside.raw"), data.join("link.raw")).unwrap();
+    for (raw, why) in [
+        ("../outside.raw", "`..` is not allowed"),
+        (dir.join("outside.raw").to_str().unwrap(), "outside the server's data root"),
+        ("link.raw", "outside the server's data root"),
+        ("/etc/passwd", "outside the server's data root"),
+    ] {
+        let (s, body) = post(good, &raw_scene(raw));
+        assert_eq!(s, 400, "{raw}: {body}");
+        assert!(body["error"].as_str().unwrap().contains(why), "{raw}: {body}");
+    }
+    // Uploads land under the data root, under plain names only, within the size limit.
+    let put = |name: &str, body: &[u8]| {
+        call(
+            agent()
+                .put(&format!("{url}/v1/volumes/{name}"))
+                .set("Authorization", "Bearer s3cret-token")
+                .send_bytes(body),
+        )
+    };
+    let (s, r) = put("cloud.raw", &density);
+    assert_eq!(s, 201);
+    assert_eq!(json(r)["path"], "volumes/cloud.raw");
+    assert_eq!(std::fs::read(data.join("volumes/cloud.raw")).unwrap(), density);
+    assert_eq!(put(".hidden", &density).0, 400);
+    assert_eq!(put("a%2F..%2Fx", &density).0, 400);
+    let (s, body) = post(good, &raw_scene("volumes/cloud.raw"));
+    assert_eq!(s, 201, "{body}");
+    let (s, body) = post(good, &raw_scene("volumes/missing.raw"));
+    assert_eq!(s, 400, "{body}");
+    // The size limit on scenes.
+    let big = format!("{TINY}\n#{}\n", "x".repeat(5000));
+    let (s, body) = post(good, &big);
+    assert_eq!(s, 413, "{body}");
+}
+
+#[test]
+fn openapi_document_matches_the_routes() {
+    let doc: serde_json::Value = serde_json::from_str(lpm::serve::api::OPENAPI).expect("openapi.json is JSON");
+    assert_eq!(doc["openapi"].as_str().map(|v| v.starts_with("3.")), Some(true));
+    let mut documented: Vec<(String, String)> = Vec::new();
+    for (path, item) in doc["paths"].as_object().unwrap() {
+        for method in item.as_object().unwrap().keys() {
+            documented.push((method.to_uppercase(), path.clone()));
+        }
+    }
+    let mut served: Vec<(String, String)> =
+        lpm::serve::api::ROUTES.iter().map(|r| (r.method.to_string(), r.path.to_string())).collect();
+    documented.sort();
+    served.sort();
+    assert_eq!(served, documented, "the routes served and the OpenAPI paths differ");
+    // Every documented path parameter is a {…} segment of its path, and the other way round.
+    for (path, item) in doc["paths"].as_object().unwrap() {
+        let segments: Vec<&str> =
+            path.split('/').filter(|s| s.starts_with('{')).map(|s| s.trim_matches(|c| c == '{' || c == '}')).collect();
+        for op in item.as_object().unwrap().values() {
+            let params: Vec<&str> = op["parameters"]
+                .as_array()
+                .into_iter()
+                .flatten()
+                .filter(|p| p["in"] == "path")
+                .map(|p| p["name"].as_str().unwrap())
+                .collect();
+            assert_eq!(params, segments, "{path}");
+        }
+    }
+    // Each route is answered by the dispatcher (not 404) and only for its method.
+    for r in lpm::serve::api::ROUTES {
+        let concrete = r.path.replace("{id}", "1").replace("{name}", "x");
+        assert!(lpm::serve::api::route(r.method, &concrete).is_ok(), "{} {}", r.method, r.path);
+        assert!(lpm::serve::api::route("PATCH", &concrete).is_err());
+    }
+}
+
+/// Processes whose command line names `path`.
+fn processes_naming(path: &Path) -> usize {
+    let needle = path.to_string_lossy().into_owned();
+    std::fs::read_dir("/proc")
+        .unwrap()
+        .flatten()
+        .filter_map(|e| std::fs::read(e.path().join("cmdline")).ok())
+        .filter(|c| String::from_utf8_lossy(c).contains(&needle))
+        .count()
+}
+
+#[test]
+fn cancel_a_running_job_and_retention() {
+    let dir = temp_dir("serve-cancel");
+    let data = dir.join("data");
+    // Ended jobs are deleted about 7 s after they end.
+    let server = Server::start(&data, &["--retention-hours", "0.002"]);
+    let url = server.url.clone();
+    let (_, a) = submit(&url, LONGER, "?no_image=true");
+    let a = a["id"].as_i64().unwrap();
+    let j = wait_for(&url, a, Duration::from_secs(300), |j| j["order"].as_i64().is_some_and(|o| o >= 1) || ended(j));
+    assert_eq!(j["state"], "running", "the job ended before it could be cancelled: {j}");
+    let (s, r) = call(agent().delete(&format!("{url}/v1/jobs/{a}")).call());
+    assert_eq!(s, 200);
+    assert_eq!(json(r)["state"], "cancelled");
+    // The solve stops (within the worker's poll) and keeps its checkpoint.
+    let scene = data.canonicalize().unwrap().join(format!("jobs/{a}/scene.toml"));
+    let t = Instant::now();
+    while processes_naming(&scene) > 0 {
+        assert!(t.elapsed() < Duration::from_secs(10), "the cancelled solve is still running");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert!(data.join(format!("jobs/{a}/out/.lpm-work/checkpoint.json")).exists(), "the checkpoint was not kept");
+    assert_eq!(job(&url, a, 0.0)["state"], "cancelled");
+    let (s, _) = call(agent().get(&format!("{url}/v1/jobs/{a}/outputs")).call());
+    assert_eq!(s, 409, "a cancelled job has no outputs");
+
+    // Retention: ended jobs (the cancelled one, and a done one) disappear with their files.
+    let (_, b) = submit(&url, TINY, "?no_image=true");
+    let b = b["id"].as_i64().unwrap();
+    assert_eq!(wait_for(&url, b, Duration::from_secs(300), ended)["state"], "done");
+    let t = Instant::now();
+    for id in [a, b] {
+        // The row goes first, then the files.
+        while call(agent().get(&format!("{url}/v1/jobs/{id}")).call()).0 != 404
+            || data.join(format!("jobs/{id}")).exists()
+        {
+            assert!(t.elapsed() < Duration::from_secs(60), "job {id} outlived the retention limit");
+            std::thread::sleep(Duration::from_millis(200));
+        }
+    }
+}
