@@ -60,6 +60,7 @@ pub(crate) struct RawSolver {
     pub extrapolate_tail: Option<bool>,
     pub storage_precision: Option<String>,
     pub plan: Option<String>,
+    pub spatial: Option<String>,
 }
 
 #[derive(Debug, Deserialize)]

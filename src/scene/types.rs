@@ -92,6 +92,32 @@ pub struct SolverSettings {
     pub storage_precision: StoragePrecision,
     /// Whether the plan may reduce what it models to what the scene needs (`solver.plan`).
     pub plan: PlanMode,
+    /// How a ray samples the voxels around it (`solver.spatial`).
+    pub spatial: SpatialScheme,
+}
+
+/// `solver.spatial`: how a ray meets the voxel grid in each plane it crosses (see
+/// `solver::sweep`). Both schemes are exact in energy and bitwise reproducible.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum SpatialScheme {
+    /// The ray sits at its exact lateral position: it gathers the medium and the source bilinearly
+    /// from the two-by-two voxels it lies between and deposits with the same weights; a ray
+    /// entering through a side face enters continuously where it crosses it.
+    #[default]
+    Linear,
+    /// The first-order scheme: the ray takes the medium and source of the one voxel under it
+    /// (nearest column), and a ray entering through a side starts in the plane it wraps in.
+    Constant,
+}
+
+impl SpatialScheme {
+    /// The scene file's spelling: "linear" or "constant".
+    pub fn name(self) -> &'static str {
+        match self {
+            SpatialScheme::Linear => "linear",
+            SpatialScheme::Constant => "constant",
+        }
+    }
 }
 
 /// `solver.plan`: whether the plan models only what the scene needs, or everything. `Full` exists

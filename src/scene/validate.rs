@@ -3,7 +3,7 @@
 
 use super::raw::{ByteSize, Channels, RawCamera, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
 use super::{
-    Camera, Light, Medium, PlanMode, Projection, Scene, SceneError, Shape, SolverSettings, StoragePrecision, Volume,
+    Camera, Light, Medium, PlanMode, Projection, Scene, SceneError, Shape, SolverSettings, SpatialScheme, StoragePrecision, Volume,
     VolumeSource,
 };
 use glam::DVec3;
@@ -32,6 +32,7 @@ const LIGHT_KINDS: &str = "\"sky\", \"sun\"";
 const PROJECTIONS: &str = "\"pinhole\", \"orthographic\"";
 const PRECISIONS: &str = "\"auto\", \"f16\", \"f32\"";
 const PLAN_MODES: &str = "\"auto\", \"full\"";
+const SPATIAL_SCHEMES: &str = "\"linear\", \"constant\"";
 
 pub(crate) struct Validator<'a> {
     pub path: &'a Path,
@@ -288,6 +289,7 @@ impl Validator<'_> {
                 extrapolate_tail: false,
                 storage_precision: StoragePrecision::Auto,
                 plan: PlanMode::Auto,
+                spatial: SpatialScheme::default(),
             });
         };
         let k = match s.directions_per_face {
@@ -342,6 +344,16 @@ impl Validator<'_> {
                 return Err(self.err("solver.plan", format!("unknown plan \"{other}\", expected one of {PLAN_MODES}")))
             }
         };
+        let spatial = match s.spatial.as_deref() {
+            None | Some("linear") => SpatialScheme::Linear,
+            Some("constant") => SpatialScheme::Constant,
+            Some(other) => {
+                return Err(self.err(
+                    "solver.spatial",
+                    format!("unknown spatial scheme \"{other}\", expected one of {SPATIAL_SCHEMES}"),
+                ))
+            }
+        };
         Ok(SolverSettings {
             directions_per_face: k,
             storage_directions_per_face: ks,
@@ -351,6 +363,7 @@ impl Validator<'_> {
             extrapolate_tail: s.extrapolate_tail.unwrap_or(false),
             storage_precision,
             plan,
+            spatial,
         })
     }
 

@@ -20,9 +20,9 @@
 //! Everything both backends need to sweep a face is derived here ([`SweepDirection`]) so that the
 //! CPU twin and the GPU driver consume identical tables.
 
-use super::sweep::{lateral_slope, offsets, plane_path_length, FaceSweep};
+use super::sweep::{lateral_slope, lattice, plane_path_length, FaceSweep};
 use crate::quadrature::{cube_face_of, phase, PropagationSet, StorageSet};
-use crate::scene::{Light, Medium, PlanMode, Scene, StoragePrecision};
+use crate::scene::{Light, Medium, PlanMode, Scene, SpatialScheme, StoragePrecision};
 use glam::DVec3;
 use serde::Serialize;
 
@@ -33,8 +33,10 @@ pub struct SweepDirection {
     pub omega: DVec3,
     /// Path length through one plane (h/|ω_a|).
     pub path_length: f64,
-    /// Lateral offsets per plane (see [`super::sweep::offsets`]).
+    /// Lattice offsets per plane (see [`super::sweep::lattice`]).
     pub offsets: Vec<[i32; 2]>,
+    /// Lattice weights per plane: a ray meets its lower column with 1 − w, its upper one with w.
+    pub weights: Vec<[f64; 2]>,
     /// Weight of the segment-average radiance in the fluence: Ω_i, or 1 for a beam.
     pub fluence_weight: f64,
     /// Radiance (irradiance for a beam) of rays born at the boundary in the sweep that carries
@@ -121,6 +123,8 @@ pub struct Plan {
     pub source_precision: Precision,
     /// `solver.plan`: whether the reductions above were allowed.
     pub mode: PlanMode,
+    /// `solver.spatial`: how rays meet the voxels of a plane.
+    pub spatial: SpatialScheme,
     /// Why each choice was made, for the report.
     pub reasons: Vec<String>,
 }
@@ -146,6 +150,8 @@ pub struct PlanSummary {
     pub storage_precision: Precision,
     /// "auto" (model only what the scene needs) or "full" (`solver.plan`: reductions off).
     pub mode: String,
+    /// "linear" or "constant" (`solver.spatial`).
+    pub spatial: String,
     pub reasons: Vec<String>,
 }
 
@@ -161,6 +167,16 @@ impl Plan {
         let h = scene.volume.voxel_size;
         let medium = scene.medium.clone();
         let channels = choose_channels(scene, full, &mut reasons);
+        let spatial = scene.solver.spatial;
+        reasons.push(match spatial {
+            SpatialScheme::Linear => "spatial scheme \"linear\": rays at their exact lateral positions gather \
+                 and deposit bilinearly (second-order across the rays, no plane-sized error where light \
+                 enters through a side)"
+                .into(),
+            SpatialScheme::Constant => "spatial scheme \"constant\": each ray meets the one voxel under it \
+                 (first order; kept for comparison)"
+                .into(),
+        });
 
         let k = scene.solver.directions_per_face;
         let propagation = PropagationSet::new(k);
@@ -182,11 +198,14 @@ impl Plan {
         let swept =
             |face: usize, omega: DVec3, weight: f64, boundary: [f64; 3], gain_storage: u32, collect_row: Vec<f64>| {
                 let path_length = plane_path_length(face, omega, h);
+                let planes = FaceSweep::new(face, dims).n[0];
+                let (offsets, weights) = lattice(lateral_slope(face, omega), planes, spatial);
                 SweepDirection {
                     face,
                     omega,
                     path_length,
-                    offsets: offsets(lateral_slope(face, omega), FaceSweep::new(face, dims).n[0]),
+                    offsets,
+                    weights,
                     fluence_weight: weight,
                     boundary,
                     gain_storage,
@@ -258,6 +277,7 @@ impl Plan {
             bricks_empty,
             source_precision,
             mode: scene.solver.plan,
+            spatial,
             reasons,
         }
     }
@@ -292,6 +312,7 @@ impl Plan {
             extrapolate_tail: self.extrapolate_tail,
             storage_precision: self.source_precision,
             mode: self.mode.name().to_string(),
+            spatial: self.spatial.name().to_string(),
             reasons: self.reasons.clone(),
         }
     }
