@@ -3,8 +3,8 @@
 
 use super::raw::{ByteSize, Channels, RawCamera, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
 use super::{
-    Camera, Light, Medium, PlanMode, Projection, Scene, SceneError, Shape, SolverSettings, SpatialScheme, StoragePrecision, Volume,
-    VolumeSource,
+    Camera, Light, Medium, PlanMode, Projection, Scene, SceneError, Shape, SolverSettings, SpatialScheme,
+    StoragePrecision, Volume, VolumeSource,
 };
 use glam::DVec3;
 use std::path::{Path, PathBuf};

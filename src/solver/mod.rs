@@ -4,7 +4,8 @@
 //! - [`plan`] decides what the scene needs and derives the per-direction tables;
 //! - [`sweep`] and [`segment`] are the discretisation (voxels walked, exact segment solution);
 //! - [`cpu`] is the f64 twin of the GPU kernels, [`gpu`] the Vulkan driver;
-//! - [`orders`] runs scattering orders to the tolerance, [`energy`] keeps the books;
+//! - [`orders`] runs scattering orders until [`remaining`] says every voxel of the medium is within
+//!   the tolerance of its converged value; [`energy`] keeps the books;
 //! - [`fields`] holds the solver's fields in the brick store and the host passes over them.
 
 pub mod cpu;
@@ -13,6 +14,7 @@ pub mod fields;
 pub mod gpu;
 pub mod orders;
 pub mod plan;
+pub mod remaining;
 pub mod segment;
 pub mod sweep;
 

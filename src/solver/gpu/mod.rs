@@ -832,4 +832,8 @@ impl Backend for GpuBackend<'_> {
     fn emitted_and_absorbed(&mut self) -> Result<([f64; 3], [f64; 3]), SolveError> {
         Ok(self.fields.emitted_and_absorbed(self.store, self.plan))
     }
+
+    fn remaining_error(&mut self, factor: [f64; 3]) -> Result<crate::solver::remaining::RemainingError, SolveError> {
+        Ok(self.fields.remaining_error(self.store, self.plan, factor))
+    }
 }

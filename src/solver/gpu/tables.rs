@@ -33,9 +33,10 @@ impl SweepTables {
         let offsets: Vec<[i32; 4]> = dirs
             .iter()
             .flat_map(|d| {
-                d.offsets.iter().zip(&d.weights).map(|(o, w)| {
-                    [o[0], o[1], (w[0] as f32).to_bits() as i32, (w[1] as f32).to_bits() as i32]
-                })
+                d.offsets
+                    .iter()
+                    .zip(&d.weights)
+                    .map(|(o, w)| [o[0], o[1], (w[0] as f32).to_bits() as i32, (w[1] as f32).to_bits() as i32])
             })
             .collect();
         let offsets_host = dirs.iter().map(|d| d.offsets.clone()).collect();
