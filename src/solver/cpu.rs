@@ -98,12 +98,10 @@ impl<'a> CpuTwin<'a> {
         let (mut born, mut left) = ([0.0; 3], [0.0; 3]);
         // The voxels (index, weight) the ray meets in the current plane.
         let mut met: Vec<(usize, f64)> = Vec::with_capacity(4);
-        let exp: u32 = std::env::var("LPM_EXP_LINSRC").ok().and_then(|v| v.parse().ok()).unwrap_or(0);
         for q in 0..lc {
             for p in 0..lb {
                 let mut l = birth;
                 let mut wrap = [0, 0];
-                let mut jp: [Option<f64>; 3] = [None; 3];
                 (0..c).for_each(|ch| born[ch] += birth[ch]);
                 for t in 0..na {
                     let o = dir.offsets[t as usize];
@@ -116,7 +114,6 @@ impl<'a> CpuTwin<'a> {
                             left[ch] += l[ch];
                             l[ch] = birth[ch];
                             born[ch] += birth[ch];
-                            jp[ch] = None;
                         }
                     }
                     wrap = [wb, wc];
@@ -138,49 +135,7 @@ impl<'a> CpuTwin<'a> {
                                 j += rho * sa * plan.medium.emission[ch];
                             }
                         }
-                        let (out, avg) = if exp == 2 && gain {
-                            // central: J at the next plane along the ray (same slot), if any.
-                            let mut jn = None;
-                            if t + 1 < na {
-                                let o2 = dir.offsets[t as usize + 1];
-                                let w2 = dir.weights[t as usize + 1];
-                                let (cb2, wb2) = lattice_column(p, o2[0], nb);
-                                let (cc2, wc2) = lattice_column(q, o2[1], nc);
-                                if [wb2, wc2] == wrap {
-                                    let gained = if self.j_gain.is_empty() { &self.j_prev } else { &self.j_gain };
-                                    let k = dir.gain_storage as usize * c + ch;
-                                    let mut sum = 0.0;
-                                    let mut tot = 0.0;
-                                    for (vc, tc) in taps(cc2, w2[1], nc) {
-                                        for (vb, tb) in taps(cb2, w2[0], nb) {
-                                            let v = self.index(sweep.voxel(t + 1, vb, vc));
-                                            sum += tb * tc * gained[v * comps + k];
-                                            tot += tb * tc;
-                                        }
-                                    }
-                                    if tot > 0.999 {
-                                        jn = Some(sum);
-                                    }
-                                }
-                            }
-                            let j1 = match (jp[ch], jn) {
-                                (Some(p), Some(n)) => (0.5 * (n - p)).clamp(-2.0 * j, 2.0 * j),
-                                (Some(p), None) => (j - p).clamp(-2.0 * j, 2.0 * j),
-                                (None, Some(n)) => (n - j).clamp(-2.0 * j, 2.0 * j),
-                                _ => 0.0,
-                            };
-                            jp[ch] = Some(j);
-                            crate::solver::segment::segment_linear(l[ch], j, j1, rho * st, dir.path_length)
-                        } else if exp == 1 && gain {
-                            let j1 = match jp[ch] {
-                                Some(p) => (j - p).clamp(-2.0 * j, 2.0 * j),
-                                None => 0.0,
-                            };
-                            jp[ch] = Some(j);
-                            crate::solver::segment::segment_linear(l[ch], j, j1, rho * st, dir.path_length)
-                        } else {
-                            segment(l[ch], j, rho * st, dir.path_length)
-                        };
+                        let (out, avg) = segment(l[ch], j, rho * st, dir.path_length);
                         l[ch] = out;
                         for &(v, wt) in &met {
                             let share = wt * avg;
