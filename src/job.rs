@@ -217,7 +217,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
             channels: plan.channels,
             storage_dirs: plan.storage.len() as u32,
             storage_lookup: &lookup,
-            medium: &scene.medium,
+            medium: &plan.medium,
             background,
             camera: &camera,
         });

@@ -61,6 +61,7 @@ pub(crate) struct RawSolver {
     pub storage_precision: Option<String>,
     pub plan: Option<String>,
     pub spatial: Option<String>,
+    pub forward_peak: Option<String>,
 }
 
 #[derive(Debug, Deserialize)]

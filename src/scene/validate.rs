@@ -3,7 +3,7 @@
 
 use super::raw::{ByteSize, Channels, RawCamera, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
 use super::{
-    Camera, Light, Medium, PlanMode, Projection, Scene, SceneError, Shape, SolverSettings, SpatialScheme,
+    Camera, ForwardPeak, Light, Medium, PlanMode, Projection, Scene, SceneError, Shape, SolverSettings, SpatialScheme,
     StoragePrecision, Volume, VolumeSource,
 };
 use glam::DVec3;
@@ -32,7 +32,8 @@ const LIGHT_KINDS: &str = "\"sky\", \"sun\"";
 const PROJECTIONS: &str = "\"pinhole\", \"orthographic\"";
 const PRECISIONS: &str = "\"auto\", \"f16\", \"f32\"";
 const PLAN_MODES: &str = "\"auto\", \"full\"";
-const SPATIAL_SCHEMES: &str = "\"linear\", \"constant\"";
+const SPATIAL_SCHEMES: &str = "\"constant\", \"linear\"";
+const FORWARD_PEAKS: &str = "\"auto\", \"delta-m\", \"keep\"";
 
 pub(crate) struct Validator<'a> {
     pub path: &'a Path,
@@ -290,6 +291,7 @@ impl Validator<'_> {
                 storage_precision: StoragePrecision::Auto,
                 plan: PlanMode::Auto,
                 spatial: SpatialScheme::default(),
+                forward_peak: ForwardPeak::default(),
             });
         };
         let k = match s.directions_per_face {
@@ -345,12 +347,23 @@ impl Validator<'_> {
             }
         };
         let spatial = match s.spatial.as_deref() {
-            None | Some("linear") => SpatialScheme::Linear,
-            Some("constant") => SpatialScheme::Constant,
+            Some("linear") => SpatialScheme::Linear,
+            None | Some("constant") => SpatialScheme::Constant,
             Some(other) => {
                 return Err(self.err(
                     "solver.spatial",
                     format!("unknown spatial scheme \"{other}\", expected one of {SPATIAL_SCHEMES}"),
+                ))
+            }
+        };
+        let forward_peak = match s.forward_peak.as_deref() {
+            None | Some("auto") => ForwardPeak::Auto,
+            Some("delta-m") => ForwardPeak::DeltaM,
+            Some("keep") => ForwardPeak::Keep,
+            Some(other) => {
+                return Err(self.err(
+                    "solver.forward_peak",
+                    format!("unknown forward peak treatment \"{other}\", expected one of {FORWARD_PEAKS}"),
                 ))
             }
         };
@@ -364,6 +377,7 @@ impl Validator<'_> {
             storage_precision,
             plan,
             spatial,
+            forward_peak,
         })
     }
 

@@ -22,6 +22,7 @@ pub fn scene(shape: Shape, dims: [u32; 3], sigma_t: [f64; 3], albedo: [f64; 3], 
             storage_precision: StoragePrecision::Auto,
             plan: PlanMode::Auto,
             spatial: SpatialScheme::Linear,
+            forward_peak: ForwardPeak::Auto,
         },
         camera: None,
     }
