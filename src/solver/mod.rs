@@ -96,6 +96,27 @@ pub fn build_store(scene: &Scene, dir: &Path) -> Result<BrickStore, SolveError> 
     Ok(store)
 }
 
+/// The scene's density at every voxel (x fastest), read through a brick store built in `scratch`
+/// (removed afterwards): what `lpm compare --scene` and `lpm bench accuracy` use to find the dense
+/// core.
+pub fn density_volume(scene: &Scene, scratch: &Path) -> Result<Vec<f32>, SolveError> {
+    let store = build_store(scene, scratch);
+    let result = store.map(|store| {
+        let [nx, ny, nz] = scene.volume.dims;
+        let mut density = Vec::with_capacity(nx as usize * ny as usize * nz as usize);
+        for z in 0..nz {
+            for y in 0..ny {
+                for x in 0..nx {
+                    density.push(store.density_at([x, y, z]));
+                }
+            }
+        }
+        density
+    });
+    let _ = std::fs::remove_dir_all(scratch);
+    result
+}
+
 /// Solves `scene` over `store`: plans, runs the orders on the chosen backend, and leaves the
 /// fluence and the summed source in the returned fields. The device memory budget is the scene's.
 pub fn solve(
