@@ -1,8 +1,10 @@
 #version 450
-// Collect: one thread per voxel of the slice. Sums the segment-average radiance every direction of
-// the dispatch deposited in T into the fluence (weighted by the direction's solid angle) and, where
-// the medium scatters, into the next order's source (J^d += σs·Σ_i M[i][d]·L̄_i). Summation order is
-// fixed, so results are bitwise reproducible. CPU twin: the deposit in CpuTwin::sweep.
+// Collect: one thread per voxel of the slice. Pulls, for every direction of the dispatch, the
+// voxel's share of the segment averages its rays deposited in T (the two-by-two lattice cells
+// around it, with the plane's lattice weights: src/solver/sweep.rs) into the fluence (weighted by
+// the direction's solid angle) and, where the medium scatters, into the next order's source
+// (J^d += σs·Σ_i M[i][d]·L̄_i). Summation order is fixed, so results are bitwise reproducible.
+// CPU twin: the deposit in CpuTwin::sweep.
 #extension GL_GOOGLE_include_directive : require
 #include "common.glsl"
 
@@ -12,9 +14,30 @@ layout(std430, binding = 0) readonly buffer Directions { Direction dirs[]; };
 layout(std430, binding = 1) readonly buffer CollectRows { float rows[]; };       // [dir][storage]
 layout(std430, binding = 2) readonly buffer SlotTable { int medium_slot[]; };
 layout(std430, binding = 3) readonly buffer Density { float density[]; };
-layout(std430, binding = 4) readonly buffer Deposit { float deposit[]; };        // [dispatch dir][ch][plane][vc][vb]
+layout(std430, binding = 4) readonly buffer Deposit { float deposit[]; };        // [dispatch dir][ch][plane][lc][lb]
 layout(std430, binding = 5) buffer SourceNext { float j_next[]; };               // [slot][d·C+ch][slab voxel]
 layout(std430, binding = 6) buffer Fluence { float fluence[]; };                 // [slot][ch][slab voxel]
+layout(std430, binding = 7) readonly buffer Offsets { ivec4 offsets[]; };        // [dir][na]: o_b, o_c, w_b, w_c bits
+
+// The voxel's share of what direction `di` of the dispatch deposited in channel `ch`: lattice
+// column c + 1 meets voxel column c with weight 1 − w, column c with weight w (per axis). Terms of
+// weight 0 are left out (adding 0 would change nothing), in a fixed order.
+float pulled(uint di, uint ch, uint tt, uint vb, uint vc, vec2 w, uint planes, uint rays) {
+    uint lb_n = pc.nb + 1u;
+    uint lc_n = pc.nc + 1u;
+    uint base = (di * pc.channels + ch) * planes * rays + tt * rays;
+    float sum = 0.0;
+    for (uint dc = 0u; dc < 2u; ++dc) {
+        float wc = dc == 0u ? 1.0 - w.y : w.y;
+        if (wc == 0.0) continue;
+        for (uint db = 0u; db < 2u; ++db) {
+            float wb = db == 0u ? 1.0 - w.x : w.x;
+            if (wb == 0.0) continue;
+            sum += (wb * wc) * deposit[base + (vc + 1u - dc) * lb_n + (vb + 1u - db)];
+        }
+    }
+    return sum;
+}
 
 void main() {
     uint vb = gl_GlobalInvocationID.x;
@@ -27,13 +50,12 @@ void main() {
     int slot = medium_slot[slice_brick(vb, vc)];
     if (slot < 0) return;
 
-    uint rays = pc.nb * pc.nc;
+    uint rays = (pc.nb + 1u) * (pc.nc + 1u);
     uint C = pc.channels;
     uvec3 v = voxel_of(pc.t0 + tt, vb, vc);
     uint sv = slab_voxels();
     uint local = slab_index(v);
     float rho = density[uint(slot) * sv + local];
-    uint cell = (tt * pc.nc + vc) * pc.nb + vb;
 
     // Each direction's contribution is added on its own, in direction order: whatever grouping of
     // directions or planes the memory budget chooses, every voxel sees the same sequence of f32
@@ -42,7 +64,8 @@ void main() {
         uint fi = (uint(slot) * C + ch) * sv + local;
         float phi = fluence[fi];
         for (uint di = 0u; di < pc.dir_count; ++di) {
-            phi += dirs[pc.dir_base + di].fluence_weight * deposit[(di * C + ch) * planes * rays + cell];
+            vec2 w = intBitsToFloat(offsets[(pc.dir_base + di) * pc.na + pc.t0 + tt].zw);
+            phi += dirs[pc.dir_base + di].fluence_weight * pulled(di, ch, tt, vb, vc, w, planes, rays);
         }
         fluence[fi] = phi;
 
@@ -53,7 +76,8 @@ void main() {
                 uint ji = (uint(slot) * comps + d * C + ch) * sv + local;
                 float j = j_next[ji];
                 for (uint di = 0u; di < pc.dir_count; ++di) {
-                    j += sigma_s * (rows[(pc.dir_base + di) * pc.storage + d] * deposit[(di * C + ch) * planes * rays + cell]);
+                    vec2 w = intBitsToFloat(offsets[(pc.dir_base + di) * pc.na + pc.t0 + tt].zw);
+                    j += sigma_s * (rows[(pc.dir_base + di) * pc.storage + d] * pulled(di, ch, tt, vb, vc, w, planes, rays));
                 }
                 j_next[ji] = j;
             }

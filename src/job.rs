@@ -63,6 +63,9 @@ pub struct Report {
     pub plan: solver::plan::PlanSummary,
     pub orders: u32,
     pub converged: bool,
+    /// The estimated remaining relative error of the fluence over the medium's voxels after the
+    /// last order (max and root mean square; see `solver::remaining`): what `converged` is decided on.
+    pub remaining_error: Option<solver::remaining::RemainingError>,
     /// Scattered power of the last order over the total: what is left of the series, relatively.
     pub final_residual: f64,
     pub tolerance: f64,
@@ -253,7 +256,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
             channels: plan.channels,
             storage_dirs: plan.storage.len() as u32,
             storage_lookup: &lookup,
-            medium: &scene.medium,
+            medium: &plan.medium,
             background,
             camera: &camera,
         });
@@ -274,6 +277,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
         plan: plan.summary(),
         orders: outcome.orders,
         converged: outcome.converged,
+        remaining_error: outcome.remaining,
         final_residual: outcome.residual,
         tolerance: plan.tolerance,
         history: outcome.history,

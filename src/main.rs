@@ -102,6 +102,12 @@ enum Command {
         /// Use only voxels whose reference standard error is at most this fraction of its fluence.
         #[arg(long, default_value_t = 0.05)]
         max_rel_stderr: f64,
+        /// The scene both were solved from: its density adds a "core" row (the densest voxels).
+        #[arg(long)]
+        scene: Option<PathBuf>,
+        /// With --scene: the density quantile where the core starts (0.9: the densest 10 %).
+        #[arg(long, default_value_t = lpm::compare::DEFAULT_CORE_QUANTILE)]
+        core_quantile: f64,
     },
     /// Benchmarks that print JSON (see README, "Benchmarks").
     Bench {
@@ -290,6 +296,18 @@ enum BenchCommand {
         /// isotropic scene, f32 storage under `auto` precision; it shows what the plan saves.
         #[arg(long, value_delimiter = ',', value_enum, default_value = "auto")]
         plans: Vec<PlanArg>,
+        /// Spatial schemes to run each setting with (comma-separated: constant, linear); default:
+        /// the scene's own.
+        #[arg(long, value_delimiter = ',', value_enum)]
+        spatial: Vec<SpatialArg>,
+        /// Forward-peak treatments to run each setting with (comma-separated: auto, delta-m,
+        /// keep); default: the scene's own.
+        #[arg(long, value_delimiter = ',', value_enum)]
+        forward_peak: Vec<ForwardPeakArg>,
+        /// The density quantile where the dense core starts (0.9: the densest 10 % of the medium),
+        /// for the core_* columns.
+        #[arg(long, default_value_t = lpm::compare::DEFAULT_CORE_QUANTILE)]
+        core_quantile: f64,
         /// Monte-Carlo photon counts per channel to try (comma-separated).
         #[arg(long, value_delimiter = ',', default_value = "100000,400000,1600000")]
         samples: Vec<f64>,
@@ -316,6 +334,19 @@ enum PrecisionArg {
 enum PlanArg {
     Auto,
     Full,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum SpatialArg {
+    Constant,
+    Linear,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum ForwardPeakArg {
+    Auto,
+    DeltaM,
+    Keep,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -517,11 +548,19 @@ fn run(cli: Cli) -> Result<()> {
             );
             Ok(())
         }
-        Command::Compare { a, b, json, max_rel_stderr } => {
+        Command::Compare { a, b, json, max_rel_stderr, scene, core_quantile } => {
+            let core = match scene {
+                Some(path) => {
+                    let scene = lpm::scene::Scene::load(&path)?;
+                    let density = lpm::solver::density_volume(&scene, &a.join(".lpm-compare-density"))?;
+                    Some(lpm::compare::CoreMask { density, quantile: core_quantile })
+                }
+                None => None,
+            };
             let c = lpm::compare::compare_dirs(
                 &a,
                 &b,
-                &lpm::compare::CompareOptions { max_relative_stderr: max_rel_stderr },
+                &lpm::compare::CompareOptions { max_relative_stderr: max_rel_stderr, core },
             )?;
             println!("{c}");
             if let Some(path) = json {
@@ -539,6 +578,9 @@ fn run(cli: Cli) -> Result<()> {
                     max_orders,
                     precisions,
                     plans,
+                    spatial,
+                    forward_peak,
+                    core_quantile,
                     samples,
                     reference_samples,
                     backend,
@@ -564,6 +606,22 @@ fn run(cli: Cli) -> Result<()> {
                         PlanArg::Full => lpm::scene::PlanMode::Full,
                     })
                     .collect(),
+                spatial: spatial
+                    .iter()
+                    .map(|s| match s {
+                        SpatialArg::Constant => lpm::scene::SpatialScheme::Constant,
+                        SpatialArg::Linear => lpm::scene::SpatialScheme::Linear,
+                    })
+                    .collect(),
+                forward_peaks: forward_peak
+                    .iter()
+                    .map(|p| match p {
+                        ForwardPeakArg::Auto => lpm::scene::ForwardPeak::Auto,
+                        ForwardPeakArg::DeltaM => lpm::scene::ForwardPeak::DeltaM,
+                        ForwardPeakArg::Keep => lpm::scene::ForwardPeak::Keep,
+                    })
+                    .collect(),
+                core_quantile,
                 photons: samples.iter().map(|&s| s.max(1.0) as u64).collect(),
                 reference_photons: reference_samples.max(1.0) as u64,
                 backend: match backend {
@@ -575,19 +633,29 @@ fn run(cli: Cli) -> Result<()> {
             };
             let report = lpm::bench::accuracy::run(&scene, &out, &options, |line| tracing::info!("{line}"))?;
             println!(
-                "{:<12} {:<31} {:>10} {:>12} {:>12} {:>12} {:>14}",
-                "method", "setting", "seconds", "rel. L2", "noise-corr.", "bias", "device bytes"
+                "{:<12} {:<31} {:>10} {:>12} {:>12} {:>12} {:>12} {:>12} {:>14}",
+                "method",
+                "setting",
+                "seconds",
+                "rel. L2",
+                "noise-corr.",
+                "bias",
+                "core L2",
+                "core bias",
+                "device bytes"
             );
             for r in &report.rows {
                 let f = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.3e}"));
                 println!(
-                    "{:<12} {:<31} {:>10.3} {:>12} {:>12} {:>12} {:>14}",
+                    "{:<12} {:<31} {:>10.3} {:>12} {:>12} {:>12} {:>12} {:>12} {:>14}",
                     r.method,
                     r.setting,
                     r.seconds,
                     f(r.relative_l2),
                     f(r.noise_corrected_l2),
                     f(r.mean_bias),
+                    f(r.core_relative_l2),
+                    f(r.core_mean_bias),
                     r.peak_device_bytes.map_or("n/a".to_string(), |b| b.to_string())
                 );
             }

@@ -48,41 +48,30 @@ fn the_tail_estimate_reaches_the_converged_answer_in_few_orders() {
         let tail_err = relative_l2(&tail.fluence, &truth.fluence);
         let power_err = (tail.power - truth.power).abs() / truth.power;
 
-        // The plain series at the same tolerance and at tighter ones, until it is as close.
-        let mut plain_runs = Vec::new();
-        for plain_tol in [tol, tol / 10.0, tol / 100.0, tol / 1000.0] {
-            let mut plain = thick(albedo);
-            plain.solver.tolerance = plain_tol;
-            let p = run(&format!("tail-plain-{albedo}-{plain_tol:e}"), &plain);
-            let err = relative_l2(&p.fluence, &truth.fluence);
-            plain_runs.push((plain_tol, p.orders, err));
-            if err <= tail_err {
-                break;
-            }
-        }
+        // The plain series at the same tolerance, stopped by the per-voxel rule.
+        let mut plain = thick(albedo);
+        plain.solver.tolerance = tol;
+        let p = run(&format!("tail-plain-{albedo}"), &plain);
+        let plain_err = relative_l2(&p.fluence, &truth.fluence);
         eprintln!(
             "albedo {albedo}: converged in {} orders; with the tail at tol {tol:e}: {} orders, fluence error {tail_err:.2e}, \
-             power error {power_err:.2e} (uncertainty {:.2e}); plain (tolerance, orders, error): {plain_runs:?}",
+             power error {power_err:.2e} (uncertainty {:.2e}); plain series at the same tolerance: {} orders, error {plain_err:.2e}",
             truth.orders,
             tail.orders,
-            tail.uncertainty / truth.power
+            tail.uncertainty / truth.power,
+            p.orders
         );
         // Measured (CPU twin), albedo 0.99: converged in 410 orders; the tail stops after 75 with
-        // fluence error 3.3e-4 and power error 2.1e-5; the plain series stops after 134 at the
-        // same tolerance with error 2.8e-3, and needs a 10× tighter one (189 orders) to get as
-        // close. Albedo 0.999: 517; 84 orders, 4.3e-4; 165, 3.6e-3; 236 orders.
-        // The stop rule's promise: the power it misses is within the tolerance.
+        // fluence error 3.8e-4; the plain series, stopped when every voxel's remaining error is
+        // within the tolerance, needs 3-4× the orders and lands within it. (Before the per-voxel
+        // stop rule the plain series stopped after 134 orders with error 2.8e-3.)
+        // The tail's promise: the power it misses is within the tolerance.
         assert!(power_err <= tol, "power error {power_err:e} over the tolerance {tol:e}");
         // The fluence's shape is close too (the last order's shape stands for the tail's).
         assert!(tail_err <= 5.0 * tol, "fluence error {tail_err:e}");
-        // The plain series at the same tolerance is much further off ...
-        let (_, plain_orders, plain_err) = plain_runs[0];
-        assert!(plain_err >= 3.0 * tail_err, "{plain_err:e} vs {tail_err:e}");
-        assert!(tail.orders < plain_orders, "{} vs {plain_orders}", tail.orders);
-        // ... and needs at least twice the tail's orders to get as close.
-        let (_, as_close_orders, as_close_err) = *plain_runs.last().unwrap();
-        assert!(as_close_err <= tail_err, "the plain series never got as close: {plain_runs:?}");
-        assert!(as_close_orders >= 2 * tail.orders, "{as_close_orders} vs {}", tail.orders);
+        // The plain series keeps its own promise, in more orders.
+        assert!(plain_err <= 2.0 * tol, "plain series error {plain_err:e}");
+        assert!(2 * tail.orders < p.orders, "{} vs {}", tail.orders, p.orders);
     }
 }
 

@@ -115,7 +115,7 @@ fn mismatched_fields_are_errors_naming_both_files() {
     let msg = compare_dirs(&a, &root.join("nowhere"), &CompareOptions::default()).unwrap_err().to_string();
     assert!(msg.contains("nowhere") && msg.contains("fluence.json"), "{msg}");
     // A bad threshold is rejected.
-    let bad = CompareOptions { max_relative_stderr: f64::NAN };
+    let bad = CompareOptions { max_relative_stderr: f64::NAN, ..Default::default() };
     assert!(matches!(compare_dirs(&a, &a, &bad), Err(CompareError::BadThreshold(_))));
 }
 
@@ -145,7 +145,7 @@ fn the_reference_standard_error_masks_noisy_and_dark_voxels() {
     assert!(c.to_string().contains("3 excluded"), "{c}");
 
     // A looser threshold lets voxel 3 in (and its error shows).
-    let c = compare_dirs(&a, &b, &CompareOptions { max_relative_stderr: 0.2 }).unwrap();
+    let c = compare_dirs(&a, &b, &CompareOptions { max_relative_stderr: 0.2, ..Default::default() }).unwrap();
     assert_eq!(c.fluence.voxels_used, 14);
     assert!(c.fluence.metrics.relative_l2.unwrap() > 1.0);
 
@@ -196,4 +196,36 @@ fn a_grey_reference_is_compared_with_each_channel_of_an_rgb_candidate() {
     // Only "grey" against "r", "g", "b": other names with other counts are still a mismatch.
     let other = named_dir(&root, "other", dims, &["c0", "c1", "c2"], &rgb, None);
     assert!(matches!(compare_dirs(&other, &b, &CompareOptions::default()), Err(CompareError::Mismatch { .. })));
+}
+
+#[test]
+fn the_dense_core_is_compared_on_its_own() {
+    // 4×4×1 voxels, densities 0 (one empty voxel) then 1..15; the candidate is exact except in the
+    // two densest voxels, where it is 20 % high.
+    let root = temp_dir("compare-core");
+    let dims = [4, 4, 1];
+    let density: Vec<f32> = (0..16).map(|i| i as f32).collect();
+    let b_values = vec![1.0f32; 16];
+    let mut a_values = b_values.clone();
+    a_values[14] = 1.2;
+    a_values[15] = 1.2;
+    let a = dir(&root, "a", dims, 1, &a_values, None);
+    let b = dir(&root, "b", dims, 1, &b_values, None);
+    // The 0.9 quantile of the 15 non-zero densities 1..15 is 13.6 → the lower value 13: voxels 13-15.
+    let core = Some(lpm::compare::CoreMask { density: density.clone(), quantile: 0.9 });
+    let c = compare_dirs(&a, &b, &CompareOptions { core, ..Default::default() }).unwrap();
+    let k = c.fluence.core.as_ref().expect("core comparison");
+    assert_eq!((k.voxels_used, k.density_threshold), (3, 13.0));
+    assert!((k.metrics.mean_bias.unwrap() - 0.4 / 3.0).abs() < 1e-6, "{:?}", k.metrics);
+    // The whole medium dilutes it: 0.4 over 16 voxels.
+    assert!((c.fluence.metrics.mean_bias.unwrap() - 0.4 / 16.0).abs() < 1e-6);
+    assert!(c.to_string().contains("core"), "{c}");
+    // A quantile outside [0, 1) and a density of another size are errors.
+    let bad = Some(lpm::compare::CoreMask { density: density.clone(), quantile: 1.0 });
+    assert!(matches!(
+        compare_dirs(&a, &b, &CompareOptions { core: bad, ..Default::default() }),
+        Err(CompareError::BadQuantile(_))
+    ));
+    let short = Some(lpm::compare::CoreMask { density: density[..15].to_vec(), quantile: 0.5 });
+    assert!(compare_dirs(&a, &b, &CompareOptions { core: short, ..Default::default() }).is_err());
 }

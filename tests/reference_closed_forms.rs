@@ -25,6 +25,8 @@ fn scene(dims: [u32; 3], h: f64, sigma_t: f64, albedo: f64, g: f64, emission: f6
             extrapolate_tail: false,
             storage_precision: StoragePrecision::Auto,
             plan: PlanMode::Auto,
+            spatial: SpatialScheme::Linear,
+            forward_peak: ForwardPeak::Auto,
         },
         camera: None,
     }

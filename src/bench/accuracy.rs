@@ -11,11 +11,11 @@
 //! `accuracy.csv` and a log-log plot `accuracy.png` / `accuracy.svg` of seconds against relative L2
 //! error, one line per directions per face, precision and plan.
 
-use crate::compare::{compare_dirs, CompareOptions, Comparison};
+use crate::compare::{compare_dirs, CompareOptions, Comparison, CoreMask};
 use crate::job::{self, SolveJob};
 use crate::plot::{Figure, Series, Style};
 use crate::reference::job::{self as reference_job, ReferenceJob};
-use crate::scene::{PlanMode, StoragePrecision};
+use crate::scene::{ForwardPeak, PlanMode, SpatialScheme, StoragePrecision};
 use crate::solver::BackendKind;
 use crate::vk::ContextOptions;
 use serde::Serialize;
@@ -32,6 +32,12 @@ pub struct AccuracyOptions {
     pub precisions: Vec<StoragePrecision>,
     /// `solver.plan` values to run each (k, tolerance, precision) with.
     pub plans: Vec<PlanMode>,
+    /// `solver.spatial` schemes to run each setting with; empty: the scene's own.
+    pub spatial: Vec<SpatialScheme>,
+    /// `solver.forward_peak` treatments to run each setting with; empty: the scene's own.
+    pub forward_peaks: Vec<ForwardPeak>,
+    /// The density quantile where the dense core starts (the `core_*` columns).
+    pub core_quantile: f64,
     pub photons: Vec<u64>,
     pub reference_photons: u64,
     pub backend: BackendKind,
@@ -61,6 +67,14 @@ pub struct AccuracyRow {
     pub reference_noise_l2: Option<f64>,
     pub noise_corrected_l2: Option<f64>,
     pub voxels_compared: u64,
+    /// The same over the dense core (voxels at or above the density quantile `core_quantile`): the
+    /// whole-medium figures above are dominated by thin, easy voxels.
+    pub core_relative_l2: Option<f64>,
+    pub core_mean_bias: Option<f64>,
+    pub core_voxels_compared: u64,
+    /// Solver only: the spatial scheme and forward-peak treatment used.
+    pub spatial: Option<String>,
+    pub forward_peak: Option<String>,
     /// Solver only: orders run and the final residual.
     pub orders: Option<u32>,
     pub residual: Option<f64>,
@@ -113,7 +127,15 @@ pub fn run(
         threads: 0,
         image_samples_per_pixel: 0,
     })?;
-    let compare_options = CompareOptions { max_relative_stderr: opts.max_relative_stderr };
+    let loaded = crate::scene::Scene::load(scene).map_err(job::JobError::from)?;
+    let density =
+        crate::solver::density_volume(&loaded, &runs.join("density-scratch")).map_err(|e| job::JobError::from(e))?;
+    let core = Some(CoreMask { density, quantile: opts.core_quantile });
+    let compare_options = CompareOptions { max_relative_stderr: opts.max_relative_stderr, core };
+    let spatials: Vec<Option<SpatialScheme>> =
+        if opts.spatial.is_empty() { vec![None] } else { opts.spatial.iter().map(|&s| Some(s)).collect() };
+    let peaks: Vec<Option<ForwardPeak>> =
+        if opts.forward_peaks.is_empty() { vec![None] } else { opts.forward_peaks.iter().map(|&p| Some(p)).collect() };
     let mut rows = Vec::new();
 
     // Name the plan in settings and run directories only when it varies from the default, so a
@@ -126,9 +148,22 @@ pub fn run(
             for &max_orders in &caps {
                 for &precision in &opts.precisions {
                     for &plan in &opts.plans {
-                        let run = SolverRun { k, tolerance, max_orders, precision, plan, name_plan: name_plans };
-                        log(&format!("lpm {}", run.setting()));
-                        rows.push(solver_row(scene, &runs, &reference_dir, &run, opts, &compare_options)?);
+                        for &spatial in &spatials {
+                            for &forward_peak in &peaks {
+                                let run = SolverRun {
+                                    k,
+                                    tolerance,
+                                    max_orders,
+                                    precision,
+                                    plan,
+                                    name_plan: name_plans,
+                                    spatial,
+                                    forward_peak,
+                                };
+                                log(&format!("lpm {}", run.setting()));
+                                rows.push(solver_row(scene, &runs, &reference_dir, &run, opts, &compare_options)?);
+                            }
+                        }
                     }
                 }
             }
@@ -173,6 +208,9 @@ struct SolverRun {
     plan: PlanMode,
     /// Whether the setting and the run's directory name the plan.
     name_plan: bool,
+    /// `None`: the scene's own.
+    spatial: Option<SpatialScheme>,
+    forward_peak: Option<ForwardPeak>,
 }
 
 impl SolverRun {
@@ -181,14 +219,26 @@ impl SolverRun {
         let (k, tolerance, precision) = (self.k, self.tolerance, precision_name(self.precision));
         let cap = self.max_orders.map_or(String::new(), |c| format!(" max_orders={c}"));
         let plan = if self.name_plan { format!(" plan={}", self.plan.name()) } else { String::new() };
-        format!("k={k} tol={tolerance:e}{cap} {precision}{plan}")
+        format!("k={k} tol={tolerance:e}{cap} {precision}{plan}{}", self.variant(" ", "="))
+    }
+
+    /// " spatial=linear peak=delta-m" (with `sep` and `eq`), for what was set explicitly.
+    fn variant(&self, sep: &str, eq: &str) -> String {
+        let mut s = String::new();
+        if let Some(sp) = self.spatial {
+            s += &format!("{sep}spatial{eq}{}", sp.name());
+        }
+        if let Some(p) = self.forward_peak {
+            s += &format!("{sep}peak{eq}{}", p.name());
+        }
+        s
     }
 
     fn dir_name(&self) -> String {
         let (k, tolerance, precision) = (self.k, self.tolerance, precision_name(self.precision));
         let cap = self.max_orders.map_or(String::new(), |c| format!("-orders{c}"));
         let plan = if self.name_plan { format!("-{}", self.plan.name()) } else { String::new() };
-        format!("lpm-k{k}-tol{tolerance:e}{cap}-{precision}{plan}")
+        format!("lpm-k{k}-tol{tolerance:e}{cap}-{precision}{plan}{}", self.variant("-", ""))
     }
 }
 
@@ -225,6 +275,11 @@ fn solver_row(
     r.plan = Some(report.plan.mode.clone());
     r.channels = Some(report.plan.channels);
     r.storage_directions = Some(report.plan.storage_directions as u32);
+    r.spatial = Some(report.plan.spatial.clone());
+    r.forward_peak = Some(match report.plan.delta_m_fraction {
+        Some(f) => format!("delta-m f={f:.3}"),
+        None => "kept".to_string(),
+    });
     if let Some(m) = &report.device_memory {
         r.peak_device_bytes = Some(report.peak_device_bytes);
         r.planned_device_bytes = Some(m.planned_bytes);
@@ -257,6 +312,11 @@ fn row(
         reference_noise_l2: c.fluence.reference_noise_relative_l2,
         noise_corrected_l2: c.fluence.noise_corrected_relative_l2,
         voxels_compared: c.fluence.voxels_used,
+        core_relative_l2: c.fluence.core.as_ref().and_then(|k| k.metrics.relative_l2),
+        core_mean_bias: c.fluence.core.as_ref().and_then(|k| k.metrics.mean_bias),
+        core_voxels_compared: c.fluence.core.as_ref().map_or(0, |k| k.voxels_used),
+        spatial: None,
+        forward_peak: None,
         orders,
         residual,
         peak_device_bytes: None,
@@ -293,6 +353,12 @@ fn with_solver_settings(scene: &Path, dir: &Path, run: &SolverRun) -> Result<Pat
             if let Some(cap) = run.max_orders {
                 solver.insert("max_orders".into(), toml::Value::Integer(cap as i64));
             }
+            if let Some(sp) = run.spatial {
+                solver.insert("spatial".into(), toml::Value::String(sp.name().into()));
+            }
+            if let Some(p) = run.forward_peak {
+                solver.insert("forward_peak".into(), toml::Value::String(p.name().into()));
+            }
             if solver
                 .get("storage_directions_per_face")
                 .and_then(toml::Value::as_integer)
@@ -320,11 +386,11 @@ fn write_outputs(out: &Path, report: &AccuracyReport) -> Result<(), AccuracyErro
     crate::output::write_json_atomic(&out.join("accuracy.json"), report)?;
     let opt = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:e}"));
     let mut csv = String::from(
-        "method,setting,seconds,relative_l2,rmse,max_relative_error,mean_bias,reference_noise_l2,noise_corrected_l2,voxels_compared,orders,residual,storage_precision,peak_device_bytes,planned_device_bytes,plan,channels,storage_directions\n",
+        "method,setting,seconds,relative_l2,rmse,max_relative_error,mean_bias,reference_noise_l2,noise_corrected_l2,voxels_compared,orders,residual,storage_precision,peak_device_bytes,planned_device_bytes,plan,channels,storage_directions,core_relative_l2,core_mean_bias,core_voxels_compared,spatial,forward_peak\n",
     );
     for r in &report.rows {
         csv.push_str(&format!(
-            "{},{},{:e},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+            "{},{},{:e},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
             r.method,
             r.setting,
             r.seconds,
@@ -342,7 +408,12 @@ fn write_outputs(out: &Path, report: &AccuracyReport) -> Result<(), AccuracyErro
             r.planned_device_bytes.map_or(String::new(), |b| b.to_string()),
             r.plan.as_deref().unwrap_or(""),
             r.channels.map_or(String::new(), |c| c.to_string()),
-            r.storage_directions.map_or(String::new(), |d| d.to_string())
+            r.storage_directions.map_or(String::new(), |d| d.to_string()),
+            opt(r.core_relative_l2),
+            opt(r.core_mean_bias),
+            r.core_voxels_compared,
+            r.spatial.as_deref().unwrap_or(""),
+            r.forward_peak.as_deref().unwrap_or("")
         ));
     }
     crate::output::write_atomic(&out.join("accuracy.csv"), |w| std::io::Write::write_all(w, csv.as_bytes()))?;

@@ -13,6 +13,10 @@
 //! components): relative L2 ‖a−b‖/‖b‖, RMSE, max relative error |a−b|/|b| and mean bias
 //! mean(a−b)/mean(b) ([`Metrics`]).
 //!
+//! **Dense core.** Given the scene's density ([`CompareOptions::core`]), the same metrics are also
+//! computed over the voxels at or above a density quantile (the densest 10 % of the medium by
+//! default): the whole-medium figure is dominated by thin, easy voxels.
+//!
 //! **Images.** When both have `image.exr` of the same size, the same metrics over all pixels and
 //! r, g, b; otherwise a note says why the images were not compared.
 //!
@@ -36,13 +40,28 @@ pub struct CompareOptions {
     /// Reference values with a larger relative standard error are left out (when the reference has
     /// `fluence_stderr.*`). Must be ≥ 0; infinity keeps every voxel with fluence > 0.
     pub max_relative_stderr: f64,
+    /// The dense core: when set, the voxels whose density is at or above this quantile of the
+    /// medium's (non-zero) densities are also compared on their own ([`CoreComparison`]). A
+    /// whole-medium figure is dominated by the many thin, easy voxels and hides the core's error.
+    pub core: Option<CoreMask>,
+}
+
+/// The density of every voxel (x fastest) and the quantile that starts the dense core.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CoreMask {
+    pub density: Vec<f32>,
+    /// In [0, 1): 0.9 takes the densest 10 % of the medium's voxels.
+    pub quantile: f64,
 }
 
 impl Default for CompareOptions {
     fn default() -> Self {
-        CompareOptions { max_relative_stderr: 0.05 }
+        CompareOptions { max_relative_stderr: 0.05, core: None }
     }
 }
+
+/// The default core quantile of `lpm compare --scene` and `lpm bench accuracy`.
+pub const DEFAULT_CORE_QUANTILE: f64 = 0.9;
 
 #[derive(Debug, Error)]
 pub enum CompareError {
@@ -54,6 +73,8 @@ pub enum CompareError {
     Image { path: PathBuf, message: String },
     #[error("the maximum relative standard error must be a number ≥ 0, not {0}")]
     BadThreshold(f64),
+    #[error("the core quantile must be in [0, 1), not {0}")]
+    BadQuantile(f64),
 }
 
 /// Everything `lpm compare` reports.
@@ -91,6 +112,19 @@ pub struct FluenceComparison {
     /// √(max(0, rel. L2² − noise²)): the relative L2 error with the reference's noise taken out
     /// (in expectation); meaningful when clearly above zero.
     pub noise_corrected_relative_l2: Option<f64>,
+    /// The same over the dense core only (when a density was given).
+    pub core: Option<CoreComparison>,
+}
+
+/// The comparison restricted to the dense core (see [`CompareOptions::core`]).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct CoreComparison {
+    pub quantile: f64,
+    /// Voxels with at least this density are in the core.
+    pub density_threshold: f32,
+    /// Core voxels compared (the same exclusions as the whole medium apply).
+    pub voxels_used: u64,
+    pub metrics: Metrics,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -146,6 +180,24 @@ pub fn compare_dirs(a: &Path, b: &Path, opts: &CompareOptions) -> Result<Compari
     } else {
         None
     };
+    let core_threshold = match &opts.core {
+        Some(core) => {
+            if core.density.len() as u64 != voxels_total {
+                return Err(CompareError::Mismatch {
+                    a: a.join("fluence.json"),
+                    b: b.join("fluence.json"),
+                    message: format!("the density has {} voxels, the fluence {voxels_total}", core.density.len()),
+                });
+            }
+            if !(0.0..1.0).contains(&core.quantile) {
+                return Err(CompareError::BadQuantile(core.quantile));
+            }
+            Some(density_quantile(&core.density, core.quantile))
+        }
+        None => None,
+    };
+    let mut core_acc = Accumulator::default();
+    let mut core_used = 0u64;
     let mut acc = Accumulator::default();
     let mut used = 0u64;
     let mut not_solved = 0u64;
@@ -164,6 +216,12 @@ pub fn compare_dirs(a: &Path, b: &Path, opts: &CompareOptions) -> Result<Compari
         if keep {
             used += 1;
             va.iter().enumerate().for_each(|(k, &x)| acc.add(x, vb[ref_of(k)]));
+            if let (Some(t), Some(core)) = (core_threshold, &opts.core) {
+                if core.density[v] >= t && core.density[v] > 0.0 {
+                    core_used += 1;
+                    va.iter().enumerate().for_each(|(k, &x)| core_acc.add(x, vb[ref_of(k)]));
+                }
+            }
             if let Some(se) = &stderr {
                 for k in 0..ca {
                     noise_sq += (se[v * c + ref_of(k)] as f64).powi(2);
@@ -199,9 +257,30 @@ pub fn compare_dirs(a: &Path, b: &Path, opts: &CompareOptions) -> Result<Compari
         metrics,
         reference_noise_relative_l2: noise,
         noise_corrected_relative_l2: corrected,
+        core: match (&opts.core, core_threshold) {
+            (Some(core), Some(t)) => Some(CoreComparison {
+                quantile: core.quantile,
+                density_threshold: t,
+                voxels_used: core_used,
+                metrics: core_acc.finish(),
+            }),
+            _ => None,
+        },
     };
     let image = image::compare_images(a, b, &mut notes)?;
     Ok(Comparison { candidate: a.display().to_string(), reference: b.display().to_string(), fluence, image, notes })
+}
+
+/// The `q`-quantile of the non-zero densities (the lower one of the two around it); 0 when the
+/// volume is empty.
+fn density_quantile(density: &[f32], q: f64) -> f32 {
+    let mut medium: Vec<f32> = density.iter().copied().filter(|&d| d > 0.0).collect();
+    if medium.is_empty() {
+        return 0.0;
+    }
+    medium.sort_by(f32::total_cmp);
+    let i = ((medium.len() - 1) as f64 * q).floor() as usize;
+    medium[i]
 }
 
 /// Writes `comparison` as pretty JSON to `path`, atomically.

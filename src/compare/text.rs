@@ -45,6 +45,11 @@ impl fmt::Display for Comparison {
         writeln!(f)?;
         writeln!(f, "{:<9} {:>11} {:>11} {:>11} {:>11} {:>11}", "", "rel. L2", "RMSE", "max rel.", "bias", "values")?;
         row(f, "fluence", &fl.metrics, "")?;
+        if let Some(core) = &fl.core {
+            let extra =
+                format!("densest {:.0} % (density ≥ {:.4})", 100.0 * (1.0 - core.quantile), core.density_threshold);
+            row(f, "core", &core.metrics, &extra)?;
+        }
         if let Some(img) = &self.image {
             row(f, "image", &img.metrics, &format!("{}×{} px", img.width, img.height))?;
         }

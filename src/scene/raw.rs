@@ -60,6 +60,8 @@ pub(crate) struct RawSolver {
     pub extrapolate_tail: Option<bool>,
     pub storage_precision: Option<String>,
     pub plan: Option<String>,
+    pub spatial: Option<String>,
+    pub forward_peak: Option<String>,
 }
 
 #[derive(Debug, Deserialize)]

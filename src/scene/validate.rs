@@ -3,8 +3,8 @@
 
 use super::raw::{ByteSize, Channels, RawCamera, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
 use super::{
-    Camera, Light, Medium, PlanMode, Projection, Scene, SceneError, Shape, SolverSettings, StoragePrecision, Volume,
-    VolumeSource,
+    Camera, ForwardPeak, Light, Medium, PlanMode, Projection, Scene, SceneError, Shape, SolverSettings, SpatialScheme,
+    StoragePrecision, Volume, VolumeSource,
 };
 use glam::DVec3;
 use std::path::{Path, PathBuf};
@@ -32,6 +32,8 @@ const LIGHT_KINDS: &str = "\"sky\", \"sun\"";
 const PROJECTIONS: &str = "\"pinhole\", \"orthographic\"";
 const PRECISIONS: &str = "\"auto\", \"f16\", \"f32\"";
 const PLAN_MODES: &str = "\"auto\", \"full\"";
+const SPATIAL_SCHEMES: &str = "\"constant\", \"linear\"";
+const FORWARD_PEAKS: &str = "\"auto\", \"delta-m\", \"keep\"";
 
 pub(crate) struct Validator<'a> {
     pub path: &'a Path,
@@ -288,6 +290,8 @@ impl Validator<'_> {
                 extrapolate_tail: false,
                 storage_precision: StoragePrecision::Auto,
                 plan: PlanMode::Auto,
+                spatial: SpatialScheme::default(),
+                forward_peak: ForwardPeak::default(),
             });
         };
         let k = match s.directions_per_face {
@@ -342,6 +346,27 @@ impl Validator<'_> {
                 return Err(self.err("solver.plan", format!("unknown plan \"{other}\", expected one of {PLAN_MODES}")))
             }
         };
+        let spatial = match s.spatial.as_deref() {
+            Some("linear") => SpatialScheme::Linear,
+            None | Some("constant") => SpatialScheme::Constant,
+            Some(other) => {
+                return Err(self.err(
+                    "solver.spatial",
+                    format!("unknown spatial scheme \"{other}\", expected one of {SPATIAL_SCHEMES}"),
+                ))
+            }
+        };
+        let forward_peak = match s.forward_peak.as_deref() {
+            None | Some("auto") => ForwardPeak::Auto,
+            Some("delta-m") => ForwardPeak::DeltaM,
+            Some("keep") => ForwardPeak::Keep,
+            Some(other) => {
+                return Err(self.err(
+                    "solver.forward_peak",
+                    format!("unknown forward peak treatment \"{other}\", expected one of {FORWARD_PEAKS}"),
+                ))
+            }
+        };
         Ok(SolverSettings {
             directions_per_face: k,
             storage_directions_per_face: ks,
@@ -351,6 +376,8 @@ impl Validator<'_> {
             extrapolate_tail: s.extrapolate_tail.unwrap_or(false),
             storage_precision,
             plan,
+            spatial,
+            forward_peak,
         })
     }
 

@@ -11,8 +11,9 @@
 use super::energy::Tallies;
 use super::orders::Backend;
 use super::plan::{half_scale_exponent, Plan, Precision, SweepDirection};
+use super::remaining::{RemainingError, RemainingTally};
 use super::segment::segment;
-use super::sweep::{column, FaceSweep};
+use super::sweep::{lattice_column, taps, FaceSweep};
 use super::SolveError;
 
 pub struct CpuTwin<'a> {
@@ -80,25 +81,33 @@ impl<'a> CpuTwin<'a> {
     /// Marches every ray of one direction through the whole volume, depositing fluence and the next
     /// order's source. `boundary`: rays are born carrying the direction's boundary radiance (else
     /// zero); `gain`: rays gain the previous order's source (and the emission when `emit`).
+    ///
+    /// Each ray gathers density and source from the voxels it meets with the lattice weights (see
+    /// [`super::sweep`]) and deposits its segment average to the same voxels with the same weights
+    /// (what `collect.comp` pulls from the lattice cells around each voxel).
     fn sweep(&mut self, dir: &SweepDirection, boundary: bool, gain: bool, emit: bool) -> Tallies {
         let plan = self.plan;
         let c = plan.channels as usize;
         let comps = plan.source_components() as usize;
         let sweep = FaceSweep::new(dir.face, plan.dims);
         let [na, nb, nc] = sweep.n;
+        let [lb, lc] = sweep.lattice();
         let birth: [f64; 3] = if boundary { dir.boundary } else { [0.0; 3] };
         let coeffs: Vec<(f64, f64, f64)> = (0..c).map(|ch| plan.coefficients(ch)).collect();
         let mut tallies = Tallies::default();
         let (mut born, mut left) = ([0.0; 3], [0.0; 3]);
-        for q in 0..nc {
-            for p in 0..nb {
+        // The voxels (index, weight) the ray meets in the current plane.
+        let mut met: Vec<(usize, f64)> = Vec::with_capacity(4);
+        for q in 0..lc {
+            for p in 0..lb {
                 let mut l = birth;
                 let mut wrap = [0, 0];
                 (0..c).for_each(|ch| born[ch] += birth[ch]);
                 for t in 0..na {
                     let o = dir.offsets[t as usize];
-                    let (vb, wb) = column(p, o[0], nb);
-                    let (vc, wc) = column(q, o[1], nc);
+                    let w = dir.weights[t as usize];
+                    let (cb, wb) = lattice_column(p, o[0], nb);
+                    let (cc, wc) = lattice_column(q, o[1], nc);
                     if t > 0 && [wb, wc] != wrap {
                         // The ray left through a side: a new one enters from the opposite side.
                         for ch in 0..c {
@@ -108,26 +117,35 @@ impl<'a> CpuTwin<'a> {
                         }
                     }
                     wrap = [wb, wc];
-                    let v = self.index(sweep.voxel(t, vb, vc));
-                    let rho = self.density[v];
+                    met.clear();
+                    for (vc, tc) in taps(cc, w[1], nc) {
+                        for (vb, tb) in taps(cb, w[0], nb) {
+                            met.push((self.index(sweep.voxel(t, vb, vc)), tb * tc));
+                        }
+                    }
+                    let rho: f64 = met.iter().map(|&(v, wt)| wt * self.density[v]).sum();
                     for ch in 0..c {
                         let (st, ss, sa) = coeffs[ch];
                         let mut j = 0.0;
                         if gain {
-                            let k = v * comps + dir.gain_storage as usize * c + ch;
-                            j = if self.j_gain.is_empty() { self.j_prev[k] } else { self.j_gain[k] };
+                            let gained = if self.j_gain.is_empty() { &self.j_prev } else { &self.j_gain };
+                            let k = dir.gain_storage as usize * c + ch;
+                            j = met.iter().map(|&(v, wt)| wt * gained[v * comps + k]).sum();
                             if emit {
                                 j += rho * sa * plan.medium.emission[ch];
                             }
                         }
                         let (out, avg) = segment(l[ch], j, rho * st, dir.path_length);
                         l[ch] = out;
-                        self.fluence[v * c + ch] += dir.fluence_weight * avg;
-                        self.fluence_order[v * c + ch] += dir.fluence_weight * avg;
-                        let sigma_s = rho * ss;
-                        if sigma_s > 0.0 {
-                            for (d, m) in dir.collect_row.iter().enumerate() {
-                                self.j_next[v * comps + d * c + ch] += sigma_s * m * avg;
+                        for &(v, wt) in &met {
+                            let share = wt * avg;
+                            self.fluence[v * c + ch] += dir.fluence_weight * share;
+                            self.fluence_order[v * c + ch] += dir.fluence_weight * share;
+                            let sigma_s = self.density[v] * ss;
+                            if sigma_s > 0.0 {
+                                for (d, m) in dir.collect_row.iter().enumerate() {
+                                    self.j_next[v * comps + d * c + ch] += sigma_s * m * share;
+                                }
                             }
                         }
                     }
@@ -196,6 +214,19 @@ impl Backend for CpuTwin<'_> {
             *f += factor[k % c] * o;
         }
         Ok(())
+    }
+
+    fn remaining_error(&mut self, factor: [f64; 3]) -> Result<RemainingError, SolveError> {
+        let c = self.plan.channels as usize;
+        let mut tally = RemainingTally::default();
+        for (v, &rho) in self.density.iter().enumerate() {
+            if rho > 0.0 {
+                for (ch, &f) in factor.iter().enumerate().take(c) {
+                    tally.add(self.fluence[v * c + ch], self.fluence_order[v * c + ch], f);
+                }
+            }
+        }
+        Ok(tally.finish())
     }
 
     fn emitted_and_absorbed(&mut self) -> Result<([f64; 3], [f64; 3]), SolveError> {

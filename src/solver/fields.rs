@@ -232,6 +232,45 @@ impl StoreFields {
     }
 }
 
+impl StoreFields {
+    /// The remaining relative error over the medium's voxels (see [`super::remaining`]): after
+    /// [`StoreFields::commit_order`], `fluence_total` holds the sum so far and `fluence` the newest
+    /// order's.
+    pub fn remaining_error(
+        &self,
+        store: &BrickStore,
+        plan: &Plan,
+        factor: [f64; 3],
+    ) -> super::remaining::RemainingError {
+        let c = plan.channels as usize;
+        let mut tally = super::remaining::RemainingTally::default();
+        for (n, brick) in store.occupied_bricks().enumerate() {
+            if n % RELEASE_BRICKS == 0 {
+                store.release_all_density();
+                self.fluence_total.release_all();
+                self.fluence.release_all();
+            }
+            let (Some(density), Some(total), Some(newest)) =
+                (store.density_brick(brick), self.fluence_total.brick(brick), self.fluence.brick(brick))
+            else {
+                continue;
+            };
+            for (ch, &f) in factor.iter().enumerate().take(c) {
+                let range = ch * BRICK_VOXELS..(ch + 1) * BRICK_VOXELS;
+                for ((&rho, &t), &k) in density.iter().zip(&total[range.clone()]).zip(&newest[range]) {
+                    if rho > 0.0 {
+                        tally.add(t as f64, k as f64, f);
+                    }
+                }
+            }
+        }
+        store.release_all_density();
+        self.fluence_total.release_all();
+        self.fluence.release_all();
+        tally.finish()
+    }
+}
+
 /// Bricks a pass over whole fields walks before handing their pages back (see
 /// [`crate::store::Field`] on resident memory): a few tens of MiB per field.
 const RELEASE_BRICKS: usize = 1024;

@@ -4,7 +4,8 @@
 //! - [`plan`] decides what the scene needs and derives the per-direction tables;
 //! - [`sweep`] and [`segment`] are the discretisation (voxels walked, exact segment solution);
 //! - [`cpu`] is the f64 twin of the GPU kernels, [`gpu`] the Vulkan driver;
-//! - [`orders`] runs scattering orders to the tolerance, [`energy`] keeps the books;
+//! - [`orders`] runs scattering orders until [`remaining`] says every voxel of the medium is within
+//!   the tolerance of its converged value; [`energy`] keeps the books;
 //! - [`fields`] holds the solver's fields in the brick store and the host passes over them.
 
 pub mod cpu;
@@ -13,6 +14,7 @@ pub mod fields;
 pub mod gpu;
 pub mod orders;
 pub mod plan;
+pub mod remaining;
 pub mod segment;
 pub mod sweep;
 
@@ -92,6 +94,27 @@ pub fn build_store(scene: &Scene, dir: &Path) -> Result<BrickStore, SolveError> 
         }
     };
     Ok(store)
+}
+
+/// The scene's density at every voxel (x fastest), read through a brick store built in `scratch`
+/// (removed afterwards): what `lpm compare --scene` and `lpm bench accuracy` use to find the dense
+/// core.
+pub fn density_volume(scene: &Scene, scratch: &Path) -> Result<Vec<f32>, SolveError> {
+    let store = build_store(scene, scratch);
+    let result = store.map(|store| {
+        let [nx, ny, nz] = scene.volume.dims;
+        let mut density = Vec::with_capacity(nx as usize * ny as usize * nz as usize);
+        for z in 0..nz {
+            for y in 0..ny {
+                for x in 0..nx {
+                    density.push(store.density_at([x, y, z]));
+                }
+            }
+        }
+        density
+    });
+    let _ = std::fs::remove_dir_all(scratch);
+    result
 }
 
 /// Solves `scene` over `store`: plans, runs the orders on the chosen backend, and leaves the

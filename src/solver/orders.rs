@@ -1,9 +1,12 @@
 //! The order loop, shared by both backends: propagate an order, fold its new source into the
-//! total, and stop when the newest order's scattered power falls below the tolerance.
+//! total, and stop when every voxel of the medium is estimated to be within the tolerance of its
+//! converged value ([`super::remaining`]), or, with `solver.extrapolate_tail`, when the geometric
+//! tail of the series is known to the tolerance.
 
 use super::energy::{EnergyBalance, Tallies};
 use super::fields::LoopState;
 use super::plan::Plan;
+use super::remaining::{tail_factor, RemainingError};
 use super::SolveError;
 use serde::Serialize;
 use std::time::{Duration, Instant};
@@ -25,6 +28,9 @@ pub trait Backend {
     }
     /// Power emitted (order 0) and absorbed (all orders so far), per channel.
     fn emitted_and_absorbed(&mut self) -> Result<([f64; 3], [f64; 3]), SolveError>;
+    /// The remaining relative error over the medium's voxels after the last finished order, for
+    /// tail factors `factor[ch]` = ρ/(1 − ρ) (see [`super::remaining`]).
+    fn remaining_error(&mut self, factor: [f64; 3]) -> Result<RemainingError, SolveError>;
 }
 
 #[derive(Clone, Debug, Serialize, serde::Deserialize)]
@@ -34,6 +40,10 @@ pub struct OrderRecord {
     pub new_source_power: f64,
     /// Scattered power of all sources so far.
     pub total_source_power: f64,
+    /// The largest remaining relative error over the medium's voxels after this order (None
+    /// while no ratio is known yet; infinite while light is still building up).
+    #[serde(default)]
+    pub remaining_max: Option<f64>,
     pub seconds: f64,
 }
 
@@ -122,6 +132,36 @@ pub fn tail_estimate(plan: &Plan, state: &LoopState) -> Option<TailEstimate> {
     Some(t)
 }
 
+/// Per channel, the tail factor ρ/(1 − ρ) the stop rule uses: ρ the ratio of the last two orders'
+/// scattered power, moved to the far end of its drift while it is still creeping up (so the
+/// estimate errs toward more orders). `None` before two orders have scattered anything.
+fn tail_factors(plan: &Plan, state: &LoopState) -> Option<[f64; 3]> {
+    if state.orders_done < 2 {
+        return None;
+    }
+    let drift = tail_estimate(plan, state);
+    let mut factor = [0.0; 3];
+    for (ch, f) in factor.iter_mut().enumerate().take(plan.channels as usize) {
+        let (new, before) = (state.last_new_power[ch], state.previous_new_power[ch]);
+        if new <= 0.0 {
+            continue;
+        }
+        if before <= 0.0 {
+            return None;
+        }
+        let mut rho = new / before;
+        if let Some(t) = &drift {
+            // The tail's own ratio lies above ρ when ρ is still rising: then use its far end.
+            let mid = t.factor[ch] / (1.0 + t.factor[ch]);
+            if mid > t.ratio[ch] {
+                rho = t.ratio[ch] + t.drift[ch];
+            }
+        }
+        *f = tail_factor(rho);
+    }
+    Some(factor)
+}
+
 /// Whether the tail estimate is good to the tolerance.
 fn tail_converged(plan: &Plan, state: &LoopState) -> bool {
     let total: f64 = state.total_power.iter().sum();
@@ -135,6 +175,9 @@ pub struct OrderOutcome {
     pub converged: bool,
     /// New source power over total source power after the last order (0 when nothing scatters).
     pub residual: f64,
+    /// The estimated remaining relative error over the medium's voxels after the last order (the
+    /// stop rule's measure; with an extrapolated tail, before the tail was added).
+    pub remaining: Option<RemainingError>,
     pub history: Vec<OrderRecord>,
     pub energy: EnergyBalance,
     /// The geometric tail added after the last order (when `solver.extrapolate_tail` is on).
@@ -163,10 +206,17 @@ pub fn run_orders(
         }
     };
     let extrapolate = plan.extrapolate_tail;
-    let done = |s: &LoopState| {
-        (s.orders_done > 0 && residual_of(s) <= plan.tolerance) || (extrapolate && tail_converged(plan, s))
+    // Nothing scatters any more (a non-scattering medium after order 0): the fluence is complete.
+    let exhausted = |s: &LoopState| s.orders_done > 0 && s.last_new_power.iter().all(|&p| p <= 0.0);
+    let mut remaining: Option<RemainingError> = None;
+    let done = |s: &LoopState, remaining: Option<RemainingError>| {
+        exhausted(s)
+            || if extrapolate { tail_converged(plan, s) } else { remaining.is_some_and(|r| r.max <= plan.tolerance) }
     };
-    let mut converged = done(&state);
+    let mut converged = match state.history.last() {
+        Some(last) => done(&state, last.remaining_max.map(|max| RemainingError { max, l2: 0.0 })),
+        None => false,
+    };
     while !converged && state.orders_done < plan.max_orders {
         let order = state.orders_done;
         let t = Instant::now();
@@ -184,16 +234,21 @@ pub fn run_orders(
         state.tallies = [tallies.boundary_in, tallies.boundary_out];
         state.orders_done += 1;
         let residual = residual_of(&state);
+        remaining = match tail_factors(plan, &state) {
+            Some(factor) if !exhausted(&state) => Some(backend.remaining_error(factor)?),
+            _ => None,
+        };
         state.history.push(OrderRecord {
             order,
             new_source_power: new.iter().sum(),
             total_source_power: state.total_power.iter().sum(),
+            remaining_max: remaining.map(|r| r.max),
             seconds: t.elapsed().as_secs_f64(),
         });
         backend.checkpoint(&state)?;
         progress(order, residual);
-        tracing::debug!(order, residual, "order done");
-        converged = done(&state);
+        tracing::debug!(order, residual, remaining = remaining.map(|r| r.max), "order done");
+        converged = done(&state, remaining);
     }
     // The balance covers the propagated orders; the tail is reported on its own.
     let (emitted, absorbed) = backend.emitted_and_absorbed()?;
@@ -211,6 +266,7 @@ pub fn run_orders(
         orders: state.orders_done,
         converged,
         residual,
+        remaining,
         history: state.history,
         energy,
         tail,

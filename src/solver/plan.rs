@@ -20,9 +20,9 @@
 //! Everything both backends need to sweep a face is derived here ([`SweepDirection`]) so that the
 //! CPU twin and the GPU driver consume identical tables.
 
-use super::sweep::{lateral_slope, offsets, plane_path_length, FaceSweep};
+use super::sweep::{lateral_slope, lattice, plane_path_length, FaceSweep};
 use crate::quadrature::{cube_face_of, phase, PropagationSet, StorageSet};
-use crate::scene::{Light, Medium, PlanMode, Scene, StoragePrecision};
+use crate::scene::{ForwardPeak, Light, Medium, PlanMode, Scene, SpatialScheme, StoragePrecision};
 use glam::DVec3;
 use serde::Serialize;
 
@@ -33,8 +33,10 @@ pub struct SweepDirection {
     pub omega: DVec3,
     /// Path length through one plane (h/|ω_a|).
     pub path_length: f64,
-    /// Lateral offsets per plane (see [`super::sweep::offsets`]).
+    /// Lattice offsets per plane (see [`super::sweep::lattice`]).
     pub offsets: Vec<[i32; 2]>,
+    /// Lattice weights per plane: a ray meets its lower column with 1 − w, its upper one with w.
+    pub weights: Vec<[f64; 2]>,
     /// Weight of the segment-average radiance in the fluence: Ω_i, or 1 for a beam.
     pub fluence_weight: f64,
     /// Radiance (irradiance for a beam) of rays born at the boundary in the sweep that carries
@@ -121,6 +123,14 @@ pub struct Plan {
     pub source_precision: Precision,
     /// `solver.plan`: whether the reductions above were allowed.
     pub mode: PlanMode,
+    /// `solver.spatial`: how rays meet the voxels of a plane.
+    pub spatial: SpatialScheme,
+    /// The scene's Henyey–Greenstein g (the medium above holds the one solved, after δ-M).
+    pub phase_g: f64,
+    /// The mean cosine of the discrete scattering (see `phase::effective_mean_cosine`).
+    pub effective_g: f64,
+    /// The forward-peak fraction f truncated by δ-M scaling, when applied.
+    pub delta_m: Option<f64>,
     /// Why each choice was made, for the report.
     pub reasons: Vec<String>,
 }
@@ -146,6 +156,14 @@ pub struct PlanSummary {
     pub storage_precision: Precision,
     /// "auto" (model only what the scene needs) or "full" (`solver.plan`: reductions off).
     pub mode: String,
+    /// "linear" or "constant" (`solver.spatial`).
+    pub spatial: String,
+    /// The scene's g, the g solved (after δ-M scaling) and the g the discrete scattering behaves
+    /// like; the δ-M forward fraction f when applied.
+    pub phase_g: f64,
+    pub solved_g: f64,
+    pub effective_g: f64,
+    pub delta_m_fraction: Option<f64>,
     pub reasons: Vec<String>,
 }
 
@@ -159,8 +177,18 @@ impl Plan {
         }
         let dims = scene.volume.dims;
         let h = scene.volume.voxel_size;
-        let medium = scene.medium.clone();
+        let (medium, delta_m) = choose_forward_peak(scene, &mut reasons);
         let channels = choose_channels(scene, full, &mut reasons);
+        let spatial = scene.solver.spatial;
+        reasons.push(match spatial {
+            SpatialScheme::Linear => "spatial scheme \"linear\": rays at their exact lateral positions gather \
+                 and deposit bilinearly (second-order across the rays, no plane-sized error where light \
+                 enters through a side)"
+                .into(),
+            SpatialScheme::Constant => "spatial scheme \"constant\": each ray meets the one voxel under it \
+                 (first order; kept for comparison)"
+                .into(),
+        });
 
         let k = scene.solver.directions_per_face;
         let propagation = PropagationSet::new(k);
@@ -170,6 +198,13 @@ impl Plan {
         // direction (to rounding) and the rays gain what the single isotropic value would give.
         let collect = phase::collect_matrix(&propagation, &storage, medium.g);
         let s = storage.len();
+        let effective_g = phase::effective_mean_cosine(&propagation, &storage, &collect);
+        if medium.g != 0.0 {
+            reasons.push(format!(
+                "the discrete scattering behaves like g = {effective_g:.3} (the phase function solved has g = {:.3})",
+                medium.g
+            ));
+        }
 
         let mut sky = [0.0; 3];
         for light in &scene.lights {
@@ -182,11 +217,14 @@ impl Plan {
         let swept =
             |face: usize, omega: DVec3, weight: f64, boundary: [f64; 3], gain_storage: u32, collect_row: Vec<f64>| {
                 let path_length = plane_path_length(face, omega, h);
+                let planes = FaceSweep::new(face, dims).n[0];
+                let (offsets, weights) = lattice(lateral_slope(face, omega), planes, spatial);
                 SweepDirection {
                     face,
                     omega,
                     path_length,
-                    offsets: offsets(lateral_slope(face, omega), FaceSweep::new(face, dims).n[0]),
+                    offsets,
+                    weights,
                     fluence_weight: weight,
                     boundary,
                     gain_storage,
@@ -258,6 +296,10 @@ impl Plan {
             bricks_empty,
             source_precision,
             mode: scene.solver.plan,
+            spatial,
+            phase_g: scene.medium.g,
+            effective_g,
+            delta_m,
             reasons,
         }
     }
@@ -292,6 +334,11 @@ impl Plan {
             extrapolate_tail: self.extrapolate_tail,
             storage_precision: self.source_precision,
             mode: self.mode.name().to_string(),
+            spatial: self.spatial.name().to_string(),
+            phase_g: self.phase_g,
+            solved_g: self.medium.g,
+            effective_g: self.effective_g,
+            delta_m_fraction: self.delta_m,
             reasons: self.reasons.clone(),
         }
     }
@@ -302,6 +349,44 @@ pub const FULL_PLAN_REASON: &str = "plan = \"full\": the plan's reductions are o
      k_s×k_s storage directions per face and f32 storage of the gained source (unless \
      storage_precision names f16), whatever the scene needs; kept: empty bricks are skipped and \
      the emission term is left out when nothing emits (both exact: they add nothing)";
+
+/// g from which `solver.forward_peak = "auto"` applies δ-M scaling.
+pub const DELTA_M_MIN_G: f64 = 0.5;
+
+/// The medium the solver works with: the scene's, or its δ-M scaled form (the forward fraction
+/// f = g² of the scattering counted as not scattered: σt' = σt·(1 − f·a), a' = (1 − f)·a/(1 − f·a),
+/// g' = (g − f)/(1 − f); absorption σt·(1 − a) and the emission term are unchanged). Returns f when
+/// applied.
+fn choose_forward_peak(scene: &Scene, reasons: &mut Vec<String>) -> (Medium, Option<f64>) {
+    let m = &scene.medium;
+    let g = m.g;
+    let apply = match scene.solver.forward_peak {
+        ForwardPeak::Keep => false,
+        ForwardPeak::DeltaM => g > 0.0,
+        ForwardPeak::Auto => g >= DELTA_M_MIN_G,
+    };
+    if !apply {
+        if g > 0.0 && scene.solver.forward_peak == ForwardPeak::Auto {
+            reasons.push(format!("phase function kept as it is: g = {g} is below {DELTA_M_MIN_G}, no δ-M scaling"));
+        }
+        return (m.clone(), None);
+    }
+    let f = g * g;
+    let mut scaled = m.clone();
+    for ch in 0..3 {
+        let a = m.albedo[ch];
+        scaled.sigma_t[ch] = m.sigma_t[ch] * (1.0 - f * a);
+        scaled.albedo[ch] = if 1.0 - f * a > 0.0 { (1.0 - f) * a / (1.0 - f * a) } else { a };
+    }
+    scaled.g = (g - f) / (1.0 - f);
+    reasons.push(format!(
+        "δ-M scaling of the forward peak (g = {g}): the fraction f = g² = {f:.3} of the scattering is treated \
+         as going straight on, the rest scatters with g' = {:.3} (σt and the albedo scaled to match, \
+         absorption unchanged); a few storage directions cannot hold a peak this narrow",
+        scaled.g
+    ));
+    (scaled, Some(f))
+}
 
 /// 1 channel when the medium and every light are grey (and the plan may reduce), else 3.
 fn choose_channels(scene: &Scene, full: bool, reasons: &mut Vec<String>) -> u32 {

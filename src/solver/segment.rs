@@ -41,6 +41,58 @@ pub fn segment(l: f64, j: f64, sigma_t: f64, s: f64) -> (f64, f64) {
     ((-x).exp() * l + j * s * a, l * a + j * s * e2(x))
 }
 
+/// (1 − (1 + x)·e^{−x})/x²: ∫₀¹ v·e^{−x·v} dv.
+pub fn g1(x: f64) -> f64 {
+    if x < 0.1 {
+        // Σ (−x)^m (m + 1)/(m + 2)!
+        let mut sum = 0.0;
+        let mut term = 1.0; // (−x)^m / (m + 2)!, starting at m = 0: 1/2
+        let mut fact = 2.0;
+        for m in 0..10 {
+            if m > 0 {
+                term *= -x;
+                fact *= (m + 2) as f64;
+            }
+            sum += term * (m + 1) as f64 / fact;
+        }
+        sum
+    } else {
+        (1.0 + (-x).exp() * -(1.0 + x)) / (x * x)
+    }
+}
+
+/// The linear part of a segment: with a source J(u) = J0 + J1·(u − ½) along the segment (u = s/S),
+/// returns (F, H) with L_out = …+ J1·S·F(x) and L̄ = … + J1·S·H(x): F(x) = E1/2 − G1 and
+/// H(x) = −F(x)/x, evaluated by series below x = 0.1.
+pub fn linear_parts(x: f64) -> (f64, f64) {
+    if x < 0.1 {
+        // F/x = Σ_k (−x)^k (k + 1) / (2 (k + 3)!)
+        let mut sum = 0.0;
+        let mut pow = 1.0;
+        let mut fact = 6.0;
+        for k in 0..10 {
+            if k > 0 {
+                pow *= -x;
+                fact *= (k + 3) as f64;
+            }
+            sum += pow * (k + 1) as f64 / (2.0 * fact);
+        }
+        (sum * x, -sum)
+    } else {
+        let f = 0.5 * e1(x) - g1(x);
+        (f, -f / x)
+    }
+}
+
+/// One segment with a source varying linearly along it, J(u) = j0 + j1·(u − ½): (L_out, L̄).
+/// The source integrates to j0·s whatever j1, so the deposit balances as in [`segment`].
+pub fn segment_linear(l: f64, j0: f64, j1: f64, sigma_t: f64, s: f64) -> (f64, f64) {
+    let x = sigma_t * s;
+    let a = e1(x);
+    let (f, h) = linear_parts(x);
+    ((-x).exp() * l + j0 * s * a + j1 * s * f, l * a + j0 * s * e2(x) + j1 * s * h)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -61,6 +113,36 @@ mod tests {
         for x in [1e-3_f64, 1e-2] {
             assert!((e1(x * (1.0 - 1e-12)) - e1(x)).abs() < 1e-13);
             assert!((e2(x * (1.0 - 1e-12)) - e2(x)).abs() < 1e-13);
+        }
+    }
+
+    #[test]
+    fn linear_source_segment_matches_quadrature_and_balances() {
+        for (l, j0, j1, st, s) in [
+            (1.0, 0.3, 0.2, 0.7, 1.3),
+            (0.2, 0.5, -0.4, 3.0, 0.4),
+            (2.0, 1.0, 0.5, 1e-5, 1.0),
+            (1.0, 2.0, 1.0, 30.0, 1.0),
+            (0.0, 1.0, 1.0, 0.09, 1.0),
+            (0.0, 1.0, 1.0, 0.11, 1.0),
+        ] {
+            // Midpoint quadrature of dL/ds = −σ L + J(s).
+            let steps = 200_000;
+            let ds = s / steps as f64;
+            let (mut lq, mut integral) = (l, 0.0);
+            for i in 0..steps {
+                let u = (i as f64 + 0.5) / steps as f64;
+                let j = j0 + j1 * (u - 0.5);
+                // Exact step for constant J over ds.
+                let (out, avg) = segment(lq, j, st, ds);
+                integral += avg * ds;
+                lq = out;
+            }
+            let (out, avg) = segment_linear(l, j0, j1, st, s);
+            assert!((out - lq).abs() < 1e-7 * (1.0 + lq.abs()), "{out} vs {lq}");
+            assert!((avg - integral / s).abs() < 1e-7 * (1.0 + avg.abs()), "{avg} vs {}", integral / s);
+            let balance = l + j0 * s - out - st * s * avg;
+            assert!(balance.abs() < 1e-12 * (l + j0 * s), "{balance}");
         }
     }
 

@@ -1,22 +1,42 @@
 //! Sweep geometry shared by the CPU twin and the GPU driver.
 //!
 //! A face sweep marches the ray map of one cube face through the volume plane by plane along the
-//! face's axis `a` (plane t = 0 is the entry plane). Ray (p, q) of a direction with lateral slope
-//! δ = (ω_b, ω_c)/|ω_a| sits, in plane t, at lateral position p + ½ + δ_b·(t + ½) (mid-plane), i.e. in
-//! voxel column p + o_b(t) with `o_b(t) = floor(½ + δ_b·(t + ½))`, taken modulo the lateral size: a ray
-//! that leaves through a side re-enters from the opposite side as a new ray. Since every ray of a
-//! direction shifts by the same o(t), the map from rays to voxels is a bijection in every plane: the
-//! rays of one direction never touch the same voxel at the same step.
+//! face's axis `a` (plane t = 0 is the entry plane). All rays of a direction move together: with
+//! lateral slope δ = (ω_b, ω_c)/|ω_a|, every ray is displaced by D(t) = δ·(t + ½) voxels at the
+//! middle of plane t. Per lateral axis of n voxels the map holds **n + 1 rays** (slots), spaced one
+//! voxel apart on a lattice that wraps with period n + 1: lattice column ℓ ∈ [0, n] lies between
+//! the centres of voxel columns ℓ − 1 and ℓ (column −1 and n are outside: vacuum). Per plane a
+//! direction has one integer offset o(t) and one fractional weight w(t) ([`lattice`]), shared by
+//! all its rays: slot s sits at lattice column ℓ = (s + o + 1) mod (n + 1) ([`lattice_column`]) and
+//! meets voxel column ℓ − 1 with weight 1 − w and column ℓ with weight w (bilinear in the plane).
 //!
-//! The offsets are computed once on the host in f64 and handed to both backends as integer tables,
-//! so the CPU twin and the GPU walk exactly the same voxels (a float `floor` on the GPU could land
-//! on the other side of a tie).
+//! - `solver.spatial = "linear"`: o = ⌊D⌋, w = D − o: the ray's exact position. It gathers the
+//!   medium and the source with these weights and deposits its segment average once; the collect
+//!   step pulls each voxel's share from the two-by-two lattice columns around it with the same
+//!   weights. Each voxel's weights sum to 1 and each ray's lost power goes exactly to the voxels it
+//!   gathered from (columns outside the volume hold vacuum), so energy is exact. A ray leaving
+//!   through a side drifts out continuously (its weight inside falls to 0) before its slot wraps
+//!   and re-enters on the other side with weight rising from 0: light entering through a side
+//!   starts where it really crosses it, not a whole plane away.
+//! - `solver.spatial = "constant"`: o = ⌊½ + D⌋ − 1, w = 1: the one voxel under the ray's
+//!   mid-plane position (nearest column), as the first-order scheme does. The slot outside the
+//!   volume (ℓ = n) carries its radiance unchanged, so the fluence is the nearest-column scheme's.
+//!
+//! In every plane the slots of one direction occupy distinct lattice columns, so one GPU thread per
+//! ray writes its own deposit cell: no atomics, bitwise reproducible. A slot whose lattice column
+//! wraps is a ray that left; a new one enters in its place.
+//!
+//! The offsets and weights are computed once on the host in f64 and handed to both backends as
+//! tables, so the CPU twin and the GPU walk exactly the same lattice (a float `floor` on the GPU
+//! could land on the other side of a tie).
 //!
 //! Energy bookkeeping: a ray carries radiance for a tube of cross-section h²·|ω_a| (one voxel face
 //! projected) and solid angle Ω_i, so its power is L·h²·|ω_a|·Ω_i; the sweeps tally the radiance of
-//! rays at birth and at exit and the solver turns those tallies into boundary power in and out.
+//! rays at birth and at exit and the solver turns those tallies into boundary power in and out
+//! (rays within half a voxel of a side count whole: their weight outside meets only vacuum).
 
 use crate::quadrature::{Face, FACES};
+use crate::scene::SpatialScheme;
 use glam::DVec3;
 
 /// Dimensions of the volume seen from one face: planes along the axis and the lateral sizes.
@@ -53,9 +73,14 @@ impl FaceSweep {
         FACES[self.face]
     }
 
-    /// Number of rays in the map (one per voxel of the face).
+    /// Rays (slots) of the map per lateral axis: one more than the voxels.
+    pub fn lattice(&self) -> [u32; 2] {
+        [self.n[1] + 1, self.n[2] + 1]
+    }
+
+    /// Number of rays in the map: (n_b + 1)·(n_c + 1), one per lattice column pair.
     pub fn rays(&self) -> usize {
-        self.n[1] as usize * self.n[2] as usize
+        (self.n[1] as usize + 1) * (self.n[2] as usize + 1)
     }
 
     /// The coordinate along the axis of plane t.
@@ -123,22 +148,53 @@ pub fn plane_path_length(face: usize, omega: DVec3, h: f64) -> f64 {
     h / omega.to_array()[FACES[face].axis].abs()
 }
 
-/// The lateral offsets o(t) = floor(½ + δ·(t + ½)) for t in 0..planes.
-pub fn offsets(slope: [f64; 2], planes: u32) -> Vec<[i32; 2]> {
-    (0..planes)
-        .map(|t| {
-            let m = t as f64 + 0.5;
-            [(0.5 + slope[0] * m).floor() as i32, (0.5 + slope[1] * m).floor() as i32]
-        })
-        .collect()
+/// Per plane t in 0..planes, the lattice offsets o(t) and weights w(t) of a direction with lateral
+/// slope `slope` (module docs): exact positions under [`SpatialScheme::Linear`], the nearest column
+/// under [`SpatialScheme::Constant`].
+pub fn lattice(slope: [f64; 2], planes: u32, scheme: SpatialScheme) -> (Vec<[i32; 2]>, Vec<[f64; 2]>) {
+    let mut offsets = Vec::with_capacity(planes as usize);
+    let mut weights = Vec::with_capacity(planes as usize);
+    for t in 0..planes {
+        let m = t as f64 + 0.5;
+        let mut o = [0; 2];
+        let mut w = [0.0; 2];
+        for k in 0..2 {
+            let d = slope[k] * m;
+            match scheme {
+                SpatialScheme::Linear => {
+                    let f = d.floor();
+                    o[k] = f as i32;
+                    w[k] = d - f;
+                }
+                SpatialScheme::Constant => {
+                    o[k] = (0.5 + d).floor() as i32 - 1;
+                    w[k] = 1.0;
+                }
+            }
+        }
+        offsets.push(o);
+        weights.push(w);
+    }
+    (offsets, weights)
 }
 
-/// Where ray `p` (of `n` lateral columns) lies with offset `o`: (column, wrap count).
+/// Where slot `s` (of `n + 1`) lies with offset `o`: (lattice column in 0..=n, wrap count).
 #[inline]
-pub fn column(p: u32, o: i32, n: u32) -> (u32, i32) {
-    let unwrapped = p as i64 + o as i64;
-    let n = n as i64;
-    (unwrapped.rem_euclid(n) as u32, unwrapped.div_euclid(n) as i32)
+pub fn lattice_column(s: u32, o: i32, n: u32) -> (u32, i32) {
+    let unwrapped = s as i64 + o as i64 + 1;
+    let period = n as i64 + 1;
+    (unwrapped.rem_euclid(period) as u32, unwrapped.div_euclid(period) as i32)
+}
+
+/// The voxel columns a ray at lattice column `l` meets with weight `w` (of `n` columns), with their
+/// weights: column l − 1 with 1 − w and column l with w, leaving out those outside the volume and
+/// those of weight 0.
+#[inline]
+pub fn taps(l: u32, w: f64, n: u32) -> impl Iterator<Item = (u32, f64)> {
+    [(l as i64 - 1, 1.0 - w), (l as i64, w)]
+        .into_iter()
+        .filter(move |&(c, wt)| wt != 0.0 && c >= 0 && c < n as i64)
+        .map(|(c, wt)| (c as u32, wt))
 }
 
 #[cfg(test)]
@@ -171,26 +227,52 @@ mod tests {
     }
 
     #[test]
-    fn rays_of_a_direction_hit_distinct_voxels_in_every_plane() {
+    fn rays_of_a_direction_take_distinct_lattice_columns_and_cover_each_voxel_once() {
         let set = PropagationSet::new(3);
         let sweep = FaceSweep::new(4, [7, 5, 9]);
-        for d in set.face(4) {
-            let offs = offsets(lateral_slope(4, d.omega), sweep.n[0]);
-            for o in &offs {
-                let mut seen = vec![false; sweep.rays()];
-                for q in 0..sweep.n[2] {
-                    for p in 0..sweep.n[1] {
-                        let (vb, _) = column(p, o[0], sweep.n[1]);
-                        let (vc, _) = column(q, o[1], sweep.n[2]);
-                        let i = (vc * sweep.n[1] + vb) as usize;
-                        assert!(!seen[i]);
-                        seen[i] = true;
+        let [lb, lc] = sweep.lattice();
+        for scheme in [SpatialScheme::Linear, SpatialScheme::Constant] {
+            for d in set.face(4) {
+                let (offs, weights) = lattice(lateral_slope(4, d.omega), sweep.n[0], scheme);
+                for (o, w) in offs.iter().zip(&weights) {
+                    let mut seen = vec![false; sweep.rays()];
+                    let mut cover = vec![0.0; (sweep.n[1] * sweep.n[2]) as usize];
+                    for q in 0..lc {
+                        for p in 0..lb {
+                            let (cb, _) = lattice_column(p, o[0], sweep.n[1]);
+                            let (cc, _) = lattice_column(q, o[1], sweep.n[2]);
+                            let i = (cc * lb + cb) as usize;
+                            assert!(!seen[i]);
+                            seen[i] = true;
+                            for (vb, wb) in taps(cb, w[0], sweep.n[1]) {
+                                for (vc, wc) in taps(cc, w[1], sweep.n[2]) {
+                                    cover[(vc * sweep.n[1] + vb) as usize] += wb * wc;
+                                }
+                            }
+                        }
+                    }
+                    // Every voxel gets weight 1 in all from the rays of the direction.
+                    for c in cover {
+                        assert!((c - 1.0).abs() < 1e-12, "{c}");
                     }
                 }
+                // Offsets never jump by more than one column per plane.
+                for win in offs.windows(2) {
+                    assert!((win[1][0] - win[0][0]).abs() <= 1 && (win[1][1] - win[0][1]).abs() <= 1);
+                }
             }
-            // Offsets never jump by more than one column per plane.
-            for w in offs.windows(2) {
-                assert!((w[1][0] - w[0][0]).abs() <= 1 && (w[1][1] - w[0][1]).abs() <= 1);
+        }
+    }
+
+    #[test]
+    fn constant_scheme_is_the_nearest_column() {
+        for slope in [0.0, 0.3, -0.45, 0.999, -1.0, 0.5] {
+            let (offs, weights) = lattice([slope, -slope], 40, SpatialScheme::Constant);
+            for (t, (o, w)) in offs.iter().zip(&weights).enumerate() {
+                let nearest = (0.5 + slope * (t as f64 + 0.5)).floor() as i32;
+                // Slot s meets voxel column (s + o + 1) mod (n + 1) = s + nearest, weight 1.
+                assert_eq!(o[0] + 1, nearest);
+                assert_eq!(w[0], 1.0);
             }
         }
     }

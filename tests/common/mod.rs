@@ -21,6 +21,8 @@ pub fn scene(shape: Shape, dims: [u32; 3], sigma_t: [f64; 3], albedo: [f64; 3], 
             extrapolate_tail: false,
             storage_precision: StoragePrecision::Auto,
             plan: PlanMode::Auto,
+            spatial: SpatialScheme::Linear,
+            forward_peak: ForwardPeak::Auto,
         },
         camera: None,
     }
@@ -37,7 +39,7 @@ pub fn sun(dir: [f64; 3], e: [f64; 3]) -> Light {
 use lpm::solver::fields::StoreFields;
 use lpm::solver::plan::{Plan, SweepDirection};
 use lpm::solver::segment::e1;
-use lpm::solver::sweep::{column, FaceSweep};
+use lpm::solver::sweep::{lattice_column, FaceSweep};
 use lpm::solver::{BackendKind, SolveRun};
 use lpm::store::BrickStore;
 use lpm::vk::ContextOptions;
@@ -124,29 +126,41 @@ pub fn raw_scene(
     s
 }
 
-/// Where the discrete ray of `dir` that is in voxel `v` was born: the plane of its last wrap (0 when
-/// it entered through the sweep's entry face), and the plane `t` of `v` itself.
+/// Where the discrete ray of `dir` that is in voxel `v` was born, under `solver.spatial =
+/// "constant"` (each ray meets the one voxel of its lattice column): the plane of its last wrap (0
+/// when it entered through the sweep's entry face), and the plane `t` of `v` itself.
 pub fn birth_plane(dir: &SweepDirection, dims: [u32; 3], v: [u32; 3]) -> (u32, u32) {
     let sweep = FaceSweep::new(dir.face, dims);
     let f = sweep.geometry();
     let t = if f.sign > 0.0 { v[f.axis] } else { dims[f.axis] - 1 - v[f.axis] };
     let (vb, vc) = (v[f.lateral[0]] as i64, v[f.lateral[1]] as i64);
     let o = dir.offsets[t as usize];
-    let p = (vb - o[0] as i64).rem_euclid(sweep.n[1] as i64) as u32;
-    let q = (vc - o[1] as i64).rem_euclid(sweep.n[2] as i64) as u32;
-    let wrap_at = |t: u32| {
+    // Slot s sits at lattice column (s + o + 1) mod (n + 1) and meets that voxel column.
+    let p = (vb - o[0] as i64 - 1).rem_euclid(sweep.n[1] as i64 + 1) as u32;
+    let q = (vc - o[1] as i64 - 1).rem_euclid(sweep.n[2] as i64 + 1) as u32;
+    let at = |t: u32| {
         let o = dir.offsets[t as usize];
-        (column(p, o[0], sweep.n[1]).1, column(q, o[1], sweep.n[2]).1)
+        (lattice_column(p, o[0], sweep.n[1]), lattice_column(q, o[1], sweep.n[2]))
+    };
+    // Walk back while the same ray (no wrap) was inside the volume (a slot at lattice column n is
+    // outside: it carries the boundary radiance unchanged until it moves in).
+    let inside = |t: u32| {
+        let ((cb, _), (cc, _)) = at(t);
+        cb < sweep.n[1] && cc < sweep.n[2]
+    };
+    let wraps = |t: u32| {
+        let ((_, wb), (_, wc)) = at(t);
+        (wb, wc)
     };
     let mut born = t;
-    while born > 0 && wrap_at(born - 1) == wrap_at(t) {
+    while born > 0 && wraps(born - 1) == wraps(t) && inside(born - 1) {
         born -= 1;
     }
     (born, t)
 }
 
 /// Fluence of a pure absorber box (uniform density 1) under a uniform sky of radiance 1, from
-/// Beer–Lambert along the discrete rays of the direction set: a ray born `m` planes before voxel v
+/// Beer–Lambert along the discrete rays of the direction set (`solver.spatial = "constant"`): a ray born `m` planes before voxel v
 /// arrives with e^{−σ s m} and its segment average there is e^{−σ s m}·E1(σ s).
 pub fn beer_lambert_over_the_direction_set(sigma: f64, plan: &Plan, v: [u32; 3]) -> f64 {
     let mut phi = 0.0;
@@ -175,4 +189,28 @@ pub fn write_scene_as(dir: &std::path::Path, name: &str, text: &str) -> PathBuf 
 /// Writes `text` as `dir/scene.toml` and returns its path.
 pub fn write_scene(dir: &std::path::Path, text: &str) -> PathBuf {
     write_scene_as(dir, "scene.toml", text)
+}
+
+/// ∫ e^{−σ d(x, −ω)} dω at point x of a box [0, n]³ (d: the distance from x back to the box's
+/// surface along −ω), by a fine cube-face quadrature of `k`×`k` directions per face.
+pub fn exact_absorber_fluence(sigma: f64, n: [f64; 3], x: [f64; 3], k: u32) -> f64 {
+    let fine = lpm::quadrature::PropagationSet::new(k);
+    fine.directions
+        .iter()
+        .map(|d| {
+            let w = d.omega.to_array();
+            let dist = (0..3)
+                .map(|a| {
+                    if w[a] > 0.0 {
+                        x[a] / w[a]
+                    } else if w[a] < 0.0 {
+                        (x[a] - n[a]) / w[a]
+                    } else {
+                        f64::INFINITY
+                    }
+                })
+                .fold(f64::INFINITY, f64::min);
+            d.solid_angle * (-sigma * dist).exp()
+        })
+        .sum()
 }

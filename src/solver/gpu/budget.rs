@@ -112,7 +112,7 @@ pub fn plan_memory(
     // The tables live on the device for the whole solve; each set is uploaded once through a
     // staging buffer of its own size, which briefly adds the largest set again.
     let table_set = |dirs: &[crate::solver::plan::SweepDirection]| -> u64 {
-        dirs.iter().map(|d| 32 + 8 * d.offsets.len() as u64 + 4 * d.collect_row.len() as u64).sum()
+        dirs.iter().map(|d| 32 + 16 * d.offsets.len() as u64 + 4 * d.collect_row.len() as u64).sum()
     };
     let sets: Vec<u64> = plan
         .faces

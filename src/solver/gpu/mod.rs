@@ -295,7 +295,7 @@ impl<'a> GpuBackend<'a> {
         }
         let push_bytes = std::mem::size_of::<SweepPush>() as u32;
         backend.propagate = Some(ctx.create_compute_pipeline("propagate", PROPAGATE_SPV, 9, push_bytes)?);
-        backend.collect = Some(ctx.create_compute_pipeline("collect", COLLECT_SPV, 7, push_bytes)?);
+        backend.collect = Some(ctx.create_compute_pipeline("collect", COLLECT_SPV, 8, push_bytes)?);
         backend.timelines = Some(Timelines {
             upload: ctx.create_timeline("upload", 0)?,
             compute: ctx.create_timeline("compute", 0)?,
@@ -618,7 +618,7 @@ impl<'a> GpuBackend<'a> {
                         BufferRange::from(&shared.deposit),
                     ],
                     bytemuck::bytes_of(&push),
-                    [sweep.n[1].div_ceil(16), sweep.n[2].div_ceil(4), n],
+                    [(sweep.n[1] + 1).div_ceil(16), (sweep.n[2] + 1).div_ceil(4), n],
                 )?;
                 rec.compute_to_compute();
                 if let Some(slot) = slot {
@@ -632,6 +632,7 @@ impl<'a> GpuBackend<'a> {
                             BufferRange::from(&shared.deposit),
                             BufferRange::from(&slot.source_next),
                             BufferRange::from(&slot.fluence),
+                            BufferRange::from(&tables.offsets),
                         ],
                         bytemuck::bytes_of(&push),
                         [sweep.n[1].div_ceil(16), sweep.n[2].div_ceil(4), t1 - t0],
@@ -830,5 +831,9 @@ impl Backend for GpuBackend<'_> {
 
     fn emitted_and_absorbed(&mut self) -> Result<([f64; 3], [f64; 3]), SolveError> {
         Ok(self.fields.emitted_and_absorbed(self.store, self.plan))
+    }
+
+    fn remaining_error(&mut self, factor: [f64; 3]) -> Result<crate::solver::remaining::RemainingError, SolveError> {
+        Ok(self.fields.remaining_error(self.store, self.plan, factor))
     }
 }

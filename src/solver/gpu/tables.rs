@@ -1,5 +1,5 @@
-//! Per-sweep direction tables on the device: the directions, their per-plane offsets and their
-//! collect rows, uploaded once per solve (they do not change between orders).
+//! Per-sweep direction tables on the device: the directions, their per-plane lattice offsets and
+//! weights, and their collect rows, uploaded once per solve (they do not change between orders).
 
 use super::layout::GpuDirection;
 use super::GpuBackend;
@@ -29,7 +29,16 @@ impl SweepTables {
                 pad: 0,
             })
             .collect();
-        let offsets: Vec<[i32; 2]> = dirs.iter().flat_map(|d| d.offsets.iter().copied()).collect();
+        // Per plane: the lattice offsets and the weights' f32 bits (`ivec4` in the shaders).
+        let offsets: Vec<[i32; 4]> = dirs
+            .iter()
+            .flat_map(|d| {
+                d.offsets
+                    .iter()
+                    .zip(&d.weights)
+                    .map(|(o, w)| [o[0], o[1], (w[0] as f32).to_bits() as i32, (w[1] as f32).to_bits() as i32])
+            })
+            .collect();
         let offsets_host = dirs.iter().map(|d| d.offsets.clone()).collect();
         let rows: Vec<f32> = dirs.iter().flat_map(|d| d.collect_row.iter().map(|&v| v as f32)).collect();
         let parts: [&[u8]; 3] =

@@ -1,0 +1,100 @@
+//! The spatial schemes against exact solutions (`solver.spatial`, see `lpm::solver::sweep`).
+//!
+//! A pure absorber box under a uniform sky has an exact fluence at every point (the solid-angle
+//! integral of e^{−σ·d}); its voxel averages test what the discretisation does where it is hardest:
+//! next to the faces, where light enters through a side at a grazing angle, and in the corners.
+
+mod common;
+use common::*;
+use lpm::scene::{Shape, SpatialScheme};
+use lpm::solver::BackendKind::Cpu;
+
+/// The exact voxel-average fluence of voxel `v` of an absorber box (`sub`³ sub-points per voxel)
+/// over a cube-face quadrature of `k`×`k` directions per face: with the solver's own k it is what
+/// the direction set can do at best (every direction transported exactly), so the solver's
+/// difference from it is its spatial error; with a fine k it is the exact solid-angle integral.
+fn exact_voxel_average(sigma: f64, n: u32, v: [u32; 3], k: u32, sub: u32) -> f64 {
+    let at = |c: u32, i: u32| c as f64 + (i as f64 + 0.5) / sub as f64;
+    let mut sum = 0.0;
+    for i in 0..sub {
+        for j in 0..sub {
+            for l in 0..sub {
+                let x = [at(v[0], i), at(v[1], j), at(v[2], l)];
+                sum += exact_absorber_fluence(sigma, [n as f64; 3], x, k);
+            }
+        }
+    }
+    sum / (sub * sub * sub) as f64
+}
+
+struct Worst {
+    /// Largest |solver / exact over the same directions − 1| (the spatial error) and where.
+    spatial: (f64, [u32; 3]),
+    /// Largest |solver / exact solid-angle integral − 1| and where.
+    total: (f64, [u32; 3]),
+}
+
+/// The worst relative errors over every voxel of a 32³ absorber box (σ = 0.1 per voxel, sky 1)
+/// with k directions per face. By the box's symmetry every voxel's value equals that of a voxel
+/// with x ≤ y ≤ z ≤ 15, so those are the ones compared (the solve is checked to be symmetric).
+fn worst_absorber_errors(scheme: SpatialScheme, k: u32) -> Worst {
+    let n = 32;
+    let sigma = 0.1;
+    let mut scene = scene(Shape::Box, [n; 3], [sigma; 3], [0.0; 3], vec![sky(1.0)]);
+    scene.solver.directions_per_face = k;
+    scene.solver.spatial = scheme;
+    let s = solve(&format!("absorber32-{}-{k}", scheme.name()), &scene, Cpu);
+    let mut worst = Worst { spatial: (0.0, [0; 3]), total: (0.0, [0; 3]) };
+    for z in 0..n / 2 {
+        for y in 0..=z {
+            for x in 0..=y {
+                let v = [x, y, z];
+                let got = s.fluence(v, 0);
+                // The mirror image through the far corner holds the same value (up to rounding).
+                let mirror = s.fluence([n - 1 - z, n - 1 - x, n - 1 - y], 0);
+                assert!((got / mirror - 1.0).abs() < 1e-9, "{v:?}: {got} vs mirror {mirror}");
+                let spatial = (got / exact_voxel_average(sigma, n, v, k, 4) - 1.0).abs();
+                if spatial > worst.spatial.0 {
+                    worst.spatial = (spatial, v);
+                }
+                let total = (got / exact_voxel_average(sigma, n, v, 32, 3) - 1.0).abs();
+                if total > worst.total.0 {
+                    worst.total = (total, v);
+                }
+            }
+        }
+    }
+    worst
+}
+
+/// The issue asks for the absorber box (32³, σt = 0.1, sky 1) within 1 % of the exact solid-angle
+/// integral in every voxel at k ≥ 8, faces and corners included. Two errors add up there: the
+/// direction set's own (even with every direction transported exactly, the k = 8 cube-face set is
+/// 1.75 % off at the centre of a face, k = 16 0.4 %: `explore` numbers in benches/RESULTS.md) and
+/// the spatial scheme's, which is what this test bounds. The linear scheme keeps the spatial error
+/// below 1 % in every voxel; the nearest-column scheme does not (light entering through a side starts
+/// a plane away from where it really enters).
+#[test]
+fn linear_scheme_keeps_the_spatial_error_of_an_absorber_box_below_one_percent_in_every_voxel() {
+    let linear = worst_absorber_errors(SpatialScheme::Linear, 8);
+    let constant = worst_absorber_errors(SpatialScheme::Constant, 8);
+    eprintln!(
+        "absorber 32³, k = 8, worst voxel: spatial error linear {:.3e} at {:?}, constant {:.3e} at {:?}; \
+         against the exact integral linear {:.3e} at {:?}, constant {:.3e} at {:?}",
+        linear.spatial.0,
+        linear.spatial.1,
+        constant.spatial.0,
+        constant.spatial.1,
+        linear.total.0,
+        linear.total.1,
+        constant.total.0,
+        constant.total.1,
+    );
+    assert!(linear.spatial.0 < 0.01, "linear: {:?}", linear.spatial);
+    assert!(
+        constant.spatial.0 > 1.5 * linear.spatial.0,
+        "constant {:?} vs linear {:?}",
+        constant.spatial,
+        linear.spatial
+    );
+}
