@@ -43,6 +43,8 @@ fn bench_scene() -> Scene {
             extrapolate_tail: false,
             storage_precision: StoragePrecision::Auto,
             plan: PlanMode::Auto,
+            spatial: SpatialScheme::default(),
+            forward_peak: ForwardPeak::default(),
         },
         camera: None,
     }
