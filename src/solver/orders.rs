@@ -187,7 +187,7 @@ pub struct OrderOutcome {
 }
 
 /// Runs orders until the tolerance or the cap, from `start` (a fresh solve passes the default
-/// state; a resumed one the state of its checkpoint). `progress(order, residual)` is called after
+/// state; a resumed one the state of its checkpoint). `progress(order, measure)` is called after
 /// each order.
 pub fn run_orders(
     plan: &Plan,
@@ -246,7 +246,13 @@ pub fn run_orders(
             seconds: t.elapsed().as_secs_f64(),
         });
         backend.checkpoint(&state)?;
-        progress(order, residual);
+        // What the stop rule compares with the tolerance: the per-voxel remaining error (the power
+        // residual while no ratio is known yet, and under the tail's own rule).
+        let measure = match remaining {
+            Some(r) if !extrapolate => r.max,
+            _ => residual,
+        };
+        progress(order, measure);
         tracing::debug!(order, residual, remaining = remaining.map(|r| r.max), "order done");
         converged = done(&state, remaining);
     }
