@@ -139,6 +139,12 @@ fn run_in(
             };
             super::run(&scene, &at, channels, &opts)
         }
+        VolumeSource::Vdb { path, grid, index_min } => {
+            let vdb = crate::store::vdb::vdb_density(path, grid, dims, *index_min)?;
+            let tree = &vdb.grid().tree;
+            let at = |v: [u32; 3]| tree.value(std::array::from_fn(|i| index_min[i] + v[i] as i32));
+            super::run(&scene, &at, channels, &opts)
+        }
     };
     let outputs = write_outputs(&result, h, stage)?;
     let report = ReferenceReport {

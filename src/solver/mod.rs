@@ -90,6 +90,10 @@ pub fn build_store(scene: &Scene, dir: &Path) -> Result<BrickStore, SolveError> 
             let raw = import::raw_density(path, dims)?;
             BrickStore::create_with(dir, dims, h, |brick, out| raw.fill_brick(brick, out))?
         }
+        VolumeSource::Vdb { path, grid, index_min } => {
+            let vdb = crate::store::vdb::vdb_density(path, grid, dims, *index_min)?;
+            BrickStore::create_with(dir, dims, h, |brick, out| vdb.fill_brick(brick, out))?
+        }
     };
     Ok(store)
 }

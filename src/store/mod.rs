@@ -27,6 +27,7 @@ mod field;
 mod grid;
 pub mod import;
 mod table;
+pub mod vdb;
 
 pub(crate) use atomic::write_atomic_io;
 pub use brick_store::BrickStore;
