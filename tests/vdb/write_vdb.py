@@ -137,3 +137,17 @@ vdb.write(os.path.join(out, "rotated.vdb"), grids=[g])
 g = cloud("density", (-8, 16, 4), 24)
 g.gridClass = vdb.GridClass.FOG_VOLUME
 write("solve", [g])
+
+# 7. sparse: a few leaves at the corners and inside of an EDGE³ box (dense: EDGE³ × 4 bytes), for
+# the out-of-core import (tests/vdb_sparse.rs).
+for edge in (1024, 4096):
+    g = vdb.FloatGrid()
+    g.name = "density"
+    acc = g.getAccessor()
+    pts = [(0, 0, 0), (edge - 1, edge - 1, edge - 1), (edge // 3, 17, edge // 2), (5, edge - 9, 100)]
+    for n, p in enumerate(pts):
+        for d in range(8):
+            acc.setValueOn((p[0], p[1], p[2] + (d if p[2] + d < edge else -d)), 0.5 + n + d / 8)
+    path = os.path.join(out, f"sparse{edge}.vdb")
+    vdb.write(path, grids=[g])
+    describe(path)

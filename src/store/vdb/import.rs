@@ -110,6 +110,23 @@ impl VdbDensity {
         let e = self.bricks.brick_extent(brick);
         let lo = self.info.index_min;
         let tree = &self.grid.tree;
+        let first: [i32; 3] = std::array::from_fn(|i| lo[i] + o[i] as i32);
+        let last: [i32; 3] = std::array::from_fn(|i| first[i] + e[i] as i32 - 1);
+        if let Some(value) = tree.constant_over(first, last) {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(StoreError::BadDensity { path: self.path.clone(), voxel: o, value });
+            }
+            if value != 0.0 {
+                for z in 0..e[2] as usize {
+                    for y in 0..e[1] as usize {
+                        for x in 0..e[0] as usize {
+                            out[local_index([x, y, z])] = value;
+                        }
+                    }
+                }
+            }
+            return Ok(());
+        }
         for z in 0..e[2] {
             for y in 0..e[1] {
                 // A row crosses at most 3 leaf-sized blocks: look each up once.

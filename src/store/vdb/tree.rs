@@ -109,6 +109,36 @@ impl Tree {
         }
     }
 
+    /// The value of the whole inclusive box `[lo, hi]` when one tile or the background covers it
+    /// (so a brick in empty space costs one lookup, not 4096); `None` when it may vary.
+    pub fn constant_over(&self, lo: [i32; 3], hi: [i32; 3]) -> Option<f32> {
+        let same = |shift: u32| (0..3).all(|i| lo[i] >> shift == hi[i] >> shift);
+        if !same(L5 + L4 + L3) {
+            return None;
+        }
+        let n5 = match self.root.get(&lo.map(|v| v & !(SPAN5 - 1))) {
+            None => return Some(self.background),
+            Some(RootEntry::Tile { value }) => return Some(*value),
+            Some(RootEntry::Node(n)) => &self.node5[*n as usize],
+        };
+        if !same(L4 + L3) {
+            return None;
+        }
+        let s5 = slot(lo, L5, L4 + L3);
+        let n4 = match n5.children[s5] {
+            NONE => return Some(n5.values[s5]),
+            n => &self.node4[n as usize],
+        };
+        if !same(L3) {
+            return None;
+        }
+        let s4 = slot(lo, L4, L3);
+        match n4.children[s4] {
+            NONE => Some(n4.values[s4]),
+            _ => None,
+        }
+    }
+
     /// The values of leaf `leaf` (x slowest, z fastest), if they were read.
     pub fn leaf(&self, leaf: usize) -> Option<&[f32; 512]> {
         self.leaf_values.get(leaf).map(|l| &**l)
