@@ -50,6 +50,10 @@ pub enum VolumeSource {
         grid: String,
         index_min: [i32; 3],
     },
+    /// An NRRD file (`.nhdr` or `.nrrd`, an absolute path): its samples, x fastest, as f32.
+    Nrrd {
+        path: PathBuf,
+    },
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -9,6 +9,7 @@ use super::{
 use glam::DVec3;
 use std::path::{Path, PathBuf};
 
+mod nrrd_volume;
 mod vdb_volume;
 
 /// Largest voxel count accepted (product of dims).
@@ -137,6 +138,9 @@ impl Validator<'_> {
         if v.vdb.is_some() {
             return self.vdb_volume(v, origin);
         }
+        if v.nrrd.is_some() {
+            return self.nrrd_volume(v, origin);
+        }
         if v.grid.is_some() {
             return Err(self.err("volume.grid", "only applies to a `vdb` volume"));
         }
@@ -153,11 +157,13 @@ impl Validator<'_> {
             (Some(_), Some(_)) => {
                 return Err(self.err(
                     "volume",
-                    "set exactly one of `procedural`, `raw` and `vdb`, but both `procedural` and `raw` are set",
+                    "set exactly one of `procedural`, `raw`, `vdb` and `nrrd`, but both `procedural` and `raw` are set",
                 ))
             }
             (None, None) => {
-                return Err(self.err("volume", "set exactly one of `procedural`, `raw` and `vdb`, but none is set"))
+                return Err(
+                    self.err("volume", "set exactly one of `procedural`, `raw`, `vdb` and `nrrd`, but none is set")
+                )
             }
             (Some(name), None) => {
                 let shape = match name.as_str() {

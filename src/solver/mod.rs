@@ -94,6 +94,28 @@ pub fn build_store(scene: &Scene, dir: &Path) -> Result<BrickStore, SolveError> 
             let vdb = crate::store::vdb::vdb_density(path, grid, dims, *index_min)?;
             BrickStore::create_with(dir, dims, h, |brick, out| vdb.fill_brick(brick, out))?
         }
+        VolumeSource::Nrrd { path } => {
+            // Decoded once into a raw f32 file beside the store, imported like `raw`, then removed.
+            let header = crate::store::nrrd_input::nrrd_header(path)?;
+            if header.dims != dims.map(u64::from) {
+                return Err(crate::store::StoreError::Corrupt {
+                    path: path.clone(),
+                    message: format!(
+                        "the header now says {:?} voxels, the scene was validated with {dims:?}: the file changed",
+                        header.dims
+                    ),
+                }
+                .into());
+            }
+            std::fs::create_dir_all(dir).map_err(crate::store::StoreError::io(dir, "create the store directory"))?;
+            let decoded = dir.join("nrrd-density.raw");
+            crate::store::nrrd_input::convert_to_raw(path, &header, &decoded)?;
+            let raw = import::raw_density(&decoded, dims)?;
+            let store = BrickStore::create_with(dir, dims, h, |brick, out| raw.fill_brick(brick, out));
+            drop(raw);
+            let _ = std::fs::remove_file(&decoded);
+            store?
+        }
     };
     Ok(store)
 }

@@ -26,6 +26,7 @@ mod error;
 mod field;
 mod grid;
 pub mod import;
+pub mod nrrd_input;
 mod table;
 pub mod vdb;
 
