@@ -154,15 +154,13 @@ impl Validator<'_> {
             None => 1.0,
         };
         let source = match (v.procedural, v.raw) {
-            (Some(_), Some(_)) => {
-                return Err(self.err(
-                    "volume",
-                    "set exactly one of `procedural`, `raw`, `vdb` and `nrrd`, but both `procedural` and `raw` are set",
-                ))
-            }
+            (Some(_), Some(_)) => return Err(self.err(
+                "volume",
+                "set exactly one of `procedural`, `raw`, `vdb` and `nrrd`, but both are set (`procedural` and `raw`)",
+            )),
             (None, None) => {
                 return Err(
-                    self.err("volume", "set exactly one of `procedural`, `raw`, `vdb` and `nrrd`, but none is set")
+                    self.err("volume", "set exactly one of `procedural`, `raw`, `vdb` and `nrrd`, but neither is set")
                 )
             }
             (Some(name), None) => {
