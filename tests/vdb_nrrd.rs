@@ -84,7 +84,8 @@ fn every_type_encoding_and_layout_reads_the_samples() {
     let as_f32 = |v: &[f32], f: &dyn Fn(f32) -> f32| v.iter().map(|x| f(*x)).collect::<Vec<f32>>();
 
     // (name, header fields, data, attached, expected samples)
-    let cases: Vec<(&str, String, Vec<u8>, bool, Vec<f32>)> = vec![
+    type Case<'a> = (&'a str, String, Vec<u8>, bool, Vec<f32>);
+    let cases: Vec<Case> = vec![
         ("float_raw", "type: float\nendian: little\nencoding: raw\n".into(), f32_le.clone(), false, s.clone()),
         ("float_big_gzip", "type: float\nendian: big\nencoding: gzip\n".into(), gzip(&f32_be), false, s.clone()),
         ("double_attached", "type: double\nendian: little\nencoding: raw\n".into(), f64_le, true, s.clone()),
@@ -213,4 +214,40 @@ fn nrrd_scene_solves_bitwise_like_the_same_density_as_raw() {
     let (fa, fb) = (sa.fluence_all(), sb.fluence_all());
     assert!(fa.iter().any(|&v| v > 0.0));
     assert!(fa.iter().zip(&fb).all(|(x, y)| x.to_bits() == y.to_bits()), "fluence differs");
+}
+
+#[test]
+fn origin_moves_the_volume_and_the_camera_stays_in_the_world() {
+    // The same view of the same volume, once at the world origin and once moved by `origin`: the
+    // camera, given in world units, lands at the same place in the volume's frame.
+    let dir = temp_dir("origin-camera");
+    let cam = |p: [f64; 3], l: [f64; 3]| {
+        format!(
+            "[camera]\nposition = [{}, {}, {}]\nlook_at = [{}, {}, {}]\nwidth = 8\nheight = 8\n",
+            p[0], p[1], p[2], l[0], l[1], l[2]
+        )
+    };
+    let at_zero = scene(
+        &dir,
+        "zero",
+        &format!("procedural = \"sphere\"\ndims = [8, 8, 8]\n\n{}", cam([20.0, -10.0, 15.0], [4.0; 3])),
+    )
+    .expect("scene");
+    let moved = scene(
+        &dir,
+        "moved",
+        &format!(
+            "procedural = \"sphere\"\ndims = [8, 8, 8]\norigin = [100.0, -50.0, 2.5]\n\n{}",
+            cam([120.0, -60.0, 17.5], [104.0, -46.0, 6.5])
+        ),
+    )
+    .expect("scene");
+    assert_eq!(moved.volume.origin.to_array(), [100.0, -50.0, 2.5]);
+    assert_eq!(at_zero.volume.origin.to_array(), [0.0; 3]);
+    let (a, b) = (at_zero.camera.expect("camera"), moved.camera.expect("camera"));
+    assert_eq!(a.position, b.position);
+    assert_eq!(a.look_at, b.look_at);
+    let e =
+        scene(&dir, "nan", "procedural = \"box\"\ndims = [2, 2, 2]\norigin = [0.0, nan, 0.0]").expect_err("nan origin");
+    assert!(e.to_string().contains("volume.origin[1]"), "{e}");
 }

@@ -145,7 +145,9 @@ impl Validator<'_> {
             return Err(self.err("volume.grid", "only applies to a `vdb` volume"));
         }
         let Some(raw_dims) = v.dims else {
-            return Err(self.err("volume.dims", "missing field `dims`: it is required for a `procedural` or `raw` volume"));
+            return Err(
+                self.err("volume.dims", "missing field `dims`: it is required for a `procedural` or `raw` volume")
+            );
         };
         let dims = self.dims(raw_dims)?;
         let voxels = dims.iter().map(|&d| u64::from(d)).product::<u64>();

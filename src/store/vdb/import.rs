@@ -10,6 +10,9 @@ use std::fs::File;
 use std::io::BufReader;
 use std::path::{Path, PathBuf};
 
+/// Where a voxel's value is: in a leaf (leaf, index) or a constant (tile or background).
+type Lookup = Result<(usize, usize), f32>;
+
 /// Where a grid's volume sits and how large it is, in lpm's terms.
 #[derive(Clone, Debug, PartialEq)]
 pub struct VdbVolumeInfo {
@@ -130,7 +133,7 @@ impl VdbDensity {
         for z in 0..e[2] {
             for y in 0..e[1] {
                 // A row crosses at most 3 leaf-sized blocks: look each up once.
-                let mut cached: Option<(i32, Result<(usize, usize), f32>)> = None;
+                let mut cached: Option<(i32, Lookup)> = None;
                 for x in 0..e[0] {
                     let v = [o[0] + x, o[1] + y, o[2] + z];
                     let c = [lo[0] + v[0] as i32, lo[1] + v[1] as i32, lo[2] + v[2] as i32];

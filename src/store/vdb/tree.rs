@@ -40,7 +40,7 @@ pub struct Tree {
     node5: Vec<Internal>,
     node4: Vec<Internal>,
     leaf_masks: Vec<[u64; 8]>,
-    leaf_values: Vec<Box<[f32; 512]>>,
+    leaf_values: Vec<[f32; 512]>,
     /// Inclusive index bounding box of the active voxels and tiles, if any is active.
     bbox: Option<[[i64; 3]; 2]>,
 }
@@ -141,7 +141,7 @@ impl Tree {
 
     /// The values of leaf `leaf` (x slowest, z fastest), if they were read.
     pub fn leaf(&self, leaf: usize) -> Option<&[f32; 512]> {
-        self.leaf_values.get(leaf).map(|l| &**l)
+        self.leaf_values.get(leaf)
     }
 }
 
@@ -259,8 +259,8 @@ pub(crate) fn read_buffers<S: Read + Seek>(s: &mut Stream<S>, enc: &Encoding, tr
     for mask in &tree.leaf_masks {
         // The leaf repeats its value mask; the topology's copy is the one OpenVDB uses.
         s.skip(64, "a leaf's value mask")?;
-        let mut values = Box::new([0.0f32; 512]);
-        read_values(s, enc, mask, &mut values[..])?;
+        let mut values = [0.0f32; 512];
+        read_values(s, enc, mask, &mut values)?;
         tree.leaf_values.push(values);
     }
     Ok(())
