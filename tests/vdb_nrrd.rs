@@ -186,8 +186,16 @@ fn bad_headers_and_short_data_are_clear_errors() {
             "{name}: {msg}"
         );
     }
-    // Data problems show when the store is built.
+    // Data problems show when the store is built, named against the NRRD file.
+    let mut negative = data.clone();
+    negative[4 * (2 + 19 * 3)..4 * (3 + 19 * 3)].copy_from_slice(&(-1.0f32).to_le_bytes());
+    std::fs::write(dir.join("neg.raw"), negative).unwrap();
     for (name, fields, want) in [
+        (
+            "neg",
+            "type: float\nendian: little\nencoding: raw\ndata file: neg.raw\n",
+            "neg.nhdr: voxel (2, 3, 0) has density -1",
+        ),
         ("short", "type: float\nendian: little\nencoding: raw\ndata file: short.raw\n", "ends after"),
         ("long_gz", "type: float\nendian: little\nencoding: gzip\ndata file: d.gz\n", "more than"),
         ("missing", "type: float\nendian: little\nencoding: raw\ndata file: absent.raw\n", "absent.raw"),

@@ -111,7 +111,15 @@ pub fn build_store(scene: &Scene, dir: &Path) -> Result<BrickStore, SolveError> 
             let decoded = dir.join("nrrd-density.raw");
             crate::store::nrrd_input::convert_to_raw(path, &header, &decoded)?;
             let raw = import::raw_density(&decoded, dims)?;
-            let store = BrickStore::create_with(dir, dims, h, |brick, out| raw.fill_brick(brick, out));
+            // A bad density is reported against the NRRD file, not the temporary.
+            let store = BrickStore::create_with(dir, dims, h, |brick, out| {
+                raw.fill_brick(brick, out).map_err(|e| match e {
+                    crate::store::StoreError::BadDensity { voxel, value, .. } => {
+                        crate::store::StoreError::BadDensity { path: path.clone(), voxel, value }
+                    }
+                    e => e,
+                })
+            });
             drop(raw);
             let _ = std::fs::remove_file(&decoded);
             store?
