@@ -13,7 +13,12 @@ use std::path::PathBuf;
 fn scene(dims: [u32; 3], h: f64, sigma_t: f64, albedo: f64, g: f64, emission: f64, lights: Vec<Light>) -> Scene {
     Scene {
         path: PathBuf::from("reference_test.toml"),
-        volume: Volume { source: VolumeSource::Procedural { shape: Shape::Box, seed: 0 }, dims, voxel_size: h },
+        volume: Volume {
+            source: VolumeSource::Procedural { shape: Shape::Box, seed: 0 },
+            dims,
+            voxel_size: h,
+            origin: glam::DVec3::ZERO,
+        },
         medium: Medium { sigma_t: [sigma_t; 3], albedo: [albedo; 3], g, emission: [emission; 3] },
         lights,
         solver: SolverSettings {

@@ -139,6 +139,26 @@ fn run_in(
             };
             super::run(&scene, &at, channels, &opts)
         }
+        VolumeSource::Vdb { path, grid, index_min } => {
+            let vdb = crate::store::vdb::vdb_density(path, grid, dims, *index_min)?;
+            let tree = &vdb.grid().tree;
+            let at = |v: [u32; 3]| tree.value(std::array::from_fn(|i| index_min[i] + v[i] as i32));
+            super::run(&scene, &at, channels, &opts)
+        }
+        VolumeSource::Nrrd { path } => {
+            let header = store::nrrd_input::nrrd_header(path)?;
+            let mut values = Vec::new();
+            store::nrrd_input::decode(path, &header, |v| {
+                values.extend_from_slice(v);
+                Ok(())
+            })?;
+            let (nx, ny) = (dims[0] as usize, dims[1] as usize);
+            let at = |v: [u32; 3]| {
+                let i = (v[2] as usize * ny + v[1] as usize) * nx + v[0] as usize;
+                values.get(i).copied().unwrap_or(0.0)
+            };
+            super::run(&scene, &at, channels, &opts)
+        }
     };
     let outputs = write_outputs(&result, h, stage)?;
     let report = ReferenceReport {

@@ -23,8 +23,16 @@ pub(crate) struct RawScene {
 pub(crate) struct RawVolume {
     pub procedural: Option<String>,
     pub raw: Option<String>,
-    pub dims: [i64; 3],
+    /// An OpenVDB file; `grid` names the density grid in it (default "density").
+    pub vdb: Option<String>,
+    pub grid: Option<String>,
+    /// An NRRD file (`.nhdr` or `.nrrd`).
+    pub nrrd: Option<String>,
+    /// Required for `procedural` and `raw`; a VDB grid's comes from its active bounding box.
+    pub dims: Option<[i64; 3]>,
     pub voxel_size: Option<f64>,
+    /// World position of the volume's low corner; a VDB grid's comes from its transform.
+    pub origin: Option<[f64; 3]>,
     pub seed: Option<i64>,
 }
 

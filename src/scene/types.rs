@@ -26,6 +26,11 @@ pub struct Volume {
     pub dims: [u32; 3],
     /// World units per voxel edge (> 0).
     pub voxel_size: f64,
+    /// World position of the volume's low corner: voxel (i, j, k) spans
+    /// `origin + [i, j, k]·voxel_size` to `origin + [i+1, j+1, k+1]·voxel_size`. The solver works in
+    /// the volume's own frame (corner at 0); only the camera is placed in the world, and the
+    /// validator moves it into the volume's frame (see [`Camera`]).
+    pub origin: DVec3,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -36,6 +41,17 @@ pub enum VolumeSource {
     },
     /// Little-endian f32, x fastest, then y, then z; an absolute path (resolved against the scene file).
     Raw {
+        path: PathBuf,
+    },
+    /// Grid `grid` of an OpenVDB file (an absolute path). `index_min` is the index coordinate of
+    /// the volume's voxel (0, 0, 0): the low corner of the grid's active bounding box.
+    Vdb {
+        path: PathBuf,
+        grid: String,
+        index_min: [i32; 3],
+    },
+    /// An NRRD file (`.nhdr` or `.nrrd`, an absolute path): its samples, x fastest, as f32.
+    Nrrd {
         path: PathBuf,
     },
 }
@@ -192,7 +208,9 @@ pub enum StoragePrecision {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Camera {
     pub projection: Projection,
-    /// World-space position of the eye (pinhole) or of the image centre (orthographic).
+    /// Position of the eye (pinhole) or of the image centre (orthographic), in the volume's frame:
+    /// the scene file gives world positions, and the validator subtracts `volume.origin` from
+    /// `position` and `look_at`.
     pub position: DVec3,
     pub look_at: DVec3,
     pub up: DVec3,

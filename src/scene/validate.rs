@@ -9,6 +9,9 @@ use super::{
 use glam::DVec3;
 use std::path::{Path, PathBuf};
 
+mod nrrd_volume;
+mod vdb_volume;
+
 /// Largest voxel count accepted (product of dims).
 pub const MAX_VOXELS: u64 = 1 << 40;
 /// Largest size of one dimension, in voxels.
@@ -51,7 +54,12 @@ impl Validator<'_> {
         let medium = self.medium(raw.medium)?;
         let lights = raw.lights.into_iter().enumerate().map(|(i, l)| self.light(i, l)).collect::<R<Vec<_>>>()?;
         let solver = self.solver(raw.solver)?;
-        let camera = raw.camera.map(|c| self.camera(c, &volume)).transpose()?;
+        let mut camera = raw.camera.map(|c| self.camera(c, &volume)).transpose()?;
+        // The solver and renderer work in the volume's frame (its corner at 0).
+        if let Some(c) = camera.as_mut() {
+            c.position -= volume.origin;
+            c.look_at -= volume.origin;
+        }
         Ok(Scene { path: self.path.to_path_buf(), volume, medium, lights, solver, camera })
     }
 
@@ -125,30 +133,39 @@ impl Validator<'_> {
     // ---- sections -------------------------------------------------------------------------
 
     fn volume(&self, v: RawVolume) -> R<Volume> {
-        let mut dims = [0u32; 3];
-        for i in 0..3 {
-            dims[i] = self.int_range(&format!("volume.dims[{i}]"), v.dims[i], 1, MAX_DIM)?;
+        let origin = match v.origin {
+            None => DVec3::ZERO,
+            Some(o) => self.vec3("volume.origin", o)?,
+        };
+        if v.vdb.is_some() {
+            return self.vdb_volume(v, origin);
         }
+        if v.nrrd.is_some() {
+            return self.nrrd_volume(v, origin);
+        }
+        if v.grid.is_some() {
+            return Err(self.err("volume.grid", "only applies to a `vdb` volume"));
+        }
+        let Some(raw_dims) = v.dims else {
+            return Err(
+                self.err("volume.dims", "missing field `dims`: it is required for a `procedural` or `raw` volume")
+            );
+        };
+        let dims = self.dims(raw_dims)?;
         let voxels = dims.iter().map(|&d| u64::from(d)).product::<u64>();
-        if voxels > MAX_VOXELS {
-            return Err(self.err(
-                "volume.dims",
-                format!(
-                    "{} × {} × {} = {voxels} voxels is more than the limit of 2^40 = {MAX_VOXELS}",
-                    dims[0], dims[1], dims[2]
-                ),
-            ));
-        }
         let voxel_size = match v.voxel_size {
             Some(s) => self.positive("volume.voxel_size", s, MAX_MAGNITUDE)?,
             None => 1.0,
         };
         let source = match (v.procedural, v.raw) {
-            (Some(_), Some(_)) => {
-                return Err(self.err("volume", "set exactly one of `procedural` and `raw`, but both are set"))
-            }
+            (Some(_), Some(_)) => return Err(self.err(
+                "volume",
+                "set exactly one of `procedural`, `raw`, `vdb` and `nrrd`, but both are set (`procedural` and `raw`)",
+            )),
             (None, None) => {
-                return Err(self.err("volume", "set exactly one of `procedural` and `raw`, but neither is set"))
+                return Err(
+                    self.err("volume", "set exactly one of `procedural`, `raw`, `vdb` and `nrrd`, but neither is set")
+                )
             }
             (Some(name), None) => {
                 let shape = match name.as_str() {
@@ -175,7 +192,26 @@ impl Validator<'_> {
                 VolumeSource::Raw { path: self.raw_file(&raw, dims, voxels)? }
             }
         };
-        Ok(Volume { source, dims, voxel_size })
+        Ok(Volume { source, dims, voxel_size, origin })
+    }
+
+    /// Checks a volume's size: each of `d` in 1..=MAX_DIM and the product at most MAX_VOXELS.
+    fn dims(&self, d: [i64; 3]) -> R<[u32; 3]> {
+        let mut dims = [0u32; 3];
+        for i in 0..3 {
+            dims[i] = self.int_range(&format!("volume.dims[{i}]"), d[i], 1, MAX_DIM)?;
+        }
+        let voxels = dims.iter().map(|&d| u64::from(d)).product::<u64>();
+        if voxels > MAX_VOXELS {
+            return Err(self.err(
+                "volume.dims",
+                format!(
+                    "{} × {} × {} = {voxels} voxels is more than the limit of 2^40 = {MAX_VOXELS}",
+                    dims[0], dims[1], dims[2]
+                ),
+            ));
+        }
+        Ok(dims)
     }
 
     /// Resolves `raw` against the scene file's directory and checks the file's size.

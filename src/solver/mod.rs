@@ -92,6 +92,40 @@ pub fn build_store(scene: &Scene, dir: &Path) -> Result<BrickStore, SolveError> 
             let raw = import::raw_density(path, dims)?;
             BrickStore::create_with(dir, dims, h, |brick, out| raw.fill_brick(brick, out))?
         }
+        VolumeSource::Vdb { path, grid, index_min } => {
+            let vdb = crate::store::vdb::vdb_density(path, grid, dims, *index_min)?;
+            BrickStore::create_with(dir, dims, h, |brick, out| vdb.fill_brick(brick, out))?
+        }
+        VolumeSource::Nrrd { path } => {
+            // Decoded once into a raw f32 file beside the store, imported like `raw`, then removed.
+            let header = crate::store::nrrd_input::nrrd_header(path)?;
+            if header.dims != dims.map(u64::from) {
+                return Err(crate::store::StoreError::Corrupt {
+                    path: path.clone(),
+                    message: format!(
+                        "the header now says {:?} voxels, the scene was validated with {dims:?}: the file changed",
+                        header.dims
+                    ),
+                }
+                .into());
+            }
+            std::fs::create_dir_all(dir).map_err(crate::store::StoreError::io(dir, "create the store directory"))?;
+            let decoded = dir.join("nrrd-density.raw");
+            crate::store::nrrd_input::convert_to_raw(path, &header, &decoded)?;
+            let raw = import::raw_density(&decoded, dims)?;
+            // A bad density is reported against the NRRD file, not the temporary.
+            let store = BrickStore::create_with(dir, dims, h, |brick, out| {
+                raw.fill_brick(brick, out).map_err(|e| match e {
+                    crate::store::StoreError::BadDensity { voxel, value, .. } => {
+                        crate::store::StoreError::BadDensity { path: path.clone(), voxel, value }
+                    }
+                    e => e,
+                })
+            });
+            drop(raw);
+            let _ = std::fs::remove_file(&decoded);
+            store?
+        }
     };
     Ok(store)
 }

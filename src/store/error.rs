@@ -30,6 +30,12 @@ pub enum StoreError {
     #[error("field name {name:?} is invalid: use letters, digits, '_', '-' and '.' only")]
     BadFieldName { name: String },
 
+    #[error("{}: NRRD field `{field}`: {problem}", path.display())]
+    Nrrd { path: PathBuf, field: String, problem: String },
+
+    #[error("{}: {source}", path.display())]
+    Vdb { path: PathBuf, source: super::vdb::VdbError },
+
     #[error("{}: {message}", path.display())]
     FieldShape { path: PathBuf, message: String },
 }

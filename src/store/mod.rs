@@ -18,7 +18,8 @@
 //! | `density.bricks` | the occupied bricks' densities, in brick-index order, 4096 f32 (native = little-endian) each |
 //! | `<name>.field` | a field, see [`Field`] |
 //!
-//! Importers that feed [`BrickStore::create_with`] live in [`import`].
+//! Importers that feed [`BrickStore::create_with`] live in [`import`] (raw f32), [`vdb`] (OpenVDB
+//! grids, read by our own reader) and [`nrrd_input`] (NRRD volumes, decoded to raw first).
 
 mod atomic;
 mod brick_store;
@@ -26,7 +27,9 @@ mod error;
 mod field;
 mod grid;
 pub mod import;
+pub mod nrrd_input;
 mod table;
+pub mod vdb;
 
 pub(crate) use atomic::write_atomic_io;
 pub use brick_store::BrickStore;

@@ -9,7 +9,12 @@ use std::path::PathBuf;
 pub fn scene(shape: Shape, dims: [u32; 3], sigma_t: [f64; 3], albedo: [f64; 3], lights: Vec<Light>) -> Scene {
     Scene {
         path: PathBuf::from("test.toml"),
-        volume: Volume { source: VolumeSource::Procedural { shape, seed: 7 }, dims, voxel_size: 1.0 },
+        volume: Volume {
+            source: VolumeSource::Procedural { shape, seed: 7 },
+            dims,
+            voxel_size: 1.0,
+            origin: glam::DVec3::ZERO,
+        },
         medium: Medium { sigma_t, albedo, g: 0.0, emission: [0.0; 3] },
         lights,
         solver: SolverSettings {
