@@ -32,6 +32,14 @@ pub enum StoreError {
 
     #[error("{}: {message}", path.display())]
     FieldShape { path: PathBuf, message: String },
+
+    #[error("{}: not enough disk space: the file needs {needed} bytes, {} free{}", path.display(),
+        free.map_or("unknown".to_string(), |f| format!("{f} bytes")),
+        if *needed > 0 { "; free some space or choose another --out" } else { "" })]
+    NoSpace { path: PathBuf, needed: u64, free: Option<u64> },
+
+    #[error("{}: the file shrank while it was being read (expected {expected} bytes); was it modified by another program?", path.display())]
+    Truncated { path: PathBuf, expected: u64 },
 }
 
 impl StoreError {
