@@ -60,8 +60,12 @@ enum Command {
         device_memory_budget: Option<u64>,
         /// Continue a solve that was killed or failed: picks up after the last completed order
         /// checkpointed in OUT/.lpm-work (GPU backend). The result is bitwise the same.
-        #[arg(long)]
+        #[arg(long, conflicts_with = "fresh")]
         resume: bool,
+        /// Discard the checkpoint of an unfinished solve in OUT/.lpm-work and start over. Without
+        /// --resume or --fresh, a solve into an OUT holding such a checkpoint refuses to start.
+        #[arg(long)]
+        fresh: bool,
     },
     /// Monte-Carlo reference solution of a scene (independent of the LPM solver): writes fluence.*,
     /// fluence_stderr.* (per-voxel standard error), image.* when --image-spp > 0, and report.json.
@@ -97,6 +101,10 @@ enum Command {
         /// Use only voxels whose reference standard error is at most this fraction of its fluence.
         #[arg(long, default_value_t = 0.05)]
         max_rel_stderr: f64,
+        /// Exit with status 2 when the fluence's relative L2 error is above this (or no voxel could
+        /// be compared), so scripts can use the comparison as a check.
+        #[arg(long, value_parser = parse_limit)]
+        fail_above: Option<f64>,
     },
     /// Benchmarks that print JSON (see README, "Benchmarks").
     Bench {
@@ -201,10 +209,47 @@ fn main() {
     let cli = Cli::parse();
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(format!("lpm={}", cli.log)));
-    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).init();
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        // Colour codes only for a person at a terminal, never into a pipe or a log file.
+        .with_ansi(std::io::stderr().is_terminal())
+        .init();
     if let Err(e) = run(cli) {
-        eprintln!("lpm: {e:#}");
+        eprintln!("lpm: {}", error_text(&e));
         std::process::exit(1);
+    }
+}
+
+/// The error and its causes in one line, each cause once: a library error that already quotes its
+/// source (`… cannot open: No such file or directory`) is not followed by the same reason again.
+/// Control characters other than line breaks (from file names, say: an escape sequence) are
+/// escaped so they cannot garble the terminal.
+fn error_text(e: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in e.chain() {
+        let part = cause.to_string();
+        if !text.contains(&part) {
+            if !text.is_empty() {
+                text.push_str(": ");
+            }
+            text.push_str(&part);
+        }
+    }
+    escape_controls(&text)
+}
+
+fn escape_controls(text: &str) -> String {
+    text.chars()
+        .map(|c| if c.is_control() && c != '\n' { c.escape_default().to_string() } else { c.to_string() })
+        .collect()
+}
+
+fn parse_limit(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v >= 0.0 => Ok(v),
+        _ => Err(format!("expected a finite number ≥ 0, got {text:?}")),
     }
 }
 
@@ -221,6 +266,7 @@ fn run(cli: Cli) -> Result<()> {
             no_fields,
             device_memory_budget,
             resume,
+            fresh,
         } => {
             let mut vk = ContextOptions::default();
             if let Some(v) = validation {
@@ -242,6 +288,7 @@ fn run(cli: Cli) -> Result<()> {
                 no_fields,
                 device_memory_budget,
                 resume,
+                fresh,
             };
             let bar = std::io::stderr().is_terminal().then(|| {
                 let bar = indicatif::ProgressBar::new_spinner();
@@ -292,7 +339,7 @@ fn run(cli: Cli) -> Result<()> {
             );
             Ok(())
         }
-        Command::Compare { a, b, json, max_rel_stderr } => {
+        Command::Compare { a, b, json, max_rel_stderr, fail_above } => {
             let c = lpm::compare::compare_dirs(
                 &a,
                 &b,
@@ -301,6 +348,10 @@ fn run(cli: Cli) -> Result<()> {
             println!("{c}");
             if let Some(path) = json {
                 lpm::compare::write_comparison_json(&path, &c)?;
+            }
+            if let Some(why) = fail_above.and_then(|max| c.exceeds(max)) {
+                eprintln!("lpm: compare failed: {why}");
+                std::process::exit(2);
             }
             Ok(())
         }
@@ -374,8 +425,9 @@ fn run(cli: Cli) -> Result<()> {
             if device.is_some() {
                 vk.device_index = device;
             }
-            let work = std::env::temp_dir().join(format!("lpm-bench-stream-{}", std::process::id()));
-            let report = lpm::bench::stream(&scene, orders, device_memory_budget, vk, &work)?;
+            // A fresh directory with an unpredictable name (O_EXCL), removed when done.
+            let work = tempfile::Builder::new().prefix("lpm-bench-stream-").tempdir()?;
+            let report = lpm::bench::stream(&scene, orders, device_memory_budget, vk, work.path())?;
             let text = serde_json::to_string_pretty(&report)?;
             if let Some(path) = json {
                 lpm::output::write_atomic(&path, |w| std::io::Write::write_all(w, text.as_bytes()))?;

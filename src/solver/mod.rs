@@ -42,7 +42,7 @@ pub enum SolveError {
     BudgetTooSmall { budget: u64, needed: u64 },
     #[error("Vulkan validation reported {} error(s); the first: {}", .0.len(), .0.first().map(String::as_str).unwrap_or(""))]
     Validation(Vec<String>),
-    #[error("{}: the checkpoint belongs to another scene or lpm version; solve again without --resume", path.display())]
+    #[error("{}: the checkpoint belongs to another scene or lpm version; rerun with --fresh instead of --resume to discard it and start over", path.display())]
     CheckpointMismatch { path: std::path::PathBuf },
     #[error("writing the checkpoint: {0}")]
     Checkpoint(crate::output::OutputError),
@@ -110,10 +110,12 @@ pub fn solve(
 /// Identifies a scene for checkpoints: a resumed solve must be the same job.
 pub fn scene_digest(scene: &Scene) -> String {
     // FNV-1a over the validated scene and the crate version: stable across runs and platforms.
-    // The memory budget is left out: any budget gives bitwise the same result, so a solve may
-    // resume under another one.
+    // Only what affects the solve is digested: the memory budget is left out (any budget gives
+    // bitwise the same result, so a solve may resume under another one), and so is the camera
+    // (it only affects the image, rendered after the solve).
     let mut scene = scene.clone();
     scene.solver.device_memory_budget = None;
+    scene.camera = None;
     let text = format!("{}|{:?}", env!("CARGO_PKG_VERSION"), scene);
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
     for b in text.bytes() {
