@@ -29,6 +29,9 @@ pub enum JobError {
     Scene(#[from] SceneError),
     #[error(transparent)]
     Solve(#[from] SolveError),
+    /// A budget error, with where the budget came from (the flag or the scene key).
+    #[error("{origin}: {inner}")]
+    Budget { origin: String, inner: SolveError },
     #[error(transparent)]
     Output(#[from] OutputError),
     #[error("cannot create output directory {}: {source}", path.display())]
@@ -235,7 +238,18 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
         checkpoints: job.backend == BackendKind::Gpu,
         ..solver::gpu::GpuOptions::default()
     };
-    let (run, fields) = solver::solve_with(scene, &store, job.backend, job.vk.clone(), gpu, reopen, progress)?;
+    let (run, fields) =
+        solver::solve_with(scene, &store, job.backend, job.vk.clone(), gpu, reopen, progress).map_err(|e| match e {
+            SolveError::BudgetTooSmall { .. } | SolveError::BudgetTooLarge { .. } => JobError::Budget {
+                origin: match (job.device_memory_budget, scene.solver.device_memory_budget) {
+                    (Some(_), _) => "--device-memory-budget".to_string(),
+                    (None, Some(_)) => format!("{}: solver.device_memory_budget", job.scene.display()),
+                    (None, None) => "the default device memory budget".to_string(),
+                },
+                inner: e,
+            },
+            e => JobError::Solve(e),
+        })?;
     let SolveRun { plan, outcome, device, peak_device_bytes, memory, mut phases } = run;
     let store_bytes = files_bytes(store.dir());
     phases.insert(0, ("store".to_string(), store_seconds));

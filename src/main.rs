@@ -229,7 +229,12 @@ fn main() {
 fn error_text(e: &anyhow::Error) -> String {
     let mut text = String::new();
     for cause in e.chain() {
-        let part = cause.to_string();
+        let full = cause.to_string();
+        // An OS error quoted above may have been shortened by the " (os error N)" it ends with.
+        let part = match full.rfind(" (os error ") {
+            Some(i) if full.ends_with(')') && text.contains(&full[..i]) => continue,
+            _ => full,
+        };
         if !text.contains(&part) {
             if !text.is_empty() {
                 text.push_str(": ");

@@ -40,6 +40,8 @@ pub enum SolveError {
     DeviceLimit { what: String, bytes: u64, limit: u64 },
     #[error("the device memory budget of {budget} bytes is too small: the smallest unit (one slice of bricks, one direction, one plane) needs {needed} bytes; raise --device-memory-budget to at least {needed}")]
     BudgetTooSmall { budget: u64, needed: u64 },
+    #[error("the device memory budget of {budget} bytes is larger than the device's memory ({device} bytes in its device-local heap); give at most {device}, or leave the budget out for a safe default")]
+    BudgetTooLarge { budget: u64, device: u64 },
     #[error("Vulkan validation reported {} error(s); the first: {}", .0.len(), .0.first().map(String::as_str).unwrap_or(""))]
     Validation(Vec<String>),
     #[error("{}: the checkpoint belongs to another scene or lpm version; rerun with --fresh instead of --resume to discard it and start over", path.display())]

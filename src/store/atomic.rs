@@ -16,9 +16,12 @@ use std::path::Path;
 pub(crate) const TEMP_SUFFIX: &str = ".lpm-tmp";
 
 /// True for the name of a temporary file written by [`write_atomic_io`] (left behind only when the
-/// process was killed while writing).
+/// process was killed while writing), or by lpm before 0.1's tempfile change (`<name>.tmp-<pid>`).
 pub fn is_temp_name(name: &str) -> bool {
-    name.starts_with('.') && name.ends_with(TEMP_SUFFIX)
+    let legacy = name
+        .rsplit_once(".tmp-")
+        .is_some_and(|(base, pid)| !base.is_empty() && !pid.is_empty() && pid.bytes().all(|b| b.is_ascii_digit()));
+    (name.starts_with('.') && name.ends_with(TEMP_SUFFIX)) || legacy
 }
 
 /// Writes `path` through `write` into a fresh temporary file beside it, fsyncs it, renames it over
@@ -116,9 +119,10 @@ mod tests {
     fn stale_temporaries_are_removed_and_nothing_else() {
         let dir = tempfile::tempdir().unwrap();
         fs::write(dir.path().join(".fluence.raw.Ab12Cd.lpm-tmp"), b"x").unwrap();
+        fs::write(dir.path().join("source.raw.tmp-4242"), b"x").unwrap();
         fs::write(dir.path().join("fluence.raw"), b"keep").unwrap();
         fs::write(dir.path().join(".hidden"), b"keep").unwrap();
-        assert_eq!(remove_stale_temps(dir.path()).unwrap(), 1);
+        assert_eq!(remove_stale_temps(dir.path()).unwrap(), 2);
         assert_eq!(fs::read_dir(dir.path()).unwrap().count(), 2);
     }
 }
