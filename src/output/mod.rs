@@ -13,6 +13,7 @@
 //! - `<base>.nhdr`: a detached NRRD header so ParaView, 3D Slicer, teem … open the raw directly.
 
 mod atomic;
+pub mod confine;
 mod error;
 mod export;
 mod lock;
@@ -24,6 +25,7 @@ pub mod space;
 pub use atomic::{write_atomic, write_json_atomic};
 pub use error::OutputError;
 pub use export::{export_dense, export_field, EmptyBricks, FieldInfo, FieldMeta, LAYOUT, NOT_SOLVED};
+pub use confine::{confine, ConfineError};
 pub use lock::{DirLock, LOCK_FILE};
 pub use publish::{finish_commit, recover, Recovery, Staging, KNOWN_OUTPUTS};
 pub use read::{read_field_json, read_raw_field};

@@ -13,6 +13,7 @@ use std::path::{Path, PathBuf};
 /// ours, and if another program truncates a mapped file while it is read, the access kills the
 /// process with SIGBUS; with `read` a shrinking file is an error naming it ([`StoreError::Truncated`]).
 /// Reads go through the page cache, so the cost over a map is one copy of each row.
+#[derive(Debug)]
 pub struct RawDensity {
     path: PathBuf,
     grid: BrickGrid,
