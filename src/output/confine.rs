@@ -25,9 +25,8 @@ pub enum ConfineError {
 /// Checks the path as it is now: a caller that then opens it should do so before anyone else can
 /// replace a component (the service owns its root, so nobody else can).
 pub fn confine(root: &Path, path: &Path) -> Result<PathBuf, ConfineError> {
-    let root_c = root
-        .canonicalize()
-        .map_err(|e| ConfineError::Root { root: root.to_path_buf(), reason: e.to_string() })?;
+    let root_c =
+        root.canonicalize().map_err(|e| ConfineError::Root { root: root.to_path_buf(), reason: e.to_string() })?;
     if path.as_os_str().is_empty() {
         return Err(ConfineError::Empty { root: root.to_path_buf() });
     }

@@ -23,9 +23,9 @@ mod read;
 pub mod space;
 
 pub use atomic::{write_atomic, write_json_atomic};
+pub use confine::{confine, ConfineError};
 pub use error::OutputError;
 pub use export::{export_dense, export_field, EmptyBricks, FieldInfo, FieldMeta, LAYOUT, NOT_SOLVED};
-pub use confine::{confine, ConfineError};
 pub use lock::{DirLock, LOCK_FILE};
 pub use publish::{finish_commit, recover, Recovery, Staging, KNOWN_OUTPUTS};
 pub use read::{read_field_json, read_raw_field};

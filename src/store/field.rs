@@ -6,8 +6,9 @@
 //! and stay there while memory is plentiful. Passes over fields far larger than RAM therefore hand
 //! back what they are done with ([`Field::release_stored`], [`Field::release_all`]): the pages leave
 //! the resident set but stay in the page cache (dirty ones are written back as usual), so nothing
-//! is lost and the next touch reads them again. Clearing ([`Field::fill_zero`]) truncates the file
-//! instead of writing zeros, so it touches no page at all.
+//! is lost and the next touch reads them again. Clearing ([`Field::fill_zero`]) punches a hole
+//! instead of writing zeros, so it touches no page at all. Every field's blocks are allocated on
+//! disk up front (see `allocate`): a write through the map never meets a full disk.
 
 use super::grid::{BrickGrid, BRICK_VOXELS};
 use super::table::BrickTable;
@@ -152,10 +153,26 @@ impl Field {
         self.brick(b).map_or(0.0, |d| d[c as usize * BRICK_VOXELS + l])
     }
 
-    /// Sets every value to zero by truncating the file and extending it again: no page is touched
-    /// and the pages in memory are dropped; the blocks are then allocated again (see [`allocate`]).
+    /// Sets every value to zero without touching a page: the file's blocks are deallocated
+    /// (`FALLOC_FL_PUNCH_HOLE`, which also drops the mapped pages, so they read as zeros) and then
+    /// allocated again (see [`allocate`]). The file keeps its length throughout, so a process killed
+    /// in the middle leaves a field of the right size (a resumed solve reopens it). Where punching
+    /// holes is not supported, the file is truncated and extended instead.
     pub fn fill_zero(&mut self) -> Result<(), StoreError> {
         let len = self.map.len() as u64;
+        #[cfg(target_os = "linux")]
+        {
+            use std::os::unix::io::AsRawFd;
+            let l = libc::off_t::try_from(len).unwrap_or(libc::off_t::MAX);
+            // SAFETY: a plain system call on a descriptor the field owns; the map stays valid (the
+            // length does not change) and `&mut self` means no reference into it is alive.
+            let rc = unsafe {
+                libc::fallocate(self.file.as_raw_fd(), libc::FALLOC_FL_PUNCH_HOLE | libc::FALLOC_FL_KEEP_SIZE, 0, l)
+            };
+            if rc == 0 {
+                return allocate(&self.file, &self.path, len);
+            }
+        }
         // The map stays valid across the truncation: nothing touches it until the file has its
         // length back (`&mut self`), and then its pages read as zeros.
         self.file.set_len(0).map_err(StoreError::io(&self.path, "truncate"))?;
