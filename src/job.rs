@@ -162,7 +162,6 @@ pub fn run(job: &SolveJob, progress: impl FnMut(u32, f64)) -> Result<Report, Job
     }
     if result.is_err() && created_out && !checkpointed {
         drop(lock);
-        let _ = std::fs::remove_file(job.out.join(output::LOCK_FILE));
         let _ = std::fs::remove_dir(&job.out);
     }
     result

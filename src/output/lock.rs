@@ -2,7 +2,10 @@
 //!
 //! The lock is `flock(LOCK_EX | LOCK_NB)` on `OUT/.lpm-lock`, held for the whole run and released by
 //! the kernel when the process ends however it ends (so a `kill -9` never leaves a stale lock; the
-//! empty file stays, which is harmless). `flock` through libc rather than `File::try_lock` because
+//! empty file it leaves is harmless). A run that ends normally removes the file while still holding
+//! the lock; so that a process which opened the file just before its removal cannot then lock the
+//! removed file and think it holds the lock, [`DirLock::acquire`] checks after locking that the path
+//! still names the file it locked, and tries again if not. `flock` through libc rather than `File::try_lock` because
 //! the crate's minimum Rust (1.80) predates that API.
 
 use super::OutputError;
@@ -16,7 +19,15 @@ pub const LOCK_FILE: &str = ".lpm-lock";
 #[derive(Debug)]
 pub struct DirLock {
     path: PathBuf,
-    _file: File,
+    file: Option<File>,
+}
+
+impl Drop for DirLock {
+    /// Removes the lock file while still holding the lock, then releases it (see the module docs).
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.path);
+        self.file.take();
+    }
 }
 
 impl DirLock {
@@ -32,25 +43,37 @@ impl DirLock {
             // A symlink planted at the lock's name is not followed.
             options.custom_flags(libc::O_NOFOLLOW | libc::O_CLOEXEC);
         }
-        let file = options.open(&path).map_err(|source| OutputError::Io {
-            path: path.clone(),
-            action: "open the lock file",
-            source,
-        })?;
-        #[cfg(unix)]
-        {
-            use std::os::unix::io::AsRawFd;
-            // SAFETY: flock on a file descriptor this function owns; no memory is passed.
-            if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } != 0 {
-                let source = std::io::Error::last_os_error();
-                return Err(if source.raw_os_error() == Some(libc::EWOULDBLOCK) {
-                    OutputError::Locked { dir: dir.to_path_buf() }
-                } else {
-                    OutputError::Io { path, action: "lock", source }
-                });
+        for _ in 0..16 {
+            let file = options.open(&path).map_err(|source| OutputError::Io {
+                path: path.clone(),
+                action: "open the lock file",
+                source,
+            })?;
+            #[cfg(unix)]
+            {
+                use std::os::unix::fs::MetadataExt;
+                use std::os::unix::io::AsRawFd;
+                // SAFETY: flock on a file descriptor this function owns; no memory is passed.
+                if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } != 0 {
+                    let source = std::io::Error::last_os_error();
+                    return Err(if source.raw_os_error() == Some(libc::EWOULDBLOCK) {
+                        OutputError::Locked { dir: dir.to_path_buf() }
+                    } else {
+                        OutputError::Io { path, action: "lock", source }
+                    });
+                }
+                let same = match (file.metadata(), std::fs::symlink_metadata(&path)) {
+                    (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
+                    _ => false,
+                };
+                if !same {
+                    // The holder removed it between our open and our lock: open the new one.
+                    continue;
+                }
             }
+            return Ok(DirLock { path, file: Some(file) });
         }
-        Ok(DirLock { path, _file: file })
+        Err(OutputError::Locked { dir: dir.to_path_buf() })
     }
 
     pub fn path(&self) -> &Path {
@@ -72,6 +95,7 @@ mod tests {
         assert!(matches!(e, OutputError::Locked { .. }), "{e}");
         assert!(e.to_string().contains("another lpm run"), "{e}");
         drop(first);
+        assert!(!dir.path().join(LOCK_FILE).exists(), "the lock file is removed with the lock");
         DirLock::acquire(dir.path()).unwrap();
     }
 }
