@@ -10,7 +10,7 @@ use std::path::Path;
 
 /// A value in [0, max] with the ends and a spread of magnitudes well represented.
 fn magnitude(max: f64) -> impl Strategy<Value = f64> {
-    prop_oneof![Just(0.0), Just(max), (-12.0f64..max.log10()).prop_map(|e| 10f64.powf(e).min(max))]
+    prop_oneof![Just(0.0), Just(max), (-12.0f64..max.log10()).prop_map(move |e| 10f64.powf(e).min(max))]
 }
 
 fn vec3() -> impl Strategy<Value = [f64; 3]> {
@@ -44,7 +44,7 @@ prop_compose! {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 24, failure_persistence: None, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: 32, failure_persistence: None, ..ProptestConfig::default() })]
 
     #[test]
     fn accepted_scenes_solve_to_finite_non_negative_fields(text in scene_text()) {
