@@ -378,3 +378,27 @@ pub fn peak_resident_bytes() -> Option<u64> {
     let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kib * 1024)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::store::{BrickStore, Coverage};
+
+    /// Issue 13, item 3: a non-finite value in a solved voxel fails the job, naming the voxel.
+    #[test]
+    fn a_non_finite_solved_value_is_an_error_naming_the_voxel() {
+        let dir = tempfile::tempdir().unwrap();
+        let store = BrickStore::create_with(dir.path(), [20, 20, 20], 1.0, |_, out| {
+            out.fill(1.0);
+            Ok(())
+        })
+        .unwrap();
+        let mut field = store.create_field("f", 2, Coverage::Occupied).unwrap();
+        check_finite(&field, &store, "fluence").unwrap();
+        let (brick, local) = store.grid().locate([17, 3, 18]);
+        field.brick_mut(brick).unwrap()[crate::store::BRICK_VOXELS + local] = f32::INFINITY;
+        let e = check_finite(&field, &store, "fluence").unwrap_err();
+        assert!(matches!(e, JobError::NonFinite { voxel: [17, 3, 18], component: 1, .. }), "{e}");
+        assert!(e.to_string().contains("non-finite fluence"), "{e}");
+    }
+}
