@@ -461,3 +461,23 @@ fn logs_into_a_pipe_carry_no_colour_codes_and_errors_say_the_reason_once() {
     assert!(!o.stderr.contains(&0x1b), "{}", stderr(&o));
     assert!(stderr(&o).contains("\\u{1b}"), "{}", stderr(&o));
 }
+
+/// Issue 13, items 9 and 11: a budget larger than the device is refused, and a budget error names
+/// where the budget came from (the flag or the scene key).
+#[test]
+fn a_budget_larger_than_the_device_is_refused_naming_its_origin() {
+    let dir = temp_dir("rel-budget");
+    let scene = write_scene(&dir, SMALL);
+    let o = run(&["solve", s(&scene), "--out", s(&dir.join("o1")), "--device-memory-budget", "65536T"]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("--device-memory-budget") && err.contains("larger than the device"), "{err}");
+    let keyed = write_scene_as(&dir, "keyed.toml", &format!("{SMALL}device_memory_budget = \"65536T\"\n"));
+    let o = run(&["solve", s(&keyed), "--out", s(&dir.join("o2"))]);
+    let err = stderr(&o);
+    assert!(err.contains("solver.device_memory_budget") && err.contains("larger than the device"), "{err}");
+    let tiny = write_scene_as(&dir, "tiny.toml", &format!("{SMALL}device_memory_budget = 1024\n"));
+    let o = run(&["solve", s(&tiny), "--out", s(&dir.join("o3"))]);
+    let err = stderr(&o);
+    assert!(err.contains("solver.device_memory_budget") && err.contains("too small"), "{err}");
+}

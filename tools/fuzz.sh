@@ -28,7 +28,7 @@ for t in "${TARGETS[@]}"; do
   rc=0
   cargo fuzz run "$t" --fuzz-dir tools/fuzz --sanitizer "$SAN" "tools/fuzz/corpus/$t" "${seeds[@]}" -- \
     -max_total_time="$SECONDS_PER_TARGET" -rss_limit_mb=4096 -max_len=65536 -print_final_stats=1 >"$log" 2>&1 || rc=$?
-  grep -E "^(stat::number_of_executed_units|stat::peak_rss_mb|#[0-9]+ +DONE|SUMMARY|.*Test unit written)" "$log" || true
+  grep -a -E "^(stat::number_of_executed_units|stat::peak_rss_mb|#[0-9]+ +DONE|SUMMARY|.*Test unit written)" "$log" || true
   if [ "$rc" -ne 0 ]; then
     tail -40 "$log"
     echo "fuzz target $t failed (exit $rc): a crash is saved under tools/fuzz/artifacts/$t"
