@@ -481,3 +481,36 @@ fn a_budget_larger_than_the_device_is_refused_naming_its_origin() {
     let err = stderr(&o);
     assert!(err.contains("solver.device_memory_budget") && err.contains("too small"), "{err}");
 }
+
+/// `kill -9` during export and render (while the staging directory exists), then `--resume`: the
+/// outputs are those of an uninterrupted solve, and nothing of the killed run is left in `OUT`.
+#[test]
+fn sigkill_during_export_then_resume_publishes_the_same_set() {
+    let dir = temp_dir("rel-kill-export");
+    let scene = write_scene(
+        &dir,
+        &SMALL.replace("[16, 16, 16]", "[24, 20, 28]").replace("max_orders = 2", "max_orders = 3\ntolerance = 1e-12"),
+    );
+    let (whole, cut) = (dir.join("whole"), dir.join("cut"));
+    let o = run(&["solve", s(&scene), "--out", s(&whole)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let mut child = lpm_command(&["solve", s(&scene), "--out", s(&cut)]).spawn().unwrap();
+    let staging = || {
+        std::fs::read_dir(&cut)
+            .map(|d| d.flatten().any(|e| e.file_name().to_string_lossy().starts_with(".lpm-staging-")))
+            .unwrap_or(false)
+    };
+    let t = std::time::Instant::now();
+    while !staging() && t.elapsed().as_secs() < 300 && child.try_wait().unwrap().is_none() {
+        std::thread::sleep(std::time::Duration::from_millis(1));
+    }
+    child.kill().unwrap();
+    assert!(!child.wait().unwrap().success(), "the solve finished before it could be killed in its export");
+    assert!(!cut.join("report.json").exists(), "no report for an unpublished set");
+    let o = run(&["solve", s(&scene), "--out", s(&cut), "--resume"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for f in ["fluence.raw", "source.raw", "image.exr", "image.png"] {
+        assert!(std::fs::read(whole.join(f)).unwrap() == std::fs::read(cut.join(f)).unwrap(), "{f} differs");
+    }
+    assert_eq!(names(&cut), names(&whole), "no temporaries or staging left");
+}
