@@ -1,11 +1,17 @@
 //! A solve job from start to finish: read the scene, build the brick store, solve, export the
 //! fields, render the image, write the report. The CLI and the tests both run jobs through here.
 //!
-//! Nothing is left half-written: the scene is validated before anything is created, the brick
-//! store is built in `OUT/.lpm-work` and removed at the end, and every output file is written under
-//! a temporary name and renamed when complete. The GPU backend checkpoints the store after every
-//! order; a solve that is killed or fails after its first checkpoint keeps `OUT/.lpm-work`, and
-//! `--resume` continues it (bitwise the same result as an uninterrupted solve).
+//! Nothing is left half-written: the scene is validated before anything is created; `OUT` is locked
+//! for the whole run ([`output::DirLock`]: a second solve into it fails at once) and cleaned of what a
+//! killed run left ([`output::recover`]); the disk space the outputs need at the least is checked
+//! before the store is built; the brick store is built in `OUT/.lpm-work` and removed at the end;
+//! every output is written into a staging directory and published with the others as one set
+//! ([`output::Staging`]). A solve whose fluence or source holds a NaN or an infinity anywhere it was
+//! solved fails ([`JobError::NonFinite`]) instead of reporting garbage. The GPU backend checkpoints
+//! the store after every order; a solve that is killed or fails after its first checkpoint keeps
+//! `OUT/.lpm-work`, and `--resume` continues it (bitwise the same result as an uninterrupted
+//! solve). A solve without `--resume` refuses to start over such a checkpoint unless `--fresh`
+//! says to discard it ([`JobError::CheckpointExists`]).
 
 use crate::output::{self, FieldMeta, OutputError};
 use crate::render::{self, RenderInputs};
@@ -23,11 +29,26 @@ pub enum JobError {
     Scene(#[from] SceneError),
     #[error(transparent)]
     Solve(#[from] SolveError),
+    /// A budget error, with where the budget came from (the flag or the scene key).
+    #[error("{origin}: {inner}")]
+    Budget { origin: String, inner: SolveError },
     #[error(transparent)]
     Output(#[from] OutputError),
-    #[error("cannot create output directory {path}: {source}")]
+    #[error("cannot create output directory {}: {source}", path.display())]
     OutputDir { path: PathBuf, source: std::io::Error },
+    #[error("{}: holds the checkpoint of an unfinished solve ({}); {RESUME_HINT}", out.display(), work_dir(out).display())]
+    CheckpointExists { out: PathBuf },
+    #[error("{}: the volume has no medium (every density is 0): there is nothing to solve", scene.display())]
+    NoMedium { scene: PathBuf },
+    #[error("the solve produced a non-finite {field} ({value}) at voxel ({}, {}, {}), component {component}; \
+             the result is garbage and no output was written. Please report this with the scene file",
+             voxel[0], voxel[1], voxel[2])]
+    NonFinite { field: &'static str, voxel: [u32; 3], component: u32, value: f32 },
 }
+
+/// The one hint given wherever a checkpoint is in the way or can be used.
+pub const RESUME_HINT: &str =
+    "rerun the same command with --resume to continue it, or with --fresh to discard it and start over";
 
 #[derive(Clone, Debug)]
 pub struct SolveJob {
@@ -46,6 +67,9 @@ pub struct SolveJob {
     pub device_memory_budget: Option<u64>,
     /// Continue from the checkpoint in `OUT/.lpm-work` if there is one.
     pub resume: bool,
+    /// Discard a checkpoint in `OUT/.lpm-work` and start over (without it, a checkpoint there makes
+    /// a solve without `resume` fail rather than silently lose the work).
+    pub fresh: bool,
 }
 
 /// The work directory (brick store and checkpoint) of a solve writing to `out`.
@@ -116,8 +140,22 @@ pub fn run(job: &SolveJob, progress: impl FnMut(u32, f64)) -> Result<Report, Job
     }
     let created_out = !job.out.exists();
     std::fs::create_dir_all(&job.out).map_err(|source| JobError::OutputDir { path: job.out.clone(), source })?;
+    let lock = match output::DirLock::acquire(&job.out) {
+        Ok(lock) => lock,
+        Err(e) => {
+            if created_out {
+                let _ = std::fs::remove_dir(&job.out);
+            }
+            return Err(e.into());
+        }
+    };
+    output::recover(&job.out)?;
     let work = work_dir(&job.out);
-    if !job.resume {
+    let checkpointed_before = work.join("checkpoint.json").exists();
+    if checkpointed_before && !job.resume && !job.fresh {
+        return Err(JobError::CheckpointExists { out: job.out.clone() });
+    }
+    if !job.resume || !checkpointed_before {
         let _ = std::fs::remove_dir_all(&work);
     }
     // OUT/progress.json after each order, for programs watching the solve (`lpm serve`): written
@@ -143,7 +181,7 @@ pub fn run(job: &SolveJob, progress: impl FnMut(u32, f64)) -> Result<Report, Job
         );
         progress(order, residual);
     };
-    let result = run_in(job, &scene, &work, progress);
+    let result = check_space(job, &scene).and_then(|()| run_in(job, &scene, &work, progress));
     let checkpointed = work.join("checkpoint.json").exists();
     match (&result, job.keep_store) {
         (Ok(_), true) => {
@@ -151,9 +189,11 @@ pub fn run(job: &SolveJob, progress: impl FnMut(u32, f64)) -> Result<Report, Job
             let _ = std::fs::remove_dir_all(&keep);
             let _ = std::fs::rename(&work, &keep);
         }
-        // A failed solve that got past its first order keeps its store for `--resume`.
+        // A failed solve that got past its first order keeps its store for `--resume`, unless the
+        // checkpoint itself was refused (then resuming cannot help).
+        (Err(JobError::Solve(SolveError::CheckpointMismatch { .. })), _) => {}
         (Err(_), _) if checkpointed => {
-            tracing::warn!("the solve can be continued: run the same command with --resume");
+            tracing::warn!("the solve can be continued: {RESUME_HINT}");
         }
         _ => {
             let _ = std::fs::remove_dir_all(&work);
@@ -163,9 +203,60 @@ pub fn run(job: &SolveJob, progress: impl FnMut(u32, f64)) -> Result<Report, Job
         let _ = std::fs::remove_file(&progress_path);
     }
     if result.is_err() && created_out && !checkpointed {
+        drop(lock);
         let _ = std::fs::remove_dir(&job.out);
     }
     result
+}
+
+/// Refuses a job whose exported fields cannot fit on `OUT`'s disk, before anything is built: the
+/// fluence and the source are dense volumes of at least 4 bytes per voxel each (one channel; more
+/// for RGB and anisotropic plans). The store itself is checked as it is allocated.
+fn check_space(job: &SolveJob, scene: &Scene) -> Result<(), JobError> {
+    if job.no_fields {
+        return Ok(());
+    }
+    let voxels: u64 = scene.volume.dims.iter().map(|&d| u64::from(d)).product();
+    let per_voxel = if scene.medium.is_grey() && scene.lights.iter().all(Light::is_grey) { 4 } else { 12 };
+    let needed = voxels.saturating_mul(per_voxel).saturating_mul(2);
+    output::space::ensure_free(
+        &job.out,
+        needed,
+        &format!(
+            "fluence.raw and source.raw of {} × {} × {} voxels (at the least; --no-fields skips them)",
+            scene.volume.dims[0], scene.volume.dims[1], scene.volume.dims[2]
+        ),
+    )?;
+    Ok(())
+}
+
+/// The first NaN or infinity of `field` (stored bricks only: those are the solved ones), as
+/// [`JobError::NonFinite`]. Reads the field a brick at a time and hands the pages back.
+fn check_finite(
+    field: &crate::store::Field,
+    store: &crate::store::BrickStore,
+    name: &'static str,
+) -> Result<(), JobError> {
+    let grid = *store.grid();
+    for (n, brick) in store.occupied_bricks().enumerate() {
+        let Some(values) = field.brick(brick) else { continue };
+        if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+            let (component, local) = (i / crate::store::BRICK_VOXELS, i % crate::store::BRICK_VOXELS);
+            let o = grid.brick_origin(grid.brick_coords(brick));
+            let l = [local % 16, (local / 16) % 16, local / 256].map(|c| c as u32);
+            return Err(JobError::NonFinite {
+                field: name,
+                voxel: [o[0] + l[0], o[1] + l[1], o[2] + l[2]],
+                component: component as u32,
+                value: values[i],
+            });
+        }
+        if n % 1024 == 1023 {
+            field.release_all();
+        }
+    }
+    field.release_all();
+    Ok(())
 }
 
 fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, f64)) -> Result<Report, JobError> {
@@ -179,17 +270,36 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
         }
         solver::build_store(scene, work)?
     };
+    if store.occupied_count() == 0 {
+        return Err(JobError::NoMedium { scene: job.scene.clone() });
+    }
     let store_seconds = t.elapsed().as_secs_f64();
     let gpu = solver::gpu::GpuOptions {
         budget: scene.solver.device_memory_budget,
         checkpoints: job.backend == BackendKind::Gpu,
         ..solver::gpu::GpuOptions::default()
     };
-    let (run, fields) = solver::solve_with(scene, &store, job.backend, job.vk.clone(), gpu, reopen, progress)?;
+    let (run, fields) =
+        solver::solve_with(scene, &store, job.backend, job.vk.clone(), gpu, reopen, progress).map_err(|e| match e {
+            SolveError::BudgetTooSmall { .. } | SolveError::BudgetTooLarge { .. } => JobError::Budget {
+                origin: match (job.device_memory_budget, scene.solver.device_memory_budget) {
+                    (Some(_), _) => "--device-memory-budget".to_string(),
+                    (None, Some(_)) => format!("{}: solver.device_memory_budget", job.scene.display()),
+                    (None, None) => "the default device memory budget".to_string(),
+                },
+                inner: e,
+            },
+            e => JobError::Solve(e),
+        })?;
     let SolveRun { plan, outcome, device, peak_device_bytes, memory, mut phases } = run;
     let store_bytes = files_bytes(store.dir());
     phases.insert(0, ("store".to_string(), store_seconds));
+    check_finite(&fields.fluence_total, &store, "fluence")?;
+    check_finite(&fields.source_total, &store, "source")?;
 
+    // Every output goes to a staging directory first and is published with the others as a set.
+    let staging = output::Staging::new(&job.out)?;
+    let stage = staging.path().to_path_buf();
     let t = Instant::now();
     let channel_names: Vec<String> =
         if plan.channels == 1 { vec!["grey".into()] } else { ["r", "g", "b"].iter().map(|s| s.to_string()).collect() };
@@ -198,7 +308,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
         output::export_field(
             &fields.fluence_total,
             &store,
-            &job.out,
+            &stage,
             "fluence",
             &FieldMeta {
                 quantity: "fluence".into(),
@@ -217,7 +327,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
         output::export_field(
             &fields.source_total,
             &store,
-            &job.out,
+            &stage,
             "source",
             &FieldMeta {
                 quantity: "in-scattered source".into(),
@@ -260,8 +370,8 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
             background,
             camera: &camera,
         });
-        render::write_exr(&job.out.join("image.exr"), &image)?;
-        render::write_png(&job.out.join("image.png"), &image, 1.0)?;
+        render::write_exr(&stage.join("image.exr"), &image)?;
+        render::write_png(&stage.join("image.png"), &image, 1.0)?;
         outputs.extend(["image.exr", "image.png"].map(String::from));
         phases.push(("render".to_string(), t.elapsed().as_secs_f64()));
     }
@@ -290,7 +400,8 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
         device_memory: memory,
         outputs,
     };
-    output::write_json_atomic(&job.out.join("report.json"), &report)?;
+    output::write_json_atomic(&stage.join("report.json"), &report)?;
+    staging.commit(&report.outputs)?;
     Ok(report)
 }
 
@@ -309,4 +420,28 @@ pub fn peak_resident_bytes() -> Option<u64> {
     let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
     let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kib * 1024)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::store::{BrickStore, Coverage};
+
+    /// Issue 13, item 3: a non-finite value in a solved voxel fails the job, naming the voxel.
+    #[test]
+    fn a_non_finite_solved_value_is_an_error_naming_the_voxel() {
+        let dir = tempfile::tempdir().unwrap();
+        let store = BrickStore::create_with(dir.path(), [20, 20, 20], 1.0, |_, out| {
+            out.fill(1.0);
+            Ok(())
+        })
+        .unwrap();
+        let mut field = store.create_field("f", 2, Coverage::Occupied).unwrap();
+        check_finite(&field, &store, "fluence").unwrap();
+        let (brick, local) = store.grid().locate([17, 3, 18]);
+        field.brick_mut(brick).unwrap()[crate::store::BRICK_VOXELS + local] = f32::INFINITY;
+        let e = check_finite(&field, &store, "fluence").unwrap_err();
+        assert!(matches!(e, JobError::NonFinite { voxel: [17, 3, 18], component: 1, .. }), "{e}");
+        assert!(e.to_string().contains("non-finite fluence"), "{e}");
+    }
 }

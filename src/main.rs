@@ -65,8 +65,12 @@ enum Command {
         device_memory_budget: Option<u64>,
         /// Continue a solve that was killed or failed: picks up after the last completed order
         /// checkpointed in OUT/.lpm-work (GPU backend). The result is bitwise the same.
-        #[arg(long)]
+        #[arg(long, conflicts_with = "fresh")]
         resume: bool,
+        /// Discard the checkpoint of an unfinished solve in OUT/.lpm-work and start over. Without
+        /// --resume or --fresh, a solve into an OUT holding such a checkpoint refuses to start.
+        #[arg(long)]
+        fresh: bool,
     },
     /// Monte-Carlo reference solution of a scene (independent of the LPM solver): writes fluence.*,
     /// fluence_stderr.* (per-voxel standard error), image.* when --image-spp > 0, and report.json.
@@ -108,6 +112,10 @@ enum Command {
         /// With --scene: the density quantile where the core starts (0.9: the densest 10 %).
         #[arg(long, default_value_t = lpm::compare::DEFAULT_CORE_QUANTILE)]
         core_quantile: f64,
+        /// Exit with status 2 when the fluence's relative L2 error is above this (or no voxel could
+        /// be compared), so scripts can use the comparison as a check.
+        #[arg(long, value_parser = parse_limit)]
+        fail_above: Option<f64>,
     },
     /// Benchmarks that print JSON (see README, "Benchmarks").
     Bench {
@@ -359,10 +367,52 @@ fn main() {
     let cli = Cli::parse();
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(format!("lpm={}", cli.log)));
-    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).init();
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        // Colour codes only for a person at a terminal, never into a pipe or a log file.
+        .with_ansi(std::io::stderr().is_terminal())
+        .init();
     if let Err(e) = run(cli) {
-        eprintln!("lpm: {e:#}");
+        eprintln!("lpm: {}", error_text(&e));
         std::process::exit(1);
+    }
+}
+
+/// The error and its causes in one line, each cause once: a library error that already quotes its
+/// source (`… cannot open: No such file or directory`) is not followed by the same reason again.
+/// Control characters other than line breaks (from file names, say: an escape sequence) are
+/// escaped so they cannot garble the terminal.
+fn error_text(e: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in e.chain() {
+        let full = cause.to_string();
+        // An OS error quoted above may have been shortened by the " (os error N)" it ends with.
+        let part = match full.rfind(" (os error ") {
+            Some(i) if full.ends_with(')') && text.contains(&full[..i]) => continue,
+            _ => full,
+        };
+        if !text.contains(&part) {
+            if !text.is_empty() {
+                text.push_str(": ");
+            }
+            text.push_str(&part);
+        }
+    }
+    escape_controls(&text)
+}
+
+fn escape_controls(text: &str) -> String {
+    text.chars()
+        .map(|c| if c.is_control() && c != '\n' { c.escape_default().to_string() } else { c.to_string() })
+        .collect()
+}
+
+fn parse_limit(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v >= 0.0 => Ok(v),
+        _ => Err(format!("expected a finite number ≥ 0, got {text:?}")),
     }
 }
 
@@ -380,6 +430,7 @@ fn run(cli: Cli) -> Result<()> {
             device_memory_budget,
             resume,
             task,
+            fresh,
         } => {
             let mut vk = ContextOptions::default();
             if let Some(v) = validation {
@@ -403,6 +454,7 @@ fn run(cli: Cli) -> Result<()> {
                     no_fields,
                     device_memory_budget,
                     resume: false,
+                    fresh: false,
                 };
                 return run_task(&scene, &task, &template);
             }
@@ -420,6 +472,7 @@ fn run(cli: Cli) -> Result<()> {
                 no_fields,
                 device_memory_budget,
                 resume,
+                fresh,
             };
             let bar = std::io::stderr().is_terminal().then(|| {
                 let bar = indicatif::ProgressBar::new_spinner();
@@ -548,7 +601,7 @@ fn run(cli: Cli) -> Result<()> {
             );
             Ok(())
         }
-        Command::Compare { a, b, json, max_rel_stderr, scene, core_quantile } => {
+        Command::Compare { a, b, json, max_rel_stderr, scene, core_quantile, fail_above } => {
             let core = match scene {
                 Some(path) => {
                     let scene = lpm::scene::Scene::load(&path)?;
@@ -565,6 +618,10 @@ fn run(cli: Cli) -> Result<()> {
             println!("{c}");
             if let Some(path) = json {
                 lpm::compare::write_comparison_json(&path, &c)?;
+            }
+            if let Some(why) = fail_above.and_then(|max| c.exceeds(max)) {
+                eprintln!("lpm: compare failed: {why}");
+                std::process::exit(2);
             }
             Ok(())
         }
@@ -667,8 +724,9 @@ fn run(cli: Cli) -> Result<()> {
             if device.is_some() {
                 vk.device_index = device;
             }
-            let work = std::env::temp_dir().join(format!("lpm-bench-stream-{}", std::process::id()));
-            let report = lpm::bench::stream(&scene, orders, device_memory_budget, vk, &work)?;
+            // A fresh directory with an unpredictable name (O_EXCL), removed when done.
+            let work = tempfile::Builder::new().prefix("lpm-bench-stream-").tempdir()?;
+            let report = lpm::bench::stream(&scene, orders, device_memory_budget, vk, work.path())?;
             let text = serde_json::to_string_pretty(&report)?;
             if let Some(path) = json {
                 lpm::output::write_atomic(&path, |w| std::io::Write::write_all(w, text.as_bytes()))?;

@@ -265,6 +265,7 @@ fn solver_row(
             no_fields: false,
             device_memory_budget: None,
             resume: false,
+            fresh: true,
         },
         |_, _| {},
     )?;

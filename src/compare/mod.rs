@@ -7,8 +7,11 @@
 //! "full"` against a reference of the same scene, which models it with one channel. When B has `fluence_stderr.*` (a Monte-Carlo reference), only the
 //! voxels where every component of the reference is > 0 with a relative standard error ≤
 //! [`CompareOptions::max_relative_stderr`] are compared: elsewhere the reference is too noisy to
-//! judge the candidate by. Otherwise every voxel is compared. Voxels either side left unsolved (NaN
-//! in every component: `lpm solve` does not solve empty bricks) are skipped and counted apart.
+//! judge the candidate by. Otherwise every voxel is compared. Voxels either side left unsolved are
+//! skipped and counted apart: those of a 16³ brick that is NaN throughout, in a field whose json
+//! carries the `not_solved` note (`lpm solve` does not solve empty bricks). Any other NaN or
+//! infinity is garbage in a solved voxel and fails the comparison ([`CompareError::NonFinite`]):
+//! it is never passed off as "not solved".
 //! Over the compared values (all
 //! components): relative L2 ‖a−b‖/‖b‖, RMSE, max relative error |a−b|/|b| and mean bias
 //! mean(a−b)/mean(b) ([`Metrics`]).
@@ -75,6 +78,9 @@ pub enum CompareError {
     BadThreshold(f64),
     #[error("the core quantile must be in [0, 1), not {0}")]
     BadQuantile(f64),
+    #[error("{}: {count} non-finite value(s) in solved voxels, the first at voxel ({}, {}, {}): {value}; \
+             the field is garbage and cannot be compared", path.display(), voxel[0], voxel[1], voxel[2])]
+    NonFinite { path: PathBuf, count: u64, voxel: [u32; 3], value: f32 },
 }
 
 /// Everything `lpm compare` reports.
@@ -201,11 +207,29 @@ pub fn compare_dirs(a: &Path, b: &Path, opts: &CompareOptions) -> Result<Compari
     let mut acc = Accumulator::default();
     let mut used = 0u64;
     let mut not_solved = 0u64;
-    let unsolved = |v: &[f32]| v.iter().all(|x| x.is_nan());
+    let (unsolved_a, unsolved_b) = (not_solved_mask(&info_a, &values_a), not_solved_mask(&info_b, &values_b));
+    let mut garbage: Option<CompareError> = None;
+    let mut garbage_count = 0u64;
     let (mut noise_sq, mut ref_sq) = (0.0f64, 0.0f64);
     for (v, (va, vb)) in values_a.chunks_exact(ca).zip(values_b.chunks_exact(c)).enumerate() {
-        if unsolved(va) || unsolved(vb) {
+        if unsolved_a.get(v).copied().unwrap_or(false) || unsolved_b.get(v).copied().unwrap_or(false) {
             not_solved += 1;
+            continue;
+        }
+        for (dir, values) in [(a, va), (b, vb)] {
+            if let Some(&value) = values.iter().find(|x| !x.is_finite()) {
+                garbage_count += 1;
+                let [nx, ny, _] = info_b.dims.map(|d| d as usize);
+                let voxel = [v % nx, (v / nx) % ny, v / (nx * ny)].map(|c| c as u32);
+                garbage.get_or_insert(CompareError::NonFinite {
+                    path: dir.join("fluence.raw"),
+                    count: 0,
+                    voxel,
+                    value,
+                });
+            }
+        }
+        if garbage.is_some() {
             continue;
         }
         let keep = match &stderr {
@@ -230,9 +254,8 @@ pub fn compare_dirs(a: &Path, b: &Path, opts: &CompareOptions) -> Result<Compari
             }
         }
     }
-    let non_finite = values_a.chunks_exact(ca).filter(|v| !unsolved(v)).flatten().filter(|v| !v.is_finite()).count();
-    if non_finite > 0 {
-        notes.push(format!("the candidate's fluence has {non_finite} non-finite value(s)"));
+    if let Some(CompareError::NonFinite { path, voxel, value, .. }) = garbage {
+        return Err(CompareError::NonFinite { path, count: garbage_count, voxel, value });
     }
     if used == 0 {
         notes.push(
@@ -281,6 +304,43 @@ fn density_quantile(density: &[f32], q: f64) -> f32 {
     medium.sort_by(f32::total_cmp);
     let i = ((medium.len() - 1) as f64 * q).floor() as usize;
     medium[i]
+}
+
+/// Per voxel: true when it was not solved, i.e. the field's json carries the `not_solved` note and
+/// the voxel's whole 16³ brick is NaN in every component (how `lpm solve` exports an empty brick).
+/// A NaN anywhere else is not "not solved" but garbage.
+fn not_solved_mask(info: &output::FieldInfo, values: &[f32]) -> Vec<bool> {
+    if info.not_solved.is_none() {
+        return Vec::new();
+    }
+    let grid = crate::store::BrickGrid::new(info.dims);
+    let c = info.components as usize;
+    let [nx, ny, _] = info.dims.map(|d| d as usize);
+    let brick_of = |v: usize| {
+        let (x, y, z) = (v % nx, (v / nx) % ny, v / (nx * ny));
+        grid.brick_index([x, y, z].map(|q| (q / 16) as u32))
+    };
+    let mut all_nan = vec![true; grid.brick_count()];
+    for (v, vals) in values.chunks_exact(c).enumerate() {
+        if !vals.iter().all(|x| x.is_nan()) {
+            all_nan[brick_of(v)] = false;
+        }
+    }
+    (0..values.len() / c.max(1)).map(|v| all_nan[brick_of(v)]).collect()
+}
+
+impl Comparison {
+    /// Why the comparison fails a `--fail-above max` check: the fluence's relative L2 error is
+    /// above `max`, or no voxel could be compared; `None` when it passes.
+    pub fn exceeds(&self, max: f64) -> Option<String> {
+        match self.fluence.metrics.relative_l2 {
+            None => Some("no voxel was compared, so the error is unknown".to_string()),
+            Some(e) if e.is_nan() || e > max => {
+                Some(format!("the fluence's relative L2 error {e:.3e} is above the limit {max:e}"))
+            }
+            Some(_) => None,
+        }
+    }
 }
 
 /// Writes `comparison` as pretty JSON to `path`, atomically.

@@ -6,7 +6,8 @@ use std::fs::File;
 use std::io::{self, BufWriter, Write};
 use std::path::Path;
 
-/// Writes `path` through `write` into `<path>.tmp-<pid>` in the same directory, fsyncs it and
+/// Writes `path` through `write` into a fresh `.<name>.<random>.lpm-tmp` in the same directory
+/// (`O_EXCL`, never following a planted symlink), fsyncs it and
 /// renames it over `path`. On any error the temporary is removed and `path` keeps its old content
 /// (or stays absent).
 pub fn write_atomic(

@@ -2,6 +2,8 @@
 //!
 //! Every file is written under a temporary name in its own directory, fsynced, then renamed over
 //! its final name ([`write_atomic`]), so a crash or an error never leaves a half-written output.
+//! A solve's outputs are staged and published as one set ([`Staging`]) under a lock on the
+//! directory ([`DirLock`]); free space is checked up front ([`space`]).
 //!
 //! An exported field `<base>` is three files:
 //! - `<base>.raw`: little-endian f32, all components of a voxel together (component fastest), then
@@ -11,12 +13,19 @@
 //! - `<base>.nhdr`: a detached NRRD header so ParaView, 3D Slicer, teem … open the raw directly.
 
 mod atomic;
+pub mod confine;
 mod error;
 mod export;
+mod lock;
 mod nrrd;
+mod publish;
 mod read;
+pub mod space;
 
 pub use atomic::{write_atomic, write_json_atomic};
+pub use confine::{confine, ConfineError};
 pub use error::OutputError;
 pub use export::{export_dense, export_field, EmptyBricks, FieldInfo, FieldMeta, LAYOUT, NOT_SOLVED};
+pub use lock::{DirLock, LOCK_FILE};
+pub use publish::{finish_commit, recover, Recovery, Staging, KNOWN_OUTPUTS};
 pub use read::{read_field_json, read_raw_field};

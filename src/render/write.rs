@@ -21,7 +21,9 @@ fn check(path: &Path, img: &Image) -> Result<(), OutputError> {
     Ok(())
 }
 
-/// Writes `img` as an OpenEXR file with R, G, B f32 channels (linear radiance), atomically.
+/// Writes `img` as an OpenEXR file with R, G, B f32 channels (linear radiance), atomically. The
+/// chunks are compressed and written on this thread, in order: the parallel writer emits them in
+/// completion order, so the same image gave different bytes from run to run.
 pub fn write_exr(path: &Path, img: &Image) -> Result<(), OutputError> {
     use exr::prelude::{Image as ExrImage, SpecificChannels, Vec2, WritableImage};
     check(path, img)?;
@@ -31,7 +33,7 @@ pub fn write_exr(path: &Path, img: &Image) -> Result<(), OutputError> {
         (img.rgb[i], img.rgb[i + 1], img.rgb[i + 2])
     });
     let exr_image = ExrImage::from_channels((w, img.height as usize), channels);
-    write_atomic(path, |out| exr_image.write().to_buffered(out).map_err(io::Error::other))
+    write_atomic(path, |out| exr_image.write().non_parallel().to_buffered(out).map_err(io::Error::other))
 }
 
 /// Writes `img` as an 8-bit sRGB PNG: radiance × `exposure`, tone-mapped ([`tone_map`]), then

@@ -23,6 +23,11 @@ pub enum SceneError {
         source: io::Error,
     },
 
+    /// The scene path is not something lpm reads as a scene: not a regular file (a FIFO, a device,
+    /// a directory), larger than the limit, or not UTF-8.
+    #[error("cannot read scene file {}: {problem}", .path.display())]
+    BadFile { path: PathBuf, problem: String },
+
     /// The TOML could not be parsed, or a value has the wrong type, or a key is unknown or missing.
     /// `line`/`column` (1-based) and `key` are given whenever the TOML parser reports a position.
     #[error("{}: {}", .path.display(), parse_display(*.line, *.column, .key.as_deref(), .message))]
@@ -63,6 +68,7 @@ impl SceneError {
     pub fn path(&self) -> &Path {
         match self {
             SceneError::Read { path, .. }
+            | SceneError::BadFile { path, .. }
             | SceneError::Parse { path, .. }
             | SceneError::Invalid { path, .. }
             | SceneError::RawFile { path, .. }
@@ -73,7 +79,7 @@ impl SceneError {
     /// The dotted key the error is about, when known.
     pub fn key(&self) -> Option<&str> {
         match self {
-            SceneError::Read { .. } => None,
+            SceneError::Read { .. } | SceneError::BadFile { .. } => None,
             SceneError::Parse { key, .. } => key.as_deref(),
             SceneError::Invalid { key, .. } | SceneError::RawFile { key, .. } | SceneError::RawSize { key, .. } => {
                 Some(key)

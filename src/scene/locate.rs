@@ -59,17 +59,54 @@ pub(crate) fn key_at(text: &str, offset: usize) -> Option<String> {
         return table;
     }
 
-    // The nearest `key =` at or above the target line, below the header.
+    let qualify = |key: String| match &table {
+        Some(t) => format!("{t}.{key}"),
+        None => key,
+    };
+    // On the target line itself: its key, and inside an inline table (`medium = { sigma_t = 1,
+    // albedo = "x" }`) the inner key the offset is in, rather than only the outer one.
+    let line_start = text[..offset].rfind('\n').map_or(0, |i| i + 1);
+    if let Some(key) = parse_key(lines[target]) {
+        let before = &text[line_start..offset];
+        return Some(qualify(match inline_key(before) {
+            Some(inner) => format!("{key}.{inner}"),
+            None => key,
+        }));
+    }
+    // A line that starts like `key = …` but whose key cannot be read is not a continuation of the
+    // key above: name no key rather than the previous one.
+    if looks_like_key_line(lines[target]) {
+        return table;
+    }
+    // A continuation line (of a multi-line array): the nearest `key =` above, below the header.
     let first = header_line.map_or(0, |h| h + 1);
-    for i in (first..=target).rev() {
+    for i in (first..target).rev() {
         if let Some(key) = parse_key(lines[i]) {
-            return Some(match table {
-                Some(t) => format!("{t}.{key}"),
-                None => key,
-            });
+            return Some(qualify(key));
         }
     }
     table
+}
+
+/// The key of the innermost inline-table entry that `before` (the line up to the offset) ends in.
+fn inline_key(before: &str) -> Option<String> {
+    let eq = before.find('=')?;
+    let open = before[eq..].rfind('{')? + eq;
+    let start = before[open..].rfind(',').map_or(open + 1, |i| open + i + 1);
+    parse_key(&before[start..])
+}
+
+/// True for a line whose text before its first `=` holds no value syntax (brackets, braces, commas):
+/// a `key = value` line, even one whose key [`parse_key`] does not read.
+fn looks_like_key_line(line: &str) -> bool {
+    let t = line.trim_start();
+    match t.find('=') {
+        Some(eq) => {
+            let key = t[..eq].trim();
+            !key.is_empty() && !key.contains(['[', ']', '{', '}', ','])
+        }
+        None => false,
+    }
 }
 
 enum Header {
@@ -128,6 +165,20 @@ mod tests {
         assert_eq!(key_at(TEXT, offset_of("\"sky\"", 0)).as_deref(), Some("lights[0].kind"));
         assert_eq!(key_at(TEXT, offset_of("\"sun\"", 0)).as_deref(), Some("lights[1].kind"));
         assert_eq!(key_at(TEXT, offset_of("3\n", 1)).as_deref(), Some("lights[1].dir"));
+    }
+
+    /// Issue 13, item 11: a key the line parser cannot read (non-ASCII) was reported under the key
+    /// above it; an error inside an inline table named only the outer key.
+    #[test]
+    fn unreadable_keys_and_inline_tables() {
+        let text = "[medium]\nalbedo = 0.5\n\"σ\" = 1\n";
+        let at = text.find("\"σ\"").unwrap();
+        assert_eq!(key_at(text, at).as_deref(), Some("medium"));
+        let text = "medium = { sigma_t = 1, albedo = \"x\" }\n";
+        let at = text.find("\"x\"").unwrap();
+        assert_eq!(key_at(text, at).as_deref(), Some("medium.albedo"));
+        let at = text.find('1').unwrap();
+        assert_eq!(key_at(text, at).as_deref(), Some("medium.sigma_t"));
     }
 
     #[test]

@@ -29,9 +29,11 @@ pub(crate) struct RawVolume {
     /// An NRRD file (`.nhdr` or `.nrrd`).
     pub nrrd: Option<String>,
     /// Required for `procedural` and `raw`; a VDB grid's comes from its active bounding box.
+    #[serde(default, deserialize_with = "exactly3_opt")]
     pub dims: Option<[i64; 3]>,
     pub voxel_size: Option<f64>,
     /// World position of the volume's low corner; a VDB grid's comes from its transform.
+    #[serde(default, deserialize_with = "exactly3_opt")]
     pub origin: Option<[f64; 3]>,
     pub seed: Option<i64>,
 }
@@ -53,6 +55,7 @@ pub(crate) struct RawMedium {
 pub(crate) struct RawLight {
     pub kind: String,
     pub radiance: Option<Channels>,
+    #[serde(default, deserialize_with = "exactly3_opt")]
     pub direction: Option<[f64; 3]>,
     pub irradiance: Option<Channels>,
 }
@@ -80,11 +83,27 @@ pub(crate) struct RawCamera {
     pub fov_y: Option<f64>,
     /// Orthographic only: height of the view in world units.
     pub view_height: Option<f64>,
+    #[serde(deserialize_with = "exactly3")]
     pub position: [f64; 3],
+    #[serde(deserialize_with = "exactly3")]
     pub look_at: [f64; 3],
+    #[serde(default, deserialize_with = "exactly3_opt")]
     pub up: Option<[f64; 3]>,
     pub width: Option<i64>,
     pub height: Option<i64>,
+}
+
+/// A 3-vector written as an array of exactly 3 values. serde's own `[T; 3]` reads the first three
+/// elements of a longer TOML array and ignores the rest, so `dims = [16, 16, 16, 16]` was silently
+/// a 16³ volume; here a longer (or shorter) array is an error naming its length.
+fn exactly3<'de, D: Deserializer<'de>, T: Deserialize<'de>>(d: D) -> Result<[T; 3], D::Error> {
+    let v: Vec<T> = Vec::deserialize(d)?;
+    let n = v.len();
+    v.try_into().map_err(|_| de::Error::invalid_length(n, &"an array of exactly 3 values"))
+}
+
+fn exactly3_opt<'de, D: Deserializer<'de>, T: Deserialize<'de>>(d: D) -> Result<Option<[T; 3]>, D::Error> {
+    exactly3(d).map(Some)
 }
 
 /// A per-channel quantity written either as one number (grey) or as `[r, g, b]`. The form is kept

@@ -20,6 +20,22 @@ pub const MAX_DIM: u32 = 65536;
 pub const MAX_IMAGE_SIZE: u32 = 16384;
 /// Upper bound for σt and voxel_size: anything larger is certainly a unit mistake.
 pub const MAX_MAGNITUDE: f64 = 1e12;
+/// Upper bound for every light value: sky radiance, sun irradiance and emitted radiance. Far above
+/// any physical scene (sunlight is about 1e3 W/m²), and small enough that every intermediate the
+/// solver forms (fluence up to 4π × the sum of the lights, sources up to σt × that, with σt ≤
+/// [`MAX_MAGNITUDE`]) stays well inside f32 (≈ 3.4e38): a finite input can never make an infinite
+/// or NaN field.
+pub const MAX_LIGHT: f64 = 1e12;
+/// Most lights a scene may have: each sun is one more sweep source; more is a generated file gone
+/// wrong, not a scene.
+pub const MAX_LIGHTS: usize = 256;
+/// Largest |coordinate| of a camera position, target or up vector, in world units: far beyond any
+/// volume (at most 65536 voxels of at most [`MAX_MAGNITUDE`]), small enough that differences and
+/// squared lengths stay finite.
+pub const MAX_COORDINATE: f64 = 1e18;
+/// Largest scene file accepted, in bytes: a scene is a few hundred bytes of TOML; this stops a
+/// mistaken path (a volume, a device) from being read into memory.
+pub const MAX_SCENE_BYTES: u64 = 1 << 20;
 
 pub const DEFAULT_DIRECTIONS_PER_FACE: u32 = 5;
 pub const MAX_DIRECTIONS_PER_FACE: u32 = 32;
@@ -52,6 +68,11 @@ impl Validator<'_> {
     pub fn scene(&self, raw: RawScene) -> R<Scene> {
         let volume = self.volume(raw.volume)?;
         let medium = self.medium(raw.medium)?;
+        if raw.lights.len() > MAX_LIGHTS {
+            return Err(
+                self.err("lights", format!("{} lights is more than the limit of {MAX_LIGHTS}", raw.lights.len()))
+            );
+        }
         let lights = raw.lights.into_iter().enumerate().map(|(i, l)| self.light(i, l)).collect::<R<Vec<_>>>()?;
         let solver = self.solver(raw.solver)?;
         let mut camera = raw.camera.map(|c| self.camera(c, &volume)).transpose()?;
@@ -81,7 +102,7 @@ impl Validator<'_> {
         }
         if let Some(m) = max {
             if v > m {
-                return Err(self.err(key, format!("must be ≤ {m:e}, got {v}")));
+                return Err(self.err(key, format!("must be ≤ {m:e}, got {}", short(v))));
             }
         }
         Ok(v)
@@ -93,7 +114,7 @@ impl Validator<'_> {
             return Err(self.err(key, format!("must be > 0, got {v}")));
         }
         if v > max {
-            return Err(self.err(key, format!("must be ≤ {max:e}, got {v}")));
+            return Err(self.err(key, format!("must be ≤ {max:e}, got {}", short(v))));
         }
         Ok(v)
     }
@@ -128,6 +149,17 @@ impl Validator<'_> {
             self.finite(&format!("{key}[{i}]"), *c)?;
         }
         Ok(DVec3::from_array(v))
+    }
+
+    /// A finite vector with every |component| ≤ [`MAX_COORDINATE`].
+    fn coordinates(&self, key: &str, v: [f64; 3]) -> R<DVec3> {
+        let d = self.vec3(key, v)?;
+        for (i, c) in v.iter().enumerate() {
+            if c.abs() > MAX_COORDINATE {
+                return Err(self.err(format!("{key}[{i}]"), format!("must be within ±{MAX_COORDINATE:e}, got {c}")));
+            }
+        }
+        Ok(d)
     }
 
     // ---- sections -------------------------------------------------------------------------
@@ -269,7 +301,7 @@ impl Validator<'_> {
         };
         let emission = match m.emission {
             None => [0.0; 3],
-            Some(e) => self.channels("medium.emission", e, |k, v| self.non_negative(k, v, None))?,
+            Some(e) => self.channels("medium.emission", e, |k, v| self.non_negative(k, v, Some(MAX_LIGHT)))?,
         };
         Ok(Medium { sigma_t, albedo, g, emission })
     }
@@ -289,7 +321,8 @@ impl Validator<'_> {
                 reject_extra("direction", l.direction.is_some(), "sky")?;
                 reject_extra("irradiance", l.irradiance.is_some(), "sky")?;
                 let radiance = l.radiance.ok_or_else(|| missing("radiance", "sky"))?;
-                let radiance = self.channels(&key("radiance"), radiance, |k, v| self.non_negative(k, v, None))?;
+                let radiance =
+                    self.channels(&key("radiance"), radiance, |k, v| self.non_negative(k, v, Some(MAX_LIGHT)))?;
                 Ok(Light::Sky { radiance })
             }
             "sun" => {
@@ -297,16 +330,11 @@ impl Validator<'_> {
                 let direction = l.direction.ok_or_else(|| missing("direction", "sun"))?;
                 let dkey = key("direction");
                 let d = self.vec3(&dkey, direction)?;
-                let len = d.length();
-                if len == 0.0 {
-                    return Err(self.err(dkey, "must not be the zero vector (it points toward the sun)"));
-                }
-                let direction = d / len;
-                if !direction.is_finite() {
-                    return Err(self.err(dkey, format!("cannot be normalised, got {d}")));
-                }
+                let direction = safe_normalize(d)
+                    .ok_or_else(|| self.err(dkey.clone(), "must not be the zero vector (it points toward the sun)"))?;
                 let irradiance = l.irradiance.ok_or_else(|| missing("irradiance", "sun"))?;
-                let irradiance = self.channels(&key("irradiance"), irradiance, |k, v| self.non_negative(k, v, None))?;
+                let irradiance =
+                    self.channels(&key("irradiance"), irradiance, |k, v| self.non_negative(k, v, Some(MAX_LIGHT)))?;
                 Ok(Light::Sun { direction, irradiance })
             }
             other => {
@@ -473,20 +501,20 @@ impl Validator<'_> {
                 ))
             }
         };
-        let position = self.vec3("camera.position", c.position)?;
-        let look_at = self.vec3("camera.look_at", c.look_at)?;
+        let position = self.coordinates("camera.position", c.position)?;
+        let look_at = self.coordinates("camera.look_at", c.look_at)?;
         let up = match c.up {
             None => DVec3::Z,
-            Some(u) => self.vec3("camera.up", u)?,
+            Some(u) => self.coordinates("camera.up", u)?,
         };
         let view = look_at - position;
-        if view.length_squared() == 0.0 || !view.is_finite() {
+        if view.length_squared() == 0.0 || !view.length_squared().is_finite() {
             return Err(self.err("camera.look_at", format!("must differ from camera.position, both are {position}")));
         }
-        if up.length_squared() == 0.0 {
+        let (Some(view_dir), Some(up_dir)) = (safe_normalize(view), safe_normalize(up)) else {
             return Err(self.err("camera.up", "must not be the zero vector"));
-        }
-        let sin = view.normalize().cross(up.normalize()).length();
+        };
+        let sin = view_dir.cross(up_dir).length();
         if !(sin > 1e-6) {
             return Err(self.err(
                 "camera.up",
@@ -503,6 +531,28 @@ impl Validator<'_> {
         };
         Ok(Camera { projection, position, look_at, up, width, height })
     }
+}
+
+/// `v` as written in a message: plain for ordinary magnitudes, in e-notation for huge or tiny
+/// ones (`1e308` rather than 309 digits).
+fn short(v: f64) -> String {
+    if v != 0.0 && !(1e-6..1e15).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
+}
+
+/// `v / |v|` for any finite `v`, however large or small its components (`[1e308; 3]` would
+/// overflow the length to infinity and normalise to zero; `[1e-310; 3]` would underflow it):
+/// scaled by its largest component first. `None` for the zero vector.
+pub fn safe_normalize(v: DVec3) -> Option<DVec3> {
+    let m = v.abs().max_element();
+    if !(m > 0.0 && m.is_finite()) {
+        return None;
+    }
+    let u = (v / m).normalize();
+    u.is_finite().then_some(u)
 }
 
 /// The orthographic view height that fits the whole volume whatever the view direction: the

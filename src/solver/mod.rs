@@ -42,9 +42,11 @@ pub enum SolveError {
     DeviceLimit { what: String, bytes: u64, limit: u64 },
     #[error("the device memory budget of {budget} bytes is too small: the smallest unit (one slice of bricks, one direction, one plane) needs {needed} bytes; raise --device-memory-budget to at least {needed}")]
     BudgetTooSmall { budget: u64, needed: u64 },
+    #[error("the device memory budget of {budget} bytes is larger than the device's memory ({device} bytes in its device-local heap); give at most {device}, or leave the budget out for a safe default")]
+    BudgetTooLarge { budget: u64, device: u64 },
     #[error("Vulkan validation reported {} error(s); the first: {}", .0.len(), .0.first().map(String::as_str).unwrap_or(""))]
     Validation(Vec<String>),
-    #[error("{}: the checkpoint belongs to another scene or lpm version; solve again without --resume", path.display())]
+    #[error("{}: the checkpoint belongs to another scene or lpm version; rerun with --fresh instead of --resume to discard it and start over", path.display())]
     CheckpointMismatch { path: std::path::PathBuf },
     #[error("writing the checkpoint: {0}")]
     Checkpoint(crate::output::OutputError),
@@ -167,10 +169,12 @@ pub fn solve(
 /// Identifies a scene for checkpoints: a resumed solve must be the same job.
 pub fn scene_digest(scene: &Scene) -> String {
     // FNV-1a over the validated scene and the crate version: stable across runs and platforms.
-    // The memory budget is left out: any budget gives bitwise the same result, so a solve may
-    // resume under another one.
+    // Only what affects the solve is digested: the memory budget is left out (any budget gives
+    // bitwise the same result, so a solve may resume under another one), and so is the camera
+    // (it only affects the image, rendered after the solve).
     let mut scene = scene.clone();
     scene.solver.device_memory_budget = None;
+    scene.camera = None;
     let text = format!("{}|{:?}", env!("CARGO_PKG_VERSION"), scene);
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
     for b in text.bytes() {

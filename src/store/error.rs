@@ -17,8 +17,8 @@ pub enum StoreError {
         path.display(), dims[0], dims[1], dims[2])]
     RawSize { path: PathBuf, dims: [u32; 3], expected: u64, actual: u64 },
 
-    #[error("{}: voxel ({}, {}, {}) has density {value}; densities must be finite and non-negative",
-        path.display(), voxel[0], voxel[1], voxel[2])]
+    #[error("{}: voxel ({}, {}, {}) has density {}; densities must be finite and non-negative",
+        path.display(), voxel[0], voxel[1], voxel[2], short_f32(*value))]
     BadDensity { path: PathBuf, voxel: [u32; 3], value: f32 },
 
     #[error("volume dims {}×{}×{} are invalid: {reason}", dims[0], dims[1], dims[2])]
@@ -38,11 +38,44 @@ pub enum StoreError {
 
     #[error("{}: {message}", path.display())]
     FieldShape { path: PathBuf, message: String },
+
+    #[error("{}: not enough disk space: the file needs {needed} bytes, {} free{}", path.display(),
+        free.map_or("unknown".to_string(), |f| format!("{f} bytes")),
+        if *needed > 0 { "; free some space or choose another --out" } else { "" })]
+    NoSpace { path: PathBuf, needed: u64, free: Option<u64> },
+
+    #[error("{}: the file shrank while it was being read (expected {expected} bytes); was it modified by another program?", path.display())]
+    Truncated { path: PathBuf, expected: u64 },
+}
+
+/// `v` for a message: plain for ordinary magnitudes, e-notation for huge or tiny ones (f32's
+/// `Display` writes `-1e-40` as 41 digits and `3e38` as 39).
+fn short_f32(v: f32) -> String {
+    if v.is_finite() && v != 0.0 && !(1e-6..1e9).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
 }
 
 impl StoreError {
     pub(crate) fn io(path: impl Into<PathBuf>, action: &'static str) -> impl FnOnce(std::io::Error) -> StoreError {
         let path = path.into();
         move |source| StoreError::Io { path, action, source }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Issue 13, item 11: an out-of-range voxel's value was printed in full decimal.
+    #[test]
+    fn bad_density_values_print_short() {
+        let e = |value| StoreError::BadDensity { path: "d.raw".into(), voxel: [1, 2, 3], value }.to_string();
+        assert!(e(-1e-40).contains("density -1e-40;"), "{}", e(-1e-40));
+        assert!(e(-3e38).contains("density -3e38;"), "{}", e(-3e38));
+        assert!(e(-2.5).contains("density -2.5;"));
+        assert!(e(f32::NAN).contains("density NaN;"));
     }
 }

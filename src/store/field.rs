@@ -6,8 +6,9 @@
 //! and stay there while memory is plentiful. Passes over fields far larger than RAM therefore hand
 //! back what they are done with ([`Field::release_stored`], [`Field::release_all`]): the pages leave
 //! the resident set but stay in the page cache (dirty ones are written back as usual), so nothing
-//! is lost and the next touch reads them again. Clearing ([`Field::fill_zero`]) truncates the file
-//! instead of writing zeros, so it touches no page at all.
+//! is lost and the next touch reads them again. Clearing ([`Field::fill_zero`]) punches a hole
+//! instead of writing zeros, so it touches no page at all. Every field's blocks are allocated on
+//! disk up front (see `allocate`): a write through the map never meets a full disk.
 
 use super::grid::{BrickGrid, BRICK_VOXELS};
 use super::table::BrickTable;
@@ -52,8 +53,8 @@ impl Field {
             .truncate(true)
             .open(&path)
             .map_err(StoreError::io(&path, "create"))?;
-        // On a fresh (truncated) file set_len leaves a hole: zeros that cost no disk until written.
         file.set_len(len).map_err(StoreError::io(&path, "size"))?;
+        allocate(&file, &path, len)?;
         Self::map(path, file, table, name, components, coverage)
     }
 
@@ -152,14 +153,31 @@ impl Field {
         self.brick(b).map_or(0.0, |d| d[c as usize * BRICK_VOXELS + l])
     }
 
-    /// Sets every value to zero by truncating the file and extending it again: no page is touched,
-    /// the pages in memory are dropped and the file becomes a hole again (no disk used).
+    /// Sets every value to zero without touching a page: the file's blocks are deallocated
+    /// (`FALLOC_FL_PUNCH_HOLE`, which also drops the mapped pages, so they read as zeros) and then
+    /// allocated again (see [`allocate`]). The file keeps its length throughout, so a process killed
+    /// in the middle leaves a field of the right size (a resumed solve reopens it). Where punching
+    /// holes is not supported, the file is truncated and extended instead.
     pub fn fill_zero(&mut self) -> Result<(), StoreError> {
         let len = self.map.len() as u64;
+        #[cfg(target_os = "linux")]
+        {
+            use std::os::unix::io::AsRawFd;
+            let l = libc::off_t::try_from(len).unwrap_or(libc::off_t::MAX);
+            // SAFETY: a plain system call on a descriptor the field owns; the map stays valid (the
+            // length does not change) and `&mut self` means no reference into it is alive.
+            let rc = unsafe {
+                libc::fallocate(self.file.as_raw_fd(), libc::FALLOC_FL_PUNCH_HOLE | libc::FALLOC_FL_KEEP_SIZE, 0, l)
+            };
+            if rc == 0 {
+                return allocate(&self.file, &self.path, len);
+            }
+        }
         // The map stays valid across the truncation: nothing touches it until the file has its
         // length back (`&mut self`), and then its pages read as zeros.
         self.file.set_len(0).map_err(StoreError::io(&self.path, "truncate"))?;
-        self.file.set_len(len).map_err(StoreError::io(&self.path, "size"))
+        self.file.set_len(len).map_err(StoreError::io(&self.path, "size"))?;
+        allocate(&self.file, &self.path, len)
     }
 
     /// Drops the pages of stored bricks `first .. first + count` from the resident set (see the
@@ -221,6 +239,45 @@ impl Field {
             });
         }
         self.as_mut_slice().copy_from_slice(other.as_slice());
+        Ok(())
+    }
+}
+
+/// Reserves the disk blocks of the whole file (`posix_fallocate`), so that a write through the map
+/// can never meet a full disk: on a sparse file it would, and the kernel answers a failed write
+/// into a mapped hole with SIGBUS, killing the process without a message. A full disk is thus an
+/// error here, before the solve writes anything, naming the bytes needed and free. (`set_len`
+/// alone only sets the length and leaves a hole.) Where the filesystem cannot preallocate
+/// (EOPNOTSUPP on some network filesystems), glibc writes zeros instead; a platform without
+/// `posix_fallocate` keeps the sparse file.
+fn allocate(file: &File, path: &Path, len: u64) -> Result<(), StoreError> {
+    #[cfg(target_os = "linux")]
+    {
+        use std::os::unix::io::AsRawFd;
+        if len == 0 {
+            return Ok(());
+        }
+        let too_big = || StoreError::NoSpace { path: path.to_path_buf(), needed: len, free: None };
+        let l = libc::off_t::try_from(len).map_err(|_| too_big())?;
+        // SAFETY: a plain system call on a descriptor `file` owns; no memory is passed.
+        let rc = unsafe { libc::posix_fallocate(file.as_raw_fd(), 0, l) };
+        match rc {
+            0 => Ok(()),
+            libc::ENOSPC | libc::EFBIG | libc::EDQUOT => Err(StoreError::NoSpace {
+                path: path.to_path_buf(),
+                needed: len,
+                free: path.parent().and_then(super::free_bytes),
+            }),
+            e => Err(StoreError::Io {
+                path: path.to_path_buf(),
+                action: "allocate disk space for",
+                source: std::io::Error::from_raw_os_error(e),
+            }),
+        }
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        let _ = (file, path, len);
         Ok(())
     }
 }

@@ -28,15 +28,18 @@ mod field;
 mod grid;
 pub mod import;
 pub mod nrrd_input;
+mod space;
 mod table;
 pub mod vdb;
 
 pub(crate) use atomic::write_atomic_io;
+pub use atomic::{is_temp_name, remove_stale_temps};
 pub use brick_store::BrickStore;
 pub use error::StoreError;
 pub use field::{Coverage, Field};
 pub use grid::{local_index, BrickGrid, BRICK_EDGE, BRICK_VOXELS};
 pub use import::{raw_density, RawDensity};
+pub use space::free_bytes;
 
 // Brick and field files hold native f32 and are mapped as such; they are specified little-endian.
 #[cfg(target_endian = "big")]

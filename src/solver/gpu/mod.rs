@@ -175,6 +175,9 @@ impl<'a> GpuBackend<'a> {
     ) -> Result<Self, SolveError> {
         let limits = ctx.limits();
         let budget = options.budget.unwrap_or_else(|| budget::default_budget(&limits));
+        if budget > limits.device_local_heap_bytes {
+            return Err(SolveError::BudgetTooLarge { budget, device: limits.device_local_heap_bytes });
+        }
         let memory = budget::plan_memory(
             plan,
             budget::slice_extent(plan, store),
