@@ -199,7 +199,9 @@ pub fn run(job: &SolveJob, progress: impl FnMut(u32, f64)) -> Result<Report, Job
             let _ = std::fs::remove_dir_all(&work);
         }
     }
-    if result.is_err() && !checkpointed {
+    // progress.json describes a run in progress: a finished solve has its report.json instead, and a
+    // failed one with nothing to resume has nothing to report.
+    if result.is_ok() || !checkpointed {
         let _ = std::fs::remove_file(&progress_path);
     }
     if result.is_err() && created_out && !checkpointed {
