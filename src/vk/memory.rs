@@ -1,5 +1,6 @@
 //! Buffers and their memory, from `gpu-allocator`.
 
+use std::ptr::NonNull;
 use std::sync::atomic::Ordering;
 
 use ash::vk;
@@ -57,6 +58,47 @@ impl Buffer {
     }
     fn host_visible_by_contract(&self) -> bool {
         matches!(self.location, MemoryLocation::CpuToGpu | MemoryLocation::GpuToCpu)
+    }
+}
+
+/// A host-visible buffer (`CpuToGpu` or `GpuToCpu`), persistently mapped: the mapping is checked
+/// once, when it is made ([`Context::create_host_buffer`]), so "not mapped" cannot happen later.
+/// It dereferences to its [`Buffer`] for copies; free it with [`Context::destroy_host_buffer`].
+pub struct HostBuffer {
+    buffer: Buffer,
+    ptr: NonNull<u8>,
+    len: usize,
+}
+
+// SAFETY: the pointer is to the buffer's persistent mapping, which lives as long as the buffer
+// (itself Send + Sync); `HostBuffer` hands out `&[u8]` for `&self` and `&mut [u8]` for `&mut self`
+// only, and raw pointers whose use is the caller's `unsafe` business.
+unsafe impl Send for HostBuffer {}
+// SAFETY: as above.
+unsafe impl Sync for HostBuffer {}
+
+impl HostBuffer {
+    /// The mapped bytes (a read after a GPU write must follow a GPU→host barrier and a wait).
+    pub fn bytes(&self) -> &[u8] {
+        // SAFETY: `len` bytes are mapped for the buffer's lifetime; shared borrow of self.
+        unsafe { std::slice::from_raw_parts(self.ptr.as_ptr(), self.len) }
+    }
+    /// The mapped bytes, to write.
+    pub fn bytes_mut(&mut self) -> &mut [u8] {
+        // SAFETY: as above, with an exclusive borrow of self.
+        unsafe { std::slice::from_raw_parts_mut(self.ptr.as_ptr(), self.len) }
+    }
+    /// The start of the mapping, for copies done through raw pointers (by other threads); writing
+    /// through it is the caller's `unsafe` contract (no reference to the bytes alive meanwhile).
+    pub fn as_mut_ptr(&self) -> *mut u8 {
+        self.ptr.as_ptr()
+    }
+}
+
+impl std::ops::Deref for HostBuffer {
+    type Target = Buffer;
+    fn deref(&self) -> &Buffer {
+        &self.buffer
     }
 }
 
@@ -126,6 +168,34 @@ impl Context {
         self.set_name(raw, name);
         tracing::trace!(name, size, ?location, "buffer created");
         Ok(Buffer { raw, allocation, size, name: name.to_owned(), location })
+    }
+
+    /// Creates a host-visible buffer, `location` `CpuToGpu` (staging to the device) or `GpuToCpu`
+    /// (staging from it).
+    pub fn create_host_buffer(
+        &self,
+        name: &str,
+        size: u64,
+        usage: vk::BufferUsageFlags,
+        location: MemoryLocation,
+    ) -> Result<HostBuffer, VkError> {
+        if !matches!(location, MemoryLocation::CpuToGpu | MemoryLocation::GpuToCpu) {
+            return Err(VkError::InvalidArgument(format!("host buffer `{name}` must be CpuToGpu or GpuToCpu")));
+        }
+        let buffer = self.create_buffer(name, size, usage, location)?;
+        let mapping = buffer.allocation.mapped_ptr().map(|p| p.cast::<u8>());
+        match (mapping, usize::try_from(size)) {
+            (Some(ptr), Ok(len)) => Ok(HostBuffer { buffer, ptr, len }),
+            _ => {
+                self.destroy_buffer(buffer);
+                Err(VkError::InvalidArgument(format!("host buffer `{name}` ({size} bytes) could not be mapped")))
+            }
+        }
+    }
+
+    /// Destroys a host buffer now; see [`Context::destroy_buffer`].
+    pub fn destroy_host_buffer(&self, buffer: HostBuffer) {
+        self.destroy_buffer(buffer.buffer)
     }
 
     /// Destroys a buffer now. The caller guarantees the GPU no longer uses it (else use

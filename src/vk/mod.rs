@@ -45,7 +45,7 @@ pub use commands::{BufferRange, Recorder};
 pub use context::{Context, ContextOptions};
 pub use device::{Limits, Queue};
 pub use error::VkError;
-pub use memory::Buffer;
+pub use memory::{Buffer, HostBuffer};
 pub use pipeline::ComputePipeline;
 pub use query::TimestampQueryPool;
 pub use sync::TimelineSemaphore;
@@ -68,6 +68,7 @@ const _: () = {
     const fn send<T: Send>() {}
     send_sync::<Context>();
     send_sync::<Buffer>();
+    send_sync::<HostBuffer>();
     send_sync::<TimelineSemaphore>();
     send_sync::<ComputePipeline>();
     send_sync::<TimestampQueryPool>();
