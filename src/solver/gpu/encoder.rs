@@ -8,7 +8,7 @@
 
 use super::budget::MemoryPlan;
 use super::layout::{half_source_flags, SweepPush, FLAG_GAIN, FLAG_LAST_SLICE, FLAG_VACUUM};
-use super::resources::DeviceResources;
+use super::resources::{DeviceResources, COLLECT_BINDINGS, PROPAGATE_BINDINGS};
 use super::slice::SliceLayout;
 use super::tables::SweepTables;
 use crate::solver::plan::Plan;
@@ -104,7 +104,8 @@ pub fn record_compute(
         rec.transfer_to_compute();
     }
     let tables = step.tables;
-    let propagate_buffers = [
+    // The arrays' lengths are the pipelines' binding counts (a compile error when they differ).
+    let propagate_buffers: [BufferRange; PROPAGATE_BINDINGS as usize] = [
         BufferRange::from(&*tables.directions),
         BufferRange::from(&*tables.offsets),
         BufferRange::from(slot_table),
@@ -115,7 +116,7 @@ pub fn record_compute(
         BufferRange::from(&*shared.rays_out),
         BufferRange::from(&*shared.deposit),
     ];
-    let collect_buffers = slot.map(|slot| {
+    let collect_buffers = slot.map(|slot| -> [BufferRange; COLLECT_BINDINGS as usize] {
         [
             BufferRange::from(&*tables.directions),
             BufferRange::from(&*tables.rows),
