@@ -3,18 +3,22 @@
 //! `directions_per_dispatch`, planes in chunks of `planes_per_dispatch`, each `propagate.comp`
 //! followed by `collect.comp` unless the slice is vacuum).
 //!
+//! The buffers each kernel binds are listed here too ([`propagate_bindings`],
+//! [`collect_bindings`]); the resources write them into descriptor sets once per solve, and a step
+//! binds those sets by handle.
+//!
 //! It records into a [`Recorder`] and submits nothing: when to submit and what to wait for is the
 //! streamer's business ([`super::streamer`]).
 
 use super::budget::MemoryPlan;
 use super::layout::{half_source_flags, SweepPush, FLAG_GAIN, FLAG_LAST_SLICE, FLAG_VACUUM};
-use super::resources::{DeviceResources, COLLECT_BINDINGS, PROPAGATE_BINDINGS};
+use super::resources::{DeviceResources, SharedBuffers, SlotBuffers, SweepSets, COLLECT_BINDINGS, PROPAGATE_BINDINGS};
 use super::slice::SliceLayout;
 use super::tables::SweepTables;
 use crate::solver::plan::Plan;
 use crate::solver::sweep::FaceSweep;
 use crate::solver::SolveError;
-use crate::vk::{BufferRange, Recorder};
+use crate::vk::{Buffer, BufferRange, Recorder};
 use ash::vk;
 use std::ops::Range;
 
@@ -29,6 +33,8 @@ pub struct ComputeStep<'s> {
     pub slot: Option<usize>,
     pub layout: &'s SliceLayout,
     pub tables: &'s SweepTables,
+    /// The sweep's descriptor sets.
+    pub sets: &'s SweepSets,
     pub sweep: &'s FaceSweep,
     /// The directions of the pass, as indices into the sweep's tables.
     pub pass_dirs: Range<u32>,
@@ -75,6 +81,45 @@ pub fn push_constants(plan: &Plan, sweep: &FaceSweep, layout: &SliceLayout) -> S
     }
 }
 
+/// The buffers `propagate.comp` binds for a sweep's `tables` and a slot's `slot_table`, `density`
+/// and `source_prev` (the vacuum stand-in for a vacuum slice). The array's length is the
+/// pipeline's binding count (checked against the SPIR-V by `tests/shader_interface.rs`).
+pub fn propagate_bindings<'b>(
+    tables: &'b SweepTables,
+    slot: [&'b Buffer; 3],
+    shared: &'b SharedBuffers,
+) -> [BufferRange<'b>; PROPAGATE_BINDINGS as usize] {
+    let [slot_table, density, source_prev] = slot;
+    [
+        BufferRange::from(&*tables.directions),
+        BufferRange::from(&*tables.offsets),
+        BufferRange::from(slot_table),
+        BufferRange::from(density),
+        BufferRange::from(source_prev),
+        BufferRange::from(&*shared.rays),
+        BufferRange::from(&*shared.rays_in),
+        BufferRange::from(&*shared.rays_out),
+        BufferRange::from(&*shared.deposit),
+    ]
+}
+
+/// The buffers `collect.comp` binds for a sweep's `tables` and a slot.
+pub fn collect_bindings<'b>(
+    tables: &'b SweepTables,
+    slot: &'b SlotBuffers,
+    shared: &'b SharedBuffers,
+) -> [BufferRange<'b>; COLLECT_BINDINGS as usize] {
+    [
+        BufferRange::from(&*tables.directions),
+        BufferRange::from(&*tables.rows),
+        BufferRange::from(&*slot.slot_table),
+        BufferRange::from(&*slot.density),
+        BufferRange::from(&*shared.deposit),
+        BufferRange::from(&*slot.source_next),
+        BufferRange::from(&*slot.fluence),
+    ]
+}
+
 /// Records a step's dispatches into `rec` (the barriers between them included).
 pub fn record_compute(
     rec: &mut Recorder,
@@ -84,13 +129,7 @@ pub fn record_compute(
     step: &ComputeStep,
 ) -> Result<(), SolveError> {
     let shared = &res.shared;
-    let slot = step.slot.map(|s| &res.slots[s]);
-    // A vacuum slice binds a stand-in for the slot buffers its kernel never reads.
-    let (slot_table, density, source_prev) = match slot {
-        Some(slot) => (&*slot.slot_table, &*slot.density, &*slot.source_prev),
-        None => (&*shared.vacuum, &*shared.vacuum, &*shared.vacuum),
-    };
-    let vacuum = if slot.is_none() { FLAG_VACUUM } else { 0 };
+    let vacuum = if step.slot.is_none() { FLAG_VACUUM } else { 0 };
     let half = match step.half_exponent {
         Some(e) if step.flags & FLAG_GAIN != 0 => half_source_flags(e),
         _ => 0,
@@ -104,29 +143,11 @@ pub fn record_compute(
         rec.transfer_to_compute();
     }
     let tables = step.tables;
-    // The arrays' lengths are the pipelines' binding counts (a compile error when they differ).
-    let propagate_buffers: [BufferRange; PROPAGATE_BINDINGS as usize] = [
-        BufferRange::from(&*tables.directions),
-        BufferRange::from(&*tables.offsets),
-        BufferRange::from(slot_table),
-        BufferRange::from(density),
-        BufferRange::from(source_prev),
-        BufferRange::from(&*shared.rays),
-        BufferRange::from(&*shared.rays_in),
-        BufferRange::from(&*shared.rays_out),
-        BufferRange::from(&*shared.deposit),
-    ];
-    let collect_buffers = slot.map(|slot| -> [BufferRange; COLLECT_BINDINGS as usize] {
-        [
-            BufferRange::from(&*tables.directions),
-            BufferRange::from(&*tables.rows),
-            BufferRange::from(&*slot.slot_table),
-            BufferRange::from(&*slot.density),
-            BufferRange::from(&*shared.deposit),
-            BufferRange::from(&*slot.source_next),
-            BufferRange::from(&*slot.fluence),
-        ]
-    });
+    let sets = step.sets;
+    // The slot's sets, or the vacuum's (the last propagate set; a vacuum slice collects nothing).
+    let propagate_set = &sets.propagate[step.slot.unwrap_or(sets.propagate.len() - 1)];
+    let collect_set = step.slot.map(|s| &sets.collect[s]);
+    let mut bound = false;
     let mut push = push_constants(plan, step.sweep, step.layout);
     let range = step.layout.range;
     let group = memory.directions_per_dispatch;
@@ -147,15 +168,21 @@ pub fn record_compute(
             push.flags = step.flags | vacuum | half | if last_chunk { FLAG_LAST_SLICE } else { 0 };
             // Across vacuum, rays that do not move sideways keep everything: the kernel would
             // only read and write back the ray state (a big share of a sparse volume's time).
-            if slot.is_none() && !last_chunk && tables.still(base..base + n, t0, t1) {
+            if step.slot.is_none() && !last_chunk && tables.still(base..base + n, t0, t1) {
                 t0 = t1;
                 continue;
             }
             let bytes = bytemuck::bytes_of(&push);
-            rec.dispatch(&res.propagate, &propagate_buffers, bytes, workgroups(step.sweep, n))?;
+            // Switching pipelines needs the set bound again (the two layouts differ).
+            if !bound || collect_set.is_some() {
+                rec.bind(&res.propagate, propagate_set)?;
+                bound = true;
+            }
+            rec.dispatch_bound(&res.propagate, bytes, workgroups(step.sweep, n))?;
             rec.compute_to_compute();
-            if let Some(buffers) = &collect_buffers {
-                rec.dispatch(&res.collect, buffers, bytes, workgroups(step.sweep, t1 - t0))?;
+            if let Some(set) = collect_set {
+                rec.bind(&res.collect, set)?;
+                rec.dispatch_bound(&res.collect, bytes, workgroups(step.sweep, t1 - t0))?;
                 rec.compute_to_compute();
             }
             t0 = t1;

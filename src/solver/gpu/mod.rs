@@ -186,9 +186,10 @@ impl<'a> GpuBackend<'a> {
     /// each pass streaming every slice of the face in sweep order.
     fn sweep(&mut self, which: SweepOf, flags: u32) -> Result<Tallies, SolveError> {
         let plan = self.plan;
-        let (tables, dirs): (_, &[SweepDirection]) = match which {
-            SweepOf::Face(i) => (&self.resources.face_tables[i], &plan.faces[i]),
-            SweepOf::Beam(i) => (&self.resources.beam_tables[i], std::slice::from_ref(&plan.beams[i])),
+        let res = &self.resources;
+        let (tables, sets, dirs): (_, _, &[SweepDirection]) = match which {
+            SweepOf::Face(i) => (&res.face_tables[i], &res.face_sets[i], &plan.faces[i]),
+            SweepOf::Beam(i) => (&res.beam_tables[i], &res.beam_sets[i], std::slice::from_ref(&plan.beams[i])),
         };
         let sweep = FaceSweep::new(dirs[0].face, plan.dims);
         let pass = self.memory.directions_per_pass as usize;
@@ -196,7 +197,8 @@ impl<'a> GpuBackend<'a> {
         for first in (0..dirs.len()).step_by(pass) {
             let pass_dirs = first as u32..(first + pass).min(dirs.len()) as u32;
             let mut io = Stream { plan, store: self.store, fields: &mut *self.host.fields, res: &self.resources };
-            let job = Pass { tables, sweep: &sweep, dirs: pass_dirs.clone(), flags, half_exponent: self.half_exponent };
+            let job =
+                Pass { tables, sets, sweep: &sweep, dirs: pass_dirs.clone(), flags, half_exponent: self.half_exponent };
             self.streamer.stream_pass(&mut io, &job)?;
             if let Some(p) = self.progress.as_mut() {
                 p.pass_done();

@@ -8,7 +8,7 @@
 //! last submitted values when dropped, before any buffer or pipeline after them is freed; a
 //! temporary (the tables' staging) is dropped after its submission was waited for.
 
-use crate::vk::{Buffer, ComputePipeline, Context, HostBuffer, TimelineSemaphore, TimestampQueryPool};
+use crate::vk::{Buffer, ComputePipeline, Context, DescriptorSet, HostBuffer, TimelineSemaphore, TimestampQueryPool};
 use std::mem::ManuallyDrop;
 use std::ops::{Deref, DerefMut};
 use std::sync::Arc;
@@ -31,6 +31,12 @@ impl Destroy for Buffer {
 impl Destroy for HostBuffer {
     unsafe fn destroy(self, ctx: &Context) {
         ctx.destroy_host_buffer(self)
+    }
+}
+
+impl Destroy for DescriptorSet {
+    unsafe fn destroy(self, ctx: &Context) {
+        ctx.destroy_descriptor_set(self)
     }
 }
 

@@ -1,5 +1,6 @@
 //! The device resources of a solve, built all-or-nothing: the two kernels' pipelines, the slots'
-//! buffers and staging, the buffers shared by the slots, and every sweep's tables.
+//! buffers and staging, the buffers shared by the slots, every sweep's tables, and the kernels'
+//! descriptor sets for each sweep and slot (written once: the buffers never change).
 //!
 //! Every object is an [`Owned`] value, so a constructor that fails half-way frees what it made by
 //! dropping it, and a finished [`DeviceResources`] frees everything when dropped. Whoever submits
@@ -7,6 +8,7 @@
 //! submission. Sizes come from [`super::sizes`], the figures the budget planner adds up.
 
 use super::budget::MemoryPlan;
+use super::encoder;
 use super::layout::SweepPush;
 use super::owned::Owned;
 use super::sizes::{SharedSizes, SlotSizes};
@@ -14,7 +16,7 @@ use super::streamer::SliceStreamer;
 use super::tables::SweepTables;
 use crate::solver::plan::Plan;
 use crate::solver::SolveError;
-use crate::vk::{Buffer, ComputePipeline, Context, HostBuffer, MemoryLocation};
+use crate::vk::{Buffer, ComputePipeline, Context, DescriptorSet, HostBuffer, MemoryLocation};
 use ash::vk;
 use std::sync::Arc;
 
@@ -47,7 +49,17 @@ pub struct SharedBuffers {
     pub vacuum: Owned<Buffer>,
 }
 
+/// One sweep's descriptor sets, written once: `propagate[s]` binds slot s (`propagate[slots]` the
+/// vacuum stand-in), `collect[s]` slot s.
+pub struct SweepSets {
+    pub propagate: Vec<Owned<DescriptorSet>>,
+    pub collect: Vec<Owned<DescriptorSet>>,
+}
+
 pub struct DeviceResources {
+    /// Per face, then per beam, parallel to the tables.
+    pub face_sets: Vec<SweepSets>,
+    pub beam_sets: Vec<SweepSets>,
     pub propagate: Owned<ComputePipeline>,
     pub collect: Owned<ComputePipeline>,
     pub slots: Vec<SlotBuffers>,
@@ -148,7 +160,33 @@ impl DeviceResources {
             .iter()
             .map(|beam| SweepTables::upload(ctx, streamer, std::slice::from_ref(beam)))
             .collect::<Result<Vec<_>, _>>()?;
-        Ok(DeviceResources { propagate, collect, slots, shared, face_tables, beam_tables })
+        let sets = |tables: &[SweepTables], what: &str| -> Result<Vec<SweepSets>, SolveError> {
+            let mut all = Vec::with_capacity(tables.len());
+            for (i, t) in tables.iter().enumerate() {
+                let mut propagate_sets = Vec::with_capacity(slots.len() + 1);
+                for (s, slot) in slots.iter().enumerate() {
+                    let bindings =
+                        encoder::propagate_bindings(t, [&slot.slot_table, &slot.density, &slot.source_prev], &shared);
+                    let name = format!("propagate {what} {i} slot {s}");
+                    propagate_sets.push(Owned::new(ctx, ctx.create_descriptor_set(&name, &propagate, &bindings)?));
+                }
+                let v = &*shared.vacuum;
+                let bindings = encoder::propagate_bindings(t, [v, v, v], &shared);
+                let name = format!("propagate {what} {i} vacuum");
+                propagate_sets.push(Owned::new(ctx, ctx.create_descriptor_set(&name, &propagate, &bindings)?));
+                let mut collect_sets = Vec::with_capacity(slots.len());
+                for (s, slot) in slots.iter().enumerate() {
+                    let bindings = encoder::collect_bindings(t, slot, &shared);
+                    let name = format!("collect {what} {i} slot {s}");
+                    collect_sets.push(Owned::new(ctx, ctx.create_descriptor_set(&name, &collect, &bindings)?));
+                }
+                all.push(SweepSets { propagate: propagate_sets, collect: collect_sets });
+            }
+            Ok(all)
+        };
+        let face_sets = sets(&face_tables, "face")?;
+        let beam_sets = sets(&beam_tables, "beam")?;
+        Ok(DeviceResources { face_sets, beam_sets, propagate, collect, slots, shared, face_tables, beam_tables })
     }
 
     /// The bytes of every buffer made for the solve: those held now, plus the largest of the

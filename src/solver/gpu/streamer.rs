@@ -14,7 +14,7 @@ use super::encoder::{self, ComputeStep};
 use super::layout::FLAG_GAIN;
 use super::owned::Owned;
 use super::profile::{self, Profiler};
-use super::resources::DeviceResources;
+use super::resources::{DeviceResources, SweepSets};
 use super::slice::SliceLayout;
 use super::tables::SweepTables;
 use crate::solver::fields::StoreFields;
@@ -48,6 +48,7 @@ struct SlotState {
 /// One pass of one sweep: its directions streamed through every slice of the face.
 pub struct Pass<'p> {
     pub tables: &'p SweepTables,
+    pub sets: &'p SweepSets,
     pub sweep: &'p FaceSweep,
     pub dirs: Range<u32>,
     pub flags: u32,
@@ -162,6 +163,7 @@ impl SliceStreamer {
                 slot,
                 layout,
                 tables: pass.tables,
+                sets: pass.sets,
                 sweep: pass.sweep,
                 pass_dirs: pass.dirs.clone(),
                 flags: pass.flags,
