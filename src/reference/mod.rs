@@ -227,7 +227,8 @@ pub fn run(
     // Image.
     let image = (opts.image_samples_per_pixel > 0).then(|| {
         let h = scene.volume.voxel_size;
-        let view = View::new(scene.camera.as_ref(), grid.extent() * h);
+        let camera = scene.camera.clone().unwrap_or_else(|| crate::render::default_camera(scene.volume.dims, h));
+        let view = View::new(&camera);
         let (w, hgt) = (view.width as usize, view.height as usize);
         let spp = opts.image_samples_per_pixel;
         let rows: Mutex<Vec<(usize, Vec<f32>)>> = Mutex::new(Vec::with_capacity(hgt));
