@@ -21,13 +21,13 @@
 //! | [`vk`] | the thin Vulkan layer: instance, device, queues, buffers, pipelines, timeline sync |
 //! | [`solver`] | the plan (what a scene needs), the discretisation shared by both backends, the CPU twin (f64), the GPU driver, the order loop |
 //! | [`render`] | the camera ray-march over the solved source, EXR and PNG writers |
-//! | [`reference`] | the independent Monte-Carlo reference (shares only the scene with the solver) |
+//! | [`reference`](mod@reference) | the independent Monte-Carlo reference (shares only the scene with the solver) |
 //! | [`compare`] | accuracy figures of one output directory against another (e.g. a solve against a reference) |
 //! | [`job`] | a whole `lpm solve`: scene → store → solve → exported fields, image, report; checkpoints and resume |
-//! | [`bench`] | `lpm bench`: the profiled stream (JSON) and the time-against-error study |
+//! | [`bench`](mod@bench) | `lpm bench`: the profiled stream (JSON) and the time-against-error study |
 //! | [`plot`] | small dependency-free plots (log/linear axes, series, legend) written as SVG and PNG, with an embedded bitmap font |
 //!
-//! The binary (`src/main.rs`) is a thin CLI over [`job`], [`reference::job`], [`compare`], [`bench`]
+//! The binary (`src/main.rs`) is a thin CLI over [`job`], [`reference::job`], [`compare`], [`bench`](mod@bench)
 //! and the output readers.
 //!
 //! ## The discretisation in one paragraph

@@ -8,7 +8,7 @@
 //! binds those sets by handle.
 //!
 //! It records into a [`Recorder`] and submits nothing: when to submit and what to wait for is the
-//! streamer's business ([`super::streamer`]).
+//! streamer's business (`streamer`).
 
 use super::budget::MemoryPlan;
 use super::layout::{half_source_flags, SweepPush, FLAG_GAIN, FLAG_LAST_SLICE, FLAG_VACUUM};

@@ -26,15 +26,15 @@
 //! to the compute queue as a second submission stream ordered by the same timeline semaphores.
 //! With one slot each slice completes before the next starts. Slots are reused against timeline
 //! values, never by idling the device. A long order logs its progress in passes now and then
-//! ([`progress`]).
+//! (`progress`).
 //!
 //! ## The pieces
 //!
 //! - [`resources`]: everything made on the device for a solve (pipelines, slot buffers and
 //!   staging, the shared ray state and deposit, the sweeps' tables), built all-or-nothing from
 //!   the byte sizes in [`sizes`], which the budget planner ([`budget`]) adds up;
-//! - [`streamer`]: the schedule of slices through the slots against the timelines, with the copy
-//!   workers ([`copier`]) gathering and scattering each slice's bricks ([`slice`]);
+//! - `streamer`: the schedule of slices through the slots against the timelines, with the copy
+//!   workers (`copier`) gathering and scattering each slice's bricks (`slice`);
 //! - [`encoder`]: one slice's compute step as commands (push constants, bindings, dispatches);
 //! - this file: the order as sweeps and passes (the [`Backend`] the order loop drives), and the
 //!   tallies read back after each pass.

@@ -2,9 +2,9 @@
 //! buffers and staging, the buffers shared by the slots, every sweep's tables, and the kernels'
 //! descriptor sets for each sweep and slot (written once: the buffers never change).
 //!
-//! Every object is an [`Owned`] value, so a constructor that fails half-way frees what it made by
+//! Every object is an `Owned` value, so a constructor that fails half-way frees what it made by
 //! dropping it, and a finished [`DeviceResources`] frees everything when dropped. Whoever submits
-//! work on these resources (the [`SliceStreamer`]) must be dropped first: it waits for the last
+//! work on these resources (the `SliceStreamer`) must be dropped first: it waits for the last
 //! submission. Sizes come from [`super::sizes`], the figures the budget planner adds up.
 
 use super::budget::MemoryPlan;

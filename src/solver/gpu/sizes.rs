@@ -1,6 +1,6 @@
 //! The byte sizes of everything the GPU driver allocates, computed in one place: the budget
 //! planner ([`super::budget`]) adds these figures up and the allocations ([`super::resources`],
-//! [`super::tables`]) create buffers of exactly these sizes, so the plan cannot under-count what is
+//! `tables`) create buffers of exactly these sizes, so the plan cannot under-count what is
 //! allocated (`tests/budget.rs` checks the sum against the buffers made for several plans).
 
 use super::budget::SliceExtent;
