@@ -1,4 +1,7 @@
 //! The `lpm` command line: a thin layer over the library that reports errors in plain words.
+//!
+//! Over 450 lines because clap's derive keeps every subcommand's flags and their help in one
+//! `Command` enum; splitting it would scatter the CLI reference the help text is.
 
 use anyhow::{bail, Context as _, Result};
 use clap::{Parser, Subcommand, ValueEnum};

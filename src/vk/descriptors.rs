@@ -6,7 +6,7 @@
 
 use ash::vk;
 
-use super::commands::{check_buffers, BufferRange};
+use super::commands::BufferRange;
 use super::context::Context;
 use super::error::{VkError, VkResultExt};
 use super::pipeline::ComputePipeline;
@@ -76,4 +76,49 @@ impl Context {
         // SAFETY: by the caller's guarantee; destroying the pool frees the set.
         unsafe { self.device().destroy_descriptor_pool(set.pool, None) };
     }
+}
+
+/// Checks buffers bound to `p`'s bindings 0..: their count, their ranges against the buffers and
+/// the device limits. Makes no Vulkan call.
+pub(crate) fn check_buffers(ctx: &Context, p: &ComputePipeline, buffers: &[BufferRange]) -> Result<(), VkError> {
+    let limits = ctx.limits();
+    let name = p.name();
+    if buffers.len() != p.storage_buffers as usize {
+        return Err(VkError::InvalidArgument(format!(
+            "dispatch of `{name}` binds {} buffers; the pipeline has {} storage-buffer bindings",
+            buffers.len(),
+            p.storage_buffers
+        )));
+    }
+    for (binding, r) in buffers.iter().enumerate() {
+        let buf = r.buffer.name();
+        if r.range > limits.max_storage_buffer_range {
+            return Err(VkError::LimitExceeded(format!(
+                    "dispatch of `{name}`: binding {binding} (`{buf}`) covers {} bytes, more than maxStorageBufferRange = {} bytes; bind a smaller range",
+                    r.range, limits.max_storage_buffer_range
+                )));
+        }
+        if r.range == 0 {
+            return Err(VkError::InvalidArgument(format!(
+                "dispatch of `{name}`: binding {binding} (`{buf}`) has an empty range"
+            )));
+        }
+        let inside = matches!(r.offset.checked_add(r.range), Some(end) if end <= r.buffer.size());
+        if !inside {
+            return Err(VkError::InvalidArgument(format!(
+                "dispatch of `{name}`: binding {binding} range {}..+{} is outside `{buf}` ({} bytes)",
+                r.offset,
+                r.range,
+                r.buffer.size()
+            )));
+        }
+        let align = limits.min_storage_buffer_offset_alignment.max(1);
+        if r.offset % align != 0 {
+            return Err(VkError::InvalidArgument(format!(
+                    "dispatch of `{name}`: binding {binding} offset {} is not a multiple of minStorageBufferOffsetAlignment = {align}",
+                    r.offset
+                )));
+        }
+    }
+    Ok(())
 }
