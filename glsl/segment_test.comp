@@ -1,6 +1,6 @@
 #version 450
 // Test kernel, not used by the solver: evaluates the segment functions of common.glsl (seg_e1,
-// seg_e2) at the optical depths of its input, so that tests/shader_interface.rs can hold the GLSL
+// seg_e2) at the optical depths of its input, so that tests/it/shader_interface.rs can hold the GLSL
 // against src/solver/segment.rs. pc.na is the number of values.
 #extension GL_GOOGLE_include_directive : require
 #include "common.glsl"

@@ -61,7 +61,7 @@
 //! |---|---|
 //! | a scene key | `scene/raw.rs` (the file's shape), `scene/validate.rs` (check and default), `scene/types.rs`, README |
 //! | the physics of a sweep | `glsl/*.comp` **and** its twin in [`solver::cpu`]; [`solver::segment`] for the segment solution |
-//! | a shader interface (push constants, bindings, flags) | `solver/gpu/layout.rs`, `glsl/common.glsl`, the binding lists in `solver/gpu/encoder.rs`; `tests/shader_interface.rs` fails until both sides agree; `tools/compile_shaders.sh` regenerates `spirv/` |
+//! | a shader interface (push constants, bindings, flags) | `solver/gpu/layout.rs`, `glsl/common.glsl`, the binding lists in `solver/gpu/encoder.rs`; `tests/it/shader_interface.rs` fails until both sides agree; `tools/compile_shaders.sh` regenerates `spirv/` |
 //! | a device buffer or its size | `solver/gpu/sizes.rs` (the one place sizes are computed), then `resources.rs`; the planner follows |
 //! | scheduling of slices, overlap, copies | `solver/gpu/streamer.rs` (and `copier.rs`, `slice.rs`) |
 //! | a host pass between orders | `solver/fields.rs` ([`solver::orders::OrderFields`] for the store) and the twin's impl in `solver/cpu.rs` |

@@ -23,7 +23,7 @@ use ash::vk;
 use std::ops::Range;
 
 /// Workgroup size of both kernels (`local_size_x`, `local_size_y` in glsl/common.glsl): rays
-/// along the sweep's lateral axes b and c. `tests/shader_interface.rs` checks it against the
+/// along the sweep's lateral axes b and c. `tests/it/shader_interface.rs` checks it against the
 /// SPIR-V.
 pub const LOCAL_SIZE: [u32; 2] = [16, 4];
 
@@ -83,7 +83,7 @@ pub fn push_constants(plan: &Plan, sweep: &FaceSweep, layout: &SliceLayout) -> S
 
 /// The buffers `propagate.comp` binds for a sweep's `tables` and a slot's `slot_table`, `density`
 /// and `source_prev` (the vacuum stand-in for a vacuum slice). The array's length is the
-/// pipeline's binding count (checked against the SPIR-V by `tests/shader_interface.rs`).
+/// pipeline's binding count (checked against the SPIR-V by `tests/it/shader_interface.rs`).
 pub fn propagate_bindings<'b>(
     tables: &'b SweepTables,
     slot: [&'b Buffer; 3],

@@ -1,5 +1,5 @@
 //! Host structs and constants shared with the shaders, twins of `Push`, `Direction` and the
-//! `FLAG_*` constants in `glsl/common.glsl`. `tests/shader_interface.rs` reads the committed SPIR-V
+//! `FLAG_*` constants in `glsl/common.glsl`. `tests/it/shader_interface.rs` reads the committed SPIR-V
 //! and fails when a member's offset, a struct's size or a flag differs between the two sides.
 
 use bytemuck::{Pod, Zeroable};

@@ -128,7 +128,7 @@ impl<'a> GpuBackend<'a> {
             budget,
             options.max_slices_in_flight,
         )?;
-        // The kill test's hook (tests/resume.rs): compiled into debug builds (what `cargo test`
+        // The kill test's hook (tests/it/resume.rs): compiled into debug builds (what `cargo test`
         // runs) and builds with the `test-hooks` feature only, never into a release binary. The one
         // environment variable read outside the CLI: plumbing a test hook through the job API
         // would make it part of that API.

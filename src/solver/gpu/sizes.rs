@@ -1,7 +1,7 @@
 //! The byte sizes of everything the GPU driver allocates, computed in one place: the budget
 //! planner ([`super::budget`]) adds these figures up and the allocations ([`super::resources`],
 //! `tables`) create buffers of exactly these sizes, so the plan cannot under-count what is
-//! allocated (`tests/budget.rs` checks the sum against the buffers made for several plans).
+//! allocated (`tests/it/budget.rs` checks the sum against the buffers made for several plans).
 
 use super::budget::SliceExtent;
 use super::layout::GpuDirection;

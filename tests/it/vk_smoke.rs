@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use lpm::vk::{vk, BufferRange, Context, ContextOptions, MemoryLocation, Recorder, VkError};
 
-const FILL_SPV: &[u8] = include_bytes!("../spirv/fill.spv");
+const FILL_SPV: &[u8] = include_bytes!("../../spirv/fill.spv");
 const SECOND: u64 = 1_000_000_000;
 /// fill.comp's local_size_x.
 const FILL_GROUP: u32 = 64;

@@ -15,10 +15,10 @@ use rspirv::spirv::{Decoration, ExecutionMode, Op, StorageClass};
 use std::collections::HashMap;
 use std::mem::offset_of;
 
-const PROPAGATE_SPV: &[u8] = include_bytes!("../spirv/propagate.spv");
-const COLLECT_SPV: &[u8] = include_bytes!("../spirv/collect.spv");
-const SEGMENT_TEST_SPV: &[u8] = include_bytes!("../spirv/segment_test.spv");
-const COMMON_GLSL: &str = include_str!("../glsl/common.glsl");
+const PROPAGATE_SPV: &[u8] = include_bytes!("../../spirv/propagate.spv");
+const COLLECT_SPV: &[u8] = include_bytes!("../../spirv/collect.spv");
+const SEGMENT_TEST_SPV: &[u8] = include_bytes!("../../spirv/segment_test.spv");
+const COMMON_GLSL: &str = include_str!("../../glsl/common.glsl");
 
 fn load(spirv: &[u8]) -> Module {
     rspirv::dr::load_bytes(spirv).expect("parsing SPIR-V")

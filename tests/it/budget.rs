@@ -1,8 +1,7 @@
 //! The device memory budget: any cut of the sweeps (slices in flight, directions per pass, sub-slices
 //! of fewer planes, directions and planes per dispatch) gives bitwise the same fluence and source,
 //! and a budget below the smallest unit is a clear error.
-mod common;
-use common::*;
+use crate::common::*;
 use lpm::scene::{Scene, Shape};
 use lpm::solver::BackendKind::Gpu;
 use lpm::solver::SolveError;
