@@ -10,7 +10,7 @@ use gpu_allocator::MemoryLocation;
 use super::context::Context;
 use super::error::{VkError, VkResultExt};
 
-/// A buffer and the memory bound to it. Free it with [`Context::destroy_buffer`] (GPU done with it)
+/// A buffer and the memory bound to it. Free it with [`Context::destroy_buffer`] (`unsafe`: the GPU must be done with it)
 /// or [`Context::retire_buffer`] (once a timeline value is reached); a dropped `Buffer` leaks and is
 /// reported by name when the context is dropped.
 pub struct Buffer {
@@ -187,20 +187,27 @@ impl Context {
         match (mapping, usize::try_from(size)) {
             (Some(ptr), Ok(len)) => Ok(HostBuffer { buffer, ptr, len }),
             _ => {
-                self.destroy_buffer(buffer);
+                // SAFETY: just made; never submitted.
+                unsafe { self.destroy_buffer(buffer) };
                 Err(VkError::InvalidArgument(format!("host buffer `{name}` ({size} bytes) could not be mapped")))
             }
         }
     }
 
-    /// Destroys a host buffer now; see [`Context::destroy_buffer`].
-    pub fn destroy_host_buffer(&self, buffer: HostBuffer) {
-        self.destroy_buffer(buffer.buffer)
+    /// Destroys a host buffer now.
+    ///
+    /// # Safety
+    /// As for [`Context::destroy_buffer`]: no pending submission may refer to it.
+    pub unsafe fn destroy_host_buffer(&self, buffer: HostBuffer) {
+        // SAFETY: the caller's contract.
+        unsafe { self.destroy_buffer(buffer.buffer) }
     }
 
-    /// Destroys a buffer now. The caller guarantees the GPU no longer uses it (else use
-    /// [`Context::retire_buffer`]).
-    pub fn destroy_buffer(&self, buffer: Buffer) {
+    /// Destroys a buffer now (else use [`Context::retire_buffer`]).
+    ///
+    /// # Safety
+    /// The device must no longer use the buffer: no submission that refers to it may be pending.
+    pub unsafe fn destroy_buffer(&self, buffer: Buffer) {
         let Buffer { raw, allocation, name, .. } = buffer;
         let bytes = allocation.size();
         // SAFETY: by the caller's guarantee the GPU is done with `raw`.

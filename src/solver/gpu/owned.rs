@@ -24,13 +24,15 @@ pub trait Destroy {
 
 impl Destroy for Buffer {
     unsafe fn destroy(self, ctx: &Context) {
-        ctx.destroy_buffer(self)
+        // SAFETY: the caller's contract is destroy_buffer's.
+        unsafe { ctx.destroy_buffer(self) }
     }
 }
 
 impl Destroy for HostBuffer {
     unsafe fn destroy(self, ctx: &Context) {
-        ctx.destroy_host_buffer(self)
+        // SAFETY: as above.
+        unsafe { ctx.destroy_host_buffer(self) }
     }
 }
 
