@@ -21,16 +21,74 @@
 //! | [`vk`] | the thin Vulkan layer: instance, device, queues, buffers, pipelines, timeline sync |
 //! | [`solver`] | the plan (what a scene needs), the discretisation shared by both backends, the CPU twin (f64), the GPU driver, the order loop |
 //! | [`render`] | the camera ray-march over the solved source, EXR and PNG writers |
-//! | [`reference`] | the independent Monte-Carlo reference (shares only the scene with the solver) |
+//! | [`reference`](mod@reference) | the independent Monte-Carlo reference (shares only the scene with the solver) |
 //! | [`compare`] | accuracy figures of one output directory against another (e.g. a solve against a reference) |
 //! | [`job`] | a whole `lpm solve`: scene → store → solve → exported fields, image, report; checkpoints and resume |
-//! | [`bench`] | `lpm bench`: the profiled stream (JSON) and the time-against-error study |
+//! | [`bench`](mod@bench) | `lpm bench`: the profiled stream (JSON) and the time-against-error study |
 //! | `serve` | `lpm serve`: the HTTP job server, its durable SQLite queue and the `submit`/`status`/`fetch` client (cargo feature `service`, on by default) |
-//! | [`sweep`] | `lpm sweep`: frames and parameter sweeps as numbered tasks, one task per run, Slurm array scripts |
+//! | [`sweep`](mod@sweep) | `lpm sweep`: frames and parameter sweeps as numbered tasks, one task per run, Slurm array scripts |
 //! | [`plot`] | small dependency-free plots (log/linear axes, series, legend) written as SVG and PNG, with an embedded bitmap font |
 //!
-//! The binary (`src/main.rs`) is a thin CLI over [`job`], [`reference::job`], [`compare`], [`bench`]
+//! The binary (`src/main.rs`) is a thin CLI over [`job`], [`reference::job`], [`compare`], [`bench`](mod@bench)
 //! and the output readers.
+//!
+//! ## Architecture
+//!
+//! ### The data's way through the layers
+//!
+//! 1. **Scene** — `lpm solve scene.toml` ([`job`]) loads the TOML into raw serde structs and
+//!    validates them into a typed [`scene::Scene`]: every later layer trusts it.
+//! 2. **Store** — [`solver::build_store`] fills the [`store::BrickStore`]: the density of every
+//!    occupied 16³ brick in a memory-mapped file, plus the empty-brick table. The solver's fields
+//!    ([`solver::fields::StoreFields`]) are more files of the same bricks.
+//! 3. **Plan** — [`solver::plan::Plan`] decides what the scene needs (channels, directions, storage
+//!    directions and precision, beams) and derives each direction's offset tables and collect row.
+//! 4. **Order loop** — [`solver::orders::run_orders`] propagates one scattering order at a time
+//!    through a [`solver::orders::Backend`] and then runs the host passes itself, through the
+//!    backend's [`solver::orders::OrderFields`]: commit the order, checkpoint, and at the end the
+//!    energy balance and the geometric tail.
+//! 5. **Backend** — either the CPU twin ([`solver::cpu`], f64, in memory) or the GPU driver
+//!    ([`solver::gpu`]): `sizes` → `budget` (the memory plan) → `resources` (everything on the
+//!    device, all-or-nothing) → `streamer` (slices through the slots: gather on the copy workers,
+//!    upload, compute, download, scatter, against timeline semaphores) → `encoder` (push constants,
+//!    descriptor sets, dispatches of `glsl/propagate.comp` and `glsl/collect.comp`) → [`vk`].
+//! 6. **Outputs** — [`job`] exports the committed fluence and source ([`output`], atomically),
+//!    renders the image from the source ([`render`]) and writes `report.json`. Independently,
+//!    [`reference`](mod@reference) solves the same scene by Monte Carlo, and [`compare`] holds one
+//!    output directory against another.
+//!
+//! ### Where each kind of change goes
+//!
+//! | change | where |
+//! |---|---|
+//! | a scene key | `scene/raw.rs` (the file's shape), `scene/validate.rs` (check and default), `scene/types.rs`, README |
+//! | the physics of a sweep | `glsl/*.comp` **and** its twin in [`solver::cpu`]; [`solver::segment`] for the segment solution |
+//! | a shader interface (push constants, bindings, flags) | `solver/gpu/layout.rs`, `glsl/common.glsl`, the binding lists in `solver/gpu/encoder.rs`; `tests/it/shader_interface.rs` fails until both sides agree; `tools/compile_shaders.sh` regenerates `spirv/` |
+//! | a device buffer or its size | `solver/gpu/sizes.rs` (the one place sizes are computed), then `resources.rs`; the planner follows |
+//! | scheduling of slices, overlap, copies | `solver/gpu/streamer.rs` (and `copier.rs`, `slice.rs`) |
+//! | a host pass between orders | `solver/fields.rs` ([`solver::orders::OrderFields`] for the store) and the twin's impl in `solver/cpu.rs` |
+//! | a Vulkan object kind | [`vk`] (destroy functions take the object by value; the driver wraps it in `Owned`) |
+//! | an output file | [`output`] (atomic writes) and [`job`]; README's outputs list |
+//! | a CLI flag or environment variable | `src/main.rs` only (clap, with `env` for variables) |
+//!
+//! ### The rules
+//!
+//! - **No floating-point atomics**, no order-dependent reductions on the device: every voxel
+//!   receives each direction's contribution as its own addition, in direction order, so results are
+//!   bitwise identical run to run and at any memory budget.
+//! - **Every kernel has a twin**: the CPU twin walks the same voxels with the same formulas in f64
+//!   and the GPU is tested against it.
+//! - **Sizes from one place**: the budget planner and the allocations use `solver/gpu/sizes.rs`;
+//!   a test holds the planned bytes equal to the bytes allocated.
+//! - **The shader interface is checked, not commented**: reflection of the committed SPIR-V.
+//! - **All-or-nothing resources**: device objects are owned values freed on drop, after the
+//!   streamer has waited for the last submission; no `Option` fields for half-built states.
+//! - **Unsafe at the boundary**: a function whose contract the caller must uphold is `unsafe fn`
+//!   with a `# Safety` section; every `unsafe` block says why it holds.
+//! - **Configuration from the CLI**: the library reads no environment variable (the kill test's
+//!   hook, compiled out of release builds, is the one exception).
+//! - **Errors are typed** (thiserror) and name the file and the field; outputs are written to a
+//!   temporary name and renamed when complete.
 //!
 //! ## The discretisation in one paragraph
 //!

@@ -1,4 +1,7 @@
 //! The `lpm` command line: a thin layer over the library that reports errors in plain words.
+//!
+//! Over 450 lines because clap's derive keeps every subcommand's flags and their help in one
+//! `Command` enum; splitting it would scatter the CLI reference the help text is.
 
 use anyhow::{bail, Context as _, Result};
 use clap::{Parser, Subcommand, ValueEnum};
@@ -271,6 +274,9 @@ enum BenchCommand {
         /// Vulkan physical device index.
         #[arg(long, env = "LPM_DEVICE")]
         device: Option<usize>,
+        /// Enable the Khronos validation layer (slows the stream down: for checking, not timing).
+        #[arg(long, env = "LPM_VALIDATION", value_parser = clap::builder::BoolishValueParser::new())]
+        validation: Option<bool>,
         /// Also write the JSON to this file (atomically).
         #[arg(long)]
         json: Option<PathBuf>,
@@ -325,6 +331,12 @@ enum BenchCommand {
         /// Backend of the solver runs.
         #[arg(long, value_enum, default_value_t = Backend::Gpu)]
         backend: Backend,
+        /// Vulkan physical device index of the solver runs.
+        #[arg(long, env = "LPM_DEVICE")]
+        device: Option<usize>,
+        /// Enable the Khronos validation layer in the solver runs.
+        #[arg(long, env = "LPM_VALIDATION", value_parser = clap::builder::BoolishValueParser::new())]
+        validation: Option<bool>,
         /// Compare only voxels whose reference relative standard error is at most this.
         #[arg(long, default_value_t = 0.05)]
         max_rel_stderr: f64,
@@ -432,13 +444,7 @@ fn run(cli: Cli) -> Result<()> {
             task,
             fresh,
         } => {
-            let mut vk = ContextOptions::default();
-            if let Some(v) = validation {
-                vk.validation = v;
-            }
-            if device.is_some() {
-                vk.device_index = device;
-            }
+            let vk = vk_options(device, validation);
             let backend_kind = match backend {
                 Backend::Gpu => BackendKind::Gpu,
                 Backend::Cpu => BackendKind::Cpu,
@@ -641,6 +647,8 @@ fn run(cli: Cli) -> Result<()> {
                     samples,
                     reference_samples,
                     backend,
+                    device,
+                    validation,
                     max_rel_stderr,
                 },
         } => {
@@ -685,7 +693,7 @@ fn run(cli: Cli) -> Result<()> {
                     Backend::Gpu => BackendKind::Gpu,
                     Backend::Cpu => BackendKind::Cpu,
                 },
-                vk: ContextOptions::default(),
+                vk: vk_options(device, validation),
                 max_relative_stderr: max_rel_stderr,
             };
             let report = lpm::bench::accuracy::run(&scene, &out, &options, |line| tracing::info!("{line}"))?;
@@ -719,11 +727,10 @@ fn run(cli: Cli) -> Result<()> {
             println!("wrote accuracy.json, accuracy.csv, accuracy.png and accuracy.svg to {}", out.display());
             Ok(())
         }
-        Command::Bench { what: BenchCommand::Stream { scene, orders, device_memory_budget, device, json } } => {
-            let mut vk = ContextOptions::default();
-            if device.is_some() {
-                vk.device_index = device;
-            }
+        Command::Bench {
+            what: BenchCommand::Stream { scene, orders, device_memory_budget, device, validation, json },
+        } => {
+            let vk = vk_options(device, validation);
             // A fresh directory with an unpredictable name (O_EXCL), removed when done.
             let work = tempfile::Builder::new().prefix("lpm-bench-stream-").tempdir()?;
             let report = lpm::bench::stream(&scene, orders, device_memory_budget, vk, work.path())?;
@@ -882,4 +889,10 @@ fn info(dir: &std::path::Path, json: bool) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// The Vulkan options from the command line (the only place `LPM_DEVICE` and `LPM_VALIDATION`
+/// are read, through clap's `env`).
+fn vk_options(device: Option<usize>, validation: Option<bool>) -> ContextOptions {
+    ContextOptions { validation: validation.unwrap_or(false), device_index: device, ..ContextOptions::default() }
 }

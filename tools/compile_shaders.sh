@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Compiles every glsl/*.comp to spirv/<name>.spv (files ending in .glsl are includes, not compiled).
-# The output is deterministic, so tests/spirv_current.rs can check the committed SPIR-V is current.
+# The output is deterministic, so tests/it/spirv_current.rs can check the committed SPIR-V is current.
 # Runs from any directory. Needs glslangValidator (Debian package glslang-tools).
 set -euo pipefail
 

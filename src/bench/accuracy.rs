@@ -128,8 +128,7 @@ pub fn run(
         image_samples_per_pixel: 0,
     })?;
     let loaded = crate::scene::Scene::load(scene).map_err(job::JobError::from)?;
-    let density =
-        crate::solver::density_volume(&loaded, &runs.join("density-scratch")).map_err(|e| job::JobError::from(e))?;
+    let density = crate::solver::density_volume(&loaded, &runs.join("density-scratch")).map_err(job::JobError::from)?;
     let core = Some(CoreMask { density, quantile: opts.core_quantile });
     let compare_options = CompareOptions { max_relative_stderr: opts.max_relative_stderr, core };
     let spatials: Vec<Option<SpatialScheme>> =

@@ -1,3 +1,6 @@
+//! (Over 450 lines: the one layout both renderers share; see issue 10 on replacing the plot code
+//! with a crate.)
+//!
 //! Where everything goes, in pixels, shared by the SVG and the raster renderers so both draw the
 //! same picture: the plot rectangle, grid lines, ticks, series (mapped to pixels), legend and texts.
 //!

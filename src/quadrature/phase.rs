@@ -1,7 +1,7 @@
 //! Henyey–Greenstein scattering between discrete direction cells.
 //!
 //! The collect step turns each propagation direction's segment-average radiance L̄_i into the next
-//! order's source J^d = σs · Σ_i M[i][d] · L̄_i with `M[i][d] = Ω_i·P(i→d)/Ω_d`. P(i→d) is the phase
+//! order's source J^d = σs · Σ_i M\[i\]\[d\] · L̄_i with `M[i][d] = Ω_i·P(i→d)/Ω_d`. P(i→d) is the phase
 //! function integrated over both cells (by sub-cell quadrature with exact sub-cell solid angles), each
 //! row normalised to sum to 1 so that Σ_d Ω_d J^d = σs Σ_i Ω_i L̄_i: the discrete scattering neither
 //! creates nor loses energy, whatever the quadrature error of P itself. For g = 0 the exact value
@@ -87,7 +87,7 @@ pub fn collect_matrix(prop: &PropagationSet, storage: &StorageSet, g: f64) -> Ve
 }
 
 /// The collect row of a collimated beam travelling along `travel`: `P(beam→d)/Ω_d`, so that a
-/// segment-average irradiance Ē scatters into J^d = σs·Ē·row[d].
+/// segment-average irradiance Ē scatters into J^d = σs·Ē·row\[d\].
 pub fn beam_row(prop: &PropagationSet, storage: &StorageSet, g: f64, travel: DVec3) -> Vec<f64> {
     let s = storage.len();
     let mut p = vec![0.0; s];

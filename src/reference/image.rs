@@ -21,29 +21,9 @@ pub struct View {
 }
 
 impl View {
-    /// The scene's camera, or the default view: a 128×128 pinhole (40° vertical field of view)
-    /// looking at the volume's centre from 30° above the horizon, azimuth 45° between +x and +z, +y
-    /// up, at 1.6 × the volume's diagonal. (Pass an explicit camera to frame the view exactly like the
-    /// renderer.)
-    pub fn new(camera: Option<&Camera>, extent_world: DVec3) -> View {
-        let default;
-        let cam = match camera {
-            Some(c) => c,
-            None => {
-                let c = 0.5 * extent_world;
-                let (el, az) = (30f64.to_radians(), 45f64.to_radians());
-                let to_eye = DVec3::new(el.cos() * az.sin(), el.sin(), el.cos() * az.cos());
-                default = Camera {
-                    projection: Projection::Pinhole { fov_y_degrees: 40.0 },
-                    position: c + to_eye * (1.6 * extent_world.length()),
-                    look_at: c,
-                    up: DVec3::Y,
-                    width: 128,
-                    height: 128,
-                };
-                &default
-            }
-        };
+    /// The view through `cam` (the scene's camera, or [`crate::render::default_camera`]: the one
+    /// default view, shared with the renderer so that `lpm compare` can compare their images).
+    pub fn new(cam: &Camera) -> View {
         let mut forward = (cam.look_at - cam.position).normalize_or_zero();
         if forward == DVec3::ZERO {
             forward = DVec3::NEG_Z;

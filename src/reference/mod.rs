@@ -4,7 +4,7 @@
 //! problem as [`crate::solver`] (DESIGN.md §2: voxels of constant density ρ, σt = ρ·σt₁, σs = α·σt,
 //! Henyey–Greenstein scattering, emission σa·Le, a uniform sky and collimated suns outside a box of
 //! vacuum) with an entirely different method, and shares **no transport code** with the solver: it
-//! only reads the typed [`Scene`](crate::scene::Scene). Directions, phase sampling, ray traversal,
+//! only reads the typed [`Scene`]. Directions, phase sampling, ray traversal,
 //! attenuation and tallies are all written here from the textbook definitions, so a bug in the
 //! discrete-ordinates solver (quadrature, sweep geometry, segment formulas, collect matrices) cannot
 //! be reproduced by this code, and vice versa; where they agree, both are right to within the
@@ -227,7 +227,8 @@ pub fn run(
     // Image.
     let image = (opts.image_samples_per_pixel > 0).then(|| {
         let h = scene.volume.voxel_size;
-        let view = View::new(scene.camera.as_ref(), grid.extent() * h);
+        let camera = scene.camera.clone().unwrap_or_else(|| crate::render::default_camera(scene.volume.dims, h));
+        let view = View::new(&camera);
         let (w, hgt) = (view.width as usize, view.height as usize);
         let spp = opts.image_samples_per_pixel;
         let rows: Mutex<Vec<(usize, Vec<f32>)>> = Mutex::new(Vec::with_capacity(hgt));

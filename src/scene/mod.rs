@@ -4,13 +4,13 @@
 //!
 //! Loading is split in two on purpose:
 //!
-//! 1. **Raw** ([`raw`], private): serde deserialises the text into structs that mirror the file
+//! 1. **Raw** (`raw`, private): serde deserialises the text into structs that mirror the file
 //!    exactly — every key optional where the file may omit it, integers as `i64`, "number or
 //!    `[r, g, b]`" kept in the form written, lights as a flat struct with a `kind` string. Every
 //!    struct has `#[serde(deny_unknown_fields)]`, so a misspelt key is an error rather than a
 //!    silently ignored setting. Syntax errors, type errors and unknown or missing keys surface
 //!    here as [`SceneError::Parse`], with the line, column and (recovered from the position) key.
-//! 2. **Validated** ([`types`], public): [`validate`] checks ranges and consistency (finite
+//! 2. **Validated** (`types`, public): [`validate`] checks ranges and consistency (finite
 //!    numbers, albedo in [0, 1], exactly one volume source, the raw file's size, a usable camera
 //!    basis, …), applies defaults and normalises (the sun direction), producing [`Scene`] and its
 //!    parts. Failures are [`SceneError::Invalid`] (or the raw-file variants) naming the exact
@@ -21,7 +21,7 @@
 //! and `raw`", and custom `Deserialize` impls that do would scatter validation over many impls and
 //! lose the key in the message. Keeping serde's job to shape and the validator's job to meaning
 //! gives one place for every rule, messages that name the key, and typed values the solver can
-//! trust without re-checking (see [`types`]). The raw structs never leave this module, so the file
+//! trust without re-checking (see `types`). The raw structs never leave this module, so the file
 //! format can grow (new keys, aliases) without touching the solver's types.
 //!
 //! Densities of procedural volumes come from [`procedural`]; the values of raw density files are

@@ -1,5 +1,8 @@
 //! Stage two: raw serde structs → typed, checked [`Scene`] values. Every check names the dotted key
 //! of the value it rejects; defaults are applied here (and only here).
+//!
+//! Over 450 lines because every scene key is checked here, next to its default: one place to read
+//! what a scene may say.
 
 use super::raw::{ByteSize, Channels, RawCamera, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
 use super::{

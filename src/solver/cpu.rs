@@ -9,7 +9,8 @@
 //! with the same power-of-two scale (the GPU rounds its f32 sums, the twin its f64 ones).
 
 use super::energy::Tallies;
-use super::orders::Backend;
+use super::fields::LoopState;
+use super::orders::{Backend, OrderFields};
 use super::plan::{half_scale_exponent, Plan, Precision, SweepDirection};
 use super::remaining::{RemainingError, RemainingTally};
 use super::segment::segment;
@@ -188,7 +189,14 @@ impl Backend for CpuTwin<'_> {
         Ok(tallies)
     }
 
-    fn finish_order(&mut self) -> Result<[f64; 3], SolveError> {
+    fn fields(&mut self) -> &mut dyn OrderFields {
+        self
+    }
+}
+
+/// The twin keeps its fields in memory, in f64.
+impl OrderFields for CpuTwin<'_> {
+    fn commit_order(&mut self) -> Result<[f64; 3], SolveError> {
         let c = self.plan.channels as usize;
         let comps = self.plan.source_components() as usize;
         let h3 = self.plan.voxel_size.powi(3);
@@ -245,6 +253,11 @@ impl Backend for CpuTwin<'_> {
             }
         }
         Ok((emitted, absorbed))
+    }
+
+    fn checkpoint(&mut self, _state: &LoopState) -> Result<(), SolveError> {
+        // Nothing to resume from: the fields live in this process only (`--resume` needs the GPU).
+        Ok(())
     }
 }
 

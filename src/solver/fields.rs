@@ -14,7 +14,7 @@
 //! runs the very same passes).
 
 use super::energy::Tallies;
-use super::orders::OrderRecord;
+use super::orders::{OrderFields, OrderRecord};
 use super::plan::Plan;
 use super::SolveError;
 use crate::store::{BrickStore, Coverage, Field, StoreError, BRICK_VOXELS};
@@ -268,6 +268,53 @@ impl StoreFields {
         self.fluence_total.release_all();
         self.fluence.release_all();
         tally.finish()
+    }
+}
+
+/// The store's fields as the order loop sees them ([`OrderFields`]): the host passes above, with
+/// the plan and the store they need, and checkpoints when a scene digest is given.
+pub struct StoreOrderFields<'a> {
+    pub fields: &'a mut StoreFields,
+    plan: &'a Plan,
+    store: &'a BrickStore,
+    /// The scene digest checkpoints are written under; `None`: no checkpoints.
+    checkpoint_digest: Option<String>,
+}
+
+impl<'a> StoreOrderFields<'a> {
+    pub fn new(fields: &'a mut StoreFields, plan: &'a Plan, store: &'a BrickStore) -> Self {
+        StoreOrderFields { fields, plan, store, checkpoint_digest: None }
+    }
+
+    /// Writes a checkpoint into the store after every completed order.
+    pub fn enable_checkpoints(&mut self, digest: String) {
+        self.checkpoint_digest = Some(digest);
+    }
+}
+
+impl OrderFields for StoreOrderFields<'_> {
+    fn commit_order(&mut self) -> Result<[f64; 3], SolveError> {
+        Ok(self.fields.commit_order(self.plan))
+    }
+
+    fn apply_tail(&mut self, factor: [f64; 3]) -> Result<(), SolveError> {
+        self.fields.apply_tail(self.plan, factor);
+        Ok(())
+    }
+
+    fn checkpoint(&mut self, state: &LoopState) -> Result<(), SolveError> {
+        match &self.checkpoint_digest {
+            Some(digest) => self.fields.write_checkpoint(self.store.dir(), digest, state),
+            None => Ok(()),
+        }
+    }
+
+    fn emitted_and_absorbed(&mut self) -> Result<([f64; 3], [f64; 3]), SolveError> {
+        Ok(self.fields.emitted_and_absorbed(self.store, self.plan))
+    }
+
+    fn remaining_error(&mut self, factor: [f64; 3]) -> Result<super::remaining::RemainingError, SolveError> {
+        Ok(self.fields.remaining_error(self.store, self.plan, factor))
     }
 }
 

@@ -52,6 +52,8 @@ pub enum SolveError {
     Checkpoint(crate::output::OutputError),
     #[error("--resume needs the GPU backend (the CPU twin keeps its fields in memory)")]
     ResumeNeedsGpu,
+    #[error("a host copy worker thread died (it panicked) while copying bricks between the store and the staging")]
+    CopyWorkerDied,
     #[error("internal error: {0}")]
     Internal(&'static str),
 }

@@ -11,21 +11,28 @@ use super::SolveError;
 use serde::Serialize;
 use std::time::{Duration, Instant};
 
-/// What a backend must do. Order 0 sweeps the sun beams and carries the boundary light (and the
-/// emission); every order deposits fluence and the next order's source.
+/// What differs between the backends: how one order is propagated. Order 0 sweeps the sun beams
+/// and carries the boundary light (and the emission); every order deposits fluence and the next
+/// order's source into the backend's [`OrderFields`].
 pub trait Backend {
     /// Propagates one order (the beams first when `order == 0`) and returns its boundary tallies.
     fn propagate_order(&mut self, order: u32) -> Result<Tallies, SolveError>;
+    /// The fields the order loop folds each order into.
+    fn fields(&mut self) -> &mut dyn OrderFields;
+}
+
+/// The host passes the order loop runs between orders, over the fields wherever a backend keeps
+/// them (the brick store for the GPU driver, memory for the CPU twin).
+pub trait OrderFields {
     /// Adds the order's fluence and new source to the totals, makes the new source the next
     /// order's, and returns its scattered power per channel (Σ_x Σ_d Ω_d·J^d·h³).
-    fn finish_order(&mut self) -> Result<[f64; 3], SolveError>;
+    fn commit_order(&mut self) -> Result<[f64; 3], SolveError>;
     /// Adds `factor[ch]` times the last order's fluence and the last source to the totals: the
     /// geometric tail of the order series.
     fn apply_tail(&mut self, factor: [f64; 3]) -> Result<(), SolveError>;
-    /// Records the state after a completed order so that a killed solve can resume from it.
-    fn checkpoint(&mut self, _state: &LoopState) -> Result<(), SolveError> {
-        Ok(())
-    }
+    /// Records the state after a completed order so that a killed solve can resume from it (a
+    /// no-op where checkpoints are off).
+    fn checkpoint(&mut self, state: &LoopState) -> Result<(), SolveError>;
     /// Power emitted (order 0) and absorbed (all orders so far), per channel.
     fn emitted_and_absorbed(&mut self) -> Result<([f64; 3], [f64; 3]), SolveError>;
     /// The remaining relative error over the medium's voxels after the last finished order, for
@@ -222,7 +229,7 @@ pub fn run_orders(
         let t = Instant::now();
         let mut tallies = state.tallies();
         tallies.add(&backend.propagate_order(order)?);
-        let new = backend.finish_order()?;
+        let new = backend.fields().commit_order()?;
         for c in 0..3 {
             state.total_power[c] += new[c];
             let last = state.last_new_power[c];
@@ -235,7 +242,7 @@ pub fn run_orders(
         state.orders_done += 1;
         let residual = residual_of(&state);
         remaining = match tail_factors(plan, &state) {
-            Some(factor) if !exhausted(&state) => Some(backend.remaining_error(factor)?),
+            Some(factor) if !exhausted(&state) => Some(backend.fields().remaining_error(factor)?),
             _ => None,
         };
         state.history.push(OrderRecord {
@@ -245,7 +252,7 @@ pub fn run_orders(
             remaining_max: remaining.map(|r| r.max),
             seconds: t.elapsed().as_secs_f64(),
         });
-        backend.checkpoint(&state)?;
+        backend.fields().checkpoint(&state)?;
         // What the stop rule compares with the tolerance: the per-voxel remaining error (the power
         // residual while no ratio is known yet, and under the tail's own rule).
         let measure = match remaining {
@@ -257,7 +264,7 @@ pub fn run_orders(
         converged = done(&state, remaining);
     }
     // The balance covers the propagated orders; the tail is reported on its own.
-    let (emitted, absorbed) = backend.emitted_and_absorbed()?;
+    let (emitted, absorbed) = backend.fields().emitted_and_absorbed()?;
     let energy = EnergyBalance::new(&state.tallies(), emitted, absorbed, state.last_new_power, plan.channels as usize);
     let tail = if extrapolate { tail_estimate(plan, &state) } else { None };
     let residual = match &tail {
@@ -265,7 +272,7 @@ pub fn run_orders(
         None => residual_of(&state),
     };
     if let Some(t) = &tail {
-        backend.apply_tail(t.factor)?;
+        backend.fields().apply_tail(t.factor)?;
         tracing::info!(ratio = t.ratio[0], power = t.power, "added the geometric tail of the order series");
     }
     Ok(OrderOutcome {

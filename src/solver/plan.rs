@@ -44,7 +44,7 @@ pub struct SweepDirection {
     pub boundary: [f64; 3],
     /// Storage direction whose source this direction gains along the way.
     pub gain_storage: u32,
-    /// Collect row: J^d += σs · row[d] · L̄.
+    /// Collect row: J^d += σs · row\[d\] · L̄.
     pub collect_row: Vec<f64>,
     /// Power of a ray per unit radiance: h²·|ω_a|·Ω_i (·1 for a beam).
     pub power_per_radiance: f64,

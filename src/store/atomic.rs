@@ -15,7 +15,7 @@ use std::path::Path;
 /// Suffix of every temporary file lpm creates; see [`is_temp_name`].
 pub(crate) const TEMP_SUFFIX: &str = ".lpm-tmp";
 
-/// True for the name of a temporary file written by [`write_atomic_io`] (left behind only when the
+/// True for the name of a temporary file written by `write_atomic_io` (left behind only when the
 /// process was killed while writing), or by lpm before 0.1's tempfile change (`<name>.tmp-<pid>`).
 pub fn is_temp_name(name: &str) -> bool {
     let legacy = name

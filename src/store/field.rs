@@ -155,7 +155,7 @@ impl Field {
 
     /// Sets every value to zero without touching a page: the file's blocks are deallocated
     /// (`FALLOC_FL_PUNCH_HOLE`, which also drops the mapped pages, so they read as zeros) and then
-    /// allocated again (see [`allocate`]). The file keeps its length throughout, so a process killed
+    /// allocated again (see `allocate`). The file keeps its length throughout, so a process killed
     /// in the middle leaves a field of the right size (a resumed solve reopens it). Where punching
     /// holes is not supported, the file is truncated and extended instead.
     pub fn fill_zero(&mut self) -> Result<(), StoreError> {

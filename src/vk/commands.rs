@@ -10,6 +10,7 @@ use std::sync::Arc;
 use ash::vk;
 
 use super::context::Context;
+use super::descriptors::{check_buffers, DescriptorSet};
 use super::device::Queue;
 use super::error::{VkError, VkResultExt};
 use super::memory::Buffer;
@@ -126,22 +127,9 @@ impl Recorder {
     }
 
     /// Checks a dispatch against the pipeline's shape and the device limits. Makes no Vulkan call.
-    fn check_dispatch(
-        &self,
-        p: &ComputePipeline,
-        buffers: &[BufferRange],
-        push_constants: &[u8],
-        groups: [u32; 3],
-    ) -> Result<(), VkError> {
+    fn check_dispatch(&self, p: &ComputePipeline, push_constants: &[u8], groups: [u32; 3]) -> Result<(), VkError> {
         let limits = self.ctx.limits();
         let name = p.name();
-        if buffers.len() != p.storage_buffers as usize {
-            return Err(VkError::InvalidArgument(format!(
-                "dispatch of `{name}` binds {} buffers; the pipeline has {} storage-buffer bindings",
-                buffers.len(),
-                p.storage_buffers
-            )));
-        }
         if push_constants.len() != p.push_constant_bytes as usize {
             return Err(VkError::InvalidArgument(format!(
                 "dispatch of `{name}` pushes {} bytes of constants; the pipeline declares {}",
@@ -153,36 +141,6 @@ impl Recorder {
             if g > max {
                 return Err(VkError::LimitExceeded(format!(
                     "dispatch of `{name}`: {g} workgroups along axis {axis} exceeds maxComputeWorkGroupCount[{axis}] = {max}; split the dispatch"
-                )));
-            }
-        }
-        for (binding, r) in buffers.iter().enumerate() {
-            let buf = r.buffer.name();
-            if r.range > limits.max_storage_buffer_range {
-                return Err(VkError::LimitExceeded(format!(
-                    "dispatch of `{name}`: binding {binding} (`{buf}`) covers {} bytes, more than maxStorageBufferRange = {} bytes; bind a smaller range",
-                    r.range, limits.max_storage_buffer_range
-                )));
-            }
-            if r.range == 0 {
-                return Err(VkError::InvalidArgument(format!(
-                    "dispatch of `{name}`: binding {binding} (`{buf}`) has an empty range"
-                )));
-            }
-            let inside = matches!(r.offset.checked_add(r.range), Some(end) if end <= r.buffer.size());
-            if !inside {
-                return Err(VkError::InvalidArgument(format!(
-                    "dispatch of `{name}`: binding {binding} range {}..+{} is outside `{buf}` ({} bytes)",
-                    r.offset,
-                    r.range,
-                    r.buffer.size()
-                )));
-            }
-            let align = limits.min_storage_buffer_offset_alignment.max(1);
-            if r.offset % align != 0 {
-                return Err(VkError::InvalidArgument(format!(
-                    "dispatch of `{name}`: binding {binding} offset {} is not a multiple of minStorageBufferOffsetAlignment = {align}",
-                    r.offset
                 )));
             }
         }
@@ -231,7 +189,8 @@ impl Recorder {
         push_constants: &[u8],
         groups: [u32; 3],
     ) -> Result<(), VkError> {
-        self.check_dispatch(p, buffers, push_constants, groups)?;
+        self.check_dispatch(p, push_constants, groups)?;
+        check_buffers(&self.ctx, p, buffers)?;
         let set = if buffers.is_empty() { None } else { Some(self.allocate_set(p)?) };
         let device = self.ctx.device();
         if let Some(set) = set {
@@ -259,6 +218,46 @@ impl Recorder {
             if let Some(set) = set {
                 device.cmd_bind_descriptor_sets(self.cb, vk::PipelineBindPoint::COMPUTE, p.layout, 0, &[set], &[]);
             }
+            if !push_constants.is_empty() {
+                device.cmd_push_constants(self.cb, p.layout, vk::ShaderStageFlags::COMPUTE, 0, push_constants);
+            }
+            device.cmd_dispatch(self.cb, groups[0], groups[1], groups[2]);
+        }
+        Ok(())
+    }
+
+    /// Binds `p` and its descriptor set `set` (made once with [`Context::create_descriptor_set`])
+    /// for the [`Recorder::dispatch_bound`] calls that follow.
+    pub fn bind(&mut self, p: &ComputePipeline, set: &DescriptorSet) -> Result<(), VkError> {
+        if set.set_layout != p.set_layout {
+            return Err(VkError::InvalidArgument(format!(
+                "descriptor set `{}` was made for another pipeline than `{}`",
+                set.name,
+                p.name()
+            )));
+        }
+        let device = self.ctx.device();
+        // SAFETY: recording into our command buffer; the pipeline and the set are alive, and the
+        // set is never updated after it was made.
+        unsafe {
+            device.cmd_bind_pipeline(self.cb, vk::PipelineBindPoint::COMPUTE, p.raw);
+            device.cmd_bind_descriptor_sets(self.cb, vk::PipelineBindPoint::COMPUTE, p.layout, 0, &[set.raw], &[]);
+        }
+        Ok(())
+    }
+
+    /// Records a dispatch of `groups` workgroups of `p`, bound before with [`Recorder::bind`], with
+    /// `push_constants`. Nothing is recorded on error.
+    pub fn dispatch_bound(
+        &mut self,
+        p: &ComputePipeline,
+        push_constants: &[u8],
+        groups: [u32; 3],
+    ) -> Result<(), VkError> {
+        self.check_dispatch(p, push_constants, groups)?;
+        let device = self.ctx.device();
+        // SAFETY: recording into our command buffer; all handles are alive.
+        unsafe {
             if !push_constants.is_empty() {
                 device.cmd_push_constants(self.cb, p.layout, vk::ShaderStageFlags::COMPUTE, 0, push_constants);
             }

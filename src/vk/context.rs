@@ -29,21 +29,11 @@ pub struct ContextOptions {
 }
 
 impl Default for ContextOptions {
-    /// From the environment: `LPM_VALIDATION=1` turns validation on, `LPM_DEVICE=<n>` picks a device
-    /// (an unparsable value is logged and ignored).
+    /// No validation, the device chosen automatically, two queues where the device has them. The
+    /// library reads no environment variable: the CLI fills these from `--validation` and
+    /// `--device` (or `LPM_VALIDATION` and `LPM_DEVICE`, through clap).
     fn default() -> Self {
-        let validation = std::env::var("LPM_VALIDATION").is_ok_and(|v| v.trim() == "1");
-        let device_index = match std::env::var("LPM_DEVICE") {
-            Ok(v) => match v.trim().parse::<usize>() {
-                Ok(i) => Some(i),
-                Err(_) => {
-                    tracing::warn!(value = %v, "LPM_DEVICE is not a device index; choosing a device automatically");
-                    None
-                }
-            },
-            Err(_) => None,
-        };
-        ContextOptions { validation, device_index, force_single_queue: false }
+        ContextOptions { validation: false, device_index: None, force_single_queue: false }
     }
 }
 

@@ -1,5 +1,6 @@
 //! Buffers and their memory, from `gpu-allocator`.
 
+use std::ptr::NonNull;
 use std::sync::atomic::Ordering;
 
 use ash::vk;
@@ -9,7 +10,7 @@ use gpu_allocator::MemoryLocation;
 use super::context::Context;
 use super::error::{VkError, VkResultExt};
 
-/// A buffer and the memory bound to it. Free it with [`Context::destroy_buffer`] (GPU done with it)
+/// A buffer and the memory bound to it. Free it with [`Context::destroy_buffer`] (`unsafe`: the GPU must be done with it)
 /// or [`Context::retire_buffer`] (once a timeline value is reached); a dropped `Buffer` leaks and is
 /// reported by name when the context is dropped.
 pub struct Buffer {
@@ -57,6 +58,47 @@ impl Buffer {
     }
     fn host_visible_by_contract(&self) -> bool {
         matches!(self.location, MemoryLocation::CpuToGpu | MemoryLocation::GpuToCpu)
+    }
+}
+
+/// A host-visible buffer (`CpuToGpu` or `GpuToCpu`), persistently mapped: the mapping is checked
+/// once, when it is made ([`Context::create_host_buffer`]), so "not mapped" cannot happen later.
+/// It dereferences to its [`Buffer`] for copies; free it with [`Context::destroy_host_buffer`].
+pub struct HostBuffer {
+    buffer: Buffer,
+    ptr: NonNull<u8>,
+    len: usize,
+}
+
+// SAFETY: the pointer is to the buffer's persistent mapping, which lives as long as the buffer
+// (itself Send + Sync); `HostBuffer` hands out `&[u8]` for `&self` and `&mut [u8]` for `&mut self`
+// only, and raw pointers whose use is the caller's `unsafe` business.
+unsafe impl Send for HostBuffer {}
+// SAFETY: as above.
+unsafe impl Sync for HostBuffer {}
+
+impl HostBuffer {
+    /// The mapped bytes (a read after a GPU write must follow a GPU→host barrier and a wait).
+    pub fn bytes(&self) -> &[u8] {
+        // SAFETY: `len` bytes are mapped for the buffer's lifetime; shared borrow of self.
+        unsafe { std::slice::from_raw_parts(self.ptr.as_ptr(), self.len) }
+    }
+    /// The mapped bytes, to write.
+    pub fn bytes_mut(&mut self) -> &mut [u8] {
+        // SAFETY: as above, with an exclusive borrow of self.
+        unsafe { std::slice::from_raw_parts_mut(self.ptr.as_ptr(), self.len) }
+    }
+    /// The start of the mapping, for copies done through raw pointers (by other threads); writing
+    /// through it is the caller's `unsafe` contract (no reference to the bytes alive meanwhile).
+    pub fn as_mut_ptr(&self) -> *mut u8 {
+        self.ptr.as_ptr()
+    }
+}
+
+impl std::ops::Deref for HostBuffer {
+    type Target = Buffer;
+    fn deref(&self) -> &Buffer {
+        &self.buffer
     }
 }
 
@@ -128,9 +170,44 @@ impl Context {
         Ok(Buffer { raw, allocation, size, name: name.to_owned(), location })
     }
 
-    /// Destroys a buffer now. The caller guarantees the GPU no longer uses it (else use
-    /// [`Context::retire_buffer`]).
-    pub fn destroy_buffer(&self, buffer: Buffer) {
+    /// Creates a host-visible buffer, `location` `CpuToGpu` (staging to the device) or `GpuToCpu`
+    /// (staging from it).
+    pub fn create_host_buffer(
+        &self,
+        name: &str,
+        size: u64,
+        usage: vk::BufferUsageFlags,
+        location: MemoryLocation,
+    ) -> Result<HostBuffer, VkError> {
+        if !matches!(location, MemoryLocation::CpuToGpu | MemoryLocation::GpuToCpu) {
+            return Err(VkError::InvalidArgument(format!("host buffer `{name}` must be CpuToGpu or GpuToCpu")));
+        }
+        let buffer = self.create_buffer(name, size, usage, location)?;
+        let mapping = buffer.allocation.mapped_ptr().map(|p| p.cast::<u8>());
+        match (mapping, usize::try_from(size)) {
+            (Some(ptr), Ok(len)) => Ok(HostBuffer { buffer, ptr, len }),
+            _ => {
+                // SAFETY: just made; never submitted.
+                unsafe { self.destroy_buffer(buffer) };
+                Err(VkError::InvalidArgument(format!("host buffer `{name}` ({size} bytes) could not be mapped")))
+            }
+        }
+    }
+
+    /// Destroys a host buffer now.
+    ///
+    /// # Safety
+    /// As for [`Context::destroy_buffer`]: no pending submission may refer to it.
+    pub unsafe fn destroy_host_buffer(&self, buffer: HostBuffer) {
+        // SAFETY: the caller's contract.
+        unsafe { self.destroy_buffer(buffer.buffer) }
+    }
+
+    /// Destroys a buffer now (else use [`Context::retire_buffer`]).
+    ///
+    /// # Safety
+    /// The device must no longer use the buffer: no submission that refers to it may be pending.
+    pub unsafe fn destroy_buffer(&self, buffer: Buffer) {
         let Buffer { raw, allocation, name, .. } = buffer;
         let bytes = allocation.size();
         // SAFETY: by the caller's guarantee the GPU is done with `raw`.

@@ -6,7 +6,8 @@
 //!   logical device, a compute [`Queue`] and where possible a separate transfer queue, and the
 //!   `gpu-allocator` memory allocator);
 //! - [`Buffer`]s, the only resource kind the solver needs (storage buffers and staging buffers);
-//! - [`ComputePipeline`]s, each with one descriptor set of storage buffers plus push constants;
+//! - [`ComputePipeline`]s, each with one descriptor set of storage buffers plus push constants, and
+//!   [`DescriptorSet`]s made once for buffers that do not change and bound by handle;
 //! - [`TimelineSemaphore`]s, the only synchronisation primitive between submissions and with the host;
 //! - [`Recorder`], a one-shot command buffer that records dispatches, copies and barriers and is
 //!   submitted with `vkQueueSubmit2`, waiting on and signalling timeline values.
@@ -30,6 +31,7 @@
 
 mod commands;
 mod context;
+mod descriptors;
 mod device;
 mod error;
 mod instance;
@@ -43,9 +45,10 @@ use std::sync::{Mutex, MutexGuard};
 
 pub use commands::{BufferRange, Recorder};
 pub use context::{Context, ContextOptions};
+pub use descriptors::DescriptorSet;
 pub use device::{Limits, Queue};
 pub use error::VkError;
-pub use memory::Buffer;
+pub use memory::{Buffer, HostBuffer};
 pub use pipeline::ComputePipeline;
 pub use query::TimestampQueryPool;
 pub use sync::TimelineSemaphore;
@@ -68,8 +71,10 @@ const _: () = {
     const fn send<T: Send>() {}
     send_sync::<Context>();
     send_sync::<Buffer>();
+    send_sync::<HostBuffer>();
     send_sync::<TimelineSemaphore>();
     send_sync::<ComputePipeline>();
+    send_sync::<DescriptorSet>();
     send_sync::<TimestampQueryPool>();
     send::<Recorder>();
 };

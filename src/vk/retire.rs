@@ -66,7 +66,8 @@ impl Context {
             ready
         };
         for r in ready {
-            self.free_now(r.item);
+            // SAFETY: its semaphore reached the value it was retired against.
+            unsafe { self.free_now(r.item) };
         }
         Ok(())
     }
@@ -88,9 +89,12 @@ impl Context {
         lock(&self.garbage).iter().filter(|r| r.semaphore == semaphore).map(|r| r.value).max()
     }
 
-    pub(crate) fn free_now(&self, item: Garbage) {
+    /// # Safety
+    /// The device must be done with `item` (its timeline value reached, or the device idle).
+    pub(crate) unsafe fn free_now(&self, item: Garbage) {
         match item {
-            Garbage::Buffer(b) => self.destroy_buffer(b),
+            // SAFETY: the caller's contract.
+            Garbage::Buffer(b) => unsafe { self.destroy_buffer(b) },
             Garbage::Commands(c) => c.destroy(self.device()),
         }
     }

@@ -21,14 +21,13 @@
 //! smallest unit is a one-plane sub-slice with one direction: when even that does not fit, the
 //! error says how much is needed.
 
+use super::sizes::{self, SharedSizes, SlotSizes};
 use crate::solver::plan::Plan;
 use crate::solver::sweep::FaceSweep;
 use crate::solver::SolveError;
-use crate::store::{BrickStore, BRICK_EDGE, BRICK_VOXELS};
+use crate::store::{BrickStore, BRICK_EDGE};
 use crate::vk::Limits;
 use serde::Serialize;
-
-const BRICK_BYTES: u64 = BRICK_VOXELS as u64 * 4;
 /// Sub-slice depths tried, in planes (each divides the brick edge).
 const SLAB_PLANES: [u32; 5] = [BRICK_EDGE, 8, 4, 2, 1];
 
@@ -55,6 +54,7 @@ pub struct MemoryPlan {
     pub planes_per_slice: u32,
     pub planes_per_dispatch: u32,
     pub slice: SliceExtent,
+    /// The three ray buffers and the 16-byte stand-in bound for vacuum slices.
     pub ray_state_bytes: u64,
     pub deposit_bytes: u64,
     pub slice_bytes: u64,
@@ -103,50 +103,25 @@ pub fn plan_memory(
     budget: u64,
     max_slots: u32,
 ) -> Result<MemoryPlan, SolveError> {
-    let c = plan.channels as u64;
-    let comps = plan.source_components() as u64;
     let per_face = plan.propagation.per_face() as u32;
     let max_range = limits.max_storage_buffer_range;
     let rays = extent.rays;
-
-    // The tables live on the device for the whole solve; each set is uploaded once through a
-    // staging buffer of its own size, which briefly adds the largest set again.
-    let table_set = |dirs: &[crate::solver::plan::SweepDirection]| -> u64 {
-        dirs.iter().map(|d| 32 + 16 * d.offsets.len() as u64 + 4 * d.collect_row.len() as u64).sum()
-    };
-    let sets: Vec<u64> = plan
-        .faces
-        .iter()
-        .map(|f| table_set(f))
-        .chain(plan.beams.iter().map(|b| table_set(std::slice::from_ref(b))))
-        .collect();
-    let table_bytes = sets.iter().sum::<u64>() + sets.iter().copied().max().unwrap_or(0);
-    let slot_bytes = (extent.bricks * 4).next_multiple_of(16);
-    // One slot for sub-slices of `slab` planes: its device bytes (the slot table, then density, the
-    // previous source at its precision, the new source and the fluence of the occupied bricks'
-    // slabs), its download bytes, and the sizes of its three largest buffers.
-    let slot = |slab: u32| {
-        let per_component = extent.occupied * BRICK_BYTES / BRICK_EDGE as u64 * slab as u64;
-        let source = per_component * comps;
-        let prev = source / 4 * plan.source_precision.bytes();
-        let fluence = per_component * c;
-        (slot_bytes + per_component + prev + source + fluence, source + fluence, [source, fluence, per_component])
-    };
+    // Every figure below is a buffer size from `sizes`, the ones the allocations use.
+    let table_bytes = sizes::table_bytes(plan);
     let cost = |slots: u32, pass: u32, slab: u32, group: u32, planes: u32| -> (u64, u64, u64, u64, u64) {
-        let (slice_bytes, download, _) = slot(slab);
-        let ray_buffer = pass as u64 * c * rays * 4;
-        let ray_state = 3 * ray_buffer;
-        let deposit = group as u64 * c * planes as u64 * rays * 4;
+        let slot = SlotSizes::new(plan, &extent, slab);
+        let shared = SharedSizes::new(plan, rays, pass, group, planes);
         // Per slot: the device slice buffers and their upload and download staging; plus the
         // staging the rays' tallies come home through.
-        let staging = slots as u64 * (slice_bytes + download) + 2 * ray_buffer;
-        let total = table_bytes + slots as u64 * slice_bytes + ray_state + deposit + staging;
-        (slice_bytes, ray_state, deposit, staging, total)
+        let staging = slots as u64 * slot.staging() + shared.tallies;
+        let total = table_bytes + slots as u64 * slot.device() + shared.ray_state() + shared.deposit + staging;
+        (slot.device(), shared.ray_state(), shared.deposit, staging, total)
     };
     let fits_range = |pass: u32, slab: u32, group: u32, planes: u32| {
-        pass as u64 * c * rays * 4 <= max_range
-            && group as u64 * c * planes as u64 * rays * 4 <= max_range
-            && slot(slab).2.iter().all(|&b| b <= max_range)
+        let shared = SharedSizes::new(plan, rays, pass, group, planes);
+        shared.ray_buffer <= max_range
+            && shared.deposit <= max_range
+            && SlotSizes::new(plan, &extent, slab).bound().iter().all(|&(_, b)| b <= max_range)
     };
     for slots in [2, 1].into_iter().filter(|&s| s <= max_slots.max(1)) {
         for pass in (1..=per_face).rev() {
@@ -177,12 +152,7 @@ pub fn plan_memory(
         }
     }
     // Nothing fits: name the device limit when that is what stands in the way, else the budget.
-    let [source, fluence, density] = slot(1).2;
-    for (what, bytes) in [
-        ("one plane of the slice's source", source),
-        ("one plane of the slice's fluence", fluence),
-        ("one plane of the slice's density", density),
-    ] {
+    for (what, bytes) in SlotSizes::new(plan, &extent, 1).bound() {
         if bytes > max_range {
             return Err(SolveError::DeviceLimit { what: what.to_string(), bytes, limit: max_range });
         }

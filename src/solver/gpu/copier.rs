@@ -15,6 +15,7 @@
 //! bytes: a slice's gather and the previous slice's scatter cover different bricks, and every
 //! ticket of a pass is waited for before the next pass starts.
 
+use crate::solver::SolveError;
 use crossbeam_channel::{bounded, unbounded, Receiver, Sender};
 use std::thread::JoinHandle;
 
@@ -94,21 +95,36 @@ struct Job {
     done: Sender<()>,
 }
 
-/// Waits for a batch of copies.
+/// Waits for a batch of copies; dropping it waits too, so the memory a copy writes cannot be
+/// freed or reused while the copy runs.
 #[must_use = "a copy must be waited for before its bytes are used"]
 pub struct Ticket {
+    /// Jobs not yet reported done.
     parts: usize,
     done: Receiver<()>,
 }
 
 impl Ticket {
-    /// Blocks until every region of the batch has been copied.
-    pub fn wait(self) {
-        for _ in 0..self.parts {
-            // A worker that died drops its sender; there is nothing left to wait for then.
-            if self.done.recv().is_err() {
-                break;
-            }
+    /// Blocks until every region of the batch has been copied; an error when a worker died (it
+    /// panicked) before finishing its part.
+    pub fn wait(mut self) -> Result<(), SolveError> {
+        self.wait_parts()
+    }
+
+    fn wait_parts(&mut self) -> Result<(), SolveError> {
+        while self.parts > 0 {
+            // A worker that died drops its sender: once every live one is done, recv fails.
+            self.done.recv().map_err(|_| SolveError::CopyWorkerDied)?;
+            self.parts -= 1;
+        }
+        Ok(())
+    }
+}
+
+impl Drop for Ticket {
+    fn drop(&mut self) {
+        if self.wait_parts().is_err() {
+            tracing::error!("a copy worker died during a copy");
         }
     }
 }
@@ -142,7 +158,12 @@ impl Copier {
     }
 
     /// Queues the regions, split into about one job per worker; returns the ticket to wait on.
-    pub fn copy(&self, regions: Vec<Region>) -> Ticket {
+    ///
+    /// # Safety
+    /// Every region must be valid to read at its source and to write at its destination until
+    /// the ticket has been waited for (or dropped), and no two regions in flight at the same time
+    /// may overlap (see the module docs).
+    pub unsafe fn copy(&self, regions: Vec<Region>) -> Ticket {
         let parts = self.workers.len().min(regions.len()).max(1);
         let (done_tx, done_rx) = bounded(parts);
         let per = regions.len().div_ceil(parts).max(1);
@@ -196,9 +217,21 @@ mod tests {
                 convert: Convert::Copy,
             })
             .collect();
-        copier.copy(regions).wait();
+        // SAFETY: the regions lie inside `src` and `dst`, which outlive the wait, and do not overlap.
+        unsafe { copier.copy(regions) }.wait().unwrap();
         assert_eq!(src, dst);
-        copier.copy(Vec::new()).wait();
+        // SAFETY: no region.
+        unsafe { copier.copy(Vec::new()) }.wait().unwrap();
+    }
+
+    #[test]
+    fn a_ticket_whose_worker_died_says_so() {
+        // Two jobs, one reported done; the other's worker died (its sender is gone).
+        let (done, rx) = bounded(2);
+        done.send(()).unwrap();
+        drop(done);
+        let ticket = Ticket { parts: 2, done: rx };
+        assert!(matches!(ticket.wait(), Err(SolveError::CopyWorkerDied)));
     }
 
     #[test]
@@ -216,7 +249,8 @@ mod tests {
             dst_stride: 1,
             convert: Convert::Copy,
         };
-        copier.copy(vec![region]).wait();
+        // SAFETY: the four runs lie inside `src` and `dst`.
+        unsafe { copier.copy(vec![region]) }.wait().unwrap();
         assert_eq!(dst, [2, 6, 10, 14]);
     }
 
@@ -237,7 +271,8 @@ mod tests {
             dst_stride: 2 * 2,
             convert: Convert::F32ToF16 { scale: 8.0 },
         };
-        copier.copy(vec![region]).wait();
+        // SAFETY: the runs lie inside `src` and `dst`.
+        unsafe { copier.copy(vec![region]) }.wait().unwrap();
         for r in 0..rows {
             for c in 0..2 {
                 let expected = half::f16::from_f32(src[r * cols + 1 + c] * 8.0);

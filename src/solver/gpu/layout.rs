@@ -1,5 +1,6 @@
-//! Host structs shared with the shaders. Keep each in sync with its GLSL twin in
-//! `glsl/common.glsl`; the size asserts catch a field added on one side only.
+//! Host structs and constants shared with the shaders, twins of `Push`, `Direction` and the
+//! `FLAG_*` constants in `glsl/common.glsl`. `tests/it/shader_interface.rs` reads the committed SPIR-V
+//! and fails when a member's offset, a struct's size or a flag differs between the two sides.
 
 use bytemuck::{Pod, Zeroable};
 

@@ -6,9 +6,11 @@
 //! with a single queue (or a CPU implementation such as lavapipe) transfers and compute cannot run
 //! at once, so that fraction is about zero there and says nothing about a GPU.
 
+use super::owned::Owned;
 use crate::vk::{Context, Recorder, TimestampQueryPool, VkError};
 use ash::vk;
 use serde::Serialize;
+use std::sync::Arc;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Work {
@@ -43,7 +45,7 @@ impl StreamStats {
 }
 
 pub struct Profiler {
-    pool: TimestampQueryPool,
+    pool: Owned<TimestampQueryPool>,
     period_ns: f64,
     used: u32,
     intervals: Vec<(Work, u32, u64)>,
@@ -51,9 +53,9 @@ pub struct Profiler {
 }
 
 impl Profiler {
-    pub fn new(ctx: &Context, capacity: u32) -> Result<Profiler, VkError> {
+    pub fn new(ctx: &Arc<Context>, capacity: u32) -> Result<Profiler, VkError> {
         Ok(Profiler {
-            pool: ctx.create_timestamp_pool("stream profile", capacity)?,
+            pool: Owned::new(ctx, ctx.create_timestamp_pool("stream profile", capacity)?),
             period_ns: ctx.limits().timestamp_period_ns as f64,
             used: 0,
             intervals: Vec::new(),
@@ -125,9 +127,5 @@ impl Profiler {
         self.used = 0;
         self.intervals.clear();
         Ok(())
-    }
-
-    pub fn destroy(self, ctx: &Context) {
-        ctx.destroy_timestamp_pool(self.pool);
     }
 }

@@ -14,16 +14,10 @@
 //! holds a multiple of 256 voxels, so its f16 values pair up into whole 32-bit words).
 
 use super::copier::{Convert, Region};
+use super::sizes::{slab_bytes, slot_table_bytes, BRICK_BYTES};
 use crate::solver::fields::StoreFields;
 use crate::solver::sweep::{FaceSweep, SliceRange};
-use crate::store::{BrickStore, BRICK_EDGE, BRICK_VOXELS};
-
-pub const BRICK_BYTES: u64 = BRICK_VOXELS as u64 * 4;
-
-/// Bytes of one component of one brick's slab of `planes` planes.
-pub fn slab_bytes(planes: u32) -> u64 {
-    BRICK_BYTES / BRICK_EDGE as u64 * planes as u64
-}
+use crate::store::{BrickStore, BRICK_EDGE};
 
 pub struct SliceLayout {
     pub range: SliceRange,
@@ -116,7 +110,7 @@ impl SliceLayout {
     }
 
     pub fn density_offset(&self) -> u64 {
-        self.slot_table_bytes().next_multiple_of(16)
+        slot_table_bytes(self.dense())
     }
 
     pub fn density_bytes(&self) -> u64 {

@@ -2,23 +2,33 @@
 //! weights, and their collect rows, uploaded once per solve (they do not change between orders).
 
 use super::layout::GpuDirection;
-use super::GpuBackend;
+use super::owned::Owned;
+use super::sizes::TableSizes;
+use super::streamer::SliceStreamer;
 use crate::solver::plan::SweepDirection;
 use crate::solver::SolveError;
-use crate::vk::{Buffer, Context, Recorder};
+use crate::vk::{Buffer, Context, MemoryLocation, Recorder};
 use ash::vk;
-use gpu_allocator::MemoryLocation;
+use std::sync::Arc;
 
 pub struct SweepTables {
-    pub directions: Buffer,
-    pub offsets: Buffer,
-    pub rows: Buffer,
+    pub directions: Owned<Buffer>,
+    pub offsets: Owned<Buffer>,
+    pub rows: Owned<Buffer>,
     /// The offsets again, on the host: `offsets_host[dir]` per plane (see [`SweepTables::still`]).
     offsets_host: Vec<Vec<[i32; 2]>>,
+    /// The size of the staging buffer the tables came through (freed once they were uploaded).
+    pub staging_bytes: u64,
 }
 
 impl SweepTables {
-    pub fn upload(backend: &mut GpuBackend, dirs: &[SweepDirection]) -> Result<SweepTables, SolveError> {
+    /// Uploads the tables of `dirs` (waits for the copy).
+    pub fn upload(
+        ctx: &Arc<Context>,
+        streamer: &mut SliceStreamer,
+        dirs: &[SweepDirection],
+    ) -> Result<SweepTables, SolveError> {
+        let sizes = TableSizes::new(dirs);
         let gpu_dirs: Vec<GpuDirection> = dirs
             .iter()
             .map(|d| GpuDirection {
@@ -44,49 +54,50 @@ impl SweepTables {
         let parts: [&[u8]; 3] =
             [bytemuck::cast_slice(&gpu_dirs), bytemuck::cast_slice(&offsets), bytemuck::cast_slice(&rows)];
 
-        let ctx = backend.ctx.clone();
-        let total: u64 = parts.iter().map(|p| p.len() as u64).sum();
-        let mut staging =
-            ctx.create_buffer("tables staging", total, vk::BufferUsageFlags::TRANSFER_SRC, MemoryLocation::CpuToGpu)?;
         let usage = vk::BufferUsageFlags::STORAGE_BUFFER | vk::BufferUsageFlags::TRANSFER_DST;
-        let mut made = Vec::new();
-        let mut result = (|| -> Result<(), SolveError> {
-            let mapped = staging.mapped_mut().ok_or(SolveError::Internal("tables staging is not mapped"))?;
-            let mut offset = 0;
-            for part in parts {
-                mapped[offset..offset + part.len()].copy_from_slice(part);
-                offset += part.len();
-            }
-            for (name, part) in ["directions", "offsets", "collect rows"].iter().zip(parts) {
-                made.push(ctx.create_buffer(name, (part.len() as u64).max(4), usage, MemoryLocation::GpuOnly)?);
-            }
-            let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "tables")?;
-            let mut src = 0;
-            for (buffer, part) in made.iter().zip(parts) {
-                let size = part.len() as u64;
-                if size > 0 {
-                    rec.copy_buffer(&staging, buffer, &[vk::BufferCopy { src_offset: src, dst_offset: 0, size }]);
-                }
-                src += size;
-            }
-            rec.transfer_to_compute();
-            backend.submit_and_wait(rec)
-        })();
-        ctx.destroy_buffer(staging);
-        if result.is_ok() && made.len() != 3 {
-            result = Err(SolveError::Internal("table buffers"));
+        let buffer = |name: &str, size: u64| -> Result<Owned<Buffer>, SolveError> {
+            Ok(Owned::new(ctx, ctx.create_buffer(name, size, usage, MemoryLocation::GpuOnly)?))
+        };
+        let tables = SweepTables {
+            directions: buffer("directions", sizes.directions)?,
+            offsets: buffer("offsets", sizes.offsets)?,
+            rows: buffer("collect rows", sizes.rows)?,
+            offsets_host,
+            staging_bytes: sizes.staging,
+        };
+        // Dropped (freed) at the end of this function, after the copy was waited for.
+        let mut staging = Owned::new(
+            ctx,
+            ctx.create_host_buffer(
+                "tables staging",
+                sizes.staging,
+                vk::BufferUsageFlags::TRANSFER_SRC,
+                MemoryLocation::CpuToGpu,
+            )?,
+        );
+        let mapped = staging.bytes_mut();
+        let mut offset = 0;
+        for part in parts {
+            mapped[offset..offset + part.len()].copy_from_slice(part);
+            offset += part.len();
         }
-        if let Err(e) = result {
-            made.into_iter().for_each(|b| ctx.destroy_buffer(b));
-            return Err(e);
-        }
-        let mut it = made.into_iter();
-        match (it.next(), it.next(), it.next()) {
-            (Some(directions), Some(offsets), Some(rows)) => {
-                Ok(SweepTables { directions, offsets, rows, offsets_host })
+        let mut rec = Recorder::begin(ctx, ctx.compute_queue().family(), "tables")?;
+        let mut src = 0;
+        for (buffer, part) in [&tables.directions, &tables.offsets, &tables.rows].into_iter().zip(parts) {
+            let size = part.len() as u64;
+            if size > 0 {
+                rec.copy_buffer(&staging, buffer, &[vk::BufferCopy { src_offset: src, dst_offset: 0, size }]);
             }
-            _ => Err(SolveError::Internal("table buffers")),
+            src += size;
         }
+        rec.transfer_to_compute();
+        streamer.submit_and_wait(rec)?;
+        Ok(tables)
+    }
+
+    /// The bytes of the three device buffers.
+    pub fn device_bytes(&self) -> u64 {
+        self.directions.size() + self.offsets.size() + self.rows.size()
     }
 
     /// True when none of the directions `dirs` moves laterally from plane `t0 − 1` to plane
@@ -99,11 +110,5 @@ impl SweepTables {
                 let o = &self.offsets_host[d as usize];
                 matches!((o.get(t0 as usize - 1), o.get(t1 as usize - 1)), (Some(a), Some(b)) if a == b)
             })
-    }
-
-    pub fn destroy(self, ctx: &Context) {
-        ctx.destroy_buffer(self.directions);
-        ctx.destroy_buffer(self.offsets);
-        ctx.destroy_buffer(self.rows);
     }
 }

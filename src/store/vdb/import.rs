@@ -1,6 +1,6 @@
 //! A VDB grid as a density source for the brick store: [`vdb_info`] places the volume (for the scene
 //! validator, reading only the topology) and [`vdb_density`] reads the whole grid and fills 16³
-//! bricks from its 8³ leaves and tiles. The grid stays sparse in memory (see [`super::tree`]): a
+//! bricks from its 8³ leaves and tiles. The grid stays sparse in memory (see `super::tree`): a
 //! few leaves spread over a 4096³ box cost a few leaves, and every brick is filled on its own.
 
 use super::{VdbError, VdbGrid, VdbReader};

@@ -9,12 +9,12 @@
 //!
 //! | file | reads |
 //! |---|---|
-//! | [`stream`] | bounds-checked little-endian reads; truncation and corrupt lengths become errors |
-//! | [`header`] | magic, format version, file metadata, grid descriptors |
-//! | [`transform`] | the grid's map: uniform scale + translation, or a clear refusal |
-//! | [`tree`] | topology (root table, 32³ and 16³ nodes, tiles at every level) and leaf buffers |
-//! | [`values`] | a node's value buffer: active-mask compression, inactive values, half/float/double |
-//! | [`codec`] | none / zip (zlib via `flate2`) / Blosc 1 (LZ4 via `lz4_flex`, or zlib) chunks |
+//! | `stream` | bounds-checked little-endian reads; truncation and corrupt lengths become errors |
+//! | `header` | magic, format version, file metadata, grid descriptors |
+//! | `transform` | the grid's map: uniform scale + translation, or a clear refusal |
+//! | `tree` | topology (root table, 32³ and 16³ nodes, tiles at every level) and leaf buffers |
+//! | `values` | a node's value buffer: active-mask compression, inactive values, half/float/double |
+//! | `codec` | none / zip (zlib via `flate2`) / Blosc 1 (LZ4 via `lz4_flex`, or zlib) chunks |
 //! | [`import`] | the grid as a density source for [`crate::store::BrickStore::create_with`] |
 //!
 //! The file is read with plain reads (not memory-mapped): a file that shrinks while it is read gives
@@ -47,7 +47,7 @@ use std::io::{Cursor, Read, Seek};
 use stream::Stream;
 use values::{Encoding, ValueType};
 
-/// One grid as read: its name, transform and tree (with or without leaf values, see [`read_grid`]).
+/// One grid as read: its name, transform and tree (with or without leaf values, see `read_grid`).
 pub struct VdbGrid {
     pub name: String,
     pub placement: Placement,

@@ -1,7 +1,6 @@
 //! A solve killed mid-order resumes from its last checkpoint and ends bitwise identical to an
 //! uninterrupted one; the kill leaves no half-written output behind.
-mod common;
-use common::temp_dir;
+use crate::common::temp_dir;
 
 const SCENE: &str = r#"
 [volume]
@@ -25,7 +24,7 @@ tolerance = 1e-12
 "#;
 
 fn lpm(args: &[&str], abort_at: Option<u32>) -> std::process::Output {
-    let mut cmd = common::lpm_command(args);
+    let mut cmd = crate::common::lpm_command(args);
     if let Some(n) = abort_at {
         cmd.env("LPM_TEST_ABORT_AT_SLICE", n.to_string());
     }

@@ -3,8 +3,7 @@
 //! the reduced plan to rounding, on the CPU twin and on the GPU (validation on); the report must
 //! say what it modelled and why; `lpm bench accuracy --plans auto,full` sets the two side by side;
 //! a bad value is a clear error.
-mod common;
-use common::*;
+use crate::common::*;
 use lpm::scene::{PlanMode, Scene, SceneError, Shape, StoragePrecision};
 use lpm::solver::plan::{Plan, Precision};
 use lpm::solver::BackendKind::{self, Cpu, Gpu};

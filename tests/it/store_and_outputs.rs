@@ -202,7 +202,8 @@ fn raw_import_rejects_truncated_files_and_bad_values() {
     let dims = [10u32, 10, 10];
     let path = dir.join("short.raw");
     write_raw(&path, &vec![1.0; 999]);
-    let err = raw_density(&path, dims).err().expect("truncated must fail").to_string();
+    let Err(err) = raw_density(&path, dims) else { panic!("truncated must fail") };
+    let err = err.to_string();
     assert!(err.contains("short.raw") && err.contains("4000") && err.contains("3996"), "{err}");
 
     let mut values = vec![1.0f32; 1000];

@@ -3,8 +3,7 @@
 //! localhost, configured by the test in a temporary directory) running a 4-task array in which one
 //! task is killed mid-solve by `scontrol requeue` and resumes, every result equal to a direct solve.
 //! If Slurm cannot be started the test fails with the reason; it never skips.
-mod common;
-use common::{lpm_command, temp_dir};
+use crate::common::{lpm_command, temp_dir};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};

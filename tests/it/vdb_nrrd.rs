@@ -4,9 +4,7 @@
 //! the samples, the geometry must come from the header, bad headers and short data must be clear
 //! errors naming the file and the field, and a solve must match the same density given as raw.
 
-mod common;
-
-use common::temp_dir;
+use crate::common::temp_dir;
 use lpm::scene::Scene;
 use lpm::solver::BackendKind;
 use std::io::Write;
@@ -217,8 +215,8 @@ fn nrrd_scene_solves_bitwise_like_the_same_density_as_raw() {
         .unwrap();
     let a = scene(&dir, "nrrd", "nrrd = \"d.nhdr\"").unwrap();
     let b = scene(&dir, "raw", &format!("raw = \"d.raw\"\ndims = [{}, {}, {}]", DIMS[0], DIMS[1], DIMS[2])).unwrap();
-    let sa = common::solve("nrrd-solve-a", &a, BackendKind::Cpu);
-    let sb = common::solve("nrrd-solve-b", &b, BackendKind::Cpu);
+    let sa = crate::common::solve("nrrd-solve-a", &a, BackendKind::Cpu);
+    let sb = crate::common::solve("nrrd-solve-b", &b, BackendKind::Cpu);
     let (fa, fb) = (sa.fluence_all(), sb.fluence_all());
     assert!(fa.iter().any(|&v| v > 0.0));
     assert!(fa.iter().zip(&fb).all(|(x, y)| x.to_bits() == y.to_bits()), "fluence differs");

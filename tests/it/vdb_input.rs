@@ -5,9 +5,7 @@
 //! at every truncation and under flipped bytes), and solve a VDB scene to bitwise the fluence of the
 //! same density given as a raw file.
 
-mod common;
-
-use common::temp_dir;
+use crate::common::temp_dir;
 use lpm::scene::{Scene, VolumeSource};
 use lpm::solver::BackendKind;
 use lpm::store::vdb::{read_all, VdbError, VdbReader};
@@ -239,8 +237,8 @@ fn vdb_scene_solves_bitwise_like_the_same_density_as_raw() {
     )
     .expect("raw scene");
     assert_eq!(vdb.volume.dims, raw.volume.dims);
-    let a = common::solve("vdb-solve-vdb", &vdb, BackendKind::Cpu);
-    let b = common::solve("vdb-solve-raw", &raw, BackendKind::Cpu);
+    let a = crate::common::solve("vdb-solve-vdb", &vdb, BackendKind::Cpu);
+    let b = crate::common::solve("vdb-solve-raw", &raw, BackendKind::Cpu);
     // The stores hold the same densities, voxel for voxel.
     let mut nonzero = 0;
     for z in 0..dims[2] {

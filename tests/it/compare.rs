@@ -1,6 +1,5 @@
 //! `lpm::compare` on synthetic output directories written with the exporter itself.
-mod common;
-use common::temp_dir;
+use crate::common::temp_dir;
 use lpm::compare::{compare_dirs, write_comparison_json, CompareError, CompareOptions};
 use lpm::output::{export_dense, FieldMeta};
 use lpm::render::{write_exr, Image};

@@ -5,8 +5,7 @@
 //! where one exists, the error against a closed form or the Monte-Carlo reference.
 //!
 //! GPU solves run with Vulkan validation on (a validation error fails the solve, hence the test).
-mod common;
-use common::*;
+use crate::common::*;
 use lpm::reference::ReferenceOptions;
 use lpm::scene::{Scene, Shape, SpatialScheme};
 use lpm::solver::sweep::FaceSweep;

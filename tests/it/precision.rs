@@ -1,8 +1,7 @@
 //! Storage precision of the source the rays gain (`solver.storage_precision`): the f16 GPU path
 //! against the f16 CPU twin, f16 against f32, what `auto` picks and why, the bytes it saves, and
 //! clear errors for bad values. Validation layers on (a validation error fails the solve).
-mod common;
-use common::*;
+use crate::common::*;
 use lpm::scene::{Scene, SceneError, Shape, StoragePrecision};
 use lpm::solver::plan::{half_scale_exponent, Plan, Precision};
 use lpm::solver::BackendKind::{Cpu, Gpu};

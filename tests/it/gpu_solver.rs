@@ -1,7 +1,6 @@
 //! The GPU solver against its CPU twin and against closed forms, on lavapipe with validation and
 //! synchronization validation on (a validation error fails the solve, hence the test).
-mod common;
-use common::*;
+use crate::common::*;
 use lpm::scene::{Scene, Shape, SpatialScheme};
 use lpm::solver::BackendKind::{Cpu, Gpu};
 use std::f64::consts::PI;

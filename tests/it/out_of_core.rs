@@ -2,8 +2,7 @@
 //! streamed for one order with a bounded resident set. The input is a 2 GiB raw density file that is
 //! sparse on disk (holes read as zeros) holding one small blob, so the run stays short; the import
 //! still reads every byte of it, and the solve still sweeps every plane of the 1024 × 1024 × 512 grid.
-mod common;
-use common::*;
+use crate::common::*;
 use std::io::{Seek, SeekFrom, Write};
 
 const DIMS: [u64; 3] = [1024, 1024, 512];

@@ -2,7 +2,6 @@
 //! accepted range of every light and medium value, extremes included — solves on the CPU twin to
 //! finite, non-negative fluence and source. Together with the validator's bounds
 //! (`scene::validate::MAX_LIGHT`), this is what makes "finite in, finite out" hold.
-mod common;
 use lpm::scene::Scene;
 use lpm::solver::BackendKind;
 use proptest::prelude::*;
@@ -52,7 +51,7 @@ proptest! {
             // Refused with a typed error (say the zero sun direction): nothing to solve.
             return Ok(());
         };
-        let s = common::solve("prop-solve", &scene, BackendKind::Cpu);
+        let s = crate::common::solve("prop-solve", &scene, BackendKind::Cpu);
         for (name, field) in [("fluence", &s.fields.fluence_total), ("source", &s.fields.source_total)] {
             let bad = field.as_slice().iter().position(|v| !(v.is_finite() && *v >= 0.0));
             prop_assert!(bad.is_none(), "{name}[{:?}] = {:?} for\n{text}", bad, bad.map(|i| field.as_slice()[i]));

@@ -1,8 +1,7 @@
 //! The stop rule (`solver::remaining`): a solve that says it converged at tolerance τ is within
 //! about τ of its converged self in every voxel of the medium, the dark, dense core included.
 
-mod common;
-use common::*;
+use crate::common::*;
 use lpm::scene::Shape;
 use lpm::solver::BackendKind::{Cpu, Gpu};
 

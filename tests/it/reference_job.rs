@@ -1,7 +1,6 @@
 //! `lpm::reference::job`: the reference run from a scene file to its output directory, then compared
 //! with a solve of the same scene.
-mod common;
-use common::{temp_dir, write_scene, write_scene_as};
+use crate::common::{temp_dir, write_scene, write_scene_as};
 use lpm::compare::{compare_dirs, CompareOptions};
 use lpm::job::SolveJob;
 use lpm::reference::job::{run, ReferenceJob, ReferenceJobError};

@@ -2,8 +2,7 @@
 //! by hostile use, each failing before its fix. Fault injection: a full disk (a small tmpfs, or
 //! RLIMIT_FSIZE where mounting is not allowed), a solve killed with SIGKILL then resumed, two
 //! solves into one --out.
-mod common;
-use common::{lpm_command, temp_dir, write_scene, write_scene_as};
+use crate::common::{lpm_command, temp_dir, write_scene, write_scene_as};
 use lpm::scene::Scene;
 use std::path::{Path, PathBuf};
 use std::process::Output;

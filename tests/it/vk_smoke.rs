@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use lpm::vk::{vk, BufferRange, Context, ContextOptions, MemoryLocation, Recorder, VkError};
 
-const FILL_SPV: &[u8] = include_bytes!("../spirv/fill.spv");
+const FILL_SPV: &[u8] = include_bytes!("../../spirv/fill.spv");
 const SECOND: u64 = 1_000_000_000;
 /// fill.comp's local_size_x.
 const FILL_GROUP: u32 = 64;
@@ -115,7 +115,8 @@ fn binding_larger_than_max_storage_range_is_refused() -> Result<(), VkError> {
         if let Err(e) = r {
             eprintln!("{e}");
         }
-        ctx.destroy_buffer(big);
+        // SAFETY: the dispatch was refused: nothing was recorded or submitted with it.
+        unsafe { ctx.destroy_buffer(big) };
     }
     // An explicit range over the limit is refused before the bounds check.
     let small =
@@ -139,7 +140,8 @@ fn binding_larger_than_max_storage_range_is_refused() -> Result<(), VkError> {
 
     // Never submitted: dropping the recorder frees its pools at once.
     drop(rec);
-    ctx.destroy_buffer(small);
+    // SAFETY: the recorder that used it was never submitted.
+    unsafe { ctx.destroy_buffer(small) };
     ctx.destroy_pipeline(pipeline);
     assert_eq!(ctx.allocated_bytes(), 0);
     assert_clean(&ctx);

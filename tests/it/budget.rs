@@ -1,8 +1,7 @@
 //! The device memory budget: any cut of the sweeps (slices in flight, directions per pass, sub-slices
 //! of fewer planes, directions and planes per dispatch) gives bitwise the same fluence and source,
 //! and a budget below the smallest unit is a clear error.
-mod common;
-use common::*;
+use crate::common::*;
 use lpm::scene::{Scene, Shape};
 use lpm::solver::BackendKind::Gpu;
 use lpm::solver::SolveError;
@@ -108,4 +107,42 @@ fn a_budget_below_the_smallest_unit_says_how_much_is_needed() {
     let text = err.to_string();
     assert!(text.contains(&needed.to_string()) && text.contains("--device-memory-budget"), "{text}");
     assert!(needed > 4096);
+}
+
+/// The planner's figure is what the driver allocates: every buffer the backend makes (and the
+/// largest staging its tables came through) adds up to `planned_bytes`, for plans cut every way
+/// (two slots and one, all directions per pass and fewer, whole slices and sub-slices, f32 and
+/// f16 sources).
+#[test]
+fn the_planned_bytes_are_the_bytes_allocated() {
+    use lpm::solver::fields::StoreFields;
+    use lpm::solver::gpu::{GpuBackend, GpuOptions};
+    use lpm::solver::plan::{Plan, Precision};
+    let mut half = cloud();
+    half.solver.storage_precision = lpm::scene::StoragePrecision::F16;
+    let ctx = lpm::vk::Context::new(validated()).unwrap();
+    for (name, scene) in [("f32", cloud()), ("f16", half)] {
+        let dir = temp_dir(&format!("budget-bytes-{name}"));
+        let store = lpm::solver::build_store(&scene, &dir.join("store")).unwrap();
+        let total = store.grid().brick_count();
+        let plan = Plan::new(&scene, total, total - store.occupied_count());
+        let precision = if name == "f16" { Precision::F16 } else { Precision::F32 };
+        assert_eq!(plan.source_precision, precision);
+        let needed = smallest_unit(&scene);
+        let mut plans = Vec::new();
+        for (budget, slots) in
+            [(None, 2), (None, 1), (Some(needed), 2), (Some(needed * 3 / 2), 2), (Some(needed * 4), 1)]
+        {
+            let mut fields = StoreFields::create(&store, &plan).unwrap();
+            let options = GpuOptions { budget, max_slices_in_flight: slots, ..GpuOptions::default() };
+            let gpu = GpuBackend::new(ctx.clone(), &plan, &store, &mut fields, options).unwrap();
+            let memory = gpu.memory_plan();
+            assert_eq!(gpu.buffer_bytes(), memory.planned_bytes, "{name}: {memory:?}");
+            plans.push((memory.slices_in_flight, memory.directions_per_pass, memory.planes_per_slice));
+        }
+        // The cases cover different cuts.
+        plans.sort();
+        plans.dedup();
+        assert!(plans.len() >= 3, "{name}: {plans:?}");
+    }
 }

@@ -1,6 +1,5 @@
 //! Analytic checks of the discretisation on the CPU twin.
-mod common;
-use common::*;
+use crate::common::*;
 use lpm::scene::Shape;
 use lpm::solver::cpu::CpuTwin;
 use lpm::solver::orders::run_orders;

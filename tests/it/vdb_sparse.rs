@@ -4,8 +4,6 @@
 //! and its voxels land where OpenVDB says they are. Its own test binary, so the peak resident set
 //! (VmHWM) is this import's alone.
 
-mod common;
-
 use lpm::scene::Scene;
 use std::path::{Path, PathBuf};
 
@@ -19,7 +17,7 @@ fn peak_rss_bytes() -> u64 {
 fn sparse_vdb_far_larger_than_memory_imports_with_bounded_resident_set() {
     let edge: u32 = std::env::var("LPM_VDB_SPARSE_EDGE").ok().and_then(|v| v.parse().ok()).unwrap_or(1024);
     assert!(edge == 1024 || edge == 4096, "LPM_VDB_SPARSE_EDGE must be 1024 or 4096");
-    let dir: PathBuf = common::temp_dir("vdb-sparse");
+    let dir: PathBuf = crate::common::temp_dir("vdb-sparse");
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/vdb/write_vdb.py");
     let out = std::process::Command::new("/usr/bin/python3").arg(&script).arg(&dir).output().expect("run python3");
     assert!(out.status.success(), "write_vdb.py failed:\n{}", String::from_utf8_lossy(&out.stderr));

@@ -4,8 +4,7 @@
 //! integral of e^{−σ·d}); its voxel averages test what the discretisation does where it is hardest:
 //! next to the faces, where light enters through a side at a grazing angle, and in the corners.
 
-mod common;
-use common::*;
+use crate::common::*;
 use lpm::scene::{Shape, SpatialScheme};
 use lpm::solver::BackendKind::Cpu;
 

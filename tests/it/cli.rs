@@ -1,7 +1,6 @@
 //! The `lpm` binary end to end: outputs and their layout, `info`, and clear one-line errors that
 //! leave nothing behind.
-mod common;
-use common::{lpm_command, temp_dir, write_scene};
+use crate::common::{lpm_command, temp_dir, write_scene};
 use std::path::Path;
 use std::process::Output;
 

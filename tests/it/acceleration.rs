@@ -1,8 +1,7 @@
 //! High albedo: adding the geometric tail of the order series reaches the converged answer in far
 //! fewer orders than the plain series needs to get as close, on both backends, and the tail's
 //! reported uncertainty covers what it actually misses.
-mod common;
-use common::*;
+use crate::common::*;
 use lpm::scene::{Scene, Shape};
 use lpm::solver::BackendKind::{Cpu, Gpu};
 

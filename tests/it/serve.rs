@@ -3,8 +3,7 @@
 //! solve), the queue bound and priorities, token and path-confinement refusals, size limits, and
 //! the OpenAPI document against the routes, cancelling a running job, retention.
 #![cfg(feature = "service")]
-mod common;
-use common::{lpm_command, temp_dir};
+use crate::common::{lpm_command, temp_dir};
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Stdio};

@@ -1,7 +1,6 @@
 //! The forward peak (`solver.forward_peak`): δ-M scaling of a strongly forward-peaked phase function.
 
-mod common;
-use common::*;
+use crate::common::*;
 use lpm::scene::{ForwardPeak, Shape};
 use lpm::solver::plan::Plan;
 use lpm::solver::BackendKind::{Cpu, Gpu};

@@ -1,0 +1,201 @@
+//! The encoder: turns one (sub-)slice's compute step into commands: the push constants, the
+//! buffers bound to each kernel, and the dispatches (directions in groups of
+//! `directions_per_dispatch`, planes in chunks of `planes_per_dispatch`, each `propagate.comp`
+//! followed by `collect.comp` unless the slice is vacuum).
+//!
+//! The buffers each kernel binds are listed here too ([`propagate_bindings`],
+//! [`collect_bindings`]); the resources write them into descriptor sets once per solve, and a step
+//! binds those sets by handle.
+//!
+//! It records into a [`Recorder`] and submits nothing: when to submit and what to wait for is the
+//! streamer's business (`streamer`).
+
+use super::budget::MemoryPlan;
+use super::layout::{half_source_flags, SweepPush, FLAG_GAIN, FLAG_LAST_SLICE, FLAG_VACUUM};
+use super::resources::{DeviceResources, SharedBuffers, SlotBuffers, SweepSets, COLLECT_BINDINGS, PROPAGATE_BINDINGS};
+use super::slice::SliceLayout;
+use super::tables::SweepTables;
+use crate::solver::plan::Plan;
+use crate::solver::sweep::FaceSweep;
+use crate::solver::SolveError;
+use crate::vk::{Buffer, BufferRange, Recorder};
+use ash::vk;
+use std::ops::Range;
+
+/// Workgroup size of both kernels (`local_size_x`, `local_size_y` in glsl/common.glsl): rays
+/// along the sweep's lateral axes b and c. `tests/it/shader_interface.rs` checks it against the
+/// SPIR-V.
+pub const LOCAL_SIZE: [u32; 2] = [16, 4];
+
+/// One (sub-)slice's compute step.
+pub struct ComputeStep<'s> {
+    /// The slot holding the slice's buffers; `None`: a vacuum slice.
+    pub slot: Option<usize>,
+    pub layout: &'s SliceLayout,
+    pub tables: &'s SweepTables,
+    /// The sweep's descriptor sets.
+    pub sets: &'s SweepSets,
+    pub sweep: &'s FaceSweep,
+    /// The directions of the pass, as indices into the sweep's tables.
+    pub pass_dirs: Range<u32>,
+    /// FLAG_BOUNDARY / FLAG_GAIN / FLAG_EMIT of the sweep.
+    pub flags: u32,
+    /// The f16 previous source's scale exponent (`None`: f32).
+    pub half_exponent: Option<i32>,
+    /// The first and the last slice of the pass.
+    pub first: bool,
+    pub last: bool,
+}
+
+/// The workgroups of one `propagate.comp` dispatch over `sweep`'s rays (n + 1 per lateral axis:
+/// see `solver::sweep`), `depth` directions along z.
+pub fn ray_workgroups(sweep: &FaceSweep, depth: u32) -> [u32; 3] {
+    let [lb, lc] = sweep.lattice();
+    [lb.div_ceil(LOCAL_SIZE[0]), lc.div_ceil(LOCAL_SIZE[1]), depth]
+}
+
+/// The workgroups of one `collect.comp` dispatch over `sweep`'s voxels, `depth` planes along z.
+pub fn voxel_workgroups(sweep: &FaceSweep, depth: u32) -> [u32; 3] {
+    [sweep.n[1].div_ceil(LOCAL_SIZE[0]), sweep.n[2].div_ceil(LOCAL_SIZE[1]), depth]
+}
+
+/// The push constants of a step, with the dispatch-dependent fields (directions, planes, flags)
+/// left to [`record_compute`].
+pub fn push_constants(plan: &Plan, sweep: &FaceSweep, layout: &SliceLayout) -> SweepPush {
+    let face = sweep.geometry();
+    let coefficient = |ch: usize| plan.coefficients(ch.min(plan.channels as usize - 1));
+    let vec4 = |f: &dyn Fn(usize) -> f64| [f(0) as f32, f(1) as f32, f(2) as f32, 0.0];
+    SweepPush {
+        na: sweep.n[0],
+        nb: sweep.n[1],
+        nc: sweep.n[2],
+        t0: 0,
+        t1: 0,
+        axis_sign: face.axis as u32 | if face.sign < 0.0 { 4 } else { 0 },
+        lateral: face.lateral[0] as u32 | (face.lateral[1] as u32) << 2,
+        bricks_b: layout.bricks_b,
+        bricks_c: layout.bricks_c,
+        dir_count: 0,
+        channels: plan.channels,
+        storage: plan.storage.len() as u32,
+        flags: 0,
+        dir_base: 0,
+        ray_base: 0,
+        slab: layout.range.slab_lo | layout.range.slab_planes << 8,
+        sigma_t: vec4(&|ch| coefficient(ch).0),
+        sigma_s: vec4(&|ch| coefficient(ch).1),
+        emission: vec4(&|ch| coefficient(ch).2 * plan.medium.emission[ch]),
+    }
+}
+
+/// The buffers `propagate.comp` binds for a sweep's `tables` and a slot's `slot_table`, `density`
+/// and `source_prev` (the vacuum stand-in for a vacuum slice). The array's length is the
+/// pipeline's binding count (checked against the SPIR-V by `tests/it/shader_interface.rs`).
+pub fn propagate_bindings<'b>(
+    tables: &'b SweepTables,
+    slot: [&'b Buffer; 3],
+    shared: &'b SharedBuffers,
+) -> [BufferRange<'b>; PROPAGATE_BINDINGS as usize] {
+    let [slot_table, density, source_prev] = slot;
+    [
+        BufferRange::from(&*tables.directions),
+        BufferRange::from(&*tables.offsets),
+        BufferRange::from(slot_table),
+        BufferRange::from(density),
+        BufferRange::from(source_prev),
+        BufferRange::from(&*shared.rays),
+        BufferRange::from(&*shared.rays_in),
+        BufferRange::from(&*shared.rays_out),
+        BufferRange::from(&*shared.deposit),
+    ]
+}
+
+/// The buffers `collect.comp` binds for a sweep's `tables` and a slot.
+pub fn collect_bindings<'b>(
+    tables: &'b SweepTables,
+    slot: &'b SlotBuffers,
+    shared: &'b SharedBuffers,
+) -> [BufferRange<'b>; COLLECT_BINDINGS as usize] {
+    [
+        BufferRange::from(&*tables.directions),
+        BufferRange::from(&*tables.rows),
+        BufferRange::from(&*slot.slot_table),
+        BufferRange::from(&*slot.density),
+        BufferRange::from(&*shared.deposit),
+        BufferRange::from(&*slot.source_next),
+        BufferRange::from(&*slot.fluence),
+        BufferRange::from(&*tables.offsets),
+    ]
+}
+
+/// Records a step's dispatches into `rec` (the barriers between them included).
+pub fn record_compute(
+    rec: &mut Recorder,
+    res: &DeviceResources,
+    plan: &Plan,
+    memory: &MemoryPlan,
+    step: &ComputeStep,
+) -> Result<(), SolveError> {
+    let shared = &res.shared;
+    let vacuum = if step.slot.is_none() { FLAG_VACUUM } else { 0 };
+    let half = match step.half_exponent {
+        Some(e) if step.flags & FLAG_GAIN != 0 => half_source_flags(e),
+        _ => 0,
+    };
+    // Earlier compute submissions wrote the ray state and the deposit this one uses.
+    rec.compute_to_compute();
+    if step.first {
+        for b in [&shared.rays, &shared.rays_in, &shared.rays_out] {
+            rec.fill_buffer(b, 0, vk::WHOLE_SIZE, 0);
+        }
+        rec.transfer_to_compute();
+    }
+    let tables = step.tables;
+    let sets = step.sets;
+    // The slot's sets, or the vacuum's (the last propagate set; a vacuum slice collects nothing).
+    let propagate_set = &sets.propagate[step.slot.unwrap_or(sets.propagate.len() - 1)];
+    let collect_set = step.slot.map(|s| &sets.collect[s]);
+    let mut bound = false;
+    let mut push = push_constants(plan, step.sweep, step.layout);
+    let range = step.layout.range;
+    let group = memory.directions_per_dispatch;
+    let chunk = memory.planes_per_dispatch;
+    let dirs = step.pass_dirs.clone();
+    let mut base = dirs.start;
+    while base < dirs.end {
+        let n = group.min(dirs.end - base);
+        push.dir_base = base;
+        push.ray_base = base - dirs.start;
+        push.dir_count = n;
+        let mut t0 = range.t0;
+        while t0 < range.t1 {
+            let t1 = (t0 + chunk).min(range.t1);
+            push.t0 = t0;
+            push.t1 = t1;
+            let last_chunk = step.last && t1 == range.t1;
+            push.flags = step.flags | vacuum | half | if last_chunk { FLAG_LAST_SLICE } else { 0 };
+            // Across vacuum, rays that do not move sideways keep everything: the kernel would
+            // only read and write back the ray state (a big share of a sparse volume's time).
+            if step.slot.is_none() && !last_chunk && tables.still(base..base + n, t0, t1) {
+                t0 = t1;
+                continue;
+            }
+            let bytes = bytemuck::bytes_of(&push);
+            // Switching pipelines needs the set bound again (the two layouts differ).
+            if !bound || collect_set.is_some() {
+                rec.bind(&res.propagate, propagate_set)?;
+                bound = true;
+            }
+            rec.dispatch_bound(&res.propagate, bytes, ray_workgroups(step.sweep, n))?;
+            rec.compute_to_compute();
+            if let Some(set) = collect_set {
+                rec.bind(&res.collect, set)?;
+                rec.dispatch_bound(&res.collect, bytes, voxel_workgroups(step.sweep, t1 - t0))?;
+                rec.compute_to_compute();
+            }
+            t0 = t1;
+        }
+        base += n;
+    }
+    Ok(())
+}

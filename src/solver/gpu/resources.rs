@@ -1,0 +1,211 @@
+//! The device resources of a solve, built all-or-nothing: the two kernels' pipelines, the slots'
+//! buffers and staging, the buffers shared by the slots, every sweep's tables, and the kernels'
+//! descriptor sets for each sweep and slot (written once: the buffers never change).
+//!
+//! Every object is an `Owned` value, so a constructor that fails half-way frees what it made by
+//! dropping it, and a finished [`DeviceResources`] frees everything when dropped. Whoever submits
+//! work on these resources (the `SliceStreamer`) must be dropped first: it waits for the last
+//! submission. Sizes come from [`super::sizes`], the figures the budget planner adds up.
+
+use super::budget::MemoryPlan;
+use super::encoder;
+use super::layout::SweepPush;
+use super::owned::Owned;
+use super::sizes::{SharedSizes, SlotSizes};
+use super::streamer::SliceStreamer;
+use super::tables::SweepTables;
+use crate::solver::plan::Plan;
+use crate::solver::SolveError;
+use crate::vk::{Buffer, ComputePipeline, Context, DescriptorSet, HostBuffer, MemoryLocation};
+use ash::vk;
+use std::sync::Arc;
+
+const PROPAGATE_SPV: &[u8] = include_bytes!("../../../spirv/propagate.spv");
+const COLLECT_SPV: &[u8] = include_bytes!("../../../spirv/collect.spv");
+/// Storage buffers bound to `propagate.comp` and to `collect.comp` (see [`super::encoder`]).
+pub const PROPAGATE_BINDINGS: u32 = 9;
+pub const COLLECT_BINDINGS: u32 = 8;
+
+/// The device buffers and staging of one slice in flight.
+pub struct SlotBuffers {
+    pub slot_table: Owned<Buffer>,
+    pub density: Owned<Buffer>,
+    pub source_prev: Owned<Buffer>,
+    pub source_next: Owned<Buffer>,
+    pub fluence: Owned<Buffer>,
+    pub upload: Owned<HostBuffer>,
+    pub download: Owned<HostBuffer>,
+}
+
+/// Buffers shared by all slots: ray state and the deposit.
+pub struct SharedBuffers {
+    pub rays: Owned<Buffer>,
+    pub rays_in: Owned<Buffer>,
+    pub rays_out: Owned<Buffer>,
+    pub deposit: Owned<Buffer>,
+    /// The staging the rays' tallies come home through.
+    pub tallies: Owned<HostBuffer>,
+    /// Bound in place of the slot buffers when a vacuum slice computes (never read).
+    pub vacuum: Owned<Buffer>,
+}
+
+/// One sweep's descriptor sets, written once: `propagate[s]` binds slot s (`propagate[slots]` the
+/// vacuum stand-in), `collect[s]` slot s.
+pub struct SweepSets {
+    pub propagate: Vec<Owned<DescriptorSet>>,
+    pub collect: Vec<Owned<DescriptorSet>>,
+}
+
+pub struct DeviceResources {
+    /// Per face, then per beam, parallel to the tables.
+    pub face_sets: Vec<SweepSets>,
+    pub beam_sets: Vec<SweepSets>,
+    pub propagate: Owned<ComputePipeline>,
+    pub collect: Owned<ComputePipeline>,
+    pub slots: Vec<SlotBuffers>,
+    pub shared: SharedBuffers,
+    pub face_tables: Vec<SweepTables>,
+    pub beam_tables: Vec<SweepTables>,
+}
+
+fn host_buffer(
+    ctx: &Arc<Context>,
+    name: &str,
+    size: u64,
+    usage: vk::BufferUsageFlags,
+    location: MemoryLocation,
+) -> Result<Owned<HostBuffer>, SolveError> {
+    Ok(Owned::new(ctx, ctx.create_host_buffer(name, size, usage, location)?))
+}
+
+fn buffer(
+    ctx: &Arc<Context>,
+    name: &str,
+    size: u64,
+    usage: vk::BufferUsageFlags,
+    location: MemoryLocation,
+) -> Result<Owned<Buffer>, SolveError> {
+    Ok(Owned::new(ctx, ctx.create_buffer(name, size, usage, location)?))
+}
+
+impl DeviceResources {
+    /// Makes everything `memory` plans for `plan`; the tables are uploaded through `streamer`.
+    pub fn new(
+        ctx: &Arc<Context>,
+        plan: &Plan,
+        memory: &MemoryPlan,
+        streamer: &mut SliceStreamer,
+    ) -> Result<Self, SolveError> {
+        let storage = vk::BufferUsageFlags::STORAGE_BUFFER
+            | vk::BufferUsageFlags::TRANSFER_DST
+            | vk::BufferUsageFlags::TRANSFER_SRC;
+        let gpu = MemoryLocation::GpuOnly;
+        let s = SharedSizes::new(
+            plan,
+            memory.slice.rays,
+            memory.directions_per_pass,
+            memory.directions_per_dispatch,
+            memory.planes_per_dispatch,
+        );
+        let shared = SharedBuffers {
+            rays: buffer(ctx, "rays", s.ray_buffer, storage, gpu)?,
+            rays_in: buffer(ctx, "rays in", s.ray_buffer, storage, gpu)?,
+            rays_out: buffer(ctx, "rays out", s.ray_buffer, storage, gpu)?,
+            deposit: buffer(ctx, "deposit", s.deposit, storage, gpu)?,
+            tallies: host_buffer(
+                ctx,
+                "tally staging",
+                s.tallies,
+                vk::BufferUsageFlags::TRANSFER_DST,
+                MemoryLocation::GpuToCpu,
+            )?,
+            vacuum: buffer(ctx, "vacuum", s.vacuum, storage, gpu)?,
+        };
+        let z = SlotSizes::new(plan, &memory.slice, memory.planes_per_slice);
+        let mut slots = Vec::with_capacity(memory.slices_in_flight as usize);
+        for i in 0..memory.slices_in_flight {
+            let name = |what: &str| format!("slot {i} {what}");
+            slots.push(SlotBuffers {
+                slot_table: buffer(ctx, &name("slot table"), z.slot_table, storage, gpu)?,
+                density: buffer(ctx, &name("density"), z.density, storage, gpu)?,
+                source_prev: buffer(ctx, &name("source prev"), z.source_prev, storage, gpu)?,
+                source_next: buffer(ctx, &name("source next"), z.source_next, storage, gpu)?,
+                fluence: buffer(ctx, &name("fluence"), z.fluence, storage, gpu)?,
+                upload: host_buffer(
+                    ctx,
+                    &name("upload staging"),
+                    z.upload,
+                    vk::BufferUsageFlags::TRANSFER_SRC,
+                    MemoryLocation::CpuToGpu,
+                )?,
+                download: host_buffer(
+                    ctx,
+                    &name("download staging"),
+                    z.download,
+                    vk::BufferUsageFlags::TRANSFER_DST,
+                    MemoryLocation::GpuToCpu,
+                )?,
+            });
+        }
+        let push_bytes = std::mem::size_of::<SweepPush>() as u32;
+        let pipeline = |name: &str, spirv: &[u8], bindings: u32| -> Result<Owned<ComputePipeline>, SolveError> {
+            Ok(Owned::new(ctx, ctx.create_compute_pipeline(name, spirv, bindings, push_bytes)?))
+        };
+        let propagate = pipeline("propagate", PROPAGATE_SPV, PROPAGATE_BINDINGS)?;
+        let collect = pipeline("collect", COLLECT_SPV, COLLECT_BINDINGS)?;
+        let face_tables =
+            plan.faces.iter().map(|face| SweepTables::upload(ctx, streamer, face)).collect::<Result<Vec<_>, _>>()?;
+        let beam_tables = plan
+            .beams
+            .iter()
+            .map(|beam| SweepTables::upload(ctx, streamer, std::slice::from_ref(beam)))
+            .collect::<Result<Vec<_>, _>>()?;
+        let sets = |tables: &[SweepTables], what: &str| -> Result<Vec<SweepSets>, SolveError> {
+            let mut all = Vec::with_capacity(tables.len());
+            for (i, t) in tables.iter().enumerate() {
+                let mut propagate_sets = Vec::with_capacity(slots.len() + 1);
+                for (s, slot) in slots.iter().enumerate() {
+                    let bindings =
+                        encoder::propagate_bindings(t, [&slot.slot_table, &slot.density, &slot.source_prev], &shared);
+                    let name = format!("propagate {what} {i} slot {s}");
+                    propagate_sets.push(Owned::new(ctx, ctx.create_descriptor_set(&name, &propagate, &bindings)?));
+                }
+                let v = &*shared.vacuum;
+                let bindings = encoder::propagate_bindings(t, [v, v, v], &shared);
+                let name = format!("propagate {what} {i} vacuum");
+                propagate_sets.push(Owned::new(ctx, ctx.create_descriptor_set(&name, &propagate, &bindings)?));
+                let mut collect_sets = Vec::with_capacity(slots.len());
+                for (s, slot) in slots.iter().enumerate() {
+                    let bindings = encoder::collect_bindings(t, slot, &shared);
+                    let name = format!("collect {what} {i} slot {s}");
+                    collect_sets.push(Owned::new(ctx, ctx.create_descriptor_set(&name, &collect, &bindings)?));
+                }
+                all.push(SweepSets { propagate: propagate_sets, collect: collect_sets });
+            }
+            Ok(all)
+        };
+        let face_sets = sets(&face_tables, "face")?;
+        let beam_sets = sets(&beam_tables, "beam")?;
+        Ok(DeviceResources { face_sets, beam_sets, propagate, collect, slots, shared, face_tables, beam_tables })
+    }
+
+    /// The bytes of every buffer made for the solve: those held now, plus the largest of the
+    /// staging buffers the tables came through (the peak while they were uploaded). The budget
+    /// planner's `planned_bytes` is this figure (tested).
+    pub fn buffer_bytes(&self) -> u64 {
+        let sh = &self.shared;
+        let shared: [&Buffer; 6] = [&sh.rays, &sh.rays_in, &sh.rays_out, &sh.deposit, &sh.tallies, &sh.vacuum];
+        let shared: u64 = shared.iter().map(|b| b.size()).sum();
+        let slots: u64 = self
+            .slots
+            .iter()
+            .flat_map(|s| -> [&Buffer; 7] {
+                [&s.slot_table, &s.density, &s.source_prev, &s.source_next, &s.fluence, &s.upload, &s.download]
+            })
+            .map(|b| b.size())
+            .sum();
+        let tables = self.face_tables.iter().chain(&self.beam_tables);
+        let staging = tables.clone().map(|t| t.staging_bytes).max().unwrap_or(0);
+        shared + slots + tables.map(SweepTables::device_bytes).sum::<u64>() + staging
+    }
+}

@@ -1,0 +1,162 @@
+//! The byte sizes of everything the GPU driver allocates, computed in one place: the budget
+//! planner ([`super::budget`]) adds these figures up and the allocations ([`super::resources`],
+//! `tables`) create buffers of exactly these sizes, so the plan cannot under-count what is
+//! allocated (`tests/it/budget.rs` checks the sum against the buffers made for several plans).
+
+use super::budget::SliceExtent;
+use super::layout::GpuDirection;
+use crate::solver::plan::{Plan, SweepDirection};
+use crate::store::{BRICK_EDGE, BRICK_VOXELS};
+
+/// Bytes of one component of one brick (f32 values).
+pub const BRICK_BYTES: u64 = BRICK_VOXELS as u64 * 4;
+
+/// The stand-in bound for the slot buffers when a vacuum slice computes (never read).
+pub const VACUUM_BYTES: u64 = 16;
+
+/// Bytes of one component of one brick's slab of `planes` planes.
+pub fn slab_bytes(planes: u32) -> u64 {
+    BRICK_BYTES / BRICK_EDGE as u64 * planes as u64
+}
+
+/// The size a buffer for `bytes` bytes is created with: Vulkan buffers are never empty.
+pub fn buffer_bytes(bytes: u64) -> u64 {
+    bytes.max(4)
+}
+
+/// The slot table's bytes: one i32 per brick of the slice, padded to 16 bytes (the upload staging
+/// places the density right after it).
+pub fn slot_table_bytes(bricks: u64) -> u64 {
+    (bricks * 4).next_multiple_of(16)
+}
+
+/// The buffers of one slot: five device buffers and two staging buffers, for sub-slices of
+/// `planes` planes of the largest slice.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SlotSizes {
+    pub slot_table: u64,
+    pub density: u64,
+    /// The previous source at its storage precision.
+    pub source_prev: u64,
+    pub source_next: u64,
+    pub fluence: u64,
+    /// `[slot table][density][previous source][new source][fluence]` (see `slice.rs`).
+    pub upload: u64,
+    /// `[new source][fluence]`.
+    pub download: u64,
+}
+
+impl SlotSizes {
+    pub fn new(plan: &Plan, extent: &SliceExtent, planes: u32) -> SlotSizes {
+        let per_component = extent.occupied * slab_bytes(planes);
+        let source = per_component * plan.source_components() as u64;
+        let prev = source / 4 * plan.source_precision.bytes();
+        let fluence = per_component * plan.channels as u64;
+        let table = slot_table_bytes(extent.bricks);
+        SlotSizes {
+            slot_table: buffer_bytes(table),
+            density: buffer_bytes(per_component),
+            source_prev: buffer_bytes(prev),
+            source_next: buffer_bytes(source),
+            fluence: buffer_bytes(fluence),
+            upload: buffer_bytes(table + per_component + prev + source + fluence),
+            download: buffer_bytes(source + fluence),
+        }
+    }
+
+    /// The slot's device buffers.
+    pub fn device(&self) -> u64 {
+        self.slot_table + self.density + self.source_prev + self.source_next + self.fluence
+    }
+
+    /// The slot's upload and download staging.
+    pub fn staging(&self) -> u64 {
+        self.upload + self.download
+    }
+
+    /// The buffers bound whole to a kernel (each must fit `maxStorageBufferRange`), with names
+    /// for the error that says which one does not.
+    pub fn bound(&self) -> [(&'static str, u64); 3] {
+        [
+            ("one plane of the slice's source", self.source_next),
+            ("one plane of the slice's fluence", self.fluence),
+            ("one plane of the slice's density", self.density),
+        ]
+    }
+}
+
+/// The buffers shared by the slots: ray state, deposit, the tallies' staging and the vacuum
+/// stand-in.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SharedSizes {
+    /// Each of the three ray buffers (radiance, born, left): `pass` directions × channels × rays.
+    pub ray_buffer: u64,
+    /// `group` directions × channels × `planes` planes × rays.
+    pub deposit: u64,
+    /// The two tally buffers come home through this.
+    pub tallies: u64,
+    pub vacuum: u64,
+}
+
+impl SharedSizes {
+    pub fn new(plan: &Plan, rays: u64, pass: u32, group: u32, planes: u32) -> SharedSizes {
+        let c = plan.channels as u64;
+        let ray_buffer = pass as u64 * c * rays * 4;
+        SharedSizes {
+            ray_buffer: buffer_bytes(ray_buffer),
+            deposit: buffer_bytes(group as u64 * c * planes as u64 * rays * 4),
+            tallies: buffer_bytes(2 * ray_buffer),
+            vacuum: VACUUM_BYTES,
+        }
+    }
+
+    /// The three ray buffers and the vacuum stand-in.
+    pub fn ray_state(&self) -> u64 {
+        3 * self.ray_buffer + self.vacuum
+    }
+}
+
+/// One sweep's tables (a face's directions or one beam): three device buffers and the staging
+/// they are uploaded through.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TableSizes {
+    pub directions: u64,
+    pub offsets: u64,
+    pub rows: u64,
+    pub staging: u64,
+}
+
+impl TableSizes {
+    pub fn new(dirs: &[SweepDirection]) -> TableSizes {
+        let directions = dirs.len() as u64 * std::mem::size_of::<GpuDirection>() as u64;
+        // Per plane: the lattice offsets and the weights' bits (`ivec4`).
+        let offsets: u64 = dirs.iter().map(|d| 16 * d.offsets.len() as u64).sum();
+        let rows: u64 = dirs.iter().map(|d| 4 * d.collect_row.len() as u64).sum();
+        TableSizes {
+            directions: buffer_bytes(directions),
+            offsets: buffer_bytes(offsets),
+            rows: buffer_bytes(rows),
+            staging: buffer_bytes(directions + offsets + rows),
+        }
+    }
+
+    pub fn device(&self) -> u64 {
+        self.directions + self.offsets + self.rows
+    }
+}
+
+/// Every sweep's tables: the faces' then the beams'.
+pub fn all_tables(plan: &Plan) -> Vec<TableSizes> {
+    plan.faces
+        .iter()
+        .map(|f| TableSizes::new(f))
+        .chain(plan.beams.iter().map(|b| TableSizes::new(std::slice::from_ref(b))))
+        .collect()
+}
+
+/// The tables on the device for the whole solve, plus the largest staging (each set is uploaded
+/// through a staging buffer of its own, freed before the next is made).
+pub fn table_bytes(plan: &Plan) -> u64 {
+    let sets = all_tables(plan);
+    sets.iter().map(TableSizes::device).sum::<u64>() + sets.iter().map(|t| t.staging).max().unwrap_or(0)
+}

@@ -1,0 +1,365 @@
+//! The slice streamer: schedules the (sub-)slices of a pass through the slots — gather on the copy
+//! workers, upload, compute, download, scatter — against three timeline semaphores, so that with
+//! two slots the transfers of one slice overlap the compute of another (see the module docs of
+//! [`super`] for the five steps).
+//!
+//! It owns the synchronisation state: the timelines and the last value submitted on each, the
+//! slots' pending downloads and scatters, the copy workers, and the profiler's timestamps. Dropping
+//! it waits for the last submission and the last copy, so it must be dropped before the
+//! [`DeviceResources`] it streams through (the driver declares it first).
+
+use super::budget::MemoryPlan;
+use super::copier::{Copier, Ticket};
+use super::encoder::{self, ComputeStep};
+use super::layout::FLAG_GAIN;
+use super::owned::Owned;
+use super::profile::{self, Profiler};
+use super::resources::{DeviceResources, SweepSets};
+use super::slice::SliceLayout;
+use super::tables::SweepTables;
+use crate::solver::fields::StoreFields;
+use crate::solver::plan::{power_of_two, Plan};
+use crate::solver::sweep::FaceSweep;
+use crate::solver::SolveError;
+use crate::store::{BrickStore, BRICK_EDGE};
+use crate::vk::{Context, Recorder, TimelineSemaphore};
+use ash::vk;
+use std::ops::Range;
+use std::sync::Arc;
+
+const WAIT_FOREVER: u64 = u64::MAX;
+
+/// The three timelines of the pipeline; each slice gets the next value on all three.
+struct Timelines {
+    upload: Owned<TimelineSemaphore>,
+    compute: Owned<TimelineSemaphore>,
+    download: Owned<TimelineSemaphore>,
+}
+
+/// What a slot is waiting for.
+#[derive(Default)]
+struct SlotState {
+    /// The slice whose download into this slot's staging is not yet scattered back.
+    pending: Option<(u64, SliceLayout)>,
+    /// The scatter of this slot's download staging still being copied, and its slice.
+    scattering: Option<(Ticket, SliceLayout)>,
+}
+
+/// One pass of one sweep: its directions streamed through every slice of the face.
+pub struct Pass<'p> {
+    pub tables: &'p SweepTables,
+    pub sets: &'p SweepSets,
+    pub sweep: &'p FaceSweep,
+    pub dirs: Range<u32>,
+    pub flags: u32,
+    /// The f16 previous source's scale exponent for this order (`None`: f32).
+    pub half_exponent: Option<i32>,
+}
+
+/// What a pass streams between: the plan, the store and its fields, the device resources.
+pub struct Stream<'s> {
+    pub plan: &'s Plan,
+    pub store: &'s BrickStore,
+    pub fields: &'s mut StoreFields,
+    pub res: &'s DeviceResources,
+}
+
+pub struct SliceStreamer {
+    ctx: Arc<Context>,
+    memory: MemoryPlan,
+    timelines: Timelines,
+    /// The last value handed out on the timelines.
+    value: u64,
+    /// The last values submitted to signal the upload and the download timelines (vacuum slices
+    /// skip both).
+    upload_value: u64,
+    download_value: u64,
+    slots: Vec<SlotState>,
+    copier: Copier,
+    profiler: Option<Profiler>,
+    /// Test hook: abort the process when this many slices have been submitted (simulates a kill).
+    abort_at_slice: Option<u64>,
+}
+
+impl SliceStreamer {
+    pub fn new(
+        ctx: &Arc<Context>,
+        plan: &Plan,
+        memory: MemoryPlan,
+        profile: bool,
+        abort_at_slice: Option<u64>,
+    ) -> Result<Self, SolveError> {
+        let timeline = |name: &str| -> Result<Owned<TimelineSemaphore>, SolveError> {
+            Ok(Owned::new(ctx, ctx.create_timeline(name, 0)?))
+        };
+        let timelines =
+            Timelines { upload: timeline("upload")?, compute: timeline("compute")?, download: timeline("download")? };
+        let profiler = if profile {
+            // Three intervals per sub-slice; a pass never has more slices than the longest axis has
+            // bricks, each cut into sub-slices of `planes_per_slice` planes.
+            let bricks = plan.dims.iter().map(|d| d.div_ceil(BRICK_EDGE)).max().unwrap_or(1);
+            let slices = bricks * (BRICK_EDGE / memory.planes_per_slice);
+            Some(Profiler::new(ctx, 6 * slices + 6)?)
+        } else {
+            None
+        };
+        Ok(SliceStreamer {
+            ctx: Arc::clone(ctx),
+            memory,
+            timelines,
+            value: 0,
+            upload_value: 0,
+            download_value: 0,
+            slots: (0..memory.slices_in_flight).map(|_| SlotState::default()).collect(),
+            copier: Copier::new(std::thread::available_parallelism().map_or(2, |n| n.get()).min(8)),
+            profiler,
+            abort_at_slice,
+        })
+    }
+
+    pub fn context(&self) -> &Arc<Context> {
+        &self.ctx
+    }
+
+    /// Streaming time and bytes measured so far (when profiling).
+    pub fn stats(&self) -> Option<profile::StreamStats> {
+        self.profiler.as_ref().map(|p| p.stats.clone())
+    }
+
+    /// Submits a one-off command buffer on the compute queue and waits for it (setup and the
+    /// per-pass tallies, not the slice pipeline).
+    pub fn submit_and_wait(&mut self, rec: Recorder) -> Result<(), SolveError> {
+        self.value += 1;
+        let v = self.value;
+        let t = &self.timelines;
+        // The upload, compute and download timelines all advance to v, so the slice pipeline's
+        // values stay one sequence.
+        rec.submit(self.ctx.compute_queue(), &[], (&t.compute, v))?;
+        t.compute.wait(&self.ctx, v, WAIT_FOREVER)?;
+        t.upload.signal(&self.ctx, v)?;
+        t.download.signal(&self.ctx, v)?;
+        (self.upload_value, self.download_value) = (v, v);
+        self.ctx.collect_garbage()?;
+        Ok(())
+    }
+
+    /// Streams every slice of the face through the slots for the pass's directions; returns when
+    /// every slice is back in the store.
+    pub fn stream_pass(&mut self, io: &mut Stream, pass: &Pass) -> Result<(), SolveError> {
+        let plan = io.plan;
+        let slices = pass.sweep.slices(BRICK_EDGE, self.memory.planes_per_slice);
+        let n_slots = self.slots.len();
+        let mut filled = 0;
+        let gain = pass.flags & FLAG_GAIN != 0;
+        let (c, comps) = (plan.channels as u64, plan.source_components() as u64);
+        // The slot of the slice computed in the previous iteration: its download is submitted after
+        // this iteration's upload, so the transfer queue can upload the next slice while it computes.
+        let mut to_download: Option<usize> = None;
+        for (i, range) in slices.iter().enumerate() {
+            let (first, last) = (i == 0, i + 1 == slices.len());
+            let half = if gain { pass.half_exponent.map(power_of_two) } else { None };
+            let layout = SliceLayout::new(io.store, pass.sweep, *range, gain, c, comps, half);
+            let step = |slot, layout| ComputeStep {
+                slot,
+                layout,
+                tables: pass.tables,
+                sets: pass.sets,
+                sweep: pass.sweep,
+                pass_dirs: pass.dirs.clone(),
+                flags: pass.flags,
+                half_exponent: pass.half_exponent,
+                first,
+                last,
+            };
+            if layout.is_vacuum() {
+                self.value += 1;
+                let v = self.value;
+                self.submit_compute(io, &step(None, &layout), v)?;
+                continue;
+            }
+            let s = filled % n_slots;
+            filled += 1;
+            self.retire_slot(io, s)?;
+            self.gather(io, s, &layout)?;
+            self.value += 1;
+            let v = self.value;
+            if self.abort_at_slice == Some(v) {
+                tracing::error!("LPM_TEST_ABORT_AT_SLICE={v}: aborting as a kill would");
+                std::process::abort();
+            }
+            self.submit_upload(io.res, s, &layout, v)?;
+            self.submit_compute(io, &step(Some(s), &layout), v)?;
+            self.slots[s].pending = Some((v, layout));
+            if n_slots == 1 {
+                self.submit_download(io, s)?;
+            } else if let Some(prev) = to_download.replace(s) {
+                self.submit_download(io, prev)?;
+            }
+        }
+        if let Some(prev) = to_download {
+            self.submit_download(io, prev)?;
+        }
+        // Drain: every slice back in the store before the next pass reads it.
+        let mut order: Vec<usize> = (0..n_slots).collect();
+        order.sort_by_key(|&s| self.slots[s].pending.as_ref().map_or(0, |p| p.0));
+        for s in order {
+            self.retire_slot(io, s)?;
+        }
+        for s in 0..n_slots {
+            self.finish_scatter(io, s)?;
+        }
+        if let Some(p) = self.profiler.as_mut() {
+            p.collect(&self.ctx)?;
+        }
+        self.ctx.collect_garbage()?;
+        Ok(())
+    }
+
+    /// Makes slot `s` free: waits for its last slice's download and scatters it back to the store.
+    fn retire_slot(&mut self, io: &mut Stream, s: usize) -> Result<(), SolveError> {
+        self.finish_scatter(io, s)?;
+        let Some((v, layout)) = self.slots[s].pending.take() else { return Ok(()) };
+        self.timelines.download.wait(&self.ctx, v, WAIT_FOREVER)?;
+        let staging = io.res.slots[s].download.bytes().as_ptr();
+        let regions = layout.scatter(io.fields, staging);
+        // SAFETY: the regions run from this slot's download staging (alive as long as the
+        // resources, which outlive this streamer; not written again before `finish_scatter`) into
+        // the slice's bricks of the store's fields (mapped for the solve), which no other copy in
+        // flight touches (module docs of `copier`).
+        let ticket = unsafe { self.copier.copy(regions) };
+        self.slots[s].scattering = Some((ticket, layout));
+        Ok(())
+    }
+
+    /// Waits for slot `s`'s scatter, then hands the pages of its slice's bricks back (they are
+    /// done with until the next pass: this keeps the resident memory to the slices in flight).
+    fn finish_scatter(&mut self, io: &mut Stream, s: usize) -> Result<(), SolveError> {
+        let Some((ticket, layout)) = self.slots[s].scattering.take() else { return Ok(()) };
+        ticket.wait()?;
+        let fields = &*io.fields;
+        let mut slots = layout.occupied.iter().filter_map(|&b| io.store.slot(b)).map(|k| k as usize).peekable();
+        // Runs of consecutive slots, one release each.
+        while let Some(first) = slots.next() {
+            let mut count = 1;
+            while slots.peek() == Some(&(first + count)) {
+                slots.next();
+                count += 1;
+            }
+            io.store.release_density(first, count);
+            for field in [&fields.source_prev, &fields.source_next, &fields.fluence] {
+                field.release_stored(first, count);
+            }
+        }
+        Ok(())
+    }
+
+    /// Fills slot `s`'s upload staging with the slice's bricks (waits for the copies).
+    fn gather(&mut self, io: &mut Stream, s: usize, layout: &SliceLayout) -> Result<(), SolveError> {
+        let upload = &io.res.slots[s].upload;
+        if upload.size() < layout.upload_bytes() {
+            return Err(SolveError::Internal("upload staging smaller than the slice"));
+        }
+        // The staging is written through a pointer: the copy workers write it while the
+        // resources are shared. Only this slot's slice uses it: its previous upload completed
+        // (retire_slot waited for the download that followed it).
+        let base = upload.as_mut_ptr();
+        let table: &[u8] = bytemuck::cast_slice(&layout.slots);
+        // SAFETY: `table.len()` bytes fit the staging (checked above: the table is its first part).
+        unsafe { std::ptr::copy_nonoverlapping(table.as_ptr(), base, table.len()) };
+        let regions = layout.gather(io.store, io.fields, base);
+        // SAFETY: the regions run from the store (mapped for the solve) into this slot's staging,
+        // which nothing else reads or writes until the upload is submitted after this wait.
+        unsafe { self.copier.copy(regions) }.wait()
+    }
+
+    fn submit_upload(
+        &mut self,
+        res: &DeviceResources,
+        s: usize,
+        layout: &SliceLayout,
+        v: u64,
+    ) -> Result<(), SolveError> {
+        let queue = self.ctx.transfer_queue().unwrap_or(self.ctx.compute_queue());
+        let slot = &res.slots[s];
+        let mut rec = Recorder::begin(&self.ctx, queue.family(), "upload")?;
+        let mark = self.profiler.as_mut().and_then(|p| p.begin(&mut rec, profile::Work::Upload, layout.upload_bytes()));
+        let copy = |src: u64, size: u64| [vk::BufferCopy { src_offset: src, dst_offset: 0, size }];
+        rec.copy_buffer(&slot.upload, &slot.slot_table, &copy(0, layout.slot_table_bytes()));
+        rec.copy_buffer(&slot.upload, &slot.density, &copy(layout.density_offset(), layout.density_bytes()));
+        if layout.gain {
+            rec.copy_buffer(&slot.upload, &slot.source_prev, &copy(layout.prev_offset(), layout.prev_bytes()));
+        }
+        rec.copy_buffer(&slot.upload, &slot.source_next, &copy(layout.next_offset(), layout.source_bytes()));
+        rec.copy_buffer(&slot.upload, &slot.fluence, &copy(layout.fluence_offset(), layout.fluence_bytes()));
+        if let Some(p) = self.profiler.as_mut() {
+            p.end(&mut rec, mark);
+        }
+        rec.submit(queue, &[], (&self.timelines.upload, v))?;
+        self.upload_value = v;
+        Ok(())
+    }
+
+    fn submit_compute(&mut self, io: &Stream, step: &ComputeStep, v: u64) -> Result<(), SolveError> {
+        let queue = self.ctx.compute_queue();
+        let mut rec = Recorder::begin(&self.ctx, queue.family(), "compute")?;
+        let mark = self.profiler.as_mut().and_then(|p| p.begin(&mut rec, profile::Work::Compute, 0));
+        encoder::record_compute(&mut rec, io.res, io.plan, &self.memory, step)?;
+        if let Some(p) = self.profiler.as_mut() {
+            p.end(&mut rec, mark);
+        }
+        let t = &self.timelines;
+        let waits = [(&*t.upload, v, vk::PipelineStageFlags2::COMPUTE_SHADER)];
+        // A vacuum slice waits for no upload: the compute queue's own order is enough.
+        rec.submit(queue, if step.slot.is_some() { &waits } else { &[] }, (&t.compute, v))?;
+        Ok(())
+    }
+
+    /// Submits the download of the slice pending in slot `s`.
+    fn submit_download(&mut self, io: &mut Stream, s: usize) -> Result<(), SolveError> {
+        // The staging is free once the scatter of its previous contents is done.
+        self.finish_scatter(io, s)?;
+        let queue = self.ctx.transfer_queue().unwrap_or(self.ctx.compute_queue());
+        let slot = &io.res.slots[s];
+        let Some((v, layout)) = self.slots[s].pending.as_ref() else { return Ok(()) };
+        let v = *v;
+        let mut rec = Recorder::begin(&self.ctx, queue.family(), "download")?;
+        let next = layout.source_bytes();
+        let bytes = next + layout.fluence_bytes();
+        let fluence_bytes = layout.fluence_bytes();
+        let mark = self.profiler.as_mut().and_then(|p| p.begin(&mut rec, profile::Work::Download, bytes));
+        rec.copy_buffer(
+            &slot.source_next,
+            &slot.download,
+            &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: next }],
+        );
+        rec.copy_buffer(
+            &slot.fluence,
+            &slot.download,
+            &[vk::BufferCopy { src_offset: 0, dst_offset: next, size: fluence_bytes }],
+        );
+        rec.transfer_to_host();
+        if let Some(p) = self.profiler.as_mut() {
+            p.end(&mut rec, mark);
+        }
+        let t = &self.timelines;
+        rec.submit(queue, &[(&*t.compute, v, vk::PipelineStageFlags2::TRANSFER)], (&t.download, v))?;
+        self.download_value = v;
+        Ok(())
+    }
+}
+
+impl Drop for SliceStreamer {
+    /// Waits for the last submission on each timeline and for the copies still running, so that
+    /// nothing the device or a copy worker uses is freed under it.
+    fn drop(&mut self) {
+        let t = &self.timelines;
+        let last = [(&t.upload, self.upload_value), (&t.compute, self.value), (&t.download, self.download_value)];
+        for (timeline, value) in last {
+            if let Err(e) = timeline.wait(&self.ctx, value, WAIT_FOREVER) {
+                tracing::warn!("waiting for the last submission failed: {e}");
+            }
+        }
+        // The tickets wait as they drop.
+        self.slots.clear();
+    }
+}

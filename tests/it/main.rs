@@ -1,0 +1,37 @@
+//! Every integration test in one test crate (`[[test]] name = "it"` in Cargo.toml): one binary to
+//! compile and link instead of one per file, with `tests/common` compiled once. Each file is a
+//! module named after what it tests; run one with `cargo test --test it budget::`.
+
+#[path = "../common/mod.rs"]
+mod common;
+
+mod acceleration;
+mod budget;
+mod cli;
+mod compare;
+mod cpu_physics;
+mod forward_peak;
+mod gpu_solver;
+mod hard_cases;
+mod out_of_core;
+mod plan_full;
+mod plot;
+mod precision;
+mod property_solve;
+mod reference_closed_forms;
+mod reference_job;
+mod reliability;
+mod render;
+mod resume;
+mod scene_files;
+mod serve;
+mod shader_interface;
+mod slurm;
+mod spatial_accuracy;
+mod spirv_current;
+mod stop_rule;
+mod store_and_outputs;
+mod vdb_input;
+mod vdb_nrrd;
+mod vdb_sparse;
+mod vk_smoke;

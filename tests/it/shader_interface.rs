@@ -1,0 +1,266 @@
+//! The interface between the host and the kernels, checked against the committed SPIR-V instead of
+//! "keep in sync" comments: the push-constant block's members sit at the Rust struct's
+//! `offset_of!`, the `Direction` table's members at `GpuDirection`'s, the kernels bind exactly the
+//! storage buffers the host binds (set 0, bindings 0..n), their workgroup size is the one the
+//! dispatch grid is computed with, and the `FLAG_*` bits of glsl/common.glsl are the Rust ones. A
+//! small test kernel (glsl/segment_test.comp) evaluates the GLSL segment functions against
+//! src/solver/segment.rs over optical depths 1e-8 … 1e4.
+
+use lpm::solver::gpu::encoder::LOCAL_SIZE;
+use lpm::solver::gpu::layout::{self, GpuDirection, SweepPush};
+use lpm::solver::gpu::resources::{COLLECT_BINDINGS, PROPAGATE_BINDINGS};
+use lpm::vk::{vk, BufferRange, Context, ContextOptions, MemoryLocation, Recorder};
+use rspirv::dr::{Instruction, Module, Operand};
+use rspirv::spirv::{Decoration, ExecutionMode, Op, StorageClass};
+use std::collections::HashMap;
+use std::mem::offset_of;
+
+const PROPAGATE_SPV: &[u8] = include_bytes!("../../spirv/propagate.spv");
+const COLLECT_SPV: &[u8] = include_bytes!("../../spirv/collect.spv");
+const SEGMENT_TEST_SPV: &[u8] = include_bytes!("../../spirv/segment_test.spv");
+const COMMON_GLSL: &str = include_str!("../../glsl/common.glsl");
+
+fn load(spirv: &[u8]) -> Module {
+    rspirv::dr::load_bytes(spirv).expect("parsing SPIR-V")
+}
+
+fn id(op: &Operand) -> u32 {
+    match op {
+        Operand::IdRef(i) => *i,
+        other => panic!("expected an id, got {other:?}"),
+    }
+}
+
+fn literal(op: &Operand) -> u32 {
+    match op {
+        Operand::LiteralBit32(v) => *v,
+        other => panic!("expected a literal, got {other:?}"),
+    }
+}
+
+fn global(module: &Module, result: u32) -> &Instruction {
+    module.types_global_values.iter().find(|i| i.result_id == Some(result)).expect("a type or global of that id")
+}
+
+/// The size in bytes of a scalar or vector type.
+fn type_size(module: &Module, ty: u32) -> u32 {
+    let t = global(module, ty);
+    match t.class.opcode {
+        Op::TypeInt | Op::TypeFloat => literal(&t.operands[0]) / 8,
+        Op::TypeVector => type_size(module, id(&t.operands[0])) * literal(&t.operands[1]),
+        other => panic!("unexpected member type {other:?}"),
+    }
+}
+
+/// The members of struct type `ty` as (name, offset), in offset order, and the struct's size
+/// (last member's offset + its size).
+fn struct_members(module: &Module, ty: u32) -> (Vec<(String, u32)>, u32) {
+    let mut names = HashMap::new();
+    for n in &module.debug_names {
+        if n.class.opcode == Op::MemberName && id(&n.operands[0]) == ty {
+            if let Operand::LiteralString(s) = &n.operands[2] {
+                names.insert(literal(&n.operands[1]), s.clone());
+            }
+        }
+    }
+    let mut members = Vec::new();
+    for a in &module.annotations {
+        if a.class.opcode == Op::MemberDecorate
+            && id(&a.operands[0]) == ty
+            && a.operands[2] == Operand::Decoration(Decoration::Offset)
+        {
+            let m = literal(&a.operands[1]);
+            members.push((m, names.get(&m).cloned().unwrap_or_default(), literal(&a.operands[3])));
+        }
+    }
+    members.sort_by_key(|&(_, _, offset)| offset);
+    let st = global(module, ty);
+    let size = members.last().map_or(0, |&(m, _, offset)| offset + type_size(module, id(&st.operands[m as usize])));
+    (members.into_iter().map(|(_, n, o)| (n, o)).collect(), size)
+}
+
+/// The pointee of pointer type `ptr`.
+fn pointee(module: &Module, ptr: u32) -> u32 {
+    id(&global(module, ptr).operands[1])
+}
+
+fn decorations(module: &Module, target: u32) -> HashMap<Decoration, Option<u32>> {
+    let mut d = HashMap::new();
+    for a in &module.annotations {
+        if a.class.opcode == Op::Decorate && id(&a.operands[0]) == target {
+            if let Operand::Decoration(dec) = a.operands[1] {
+                d.insert(dec, a.operands.get(2).map(literal));
+            }
+        }
+    }
+    d
+}
+
+fn variables(module: &Module, class: StorageClass) -> Vec<&Instruction> {
+    module
+        .types_global_values
+        .iter()
+        .filter(|i| i.class.opcode == Op::Variable && i.operands.first() == Some(&Operand::StorageClass(class)))
+        .collect()
+}
+
+/// The push-constant block's members and size.
+fn push_block(module: &Module) -> (Vec<(String, u32)>, u32) {
+    let vars = variables(module, StorageClass::PushConstant);
+    assert_eq!(vars.len(), 1, "one push-constant block");
+    let ty = pointee(module, vars[0].result_type.expect("a typed variable"));
+    struct_members(module, ty)
+}
+
+/// The storage-buffer bindings as (set, binding), sorted.
+fn storage_bindings(module: &Module) -> Vec<(u32, u32)> {
+    let mut b: Vec<(u32, u32)> = variables(module, StorageClass::StorageBuffer)
+        .iter()
+        .map(|v| {
+            let d = decorations(module, v.result_id.expect("a variable id"));
+            (d[&Decoration::DescriptorSet].expect("a set"), d[&Decoration::Binding].expect("a binding"))
+        })
+        .collect();
+    b.sort_unstable();
+    b
+}
+
+fn local_size(module: &Module) -> [u32; 3] {
+    let mode = module
+        .execution_modes
+        .iter()
+        .find(|m| m.operands[1] == Operand::ExecutionMode(ExecutionMode::LocalSize))
+        .expect("a LocalSize execution mode");
+    [literal(&mode.operands[2]), literal(&mode.operands[3]), literal(&mode.operands[4])]
+}
+
+/// Every uniform descriptor the kernels declare (anything but storage buffers and push constants).
+fn other_descriptors(module: &Module) -> usize {
+    [StorageClass::Uniform, StorageClass::UniformConstant].iter().map(|&c| variables(module, c).len()).sum()
+}
+
+macro_rules! rust_offsets {
+    ($ty:ty: $($field:ident),* $(,)?) => {{
+        let mut v = vec![$((stringify!($field).to_string(), offset_of!($ty, $field) as u32)),*];
+        v.sort_by_key(|(_, o)| *o);
+        v
+    }};
+}
+
+fn sweep_push_offsets() -> Vec<(String, u32)> {
+    rust_offsets!(SweepPush: na, nb, nc, t0, t1, axis_sign, lateral, bricks_b, bricks_c, dir_count, channels,
+        storage, flags, dir_base, ray_base, slab, sigma_t, sigma_s, emission)
+}
+
+#[test]
+fn push_constants_sit_where_the_rust_struct_puts_them() {
+    for (name, spirv) in [("propagate", PROPAGATE_SPV), ("collect", COLLECT_SPV)] {
+        let (members, size) = push_block(&load(spirv));
+        assert_eq!(members, sweep_push_offsets(), "{name}: push-constant members (name, offset) in GLSL vs SweepPush");
+        assert_eq!(size as usize, std::mem::size_of::<SweepPush>(), "{name}: push-constant block size");
+    }
+}
+
+#[test]
+fn the_direction_table_matches_gpu_direction() {
+    let module = load(PROPAGATE_SPV);
+    // glslang emits the struct twice: laid out (std430, with offsets) for the buffer, and plain.
+    let (members, size) = module
+        .debug_names
+        .iter()
+        .filter(|n| n.class.opcode == Op::Name && n.operands[1] == Operand::LiteralString("Direction".into()))
+        .map(|n| struct_members(&module, id(&n.operands[0])))
+        .find(|(members, _)| !members.is_empty())
+        .expect("the Direction struct with offsets");
+    let expected = rust_offsets!(GpuDirection: boundary, path_length, fluence_weight, gain_storage, pad);
+    assert_eq!(members, expected);
+    assert_eq!(size as usize, std::mem::size_of::<GpuDirection>());
+}
+
+#[test]
+fn kernels_bind_exactly_the_storage_buffers_the_host_binds() {
+    for (name, spirv, count) in
+        [("propagate", PROPAGATE_SPV, PROPAGATE_BINDINGS), ("collect", COLLECT_SPV, COLLECT_BINDINGS)]
+    {
+        let module = load(spirv);
+        let expected: Vec<(u32, u32)> = (0..count).map(|b| (0, b)).collect();
+        assert_eq!(storage_bindings(&module), expected, "{name}: storage-buffer bindings (set, binding)");
+        assert_eq!(other_descriptors(&module), 0, "{name}: the host binds storage buffers only");
+    }
+}
+
+#[test]
+fn the_workgroup_size_is_the_dispatch_grid_s() {
+    for (name, spirv) in [("propagate", PROPAGATE_SPV), ("collect", COLLECT_SPV)] {
+        assert_eq!(local_size(&load(spirv)), [LOCAL_SIZE[0], LOCAL_SIZE[1], 1], "{name}: local_size");
+    }
+}
+
+#[test]
+fn flag_bits_are_the_rust_ones() {
+    let mut glsl = HashMap::new();
+    for line in COMMON_GLSL.lines() {
+        let Some(rest) = line.trim().strip_prefix("const uint FLAG_") else { continue };
+        let (name, value) = rest.split_once('=').expect("const uint FLAG_X = Nu;");
+        let value = value.split(';').next().unwrap_or("").trim().trim_end_matches('u');
+        glsl.insert(format!("FLAG_{}", name.trim()), value.parse::<u32>().expect("a decimal flag value"));
+    }
+    let rust = HashMap::from([
+        ("FLAG_BOUNDARY".to_string(), layout::FLAG_BOUNDARY),
+        ("FLAG_GAIN".to_string(), layout::FLAG_GAIN),
+        ("FLAG_EMIT".to_string(), layout::FLAG_EMIT),
+        ("FLAG_LAST_SLICE".to_string(), layout::FLAG_LAST_SLICE),
+        ("FLAG_VACUUM".to_string(), layout::FLAG_VACUUM),
+        ("FLAG_HALF_SOURCE".to_string(), layout::FLAG_HALF_SOURCE),
+    ]);
+    assert_eq!(glsl, rust, "FLAG_* in glsl/common.glsl vs src/solver/gpu/layout.rs");
+    // The f16 scale exponent lives above every flag bit.
+    assert!(rust.values().all(|&f| f < 1 << layout::HALF_SCALE_SHIFT));
+}
+
+#[test]
+fn glsl_segment_functions_match_the_rust_ones() {
+    use lpm::solver::segment::{e1, e2};
+    let ctx = Context::new(ContextOptions { validation: true, ..ContextOptions::default() }).expect("Vulkan");
+    // Log-spaced optical depths over [1e-8, 1e4], and both sides of the series switch at x = 1.
+    let n = 2048usize;
+    let mut xs: Vec<f32> = (0..n - 2).map(|i| (1e-8f64 * 1e12f64.powf(i as f64 / (n - 3) as f64)) as f32).collect();
+    xs.extend([1.0f32 - f32::EPSILON, 1.0]);
+    let usage = vk::BufferUsageFlags::STORAGE_BUFFER;
+    let mut input = ctx.create_host_buffer("depths", 4 * n as u64, usage, MemoryLocation::CpuToGpu).unwrap();
+    input.bytes_mut().copy_from_slice(bytemuck::cast_slice(&xs));
+    let output = ctx.create_host_buffer("values", 8 * n as u64, usage, MemoryLocation::GpuToCpu).unwrap();
+    let push_bytes = std::mem::size_of::<SweepPush>() as u32;
+    let pipeline = ctx.create_compute_pipeline("segment test", SEGMENT_TEST_SPV, 2, push_bytes).unwrap();
+    let timeline = ctx.create_timeline("segment test", 0).unwrap();
+    let push = SweepPush { na: n as u32, ..SweepPush::default() };
+    let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "segment test").unwrap();
+    let buffers = [BufferRange::from(&*input), BufferRange::from(&*output)];
+    rec.dispatch(&pipeline, &buffers, bytemuck::bytes_of(&push), [(n as u32).div_ceil(64), 1, 1]).unwrap();
+    rec.compute_to_host();
+    rec.submit(ctx.compute_queue(), &[], (&timeline, 1)).unwrap();
+    timeline.wait(&ctx, 1, 60_000_000_000).unwrap();
+    let values: &[f32] = bytemuck::cast_slice(output.bytes());
+    let mut worst = (0.0f64, 0.0f32);
+    for (i, &x) in xs.iter().enumerate() {
+        let (g1, g2) = (values[2 * i] as f64, values[2 * i + 1] as f64);
+        let (r1, r2) = (e1(x as f64), e2(x as f64));
+        for (g, r) in [(g1, r1), (g2, r2)] {
+            let rel = (g - r).abs() / r.abs();
+            if rel > worst.0 {
+                worst = (rel, x);
+            }
+        }
+    }
+    // f32 arithmetic: a few ulps (2^-23 ≈ 1.2e-7) of the f64 values.
+    assert!(worst.0 < 2e-6, "largest relative difference {:e} at x = {:e}", worst.0, worst.1);
+    ctx.destroy_timeline(timeline);
+    ctx.destroy_pipeline(pipeline);
+    // SAFETY: the timeline wait above: the only submission using them has completed.
+    unsafe {
+        ctx.destroy_host_buffer(input);
+        ctx.destroy_host_buffer(output);
+    }
+    let messages = ctx.validation_messages();
+    assert!(messages.is_empty(), "validation errors:\n{}", messages.join("\n"));
+}
