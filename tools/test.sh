@@ -2,14 +2,17 @@
 # Runs the whole test suite on whatever Vulkan device is present (lavapipe on a machine without a
 # GPU) with the Khronos validation layer and synchronization validation on: a validation error fails
 # the test that caused it. First the house style: rustfmt, clippy (warnings are errors; clippy.toml
-# sets msrv = "1.80", the declared rust-version, so std APIs newer than that are flagged: only the
-# stable toolchain is installed and rustup cannot fetch another, so this stands in for an MSRV
-# build), and rustdoc (warnings are errors: broken links included).
+# sets msrv to the declared rust-version, so std APIs newer than that are flagged: only the
+# stable toolchain is installed and rustup cannot fetch another, so this and tools/msrv_check.py,
+# which checks the locked dependencies' rust-version against it, stand in for an MSRV build), and
+# rustdoc (warnings are errors: broken links included).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash tools/setup.sh
 cargo fmt --check
 cargo clippy --all-targets -- -D warnings
+# After clippy: cargo has fetched the dependencies' sources the check reads.
+python3 tools/msrv_check.py
 RUSTDOCFLAGS=-Dwarnings cargo doc --no-deps
 export LPM_VALIDATION=1
 # The validation layer reads its settings from here; errors are also caught by lpm's messenger.
