@@ -861,7 +861,7 @@ fn info(dir: &std::path::Path, json: bool) -> Result<()> {
             .collect();
         println!("time      {}", line.join(", "));
     }
-    let written = |name: &str| r["outputs"].as_array().map_or(true, |o| o.iter().any(|f| f.as_str() == Some(name)));
+    let written = |name: &str| r["outputs"].as_array().is_none_or(|o| o.iter().any(|f| f.as_str() == Some(name)));
     for base in ["fluence", "source"] {
         if !written(&format!("{base}.json")) {
             println!("{base:<9} not exported (solved with --no-fields)");

@@ -12,8 +12,7 @@ fn sparse_raw(path: &std::path::Path) -> u64 {
     let mut f = std::fs::File::create(path).expect("create raw");
     let bytes = DIMS.iter().product::<u64>() * 4;
     f.set_len(bytes).expect("size the raw");
-    let row: Vec<u8> =
-        std::iter::repeat(1.0f32.to_le_bytes()).take((BLOB.end - BLOB.start) as usize).flatten().collect();
+    let row: Vec<u8> = std::iter::repeat_n(1.0f32.to_le_bytes(), (BLOB.end - BLOB.start) as usize).flatten().collect();
     for z in 240..260 {
         for y in BLOB {
             f.seek(SeekFrom::Start(((z * DIMS[1] + y) * DIMS[0] + BLOB.start) * 4)).expect("seek");

@@ -154,7 +154,7 @@ pub fn parse(path: &Path, bytes: &[u8]) -> Result<NrrdHeader, (String, String)> 
     };
 
     // Geometry: a uniform, axis-aligned voxel size, and the corner of the first voxel.
-    let centers_cell = get("centers").or(get("centerings")).map_or(true, |c| c.split_whitespace().all(|c| c == "cell"));
+    let centers_cell = get("centers").or(get("centerings")).is_none_or(|c| c.split_whitespace().all(|c| c == "cell"));
     let mut voxel_size = None;
     let mut set_size = |field: &str, h: [f64; 3]| -> Result<(), (String, String)> {
         if !h.iter().all(|v| v.is_finite() && *v > 0.0) {
