@@ -11,7 +11,7 @@
 //!
 //! Both are evaluated without cancellation as x → 0 (E1 → 1, E2 → ½) and without overflow as x → ∞.
 //! σt·s·L̄ is exactly what the ray loses to extinction in the segment, so depositing L̄ conserves
-//! energy to round-off. The GLSL twin is `glsl/segment.glsl`: keep the two in sync.
+//! energy to round-off. The GLSL twin is `seg_e1`/`seg_e2` in `glsl/common.glsl` (checked by `glsl/segment_test.comp`): keep the two in sync.
 
 /// (1 − e^{−x})/x.
 pub fn e1(x: f64) -> f64 {
