@@ -611,7 +611,9 @@ fn run(cli: Cli) -> Result<()> {
             let core = match scene {
                 Some(path) => {
                     let scene = lpm::scene::Scene::load(&path)?;
-                    let density = lpm::solver::density_volume(&scene, &a.join(".lpm-compare-density"))?;
+                    // A scratch store beside A with an unpredictable name (two compares may run at once).
+                    let scratch = tempfile::Builder::new().prefix(".lpm-compare-density-").tempdir_in(&a)?;
+                    let density = lpm::solver::density_volume(&scene, &scratch.path().join("store"))?;
                     Some(lpm::compare::CoreMask { density, quantile: core_quantile })
                 }
                 None => None,

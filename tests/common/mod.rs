@@ -219,3 +219,31 @@ pub fn exact_absorber_fluence(sigma: f64, n: [f64; 3], x: [f64; 3], k: u32) -> f
         })
         .sum()
 }
+
+/// An RGB cloud under sky and sun (k = 3, tolerance 1e-12 so it runs all `max_orders`): slow enough
+/// per order to be killed between two checkpoints, which the kill-and-resume tests need.
+pub fn killable_cloud_scene(dims: [u32; 3], max_orders: u32) -> String {
+    format!(
+        r#"
+[volume]
+procedural = "cloud"
+dims = [{}, {}, {}]
+seed = 3
+[medium]
+sigma_t = [0.9, 0.7, 0.5]
+albedo = 0.9
+[[lights]]
+kind = "sky"
+radiance = 0.5
+[[lights]]
+kind = "sun"
+direction = [0.4, -0.3, 1.0]
+irradiance = 2.0
+[solver]
+directions_per_face = 3
+max_orders = {max_orders}
+tolerance = 1e-12
+"#,
+        dims[0], dims[1], dims[2]
+    )
+}

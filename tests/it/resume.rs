@@ -1,27 +1,6 @@
 //! A solve killed mid-order resumes from its last checkpoint and ends bitwise identical to an
 //! uninterrupted one; the kill leaves no half-written output behind.
-use crate::common::temp_dir;
-
-const SCENE: &str = r#"
-[volume]
-procedural = "cloud"
-dims = [34, 30, 38]
-seed = 3
-[medium]
-sigma_t = [0.9, 0.7, 0.5]
-albedo = 0.9
-[[lights]]
-kind = "sky"
-radiance = 0.5
-[[lights]]
-kind = "sun"
-direction = [0.4, -0.3, 1.0]
-irradiance = 2.0
-[solver]
-directions_per_face = 3
-max_orders = 5
-tolerance = 1e-12
-"#;
+use crate::common::{killable_cloud_scene, temp_dir};
 
 fn lpm(args: &[&str], abort_at: Option<u32>) -> std::process::Output {
     let mut cmd = crate::common::lpm_command(args);
@@ -35,7 +14,7 @@ fn lpm(args: &[&str], abort_at: Option<u32>) -> std::process::Output {
 fn killed_solve_resumes_to_the_same_bits() {
     let dir = temp_dir("resume");
     let scene = dir.join("scene.toml");
-    std::fs::write(&scene, SCENE).unwrap();
+    std::fs::write(&scene, killable_cloud_scene([34, 30, 38], 5)).unwrap();
     let (whole, cut) = (dir.join("whole"), dir.join("cut"));
     let s = scene.to_str().unwrap();
 
@@ -73,7 +52,7 @@ fn killed_solve_resumes_to_the_same_bits() {
 fn resume_with_nothing_to_resume_starts_fresh_and_cpu_refuses() {
     let dir = temp_dir("resume-fresh");
     let scene = dir.join("scene.toml");
-    std::fs::write(&scene, SCENE.replace("max_orders = 5", "max_orders = 1")).unwrap();
+    std::fs::write(&scene, killable_cloud_scene([34, 30, 38], 1)).unwrap();
     let out = dir.join("out");
     let o = lpm(&["solve", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--no-image", "--resume"], None);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));

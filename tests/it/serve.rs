@@ -3,7 +3,12 @@
 //! solve), the queue bound and priorities, token and path-confinement refusals, size limits, and
 //! the OpenAPI document against the routes, cancelling a running job, retention.
 #![cfg(feature = "service")]
-use crate::common::{lpm_command, temp_dir};
+use crate::common::{killable_cloud_scene, lpm_command, temp_dir};
+
+/// Slow enough (several orders of a few tenths of a second each) to be killed in the middle.
+fn longer() -> String {
+    killable_cloud_scene([32, 30, 34], 8)
+}
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Stdio};
@@ -22,28 +27,6 @@ radiance = 1.0
 [solver]
 directions_per_face = 2
 max_orders = 3
-tolerance = 1e-12
-"#;
-
-/// Slow enough (several orders of a few tenths of a second each) to be killed in the middle.
-const LONGER: &str = r#"
-[volume]
-procedural = "cloud"
-dims = [32, 30, 34]
-seed = 3
-[medium]
-sigma_t = [0.9, 0.7, 0.5]
-albedo = 0.9
-[[lights]]
-kind = "sky"
-radiance = 0.5
-[[lights]]
-kind = "sun"
-direction = [0.4, -0.3, 1.0]
-irradiance = 2.0
-[solver]
-directions_per_face = 3
-max_orders = 8
 tolerance = 1e-12
 "#;
 
@@ -252,7 +235,7 @@ fn kill_9_and_restart_lose_nothing_and_resume_bitwise() {
     let data = dir.join("data");
     let mut server = Server::start(&data, &[]);
     let url = server.url.clone();
-    let (s, a) = submit(&url, LONGER, "?no_image=true");
+    let (s, a) = submit(&url, &longer(), "?no_image=true");
     assert_eq!(s, 201);
     let (s, b) = submit(&url, TINY, "?no_image=true");
     assert_eq!(s, 201);
@@ -260,7 +243,7 @@ fn kill_9_and_restart_lose_nothing_and_resume_bitwise() {
 
     // Kill the server while job A is running, after its first checkpointed order.
     let j = wait_for(&url, a, Duration::from_secs(300), |j| j["order"].as_i64().is_some_and(|o| o >= 1) || ended(j));
-    assert_eq!(j["state"], "running", "job A ended before the kill: make LONGER slower ({j})");
+    assert_eq!(j["state"], "running", "job A ended before the kill: make longer() slower ({j})");
     server.kill9();
     let checkpoint = data.join(format!("jobs/{a}/out/.lpm-work/checkpoint.json"));
     assert!(checkpoint.exists(), "job A has no checkpoint to resume from");
@@ -280,7 +263,7 @@ fn kill_9_and_restart_lose_nothing_and_resume_bitwise() {
     let log = std::fs::read_to_string(data.join(format!("jobs/{a}/solve.log"))).unwrap();
     assert!(!log.contains("nothing to resume"), "job A started over instead of resuming:\n{log}");
 
-    let direct = direct_solve(&dir, "direct", LONGER, &["--no-image"]);
+    let direct = direct_solve(&dir, "direct", &longer(), &["--no-image"]);
     for f in ["fluence.raw", "source.raw"] {
         assert!(fetch(&url, a, f) == std::fs::read(direct.join(f)).unwrap(), "job A: {f} differs after the restart");
     }
@@ -463,7 +446,7 @@ fn cancel_a_running_job_and_retention() {
     // Ended jobs are deleted about 7 s after they end.
     let server = Server::start(&data, &["--retention-hours", "0.002"]);
     let url = server.url.clone();
-    let (_, a) = submit(&url, LONGER, "?no_image=true");
+    let (_, a) = submit(&url, &longer(), "?no_image=true");
     let a = a["id"].as_i64().unwrap();
     let j = wait_for(&url, a, Duration::from_secs(300), |j| j["order"].as_i64().is_some_and(|o| o >= 1) || ended(j));
     assert_eq!(j["state"], "running", "the job ended before it could be cancelled: {j}");

@@ -3,7 +3,7 @@
 //! localhost, configured by the test in a temporary directory) running a 4-task array in which one
 //! task is killed mid-solve by `scontrol requeue` and resumes, every result equal to a direct solve.
 //! If Slurm cannot be started the test fails with the reason; it never skips.
-use crate::common::{lpm_command, temp_dir};
+use crate::common::{killable_cloud_scene, lpm_command, temp_dir};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
@@ -21,28 +21,6 @@ radiance = 1.0
 [solver]
 directions_per_face = 2
 max_orders = 3
-tolerance = 1e-12
-"#;
-
-/// Slow enough (ten orders) for a task to be caught between two checkpoints.
-const SLOW: &str = r#"
-[volume]
-procedural = "cloud"
-dims = [32, 30, 34]
-seed = 3
-[medium]
-sigma_t = [0.9, 0.7, 0.5]
-albedo = 0.9
-[[lights]]
-kind = "sky"
-radiance = 0.5
-[[lights]]
-kind = "sun"
-direction = [0.4, -0.3, 1.0]
-irradiance = 2.0
-[solver]
-directions_per_face = 3
-max_orders = 10
 tolerance = 1e-12
 "#;
 
@@ -122,7 +100,7 @@ fn sweep_expands_reruns_and_locks() {
     // Two runs of one task at once: the second is refused while the first holds the task.
     let slow_dir = dir.join("slow");
     std::fs::create_dir_all(&slow_dir).unwrap();
-    std::fs::write(slow_dir.join("slow.toml"), SLOW).unwrap();
+    std::fs::write(slow_dir.join("slow.toml"), killable_cloud_scene([32, 30, 34], 10)).unwrap();
     std::fs::write(slow_dir.join("m.toml"), "scene = \"slow.toml\"\n[solve]\nno_image = true\n").unwrap();
     let sm = slow_dir.join("m.toml");
     let mut first = lpm_command(&["solve", sm.to_str().unwrap(), "--task", "0"]).stdout(Stdio::null()).spawn().unwrap();
@@ -254,7 +232,7 @@ impl Drop for Slurm {
 fn slurm_array_with_a_killed_and_requeued_task() {
     let dir = temp_dir("slurm");
     let slurm = Slurm::start(&dir.join("cluster"));
-    std::fs::write(dir.join("slow.toml"), SLOW).unwrap();
+    std::fs::write(dir.join("slow.toml"), killable_cloud_scene([32, 30, 34], 10)).unwrap();
     let manifest = dir.join("sweep.toml");
     std::fs::write(
         &manifest,
