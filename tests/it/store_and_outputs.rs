@@ -385,3 +385,37 @@ fn write_atomic_leaves_nothing_half_written() {
     let names: Vec<_> = fs::read_dir(&*dir).expect("dir").map(|e| e.expect("entry").file_name()).collect();
     assert_eq!(names, vec![std::ffi::OsString::from("result.json")]);
 }
+
+/// Issue 13, defect 2: a raw file that shrinks while lpm reads it is an error naming it, not a
+/// SIGBUS (the importer reads with `pread`, never through a memory map).
+#[test]
+fn a_raw_file_truncated_while_read_is_an_error_not_a_signal() {
+    let dir = test_dir("raw-shrinks");
+    let dims = [20u32, 20, 20];
+    let path = dir.join("shrinks.raw");
+    write_raw(&path, &vec![1.0; 8000]);
+    let Ok(raw) = raw_density(&path, dims) else { panic!("a whole file opens") };
+    // Another program truncates the file after it was opened and checked.
+    std::fs::OpenOptions::new().write(true).open(&path).unwrap().set_len(100).unwrap();
+    let mut out = vec![0f32; 4096];
+    let err = raw.fill_brick([1, 1, 1], &mut out).expect_err("the shrunk file must be an error").to_string();
+    assert!(err.contains("shrinks.raw"), "{err}");
+}
+
+/// Issue 13, defect 7: a symlink planted in the output directory under any name lpm might use for a
+/// temporary never redirects a write: the target outside stays untouched and the output is complete.
+#[test]
+fn a_planted_symlink_never_redirects_an_atomic_write() {
+    let dir = test_dir("planted-symlink");
+    let victim = dir.join("victim.txt");
+    std::fs::write(&victim, b"precious").unwrap();
+    let out = dir.join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    // The old predictable name (`<name>.tmp-<pid>`) and the final name's neighbours.
+    for name in [format!("report.json.tmp-{}", std::process::id()), "report.json.tmp".to_string()] {
+        std::os::unix::fs::symlink(&victim, out.join(name)).unwrap();
+    }
+    lpm::output::write_atomic(&out.join("report.json"), |w| std::io::Write::write_all(w, b"{}")).unwrap();
+    assert_eq!(std::fs::read(&victim).unwrap(), b"precious");
+    assert_eq!(std::fs::read(out.join("report.json")).unwrap(), b"{}");
+}
