@@ -41,9 +41,13 @@ enum Command {
         /// killed one resumes from its checkpoint) and to run concurrently.
         #[arg(long, num_args = 0..=1, default_missing_value = "slurm", conflicts_with_all = ["out", "resume"])]
         task: Option<String>,
-        /// Where the sweeps run: the Vulkan device, or the f64 CPU twin (a reference for small volumes).
+        /// Where the sweeps run: the Vulkan device, or the CPU (the GPU kernels' twin in f64, on
+        /// every core; it keeps its fields in memory, so it suits volumes that fit in RAM).
         #[arg(long, value_enum, default_value_t = Backend::Gpu)]
         backend: Backend,
+        /// Threads of the CPU backend (0: all cores). The result is bitwise the same at any count.
+        #[arg(long, default_value_t = 0)]
+        threads: usize,
         /// Vulkan physical device index (default: the first discrete GPU, else the best available).
         #[arg(long, env = "LPM_DEVICE")]
         device: Option<usize>,
@@ -434,6 +438,7 @@ fn run(cli: Cli) -> Result<()> {
             scene,
             out,
             backend,
+            threads,
             device,
             validation,
             keep_store,
@@ -444,6 +449,11 @@ fn run(cli: Cli) -> Result<()> {
             task,
             fresh,
         } => {
+            // The CPU backend sweeps on rayon's global pool (0 threads: one per core).
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build_global()
+                .context("could not start the CPU backend's threads")?;
             let vk = vk_options(device, validation);
             let backend_kind = match backend {
                 Backend::Gpu => BackendKind::Gpu,

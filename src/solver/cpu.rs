@@ -8,19 +8,20 @@
 //! f16, the twin rounds it exactly where the GPU does: once per order, before the rays gain it,
 //! with the same power-of-two scale (the GPU rounds its f32 sums, the twin its f64 ones).
 
+use super::cpu_sweep::{sweep_direction, SweepInputs, SweepMode, SweepOutputs};
 use super::energy::Tallies;
 use super::fields::LoopState;
 use super::orders::{Backend, OrderFields};
 use super::plan::{half_scale_exponent, Plan, Precision, SweepDirection};
 use super::remaining::{RemainingError, RemainingTally};
-use super::segment::segment;
-use super::sweep::{lattice_column, taps, FaceSweep};
 use super::SolveError;
 
 pub struct CpuTwin<'a> {
     plan: &'a Plan,
     /// Density per voxel, x fastest.
     density: Vec<f64>,
+    /// Per 16³ brick (x fastest): whether it holds medium. Empty bricks are skipped, as on the GPU.
+    occupied: Vec<bool>,
     /// Sources per voxel, `[voxel][d·C + ch]`.
     j_prev: Vec<f64>,
     /// The source the rays gain when the plan stores it in f16: `j_prev` rounded (else empty).
@@ -52,9 +53,20 @@ impl<'a> CpuTwin<'a> {
                 }
             }
         }
+        let bricks = plan.dims.map(|n| n.div_ceil(crate::store::BRICK_EDGE) as usize);
+        let mut occupied = vec![false; bricks[0] * bricks[1] * bricks[2]];
+        for (i, &rho) in values.iter().enumerate() {
+            if rho != 0.0 {
+                let (x, rest) = (i % nx as usize, i / nx as usize);
+                let (y, z) = (rest % ny as usize, rest / ny as usize);
+                let e = crate::store::BRICK_EDGE as usize;
+                occupied[x / e + bricks[0] * (y / e + bricks[1] * (z / e))] = true;
+            }
+        }
         Ok(CpuTwin {
             plan,
             density: values,
+            occupied,
             j_prev: vec![0.0; voxels * comps],
             j_gain: if half { vec![0.0; voxels * comps] } else { Vec::new() },
             j_next: vec![0.0; voxels * comps],
@@ -80,85 +92,18 @@ impl<'a> CpuTwin<'a> {
     }
 
     /// Marches every ray of one direction through the whole volume, depositing fluence and the next
-    /// order's source. `boundary`: rays are born carrying the direction's boundary radiance (else
-    /// zero); `gain`: rays gain the previous order's source (and the emission when `emit`).
-    ///
-    /// Each ray gathers density and source from the voxels it meets with the lattice weights (see
-    /// [`super::sweep`]) and deposits its segment average to the same voxels with the same weights
-    /// (what `collect.comp` pulls from the lattice cells around each voxel).
+    /// order's source ([`super::cpu_sweep`]: plane by plane, on the current rayon pool's threads).
+    /// `boundary`: rays are born carrying the direction's boundary radiance (else zero); `gain`:
+    /// rays gain the previous order's source (and the emission when `emit`).
     fn sweep(&mut self, dir: &SweepDirection, boundary: bool, gain: bool, emit: bool) -> Tallies {
-        let plan = self.plan;
-        let c = plan.channels as usize;
-        let comps = plan.source_components() as usize;
-        let sweep = FaceSweep::new(dir.face, plan.dims);
-        let [na, nb, nc] = sweep.n;
-        let [lb, lc] = sweep.lattice();
-        let birth: [f64; 3] = if boundary { dir.boundary } else { [0.0; 3] };
-        let coeffs: Vec<(f64, f64, f64)> = (0..c).map(|ch| plan.coefficients(ch)).collect();
-        let mut tallies = Tallies::default();
-        let (mut born, mut left) = ([0.0; 3], [0.0; 3]);
-        // The voxels (index, weight) the ray meets in the current plane.
-        let mut met: Vec<(usize, f64)> = Vec::with_capacity(4);
-        for q in 0..lc {
-            for p in 0..lb {
-                let mut l = birth;
-                let mut wrap = [0, 0];
-                (0..c).for_each(|ch| born[ch] += birth[ch]);
-                for t in 0..na {
-                    let o = dir.offsets[t as usize];
-                    let w = dir.weights[t as usize];
-                    let (cb, wb) = lattice_column(p, o[0], nb);
-                    let (cc, wc) = lattice_column(q, o[1], nc);
-                    if t > 0 && [wb, wc] != wrap {
-                        // The ray left through a side: a new one enters from the opposite side.
-                        for ch in 0..c {
-                            left[ch] += l[ch];
-                            l[ch] = birth[ch];
-                            born[ch] += birth[ch];
-                        }
-                    }
-                    wrap = [wb, wc];
-                    met.clear();
-                    for (vc, tc) in taps(cc, w[1], nc) {
-                        for (vb, tb) in taps(cb, w[0], nb) {
-                            met.push((self.index(sweep.voxel(t, vb, vc)), tb * tc));
-                        }
-                    }
-                    let rho: f64 = met.iter().map(|&(v, wt)| wt * self.density[v]).sum();
-                    for ch in 0..c {
-                        let (st, ss, sa) = coeffs[ch];
-                        let mut j = 0.0;
-                        if gain {
-                            let gained = if self.j_gain.is_empty() { &self.j_prev } else { &self.j_gain };
-                            let k = dir.gain_storage as usize * c + ch;
-                            j = met.iter().map(|&(v, wt)| wt * gained[v * comps + k]).sum();
-                            if emit {
-                                j += rho * sa * plan.medium.emission[ch];
-                            }
-                        }
-                        let (out, avg) = segment(l[ch], j, rho * st, dir.path_length);
-                        l[ch] = out;
-                        for &(v, wt) in &met {
-                            let share = wt * avg;
-                            self.fluence[v * c + ch] += dir.fluence_weight * share;
-                            self.fluence_order[v * c + ch] += dir.fluence_weight * share;
-                            let sigma_s = self.density[v] * ss;
-                            if sigma_s > 0.0 {
-                                for (d, m) in dir.collect_row.iter().enumerate() {
-                                    self.j_next[v * comps + d * c + ch] += sigma_s * m * share;
-                                }
-                            }
-                        }
-                    }
-                }
-                (0..c).for_each(|ch| left[ch] += l[ch]);
-            }
-        }
-        for ch in 0..c {
-            tallies.boundary_in[ch] = born[ch] * dir.power_per_radiance;
-            tallies.boundary_out[ch] = left[ch] * dir.power_per_radiance;
-        }
-        tallies
+        let gained = if self.j_gain.is_empty() { &self.j_prev } else { &self.j_gain };
+        let inputs = SweepInputs { density: &self.density, gained, occupied: &self.occupied };
+        let mut outputs = SweepOutputs {
+            fluence: &mut self.fluence,
+            fluence_order: &mut self.fluence_order,
+            j_next: &mut self.j_next,
+        };
+        sweep_direction(self.plan, dir, SweepMode { boundary, gain, emit }, &inputs, &mut outputs)
     }
 }
 

@@ -9,6 +9,7 @@
 //! - [`fields`] holds the solver's fields in the brick store and the host passes over them.
 
 pub mod cpu;
+mod cpu_sweep;
 pub mod energy;
 pub mod fields;
 pub mod gpu;

@@ -10,6 +10,7 @@ mod budget;
 mod cli;
 mod compare;
 mod cpu_physics;
+mod cpu_threads;
 mod forward_peak;
 mod gpu_solver;
 mod hard_cases;
