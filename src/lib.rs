@@ -47,7 +47,8 @@
 //!    through a [`solver::orders::Backend`] and then runs the host passes itself, through the
 //!    backend's [`solver::orders::OrderFields`]: commit the order, checkpoint, and at the end the
 //!    energy balance and the geometric tail.
-//! 5. **Backend** — either the CPU twin ([`solver::cpu`], f64, in memory) or the GPU driver
+//! 5. **Backend** — either the CPU twin ([`solver::cpu`], f64, in memory, its sweeps plane by plane
+//!    on every core: `solver/cpu_sweep.rs`, bitwise the same at any thread count) or the GPU driver
 //!    ([`solver::gpu`]): `sizes` → `budget` (the memory plan) → `resources` (everything on the
 //!    device, all-or-nothing) → `streamer` (slices through the slots: gather on the copy workers,
 //!    upload, compute, download, scatter, against timeline semaphores) → `encoder` (push constants,

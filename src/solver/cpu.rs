@@ -2,9 +2,10 @@
 //! tested against, selectable with `--backend cpu`.
 //!
 //! It walks exactly the voxels the GPU walks (same offset tables, same wrap rule, same segment
-//! formulas) but keeps every field in memory, so it is meant for volumes that fit in RAM. Its loops
-//! read like the two kernels: `sweep` is `glsl/propagate.comp` and the deposit inside it is
-//! `glsl/collect.comp` applied one direction at a time. When the plan stores the gained source in
+//! formulas, empty bricks skipped) but keeps every field in memory, so it is meant for volumes that
+//! fit in RAM. Its sweep ([`super::cpu_sweep`]) reads like the two kernels: per plane, a step of
+//! every ray (`glsl/propagate.comp`) and a collect of every voxel (`glsl/collect.comp`), each on
+//! every core of the current rayon pool, with the same bits at any thread count. When the plan stores the gained source in
 //! f16, the twin rounds it exactly where the GPU does: once per order, before the rays gain it,
 //! with the same power-of-two scale (the GPU rounds its f32 sums, the twin its f64 ones).
 

@@ -71,7 +71,7 @@ pub enum BackendKind {
 pub struct SolveRun {
     pub plan: Plan,
     pub outcome: OrderOutcome,
-    /// The Vulkan device used, or "CPU twin (f64)".
+    /// The Vulkan device used, or "CPU twin (f64, N threads)".
     pub device: String,
     /// Peak device memory allocated by the solver's allocator (0 for the CPU backend).
     pub peak_device_bytes: u64,
@@ -226,7 +226,8 @@ pub fn solve_with(
             let outcome = orders::run_orders(&plan, &mut twin, start, &mut progress)?;
             phases.push(("orders".to_string(), t.elapsed().as_secs_f64()));
             twin.write_into(store, &mut fields);
-            (outcome, "CPU twin (f64)".to_string(), 0)
+            let device = format!("CPU twin (f64, {} threads)", rayon::current_num_threads());
+            (outcome, device, 0)
         }
         BackendKind::Gpu => {
             let t = Instant::now();
