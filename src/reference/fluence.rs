@@ -82,7 +82,7 @@ impl ChannelSetup {
             sources.push((Source::Sun(i), irr * 4.0 * eu * ev * h * h));
         }
         let sigma_a_world = m.sigma_t[ch] * (1.0 - albedo);
-        let emitted = 4.0 * PI * sigma_a_world * le * grid.total_density * h * h * h;
+        let emitted = 4.0 * PI * sigma_a_world * le * grid.emission_weight * h * h * h;
         if emitted > 0.0 {
             sources.push((Source::Emission, emitted));
         }
@@ -91,13 +91,14 @@ impl ChannelSetup {
     }
 }
 
-/// Cumulative density over voxels (x fastest), for sampling emission positions.
+/// Cumulative density × emission factor over voxels (x fastest), for sampling emission positions.
 pub fn emission_cdf(grid: &Grid) -> Vec<f64> {
     let mut acc = 0.0f64;
     grid.density
         .iter()
-        .map(|&d| {
-            acc += d as f64;
+        .enumerate()
+        .map(|(i, &d)| {
+            acc += d as f64 * grid.emission_factor(i);
             acc
         })
         .collect()

@@ -18,8 +18,11 @@ pub struct Grid {
     /// Largest and smallest density in each brick (x fastest over bricks).
     pub brick_max: Vec<f32>,
     pub brick_min: Vec<f32>,
-    /// Sum of all densities (f64).
-    pub total_density: f64,
+    /// Per-voxel emission factor e(v) (x fastest), or empty: the medium emits uniformly (e = 1).
+    pub emission: Vec<f32>,
+    /// Σ ρ·e over the voxels (Σ ρ when the medium emits uniformly): what the emitted power is
+    /// proportional to.
+    pub emission_weight: f64,
 }
 
 impl Grid {
@@ -66,7 +69,44 @@ impl Grid {
                 *m = 0.0;
             }
         }
-        (Grid { dims, bricks, density: values, brick_max, brick_min, total_density: total }, bad)
+        let grid = Grid {
+            dims,
+            bricks,
+            density: values,
+            brick_max,
+            brick_min,
+            emission: Vec::new(),
+            emission_weight: total,
+        };
+        (grid, bad)
+    }
+
+    /// Sets a per-voxel emission factor, sampled once per voxel (non-finite or negative values
+    /// count as 0, returned as their number).
+    pub fn set_emission(&mut self, emission: &(dyn Fn([u32; 3]) -> f32 + Sync)) -> u64 {
+        let mut bad = 0;
+        let mut values = Vec::with_capacity(self.density.len());
+        for z in 0..self.dims[2] {
+            for y in 0..self.dims[1] {
+                for x in 0..self.dims[0] {
+                    let e = emission([x, y, z]);
+                    values.push(if e.is_finite() && e >= 0.0 {
+                        e
+                    } else {
+                        bad += 1;
+                        0.0
+                    });
+                }
+            }
+        }
+        self.emission_weight = self.density.iter().zip(&values).map(|(&d, &e)| d as f64 * e as f64).sum();
+        self.emission = values;
+        bad
+    }
+
+    /// The emission factor of voxel `i` (1 when the medium emits uniformly).
+    pub fn emission_factor(&self, i: usize) -> f64 {
+        self.emission.get(i).map_or(1.0, |&e| e as f64)
     }
 
     pub fn voxel_count(&self) -> usize {

@@ -18,7 +18,7 @@
 use super::{ReferenceOptions, ReferenceResult};
 use crate::output::{self, FieldMeta, OutputError};
 use crate::render::{self, Image};
-use crate::scene::{procedural, Scene, SceneError, Shape, VolumeSource};
+use crate::scene::{procedural, EmissionGrid, Scene, SceneError, Shape, VolumeSource};
 use crate::store::{self, BrickGrid, StoreError, BRICK_VOXELS};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -125,10 +125,38 @@ fn run_in(
         image_samples_per_pixel: job.image_samples_per_pixel,
         ..ReferenceOptions::default()
     };
+    // A per-voxel emission, read from the scene's files as the densities are (not from lpm's store).
+    type PerVoxel = Box<dyn Fn([u32; 3]) -> f32 + Sync>;
+    let emission: Option<PerVoxel> = match (&scene.volume.emission, &scene.volume.source) {
+        (None, _) => None,
+        (Some(EmissionGrid::Raw { path }), _) => {
+            let values = raw_densities(path, dims).map_err(|e| match e {
+                StoreError::BadDensity { path, voxel, value } => StoreError::BadEmission { path, voxel, value },
+                other => other,
+            })?;
+            let (nx, ny) = (dims[0] as usize, dims[1] as usize);
+            Some(Box::new(move |v: [u32; 3]| {
+                values.get((v[2] as usize * ny + v[1] as usize) * nx + v[0] as usize).copied().unwrap_or(0.0)
+            }))
+        }
+        (Some(EmissionGrid::Vdb { grid }), VolumeSource::Vdb { path, index_min, .. }) => {
+            let vdb = crate::store::vdb::vdb_grid_over(path, grid, dims, *index_min)?;
+            let index_min = *index_min;
+            Some(Box::new(move |v: [u32; 3]| vdb.grid().tree.value(std::array::from_fn(|i| index_min[i] + v[i] as i32))))
+        }
+        (Some(EmissionGrid::Vdb { grid }), _) => {
+            return Err(StoreError::Corrupt {
+                path: job.scene.clone(),
+                message: format!("emission grid \"{grid}\" needs a `vdb` volume"),
+            }
+            .into())
+        }
+    };
+    let emission = emission.as_deref();
     let result = match &scene.volume.source {
         VolumeSource::Procedural { shape, seed } => {
             let (shape, seed): (Shape, u64) = (*shape, *seed);
-            super::run(&scene, &|v| procedural::density(shape, seed, dims, v), channels, &opts)
+            super::run_with_emission(&scene, &|v| procedural::density(shape, seed, dims, v), emission, channels, &opts)
         }
         VolumeSource::Raw { path } => {
             let values = raw_densities(path, dims)?;
@@ -137,13 +165,13 @@ fn run_in(
                 let i = (v[2] as usize * ny + v[1] as usize) * nx + v[0] as usize;
                 values.get(i).copied().unwrap_or(0.0)
             };
-            super::run(&scene, &at, channels, &opts)
+            super::run_with_emission(&scene, &at, emission, channels, &opts)
         }
         VolumeSource::Vdb { path, grid, index_min } => {
             let vdb = crate::store::vdb::vdb_density(path, grid, dims, *index_min)?;
             let tree = &vdb.grid().tree;
             let at = |v: [u32; 3]| tree.value(std::array::from_fn(|i| index_min[i] + v[i] as i32));
-            super::run(&scene, &at, channels, &opts)
+            super::run_with_emission(&scene, &at, emission, channels, &opts)
         }
         VolumeSource::Nrrd { path } => {
             let header = store::nrrd_input::nrrd_header(path)?;
@@ -157,7 +185,7 @@ fn run_in(
                 let i = (v[2] as usize * ny + v[1] as usize) * nx + v[0] as usize;
                 values.get(i).copied().unwrap_or(0.0)
             };
-            super::run(&scene, &at, channels, &opts)
+            super::run_with_emission(&scene, &at, emission, channels, &opts)
         }
     };
     let outputs = write_outputs(&result, h, stage)?;

@@ -159,12 +159,30 @@ pub fn run(
     channels: u32,
     opts: &ReferenceOptions,
 ) -> ReferenceResult {
+    run_with_emission(scene, density, None, channels, opts)
+}
+
+/// [`run`] with a per-voxel emission factor e(v) (the scene's `volume.emission_*`): the medium
+/// emits `σa·Le·e(v)` instead of `σa·Le`.
+pub fn run_with_emission(
+    scene: &Scene,
+    density: &(dyn Fn([u32; 3]) -> f32 + Sync),
+    emission: Option<&(dyn Fn([u32; 3]) -> f32 + Sync)>,
+    channels: u32,
+    opts: &ReferenceOptions,
+) -> ReferenceResult {
     let start = Instant::now();
     let channels: usize = if channels >= 3 { 3 } else { 1 };
     let dims = scene.volume.dims;
-    let (grid, bad) = Grid::new(dims, density);
+    let (mut grid, bad) = Grid::new(dims, density);
     if bad > 0 {
         tracing::warn!(voxels = bad, "reference: non-finite or negative densities replaced by 0");
+    }
+    if let Some(emission) = emission {
+        let bad = grid.set_emission(emission);
+        if bad > 0 {
+            tracing::warn!(voxels = bad, "reference: non-finite or negative emission values replaced by 0");
+        }
     }
     let setups: Vec<ChannelSetup> = (0..channels).map(|c| ChannelSetup::new(scene, &grid, c)).collect();
     let cdf = if setups.iter().any(|s| s.sources.iter().any(|x| x.0 == fluence::Source::Emission)) {

@@ -36,6 +36,9 @@ pub(crate) struct RawVolume {
     #[serde(default, deserialize_with = "exactly3_opt")]
     pub origin: Option<[f64; 3]>,
     pub seed: Option<i64>,
+    /// Per-voxel emission: a raw f32 file of the volume's dims, or a grid of the `vdb` file.
+    pub emission_raw: Option<String>,
+    pub emission_grid: Option<String>,
 }
 
 #[derive(Debug, Deserialize)]

@@ -31,6 +31,20 @@ pub struct Volume {
     /// the volume's own frame (corner at 0); only the camera is placed in the world, and the
     /// validator moves it into the volume's frame (see [`Camera`]).
     pub origin: DVec3,
+    /// Per-voxel emission `e(v)` (≥ 0): the medium's emitted radiance in voxel v is
+    /// `Le(v) = e(v)·medium.emission` (the colour, 1 when not given), its source `σa(v)·Le(v)`.
+    /// `None`: the medium emits `medium.emission` uniformly (where it absorbs).
+    pub emission: Option<EmissionGrid>,
+}
+
+/// Where a per-voxel emission comes from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum EmissionGrid {
+    /// Little-endian f32, x fastest, the volume's dims; an absolute path.
+    Raw { path: PathBuf },
+    /// Grid `grid` of the volume's OpenVDB file, read over the density's voxels (its own active
+    /// bounding box may be smaller: voxels outside it are 0).
+    Vdb { grid: String },
 }
 
 #[derive(Clone, Debug, PartialEq)]

@@ -6,7 +6,7 @@
 
 use super::raw::{ByteSize, Channels, RawCamera, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
 use super::{
-    Camera, ForwardPeak, Light, Medium, PlanMode, Projection, Scene, SceneError, Shape, SolverSettings, SpatialScheme,
+    Camera, EmissionGrid, ForwardPeak, Light, Medium, PlanMode, Projection, Scene, SceneError, Shape, SolverSettings, SpatialScheme,
     StoragePrecision, Volume, VolumeSource,
 };
 use glam::DVec3;
@@ -70,7 +70,12 @@ impl Validator<'_> {
 
     pub fn scene(&self, raw: RawScene) -> R<Scene> {
         let volume = self.volume(raw.volume)?;
-        let medium = self.medium(raw.medium)?;
+        let emission_given = raw.medium.emission.is_some();
+        let mut medium = self.medium(raw.medium)?;
+        if volume.emission.is_some() && !emission_given {
+            // A per-voxel emission grid without a colour emits its own values in every channel.
+            medium.emission = [1.0; 3];
+        }
         if raw.lights.len() > MAX_LIGHTS {
             return Err(
                 self.err("lights", format!("{} lights is more than the limit of {MAX_LIGHTS}", raw.lights.len()))
@@ -167,7 +172,43 @@ impl Validator<'_> {
 
     // ---- sections -------------------------------------------------------------------------
 
-    fn volume(&self, v: RawVolume) -> R<Volume> {
+    fn volume(&self, mut v: RawVolume) -> R<Volume> {
+        let (emission_raw, emission_grid) = (v.emission_raw.take(), v.emission_grid.take());
+        let mut volume = self.volume_source(v)?;
+        volume.emission = self.emission_grid(emission_raw, emission_grid, &volume)?;
+        Ok(volume)
+    }
+
+    /// `volume.emission_raw` / `volume.emission_grid`, once the volume's dims are known.
+    fn emission_grid(&self, raw: Option<String>, grid: Option<String>, volume: &Volume) -> R<Option<EmissionGrid>> {
+        match (raw, grid) {
+            (None, None) => Ok(None),
+            (Some(_), Some(_)) => Err(self.err(
+                "volume.emission_grid",
+                "set at most one of `emission_raw` and `emission_grid`, but both are set",
+            )),
+            (Some(raw), None) => {
+                let voxels = volume.dims.iter().map(|&d| u64::from(d)).product::<u64>();
+                let path = self.raw_file_at("volume.emission_raw", &raw, volume.dims, voxels)?;
+                Ok(Some(EmissionGrid::Raw { path }))
+            }
+            (None, Some(grid)) => {
+                let VolumeSource::Vdb { path, .. } = &volume.source else {
+                    return Err(self.err(
+                        "volume.emission_grid",
+                        "only applies to a `vdb` volume (use `emission_raw` for a raw file of the volume's dims)",
+                    ));
+                };
+                if grid.trim().is_empty() {
+                    return Err(self.err("volume.emission_grid", "must name a grid, got an empty string"));
+                }
+                crate::store::vdb::vdb_info(path, &grid).map_err(|e| self.err("volume.emission_grid", e.to_string()))?;
+                Ok(Some(EmissionGrid::Vdb { grid }))
+            }
+        }
+    }
+
+    fn volume_source(&self, v: RawVolume) -> R<Volume> {
         let origin = match v.origin {
             None => DVec3::ZERO,
             Some(o) => self.vec3("volume.origin", o)?,
@@ -227,7 +268,7 @@ impl Validator<'_> {
                 VolumeSource::Raw { path: self.raw_file(&raw, dims, voxels)? }
             }
         };
-        Ok(Volume { source, dims, voxel_size, origin })
+        Ok(Volume { source, dims, voxel_size, origin, emission: None })
     }
 
     /// Checks a volume's size: each of `d` in 1..=MAX_DIM and the product at most MAX_VOXELS.
@@ -251,7 +292,11 @@ impl Validator<'_> {
 
     /// Resolves `raw` against the scene file's directory and checks the file's size.
     fn raw_file(&self, raw: &str, dims: [u32; 3], voxels: u64) -> R<PathBuf> {
-        let key = "volume.raw";
+        self.raw_file_at("volume.raw", raw, dims, voxels)
+    }
+
+    /// A raw f32 file named by `key`, resolved against the scene file, of exactly `voxels` values.
+    fn raw_file_at(&self, key: &str, raw: &str, dims: [u32; 3], voxels: u64) -> R<PathBuf> {
         if raw.trim().is_empty() {
             return Err(self.err(key, "must name a file, got an empty string"));
         }

@@ -32,6 +32,8 @@ pub struct CpuTwin<'a> {
     /// Fluence per voxel, `[voxel][ch]`: over all orders, and of the order being propagated.
     fluence: Vec<f64>,
     fluence_order: Vec<f64>,
+    /// Power of a per-voxel emission (`solver::emission`), when the first order's source is one.
+    emitted_field: Option<[f64; 3]>,
 }
 
 impl<'a> CpuTwin<'a> {
@@ -74,7 +76,26 @@ impl<'a> CpuTwin<'a> {
             j_total: vec![0.0; voxels * comps],
             fluence: vec![0.0; voxels * plan.channels as usize],
             fluence_order: vec![0.0; voxels * plan.channels as usize],
+            emitted_field: None,
         })
+    }
+
+    /// Starts from the order-0 source in `source` (a store field, as the GPU gains it) instead of
+    /// zero: a per-voxel emission, which emits `power` per channel.
+    pub fn set_initial_source(&mut self, source: &crate::store::Field, power: [f64; 3]) {
+        let comps = self.plan.source_components();
+        let [nx, ny, nz] = self.plan.dims;
+        for z in 0..nz {
+            for y in 0..ny {
+                for x in 0..nx {
+                    let i = self.index([x, y, z]);
+                    for k in 0..comps {
+                        self.j_prev[i * comps as usize + k as usize] = source.value([x, y, z], k) as f64;
+                    }
+                }
+            }
+        }
+        self.emitted_field = Some(power);
     }
 
     fn index(&self, v: [u32; 3]) -> usize {
@@ -198,7 +219,7 @@ impl OrderFields for CpuTwin<'_> {
                 absorbed[ch] += sa * self.fluence[v * c + ch] * h3;
             }
         }
-        Ok((emitted, absorbed))
+        Ok((self.emitted_field.unwrap_or(emitted), absorbed))
     }
 
     fn checkpoint(&mut self, _state: &LoopState) -> Result<(), SolveError> {

@@ -310,7 +310,11 @@ impl OrderFields for StoreOrderFields<'_> {
     }
 
     fn emitted_and_absorbed(&mut self) -> Result<([f64; 3], [f64; 3]), SolveError> {
-        Ok(self.fields.emitted_and_absorbed(self.store, self.plan))
+        let (emitted, absorbed) = self.fields.emitted_and_absorbed(self.store, self.plan);
+        if self.plan.emission_field {
+            return Ok((super::emission::emitted_power(self.store, self.plan)?, absorbed));
+        }
+        Ok((emitted, absorbed))
     }
 
     fn remaining_error(&mut self, factor: [f64; 3]) -> Result<super::remaining::RemainingError, SolveError> {

@@ -10,6 +10,7 @@
 
 pub mod cpu;
 mod cpu_sweep;
+pub mod emission;
 pub mod energy;
 pub mod fields;
 pub mod gpu;
@@ -132,6 +133,9 @@ pub fn build_store(scene: &Scene, dir: &Path) -> Result<BrickStore, SolveError> 
             store?
         }
     };
+    if let Some(grid) = &scene.volume.emission {
+        crate::store::emission::import_emission(&store, grid, &scene.volume.source)?;
+    }
     Ok(store)
 }
 
@@ -210,7 +214,13 @@ pub fn solve_with(
             tracing::info!("resuming after {} completed order(s)", state.orders_done);
             (fields, state)
         }
-        None => (StoreFields::create(store, &plan)?, fields::LoopState::default()),
+        None => {
+            let mut fields = StoreFields::create(store, &plan)?;
+            if plan.emission_field {
+                emission::write_initial_source(store, &plan, &mut fields.source_prev)?;
+            }
+            (fields, fields::LoopState::default())
+        }
     };
     phases.push(("plan".to_string(), t.elapsed().as_secs_f64()));
     for reason in &plan.reasons {
@@ -221,6 +231,10 @@ pub fn solve_with(
         BackendKind::Cpu => {
             let t = Instant::now();
             let mut twin = cpu::CpuTwin::new(&plan, |v| store.density_at(v))?;
+            if plan.emission_field {
+                // The same f32 order-0 source the GPU gains, and the power it emits.
+                twin.set_initial_source(&fields.source_prev, emission::emitted_power(store, &plan)?);
+            }
             phases.push(("setup".to_string(), t.elapsed().as_secs_f64()));
             let t = Instant::now();
             let outcome = orders::run_orders(&plan, &mut twin, start, &mut progress)?;

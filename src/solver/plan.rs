@@ -112,7 +112,11 @@ pub struct Plan {
     /// The sun beams (each a single direction swept once, before the first order).
     pub beams: Vec<SweepDirection>,
     pub medium: Medium,
+    /// The medium emits `medium.emission` uniformly (the kernels add it in order 0).
     pub emission: bool,
+    /// The medium emits per voxel (`volume.emission_*`): the order-0 source is written from the
+    /// store's emission field before the orders start (see `solver::emission`).
+    pub emission_field: bool,
     pub max_orders: u32,
     pub tolerance: f64,
     /// Add the geometric tail of the order series once it is settled (see `orders::tail_estimate`).
@@ -147,6 +151,8 @@ pub struct PlanSummary {
     pub storage_directions_per_face: u32,
     pub suns: usize,
     pub emission: bool,
+    /// The emission comes from a per-voxel grid.
+    pub emission_per_voxel: bool,
     pub bricks_total: usize,
     pub bricks_empty: usize,
     pub max_orders: u32,
@@ -267,8 +273,11 @@ impl Plan {
                 beams.len()
             ));
         }
-        let emission = medium.has_emission();
-        reasons.push(if emission {
+        let emission_field = medium.has_emission() && scene.volume.emission.is_some();
+        let emission = medium.has_emission() && !emission_field;
+        reasons.push(if emission_field {
+            "emission per voxel: the first order's source is σa·Le·e(v) from the emission grid".into()
+        } else if emission {
             "emission on: the medium emits σa·Le".into()
         } else {
             "no emission term: the medium does not emit".into()
@@ -289,6 +298,7 @@ impl Plan {
             beams,
             medium,
             emission,
+            emission_field,
             max_orders: scene.solver.max_orders,
             tolerance: scene.solver.tolerance,
             extrapolate_tail: scene.solver.extrapolate_tail,
@@ -326,7 +336,8 @@ impl Plan {
             storage_directions: self.storage.len(),
             storage_directions_per_face: self.storage.per_face,
             suns: self.beams.len(),
-            emission: self.emission,
+            emission: self.emission || self.emission_field,
+            emission_per_voxel: self.emission_field,
             bricks_total: self.bricks_total,
             bricks_empty: self.bricks_empty,
             max_orders: self.max_orders,

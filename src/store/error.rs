@@ -21,6 +21,10 @@ pub enum StoreError {
         path.display(), voxel[0], voxel[1], voxel[2], short_f32(*value))]
     BadDensity { path: PathBuf, voxel: [u32; 3], value: f32 },
 
+    #[error("{}: voxel ({}, {}, {}) has emission {}; emission values must be finite and non-negative",
+        path.display(), voxel[0], voxel[1], voxel[2], short_f32(*value))]
+    BadEmission { path: PathBuf, voxel: [u32; 3], value: f32 },
+
     #[error("volume dims {}×{}×{} are invalid: {reason}", dims[0], dims[1], dims[2])]
     BadDims { dims: [u32; 3], reason: &'static str },
 

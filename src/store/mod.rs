@@ -26,6 +26,7 @@ mod brick_store;
 mod error;
 mod field;
 mod grid;
+pub mod emission;
 pub mod import;
 pub mod nrrd_input;
 mod space;

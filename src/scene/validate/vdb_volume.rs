@@ -59,6 +59,12 @@ impl Validator<'_> {
             let scale = voxel_size / info.voxel_size;
             DVec3::from_array(info.origin) * scale
         };
-        Ok(Volume { source: VolumeSource::Vdb { path, grid, index_min: info.index_min }, dims, voxel_size, origin })
+        Ok(Volume {
+            source: VolumeSource::Vdb { path, grid, index_min: info.index_min },
+            dims,
+            voxel_size,
+            origin,
+            emission: None,
+        })
     }
 }

@@ -95,6 +95,18 @@ pub fn vdb_density(path: &Path, grid: &str, dims: [u32; 3], index_min: [i32; 3])
     Ok(VdbDensity { path: path.to_path_buf(), grid: g, info, bricks: BrickGrid::new(dims) })
 }
 
+/// Grid `grid` of `path` read over another grid's voxels (`dims` from `index_min`, the density's),
+/// whatever its own active bounding box: a per-voxel field such as emission, which usually covers
+/// only part of the density. Voxels outside its active voxels read its background value.
+pub fn vdb_grid_over(path: &Path, grid: &str, dims: [u32; 3], index_min: [i32; 3]) -> Result<VdbDensity, StoreError> {
+    let mut r = open(path)?;
+    let g = r.read_grid(grid, true).map_err(|e| vdb_error(path, e))?;
+    let mut info = info_of(path, &g, Vec::new())?;
+    info.dims = dims.map(u64::from);
+    info.index_min = index_min;
+    Ok(VdbDensity { path: path.to_path_buf(), grid: g, info, bricks: BrickGrid::new(dims) })
+}
+
 impl VdbDensity {
     pub fn info(&self) -> &VdbVolumeInfo {
         &self.info

@@ -1,0 +1,62 @@
+//! Per-voxel emission (`volume.emission_raw` / `volume.emission_grid`): the source it gives the
+//! first order, and the power it emits.
+//!
+//! A uniformly emitting medium adds `ρ·σa·Le` to what the rays gain in order 0 inside the kernel
+//! (`FLAG_EMIT`). A per-voxel emission `e(v)` needs no kernel of its own: emission is isotropic,
+//! so it *is* an order-0 source, `J_d(v) = ρ(v)·σa·Le·e(v)` in every storage direction d, and it
+//! is written into the source the first order gains before the order loop starts. Both backends
+//! then propagate it exactly as they propagate a scattered source (and the GPU stores it in f16
+//! where the plan stores sources in f16), and the twin reads the very same f32 values.
+
+use super::plan::Plan;
+use super::SolveError;
+use crate::store::emission::open_emission;
+use crate::store::{BrickStore, Field, BRICK_VOXELS};
+
+/// Writes the order-0 source of the emission field into `source` (fresh: all zero).
+pub fn write_initial_source(store: &BrickStore, plan: &Plan, source: &mut Field) -> Result<(), SolveError> {
+    let emission = open_emission(store)?;
+    let c = plan.channels as usize;
+    let storage = plan.storage.solid_angle.len();
+    let scale: Vec<f64> = (0..c).map(|ch| plan.coefficients(ch).2 * plan.medium.emission[ch]).collect();
+    let bricks: Vec<usize> = store.occupied_bricks().collect();
+    for brick in bricks {
+        let (Some(density), Some(e), Some(dst)) =
+            (store.density_brick(brick), emission.brick(brick), source.brick_mut(brick))
+        else {
+            continue;
+        };
+        for ch in 0..c {
+            for d in 0..storage {
+                let k = d * c + ch;
+                let out = &mut dst[k * BRICK_VOXELS..(k + 1) * BRICK_VOXELS];
+                for ((o, &rho), &e) in out.iter_mut().zip(density).zip(e) {
+                    *o = (rho as f64 * scale[ch] * e as f64) as f32;
+                }
+            }
+        }
+    }
+    source.flush()?;
+    Ok(())
+}
+
+/// Power the emission field emits, per channel: Σ 4π·ρσa·Le·e·h³, with the source values as
+/// written (f32), so that the energy balance closes to round-off.
+pub fn emitted_power(store: &BrickStore, plan: &Plan) -> Result<[f64; 3], SolveError> {
+    let emission = open_emission(store)?;
+    let c = plan.channels as usize;
+    let h3 = plan.voxel_size.powi(3);
+    let four_pi: f64 = plan.storage.solid_angle.iter().sum();
+    let mut power = [0.0; 3];
+    for brick in store.occupied_bricks() {
+        let (Some(density), Some(e)) = (store.density_brick(brick), emission.brick(brick)) else {
+            continue;
+        };
+        for ch in 0..c {
+            let scale = plan.coefficients(ch).2 * plan.medium.emission[ch];
+            let sum: f64 = density.iter().zip(e).map(|(&rho, &e)| (rho as f64 * scale * e as f64) as f32 as f64).sum();
+            power[ch] += four_pi * sum * h3;
+        }
+    }
+    Ok(power)
+}
