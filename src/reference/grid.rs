@@ -69,15 +69,8 @@ impl Grid {
                 *m = 0.0;
             }
         }
-        let grid = Grid {
-            dims,
-            bricks,
-            density: values,
-            brick_max,
-            brick_min,
-            emission: Vec::new(),
-            emission_weight: total,
-        };
+        let grid =
+            Grid { dims, bricks, density: values, brick_max, brick_min, emission: Vec::new(), emission_weight: total };
         (grid, bad)
     }
 

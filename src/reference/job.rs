@@ -142,7 +142,9 @@ fn run_in(
         (Some(EmissionGrid::Vdb { grid }), VolumeSource::Vdb { path, index_min, .. }) => {
             let vdb = crate::store::vdb::vdb_grid_over(path, grid, dims, *index_min)?;
             let index_min = *index_min;
-            Some(Box::new(move |v: [u32; 3]| vdb.grid().tree.value(std::array::from_fn(|i| index_min[i] + v[i] as i32))))
+            Some(Box::new(move |v: [u32; 3]| {
+                vdb.grid().tree.value(std::array::from_fn(|i| index_min[i] + v[i] as i32))
+            }))
         }
         (Some(EmissionGrid::Vdb { grid }), _) => {
             return Err(StoreError::Corrupt {

@@ -6,8 +6,8 @@
 
 use super::raw::{ByteSize, Channels, RawCamera, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
 use super::{
-    Camera, EmissionGrid, ForwardPeak, Light, Medium, PlanMode, Projection, Scene, SceneError, Shape, SolverSettings, SpatialScheme,
-    StoragePrecision, Volume, VolumeSource,
+    Camera, EmissionGrid, ForwardPeak, Light, Medium, PlanMode, Projection, Scene, SceneError, Shape, SolverSettings,
+    SpatialScheme, StoragePrecision, Volume, VolumeSource,
 };
 use glam::DVec3;
 use std::path::{Path, PathBuf};
@@ -202,7 +202,8 @@ impl Validator<'_> {
                 if grid.trim().is_empty() {
                     return Err(self.err("volume.emission_grid", "must name a grid, got an empty string"));
                 }
-                crate::store::vdb::vdb_info(path, &grid).map_err(|e| self.err("volume.emission_grid", e.to_string()))?;
+                crate::store::vdb::vdb_info(path, &grid)
+                    .map_err(|e| self.err("volume.emission_grid", e.to_string()))?;
                 Ok(Some(EmissionGrid::Vdb { grid }))
             }
         }

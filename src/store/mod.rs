@@ -23,10 +23,10 @@
 
 mod atomic;
 mod brick_store;
+pub mod emission;
 mod error;
 mod field;
 mod grid;
-pub mod emission;
 pub mod import;
 pub mod nrrd_input;
 mod space;

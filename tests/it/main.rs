@@ -11,6 +11,7 @@ mod cli;
 mod compare;
 mod cpu_physics;
 mod cpu_threads;
+mod emission;
 mod forward_peak;
 mod gpu_solver;
 mod hard_cases;
