@@ -15,7 +15,7 @@
 //! | module | what it owns |
 //! |---|---|
 //! | [`scene`] | the TOML job description, validated into typed values and typed errors |
-//! | [`store`] | the 16³ brick store: memory-mapped field files, empty-brick table, importers (raw, OpenVDB `.vdb`, NRRD) |
+//! | [`store`] | the 16³ brick store: memory-mapped field files, empty-brick table, importers (raw, OpenVDB `.vdb`, NRRD), the per-voxel emission field |
 //! | [`output`] | atomic writes (temporary name, then rename) and the exported raw/json/nhdr layout |
 //! | [`quadrature`] | propagation directions and their solid angles, storage directions, phase tables |
 //! | [`vk`] | the thin Vulkan layer: instance, device, queues, buffers, pipelines, timeline sync |
