@@ -35,3 +35,4 @@ mod vdb_input;
 mod vdb_nrrd;
 mod vdb_sparse;
 mod vk_smoke;
+mod warm_start;
