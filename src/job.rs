@@ -293,8 +293,8 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
         cancel: job.cancel,
         ..solver::gpu::GpuOptions::default()
     };
-    let (run, fields) =
-        solver::solve_from(scene, &store, job.backend, job.vk.clone(), gpu, reopen, warm, progress).map_err(|e| match e {
+    let (run, fields) = solver::solve_from(scene, &store, job.backend, job.vk.clone(), gpu, reopen, warm, progress)
+        .map_err(|e| match e {
             SolveError::BudgetTooSmall { .. } | SolveError::BudgetTooLarge { .. } => JobError::Budget {
                 origin: match (job.device_memory_budget, scene.solver.device_memory_budget) {
                     (Some(_), _) => "--device-memory-budget".to_string(),

@@ -75,6 +75,11 @@ enum Command {
         /// --resume or --fresh, a solve into an OUT holding such a checkpoint refuses to start.
         #[arg(long)]
         fresh: bool,
+        /// Start from the solution in DIR (the output directory of an earlier solve of a scene of
+        /// the same size, with its fields: e.g. the previous frame) instead of from nothing; the
+        /// answer is the cold solve's, within the tolerance (GPU backend).
+        #[arg(long, value_name = "DIR", conflicts_with = "task")]
+        warm_start: Option<PathBuf>,
     },
     /// Monte-Carlo reference solution of a scene (independent of the LPM solver): writes fluence.*,
     /// fluence_stderr.* (per-voxel standard error), image.* when --image-spp > 0, and report.json.
@@ -494,6 +499,7 @@ fn run(cli: Cli) -> Result<()> {
             resume,
             task,
             fresh,
+            warm_start,
         } => {
             let vk = vk_options(device, validation);
             let backend_kind = match backend {
@@ -533,7 +539,7 @@ fn run(cli: Cli) -> Result<()> {
                 resume,
                 fresh,
                 cancel: Some(cancel_on_signals()),
-                warm_start: None,
+                warm_start,
             };
             let bar = std::io::stderr().is_terminal().then(|| {
                 let bar = indicatif::ProgressBar::new_spinner();

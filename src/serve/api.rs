@@ -512,14 +512,17 @@ fn resume(shared: &Shared, id: i64) -> Result<Reply, ApiError> {
             let checkpoint = crate::job::work_dir(&shared.job_dir(id).join("out")).join("checkpoint.json");
             tracing::info!(
                 "job {id}: queued again{}",
-                if checkpoint.exists() { " (it resumes from its checkpoint)" } else { " (no checkpoint: from the start)" }
+                if checkpoint.exists() {
+                    " (it resumes from its checkpoint)"
+                } else {
+                    " (no checkpoint: from the start)"
+                }
             );
             Ok(Reply::json(200, &job))
         }
-        Requeue::NotStopped(job) => Err(ApiError::Conflict(format!(
-            "job {id} is {}: only a cancelled or failed job can be resumed",
-            job.state
-        ))),
+        Requeue::NotStopped(job) => {
+            Err(ApiError::Conflict(format!("job {id} is {}: only a cancelled or failed job can be resumed", job.state)))
+        }
         Requeue::Full(n) => Err(ApiError::QueueFull(n)),
         Requeue::Missing => Err(ApiError::NotFound(format!("no job {id}"))),
     }

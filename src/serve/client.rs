@@ -103,11 +103,8 @@ impl Client {
         let mut length = head.len() as u64;
         let mut body: Box<dyn Read + Send> = Box::new(Cursor::new(head));
         for v in volumes {
-            let name = v
-                .file_name()
-                .and_then(|n| n.to_str())
-                .filter(|n| super::confine::plain_name(n))
-                .ok_or_else(|| {
+            let name =
+                v.file_name().and_then(|n| n.to_str()).filter(|n| super::confine::plain_name(n)).ok_or_else(|| {
                     ClientError::Protocol(format!(
                         "{}: a volume sent to the server needs a plain file name (letters, digits, '.', '_', '-')",
                         v.display()

@@ -287,7 +287,8 @@ impl Db {
     pub fn requeue(&self, id: i64, max_queued: u64) -> rusqlite::Result<Requeue> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
-        let Some(job) = tx.query_row(&format!("SELECT {JOB_COLUMNS} FROM jobs WHERE id = ?1"), [id], job_from_row).optional()?
+        let Some(job) =
+            tx.query_row(&format!("SELECT {JOB_COLUMNS} FROM jobs WHERE id = ?1"), [id], job_from_row).optional()?
         else {
             return Ok(Requeue::Missing);
         };

@@ -45,7 +45,9 @@ fn stop(id: i64, child: &mut Child) {
         }
     };
     match status.and_then(|s| s.code()) {
-        Some(EXIT_CANCELLED) => tracing::info!("job {id}: cancelled; the solve stopped at a slice and kept its checkpoint"),
+        Some(EXIT_CANCELLED) => {
+            tracing::info!("job {id}: cancelled; the solve stopped at a slice and kept its checkpoint")
+        }
         Some(0) => tracing::info!("job {id}: cancelled as its solve was finishing (it completed)"),
         _ => tracing::info!("job {id}: cancelled; the solve was stopped ({status:?})"),
     }

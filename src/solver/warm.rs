@@ -41,8 +41,8 @@
 //!
 //! Only the GPU backend takes a warm start (the CPU twin keeps its fields in memory).
 
-use super::plan::{half_scale_exponent, power_of_two, Plan, Precision};
 use super::fields::StoreFields;
+use super::plan::{half_scale_exponent, power_of_two, Plan, Precision};
 use super::SolveError;
 use crate::store::{BrickStore, BRICK_EDGE, BRICK_VOXELS};
 use std::path::{Path, PathBuf};
@@ -60,7 +60,8 @@ pub enum WarmStartError {
 /// `source.json`) into `fields` as the guess x0, for the scene of `plan` over `store`. Voxels
 /// without medium get 0 (nothing scatters there). Returns the guess's scattered power.
 pub fn seed(store: &BrickStore, plan: &Plan, fields: &mut StoreFields, dir: &Path) -> Result<f64, SolveError> {
-    let unusable = |message: String| SolveError::WarmStart(WarmStartError::Unusable { dir: dir.to_path_buf(), message });
+    let unusable =
+        |message: String| SolveError::WarmStart(WarmStartError::Unusable { dir: dir.to_path_buf(), message });
     let info = crate::output::read_field_json(&dir.join("source.json")).map_err(|e| unusable(e.to_string()))?;
     let comps = plan.source_components();
     if info.dims != plan.dims {
@@ -79,7 +80,12 @@ pub fn seed(store: &BrickStore, plan: &Plan, fields: &mut StoreFields, dir: &Pat
     let [nx, ny, nz] = plan.dims.map(|d| d as usize);
     let c = comps as usize;
     if map.len() != nx * ny * nz * c * 4 {
-        return Err(unusable(format!("{}: {} bytes, expected {}", raw_path.display(), map.len(), nx * ny * nz * c * 4)));
+        return Err(unusable(format!(
+            "{}: {} bytes, expected {}",
+            raw_path.display(),
+            map.len(),
+            nx * ny * nz * c * 4
+        )));
     }
     let value = |i: usize| f32::from_le_bytes([map[4 * i], map[4 * i + 1], map[4 * i + 2], map[4 * i + 3]]);
 

@@ -187,7 +187,9 @@ impl Sweep {
         let warm_start = match raw.frames.as_ref().and_then(|f| f.warm_start.as_deref()) {
             None | Some("none") => false,
             Some("previous") => true,
-            Some(other) => return Err(bad(format!("frames.warm_start: expected \"previous\" or \"none\", got {other:?}"))),
+            Some(other) => {
+                return Err(bad(format!("frames.warm_start: expected \"previous\" or \"none\", got {other:?}")))
+            }
         };
         if warm_start && raw.solve.no_fields {
             return Err(bad(

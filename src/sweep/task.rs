@@ -125,18 +125,29 @@ pub fn run(sweep: &Sweep, index: usize, template: &SolveJob) -> Result<RunOutcom
         Ok(report) => {
             write_status(
                 &dir,
-                &TaskStatus { state: "done".into(), orders: Some(report.orders), error: None, warm_start: report.warm_start },
+                &TaskStatus {
+                    state: "done".into(),
+                    orders: Some(report.orders),
+                    error: None,
+                    warm_start: report.warm_start,
+                },
             )?;
             Ok(RunOutcome::Solved { orders: report.orders, resumed: resume_from.is_some() })
         }
         // Stopped by SIGTERM (Slurm preempting it or ending its time): interrupted, not failed; the
         // rerun resumes from the checkpoint.
         Err(e @ job::JobError::Solve(crate::solver::SolveError::Cancelled)) => {
-            write_status(&dir, &TaskStatus { state: "cancelled".into(), orders: None, error: Some(e.to_string()), warm_start: None })?;
+            write_status(
+                &dir,
+                &TaskStatus { state: "cancelled".into(), orders: None, error: Some(e.to_string()), warm_start: None },
+            )?;
             Err(e.into())
         }
         Err(e) => {
-            write_status(&dir, &TaskStatus { state: "failed".into(), orders: None, error: Some(e.to_string()), warm_start: None })?;
+            write_status(
+                &dir,
+                &TaskStatus { state: "failed".into(), orders: None, error: Some(e.to_string()), warm_start: None },
+            )?;
             Err(e.into())
         }
     }
