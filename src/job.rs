@@ -71,7 +71,7 @@ pub struct SolveJob {
     /// a solve without `resume` fail rather than silently lose the work).
     pub fresh: bool,
     /// Raised, the solve stops at its next slice and keeps its last checkpoint
-    /// ([`JobError::Cancelled`]; GPU backend).
+    /// (`SolveError::Cancelled`, see [`solver::cancel`]; GPU backend).
     pub cancel: Option<solver::cancel::CancelFlag>,
     /// Start from the solution in this output directory (its `source.raw`, e.g. the previous
     /// frame's) instead of from nothing; see [`solver::warm`].

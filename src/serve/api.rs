@@ -203,7 +203,7 @@ fn respond(shared: &Shared, request: &mut Request) -> Result<Reply, ApiError> {
         Handler::Get => get(shared, id()?, &query),
         Handler::Cancel => cancel(shared, id()?),
         Handler::Resume => resume(shared, id()?),
-        Handler::Events => return Err(ApiError::Internal("the event stream is answered by handle".into())),
+        Handler::Events => Err(ApiError::Internal("the event stream is answered by handle".into())),
         Handler::Outputs => Ok(Reply::json(200, &serde_json::json!({ "outputs": outputs(shared, id()?)? }))),
         Handler::Output => output(shared, id()?, &params[1]),
         Handler::Upload => upload(shared, request, &params[0]),
