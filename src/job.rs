@@ -70,6 +70,12 @@ pub struct SolveJob {
     /// Discard a checkpoint in `OUT/.lpm-work` and start over (without it, a checkpoint there makes
     /// a solve without `resume` fail rather than silently lose the work).
     pub fresh: bool,
+    /// Raised, the solve stops at its next slice and keeps its last checkpoint
+    /// (`SolveError::Cancelled`, see [`solver::cancel`]; GPU backend).
+    pub cancel: Option<solver::cancel::CancelFlag>,
+    /// Start from the solution in this output directory (its `source.raw`, e.g. the previous
+    /// frame's) instead of from nothing; see [`solver::warm`].
+    pub warm_start: Option<PathBuf>,
 }
 
 /// The work directory (brick store and checkpoint) of a solve writing to `out`.
@@ -87,6 +93,9 @@ pub struct Report {
     pub plan: solver::plan::PlanSummary,
     pub orders: u32,
     pub converged: bool,
+    /// The output directory whose solution this solve started from (`warm_start`), if any.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub warm_start: Option<String>,
     /// The estimated remaining relative error of the fluence over the medium's voxels after the
     /// last order (max and root mean square; see `solver::remaining`): what `converged` is decided on.
     pub remaining_error: Option<solver::remaining::RemainingError>,
@@ -276,13 +285,16 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
         return Err(JobError::NoMedium { scene: job.scene.clone() });
     }
     let store_seconds = t.elapsed().as_secs_f64();
+    // A resumed solve continues from its checkpoint: the guess was used by its first order.
+    let warm = job.warm_start.as_deref().filter(|_| !reopen);
     let gpu = solver::gpu::GpuOptions {
         budget: scene.solver.device_memory_budget,
         checkpoints: job.backend == BackendKind::Gpu,
+        cancel: job.cancel,
         ..solver::gpu::GpuOptions::default()
     };
-    let (run, fields) =
-        solver::solve_with(scene, &store, job.backend, job.vk.clone(), gpu, reopen, progress).map_err(|e| match e {
+    let (run, fields) = solver::solve_from(scene, &store, job.backend, job.vk.clone(), gpu, reopen, warm, progress)
+        .map_err(|e| match e {
             SolveError::BudgetTooSmall { .. } | SolveError::BudgetTooLarge { .. } => JobError::Budget {
                 origin: match (job.device_memory_budget, scene.solver.device_memory_budget) {
                     (Some(_), _) => "--device-memory-budget".to_string(),
@@ -389,6 +401,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
         plan: plan.summary(),
         orders: outcome.orders,
         converged: outcome.converged,
+        warm_start: warm.map(|d| d.display().to_string()),
         remaining_error: outcome.remaining,
         final_residual: outcome.residual,
         tolerance: plan.tolerance,

@@ -10,6 +10,7 @@ use lpm::solver::BackendKind;
 use lpm::vk::ContextOptions;
 use std::io::IsTerminal;
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 #[derive(Parser)]
 #[command(
@@ -78,6 +79,11 @@ enum Command {
         /// --resume or --fresh, a solve into an OUT holding such a checkpoint refuses to start.
         #[arg(long)]
         fresh: bool,
+        /// Start from the solution in DIR (the output directory of an earlier solve of a scene of
+        /// the same size, with its fields: e.g. the previous frame) instead of from nothing; the
+        /// answer is the cold solve's, within the tolerance (GPU backend).
+        #[arg(long, value_name = "DIR", conflicts_with = "task")]
+        warm_start: Option<PathBuf>,
     },
     /// Monte-Carlo reference solution of a scene (independent of the LPM solver): writes fluence.*,
     /// fluence_stderr.* (per-voxel standard error), image.* when --image-spp > 0, and report.json.
@@ -185,6 +191,10 @@ enum Command {
     #[cfg(feature = "service")]
     Submit {
         scene: PathBuf,
+        /// Send this volume file with the scene (multipart upload; repeatable): the scene names it
+        /// by its file name, e.g. `raw = "cloud.raw"`.
+        #[arg(long)]
+        volume: Vec<PathBuf>,
         #[command(flatten)]
         server: ServerArgs,
         /// Higher runs first.
@@ -201,7 +211,7 @@ enum Command {
         #[arg(long)]
         wait: bool,
     },
-    /// Print a job's state as JSON (all jobs without ID); --cancel cancels it.
+    /// Print a job's state as JSON (all jobs without ID); --cancel cancels it, --resume queues it again.
     #[cfg(feature = "service")]
     Status {
         id: Option<i64>,
@@ -211,8 +221,11 @@ enum Command {
         #[arg(long)]
         wait: Option<f64>,
         /// Cancel the job (a running solve stops and keeps its checkpoint); an ended job is deleted.
-        #[arg(long, requires = "id")]
+        #[arg(long, requires = "id", conflicts_with = "resume")]
         cancel: bool,
+        /// Queue a cancelled or failed job again: it continues from its checkpoint.
+        #[arg(long, requires = "id")]
+        resume: bool,
     },
     /// Download a done job's outputs (all, or the NAMEs given) into --out.
     #[cfg(feature = "service")]
@@ -392,8 +405,51 @@ fn main() {
         .init();
     if let Err(e) = run(cli) {
         eprintln!("lpm: {}", error_text(&e));
-        std::process::exit(1);
+        std::process::exit(if was_cancelled(&e) { EXIT_CANCELLED } else { 1 });
     }
+}
+
+/// The exit status of a solve stopped by SIGTERM or SIGINT at a slice, its checkpoint kept (what
+/// `lpm serve`'s workers and scripts tell apart from a failure).
+const EXIT_CANCELLED: i32 = 3;
+
+/// Raised by the first SIGTERM or SIGINT (see [`cancel_on_signals`]).
+static STOP_REQUESTED: AtomicBool = AtomicBool::new(false);
+
+extern "C" fn on_stop_signal(signal: libc::c_int) {
+    // Only async-signal-safe calls here: an atomic store, signal() and raise().
+    if STOP_REQUESTED.swap(true, Ordering::SeqCst) {
+        // The second signal: end now, as without a handler.
+        // SAFETY: signal and raise are async-signal-safe.
+        unsafe {
+            libc::signal(signal, libc::SIG_DFL);
+            libc::raise(signal);
+        }
+    }
+}
+
+/// Makes SIGTERM and SIGINT stop the solve at its next slice, keeping its checkpoint (Slurm sends
+/// SIGTERM before it preempts or times out a task; `lpm serve` sends it to cancel a job); a second
+/// signal ends the process at once.
+fn cancel_on_signals() -> lpm::solver::cancel::CancelFlag {
+    let handler: extern "C" fn(libc::c_int) = on_stop_signal;
+    for signal in [libc::SIGTERM, libc::SIGINT] {
+        // SAFETY: the handler is a plain function doing only async-signal-safe work.
+        unsafe { libc::signal(signal, handler as libc::sighandler_t) };
+    }
+    lpm::solver::cancel::CancelFlag::from_static(&STOP_REQUESTED)
+}
+
+/// Whether `e` is a solve that stopped because it was cancelled.
+fn was_cancelled(e: &anyhow::Error) -> bool {
+    use lpm::job::JobError;
+    use lpm::solver::SolveError;
+    let cancelled = |j: &JobError| matches!(j, JobError::Solve(SolveError::Cancelled));
+    e.chain().any(|c| {
+        matches!(c.downcast_ref::<SolveError>(), Some(SolveError::Cancelled))
+            || c.downcast_ref::<JobError>().is_some_and(cancelled)
+            || matches!(c.downcast_ref::<lpm::sweep::SweepError>(), Some(lpm::sweep::SweepError::Job(j)) if cancelled(j))
+    })
 }
 
 /// The error and its causes in one line, each cause once: a library error that already quotes its
@@ -448,6 +504,7 @@ fn run(cli: Cli) -> Result<()> {
             resume,
             task,
             fresh,
+            warm_start,
         } => {
             // The CPU backend sweeps on rayon's global pool (0 threads: one per core).
             rayon::ThreadPoolBuilder::new()
@@ -471,6 +528,8 @@ fn run(cli: Cli) -> Result<()> {
                     device_memory_budget,
                     resume: false,
                     fresh: false,
+                    cancel: Some(cancel_on_signals()),
+                    warm_start: None,
                 };
                 return run_task(&scene, &task, &template);
             }
@@ -489,6 +548,8 @@ fn run(cli: Cli) -> Result<()> {
                 device_memory_budget,
                 resume,
                 fresh,
+                cancel: Some(cancel_on_signals()),
+                warm_start,
             };
             let bar = std::io::stderr().is_terminal().then(|| {
                 let bar = indicatif::ProgressBar::new_spinner();
@@ -551,7 +612,7 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         #[cfg(feature = "service")]
-        Command::Submit { scene, server, priority, device_memory_budget, no_image, no_fields, wait } => {
+        Command::Submit { scene, volume, server, priority, device_memory_budget, no_image, no_fields, wait } => {
             let client = server.client()?;
             let mut query = vec![("priority", priority.to_string())];
             if let Some(b) = device_memory_budget {
@@ -563,7 +624,11 @@ fn run(cli: Cli) -> Result<()> {
             if no_fields {
                 query.push(("no_fields", "true".into()));
             }
-            let job = client.submit(&scene, &query)?;
+            let job = if volume.is_empty() {
+                client.submit(&scene, &query)?
+            } else {
+                client.submit_with_volumes(&scene, &volume, &query)?
+            };
             let id = job["id"].as_i64().context("the server answered without a job id")?;
             println!("{id}");
             if wait {
@@ -582,10 +647,11 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         #[cfg(feature = "service")]
-        Command::Status { id, server, wait, cancel } => {
+        Command::Status { id, server, wait, cancel, resume } => {
             let client = server.client()?;
-            let value = match (id, cancel) {
-                (Some(id), true) => client.cancel(id)?,
+            let value = match (id, cancel, resume) {
+                (Some(id), true, _) => client.cancel(id)?,
+                (Some(id), _, true) => client.resume(id)?,
                 _ => client.status(id, wait)?,
             };
             println!("{}", serde_json::to_string_pretty(&value)?);

@@ -265,6 +265,8 @@ fn solver_row(
             device_memory_budget: None,
             resume: false,
             fresh: true,
+            cancel: None,
+            warm_start: None,
         },
         |_, _| {},
     )?;

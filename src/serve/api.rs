@@ -6,7 +6,7 @@
 //! every error body is `{"error": "<one line>"}`.
 
 use super::confine::{self, ConfineError};
-use super::db::{self, Cancel, Insert};
+use super::db::{self, Cancel, Insert, Requeue};
 use super::Shared;
 use crate::scene::Scene;
 use std::io::Read;
@@ -23,6 +23,8 @@ pub enum Handler {
     List,
     Get,
     Cancel,
+    Resume,
+    Events,
     Outputs,
     Output,
     Upload,
@@ -43,6 +45,8 @@ pub const ROUTES: &[Route] = &[
     Route { method: "GET", path: "/v1/jobs", handler: Handler::List },
     Route { method: "GET", path: "/v1/jobs/{id}", handler: Handler::Get },
     Route { method: "DELETE", path: "/v1/jobs/{id}", handler: Handler::Cancel },
+    Route { method: "POST", path: "/v1/jobs/{id}/resume", handler: Handler::Resume },
+    Route { method: "GET", path: "/v1/jobs/{id}/events", handler: Handler::Events },
     Route { method: "GET", path: "/v1/jobs/{id}/outputs", handler: Handler::Outputs },
     Route { method: "GET", path: "/v1/jobs/{id}/outputs/{name}", handler: Handler::Output },
     Route { method: "PUT", path: "/v1/volumes/{name}", handler: Handler::Upload },
@@ -89,7 +93,7 @@ impl ApiError {
         }
     }
 
-    fn into_reply(self) -> Reply {
+    pub(super) fn into_reply(self) -> Reply {
         let mut reply = Reply::json(self.status(), &serde_json::json!({ "error": self.to_string() }));
         if let ApiError::QueueFull(_) = self {
             reply.headers.push(header("Retry-After", &RETRY_AFTER_SECONDS.to_string()));
@@ -124,13 +128,13 @@ enum Body {
     File(std::fs::File),
 }
 
-fn header(name: &str, value: &str) -> Header {
+pub(super) fn header(name: &str, value: &str) -> Header {
     // Names and values here are ASCII chosen by this module, never by a client.
     Header::from_bytes(name.as_bytes(), value.as_bytes()).expect("ASCII header")
 }
 
 impl Reply {
-    fn json(status: u16, value: &impl serde::Serialize) -> Reply {
+    pub(super) fn json(status: u16, value: &impl serde::Serialize) -> Reply {
         let mut body = serde_json::to_vec_pretty(value).unwrap_or_default();
         body.push(b'\n');
         Reply { status, headers: vec![header("Content-Type", "application/json")], body: Body::Bytes(body) }
@@ -139,10 +143,21 @@ impl Reply {
 
 /// Answers one request (called on its own thread).
 pub fn handle(shared: &Shared, mut request: Request) {
+    // The event stream writes its own response as it goes.
+    let url = request.url().to_string();
+    let path = url.split_once('?').map_or(url.as_str(), |(p, _)| p);
+    if let Ok((Handler::Events, params)) = route(request.method().as_str(), path) {
+        return super::events::stream(shared, request, &params[0]);
+    }
     let reply = match respond(shared, &mut request) {
         Ok(reply) => reply,
         Err(e) => e.into_reply(),
     };
+    send(request, reply)
+}
+
+/// Sends `reply` as the answer to `request`.
+pub(super) fn send(request: Request, reply: Reply) {
     let result = match reply.body {
         Body::Bytes(bytes) => {
             let mut r = Response::from_data(bytes).with_status_code(reply.status);
@@ -187,6 +202,8 @@ fn respond(shared: &Shared, request: &mut Request) -> Result<Reply, ApiError> {
         Handler::List => Ok(Reply::json(200, &serde_json::json!({ "jobs": shared.db.list()? }))),
         Handler::Get => get(shared, id()?, &query),
         Handler::Cancel => cancel(shared, id()?),
+        Handler::Resume => resume(shared, id()?),
+        Handler::Events => Err(ApiError::Internal("the event stream is answered by handle".into())),
         Handler::Outputs => Ok(Reply::json(200, &serde_json::json!({ "outputs": outputs(shared, id()?)? }))),
         Handler::Output => output(shared, id()?, &params[1]),
         Handler::Upload => upload(shared, request, &params[0]),
@@ -244,7 +261,7 @@ fn percent_decode(s: &str) -> String {
     String::from_utf8_lossy(&out).into_owned()
 }
 
-struct Query<'a>(&'a str);
+pub struct Query<'a>(&'a str);
 
 impl Query<'_> {
     fn get(&self, key: &str) -> Option<String> {
@@ -270,7 +287,7 @@ impl Query<'_> {
     }
 }
 
-fn authorize(shared: &Shared, request: &Request) -> Result<(), ApiError> {
+pub(super) fn authorize(shared: &Shared, request: &Request) -> Result<(), ApiError> {
     let Some(token) = &shared.opts.token else { return Ok(()) };
     let sent = request
         .headers()
@@ -288,7 +305,7 @@ fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
     a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
 }
 
-fn read_body(request: &mut Request, limit: u64) -> Result<Vec<u8>, ApiError> {
+pub(super) fn read_body(request: &mut Request, limit: u64) -> Result<Vec<u8>, ApiError> {
     if request.body_length().is_some_and(|n| n as u64 > limit) {
         return Err(ApiError::TooLarge(limit));
     }
@@ -319,9 +336,24 @@ fn health(shared: &Shared) -> Result<Reply, ApiError> {
     Ok(Reply::json(200, &serde_json::json!({ "status": "ok", "version": env!("CARGO_PKG_VERSION"), "jobs": counts })))
 }
 
+/// The scene keys that name a volume file.
+const VOLUME_KEYS: [&str; 3] = ["raw", "vdb", "nrrd"];
+
+/// Files uploaded with a scene (multipart parts): their directory and names.
+pub struct Uploads<'a> {
+    pub dir: &'a Path,
+    pub names: &'a [String],
+}
+
 /// Validates a scene sent by a client as the CLI would (`lpm solve scene.toml`), with its volume
 /// path confined to the data root and made absolute. Returns the text the solve will read.
 pub fn prepare_scene(data: &Path, text: &str) -> Result<(String, Scene), ApiError> {
+    prepare_scene_with(data, text, None)
+}
+
+/// [`prepare_scene`], where a volume path that is exactly the name of an uploaded file names that
+/// file.
+pub fn prepare_scene_with(data: &Path, text: &str, uploads: Option<&Uploads>) -> Result<(String, Scene), ApiError> {
     let mut value: toml::Table = match toml::from_str(text) {
         Ok(v) => v,
         // Let the scene loader word the syntax error, exactly as the CLI does.
@@ -333,25 +365,36 @@ pub fn prepare_scene(data: &Path, text: &str) -> Result<(String, Scene), ApiErro
         }
     };
     let Some(toml::Value::Table(volume)) = value.get_mut("volume") else { return validate(text) };
-    {
-        let Some(toml::Value::String(raw)) = volume.get("raw") else { return validate(text) };
-        {
-            let real = confine::confine(data, Path::new(raw)).map_err(|e| match e {
-                ConfineError::Unresolvable { path, reason } => {
-                    ApiError::BadRequest(format!("scene.toml: volume.raw: {path}: {reason}"))
+    for key in VOLUME_KEYS {
+        let Some(toml::Value::String(named)) = volume.get(key) else { continue };
+        let bad = |m: String| ApiError::BadRequest(format!("scene.toml: volume.{key}: {m}"));
+        let uploaded = uploads.filter(|u| u.names.iter().any(|n| n == named));
+        let real = match uploaded {
+            Some(u) => u.dir.join(named),
+            None => confine_named(data, Path::new(named)).map_err(bad)?,
+        };
+        // A detached NRRD header names its data file: that file must be under the root too.
+        if key == "nrrd" {
+            if let Ok(header) = crate::store::nrrd_input::nrrd_header(&real) {
+                if let crate::store::nrrd_input::header::DataSource::Detached(file) = &header.data {
+                    confine_named(data, file).map_err(|m| bad(format!("its data file: {m}")))?;
                 }
-                e => ApiError::BadRequest(format!("scene.toml: volume.raw: {e}")),
-            })?;
-            let real = real
-                .to_str()
-                .ok_or_else(|| ApiError::BadRequest("scene.toml: volume.raw: the path is not UTF-8".into()))?
-                .to_string();
-            volume.insert("raw".into(), toml::Value::String(real));
+            }
         }
+        let real = real.to_str().ok_or_else(|| bad("the path is not UTF-8".into()))?.to_string();
+        volume.insert(key.into(), toml::Value::String(real));
     }
     // Written anew with the confined absolute path (positions in a later message refer to this text).
     let text = toml::to_string(&value).map_err(|e| ApiError::Internal(format!("cannot write the scene: {e}")))?;
     validate(&text)
+}
+
+/// `path` confined to the data root, or why not (in words).
+fn confine_named(data: &Path, path: &Path) -> Result<std::path::PathBuf, String> {
+    confine::confine(data, path).map_err(|e| match e {
+        ConfineError::Unresolvable { path, reason } => format!("{path}: {reason}"),
+        e => e.to_string(),
+    })
 }
 
 /// The scene as `lpm solve scene.toml` would load it: the same checks, the same message.
@@ -362,9 +405,14 @@ fn validate(text: &str) -> Result<(String, Scene), ApiError> {
 
 fn submit(shared: &Shared, request: &mut Request, query: &Query) -> Result<Reply, ApiError> {
     let kind = content_type(request);
+    if kind == "multipart/form-data" {
+        return super::upload::submit_multipart(shared, request, |scene_text, scene, finalize| {
+            enqueue(shared, query, scene_text, &scene, finalize)
+        });
+    }
     if !matches!(kind.as_str(), "application/toml" | "text/toml") {
         return Err(ApiError::UnsupportedMediaType(format!(
-            "send the scene as Content-Type: application/toml (got {:?}); upload a volume first with PUT /v1/volumes/{{name}} and name it in volume.raw",
+            "send the scene as Content-Type: application/toml, or as multipart/form-data with its volume file (got {:?})",
             kind
         )));
     }
@@ -372,6 +420,21 @@ fn submit(shared: &Shared, request: &mut Request, query: &Query) -> Result<Reply
     let text =
         String::from_utf8(body).map_err(|_| ApiError::BadRequest("scene.toml: the scene is not UTF-8".into()))?;
     let (scene_text, scene) = prepare_scene(&shared.data, &text)?;
+    enqueue(shared, query, scene_text, &scene, None)
+}
+
+/// What turns an accepted job's scene into its final text once its id is known (multipart
+/// uploads move into the job's directory): called inside the insert's transaction.
+pub type Finalize<'a> = Option<&'a mut dyn FnMut(i64) -> Result<String, ApiError>>;
+
+/// Queues a validated scene with the query's options.
+fn enqueue(
+    shared: &Shared,
+    query: &Query,
+    scene_text: String,
+    scene: &Scene,
+    finalize: Finalize,
+) -> Result<Reply, ApiError> {
     let device_memory_budget = match query.get("device_memory_budget") {
         None => None,
         Some(v) => Some(match crate::scene::validate::parse_byte_size(&v) {
@@ -388,7 +451,11 @@ fn submit(shared: &Shared, request: &mut Request, query: &Query) -> Result<Reply
         no_fields: query.flag("no_fields")?,
         max_orders: scene.solver.max_orders,
     };
-    match shared.db.insert(&job, shared.opts.max_queued)? {
+    let inserted = match finalize {
+        Some(f) => shared.db.insert_with(&job, shared.opts.max_queued, f)??,
+        None => shared.db.insert(&job, shared.opts.max_queued)?,
+    };
+    match inserted {
         Insert::Accepted(job) => {
             shared.notify();
             tracing::info!("job {}: queued (priority {})", job.id, job.priority);
@@ -433,6 +500,31 @@ fn cancel(shared: &Shared, id: i64) -> Result<Reply, ApiError> {
             Ok(Reply::json(200, &serde_json::json!({ "id": job.id, "state": "deleted" })))
         }
         Cancel::Missing => Err(ApiError::NotFound(format!("no job {id}"))),
+    }
+}
+
+/// Queues a cancelled or failed job again; its solve continues from the checkpoint it kept (or
+/// starts over when it stopped before its first one).
+fn resume(shared: &Shared, id: i64) -> Result<Reply, ApiError> {
+    match shared.db.requeue(id, shared.opts.max_queued)? {
+        Requeue::Queued(job) => {
+            shared.notify();
+            let checkpoint = crate::job::work_dir(&shared.job_dir(id).join("out")).join("checkpoint.json");
+            tracing::info!(
+                "job {id}: queued again{}",
+                if checkpoint.exists() {
+                    " (it resumes from its checkpoint)"
+                } else {
+                    " (no checkpoint: from the start)"
+                }
+            );
+            Ok(Reply::json(200, &job))
+        }
+        Requeue::NotStopped(job) => {
+            Err(ApiError::Conflict(format!("job {id} is {}: only a cancelled or failed job can be resumed", job.state)))
+        }
+        Requeue::Full(n) => Err(ApiError::QueueFull(n)),
+        Requeue::Missing => Err(ApiError::NotFound(format!("no job {id}"))),
     }
 }
 

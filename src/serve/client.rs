@@ -18,6 +18,16 @@ pub enum ClientError {
     Protocol(String),
 }
 
+/// A boundary unlikely to occur in a file: the clock and the process id, mixed.
+fn rand_u64() -> u64 {
+    let t = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos() as u64);
+    let mut x = t ^ (u64::from(std::process::id()) << 32) ^ 0x9e37_79b9_7f4a_7c15;
+    // splitmix64's finaliser.
+    x = (x ^ (x >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    x = (x ^ (x >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    x ^ (x >> 31)
+}
+
 /// Where the server is and how to authenticate.
 pub struct Client {
     pub server: String,
@@ -70,6 +80,58 @@ impl Client {
         self.json(r)
     }
 
+    /// Submits the scene file with its volume files as `multipart/form-data` (the scene names each
+    /// volume by its file name); the files are streamed, not read into memory.
+    pub fn submit_with_volumes(
+        &self,
+        scene: &Path,
+        volumes: &[PathBuf],
+        query: &[(&str, String)],
+    ) -> Result<serde_json::Value, ClientError> {
+        use std::io::{Cursor, Read};
+        let read_err = |path: &Path| {
+            let path = path.to_path_buf();
+            move |source| ClientError::Read { path, source }
+        };
+        let text = std::fs::read(scene).map_err(read_err(scene))?;
+        let boundary = format!("lpm-{:016x}", rand_u64());
+        let mut head = format!(
+            "--{boundary}\r\nContent-Disposition: form-data; name=\"scene\"; filename=\"scene.toml\"\r\nContent-Type: application/toml\r\n\r\n"
+        )
+        .into_bytes();
+        head.extend_from_slice(&text);
+        let mut length = head.len() as u64;
+        let mut body: Box<dyn Read + Send> = Box::new(Cursor::new(head));
+        for v in volumes {
+            let name =
+                v.file_name().and_then(|n| n.to_str()).filter(|n| super::confine::plain_name(n)).ok_or_else(|| {
+                    ClientError::Protocol(format!(
+                        "{}: a volume sent to the server needs a plain file name (letters, digits, '.', '_', '-')",
+                        v.display()
+                    ))
+                })?;
+            let file = std::fs::File::open(v).map_err(read_err(v))?;
+            let size = file.metadata().map_err(read_err(v))?.len();
+            let part = format!(
+                "\r\n--{boundary}\r\nContent-Disposition: form-data; name=\"volume\"; filename=\"{name}\"\r\nContent-Type: application/octet-stream\r\n\r\n"
+            );
+            length += part.len() as u64 + size;
+            body = Box::new(body.chain(Cursor::new(part.into_bytes())).chain(file.take(size)));
+        }
+        let tail = format!("\r\n--{boundary}--\r\n");
+        length += tail.len() as u64;
+        let body = body.chain(Cursor::new(tail.into_bytes()));
+        let mut r = self
+            .request("POST", "/v1/jobs")
+            .set("Content-Type", &format!("multipart/form-data; boundary={boundary}"))
+            .set("Content-Length", &length.to_string());
+        for (k, v) in query {
+            r = r.query(k, v);
+        }
+        let r = self.check(r.send(body))?;
+        self.json(r)
+    }
+
     /// One job (`wait`: hold until it changes, at most that many seconds), or all jobs.
     pub fn status(&self, id: Option<i64>, wait: Option<f64>) -> Result<serde_json::Value, ClientError> {
         let r = match id {
@@ -104,6 +166,12 @@ impl Client {
     /// Cancels job `id` (or deletes it once ended).
     pub fn cancel(&self, id: i64) -> Result<serde_json::Value, ClientError> {
         let r = self.check(self.request("DELETE", &format!("/v1/jobs/{id}")).call())?;
+        self.json(r)
+    }
+
+    /// Queues a cancelled or failed job `id` again (it continues from its checkpoint).
+    pub fn resume(&self, id: i64) -> Result<serde_json::Value, ClientError> {
+        let r = self.check(self.request("POST", &format!("/v1/jobs/{id}/resume")).call())?;
         self.json(r)
     }
 

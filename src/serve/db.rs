@@ -84,6 +84,15 @@ pub enum Insert {
     Full(u64),
 }
 
+pub enum Requeue {
+    Queued(Job),
+    /// The job is queued, running or done: nothing to resume.
+    NotStopped(Job),
+    /// The queue already holds this many queued jobs.
+    Full(u64),
+    Missing,
+}
+
 pub enum Cancel {
     Cancelled(Job),
     /// The job had already ended: nothing to cancel.
@@ -119,11 +128,26 @@ impl Db {
 
     /// Enqueues `job` unless `max_queued` jobs are already waiting.
     pub fn insert(&self, job: &NewJob, max_queued: u64) -> rusqlite::Result<Insert> {
+        let ok: rusqlite::Result<Result<Insert, std::convert::Infallible>> =
+            self.insert_with(job, max_queued, &mut |_| Ok(job.scene.clone()));
+        ok.map(|r| match r {
+            Ok(i) => i,
+        })
+    }
+
+    /// [`Db::insert`], where `finalize(id)` gives the scene text to store once the id is known
+    /// (it runs inside the transaction: when it fails, nothing is inserted).
+    pub fn insert_with<E>(
+        &self,
+        job: &NewJob,
+        max_queued: u64,
+        finalize: &mut dyn FnMut(i64) -> Result<String, E>,
+    ) -> rusqlite::Result<Result<Insert, E>> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
         let queued: u64 = tx.query_row("SELECT COUNT(*) FROM jobs WHERE state = 'queued'", [], |r| r.get(0))?;
         if queued >= max_queued {
-            return Ok(Insert::Full(queued));
+            return Ok(Ok(Insert::Full(queued)));
         }
         tx.execute(
             "INSERT INTO jobs (state, priority, scene, device_memory_budget, no_image, no_fields, submitted_at, max_orders)
@@ -139,9 +163,16 @@ impl Db {
             ],
         )?;
         let id = tx.last_insert_rowid();
+        let scene = match finalize(id) {
+            Ok(scene) => scene,
+            Err(e) => return Ok(Err(e)),
+        };
+        if scene != job.scene {
+            tx.execute("UPDATE jobs SET scene = ?2 WHERE id = ?1", params![id, scene])?;
+        }
         let row = tx.query_row(&format!("SELECT {JOB_COLUMNS} FROM jobs WHERE id = ?1"), [id], job_from_row)?;
         tx.commit()?;
-        Ok(Insert::Accepted(Box::new(row)))
+        Ok(Ok(Insert::Accepted(Box::new(row))))
     }
 
     pub fn get(&self, id: i64) -> rusqlite::Result<Option<Job>> {
@@ -249,6 +280,32 @@ impl Db {
             (1, Some(job)) => Cancel::Cancelled(job),
             (_, Some(job)) => Cancel::Ended(job),
         })
+    }
+
+    /// cancelled | failed → queued, unless `max_queued` jobs are already waiting: the next worker
+    /// to take it continues its solve from the checkpoint it kept.
+    pub fn requeue(&self, id: i64, max_queued: u64) -> rusqlite::Result<Requeue> {
+        let mut conn = self.conn();
+        let tx = conn.transaction()?;
+        let Some(job) =
+            tx.query_row(&format!("SELECT {JOB_COLUMNS} FROM jobs WHERE id = ?1"), [id], job_from_row).optional()?
+        else {
+            return Ok(Requeue::Missing);
+        };
+        if !matches!(job.state.as_str(), "cancelled" | "failed") {
+            return Ok(Requeue::NotStopped(job));
+        }
+        let queued: u64 = tx.query_row("SELECT COUNT(*) FROM jobs WHERE state = 'queued'", [], |r| r.get(0))?;
+        if queued >= max_queued {
+            return Ok(Requeue::Full(queued));
+        }
+        tx.execute(
+            "UPDATE jobs SET state = 'queued', finished_at = NULL, error = NULL, seconds_left = NULL WHERE id = ?1",
+            [id],
+        )?;
+        let job = tx.query_row(&format!("SELECT {JOB_COLUMNS} FROM jobs WHERE id = ?1"), [id], job_from_row)?;
+        tx.commit()?;
+        Ok(Requeue::Queued(job))
     }
 
     /// Removes an ended job's row (its files are removed by the caller).

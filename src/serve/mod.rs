@@ -7,6 +7,8 @@
 //! | [`api`] | the `/v1` routes, request parsing, handlers, errors → status codes |
 //! | [`db`] + `schema.sql` | the durable queue in SQLite (WAL, `synchronous = FULL`) |
 //! | [`worker`] | runs each job as a child `lpm solve` process, watches progress, cancels |
+//! | [`events`] | `GET /v1/jobs/{id}/events`: progress pushed as server-sent events |
+//! | [`upload`] + [`multipart`] | `POST /v1/jobs` as `multipart/form-data`: the scene with its volume file(s) |
 //! | [`confine`] | keeps client-named paths inside the data root |
 //! | [`client`] | the blocking HTTP client behind `lpm submit`, `lpm status`, `lpm fetch` |
 //! | `openapi.json` | the API described for other programs; a test keeps it equal to [`api::ROUTES`] |
@@ -25,8 +27,9 @@
 //!                      │  ▲                          │  │  child fails
 //!                      │  └──── server restarts ─────┘  └────────────────────▶ failed
 //!                      │        (resume from checkpoint)│
-//!                      │ DELETE                         │ DELETE (child killed; checkpoint kept)
-//!                      └──────────────▶ cancelled ◀─────┘
+//!                      │ DELETE                         │ DELETE (SIGTERM: the solve stops at its
+//!                      └──────────────▶ cancelled ◀─────┘  next slice, checkpoint kept)
+//!   cancelled | failed ── POST …/resume ──▶ queued (the solve resumes from its checkpoint)
 //!   done | failed | cancelled ── DELETE or retention ──▶ (row and files removed)
 //! ```
 //!
@@ -38,14 +41,19 @@
 //!
 //! # Files under the data root
 //!
-//! `DATA/lpm.sqlite` (the queue), `DATA/jobs/ID/{scene.toml, solve.log, out/}` (one directory per
-//! job: the solve's outputs, `progress.json`, and its checkpoint in `out/.lpm-work` until it
-//! ends), `DATA/volumes/` (uploaded volumes). Scenes may name volumes only under `DATA`.
+//! `DATA/lpm.sqlite` (the queue), `DATA/jobs/ID/{scene.toml, solve.log, out/, inputs/}` (one
+//! directory per job: the solve's outputs, `progress.json`, and its checkpoint in `out/.lpm-work`
+//! until it ends; `inputs/` holds the volume files sent with a multipart submission),
+//! `DATA/volumes/` (volumes uploaded with `PUT`), `DATA/uploads/` (multipart uploads while they
+//! arrive). Scenes may name volumes only under `DATA`.
 
 pub mod api;
 pub mod client;
 pub mod confine;
 pub mod db;
+pub mod events;
+pub mod multipart;
+pub mod upload;
 pub mod worker;
 
 use std::net::SocketAddr;
@@ -196,6 +204,7 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
     let data = opts.data.canonicalize().map_err(|source| ServeError::DataRoot { path: opts.data.clone(), source })?;
     let db_path = data.join("lpm.sqlite");
     let db = db::Db::open(&db_path).map_err(|source| ServeError::Queue { path: db_path.clone(), source })?;
+    upload::remove_stale_staging(&data);
     let requeued = db.requeue_running().map_err(|source| ServeError::Queue { path: db_path.clone(), source })?;
     if requeued > 0 {
         tracing::info!(

@@ -8,7 +8,8 @@
 //! the server nor the other jobs. The child is told to die with its parent (`PR_SET_PDEATHSIG`), so a
 //! server killed with `kill -9` leaves no orphan solving into a directory the next server will use.
 //! The solve checkpoints after every order; a job stopped for any reason resumes from there, to
-//! bitwise the result an uninterrupted solve gives.
+//! bitwise the result an uninterrupted solve gives. Cancelling sends the solve SIGTERM: it stops
+//! at its next slice (see [`crate::solver::cancel`]) and exits with status 3, its checkpoint kept.
 
 use super::{db, Shared};
 use std::path::Path;
@@ -18,6 +19,39 @@ use std::time::Duration;
 
 /// How often a running job's progress file and state are looked at.
 const POLL: Duration = Duration::from_millis(100);
+
+/// How long a cancelled solve is given to reach its next slice before it is killed (a slice takes
+/// well under a second on small volumes, seconds on huge ones; a kill keeps the checkpoint too).
+const CANCEL_GRACE: Duration = Duration::from_secs(120);
+
+/// The exit status of a solve stopped at a slice by SIGTERM (see `EXIT_CANCELLED` in main.rs).
+const EXIT_CANCELLED: i32 = 3;
+
+/// Stops a cancelled job's solve: SIGTERM (it stops at its next slice and exits with
+/// [`EXIT_CANCELLED`]), then SIGKILL if it has not exited within [`CANCEL_GRACE`].
+fn stop(id: i64, child: &mut Child) {
+    // SAFETY: kill(2) on the pid of a child this worker started and has not reaped yet (so the
+    // pid cannot have been reused).
+    unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) };
+    let t = std::time::Instant::now();
+    let status = loop {
+        match child.try_wait() {
+            Ok(Some(status)) => break Some(status),
+            Ok(None) if t.elapsed() < CANCEL_GRACE => std::thread::sleep(POLL / 2),
+            _ => {
+                let _ = child.kill();
+                break child.wait().ok();
+            }
+        }
+    };
+    match status.and_then(|s| s.code()) {
+        Some(EXIT_CANCELLED) => {
+            tracing::info!("job {id}: cancelled; the solve stopped at a slice and kept its checkpoint")
+        }
+        Some(0) => tracing::info!("job {id}: cancelled as its solve was finishing (it completed)"),
+        _ => tracing::info!("job {id}: cancelled; the solve was stopped ({status:?})"),
+    }
+}
 
 /// Runs jobs until the process ends. `device` is passed to the solve as `--device`.
 pub fn run(shared: Arc<Shared>, device: Option<usize>) {
@@ -116,10 +150,9 @@ fn watch(shared: &Shared, id: i64, mut child: Child) {
         match shared.db.state(id) {
             Ok(Some(state)) if state == "running" => {}
             _ => {
-                // Cancelled (or deleted): stop the solve; its checkpoint stays.
-                let _ = child.kill();
-                let _ = child.wait();
-                tracing::info!("job {id}: cancelled");
+                // Cancelled (or deleted): ask the solve to stop at its next slice; it keeps its
+                // checkpoint, from which `POST /v1/jobs/{id}/resume` continues.
+                stop(id, &mut child);
                 shared.notify();
                 return;
             }

@@ -39,6 +39,11 @@ pub struct StoreFields {
     fluence_spare: Field,
     /// The order's accumulators are known to be zero (fresh files, or just cleared).
     clean: bool,
+    /// `source_prev` holds a warm start's guess x0 that order 0's commit takes back off (see
+    /// [`super::warm`]).
+    initial_guess: bool,
+    /// The solve started from a guess: its last source is a residual of either sign.
+    warm_started: bool,
 }
 
 /// The order loop's state after a completed order, as saved in `checkpoint.json`.
@@ -56,6 +61,10 @@ pub struct LoopState {
     #[serde(default)]
     pub previous_ratio: [f64; 3],
     pub history: Vec<OrderRecord>,
+    /// The solve started from a guess ([`super::warm`]); kept so that a resumed warm solve closes
+    /// its energy balance the same way.
+    #[serde(default)]
+    pub warm_start: bool,
 }
 
 impl LoopState {
@@ -93,6 +102,8 @@ impl StoreFields {
             fluence_total: store.create_field("fluence_a", c, Coverage::Occupied)?,
             fluence_spare: store.create_field("fluence_b", c, Coverage::Occupied)?,
             clean: true,
+            initial_guess: false,
+            warm_started: false,
         })
     }
 
@@ -121,15 +132,28 @@ impl StoreFields {
             fluence_total: store.open_field(&cp.fluence_total, c, Coverage::Occupied)?,
             fluence_spare: store.open_field(&cp.fluence_spare, c, Coverage::Occupied)?,
             clean: false,
+            initial_guess: false,
+            warm_started: cp.state.warm_start,
         };
         // A killed order's partial sums are cleared when the next order begins; the order fields
         // still hold the last completed order's (the tail estimate may need its fluence).
         Ok(Some((fields, cp.state)))
     }
 
+    /// Marks `source_prev` as a warm start's guess x0 ([`super::warm::seed`] wrote it): order 0's
+    /// commit takes it back off the new source.
+    pub fn mark_initial_guess(&mut self) {
+        self.initial_guess = true;
+        self.warm_started = true;
+    }
+
     /// The end-of-order pass: commits the order's fluence and source into the spare copies, makes
     /// them the committed ones and the new source the next order's previous one, and returns the
-    /// new source's scattered power per channel. The order's accumulators are cleared by
+    /// new source's scattered power per channel: Σ|J|·Ω·h³, the norm the ratio and the tail are
+    /// estimated from (for a cold solve J ≥ 0 and this is the power itself). After the first order
+    /// of a warm start the new source is the residual r = (b + K x0) − x0: the guess x0, still in
+    /// `source_prev`, is subtracted from it once the total has taken the whole (see
+    /// [`super::warm`]). The order's accumulators are cleared by
     /// [`StoreFields::begin_order`], after any checkpoint is written: until then they still hold
     /// what the previous checkpoint names.
     pub fn commit_order(&mut self, plan: &Plan) -> [f64; 3] {
@@ -148,6 +172,14 @@ impl StoreFields {
                 power[k % c] += weight(k) * sum;
             },
         );
+        if self.initial_guess {
+            power = [0.0; 3];
+            subtract(&mut self.source_next, &self.source_prev, |block, sum| {
+                let k = block % comps;
+                power[k % c] += weight(k) * sum;
+            });
+            self.initial_guess = false;
+        }
         combine(&mut self.fluence_spare, &self.fluence_total, &self.fluence, |_| 1.0, |_, _| {});
         std::mem::swap(&mut self.source_total, &mut self.source_spare);
         std::mem::swap(&mut self.fluence_total, &mut self.fluence_spare);
@@ -156,11 +188,31 @@ impl StoreFields {
         power
     }
 
+    /// The signed scattered power of the last (unpropagated) source, per channel, for a warm
+    /// start's energy balance (`None` for a cold solve, whose norm is the power).
+    pub fn signed_last_power(&self, plan: &Plan) -> Option<[f64; 3]> {
+        if !self.warm_started {
+            return None;
+        }
+        let c = plan.channels as usize;
+        let comps = plan.source_components() as usize;
+        let h3 = plan.voxel_size.powi(3);
+        let mut power = [0.0; 3];
+        for (block, values) in self.source_prev.as_slice().chunks(BRICK_VOXELS).enumerate() {
+            let k = block % comps;
+            power[k % c] += plan.storage.solid_angle[k / c] * h3 * values.iter().map(|&v| v as f64).sum::<f64>();
+        }
+        self.source_prev.release_all();
+        Some(power)
+    }
+
     /// Flushes the committed state and records it in `checkpoint.json` (atomically).
     pub fn write_checkpoint(&self, dir: &Path, digest: &str, state: &LoopState) -> Result<(), SolveError> {
         for f in [&self.source_prev, &self.source_total, &self.fluence_total, &self.fluence] {
             f.flush()?;
         }
+        let mut state = state.clone();
+        state.warm_start = self.warm_started;
         let cp = Checkpoint {
             version: CHECKPOINT_VERSION,
             digest: digest.to_string(),
@@ -170,7 +222,7 @@ impl StoreFields {
             source_spare: self.source_spare.name().to_string(),
             fluence_total: self.fluence_total.name().to_string(),
             fluence_spare: self.fluence_spare.name().to_string(),
-            state: state.clone(),
+            state,
         };
         crate::output::write_json_atomic(&dir.join(CHECKPOINT), &cp).map_err(SolveError::Checkpoint)
     }
@@ -320,11 +372,39 @@ impl OrderFields for StoreOrderFields<'_> {
     fn remaining_error(&mut self, factor: [f64; 3]) -> Result<super::remaining::RemainingError, SolveError> {
         Ok(self.fields.remaining_error(self.store, self.plan, factor))
     }
+
+    fn unpropagated_power(&mut self) -> Result<Option<[f64; 3]>, SolveError> {
+        Ok(self.fields.signed_last_power(self.plan))
+    }
 }
 
 /// Bricks a pass over whole fields walks before handing their pages back (see
 /// [`crate::store::Field`] on resident memory): a few tens of MiB per field.
 const RELEASE_BRICKS: usize = 1024;
+
+/// `next −= guess`, brick-component block by block; calls `block_sum(block, Σ|next|)` for each
+/// block (a warm start's first commit, see [`StoreFields::commit_order`]).
+fn subtract(next: &mut Field, guess: &Field, mut block_sum: impl FnMut(usize, f64)) {
+    let bricks = next.stored_bricks();
+    let per_brick = next.brick_len();
+    let mut block = 0;
+    for first in (0..bricks).step_by(RELEASE_BRICKS) {
+        let range = first * per_brick..(first + RELEASE_BRICKS).min(bricks) * per_brick;
+        let (n, g) = (&mut next.as_mut_slice()[range.clone()], &guess.as_slice()[range]);
+        for (n, g) in n.chunks_mut(BRICK_VOXELS).zip(g.chunks(BRICK_VOXELS)) {
+            let mut sum = 0.0;
+            for (n, &g) in n.iter_mut().zip(g) {
+                *n -= g;
+                sum += n.abs() as f64;
+            }
+            block_sum(block, sum);
+            block += 1;
+        }
+        for field in [&*next, guess] {
+            field.release_stored(first, RELEASE_BRICKS);
+        }
+    }
+}
 
 /// `spare = total + factor(block)·last`, brick-component block by block (4096 values each); calls
 /// `block_sum(block, Σ last)` for each block. With factor 1 this is exactly `total + last`. The
@@ -348,7 +428,8 @@ fn combine(
             let mut sum = 0.0;
             for ((s, &t), &l) in s.iter_mut().zip(t).zip(l) {
                 *s = t + f * l;
-                sum += l as f64;
+                // The norm: a warm start's residual has either sign (cold sources are ≥ 0).
+                sum += l.abs() as f64;
             }
             block_sum(block, sum);
             block += 1;

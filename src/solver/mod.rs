@@ -6,8 +6,12 @@
 //! - [`cpu`] is the f64 twin of the GPU kernels, [`gpu`] the Vulkan driver;
 //! - [`orders`] runs scattering orders until [`remaining`] says every voxel of the medium is within
 //!   the tolerance of its converged value; [`energy`] keeps the books;
-//! - [`fields`] holds the solver's fields in the brick store and the host passes over them.
+//! - [`fields`] holds the solver's fields in the brick store and the host passes over them;
+//! - [`cancel`] is the request to stop a solve at the next slice, its checkpoint kept;
+//! - [`warm`] starts a solve from a guess (the previous frame's solution) and still converges to
+//!   the cold solve's answer.
 
+pub mod cancel;
 pub mod cpu;
 mod cpu_sweep;
 pub mod emission;
@@ -19,6 +23,7 @@ pub mod plan;
 pub mod remaining;
 pub mod segment;
 pub mod sweep;
+pub mod warm;
 
 use crate::scene::{Scene, VolumeSource};
 use crate::store::{import, BrickStore, StoreError};
@@ -56,6 +61,10 @@ pub enum SolveError {
     ResumeNeedsGpu,
     #[error("a host copy worker thread died (it panicked) while copying bricks between the store and the staging")]
     CopyWorkerDied,
+    #[error("the solve was cancelled (stopped at a slice); its last checkpoint is kept: rerun the same command with --resume to continue it")]
+    Cancelled,
+    #[error(transparent)]
+    WarmStart(#[from] warm::WarmStartError),
     #[error("internal error: {0}")]
     Internal(&'static str),
 }
@@ -198,6 +207,22 @@ pub fn solve_with(
     vk_options: ContextOptions,
     gpu_options: gpu::GpuOptions,
     resume: bool,
+    progress: impl FnMut(u32, f64),
+) -> Result<(SolveRun, StoreFields), SolveError> {
+    solve_from(scene, store, backend, vk_options, gpu_options, resume, None, progress)
+}
+
+/// [`solve_with`], starting from the solution exported in `warm_start` (an output directory, e.g.
+/// the previous frame's) unless the solve resumes from a checkpoint; see [`warm`].
+#[allow(clippy::too_many_arguments)]
+pub fn solve_from(
+    scene: &Scene,
+    store: &BrickStore,
+    backend: BackendKind,
+    vk_options: ContextOptions,
+    gpu_options: gpu::GpuOptions,
+    resume: bool,
+    warm_start: Option<&Path>,
     mut progress: impl FnMut(u32, f64),
 ) -> Result<(SolveRun, StoreFields), SolveError> {
     let mut phases = Vec::new();
@@ -216,7 +241,16 @@ pub fn solve_with(
         }
         None => {
             let mut fields = StoreFields::create(store, &plan)?;
-            if plan.emission_field {
+            if let Some(dir) = warm_start {
+                if backend == BackendKind::Cpu {
+                    return Err(warm::WarmStartError::NeedsGpu.into());
+                }
+                if plan.emission_field {
+                    return Err(warm::WarmStartError::WithEmissionGrid.into());
+                }
+                let power = warm::seed(store, &plan, &mut fields, dir)?;
+                tracing::info!("warm start from {} (its source's power {power:.4e})", dir.display());
+            } else if plan.emission_field {
                 emission::write_initial_source(store, &plan, &mut fields.source_prev)?;
             }
             (fields, fields::LoopState::default())

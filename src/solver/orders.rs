@@ -38,6 +38,11 @@ pub trait OrderFields {
     /// The remaining relative error over the medium's voxels after the last finished order, for
     /// tail factors `factor[ch]` = ρ/(1 − ρ) (see [`super::remaining`]).
     fn remaining_error(&mut self, factor: [f64; 3]) -> Result<RemainingError, SolveError>;
+    /// The signed power of the last, unpropagated source when it differs from the norm the loop
+    /// keeps (a warm start's residual, see [`super::warm`]); `None`: the norm is the power.
+    fn unpropagated_power(&mut self) -> Result<Option<[f64; 3]>, SolveError> {
+        Ok(None)
+    }
 }
 
 #[derive(Clone, Debug, Serialize, serde::Deserialize)]
@@ -265,7 +270,8 @@ pub fn run_orders(
     }
     // The balance covers the propagated orders; the tail is reported on its own.
     let (emitted, absorbed) = backend.fields().emitted_and_absorbed()?;
-    let energy = EnergyBalance::new(&state.tallies(), emitted, absorbed, state.last_new_power, plan.channels as usize);
+    let unpropagated = backend.fields().unpropagated_power()?.unwrap_or(state.last_new_power);
+    let energy = EnergyBalance::new(&state.tallies(), emitted, absorbed, unpropagated, plan.channels as usize);
     let tail = if extrapolate { tail_estimate(plan, &state) } else { None };
     let residual = match &tail {
         Some(t) => t.uncertainty / (state.total_power.iter().sum::<f64>() + t.power),

@@ -59,7 +59,8 @@ impl RemainingTally {
             return;
         }
         let e = if factor.is_finite() {
-            let add = factor * newest.max(0.0);
+            // |φ_k|: a warm start's residual orders have either sign (cold ones are ≥ 0).
+            let add = factor * newest.abs();
             add / (total + add)
         } else {
             f64::INFINITY

@@ -10,6 +10,7 @@
 //! first = 1
 //! last = 48
 //! step = 1
+//! warm_start = "previous"       # optional: start each frame from the previous frame's solution
 //! [parameters]                  # optional: every combination, dotted scene keys → lists of values
 //! "solver.directions_per_face" = [3, 4]
 //! "medium.albedo" = [0.8, 0.9, 0.99]
@@ -33,8 +34,12 @@
 //! checkpoint while it runs), `status.json` (running / done / failed) and `attempts.log` (one line
 //! per start, saying whether it resumed). See [`task`] for running one and [`slurm`] for the script.
 //!
-//! `warm_start = "previous"` (starting a frame from the previous frame's solution) is not
-//! implemented: every task solves from the unscattered light.
+//! `frames.warm_start = "previous"` starts each frame's solve from the solution of the previous
+//! frame with the same parameters (its exported `source.raw`, see [`crate::solver::warm`]): the
+//! answer is the cold solve's, within the tolerance, in fewer orders when the frames are alike. A
+//! frame whose previous frame is not done when it starts (tasks running side by side) starts cold,
+//! and `attempts.log` and its report say which; to chain the frames on a cluster, let them run in
+//! order (`slurm.max_running` = the number of parameter combinations, or 1).
 
 pub mod slurm;
 pub mod task;
@@ -84,13 +89,17 @@ struct RawManifest {
     slurm: slurm::SlurmSettings,
 }
 
-#[derive(Clone, Copy, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Frames {
     pub first: i64,
     pub last: i64,
     #[serde(default = "one")]
     pub step: i64,
+    /// `"previous"`: each frame starts from the previous frame's solution; `"none"` (the default):
+    /// every frame starts cold.
+    #[serde(default)]
+    pub warm_start: Option<String>,
 }
 
 fn one() -> i64 {
@@ -116,6 +125,8 @@ pub struct Sweep {
     pub tasks: Vec<Task>,
     pub solve: SolveSettings,
     pub slurm: slurm::SlurmSettings,
+    /// Frames start from the previous frame's solution (`frames.warm_start = "previous"`).
+    pub warm_start: bool,
 }
 
 /// One task: its frame, its parameter values and its scene text.
@@ -123,6 +134,8 @@ pub struct Sweep {
 pub struct Task {
     pub index: usize,
     pub frame: Option<i64>,
+    /// The task of the previous frame with the same parameters (none for the first frame).
+    pub previous: Option<usize>,
     pub parameters: Vec<(String, toml::Value)>,
     pub scene: String,
 }
@@ -154,7 +167,7 @@ impl Sweep {
             ))
         }));
 
-        let frames: Vec<Option<i64>> = match raw.frames {
+        let frames: Vec<Option<i64>> = match &raw.frames {
             None => vec![None],
             Some(f) => {
                 if f.step <= 0 || f.last < f.first {
@@ -171,6 +184,18 @@ impl Sweep {
             }
         }
         let combinations: usize = axes.iter().map(|(_, v)| v.len()).product();
+        let warm_start = match raw.frames.as_ref().and_then(|f| f.warm_start.as_deref()) {
+            None | Some("none") => false,
+            Some("previous") => true,
+            Some(other) => {
+                return Err(bad(format!("frames.warm_start: expected \"previous\" or \"none\", got {other:?}")))
+            }
+        };
+        if warm_start && raw.solve.no_fields {
+            return Err(bad(
+                "frames.warm_start = \"previous\" starts from the previous frame's exported source: it needs solve.no_fields = false".into(),
+            ));
+        }
 
         let mut tasks = Vec::new();
         for frame in &frames {
@@ -190,10 +215,11 @@ impl Sweep {
                 let text = toml::to_string(&scene).map_err(|e| bad(e.to_string()))?;
                 let task_scene = task_dir(&dir, index).join("scene.toml");
                 Scene::from_toml_str(&text, &task_scene).map_err(|source| SweepError::Scene { task: index, source })?;
-                tasks.push(Task { index, frame: *frame, parameters, scene: text });
+                let previous = (warm_start && index >= combinations).then(|| index - combinations);
+                tasks.push(Task { index, frame: *frame, previous, parameters, scene: text });
             }
         }
-        Ok(Sweep { manifest: manifest.to_path_buf(), dir, tasks, solve: raw.solve, slurm: raw.slurm })
+        Ok(Sweep { manifest: manifest.to_path_buf(), dir, tasks, solve: raw.solve, slurm: raw.slurm, warm_start })
     }
 
     pub fn task(&self, index: usize) -> Result<&Task, SweepError> {

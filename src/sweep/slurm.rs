@@ -3,6 +3,8 @@
 //!
 //! `--requeue` lets Slurm put a preempted task (or one requeued by `scontrol requeue`, or whose node
 //! failed) back in the queue; the rerun continues from the task's checkpoint (see [`super::task`]).
+//! Slurm sends SIGTERM before it preempts or times out a task: the solve stops at its next slice
+//! with its checkpoint kept (see [`crate::solver::cancel`]).
 //! `--open-mode=append` keeps the output of every attempt in one log per task.
 
 use super::{Sweep, SweepError};

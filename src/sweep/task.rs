@@ -20,6 +20,9 @@ pub struct TaskStatus {
     pub state: String,
     pub orders: Option<u32>,
     pub error: Option<String>,
+    /// The previous frame's output directory this solve started from.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub warm_start: Option<String>,
 }
 
 /// Creates the task's directory and writes its scene (unless it is already there, the same).
@@ -73,12 +76,20 @@ pub fn run(sweep: &Sweep, index: usize, template: &SolveJob) -> Result<RunOutcom
         .ok()
         .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
         .and_then(|v| v["state"]["orders_done"].as_u64());
+    // A warm start from the previous frame, when it is done (else this frame starts cold).
+    let warm_from = task.previous.filter(|_| resume_from.is_none()).map(|p| {
+        let prev = task_dir(&sweep.dir, p);
+        let done = read_status(&prev).is_some_and(|s| s.state == "done") && prev.join("out/source.raw").exists();
+        (p, done.then(|| prev.join("out")))
+    });
     let attempt = format!(
         "{:.0} {} (pid {}{})\n",
         std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64()),
-        match resume_from {
-            Some(n) => format!("resumed after order {n}"),
-            None => "started".to_string(),
+        match (resume_from, &warm_from) {
+            (Some(n), _) => format!("resumed after order {n}"),
+            (None, Some((p, Some(_)))) => format!("started warm from task {p}"),
+            (None, Some((p, None))) => format!("started cold (task {p}, the previous frame, is not done)"),
+            (None, None) => "started".to_string(),
         },
         std::process::id(),
         std::env::var("SLURM_JOB_ID").map(|j| format!(", Slurm job {j}")).unwrap_or_default()
@@ -90,12 +101,13 @@ pub fn run(sweep: &Sweep, index: usize, template: &SolveJob) -> Result<RunOutcom
         .open(&log)
         .and_then(|mut f| f.write_all(attempt.as_bytes()))
         .map_err(|source| SweepError::Io { path: log.clone(), source })?;
-    write_status(&dir, &TaskStatus { state: "running".into(), orders: None, error: None })?;
+    write_status(&dir, &TaskStatus { state: "running".into(), orders: None, error: None, warm_start: None })?;
 
     let mut solve = template.clone();
     solve.scene = dir.join("scene.toml");
     solve.out = out;
     solve.resume = resume_from.is_some();
+    solve.warm_start = warm_from.and_then(|(_, dir)| dir);
     solve.no_image |= sweep.solve.no_image;
     solve.no_fields |= sweep.solve.no_fields;
     if solve.device_memory_budget.is_none() {
@@ -111,11 +123,31 @@ pub fn run(sweep: &Sweep, index: usize, template: &SolveJob) -> Result<RunOutcom
         tracing::info!("task {index}: order {order} done, residual {residual:.3e}")
     }) {
         Ok(report) => {
-            write_status(&dir, &TaskStatus { state: "done".into(), orders: Some(report.orders), error: None })?;
+            write_status(
+                &dir,
+                &TaskStatus {
+                    state: "done".into(),
+                    orders: Some(report.orders),
+                    error: None,
+                    warm_start: report.warm_start,
+                },
+            )?;
             Ok(RunOutcome::Solved { orders: report.orders, resumed: resume_from.is_some() })
         }
+        // Stopped by SIGTERM (Slurm preempting it or ending its time): interrupted, not failed; the
+        // rerun resumes from the checkpoint.
+        Err(e @ job::JobError::Solve(crate::solver::SolveError::Cancelled)) => {
+            write_status(
+                &dir,
+                &TaskStatus { state: "cancelled".into(), orders: None, error: Some(e.to_string()), warm_start: None },
+            )?;
+            Err(e.into())
+        }
         Err(e) => {
-            write_status(&dir, &TaskStatus { state: "failed".into(), orders: None, error: Some(e.to_string()) })?;
+            write_status(
+                &dir,
+                &TaskStatus { state: "failed".into(), orders: None, error: Some(e.to_string()), warm_start: None },
+            )?;
             Err(e.into())
         }
     }

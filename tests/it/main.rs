@@ -37,3 +37,4 @@ mod vdb_input;
 mod vdb_nrrd;
 mod vdb_sparse;
 mod vk_smoke;
+mod warm_start;

@@ -61,3 +61,56 @@ fn resume_with_nothing_to_resume_starts_fresh_and_cpu_refuses() {
     assert_eq!(o.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&o.stderr).contains("--resume needs the GPU backend"));
 }
+
+/// SIGTERM (what `lpm serve` sends to cancel a job, and Slurm before it preempts a task) stops the
+/// solve at its next slice: exit status 3, the checkpoint kept, no output written; `--resume`
+/// then ends bitwise identical to an uninterrupted solve.
+#[test]
+fn sigterm_stops_at_a_slice_keeps_the_checkpoint_and_resumes_to_the_same_bits() {
+    let dir = temp_dir("resume-sigterm");
+    let scene = dir.join("scene.toml");
+    std::fs::write(&scene, killable_cloud_scene([34, 30, 38], 6)).unwrap();
+    let (whole, cut) = (dir.join("whole"), dir.join("cut"));
+    let s = scene.to_str().unwrap();
+    let o = lpm(&["solve", s, "--out", whole.to_str().unwrap(), "--no-image"], None);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+
+    let mut child = crate::common::lpm_command(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image"])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // After the first checkpointed order, in the middle of a later one.
+    let t = std::time::Instant::now();
+    loop {
+        let order = std::fs::read(cut.join("progress.json"))
+            .ok()
+            .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
+            .and_then(|p| p["order"].as_u64());
+        if order.is_some_and(|o| o >= 1) {
+            break;
+        }
+        assert!(child.try_wait().unwrap().is_none(), "the solve ended before it could be stopped");
+        assert!(t.elapsed() < std::time::Duration::from_secs(300), "no second order after 300 s");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    // SAFETY: kill(2) on our own child, not yet reaped.
+    assert_eq!(unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) }, 0);
+    let o = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(3), "{stderr}");
+    assert!(stderr.contains("the solve was cancelled (stopped at a slice)"), "{stderr}");
+    let checkpoint: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(cut.join(".lpm-work/checkpoint.json")).expect("checkpoint"))
+            .unwrap();
+    let done = checkpoint["state"]["orders_done"].as_u64().unwrap();
+    assert!((2..6).contains(&done), "stopped after {done} orders");
+    for f in ["fluence.raw", "source.raw", "report.json"] {
+        assert!(!cut.join(f).exists(), "{f} written by a cancelled solve");
+    }
+
+    let o = lpm(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image", "--resume"], None);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for f in ["fluence.raw", "source.raw"] {
+        assert!(std::fs::read(whole.join(f)).unwrap() == std::fs::read(cut.join(f)).unwrap(), "{f} differs");
+    }
+}

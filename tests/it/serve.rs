@@ -480,3 +480,194 @@ fn cancel_a_running_job_and_retention() {
         }
     }
 }
+
+/// `DELETE` of a running job stops its solve at the next slice (SIGTERM; the solve says so and
+/// exits with its cancelled status), keeps its checkpoint, and `POST …/resume` continues it to
+/// bitwise the result of an uninterrupted solve.
+#[test]
+fn cancel_stops_at_a_slice_and_resume_continues_bitwise() {
+    let dir = temp_dir("serve-cancel-resume");
+    let data = dir.join("data");
+    let server = Server::start(&data, &[]);
+    let url = server.url.clone();
+    let (_, a) = submit(&url, &longer(), "?no_image=true");
+    let a = a["id"].as_i64().unwrap();
+    let j = wait_for(&url, a, Duration::from_secs(300), |j| j["order"].as_i64().is_some_and(|o| o >= 1) || ended(j));
+    assert_eq!(j["state"], "running", "the job ended before it could be cancelled: {j}");
+    let (s, r) = call(agent().post(&format!("{url}/v1/jobs/{a}/resume")).call());
+    assert_eq!(s, 409, "a running job cannot be resumed: {}", r.into_string().unwrap());
+    let (s, r) = call(agent().delete(&format!("{url}/v1/jobs/{a}")).call());
+    assert_eq!(s, 200);
+    assert_eq!(json(r)["state"], "cancelled");
+    let scene = data.canonicalize().unwrap().join(format!("jobs/{a}/scene.toml"));
+    let t = Instant::now();
+    while processes_naming(&scene) > 0 {
+        assert!(t.elapsed() < Duration::from_secs(60), "the cancelled solve is still running");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let log = std::fs::read_to_string(data.join(format!("jobs/{a}/solve.log"))).unwrap();
+    assert!(log.contains("the solve was cancelled (stopped at a slice)"), "not stopped at a slice:\n{log}");
+    let checkpoint = data.join(format!("jobs/{a}/out/.lpm-work/checkpoint.json"));
+    assert!(checkpoint.exists(), "the checkpoint was not kept");
+    let kept: serde_json::Value = serde_json::from_slice(&std::fs::read(&checkpoint).unwrap()).unwrap();
+    assert!(kept["state"]["orders_done"].as_u64().unwrap() >= 2, "{}", kept["state"]);
+    assert_eq!(job(&url, a, 0.0)["state"], "cancelled");
+
+    // Resumed: queued again, run from the checkpoint, the bits of an uninterrupted solve.
+    let (s, r) = call(agent().post(&format!("{url}/v1/jobs/{a}/resume")).call());
+    assert_eq!(s, 200);
+    assert_eq!(json(r)["state"], "queued");
+    let done = wait_for(&url, a, Duration::from_secs(600), ended);
+    assert_eq!(done["state"], "done", "{done}");
+    assert_eq!(done["attempts"], 2);
+    assert_eq!(done["order"], 8);
+    let log = std::fs::read_to_string(data.join(format!("jobs/{a}/solve.log"))).unwrap();
+    assert!(log.contains("resuming after"), "the job did not resume from its checkpoint:\n{log}");
+    let direct = direct_solve(&dir, "direct", &longer(), &["--no-image"]);
+    for f in ["fluence.raw", "source.raw"] {
+        assert!(fetch(&url, a, f) == std::fs::read(direct.join(f)).unwrap(), "{f} differs after cancel and resume");
+    }
+    let (s, _) = call(agent().post(&format!("{url}/v1/jobs/{a}/resume")).call());
+    assert_eq!(s, 409, "a done job cannot be resumed");
+    assert_eq!(call(agent().post(&format!("{url}/v1/jobs/99999/resume")).call()).0, 404);
+}
+
+/// A 16³ density (a ball of 0.9 in 0.05), as raw little-endian f32.
+fn ball_density() -> Vec<u8> {
+    let mut d = Vec::new();
+    for z in 0..16 {
+        for y in 0..16 {
+            for x in 0..16 {
+                let r2 = [x, y, z].iter().map(|&c| (c as f32 - 7.5).powi(2)).sum::<f32>();
+                d.extend_from_slice(&(if r2 < 36.0 { 0.9f32 } else { 0.05 }).to_le_bytes());
+            }
+        }
+    }
+    d
+}
+
+/// TINY with its volume read from `raw`.
+fn raw_tiny(raw: &str) -> String {
+    TINY.replace("procedural = \"sphere\"\ndims = [16, 16, 16]", &format!("raw = \"{raw}\"\ndims = [16, 16, 16]"))
+}
+
+/// curl's `-F` (multipart/form-data): status and JSON body.
+fn curl_form(url: &str, fields: &[String]) -> (u16, serde_json::Value) {
+    let mut cmd = std::process::Command::new("curl");
+    cmd.args(["-sS", "-o", "-", "-w", "\n%{http_code}"]);
+    for f in fields {
+        cmd.arg("-F").arg(f);
+    }
+    let o = cmd.arg(url).output().expect("run curl (tools/setup.sh installs it)");
+    assert!(o.status.success(), "curl: {}", String::from_utf8_lossy(&o.stderr));
+    let text = String::from_utf8_lossy(&o.stdout).into_owned();
+    let (body, code) = text.rsplit_once('\n').unwrap();
+    (code.trim().parse().unwrap(), serde_json::from_str(body).unwrap_or(serde_json::Value::Null))
+}
+
+/// `POST /v1/jobs` as multipart/form-data, from curl and from `lpm submit --volume` (ureq): the
+/// volume lands in the job's directory, the solve gives the bits of a direct CLI solve, and bad
+/// forms are refused without leaving files behind.
+#[test]
+fn multipart_upload_of_a_scene_with_its_volume() {
+    let dir = temp_dir("serve-multipart");
+    let data = dir.join("data");
+    let server = Server::start(&data, &["--max-upload", "40K"]);
+    let url = server.url.clone();
+    let local = dir.join("local");
+    std::fs::create_dir_all(&local).unwrap();
+    std::fs::write(local.join("ball.raw"), ball_density()).unwrap();
+    std::fs::write(local.join("scene.toml"), raw_tiny("ball.raw")).unwrap();
+    let scene = local.join("scene.toml");
+    let ball = local.join("ball.raw");
+
+    let (s, created) = curl_form(
+        &format!("{url}/v1/jobs?no_image=true"),
+        &[format!("scene=@{};type=application/toml", scene.display()), format!("volume=@{}", ball.display())],
+    );
+    assert_eq!(s, 201, "{created}");
+    let id = created["id"].as_i64().unwrap();
+    let stored = data.join(format!("jobs/{id}/inputs/ball.raw"));
+    assert_eq!(std::fs::read(&stored).unwrap(), ball_density(), "the upload is not in the job's directory");
+    let done = wait_for(&url, id, Duration::from_secs(300), ended);
+    assert_eq!(done["state"], "done", "{done}");
+    let direct_scene = raw_tiny(ball.to_str().unwrap());
+    let direct = direct_solve(&dir, "direct", &direct_scene, &["--no-image"]);
+    assert!(fetch(&url, id, "fluence.raw") == std::fs::read(direct.join("fluence.raw")).unwrap());
+
+    // The same from the CLI client (ureq, streamed).
+    let o = lpm_command(&["submit", scene.to_str().unwrap(), "--volume", ball.to_str().unwrap(), "--server", &url])
+        .args(["--no-image", "--wait"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let id2: i64 = String::from_utf8_lossy(&o.stdout).trim().parse().unwrap();
+    assert!(fetch(&url, id2, "fluence.raw") == std::fs::read(direct.join("fluence.raw")).unwrap());
+
+    // Refusals: 400 or 413 with a message, and no file left under the data root.
+    let scene_field = format!("scene=@{};type=application/toml", scene.display());
+    let outside = dir.join("outside.toml");
+    std::fs::write(&outside, raw_tiny("/etc/passwd")).unwrap();
+    let big = local.join("big.raw");
+    std::fs::write(&big, vec![0u8; 50_000]).unwrap();
+    let cases: Vec<(Vec<String>, u16, &str)> = vec![
+        (vec![format!("volume=@{}", ball.display())], 400, "no \"scene\" part"),
+        (vec![scene_field.clone()], 400, "volume.raw"),
+        (vec![scene_field.clone(), format!("volume=@{};filename=../ball.raw", ball.display())], 400, "file name"),
+        (vec![scene_field.clone(), format!("other=@{}", ball.display())], 400, "unknown part"),
+        (vec![format!("scene=@{}", outside.display()), format!("volume=@{}", ball.display())], 400, "outside"),
+        (vec![scene_field.clone(), format!("volume=@{};filename=ball.raw", big.display())], 413, "limit"),
+        (
+            vec![scene_field.clone(), format!("volume=@{}", ball.display()), format!("volume=@{}", ball.display())],
+            400,
+            "twice",
+        ),
+    ];
+    for (fields, status, why) in cases {
+        let (s, body) = curl_form(&format!("{url}/v1/jobs"), &fields);
+        assert_eq!(s, status, "{fields:?}: {body}");
+        assert!(body["error"].as_str().is_some_and(|e| e.contains(why)), "{fields:?}: {body}");
+    }
+    let left: Vec<_> = std::fs::read_dir(data.join("uploads")).unwrap().flatten().map(|e| e.file_name()).collect();
+    assert!(left.is_empty(), "staging left behind: {left:?}");
+    let jobs: Vec<_> = std::fs::read_dir(data.join("jobs")).unwrap().flatten().collect();
+    assert_eq!(jobs.len(), 2, "only the two accepted jobs have directories");
+}
+
+/// `GET /v1/jobs/{id}/events`: server-sent events read by a real client as they come, ending with
+/// the job's final state.
+#[test]
+fn progress_is_pushed_as_server_sent_events() {
+    let dir = temp_dir("serve-events");
+    let server = Server::start(&dir.join("data"), &[]);
+    let url = server.url.clone();
+    let (s, created) = submit(&url, TINY, "?no_image=true&no_fields=true");
+    assert_eq!(s, 201);
+    let id = created["id"].as_i64().unwrap();
+    let r = agent().get(&format!("{url}/v1/jobs/{id}/events")).call().expect("the event stream");
+    assert_eq!(r.header("Content-Type"), Some("text/event-stream"));
+    let mut events: Vec<serde_json::Value> = Vec::new();
+    let mut kind = String::new();
+    for line in BufReader::new(r.into_reader()).lines() {
+        let line = line.expect("read the stream");
+        if let Some(k) = line.strip_prefix("event: ") {
+            kind = k.to_string();
+        } else if let Some(d) = line.strip_prefix("data: ") {
+            assert_eq!(kind, "job");
+            events.push(serde_json::from_str(d).unwrap());
+        }
+    }
+    // The stream ended by itself after the final state.
+    assert!(events.len() >= 2, "{events:?}");
+    let last = events.last().unwrap();
+    assert_eq!(last["state"], "done", "{events:?}");
+    assert_eq!(last["order"], 3);
+    assert!(events[..events.len() - 1].iter().all(|e| !ended(e)), "{events:?}");
+    let orders: Vec<i64> = events.iter().filter_map(|e| e["order"].as_i64()).collect();
+    assert!(orders.windows(2).all(|w| w[0] <= w[1]), "orders go forward: {orders:?}");
+    // An ended job's stream is its one final event; an unknown job is a 404.
+    let r = agent().get(&format!("{url}/v1/jobs/{id}/events")).call().unwrap();
+    let text = r.into_string().unwrap();
+    assert_eq!(text.matches("event: job").count(), 1, "{text}");
+    assert_eq!(call(agent().get(&format!("{url}/v1/jobs/424242/events")).call()).0, 404);
+}

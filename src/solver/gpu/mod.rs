@@ -79,11 +79,13 @@ pub struct GpuOptions {
     pub checkpoints: bool,
     /// Bracket every submission with GPU timestamps (for `lpm bench stream`).
     pub profile: bool,
+    /// Stop at the next slice when raised ([`crate::solver::cancel`]).
+    pub cancel: Option<crate::solver::cancel::CancelFlag>,
 }
 
 impl Default for GpuOptions {
     fn default() -> Self {
-        GpuOptions { budget: None, max_slices_in_flight: 2, checkpoints: false, profile: false }
+        GpuOptions { budget: None, max_slices_in_flight: 2, checkpoints: false, profile: false, cancel: None }
     }
 }
 
@@ -139,7 +141,7 @@ impl<'a> GpuBackend<'a> {
         let abort_at_slice = std::env::var("LPM_TEST_ABORT_AT_SLICE").ok().and_then(|v| v.parse().ok());
         #[cfg(not(any(debug_assertions, feature = "test-hooks")))]
         let abort_at_slice = None;
-        let mut streamer = SliceStreamer::new(&ctx, plan, memory, options.profile, abort_at_slice)?;
+        let mut streamer = SliceStreamer::new(&ctx, plan, memory, options.profile, abort_at_slice, options.cancel)?;
         let resources = DeviceResources::new(&ctx, plan, &memory, &mut streamer)?;
         tracing::info!(
             device = ctx.device_name(),

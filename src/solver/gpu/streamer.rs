@@ -17,6 +17,7 @@ use super::profile::{self, Profiler};
 use super::resources::{DeviceResources, SweepSets};
 use super::slice::SliceLayout;
 use super::tables::SweepTables;
+use crate::solver::cancel::CancelFlag;
 use crate::solver::fields::StoreFields;
 use crate::solver::plan::{power_of_two, Plan};
 use crate::solver::sweep::FaceSweep;
@@ -79,6 +80,8 @@ pub struct SliceStreamer {
     profiler: Option<Profiler>,
     /// Test hook: abort the process when this many slices have been submitted (simulates a kill).
     abort_at_slice: Option<u64>,
+    /// Looked at before each slice: raised, the pass returns `SolveError::Cancelled`.
+    cancel: Option<CancelFlag>,
 }
 
 impl SliceStreamer {
@@ -88,6 +91,7 @@ impl SliceStreamer {
         memory: MemoryPlan,
         profile: bool,
         abort_at_slice: Option<u64>,
+        cancel: Option<CancelFlag>,
     ) -> Result<Self, SolveError> {
         let timeline = |name: &str| -> Result<Owned<TimelineSemaphore>, SolveError> {
             Ok(Owned::new(ctx, ctx.create_timeline(name, 0)?))
@@ -114,6 +118,7 @@ impl SliceStreamer {
             copier: Copier::new(std::thread::available_parallelism().map_or(2, |n| n.get()).min(8)),
             profiler,
             abort_at_slice,
+            cancel,
         })
     }
 
@@ -156,6 +161,10 @@ impl SliceStreamer {
         // this iteration's upload, so the transfer queue can upload the next slice while it computes.
         let mut to_download: Option<usize> = None;
         for (i, range) in slices.iter().enumerate() {
+            // A cancelled solve stops here; what is in flight is waited for when the streamer drops.
+            if self.cancel.is_some_and(|c| c.is_raised()) {
+                return Err(SolveError::Cancelled);
+            }
             let (first, last) = (i == 0, i + 1 == slices.len());
             let half = if gain { pass.half_exponent.map(power_of_two) } else { None };
             let layout = SliceLayout::new(io.store, pass.sweep, *range, gain, c, comps, half);
