@@ -74,6 +74,18 @@ enum Command {
         /// --resume or --fresh, a solve into an OUT holding such a checkpoint refuses to start.
         #[arg(long)]
         fresh: bool,
+        /// Precision of fluence.vdb and source.vdb: float (exactly the raw values) or half (half
+        /// the size; values beyond ±65504 are clamped).
+        #[arg(long, value_enum, default_value_t = VdbPrecisionArg::Float)]
+        vdb_precision: VdbPrecisionArg,
+        /// What the image shows behind the volume: the sky (baked into the colour), or nothing
+        /// (transparent: colour premultiplied by alpha = 1 − transmittance, for compositing).
+        #[arg(long, value_enum, default_value_t = BackgroundArg::Sky)]
+        background: BackgroundArg,
+        /// Do not keep OUT/render-data (the density and solved source in brick form, linked from
+        /// the solver's store) that `lpm render OUT` renders new views from.
+        #[arg(long)]
+        no_render_data: bool,
     },
     /// Monte-Carlo reference solution of a scene (independent of the LPM solver): writes fluence.*,
     /// fluence_stderr.* (per-voxel standard error), image.* when --image-spp > 0, and report.json.
@@ -428,6 +440,36 @@ fn parse_limit(text: &str) -> Result<f64, String> {
     }
 }
 
+#[derive(Clone, Copy, ValueEnum)]
+enum VdbPrecisionArg {
+    Float,
+    Half,
+}
+
+impl From<VdbPrecisionArg> for lpm::output::VdbPrecision {
+    fn from(p: VdbPrecisionArg) -> Self {
+        match p {
+            VdbPrecisionArg::Float => lpm::output::VdbPrecision::Float,
+            VdbPrecisionArg::Half => lpm::output::VdbPrecision::Half,
+        }
+    }
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum BackgroundArg {
+    Sky,
+    Transparent,
+}
+
+impl From<BackgroundArg> for lpm::render::Background {
+    fn from(b: BackgroundArg) -> Self {
+        match b {
+            BackgroundArg::Sky => lpm::render::Background::Sky,
+            BackgroundArg::Transparent => lpm::render::Background::Transparent,
+        }
+    }
+}
+
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Solve {
@@ -443,6 +485,9 @@ fn run(cli: Cli) -> Result<()> {
             resume,
             task,
             fresh,
+            vdb_precision,
+            background,
+            no_render_data,
         } => {
             let vk = vk_options(device, validation);
             let backend_kind = match backend {
@@ -461,6 +506,9 @@ fn run(cli: Cli) -> Result<()> {
                     device_memory_budget,
                     resume: false,
                     fresh: false,
+                    vdb_precision: vdb_precision.into(),
+                    background: background.into(),
+                    no_render_data,
                 };
                 return run_task(&scene, &task, &template);
             }
@@ -479,6 +527,9 @@ fn run(cli: Cli) -> Result<()> {
                 device_memory_budget,
                 resume,
                 fresh,
+                vdb_precision: vdb_precision.into(),
+                background: background.into(),
+                no_render_data,
             };
             let bar = std::io::stderr().is_terminal().then(|| {
                 let bar = indicatif::ProgressBar::new_spinner();

@@ -265,6 +265,9 @@ fn solver_row(
             device_memory_budget: None,
             resume: false,
             fresh: true,
+            vdb_precision: Default::default(),
+            background: Default::default(),
+            no_render_data: true,
         },
         |_, _| {},
     )?;

@@ -70,9 +70,10 @@ pub fn walk_voxels(
     }
 }
 
-/// Radiance (per channel) arriving at `origin` along `−dir`: the medium's in-scattered source and
-/// emission, attenuated on the way, plus the background seen through the volume.
-pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> [f64; 3] {
+/// Radiance (per channel) arriving at `origin` along `−dir` from the medium (its in-scattered source
+/// and emission, attenuated on the way), and the transmittance of the whole ray per channel: the
+/// pixel is `radiance + transmittance·background`.
+pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3], [f64; 3]) {
     let grid = inputs.store.grid();
     let h = inputs.store.voxel_size();
     let size = DVec3::new(grid.dims[0] as f64, grid.dims[1] as f64, grid.dims[2] as f64) * h;
@@ -107,7 +108,7 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> [f64; 3] {
             transmittance.iter().any(|&t| t >= OPAQUE)
         });
     }
-    [0, 1, 2].map(|ch| radiance[ch] + transmittance[ch] * inputs.background[ch])
+    (radiance, transmittance)
 }
 
 /// The eight voxels around `p` (in voxel units) with their trilinear weights; voxel centres sit at

@@ -104,6 +104,9 @@ fn furnace_reference_writes_its_outputs_and_agrees_with_the_solver() {
         device_memory_budget: None,
         resume: false,
         fresh: false,
+        vdb_precision: Default::default(),
+        background: Default::default(),
+        no_render_data: false,
     };
     lpm::job::run(&solve, |_, _| {}).expect("solve job");
     let c = compare_dirs(&solved, &reference, &CompareOptions::default()).expect("compare");
