@@ -384,12 +384,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
     if !job.no_image {
         let t = Instant::now();
         let image = render::render_solved(&render_data, &store, &fields.source_total, &camera, job.background);
-        render::write_images(
-            Some(&stage.join("image.exr")),
-            Some(&stage.join("image.png")),
-            &image,
-            job.background,
-        )?;
+        render::write_images(Some(&stage.join("image.exr")), Some(&stage.join("image.png")), &image, job.background)?;
         outputs.extend(["image.exr", "image.png"].map(String::from));
         phases.push(("render".to_string(), t.elapsed().as_secs_f64()));
     }

@@ -232,6 +232,41 @@ enum Command {
         #[arg(long, short)]
         out: PathBuf,
     },
+    /// Render a solved result again from another view without solving: reads DIR/render-data (kept
+    /// by `lpm solve`) and writes DIR/image.exr and DIR/image.png (or --image PATH), atomically.
+    /// With no camera option the view is the solve's own (the same image, bitwise).
+    Render {
+        /// An output directory of `lpm solve`.
+        dir: PathBuf,
+        /// A camera file: a [camera] table as in a scene (or its keys at the top level); keys it
+        /// omits take the defaults a scene's camera takes. The flags below apply on top of it.
+        #[arg(long)]
+        camera: Option<PathBuf>,
+        /// Image width in pixels (given alone, the height follows the view's aspect ratio).
+        #[arg(long)]
+        width: Option<u32>,
+        /// Image height in pixels (given alone, the width follows the view's aspect ratio).
+        #[arg(long)]
+        height: Option<u32>,
+        /// Eye position X,Y,Z in world units.
+        #[arg(long, value_delimiter = ',', num_args = 3, allow_hyphen_values = true)]
+        eye: Option<Vec<f64>>,
+        /// Point looked at X,Y,Z in world units.
+        #[arg(long, value_delimiter = ',', num_args = 3, allow_hyphen_values = true)]
+        target: Option<Vec<f64>>,
+        /// Up vector X,Y,Z.
+        #[arg(long, value_delimiter = ',', num_args = 3, allow_hyphen_values = true)]
+        up: Option<Vec<f64>>,
+        /// Vertical field of view in degrees (pinhole cameras).
+        #[arg(long)]
+        fov: Option<f64>,
+        /// What the image shows behind the volume (as for `solve`).
+        #[arg(long, value_enum, default_value_t = BackgroundArg::Sky)]
+        background: BackgroundArg,
+        /// Write this one file instead (its extension, .exr or .png, says which).
+        #[arg(long)]
+        image: Option<PathBuf>,
+    },
     /// Print what a solve wrote to DIR: the plan, orders, residual, energy balance and the fields.
     Info {
         /// An output directory of `lpm solve`.
@@ -638,6 +673,18 @@ fn run(cli: Cli) -> Result<()> {
             println!("fetched {} into {}", written.join(", "), out.display());
             Ok(())
         }
+        Command::Render { dir, camera, width, height, eye, target, up, fov, background, image } => {
+            let vec3 = |v: Option<Vec<f64>>| v.map(|v| [v[0], v[1], v[2]]);
+            let change = lpm::render::keep::ViewChange {
+                width,
+                height,
+                eye: vec3(eye),
+                target: vec3(target),
+                up: vec3(up),
+                fov_y: fov,
+            };
+            render_again(&dir, camera, change, background.into(), image)
+        }
         Command::Reference { scene, out, samples, seed, image_spp, threads } => {
             let job = lpm::reference::job::ReferenceJob {
                 scene,
@@ -795,6 +842,32 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
     }
+}
+
+fn render_again(
+    dir: &std::path::Path,
+    camera: Option<PathBuf>,
+    change: lpm::render::keep::ViewChange,
+    background: lpm::render::Background,
+    image: Option<PathBuf>,
+) -> Result<()> {
+    let (exr, png) = match &image {
+        None => (Some(dir.join("image.exr")), Some(dir.join("image.png"))),
+        Some(p) => match p.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
+            Some("exr") => (Some(p.clone()), None),
+            Some("png") => (None, Some(p.clone())),
+            _ => bail!("--image {}: the name must end in .exr or .png", p.display()),
+        },
+    };
+    // Held while reading and writing: a solve into DIR cannot replace the data under us.
+    let _lock = lpm::output::DirLock::acquire(dir)?;
+    let kept = lpm::render::keep::open(dir)?;
+    let camera = lpm::render::keep::view_camera(&kept, camera.as_deref(), &change)?;
+    let img = kept.render(&camera, background);
+    lpm::render::write_images(exr.as_deref(), png.as_deref(), &img, background)?;
+    let written: Vec<String> = [exr, png].into_iter().flatten().map(|p| p.display().to_string()).collect();
+    println!("rendered {}×{} pixels: {}", img.width, img.height, written.join(", "));
+    Ok(())
 }
 
 fn run_task(manifest: &std::path::Path, task: &str, template: &SolveJob) -> Result<()> {

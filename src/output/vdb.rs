@@ -18,8 +18,9 @@
 //!   `UniformScaleTranslateMap` putting index `ijk`'s centre at `translation + h·ijk`; for a VDB
 //!   input `index_min` is the input's own active box corner, so the output lies on the input's
 //!   index grid with the same transform;
-//! - **metadata**: `class = "fog volume"` (how Houdini and Blender recognise a density-like grid)
-//!   and `lpm_quantity` / `lpm_units` (strings).
+//! - **metadata**: `name` and `is_saved_as_half_float` (OpenVDB reads the grid's name and half
+//!   flag from there), `class = "fog volume"` (how Houdini and Blender recognise a density-like
+//!   grid) and `lpm_quantity` / `lpm_units` (strings).
 //!
 //! Grids are written leaf by leaf in tree order straight from the memory-mapped field, so memory
 //! grows with the number of leaves (a few words each), never with the volume. The file's UUID is a
@@ -293,7 +294,16 @@ pub fn write_vdb<W: Write + Seek>(
         s.put(&[0; 24])?;
         let grid_pos = s.pos;
         s.u32(COMPRESS_ZIP)?;
-        s.i32(g.metadata.len() as i32)?;
+        // OpenVDB takes a grid's name and its half flag from these two entries of its metadata
+        // (the descriptor's copies only find the grid), so they are always written.
+        s.i32(g.metadata.len() as i32 + 2)?;
+        s.string("name")?;
+        s.string("string")?;
+        s.string(&g.name)?;
+        s.string("is_saved_as_half_float")?;
+        s.string("bool")?;
+        s.u32(1)?;
+        s.u8(u8::from(precision == VdbPrecision::Half))?;
         for (key, value) in &g.metadata {
             s.string(key)?;
             s.string("string")?;
@@ -505,7 +515,10 @@ mod tests {
     #[test]
     fn grid_names_follow_the_components() {
         assert_eq!(vdb_grid_names("fluence", &["grey".into()]), ["fluence"]);
-        assert_eq!(vdb_grid_names("fluence", &["r".into(), "g".into(), "b".into()]), ["fluence_r", "fluence_g", "fluence_b"]);
+        assert_eq!(
+            vdb_grid_names("fluence", &["r".into(), "g".into(), "b".into()]),
+            ["fluence_r", "fluence_g", "fluence_b"]
+        );
         assert_eq!(vdb_grid_names("source", &["d0.r".into(), "d1.b".into()]), ["source_d0_r", "source_d1_b"]);
     }
 }

@@ -19,7 +19,7 @@
 use super::{render, Background, Image, RenderInputs};
 use crate::output::{write_json_atomic, OutputError};
 use crate::quadrature::{PropagationSet, StorageSet};
-use crate::scene::{Camera, Light, Medium, Projection};
+use crate::scene::{camera_from_keys, Camera, CameraKeys, Light, Medium, Projection, SceneError, VolumeFrame};
 use crate::store::{BrickStore, Coverage, Field};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -101,7 +101,9 @@ impl CameraData {
         let projection = match (self.projection.as_str(), self.fov_y, self.view_height) {
             ("pinhole", Some(f), None) if f > 0.0 && f < 180.0 => Projection::Pinhole { fov_y_degrees: f },
             ("orthographic", None, Some(h)) if h > 0.0 && h.is_finite() => Projection::Orthographic { height: h },
-            _ => return Err(invalid("camera: a pinhole camera with fov_y in (0, 180) or an orthographic one with view_height > 0 expected")),
+            _ => return Err(invalid(
+                "camera: a pinhole camera with fov_y in (0, 180) or an orthographic one with view_height > 0 expected",
+            )),
         };
         let finite = [self.position, self.look_at, self.up].iter().flatten().all(|v| v.is_finite());
         if !finite || self.width == 0 || self.height == 0 {
@@ -140,7 +142,12 @@ impl RenderData {
             channels,
             directions_per_face: propagation.k,
             storage_per_face: storage.per_face,
-            medium: MediumData { sigma_t: medium.sigma_t, albedo: medium.albedo, g: medium.g, emission: medium.emission },
+            medium: MediumData {
+                sigma_t: medium.sigma_t,
+                albedo: medium.albedo,
+                g: medium.g,
+                emission: medium.emission,
+            },
             sky: sky_radiance(lights),
             camera: camera.into(),
         }
@@ -278,4 +285,74 @@ pub fn render_solved(
         },
         camera,
     })
+}
+
+/// Changes to the kept view asked for on `lpm render`'s command line (world coordinates).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ViewChange {
+    pub width: Option<u32>,
+    pub height: Option<u32>,
+    pub eye: Option<[f64; 3]>,
+    pub target: Option<[f64; 3]>,
+    pub up: Option<[f64; 3]>,
+    pub fov_y: Option<f64>,
+}
+
+impl ViewChange {
+    pub fn is_empty(&self) -> bool {
+        *self == ViewChange::default()
+    }
+}
+
+/// The camera `lpm render` renders with, in the volume's frame: the solve's own camera, or the one
+/// a camera file describes (`[camera]` keys, completed as a scene's are: see
+/// [`crate::scene::camera_from_keys`]), with `change` applied on top. A width or height given alone
+/// keeps the view's aspect ratio. With no file and no change, the solve's camera exactly (so the
+/// image is bitwise the solve's).
+pub fn view_camera(kept: &Kept, file: Option<&Path>, change: &ViewChange) -> Result<Camera, SceneError> {
+    let d = &kept.data;
+    let frame = VolumeFrame { dims: d.dims, voxel_size: d.voxel_size, origin: DVec3::from_array(d.origin) };
+    let base = match file {
+        Some(path) => camera_from_keys(read_camera_keys(path)?, path, &frame)?,
+        None => kept.camera.clone(),
+    };
+    if change.is_empty() {
+        return Ok(base);
+    }
+    let (fov_y, view_height) = match base.projection {
+        Projection::Pinhole { fov_y_degrees } => (Some(fov_y_degrees), None),
+        Projection::Orthographic { height } => (None, Some(height)),
+    };
+    let aspect = base.width as f64 / base.height as f64;
+    let keep = |v: f64| (v.round().max(1.0)) as i64;
+    let (width, height) = match (change.width, change.height) {
+        (Some(w), Some(h)) => (i64::from(w), i64::from(h)),
+        (Some(w), None) => (i64::from(w), keep(w as f64 / aspect)),
+        (None, Some(h)) => (keep(h as f64 * aspect), i64::from(h)),
+        (None, None) => (i64::from(base.width), i64::from(base.height)),
+    };
+    let keys = CameraKeys {
+        projection: Some(if fov_y.is_some() { "pinhole" } else { "orthographic" }.to_string()),
+        fov_y: change.fov_y.or(fov_y),
+        view_height,
+        position: Some(change.eye.unwrap_or((base.position + frame.origin).to_array())),
+        look_at: Some(change.target.unwrap_or((base.look_at + frame.origin).to_array())),
+        up: Some(change.up.unwrap_or(base.up.to_array())),
+        width: Some(width),
+        height: Some(height),
+    };
+    camera_from_keys(keys, Path::new("the command line"), &frame)
+}
+
+/// A camera file: a `[camera]` table, or the same keys at the top level.
+fn read_camera_keys(path: &Path) -> Result<CameraKeys, SceneError> {
+    let text = std::fs::read_to_string(path).map_err(|source| SceneError::Read { path: path.to_path_buf(), source })?;
+    let parse =
+        |message: String| SceneError::Parse { path: path.to_path_buf(), line: None, column: None, key: None, message };
+    let table: toml::Table = toml::from_str(&text).map_err(|e| parse(e.message().to_string()))?;
+    let keys = match table.get("camera") {
+        Some(toml::Value::Table(t)) if table.len() == 1 => t.clone(),
+        _ => table,
+    };
+    keys.try_into().map_err(|e: toml::de::Error| parse(format!("camera: {}", e.message())))
 }

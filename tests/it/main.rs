@@ -33,5 +33,6 @@ mod stop_rule;
 mod store_and_outputs;
 mod vdb_input;
 mod vdb_nrrd;
+mod vdb_output;
 mod vdb_sparse;
 mod vk_smoke;

@@ -432,7 +432,7 @@ fn exr_bytes_are_reproducible() {
     let dir = temp_dir("rel-exr");
     let (w, h) = (640u32, 480u32);
     let rgb: Vec<f32> = (0..w * h * 3).map(|i| (i.wrapping_mul(2654435761u32) % 1000) as f32 / 7.0).collect();
-    let img = lpm::render::Image { width: w, height: h, rgb };
+    let img = lpm::render::Image { width: w, height: h, rgb, alpha: None };
     let first = dir.join("a.exr");
     lpm::render::write_exr(&first, &img).unwrap();
     for k in 0..8 {
