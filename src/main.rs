@@ -249,14 +249,14 @@ enum Command {
         #[arg(long)]
         height: Option<u32>,
         /// Eye position X,Y,Z in world units.
-        #[arg(long, value_delimiter = ',', num_args = 3, allow_hyphen_values = true)]
-        eye: Option<Vec<f64>>,
+        #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+        eye: Option<[f64; 3]>,
         /// Point looked at X,Y,Z in world units.
-        #[arg(long, value_delimiter = ',', num_args = 3, allow_hyphen_values = true)]
-        target: Option<Vec<f64>>,
+        #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+        target: Option<[f64; 3]>,
         /// Up vector X,Y,Z.
-        #[arg(long, value_delimiter = ',', num_args = 3, allow_hyphen_values = true)]
-        up: Option<Vec<f64>>,
+        #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+        up: Option<[f64; 3]>,
         /// Vertical field of view in degrees (pinhole cameras).
         #[arg(long)]
         fov: Option<f64>,
@@ -674,15 +674,7 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Render { dir, camera, width, height, eye, target, up, fov, background, image } => {
-            let vec3 = |v: Option<Vec<f64>>| v.map(|v| [v[0], v[1], v[2]]);
-            let change = lpm::render::keep::ViewChange {
-                width,
-                height,
-                eye: vec3(eye),
-                target: vec3(target),
-                up: vec3(up),
-                fov_y: fov,
-            };
+            let change = lpm::render::keep::ViewChange { width, height, eye, target, up, fov_y: fov };
             render_again(&dir, camera, change, background.into(), image)
         }
         Command::Reference { scene, out, samples, seed, image_spp, threads } => {
@@ -916,6 +908,15 @@ fn sweep(manifest: &std::path::Path, slurm: bool, submit: bool, status: bool) ->
         }
     }
     Ok(())
+}
+
+/// "X,Y,Z" as three numbers.
+fn parse_vec3(text: &str) -> Result<[f64; 3], String> {
+    let v: Vec<f64> = text
+        .split(',')
+        .map(|c| c.trim().parse::<f64>().map_err(|_| format!("{c:?} is not a number")))
+        .collect::<Result<_, _>>()?;
+    <[f64; 3]>::try_from(v).map_err(|v| format!("expected X,Y,Z (3 numbers), got {}", v.len()))
 }
 
 fn parse_budget(text: &str) -> Result<u64, String> {

@@ -13,6 +13,7 @@ mod cpu_physics;
 mod forward_peak;
 mod gpu_solver;
 mod hard_cases;
+mod image_views;
 mod out_of_core;
 mod plan_full;
 mod plot;
