@@ -26,6 +26,8 @@ pub(crate) struct RawVolume {
     /// An OpenVDB file; `grid` names the density grid in it (default "density").
     pub vdb: Option<String>,
     pub grid: Option<String>,
+    /// A NanoVDB file (read like `vdb`; a `.nvdb` named by `vdb` works too).
+    pub nvdb: Option<String>,
     /// An NRRD file (`.nhdr` or `.nrrd`).
     pub nrrd: Option<String>,
     /// Required for `procedural` and `raw`; a VDB grid's comes from its active bounding box.

@@ -169,13 +169,20 @@ impl Validator<'_> {
 
     // ---- sections -------------------------------------------------------------------------
 
-    fn volume(&self, v: RawVolume) -> R<Volume> {
+    fn volume(&self, mut v: RawVolume) -> R<Volume> {
         let origin = match v.origin {
             None => DVec3::ZERO,
             Some(o) => self.vec3("volume.origin", o)?,
         };
+        if let Some(file) = v.nvdb.take() {
+            if v.vdb.is_some() {
+                return Err(self.err("volume.nvdb", "set either `vdb` or `nvdb`, not both"));
+            }
+            v.vdb = Some(file);
+            return self.vdb_volume(v, origin, "volume.nvdb");
+        }
         if v.vdb.is_some() {
-            return self.vdb_volume(v, origin);
+            return self.vdb_volume(v, origin, "volume.vdb");
         }
         if v.nrrd.is_some() {
             return self.nrrd_volume(v, origin);

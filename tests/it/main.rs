@@ -14,6 +14,7 @@ mod forward_peak;
 mod gpu_solver;
 mod hard_cases;
 mod image_views;
+mod nanovdb_input;
 mod out_of_core;
 mod plan_full;
 mod plot;

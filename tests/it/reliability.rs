@@ -273,7 +273,18 @@ fn two_concurrent_solves_into_one_out_never_mix() {
     }
     assert_eq!(
         names(&out),
-        ["fluence.json", "fluence.nhdr", "fluence.raw", "report.json", "source.json", "source.nhdr", "source.raw"]
+        [
+            "fluence.json",
+            "fluence.nhdr",
+            "fluence.raw",
+            "fluence.vdb",
+            "render-data",
+            "report.json",
+            "source.json",
+            "source.nhdr",
+            "source.raw",
+            "source.vdb"
+        ]
     );
 }
 
@@ -299,11 +310,14 @@ fn stale_temporaries_are_cleaned_and_a_rerun_replaces_the_whole_set() {
             "fluence.json",
             "fluence.nhdr",
             "fluence.raw",
+            "fluence.vdb",
             "notes.txt",
+            "render-data",
             "report.json",
             "source.json",
             "source.nhdr",
-            "source.raw"
+            "source.raw",
+            "source.vdb"
         ],
         "no temporaries, no old image.*, the user's file kept"
     );
