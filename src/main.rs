@@ -1009,11 +1009,19 @@ fn info(dir: &std::path::Path, json: bool) -> Result<()> {
             Err(e) => println!("{base:<9} missing or unreadable: {e}"),
         }
     }
+    for file in ["fluence.vdb", "source.vdb"] {
+        if written(file) && dir.join(file).exists() {
+            println!("vdb       {}", dir.join(file).display());
+        }
+    }
     for image in ["image.exr", "image.png"] {
         let p = dir.join(image);
         if p.exists() {
             println!("image     {}", p.display());
         }
+    }
+    if dir.join(lpm::render::RENDER_DATA).join("render.json").exists() {
+        println!("render    {} kept: `lpm render {}` renders other views", lpm::render::RENDER_DATA, dir.display());
     }
     Ok(())
 }

@@ -10,6 +10,13 @@
 //! [`crate::store::vdb`] reads (see that module for the format); OpenVDB's reader
 //! (`python3-openvdb` in `tests/it/vdb_output.rs`) is the test that the files are right.
 //!
+//! A field of several components (RGB fluence, a source per storage direction) is written as one
+//! float grid per component (`fluence_r`, `fluence_g`, `fluence_b`), not as one `Vec3s` grid:
+//! Houdini's and Blender's volume shaders read scalar float grids by name (a density-like field
+//! goes into a multiply or an emission input per channel), every OpenVDB tool handles them, a
+//! source with 72 components has no vector type at all, and a scalar grid compresses and
+//! half-rounds each channel on its own.
+//!
 //! What is written, per grid:
 //! - **topology**: only leaves (8³ voxels) that overlap a stored brick (a brick with medium); the
 //!   voxels of stored bricks are *active*, every other voxel is inactive and holds the background 0
@@ -188,6 +195,9 @@ pub fn export_vdb(
 /// The largest finite half float.
 const HALF_MAX: f32 = 65504.0;
 
+/// Fills a leaf's 512 values (x slowest) for a grid's component: `(component, leaf origin, values)`.
+pub type LeafValues<'a> = dyn FnMut(u32, [i32; 3], &mut [f32; 512]) + 'a;
+
 /// One grid to write: its name, string metadata, and which component of the leaf source it is.
 pub struct GridOut {
     pub name: String,
@@ -269,7 +279,7 @@ pub fn write_vdb<W: Write + Seek>(
     placement: VdbPlacement,
     precision: VdbPrecision,
     mask: &dyn Fn([i32; 3]) -> [u64; 8],
-    values: &mut dyn FnMut(u32, [i32; 3], &mut [f32; 512]),
+    values: &mut LeafValues,
 ) -> io::Result<()> {
     debug_assert!(leaves.windows(2).all(|p| tree_order(p[0]) < tree_order(p[1])));
     let mut s = Counting { inner: w, pos: 0, hash: [0xcbf2_9ce4_8422_2325, 0x8422_2325_cbf2_9ce4] };
@@ -490,7 +500,7 @@ mod tests {
                 assert_eq!(g.placement.translation, placement.translation);
                 assert_eq!(g.tree.leaf_count(), leaves.len());
                 for &o in &leaves {
-                    for n in 0..512 {
+                    for n in 0..512usize {
                         let p = [o[0] + (n >> 6) as i32, o[1] + ((n >> 3) & 7) as i32, o[2] + (n & 7) as i32];
                         let want = if active(p) { value(c as u32, p) } else { 0.0 };
                         let want = match precision {
