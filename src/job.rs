@@ -14,7 +14,7 @@
 //! says to discard it ([`JobError::CheckpointExists`]).
 
 use crate::output::{self, FieldMeta, OutputError};
-use crate::render::{self, RenderInputs};
+use crate::render;
 use crate::scene::{Light, Scene, SceneError};
 use crate::solver::{self, BackendKind, SolveError, SolveRun};
 use crate::vk::ContextOptions;
@@ -76,6 +76,12 @@ pub struct SolveJob {
     /// Start from the solution in this output directory (its `source.raw`, e.g. the previous
     /// frame's) instead of from nothing; see [`solver::warm`].
     pub warm_start: Option<PathBuf>,
+    /// Precision of `fluence.vdb` and `source.vdb`.
+    pub vdb_precision: output::VdbPrecision,
+    /// What the image shows where the camera sees through the volume.
+    pub background: render::Background,
+    /// Do not keep `OUT/render-data/` (what `lpm render` re-renders from).
+    pub no_render_data: bool,
 }
 
 /// The work directory (brick store and checkpoint) of a solve writing to `out`.
@@ -319,17 +325,18 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
         if plan.channels == 1 { vec!["grey".into()] } else { ["r", "g", "b"].iter().map(|s| s.to_string()).collect() };
     let mut outputs = Vec::new();
     if !job.no_fields {
+        let fluence_meta = FieldMeta {
+            quantity: "fluence".into(),
+            units: "radiance units × sr (W/m² for radiance in W/m²/sr)".into(),
+            components: channel_names.clone(),
+            description: "fluence φ = ∫L dω over all scattering orders, per voxel".into(),
+        };
         output::export_field(
             &fields.fluence_total,
             &store,
             &stage,
             "fluence",
-            &FieldMeta {
-                quantity: "fluence".into(),
-                units: "radiance units × sr (W/m² for radiance in W/m²/sr)".into(),
-                components: channel_names.clone(),
-                description: "fluence φ = ∫L dω over all scattering orders, per voxel".into(),
-            },
+            &fluence_meta,
             output::EmptyBricks::NotSolved,
         )?;
         outputs.extend(["fluence.raw", "fluence.json", "fluence.nhdr"].map(String::from));
@@ -338,54 +345,71 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
         } else {
             (0..plan.storage.len()).flat_map(|d| channel_names.iter().map(move |c| format!("d{d}.{c}"))).collect()
         };
-        output::export_field(
-            &fields.source_total,
-            &store,
-            &stage,
-            "source",
-            &FieldMeta {
-                quantity: "in-scattered source".into(),
-                units: "radiance per unit length".into(),
-                components: source_names,
-                description: if plan.storage.is_isotropic() {
-                    "in-scattered source J = σs∫p·L dω' summed over orders (isotropic: one value per channel)".into()
-                } else {
-                    format!(
-                        "in-scattered source J per storage direction summed over orders; {} storage directions ({}×{} cube-face cells per face), component = direction·channels + channel",
-                        plan.storage.len(),
-                        plan.storage.per_face,
-                        plan.storage.per_face
-                    )
-                },
+        let source_meta = FieldMeta {
+            quantity: "in-scattered source".into(),
+            units: "radiance per unit length".into(),
+            components: source_names,
+            description: if plan.storage.is_isotropic() {
+                "in-scattered source J = σs∫p·L dω' summed over orders (isotropic: one value per channel)".into()
+            } else {
+                format!(
+                    "in-scattered source J per storage direction summed over orders; {} storage directions ({}×{} cube-face cells per face), component = direction·channels + channel",
+                    plan.storage.len(),
+                    plan.storage.per_face,
+                    plan.storage.per_face
+                )
             },
-            output::EmptyBricks::Zero,
-        )?;
+        };
+        output::export_field(&fields.source_total, &store, &stage, "source", &source_meta, output::EmptyBricks::Zero)?;
         outputs.extend(["source.raw", "source.json", "source.nhdr"].map(String::from));
+        // The same fields as sparse OpenVDB grids, on the input's index grid and transform.
+        let placement = vdb_placement(scene);
+        for (field, base, meta) in
+            [(&fields.fluence_total, "fluence", &fluence_meta), (&fields.source_total, "source", &source_meta)]
+        {
+            let name = format!("{base}.vdb");
+            output::export_vdb(field, &store, &stage.join(&name), base, meta, placement, job.vdb_precision)?;
+            outputs.push(name);
+        }
     }
     phases.push(("export".to_string(), t.elapsed().as_secs_f64()));
 
+    // What `lpm render` needs to render this result again (render-data/, linked, not copied),
+    // and the image, rendered from the same data by the same path.
+    let camera = scene.camera.clone().unwrap_or_else(|| render::default_camera(plan.dims, plan.voxel_size));
+    let mut render_data = render::RenderData::new(
+        plan.dims,
+        plan.voxel_size,
+        scene.volume.origin,
+        plan.channels,
+        &plan.propagation,
+        &plan.storage,
+        &plan.medium,
+        &scene.lights,
+        &camera,
+    );
+    render_data.emission_per_voxel = plan.emission_field;
+    let emission = if plan.emission_field {
+        Some(crate::store::emission::open_emission(&store).map_err(SolveError::from)?)
+    } else {
+        None
+    };
+    let mut published = Vec::new();
+    if !job.no_render_data {
+        render::keep::keep(&stage.join(render::RENDER_DATA), &store, &fields.source_total, &render_data)?;
+        published.push(render::RENDER_DATA.to_string());
+    }
     if !job.no_image {
         let t = Instant::now();
-        let camera = scene.camera.clone().unwrap_or_else(|| render::default_camera(plan.dims, plan.voxel_size));
-        let mut background = [0.0; 3];
-        for light in &scene.lights {
-            if let Light::Sky { radiance } = light {
-                (0..3).for_each(|c| background[c] += radiance[c]);
-            }
-        }
-        let lookup = |omega: glam::DVec3| plan.storage.owner[plan.propagation.containing(omega)] as usize;
-        let image = render::render(&RenderInputs {
-            store: &store,
-            source: &fields.source_total,
-            channels: plan.channels,
-            storage_dirs: plan.storage.len() as u32,
-            storage_lookup: &lookup,
-            medium: &plan.medium,
-            background,
-            camera: &camera,
-        });
-        render::write_exr(&stage.join("image.exr"), &image)?;
-        render::write_png(&stage.join("image.png"), &image, 1.0)?;
+        let image = render::render_solved(
+            &render_data,
+            &store,
+            &fields.source_total,
+            emission.as_ref(),
+            &camera,
+            job.background,
+        );
+        render::write_images(Some(&stage.join("image.exr")), Some(&stage.join("image.png")), &image, job.background)?;
         outputs.extend(["image.exr", "image.png"].map(String::from));
         phases.push(("render".to_string(), t.elapsed().as_secs_f64()));
     }
@@ -416,8 +440,21 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
         outputs,
     };
     output::write_json_atomic(&stage.join("report.json"), &report)?;
-    staging.commit(&report.outputs)?;
+    // render-data/ is published with the set but is not one of the report's files (a directory).
+    published.extend(report.outputs.iter().cloned());
+    staging.commit(&published)?;
     Ok(report)
+}
+
+/// Where the exported VDB grids lie: on the input VDB's own index grid (its voxel (0, 0, 0) is the
+/// input's active box corner), else with voxel (0, 0, 0) at index 0; the transform places them
+/// where the volume is (`volume.origin`, `volume.voxel_size`).
+pub fn vdb_placement(scene: &Scene) -> output::VdbPlacement {
+    let index_min = match &scene.volume.source {
+        crate::scene::VolumeSource::Vdb { index_min, .. } => *index_min,
+        _ => [0; 3],
+    };
+    output::VdbPlacement::new(scene.volume.origin.to_array(), scene.volume.voxel_size, index_min)
 }
 
 /// Total length of the files in `dir` (not recursive; unreadable entries count as 0).

@@ -15,12 +15,12 @@
 //! | module | what it owns |
 //! |---|---|
 //! | [`scene`] | the TOML job description, validated into typed values and typed errors |
-//! | [`store`] | the 16³ brick store: memory-mapped field files, empty-brick table, importers (raw, OpenVDB `.vdb`, NRRD), the per-voxel emission field |
-//! | [`output`] | atomic writes (temporary name, then rename) and the exported raw/json/nhdr layout |
+//! | [`store`] | the 16³ brick store: memory-mapped field files, empty-brick table, importers (raw, OpenVDB `.vdb`, NanoVDB `.nvdb`, NRRD), the per-voxel emission field |
+//! | [`output`] | atomic writes (temporary name, then rename), outputs published as a set, the exported raw/json/nhdr layout and the sparse OpenVDB export (our own writer) |
 //! | [`quadrature`] | propagation directions and their solid angles, storage directions, phase tables |
 //! | [`vk`] | the thin Vulkan layer: instance, device, queues, buffers, pipelines, timeline sync |
 //! | [`solver`] | the plan (what a scene needs), the discretisation shared by both backends, the CPU twin (f64), the GPU driver, the order loop |
-//! | [`render`] | the camera ray-march over the solved source, EXR and PNG writers |
+//! | [`render`] | the camera ray-march over the solved source (RGBA: alpha = 1 − transmittance), EXR and PNG writers, the render data a solve keeps for `lpm render` |
 //! | [`reference`](mod@reference) | the independent Monte-Carlo reference (shares only the scene with the solver) |
 //! | [`compare`] | accuracy figures of one output directory against another (e.g. a solve against a reference) |
 //! | [`job`] | a whole `lpm solve`: scene → store → solve → exported fields, image, report; checkpoints and resume |
@@ -53,8 +53,10 @@
 //!    device, all-or-nothing) → `streamer` (slices through the slots: gather on the copy workers,
 //!    upload, compute, download, scatter, against timeline semaphores) → `encoder` (push constants,
 //!    descriptor sets, dispatches of `glsl/propagate.comp` and `glsl/collect.comp`) → [`vk`].
-//! 6. **Outputs** — [`job`] exports the committed fluence and source ([`output`], atomically),
-//!    renders the image from the source ([`render`]) and writes `report.json`. Independently,
+//! 6. **Outputs** — [`job`] exports the committed fluence and source ([`output`], atomically: raw +
+//!    NRRD header, and sparse OpenVDB grids), keeps `render-data/` (density and source in brick
+//!    form, linked from the store) and renders the image from it ([`render`]: `lpm render` renders
+//!    new views from the same data), and writes `report.json`. Independently,
 //!    [`reference`](mod@reference) solves the same scene by Monte Carlo, and [`compare`] holds one
 //!    output directory against another.
 //!

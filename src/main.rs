@@ -84,6 +84,18 @@ enum Command {
         /// answer is the cold solve's, within the tolerance (GPU backend).
         #[arg(long, value_name = "DIR", conflicts_with = "task")]
         warm_start: Option<PathBuf>,
+        /// Precision of fluence.vdb and source.vdb: float (exactly the raw values) or half (half
+        /// the size; values beyond ±65504 are clamped).
+        #[arg(long, value_enum, default_value_t = VdbPrecisionArg::Float)]
+        vdb_precision: VdbPrecisionArg,
+        /// What the image shows behind the volume: the sky (baked into the colour), or nothing
+        /// (transparent: colour premultiplied by alpha = 1 − transmittance, for compositing).
+        #[arg(long, value_enum, default_value_t = BackgroundArg::Sky)]
+        background: BackgroundArg,
+        /// Do not keep OUT/render-data (the density and solved source in brick form, linked from
+        /// the solver's store) that `lpm render OUT` renders new views from.
+        #[arg(long)]
+        no_render_data: bool,
     },
     /// Monte-Carlo reference solution of a scene (independent of the LPM solver): writes fluence.*,
     /// fluence_stderr.* (per-voxel standard error), image.* when --image-spp > 0, and report.json.
@@ -236,6 +248,41 @@ enum Command {
         server: ServerArgs,
         #[arg(long, short)]
         out: PathBuf,
+    },
+    /// Render a solved result again from another view without solving: reads DIR/render-data (kept
+    /// by `lpm solve`) and writes DIR/image.exr and DIR/image.png (or --image PATH), atomically.
+    /// With no camera option the view is the solve's own (the same image, bitwise).
+    Render {
+        /// An output directory of `lpm solve`.
+        dir: PathBuf,
+        /// A camera file: a [camera] table as in a scene (or its keys at the top level); keys it
+        /// omits take the defaults a scene's camera takes. The flags below apply on top of it.
+        #[arg(long)]
+        camera: Option<PathBuf>,
+        /// Image width in pixels (given alone, the height follows the view's aspect ratio).
+        #[arg(long)]
+        width: Option<u32>,
+        /// Image height in pixels (given alone, the width follows the view's aspect ratio).
+        #[arg(long)]
+        height: Option<u32>,
+        /// Eye position X,Y,Z in world units.
+        #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+        eye: Option<[f64; 3]>,
+        /// Point looked at X,Y,Z in world units.
+        #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+        target: Option<[f64; 3]>,
+        /// Up vector X,Y,Z.
+        #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+        up: Option<[f64; 3]>,
+        /// Vertical field of view in degrees (pinhole cameras).
+        #[arg(long)]
+        fov: Option<f64>,
+        /// What the image shows behind the volume (as for `solve`).
+        #[arg(long, value_enum, default_value_t = BackgroundArg::Sky)]
+        background: BackgroundArg,
+        /// Write this one file instead (its extension, .exr or .png, says which).
+        #[arg(long)]
+        image: Option<PathBuf>,
     },
     /// Print what a solve wrote to DIR: the plan, orders, residual, energy balance and the fields.
     Info {
@@ -488,6 +535,36 @@ fn parse_limit(text: &str) -> Result<f64, String> {
     }
 }
 
+#[derive(Clone, Copy, ValueEnum)]
+enum VdbPrecisionArg {
+    Float,
+    Half,
+}
+
+impl From<VdbPrecisionArg> for lpm::output::VdbPrecision {
+    fn from(p: VdbPrecisionArg) -> Self {
+        match p {
+            VdbPrecisionArg::Float => lpm::output::VdbPrecision::Float,
+            VdbPrecisionArg::Half => lpm::output::VdbPrecision::Half,
+        }
+    }
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum BackgroundArg {
+    Sky,
+    Transparent,
+}
+
+impl From<BackgroundArg> for lpm::render::Background {
+    fn from(b: BackgroundArg) -> Self {
+        match b {
+            BackgroundArg::Sky => lpm::render::Background::Sky,
+            BackgroundArg::Transparent => lpm::render::Background::Transparent,
+        }
+    }
+}
+
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Solve {
@@ -505,6 +582,9 @@ fn run(cli: Cli) -> Result<()> {
             task,
             fresh,
             warm_start,
+            vdb_precision,
+            background,
+            no_render_data,
         } => {
             // The CPU backend sweeps on rayon's global pool (0 threads: one per core).
             rayon::ThreadPoolBuilder::new()
@@ -530,6 +610,9 @@ fn run(cli: Cli) -> Result<()> {
                     fresh: false,
                     cancel: Some(cancel_on_signals()),
                     warm_start: None,
+                    vdb_precision: vdb_precision.into(),
+                    background: background.into(),
+                    no_render_data,
                 };
                 return run_task(&scene, &task, &template);
             }
@@ -550,6 +633,9 @@ fn run(cli: Cli) -> Result<()> {
                 fresh,
                 cancel: Some(cancel_on_signals()),
                 warm_start,
+                vdb_precision: vdb_precision.into(),
+                background: background.into(),
+                no_render_data,
             };
             let bar = std::io::stderr().is_terminal().then(|| {
                 let bar = indicatif::ProgressBar::new_spinner();
@@ -662,6 +748,10 @@ fn run(cli: Cli) -> Result<()> {
             let written = server.client()?.fetch(id, &out, &names)?;
             println!("fetched {} into {}", written.join(", "), out.display());
             Ok(())
+        }
+        Command::Render { dir, camera, width, height, eye, target, up, fov, background, image } => {
+            let change = lpm::render::keep::ViewChange { width, height, eye, target, up, fov_y: fov };
+            render_again(&dir, camera, change, background.into(), image)
         }
         Command::Reference { scene, out, samples, seed, image_spp, threads } => {
             let job = lpm::reference::job::ReferenceJob {
@@ -822,6 +912,32 @@ fn run(cli: Cli) -> Result<()> {
     }
 }
 
+fn render_again(
+    dir: &std::path::Path,
+    camera: Option<PathBuf>,
+    change: lpm::render::keep::ViewChange,
+    background: lpm::render::Background,
+    image: Option<PathBuf>,
+) -> Result<()> {
+    let (exr, png) = match &image {
+        None => (Some(dir.join("image.exr")), Some(dir.join("image.png"))),
+        Some(p) => match p.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
+            Some("exr") => (Some(p.clone()), None),
+            Some("png") => (None, Some(p.clone())),
+            _ => bail!("--image {}: the name must end in .exr or .png", p.display()),
+        },
+    };
+    // Held while reading and writing: a solve into DIR cannot replace the data under us.
+    let _lock = lpm::output::DirLock::acquire(dir)?;
+    let kept = lpm::render::keep::open(dir)?;
+    let camera = lpm::render::keep::view_camera(&kept, camera.as_deref(), &change)?;
+    let img = kept.render(&camera, background);
+    lpm::render::write_images(exr.as_deref(), png.as_deref(), &img, background)?;
+    let written: Vec<String> = [exr, png].into_iter().flatten().map(|p| p.display().to_string()).collect();
+    println!("rendered {}×{} pixels: {}", img.width, img.height, written.join(", "));
+    Ok(())
+}
+
 fn run_task(manifest: &std::path::Path, task: &str, template: &SolveJob) -> Result<()> {
     let index: usize = if task == "slurm" {
         let v = std::env::var("SLURM_ARRAY_TASK_ID")
@@ -868,6 +984,15 @@ fn sweep(manifest: &std::path::Path, slurm: bool, submit: bool, status: bool) ->
         }
     }
     Ok(())
+}
+
+/// "X,Y,Z" as three numbers.
+fn parse_vec3(text: &str) -> Result<[f64; 3], String> {
+    let v: Vec<f64> = text
+        .split(',')
+        .map(|c| c.trim().parse::<f64>().map_err(|_| format!("{c:?} is not a number")))
+        .collect::<Result<_, _>>()?;
+    <[f64; 3]>::try_from(v).map_err(|v| format!("expected X,Y,Z (3 numbers), got {}", v.len()))
 }
 
 fn parse_budget(text: &str) -> Result<u64, String> {
@@ -960,11 +1085,19 @@ fn info(dir: &std::path::Path, json: bool) -> Result<()> {
             Err(e) => println!("{base:<9} missing or unreadable: {e}"),
         }
     }
+    for file in ["fluence.vdb", "source.vdb"] {
+        if written(file) && dir.join(file).exists() {
+            println!("vdb       {}", dir.join(file).display());
+        }
+    }
     for image in ["image.exr", "image.png"] {
         let p = dir.join(image);
         if p.exists() {
             println!("image     {}", p.display());
         }
+    }
+    if dir.join(lpm::render::RENDER_DATA).join("render.json").exists() {
+        println!("render    {} kept: `lpm render {}` renders other views", lpm::render::RENDER_DATA, dir.display());
     }
     Ok(())
 }

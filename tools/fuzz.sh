@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Long fuzzing runs of lpm's input readers (issue 13): the scene parser/validator and the raw
-# density reader and the OpenVDB reader, with cargo-fuzz (libFuzzer). Usage: tools/fuzz.sh [SECONDS_PER_TARGET] [TARGET...]
+# density reader, the OpenVDB reader and the NanoVDB reader, with cargo-fuzz (libFuzzer). Usage: tools/fuzz.sh [SECONDS_PER_TARGET] [TARGET...]
 # (default 600 s each, every target). Findings land in tools/fuzz/artifacts/<target>/; record
 # executions and findings in benches/RESULTS.md.
 #
@@ -15,7 +15,7 @@ cd "$(dirname "$0")/.."
 SECONDS_PER_TARGET="${1:-600}"
 shift || true
 TARGETS=("$@")
-[ ${#TARGETS[@]} -gt 0 ] || TARGETS=(scene raw vdb)
+[ ${#TARGETS[@]} -gt 0 ] || TARGETS=(scene raw vdb nanovdb)
 command -v cargo-fuzz >/dev/null || cargo install cargo-fuzz --locked
 export RUSTC_BOOTSTRAP=1
 SAN="${LPM_FUZZ_SANITIZER:-address}"

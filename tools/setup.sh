@@ -1,14 +1,15 @@
 #!/usr/bin/env bash
 # Installs the system packages lpm needs, only those missing: the Vulkan loader, Mesa's lavapipe
 # (a CPU Vulkan driver, so everything runs without a GPU), the Khronos validation layer, and
-# glslang/spirv-tools to compile the shaders, and OpenVDB's Python module (python3-openvdb: the tests
-# write their .vdb files with the reference implementation). Sourced by demo.sh and test.sh.
+# glslang/spirv-tools to compile the shaders, OpenVDB's Python module (python3-openvdb: the tests
+# write and read their .vdb files with the reference implementation) and NanoVDB's converter
+# (libnanovdb-tools: nanovdb_convert writes the tests' .nvdb files). Sourced by demo.sh and test.sh.
 set -euo pipefail
 
 # `lpm serve` links the system SQLite (libsqlite3-dev, pkg-config); the Slurm array test starts a
 # single-node slurmctld + slurmd (slurm-wlm) authenticated by munge.
 packages=(libvulkan1 mesa-vulkan-drivers vulkan-validationlayers glslang-tools spirv-tools
-    libsqlite3-dev pkg-config slurm-wlm munge python3-openvdb)
+    libsqlite3-dev pkg-config slurm-wlm munge python3-openvdb libnanovdb-tools)
 missing=()
 for p in "${packages[@]}"; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

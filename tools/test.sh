@@ -23,6 +23,6 @@ trap 'rm -f "$log"' EXIT
 cargo test --no-fail-fast "$@" 2>&1 | tee "$log"
 # A short bounded fuzzing run of every fuzz target (issue 13): 20 s each, after the build.
 # tools/fuzz.sh explains RUSTC_BOOTSTRAP and does long runs; it installs cargo-fuzz if missing.
-LPM_FUZZ_SANITIZER=none bash tools/fuzz.sh 20 scene raw vdb
+LPM_FUZZ_SANITIZER=none bash tools/fuzz.sh 20 scene raw vdb nanovdb
 # The suite's totals as the closing line (the fuzz statistics above would otherwise end the output).
 awk '/^test result:/ { p += $4; f += $6 } END { printf "tests: %d passed, %d failed\n", p, f }' "$log"

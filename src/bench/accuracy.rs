@@ -267,6 +267,9 @@ fn solver_row(
             fresh: true,
             cancel: None,
             warm_start: None,
+            vdb_precision: Default::default(),
+            background: Default::default(),
+            no_render_data: true,
         },
         |_, _| {},
     )?;

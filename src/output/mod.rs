@@ -11,6 +11,10 @@
 //! - `<base>.json`: what the raw file holds ([`FieldInfo`]), and, when NaN marks voxels that were
 //!   not solved (the fluence of empty bricks), a `not_solved` note saying so;
 //! - `<base>.nhdr`: a detached NRRD header so ParaView, 3D Slicer, teem … open the raw directly.
+//!
+//! and, beside them, `<base>.vdb`: the same values as sparse OpenVDB grids (only the leaves of
+//! bricks with medium), placed where the input volume was, for Houdini, Blender and Nuke
+//! ([`export_vdb`], written by our own writer: see `vdb.rs` for why).
 
 mod atomic;
 pub mod confine;
@@ -21,6 +25,7 @@ mod nrrd;
 mod publish;
 mod read;
 pub mod space;
+mod vdb;
 
 pub use atomic::{write_atomic, write_json_atomic};
 pub use confine::{confine, ConfineError};
@@ -29,3 +34,4 @@ pub use export::{export_dense, export_field, EmptyBricks, FieldInfo, FieldMeta, 
 pub use lock::{DirLock, LOCK_FILE};
 pub use publish::{finish_commit, recover, Recovery, Staging, KNOWN_OUTPUTS};
 pub use read::{read_field_json, read_raw_field};
+pub use vdb::{export_vdb, tree_order, vdb_grid_names, write_vdb, GridOut, VdbPlacement, VdbPrecision};

@@ -20,16 +20,19 @@ use std::fs::{self, File};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-/// Every file name `lpm solve` may write into `OUT`.
-pub const KNOWN_OUTPUTS: [&str; 9] = [
+/// Every file (and directory: `render-data`) name `lpm solve` may write into `OUT`.
+pub const KNOWN_OUTPUTS: [&str; 12] = [
     "fluence.raw",
     "fluence.json",
     "fluence.nhdr",
+    "fluence.vdb",
     "source.raw",
     "source.json",
     "source.nhdr",
+    "source.vdb",
     "image.exr",
     "image.png",
+    "render-data",
     "report.json",
 ];
 const COMMIT_DIR: &str = ".lpm-commit";
@@ -108,7 +111,8 @@ impl Staging {
         let Some(dir) = self.dir.take() else { return Ok(()) };
         let result = (|| {
             for name in outputs {
-                if !KNOWN_OUTPUTS.contains(&name.as_str()) || !dir.join(name).is_file() {
+                let staged = dir.join(name);
+                if !KNOWN_OUTPUTS.contains(&name.as_str()) || !(staged.is_file() || staged.is_dir()) {
                     return Err(OutputError::Invalid {
                         path: dir.join(name),
                         message: "not a staged output of this run".to_string(),
@@ -147,9 +151,17 @@ pub fn finish_commit(out: &Path) -> Result<(), OutputError> {
     let set_path = commit.join(SET_FILE);
     let text = fs::read_to_string(&set_path).map_err(io(&set_path, "read"))?;
     let set: Vec<&str> = text.lines().filter(|l| KNOWN_OUTPUTS.contains(l)).collect();
-    let remove = |name: &str| match fs::remove_file(out.join(name)) {
-        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(io(&out.join(name), "remove the old output")(e)),
-        _ => Ok(()),
+    // An output is a file, or a directory (render-data/); a symbolic link is removed, not followed.
+    let remove = |name: &str| {
+        let path = out.join(name);
+        let result = match fs::symlink_metadata(&path) {
+            Ok(m) if m.is_dir() => fs::remove_dir_all(&path),
+            _ => fs::remove_file(&path),
+        };
+        match result {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(io(&path, "remove the old output")(e)),
+            _ => Ok(()),
+        }
     };
     // First the report: while the set is being replaced, no report vouches for the files.
     if commit.join(REPORT).exists() {
@@ -163,6 +175,10 @@ pub fn finish_commit(out: &Path) -> Result<(), OutputError> {
     for name in names {
         let from = commit.join(name);
         if from.exists() {
+            // A rename replaces a file, never a directory: an old directory goes first.
+            if from.is_dir() || out.join(name).is_dir() {
+                remove(name)?;
+            }
             fs::rename(&from, out.join(name)).map_err(io(&out.join(name), "move the new output into place"))?;
         }
     }

@@ -269,7 +269,7 @@ fn write_outputs(result: &ReferenceResult, voxel_size: f64, dir: &Path) -> Resul
         outputs.extend(["raw", "json", "nhdr"].map(|ext| format!("{base}.{ext}")));
     }
     if let Some(img) = &result.image {
-        let image = Image { width: img.width, height: img.height, rgb: img.rgb.clone() };
+        let image = Image { width: img.width, height: img.height, rgb: img.rgb.clone(), alpha: None };
         render::write_exr(&dir.join("image.exr"), &image)?;
         render::write_png(&dir.join("image.png"), &image, 1.0)?;
         outputs.extend(["image.exr", "image.png"].map(String::from));

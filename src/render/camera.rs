@@ -1,55 +1,8 @@
-//! Cameras: the default view of a volume, and the ray through each pixel.
+//! The ray through each pixel of a camera (the default view of a volume is defined with the scene's
+//! camera keys: [`crate::scene::default_camera`]).
 
 use crate::scene::{Camera, Projection};
 use glam::DVec3;
-
-/// Width in pixels of the default camera's image.
-const DEFAULT_WIDTH: u32 = 512;
-/// Vertical field of view of the default camera, in degrees.
-const DEFAULT_FOV_Y: f64 = 40.0;
-/// Room left around the volume in the default view (fraction of its projected size).
-const DEFAULT_MARGIN: f64 = 1.08;
-
-/// A pinhole camera looking at the volume's centre from a three-quarter view above it (azimuth 45°
-/// between +x and +z, 30° above the horizon, +y up), far enough back that the whole volume is in
-/// frame. The image is 512 pixels wide, its aspect that of the volume's projection.
-pub fn default_camera(dims: [u32; 3], voxel_size: f64) -> Camera {
-    let extent = DVec3::new(dims[0] as f64, dims[1] as f64, dims[2] as f64) * voxel_size;
-    let centre = extent * 0.5;
-    let up = DVec3::Y;
-    let (elevation, azimuth) = (30f64.to_radians(), 45f64.to_radians());
-    let to_eye = DVec3::new(elevation.cos() * azimuth.sin(), elevation.sin(), elevation.cos() * azimuth.cos());
-    let frame = Frame::new(-to_eye, up);
-
-    // Corners relative to the centre, in camera coordinates (right, up, toward the eye).
-    let corners: Vec<DVec3> = (0..8)
-        .map(|i| {
-            let c = DVec3::new((i & 1) as f64, ((i >> 1) & 1) as f64, ((i >> 2) & 1) as f64) * extent - centre;
-            DVec3::new(c.dot(frame.right), c.dot(frame.up), c.dot(to_eye))
-        })
-        .collect();
-    let half_w = corners.iter().map(|c| c.x.abs()).fold(0.0, f64::max);
-    let half_h = corners.iter().map(|c| c.y.abs()).fold(0.0, f64::max);
-    let aspect = if half_h > 0.0 { half_w / half_h } else { 1.0 };
-    let height = ((DEFAULT_WIDTH as f64 / aspect).round() as u32).clamp(1, 16384);
-    let aspect = DEFAULT_WIDTH as f64 / height as f64;
-
-    // Distance at which every corner projects inside the frame (depth grows with the distance).
-    let tan_y = (DEFAULT_FOV_Y.to_radians() * 0.5).tan();
-    let distance = corners
-        .iter()
-        .map(|c| c.z + DEFAULT_MARGIN * (c.x.abs() / (tan_y * aspect)).max(c.y.abs() / tan_y))
-        .fold(0.0, f64::max)
-        .max(voxel_size);
-    Camera {
-        projection: Projection::Pinhole { fov_y_degrees: DEFAULT_FOV_Y },
-        position: centre + to_eye * distance,
-        look_at: centre,
-        up,
-        width: DEFAULT_WIDTH,
-        height,
-    }
-}
 
 /// An orthonormal camera frame.
 #[derive(Clone, Copy, Debug)]
@@ -115,6 +68,7 @@ impl RayGenerator {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::scene::default_camera;
 
     #[test]
     fn centre_ray_goes_through_look_at() {

@@ -7,12 +7,27 @@ use crate::store::{BrickStore, Field};
 use glam::DVec3;
 use std::sync::Mutex;
 
-/// Linear radiance, RGB per pixel, row-major, top row first.
+/// Linear radiance, RGB per pixel, row-major, top row first, with an optional alpha.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Image {
     pub width: u32,
     pub height: u32,
     pub rgb: Vec<f32>,
+    /// Per pixel, 1 − the transmittance along the camera ray (the mean of the three channels'):
+    /// 0 where the ray meets no medium, → 1 where the volume is opaque. `None`: no alpha channel
+    /// (an image that is opaque by construction, e.g. the Monte-Carlo reference's).
+    pub alpha: Option<Vec<f32>>,
+}
+
+/// What a camera ray that leaves the volume sees (`--background`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Background {
+    /// The scene's sky radiance, baked into the colour (alpha still says how opaque the medium is).
+    #[default]
+    Sky,
+    /// Nothing: the colour is the medium's own light only, which is premultiplied by alpha (the
+    /// volume composites over any background B as colour + (1 − alpha)·B).
+    Transparent,
 }
 
 impl Image {
@@ -29,13 +44,16 @@ pub struct RenderInputs<'a> {
     /// In-scattered source J summed over orders; `Coverage::Occupied`; component
     /// `d·channels + ch` for storage direction d and channel ch.
     pub source: &'a Field,
+    /// The per-voxel emission factor e(v) (one component, occupied bricks): the medium emits
+    /// `e(v)·medium.emission`; `None`: it emits `medium.emission` everywhere.
+    pub emission: Option<&'a Field>,
     /// 1 (grey: channel 0 serves r, g and b) or 3.
     pub channels: u32,
     pub storage_dirs: u32,
     /// Storage direction index for a direction of light travel.
     pub storage_lookup: &'a (dyn Fn(DVec3) -> usize + Sync),
     pub medium: &'a Medium,
-    /// Radiance seen where a ray leaves the volume.
+    /// Radiance seen where a ray leaves the volume (zero for [`Background::Transparent`]).
     pub background: [f64; 3],
     pub camera: &'a Camera,
 }
@@ -52,7 +70,8 @@ pub fn render(inputs: &RenderInputs) -> Image {
     let rays = RayGenerator::new(inputs.camera);
     let (width, height) = (inputs.camera.width.max(1), inputs.camera.height.max(1));
     let mut rgb = vec![0.0f32; width as usize * height as usize * 3];
-    let rows = Mutex::new(rgb.chunks_mut(width as usize * 3).enumerate());
+    let mut alpha = vec![0.0f32; width as usize * height as usize];
+    let rows = Mutex::new(rgb.chunks_mut(width as usize * 3).zip(alpha.chunks_mut(width as usize)).enumerate());
     let workers = std::thread::available_parallelism().map_or(1, |n| n.get()).min(height as usize);
     std::thread::scope(|s| {
         for _ in 0..workers {
@@ -62,24 +81,25 @@ pub fn render(inputs: &RenderInputs) -> Image {
                     Ok(mut it) => it.next(),
                     Err(_) => return,
                 };
-                let Some((y, row)) = next else { return };
+                let Some((y, (row, alpha_row))) = next else { return };
                 if y % RELEASE_ROWS == 0 {
                     // Hand back the pages the rows so far read (resident memory stays bounded on
                     // volumes larger than RAM; see `store::Field`). Other workers refault what they use.
                     inputs.store.release_all_density();
                     inputs.source.release_all();
                 }
-                for (x, px) in row.chunks_mut(3).enumerate() {
+                for (x, (px, a)) in row.chunks_mut(3).zip(alpha_row.iter_mut()).enumerate() {
                     let (origin, dir) = rays.ray(x as u32, y as u32);
-                    let l = march_ray(inputs, origin, dir);
+                    let (l, t) = march_ray(inputs, origin, dir);
                     for ch in 0..3 {
-                        px[ch] = l[ch] as f32;
+                        px[ch] = (l[ch] + t[ch] * inputs.background[ch]) as f32;
                     }
+                    *a = (1.0 - (t[0] + t[1] + t[2]) / 3.0) as f32;
                 }
             });
         }
     });
-    Image { width, height, rgb }
+    Image { width, height, rgb, alpha: Some(alpha) }
 }
 
 /// Display value in [0, 1] (before sRGB encoding) of a linear radiance scaled by `exposure`:

@@ -70,9 +70,10 @@ pub fn walk_voxels(
     }
 }
 
-/// Radiance (per channel) arriving at `origin` along `−dir`: the medium's in-scattered source and
-/// emission, attenuated on the way, plus the background seen through the volume.
-pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> [f64; 3] {
+/// Radiance (per channel) arriving at `origin` along `−dir` from the medium (its in-scattered source
+/// and emission, attenuated on the way), and the transmittance of the whole ray per channel: the
+/// pixel is `radiance + transmittance·background`.
+pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3], [f64; 3]) {
     let grid = inputs.store.grid();
     let h = inputs.store.voxel_size();
     let size = DVec3::new(grid.dims[0] as f64, grid.dims[1] as f64, grid.dims[2] as f64) * h;
@@ -92,12 +93,13 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> [f64; 3] {
             let corners = trilinear(mid / h, grid.dims);
             let sample = |f: &dyn Fn([u32; 3]) -> f64| corners.iter().map(|&(v, w)| w * f(v)).sum::<f64>();
             let density = sample(&|v| inputs.store.density_at(v) as f64);
+            let glow = inputs.emission.map_or(1.0, |e| sample(&|v| e.value(v, 0) as f64));
             for ch in 0..3 {
                 let sigma_t = density * m.sigma_t[ch];
                 let sigma_a = sigma_t * (1.0 - m.albedo[ch]);
                 let j_ch = if inputs.channels == 1 { 0 } else { ch as u32 };
                 let j = sample(&|v| inputs.source.value(v, d * inputs.channels + j_ch) as f64);
-                let q = j + sigma_a * m.emission[ch];
+                let q = j + sigma_a * m.emission[ch] * glow;
                 let x = sigma_t * s;
                 // ∫₀ˢ e^{−σt·u} du, exact as σt → 0 (where it tends to s).
                 let path = if sigma_t > 0.0 { -(-x).exp_m1() / sigma_t } else { s };
@@ -107,7 +109,7 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> [f64; 3] {
             transmittance.iter().any(|&t| t >= OPAQUE)
         });
     }
-    [0, 1, 2].map(|ch| radiance[ch] + transmittance[ch] * inputs.background[ch])
+    (radiance, transmittance)
 }
 
 /// The eight voxels around `p` (in voxel units) with their trilinear weights; voxel centres sit at

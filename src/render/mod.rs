@@ -6,14 +6,19 @@
 //! segment uses the exact closed form of the transfer equation ([`march`]). What the camera sees
 //! beyond the volume is a uniform background radiance.
 //!
-//! [`render`] produces linear radiance ([`Image`]); [`write_exr`] stores it unchanged, [`write_png`]
-//! tone-maps it for viewing.
+//! [`render`] produces linear radiance and alpha = 1 − transmittance ([`Image`]); the background
+//! is the sky, or nothing ([`Background::Transparent`]: premultiplied colour, for compositing).
+//! [`write_exr`] stores it unchanged (RGBA), [`write_png`] tone-maps it for viewing (RGB), and
+//! [`write_png_rgba`] does the same with straight alpha for a transparent background.
 
 mod camera;
 mod image;
+pub mod keep;
 pub mod march;
 mod write;
 
-pub use camera::{default_camera, RayGenerator};
-pub use image::{render, tone_map, Image, RenderInputs};
-pub use write::{write_exr, write_png};
+pub use crate::scene::default_camera;
+pub use camera::RayGenerator;
+pub use image::{render, tone_map, Background, Image, RenderInputs};
+pub use keep::{render_solved, RenderData, RENDER_DATA};
+pub use write::{write_exr, write_images, write_png, write_png_rgba};

@@ -36,6 +36,7 @@ pub mod validate;
 
 pub use error::SceneError;
 pub use types::*;
+pub use validate::{camera_from_keys, default_camera, fitted_default_camera, CameraKeys, VolumeFrame};
 
 use std::path::Path;
 

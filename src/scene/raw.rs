@@ -15,7 +15,7 @@ pub(crate) struct RawScene {
     #[serde(default)]
     pub lights: Vec<RawLight>,
     pub solver: Option<RawSolver>,
-    pub camera: Option<RawCamera>,
+    pub camera: Option<super::validate::CameraKeys>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -26,6 +26,8 @@ pub(crate) struct RawVolume {
     /// An OpenVDB file; `grid` names the density grid in it (default "density").
     pub vdb: Option<String>,
     pub grid: Option<String>,
+    /// A NanoVDB file (read like `vdb`; a `.nvdb` named by `vdb` works too).
+    pub nvdb: Option<String>,
     /// An NRRD file (`.nhdr` or `.nrrd`).
     pub nrrd: Option<String>,
     /// Required for `procedural` and `raw`; a VDB grid's comes from its active bounding box.
@@ -78,24 +80,6 @@ pub(crate) struct RawSolver {
     pub forward_peak: Option<String>,
 }
 
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub(crate) struct RawCamera {
-    pub projection: Option<String>,
-    /// Pinhole only: vertical field of view in degrees.
-    pub fov_y: Option<f64>,
-    /// Orthographic only: height of the view in world units.
-    pub view_height: Option<f64>,
-    #[serde(deserialize_with = "exactly3")]
-    pub position: [f64; 3],
-    #[serde(deserialize_with = "exactly3")]
-    pub look_at: [f64; 3],
-    #[serde(default, deserialize_with = "exactly3_opt")]
-    pub up: Option<[f64; 3]>,
-    pub width: Option<i64>,
-    pub height: Option<i64>,
-}
-
 /// A 3-vector written as an array of exactly 3 values. serde's own `[T; 3]` reads the first three
 /// elements of a longer TOML array and ignores the rest, so `dims = [16, 16, 16, 16]` was silently
 /// a 16³ volume; here a longer (or shorter) array is an error naming its length.
@@ -105,7 +89,7 @@ fn exactly3<'de, D: Deserializer<'de>, T: Deserialize<'de>>(d: D) -> Result<[T; 
     v.try_into().map_err(|_| de::Error::invalid_length(n, &"an array of exactly 3 values"))
 }
 
-fn exactly3_opt<'de, D: Deserializer<'de>, T: Deserialize<'de>>(d: D) -> Result<Option<[T; 3]>, D::Error> {
+pub(crate) fn exactly3_opt<'de, D: Deserializer<'de>, T: Deserialize<'de>>(d: D) -> Result<Option<[T; 3]>, D::Error> {
     exactly3(d).map(Some)
 }
 

@@ -4,16 +4,22 @@
 //! Over 450 lines because every scene key is checked here, next to its default: one place to read
 //! what a scene may say.
 
-use super::raw::{ByteSize, Channels, RawCamera, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
+use super::raw::{ByteSize, Channels, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
 use super::{
-    Camera, EmissionGrid, ForwardPeak, Light, Medium, PlanMode, Projection, Scene, SceneError, Shape, SolverSettings,
-    SpatialScheme, StoragePrecision, Volume, VolumeSource,
+    EmissionGrid, ForwardPeak, Light, Medium, PlanMode, Scene, SceneError, Shape, SolverSettings, SpatialScheme,
+    StoragePrecision, Volume, VolumeSource,
 };
 use glam::DVec3;
 use std::path::{Path, PathBuf};
 
+mod camera;
 mod nrrd_volume;
 mod vdb_volume;
+
+pub use camera::{
+    camera_from_keys, default_camera, fitted_default_camera, CameraKeys, VolumeFrame, DEFAULT_FOV_Y_DEGREES,
+    DEFAULT_IMAGE_SIZE,
+};
 
 /// Largest voxel count accepted (product of dims).
 pub const MAX_VOXELS: u64 = 1 << 40;
@@ -45,8 +51,6 @@ pub const MAX_DIRECTIONS_PER_FACE: u32 = 32;
 pub const DEFAULT_MAX_ORDERS: u32 = 64;
 pub const MAX_MAX_ORDERS: u32 = 100_000;
 pub const DEFAULT_TOLERANCE: f64 = 1e-4;
-pub const DEFAULT_FOV_Y_DEGREES: f64 = 40.0;
-pub const DEFAULT_IMAGE_SIZE: u32 = 512;
 pub const DEFAULT_SEED: u64 = 1;
 
 const SHAPES: &str = "\"sphere\", \"box\", \"cloud\"";
@@ -83,12 +87,10 @@ impl Validator<'_> {
         }
         let lights = raw.lights.into_iter().enumerate().map(|(i, l)| self.light(i, l)).collect::<R<Vec<_>>>()?;
         let solver = self.solver(raw.solver)?;
-        let mut camera = raw.camera.map(|c| self.camera(c, &volume)).transpose()?;
-        // The solver and renderer work in the volume's frame (its corner at 0).
-        if let Some(c) = camera.as_mut() {
-            c.position -= volume.origin;
-            c.look_at -= volume.origin;
-        }
+        // The solver and renderer work in the volume's frame (its corner at 0): the camera comes
+        // back in it.
+        let frame = VolumeFrame { dims: volume.dims, voxel_size: volume.voxel_size, origin: volume.origin };
+        let camera = raw.camera.map(|c| self.camera(c, &frame)).transpose()?;
         Ok(Scene { path: self.path.to_path_buf(), volume, medium, lights, solver, camera })
     }
 
@@ -209,13 +211,20 @@ impl Validator<'_> {
         }
     }
 
-    fn volume_source(&self, v: RawVolume) -> R<Volume> {
+    fn volume_source(&self, mut v: RawVolume) -> R<Volume> {
         let origin = match v.origin {
             None => DVec3::ZERO,
             Some(o) => self.vec3("volume.origin", o)?,
         };
+        if let Some(file) = v.nvdb.take() {
+            if v.vdb.is_some() {
+                return Err(self.err("volume.nvdb", "set either `vdb` or `nvdb`, not both"));
+            }
+            v.vdb = Some(file);
+            return self.vdb_volume(v, origin, "volume.nvdb");
+        }
         if v.vdb.is_some() {
-            return self.vdb_volume(v, origin);
+            return self.vdb_volume(v, origin, "volume.vdb");
         }
         if v.nrrd.is_some() {
             return self.nrrd_volume(v, origin);
@@ -514,72 +523,6 @@ impl Validator<'_> {
             }),
         }
     }
-
-    fn camera(&self, c: RawCamera, volume: &Volume) -> R<Camera> {
-        let projection = match c.projection.as_deref().unwrap_or("pinhole") {
-            "pinhole" => {
-                if c.view_height.is_some() {
-                    return Err(self.err("camera.view_height", "only applies to an orthographic camera"));
-                }
-                let fov = match c.fov_y {
-                    None => DEFAULT_FOV_Y_DEGREES,
-                    Some(f) => {
-                        let f = self.finite("camera.fov_y", f)?;
-                        if f <= 0.0 || f >= 180.0 {
-                            return Err(self.err("camera.fov_y", format!("must be in (0, 180) degrees, got {f}")));
-                        }
-                        f
-                    }
-                };
-                Projection::Pinhole { fov_y_degrees: fov }
-            }
-            "orthographic" => {
-                if c.fov_y.is_some() {
-                    return Err(self.err("camera.fov_y", "only applies to a pinhole camera"));
-                }
-                let height = match c.view_height {
-                    Some(h) => self.positive("camera.view_height", h, MAX_MAGNITUDE)?,
-                    None => default_orthographic_height(volume),
-                };
-                Projection::Orthographic { height }
-            }
-            other => {
-                return Err(self.err(
-                    "camera.projection",
-                    format!("unknown projection \"{other}\", expected one of {PROJECTIONS}"),
-                ))
-            }
-        };
-        let position = self.coordinates("camera.position", c.position)?;
-        let look_at = self.coordinates("camera.look_at", c.look_at)?;
-        let up = match c.up {
-            None => DVec3::Z,
-            Some(u) => self.coordinates("camera.up", u)?,
-        };
-        let view = look_at - position;
-        if view.length_squared() == 0.0 || !view.length_squared().is_finite() {
-            return Err(self.err("camera.look_at", format!("must differ from camera.position, both are {position}")));
-        }
-        let (Some(view_dir), Some(up_dir)) = (safe_normalize(view), safe_normalize(up)) else {
-            return Err(self.err("camera.up", "must not be the zero vector"));
-        };
-        let sin = view_dir.cross(up_dir).length();
-        if !(sin > 1e-6) {
-            return Err(self.err(
-                "camera.up",
-                format!("must not be parallel to the view direction (look_at − position = {view}), got {up}"),
-            ));
-        }
-        let width = match c.width {
-            None => DEFAULT_IMAGE_SIZE,
-            Some(w) => self.int_range("camera.width", w, 1, MAX_IMAGE_SIZE)?,
-        };
-        let height = match c.height {
-            None => DEFAULT_IMAGE_SIZE,
-            Some(h) => self.int_range("camera.height", h, 1, MAX_IMAGE_SIZE)?,
-        };
-        Ok(Camera { projection, position, look_at, up, width, height })
-    }
 }
 
 /// `v` as written in a message: plain for ordinary magnitudes, in e-notation for huge or tiny
@@ -607,8 +550,7 @@ pub fn safe_normalize(v: DVec3) -> Option<DVec3> {
 /// The orthographic view height that fits the whole volume whatever the view direction: the
 /// length of the volume's diagonal in world units.
 pub fn default_orthographic_height(volume: &Volume) -> f64 {
-    let d = DVec3::new(f64::from(volume.dims[0]), f64::from(volume.dims[1]), f64::from(volume.dims[2]));
-    d.length() * volume.voxel_size
+    camera::diagonal(volume.dims, volume.voxel_size)
 }
 
 /// Parses `"256M"`, `"1.5G"`, `"4GiB"`, `"512 KB"`, `"1048576"` into bytes (K/M/G/T = powers of

@@ -10,6 +10,9 @@
 use super::{BrickStore, Coverage, Field, StoreError};
 use crate::scene::{EmissionGrid, VolumeSource};
 
+/// Fills one brick (local x fastest) from an importer.
+type FillBrick = Box<dyn Fn([u32; 3], &mut [f32]) -> Result<(), StoreError>>;
+
 /// Name of the emission field in the store.
 pub const EMISSION_FIELD: &str = "emission";
 
@@ -17,7 +20,7 @@ pub const EMISSION_FIELD: &str = "emission";
 pub fn import_emission(store: &BrickStore, grid: &EmissionGrid, source: &VolumeSource) -> Result<Field, StoreError> {
     let dims = store.grid().dims;
     let mut field = store.create_field(EMISSION_FIELD, 1, Coverage::Occupied)?;
-    let fill: Box<dyn Fn([u32; 3], &mut [f32]) -> Result<(), StoreError>> = match (grid, source) {
+    let fill: FillBrick = match (grid, source) {
         (EmissionGrid::Raw { path }, _) => {
             let raw = super::import::raw_density(path, dims)?;
             Box::new(move |b, out| raw.fill_brick(b, out))

@@ -19,7 +19,8 @@
 //! | `<name>.field` | a field, see [`Field`] |
 //!
 //! Importers that feed [`BrickStore::create_with`] live in [`import`] (raw f32), [`vdb`] (OpenVDB
-//! grids, read by our own reader) and [`nrrd_input`] (NRRD volumes, decoded to raw first).
+//! grids, read by our own reader; NanoVDB grids through [`nanovdb`] into the same sparse tree) and
+//! [`nrrd_input`] (NRRD volumes, decoded to raw first).
 
 mod atomic;
 mod brick_store;
@@ -28,6 +29,7 @@ mod error;
 mod field;
 mod grid;
 pub mod import;
+pub mod nanovdb;
 pub mod nrrd_input;
 mod space;
 mod table;

@@ -59,7 +59,7 @@ fn a_scaled_candidate_has_the_scale_as_error_and_bias() {
     let a = dir(&root, "a", dims, 1, &a_values, None);
     let b = dir(&root, "b", dims, 1, &b_values, None);
     // Images too: the same scaling.
-    let img = Image { width: 6, height: 4, rgb: (0..72).map(|i| 0.5 + i as f32 * 0.01).collect() };
+    let img = Image { width: 6, height: 4, rgb: (0..72).map(|i| 0.5 + i as f32 * 0.01).collect(), alpha: None };
     let scaled = Image { rgb: img.rgb.iter().map(|v| v * 1.1).collect(), ..img.clone() };
     write_exr(&a.join("image.exr"), &scaled).unwrap();
     write_exr(&b.join("image.exr"), &img).unwrap();
@@ -84,7 +84,7 @@ fn a_scaled_candidate_has_the_scale_as_error_and_bias() {
     assert!((json["image"]["metrics"]["mean_bias"].as_f64().unwrap() - 0.1).abs() < 1e-6);
 
     // Images of different sizes are skipped with a note.
-    write_exr(&a.join("image.exr"), &Image { width: 3, height: 4, rgb: vec![1.0; 36] }).unwrap();
+    write_exr(&a.join("image.exr"), &Image { width: 3, height: 4, rgb: vec![1.0; 36], alpha: None }).unwrap();
     let c = compare_dirs(&a, &b, &CompareOptions::default()).unwrap();
     assert!(c.image.is_none());
     assert!(c.notes.iter().any(|n| n.contains("3×4") && n.contains("6×4")), "{:?}", c.notes);

@@ -178,3 +178,84 @@ fn bad_emission_input_is_refused_with_its_name() {
     let err = lpm::solver::build_store(&sc, &dir.join("store")).err().expect("NaN refused").to_string();
     assert!(err.contains("nan.raw") && err.contains("(1, 2, 3)") && err.contains("emission"), "{err}");
 }
+
+/// The image of a solve (CPU backend, transparent background), as RGBA pixels.
+fn image_of(scene: PathBuf, out: &Path) -> Vec<[f32; 4]> {
+    let job = lpm::job::SolveJob {
+        scene,
+        out: out.to_path_buf(),
+        backend: Cpu,
+        vk: lpm::vk::ContextOptions::default(),
+        keep_store: false,
+        no_image: false,
+        no_fields: true,
+        device_memory_budget: None,
+        resume: false,
+        fresh: false,
+        vdb_precision: Default::default(),
+        background: lpm::render::Background::Transparent,
+        no_render_data: false,
+        cancel: None,
+        warm_start: None,
+    };
+    lpm::job::run(&job, |_, _| {}).expect("solve");
+    image_pixels(&out.join("image.exr"))
+}
+
+/// An EXR's RGBA pixels, row-major.
+fn image_pixels(path: &Path) -> Vec<[f32; 4]> {
+    let image = exr::prelude::read_first_rgba_layer_from_file(
+        path,
+        |res, _| (res.width(), vec![[0.0f32; 4]; res.width() * res.height()]),
+        |img: &mut (usize, Vec<[f32; 4]>), pos, (r, g, b, a): (f32, f32, f32, f32)| {
+            let w = img.0;
+            img.1[pos.y() * w + pos.x()] = [r, g, b, a];
+        },
+    )
+    .expect("read exr");
+    image.layer_data.channel_data.pixels.1
+}
+
+#[test]
+fn the_image_shows_the_glow_where_the_grid_emits() {
+    let dir = temp_dir("emission-image");
+    let dims = [20, 22, 18];
+    write_raw(&dir.join("core.raw"), dims, core);
+    write_raw(&dir.join("ones.raw"), dims, |_| 1.0);
+    let text = |emission: &str| {
+        format!(
+            "[volume]\nprocedural = \"box\"\ndims = [20, 22, 18]\n{emission}\n[medium]\nsigma_t = 0.1\nalbedo = 0.5\n\
+             emission = [1.0, 0.5, 0.25]\n[solver]\ndirections_per_face = 2\nmax_orders = 2\n\
+             [camera]\nwidth = 40\nheight = 36\n"
+        )
+    };
+    let glowing = image_of(write_scene_as(&dir, "core.toml", &text("emission_raw = \"core.raw\"")), &dir.join("core"));
+    let ones = image_of(write_scene_as(&dir, "ones.toml", &text("emission_raw = \"ones.raw\"")), &dir.join("ones"));
+    let uniform = image_of(write_scene_as(&dir, "uniform.toml", &text("")), &dir.join("uniform"));
+    // A grid of ones renders as the uniform emission (the trilinear weights sum to 1).
+    for (a, b) in ones.iter().zip(&uniform) {
+        for c in 0..4 {
+            assert!((a[c] - b[c]).abs() <= 1e-5 * b[c].abs().max(1e-3), "{a:?} vs {b:?}");
+        }
+    }
+    // The core glows in some pixels and is dark in others; its colour follows the tint.
+    let brightest = glowing.iter().fold([0f32; 4], |m, p| if p[0] > m[0] { *p } else { m });
+    assert!(brightest[0] > 0.0 && brightest[1] / brightest[0] < 0.75, "{brightest:?}");
+    assert!(glowing.iter().filter(|p| p[0] < 0.05 * brightest[0]).count() > glowing.len() / 4);
+    // `lpm render` re-renders it from the kept data, the emission field included: the same pixels.
+    let out = dir.join("core");
+    let again = dir.join("again.exr");
+    let status = lpm_command(&[
+        "render",
+        out.to_str().expect("utf-8"),
+        "--background",
+        "transparent",
+        "--image",
+        again.to_str().expect("utf-8"),
+    ])
+    .status()
+    .expect("run lpm render");
+    assert!(status.success());
+    std::fs::copy(&again, out.join("image.exr")).expect("copy");
+    assert!(image_pixels(&out.join("image.exr")) == glowing, "lpm render must reproduce the solve's image");
+}

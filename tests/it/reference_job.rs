@@ -106,6 +106,9 @@ fn furnace_reference_writes_its_outputs_and_agrees_with_the_solver() {
         fresh: false,
         cancel: None,
         warm_start: None,
+        vdb_precision: Default::default(),
+        background: Default::default(),
+        no_render_data: false,
     };
     lpm::job::run(&solve, |_, _| {}).expect("solve job");
     let c = compare_dirs(&solved, &reference, &CompareOptions::default()).expect("compare");

@@ -273,7 +273,18 @@ fn two_concurrent_solves_into_one_out_never_mix() {
     }
     assert_eq!(
         names(&out),
-        ["fluence.json", "fluence.nhdr", "fluence.raw", "report.json", "source.json", "source.nhdr", "source.raw"]
+        [
+            "fluence.json",
+            "fluence.nhdr",
+            "fluence.raw",
+            "fluence.vdb",
+            "render-data",
+            "report.json",
+            "source.json",
+            "source.nhdr",
+            "source.raw",
+            "source.vdb"
+        ]
     );
 }
 
@@ -299,11 +310,14 @@ fn stale_temporaries_are_cleaned_and_a_rerun_replaces_the_whole_set() {
             "fluence.json",
             "fluence.nhdr",
             "fluence.raw",
+            "fluence.vdb",
             "notes.txt",
+            "render-data",
             "report.json",
             "source.json",
             "source.nhdr",
-            "source.raw"
+            "source.raw",
+            "source.vdb"
         ],
         "no temporaries, no old image.*, the user's file kept"
     );
@@ -432,7 +446,7 @@ fn exr_bytes_are_reproducible() {
     let dir = temp_dir("rel-exr");
     let (w, h) = (640u32, 480u32);
     let rgb: Vec<f32> = (0..w * h * 3).map(|i| (i.wrapping_mul(2654435761u32) % 1000) as f32 / 7.0).collect();
-    let img = lpm::render::Image { width: w, height: h, rgb };
+    let img = lpm::render::Image { width: w, height: h, rgb, alpha: None };
     let first = dir.join("a.exr");
     lpm::render::write_exr(&first, &img).unwrap();
     for k in 0..8 {

@@ -75,7 +75,17 @@ fn inputs<'a>(
     background: [f64; 3],
     camera: &'a Camera,
 ) -> RenderInputs<'a> {
-    RenderInputs { store, source, channels, storage_dirs, storage_lookup: lookup, medium, background, camera }
+    RenderInputs {
+        store,
+        source,
+        emission: None,
+        channels,
+        storage_dirs,
+        storage_lookup: lookup,
+        medium,
+        background,
+        camera,
+    }
 }
 
 #[test]
@@ -207,7 +217,7 @@ fn exr_and_png_are_written_atomically_and_read_back() {
     let dir = test_dir("files");
     let (w, h) = (7u32, 5u32);
     let rgb: Vec<f32> = (0..w * h * 3).map(|i| i as f32 * 0.125).collect();
-    let img = Image { width: w, height: h, rgb };
+    let img = Image { width: w, height: h, rgb, alpha: None };
 
     let exr_path = dir.join("view.exr");
     write_exr(&exr_path, &img).expect("exr");
@@ -241,7 +251,7 @@ fn exr_and_png_are_written_atomically_and_read_back() {
     assert_eq!(names, vec!["view.exr", "view.png"]);
 
     // A malformed image is refused and writes nothing.
-    let bad = Image { width: 3, height: 3, rgb: vec![0.0; 5] };
+    let bad = Image { width: 3, height: 3, rgb: vec![0.0; 5], alpha: None };
     assert!(write_exr(&dir.join("bad.exr"), &bad).is_err());
     assert!(write_png(&dir.join("bad.png"), &bad, 1.0).is_err());
     assert!(!dir.join("bad.exr").exists() && !dir.join("bad.png").exists());

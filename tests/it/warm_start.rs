@@ -169,6 +169,9 @@ fn a_far_guess_still_converges_to_the_cold_answer() {
             resume: false,
             fresh: true,
             cancel: None,
+            vdb_precision: Default::default(),
+            background: Default::default(),
+            no_render_data: true,
             warm_start: warm.map(Path::to_path_buf),
         };
         lpm::job::run(&job, |_, _| {}).expect("solve")
@@ -198,6 +201,9 @@ fn a_far_guess_still_converges_to_the_cold_answer() {
         resume: false,
         fresh: true,
         cancel: None,
+        vdb_precision: Default::default(),
+        background: Default::default(),
+        no_render_data: true,
         warm_start: Some(dir.join("bright")),
     };
     let e = lpm::job::run(&job, |_, _| {}).unwrap_err();

@@ -1,5 +1,5 @@
-//! `[volume] vdb = "file.vdb"`: a volume read from an OpenVDB grid. The grid's active bounding box
-//! gives `dims` and its transform gives `voxel_size` and `origin` (either may be overridden in the
+//! `[volume] vdb = "file.vdb"` (or `nvdb = "file.nvdb"`): a volume read from an OpenVDB or
+//! NanoVDB grid. The grid's active bounding box gives `dims` and its transform gives `voxel_size` and `origin` (either may be overridden in the
 //! scene, e.g. to change units); only the topology is read here, the values when the store is built.
 
 use super::{Validator, R};
@@ -13,7 +13,9 @@ use std::path::Path;
 pub const DEFAULT_GRID: &str = "density";
 
 impl Validator<'_> {
-    pub(super) fn vdb_volume(&self, v: RawVolume, origin: DVec3) -> R<Volume> {
+    /// `key` is `volume.vdb` or `volume.nvdb`: the file is read as NanoVDB when it starts with
+    /// NanoVDB's magic number, whichever key named it.
+    pub(super) fn vdb_volume(&self, v: RawVolume, origin: DVec3, key: &'static str) -> R<Volume> {
         for (key, set) in [("volume.procedural", v.procedural.is_some()), ("volume.raw", v.raw.is_some())] {
             if set {
                 return Err(self.err(key, "set exactly one of `procedural`, `raw` and `vdb`, but `vdb` is set too"));
@@ -27,7 +29,6 @@ impl Validator<'_> {
         if v.seed.is_some() {
             return Err(self.err("volume.seed", "only applies to a procedural volume, not to `vdb`"));
         }
-        let key = "volume.vdb";
         let file = v.vdb.unwrap_or_default();
         if file.trim().is_empty() {
             return Err(self.err(key, "must name a file, got an empty string"));

@@ -60,8 +60,21 @@ fn info_of(path: &Path, grid: &VdbGrid, grids: Vec<String>) -> Result<VdbVolumeI
     })
 }
 
-/// Places grid `grid` of `path` (topology only: fast, and bounded by the file's node count).
+/// Grid `grid` of the NanoVDB file `path` (see [`crate::store::nanovdb`]) and the file's grid names.
+fn read_nanovdb(path: &Path, grid: &str) -> Result<(VdbGrid, Vec<String>), StoreError> {
+    let file = File::open(path).map_err(StoreError::io(path, "open the NanoVDB file"))?;
+    let len = file.metadata().map_err(StoreError::io(path, "read the size of"))?.len();
+    crate::store::nanovdb::read_nanovdb(&mut BufReader::with_capacity(1 << 16, file), len, grid)
+        .map_err(|e| vdb_error(path, e))
+}
+
+/// Places grid `grid` of `path` (topology only: fast, and bounded by the file's node count). A
+/// NanoVDB file (recognised by its magic number) is read whole.
 pub fn vdb_info(path: &Path, grid: &str) -> Result<VdbVolumeInfo, StoreError> {
+    if crate::store::nanovdb::is_nanovdb(path) {
+        let (g, grids) = read_nanovdb(path, grid)?;
+        return info_of(path, &g, grids);
+    }
     let mut r = open(path)?;
     let grids = r.grids().into_iter().map(|g| g.name).collect();
     let g = r.read_grid(grid, false).map_err(|e| vdb_error(path, e))?;
@@ -80,8 +93,11 @@ pub struct VdbDensity {
 /// validated (from [`vdb_info`]); a file that changed since gives an error rather than a different
 /// volume.
 pub fn vdb_density(path: &Path, grid: &str, dims: [u32; 3], index_min: [i32; 3]) -> Result<VdbDensity, StoreError> {
-    let mut r = open(path)?;
-    let g = r.read_grid(grid, true).map_err(|e| vdb_error(path, e))?;
+    let g = if crate::store::nanovdb::is_nanovdb(path) {
+        read_nanovdb(path, grid)?.0
+    } else {
+        open(path)?.read_grid(grid, true).map_err(|e| vdb_error(path, e))?
+    };
     let info = info_of(path, &g, Vec::new())?;
     if info.dims != dims.map(u64::from) || info.index_min != index_min {
         return Err(StoreError::Corrupt {

@@ -265,3 +265,92 @@ pub(crate) fn read_buffers<S: Read + Seek>(s: &mut Stream<S>, enc: &Encoding, tr
     }
     Ok(())
 }
+
+/// Building a [`Tree`] node by node from another sparse format (NanoVDB, see
+/// [`crate::store::nanovdb`]): the same structure and the same rules as reading OpenVDB's topology,
+/// so everything downstream (placement, brick filling) is shared. Origins are index coordinates of
+/// the node's first voxel; slots are OpenVDB's (x slowest).
+impl Tree {
+    pub(crate) fn with_background(background: f32) -> Tree {
+        Tree {
+            background,
+            root: HashMap::new(),
+            node5: Vec::new(),
+            node4: Vec::new(),
+            leaf_masks: Vec::new(),
+            leaf_values: Vec::new(),
+            bbox: None,
+        }
+    }
+
+    /// A 4096³ tile of the root; `false` when the root already has an entry there.
+    pub(crate) fn add_root_tile(&mut self, origin: [i32; 3], value: f32, active: bool) -> bool {
+        if self.root.contains_key(&origin) {
+            return false;
+        }
+        self.root.insert(origin, RootEntry::Tile { value });
+        if active {
+            let lo = origin.map(i64::from);
+            self.grow(lo, lo.map(|v| v + i64::from(SPAN5) - 1));
+        }
+        true
+    }
+
+    /// A 32³ node under the root (all its slots tiles of `fill` until set); `None` when the root
+    /// already has an entry there.
+    pub(crate) fn add_node5(&mut self, origin: [i32; 3], fill: f32) -> Option<u32> {
+        if self.root.contains_key(&origin) {
+            return None;
+        }
+        let n = self.node5.len() as u32;
+        self.node5.push(Internal { children: vec![NONE; 1 << (3 * L5)], values: vec![fill; 1 << (3 * L5)] });
+        self.root.insert(origin, RootEntry::Node(n));
+        Some(n)
+    }
+
+    /// Slot `slot` of 32³ node `n5` (whose first voxel is `origin`) as a 128³ tile.
+    pub(crate) fn set_node5_tile(&mut self, n5: u32, origin: [i32; 3], slot: usize, value: f32, active: bool) {
+        self.node5[n5 as usize].values[slot] = value;
+        if active {
+            let o = slot_offset(slot, L5, L4 + L3);
+            let lo: [i64; 3] = std::array::from_fn(|i| i64::from(origin[i]) + o[i]);
+            self.grow(lo, lo.map(|v| v + i64::from(SPAN4) - 1));
+        }
+    }
+
+    /// A 16³ node in slot `slot` of 32³ node `n5`.
+    pub(crate) fn add_node4(&mut self, n5: u32, slot: usize, fill: f32) -> u32 {
+        let n = self.node4.len() as u32;
+        self.node4.push(Internal { children: vec![NONE; 1 << (3 * L4)], values: vec![fill; 1 << (3 * L4)] });
+        self.node5[n5 as usize].children[slot] = n;
+        n
+    }
+
+    /// Slot `slot` of 16³ node `n4` (whose first voxel is `origin`) as an 8³ tile.
+    pub(crate) fn set_node4_tile(&mut self, n4: u32, origin: [i32; 3], slot: usize, value: f32, active: bool) {
+        self.node4[n4 as usize].values[slot] = value;
+        if active {
+            let o = slot_offset(slot, L4, L3);
+            let lo: [i64; 3] = std::array::from_fn(|i| i64::from(origin[i]) + o[i]);
+            self.grow(lo, lo.map(|v| v + i64::from(SPAN3) - 1));
+        }
+    }
+
+    /// A leaf (its active mask and 512 values, x slowest) in slot `slot` of 16³ node `n4`; its first
+    /// voxel is `origin`.
+    pub(crate) fn add_leaf(&mut self, n4: u32, slot: usize, origin: [i32; 3], mask: [u64; 8], values: [f32; 512]) {
+        for v in 0..512usize {
+            if bit(&mask, v) {
+                let p = [
+                    i64::from(origin[0]) + (v >> 6) as i64,
+                    i64::from(origin[1]) + ((v >> 3) & 7) as i64,
+                    i64::from(origin[2]) + (v & 7) as i64,
+                ];
+                self.grow(p, p);
+            }
+        }
+        self.node4[n4 as usize].children[slot] = self.leaf_masks.len() as u32;
+        self.leaf_masks.push(mask);
+        self.leaf_values.push(values);
+    }
+}

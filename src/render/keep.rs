@@ -1,0 +1,373 @@
+//! What a solve keeps so that `lpm render OUT` can render its result again from another view without
+//! solving again: `OUT/render-data/`.
+//!
+//! The renderer reads the density (for the extinction along each ray), the solved in-scattered
+//! source, the medium as the plan models it (δ-M scaled where the plan says so), the channels and
+//! the direction sets the source is stored for, the sky behind the volume, where the volume is in
+//! the world, and the camera the solve rendered with. `render-data/` holds exactly that:
+//!
+//! | file | content |
+//! |---|---|
+//! | `bricks.json`, `density.bricks` | the brick store's table and density (see [`crate::store`]) |
+//! | `source.field` | the in-scattered source summed over orders, in brick form |
+//! | `render.json` | [`RenderData`]: everything else, written last |
+//!
+//! The three brick files are hard links to the solve's own store files (no copy, no extra space
+//! while `--keep-store` keeps them too), or copies where a link cannot be made. The directory is
+//! published with the solve's other outputs as one set.
+
+use super::{render, Background, Image, RenderInputs};
+use crate::output::{write_json_atomic, OutputError};
+use crate::quadrature::{PropagationSet, StorageSet};
+use crate::scene::{camera_from_keys, Camera, CameraKeys, Light, Medium, Projection, SceneError, VolumeFrame};
+use crate::store::{BrickStore, Coverage, Field};
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// The directory in `OUT` a solve keeps for `lpm render`.
+pub const RENDER_DATA: &str = "render-data";
+const DATA_FILE: &str = "render.json";
+const SOURCE_FIELD: &str = "source";
+/// [`RenderData::format`] of this version of lpm.
+const FORMAT: u32 = 1;
+
+/// `render-data/render.json`. Vectors and the camera are in the volume's frame (its corner at 0),
+/// `origin` places it in the world.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RenderData {
+    pub format: u32,
+    pub dims: [u32; 3],
+    pub voxel_size: f64,
+    pub origin: [f64; 3],
+    /// 1 (grey) or 3.
+    pub channels: u32,
+    /// k: the propagation directions are k×k per cube face.
+    pub directions_per_face: u32,
+    /// Storage cells per face edge of the source; 0: one storage direction (isotropic).
+    pub storage_per_face: u32,
+    pub medium: MediumData,
+    /// Sky radiance (the background with `--background sky`).
+    pub sky: [f64; 3],
+    /// The camera the solve rendered with (the scene's, or the default view).
+    pub camera: CameraData,
+    /// The medium emits per voxel: `emission.field` (the store's emission factor) is kept too and
+    /// scales `medium.emission` voxel by voxel.
+    #[serde(default)]
+    pub emission_per_voxel: bool,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MediumData {
+    pub sigma_t: [f64; 3],
+    pub albedo: [f64; 3],
+    pub g: f64,
+    pub emission: [f64; 3],
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CameraData {
+    /// "pinhole" or "orthographic".
+    pub projection: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fov_y: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub view_height: Option<f64>,
+    pub position: [f64; 3],
+    pub look_at: [f64; 3],
+    pub up: [f64; 3],
+    pub width: u32,
+    pub height: u32,
+}
+
+impl From<&Camera> for CameraData {
+    fn from(c: &Camera) -> Self {
+        let (projection, fov_y, view_height) = match c.projection {
+            Projection::Pinhole { fov_y_degrees } => ("pinhole", Some(fov_y_degrees), None),
+            Projection::Orthographic { height } => ("orthographic", None, Some(height)),
+        };
+        CameraData {
+            projection: projection.to_string(),
+            fov_y,
+            view_height,
+            position: c.position.to_array(),
+            look_at: c.look_at.to_array(),
+            up: c.up.to_array(),
+            width: c.width,
+            height: c.height,
+        }
+    }
+}
+
+impl CameraData {
+    fn camera(&self, path: &Path) -> Result<Camera, OutputError> {
+        let invalid = |m: &str| OutputError::Invalid { path: path.to_path_buf(), message: m.to_string() };
+        let projection = match (self.projection.as_str(), self.fov_y, self.view_height) {
+            ("pinhole", Some(f), None) if f > 0.0 && f < 180.0 => Projection::Pinhole { fov_y_degrees: f },
+            ("orthographic", None, Some(h)) if h > 0.0 && h.is_finite() => Projection::Orthographic { height: h },
+            _ => return Err(invalid(
+                "camera: a pinhole camera with fov_y in (0, 180) or an orthographic one with view_height > 0 expected",
+            )),
+        };
+        let finite = [self.position, self.look_at, self.up].iter().flatten().all(|v| v.is_finite());
+        if !finite || self.width == 0 || self.height == 0 {
+            return Err(invalid("camera: non-finite vectors or a zero image size"));
+        }
+        Ok(Camera {
+            projection,
+            position: DVec3::from_array(self.position),
+            look_at: DVec3::from_array(self.look_at),
+            up: DVec3::from_array(self.up),
+            width: self.width,
+            height: self.height,
+        })
+    }
+}
+
+impl RenderData {
+    /// What a solve of `medium` (as the plan models it) with these lights and sets keeps.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        dims: [u32; 3],
+        voxel_size: f64,
+        origin: DVec3,
+        channels: u32,
+        propagation: &PropagationSet,
+        storage: &StorageSet,
+        medium: &Medium,
+        lights: &[Light],
+        camera: &Camera,
+    ) -> RenderData {
+        RenderData {
+            format: FORMAT,
+            dims,
+            voxel_size,
+            origin: origin.to_array(),
+            channels,
+            directions_per_face: propagation.k,
+            storage_per_face: storage.per_face,
+            medium: MediumData {
+                sigma_t: medium.sigma_t,
+                albedo: medium.albedo,
+                g: medium.g,
+                emission: medium.emission,
+            },
+            sky: sky_radiance(lights),
+            camera: camera.into(),
+            emission_per_voxel: false,
+        }
+    }
+}
+
+/// The sum of the scene's sky radiances: what a camera ray sees where it leaves the volume.
+pub fn sky_radiance(lights: &[Light]) -> [f64; 3] {
+    let mut sky = [0.0; 3];
+    for light in lights {
+        if let Light::Sky { radiance } = light {
+            (0..3).for_each(|c| sky[c] += radiance[c]);
+        }
+    }
+    sky
+}
+
+/// Writes `dir` (a new directory, e.g. in a staging directory): links to `store`'s table and
+/// density and to `source`'s file, then `render.json`.
+pub fn keep(dir: &Path, store: &BrickStore, source: &Field, data: &RenderData) -> Result<(), OutputError> {
+    let io = |path: &Path, action: &'static str| {
+        let path = path.to_path_buf();
+        move |source| OutputError::Io { path, action, source }
+    };
+    std::fs::create_dir(dir).map_err(io(dir, "create"))?;
+    source.flush()?;
+    let mut files = vec![
+        (store.dir().join("bricks.json"), "bricks.json".to_string()),
+        (store.dir().join("density.bricks"), "density.bricks".to_string()),
+        (source.path().to_path_buf(), format!("{SOURCE_FIELD}.field")),
+    ];
+    if data.emission_per_voxel {
+        let name = format!("{}.field", crate::store::emission::EMISSION_FIELD);
+        files.push((store.dir().join(&name), name));
+    }
+    for (from, name) in files {
+        let to = dir.join(name);
+        if std::fs::hard_link(&from, &to).is_err() {
+            std::fs::copy(&from, &to).map_err(io(&to, "copy the solved field into"))?;
+        }
+    }
+    write_json_atomic(&dir.join(DATA_FILE), data)
+}
+
+/// A solved result opened for rendering.
+pub struct Kept {
+    pub data: RenderData,
+    pub store: BrickStore,
+    pub source: Field,
+    /// The per-voxel emission factor, when the medium emits per voxel.
+    pub emission: Option<Field>,
+    /// The camera the solve rendered with, in the volume's frame.
+    pub camera: Camera,
+}
+
+/// Opens `out/render-data` as the solve left it, checking that the pieces fit together.
+pub fn open(out: &Path) -> Result<Kept, OutputError> {
+    let dir = out.join(RENDER_DATA);
+    let path = dir.join(DATA_FILE);
+    let invalid = |message: String| OutputError::Invalid { path: path.clone(), message };
+    let text = match std::fs::read_to_string(&path) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            return Err(invalid(format!(
+                "not found: {} holds no solve that can be rendered again (solved with --no-render-data, or by an lpm older than `lpm render`)",
+                out.display()
+            )))
+        }
+        Err(source) => return Err(OutputError::Io { path, action: "read", source }),
+    };
+    let data: RenderData =
+        serde_json::from_str(&text).map_err(|source| OutputError::Json { path: path.clone(), source })?;
+    if data.format != FORMAT {
+        return Err(invalid(format!("format {} is not the one this lpm reads ({FORMAT}); solve again", data.format)));
+    }
+    let k = data.directions_per_face;
+    let valid = (1..=32).contains(&k)
+        && data.storage_per_face <= k
+        && matches!(data.channels, 1 | 3)
+        && data.voxel_size > 0.0
+        && data.voxel_size.is_finite()
+        && data.origin.iter().all(|v| v.is_finite());
+    if !valid {
+        return Err(invalid(format!(
+            "inconsistent: {k} directions per face, {} storage cells per face, {} channels, voxel size {}",
+            data.storage_per_face, data.channels, data.voxel_size
+        )));
+    }
+    let camera = data.camera.camera(&path)?;
+    let store = BrickStore::open(&dir)?;
+    if store.grid().dims != data.dims || store.voxel_size() != data.voxel_size {
+        return Err(invalid(format!(
+            "the brick store is {:?} voxels of {}, render.json says {:?} of {}",
+            store.grid().dims,
+            store.voxel_size(),
+            data.dims,
+            data.voxel_size
+        )));
+    }
+    let storage_dirs = if data.storage_per_face == 0 { 1 } else { 6 * data.storage_per_face * data.storage_per_face };
+    let source = store.open_field(SOURCE_FIELD, storage_dirs * data.channels, Coverage::Occupied)?;
+    let emission = if data.emission_per_voxel { Some(crate::store::emission::open_emission(&store)?) } else { None };
+    Ok(Kept { data, store, source, emission, camera })
+}
+
+impl Kept {
+    /// Renders the kept result through `camera` (volume frame) over `background`.
+    pub fn render(&self, camera: &Camera, background: Background) -> Image {
+        render_solved(&self.data, &self.store, &self.source, self.emission.as_ref(), camera, background)
+    }
+}
+
+/// Renders a solved `source` (with its `store` and, where the medium emits per voxel, the store's
+/// `emission` field) as `data` describes it, through `camera` (volume frame) over `background`:
+/// the one path both `lpm solve` and `lpm render` take, so a render of the kept data from the
+/// solve's view is bitwise the solve's image.
+pub fn render_solved(
+    data: &RenderData,
+    store: &BrickStore,
+    source: &Field,
+    emission: Option<&Field>,
+    camera: &Camera,
+    background: Background,
+) -> Image {
+    let propagation = PropagationSet::new(data.directions_per_face);
+    let storage = if data.storage_per_face == 0 {
+        StorageSet::isotropic(&propagation)
+    } else {
+        StorageSet::per_face(&propagation, data.storage_per_face)
+    };
+    let m = &data.medium;
+    let medium = Medium { sigma_t: m.sigma_t, albedo: m.albedo, g: m.g, emission: m.emission };
+    let lookup = |omega: DVec3| storage.owner[propagation.containing(omega)] as usize;
+    render(&RenderInputs {
+        store,
+        source,
+        emission,
+        channels: data.channels,
+        storage_dirs: storage.len() as u32,
+        storage_lookup: &lookup,
+        medium: &medium,
+        background: match background {
+            Background::Sky => data.sky,
+            Background::Transparent => [0.0; 3],
+        },
+        camera,
+    })
+}
+
+/// Changes to the kept view asked for on `lpm render`'s command line (world coordinates).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ViewChange {
+    pub width: Option<u32>,
+    pub height: Option<u32>,
+    pub eye: Option<[f64; 3]>,
+    pub target: Option<[f64; 3]>,
+    pub up: Option<[f64; 3]>,
+    pub fov_y: Option<f64>,
+}
+
+impl ViewChange {
+    pub fn is_empty(&self) -> bool {
+        *self == ViewChange::default()
+    }
+}
+
+/// The camera `lpm render` renders with, in the volume's frame: the solve's own camera, or the one
+/// a camera file describes (`[camera]` keys, completed as a scene's are: see
+/// [`crate::scene::camera_from_keys`]), with `change` applied on top. A width or height given alone
+/// keeps the view's aspect ratio. With no file and no change, the solve's camera exactly (so the
+/// image is bitwise the solve's).
+pub fn view_camera(kept: &Kept, file: Option<&Path>, change: &ViewChange) -> Result<Camera, SceneError> {
+    let d = &kept.data;
+    let frame = VolumeFrame { dims: d.dims, voxel_size: d.voxel_size, origin: DVec3::from_array(d.origin) };
+    let base = match file {
+        Some(path) => camera_from_keys(read_camera_keys(path)?, path, &frame)?,
+        None => kept.camera.clone(),
+    };
+    if change.is_empty() {
+        return Ok(base);
+    }
+    let (fov_y, view_height) = match base.projection {
+        Projection::Pinhole { fov_y_degrees } => (Some(fov_y_degrees), None),
+        Projection::Orthographic { height } => (None, Some(height)),
+    };
+    let aspect = base.width as f64 / base.height as f64;
+    let keep = |v: f64| (v.round().max(1.0)) as i64;
+    let (width, height) = match (change.width, change.height) {
+        (Some(w), Some(h)) => (i64::from(w), i64::from(h)),
+        (Some(w), None) => (i64::from(w), keep(w as f64 / aspect)),
+        (None, Some(h)) => (keep(h as f64 * aspect), i64::from(h)),
+        (None, None) => (i64::from(base.width), i64::from(base.height)),
+    };
+    let keys = CameraKeys {
+        projection: Some(if fov_y.is_some() { "pinhole" } else { "orthographic" }.to_string()),
+        fov_y: change.fov_y.or(fov_y),
+        view_height,
+        position: Some(change.eye.unwrap_or((base.position + frame.origin).to_array())),
+        look_at: Some(change.target.unwrap_or((base.look_at + frame.origin).to_array())),
+        up: Some(change.up.unwrap_or(base.up.to_array())),
+        width: Some(width),
+        height: Some(height),
+    };
+    camera_from_keys(keys, Path::new("the command line"), &frame)
+}
+
+/// A camera file: a `[camera]` table, or the same keys at the top level.
+fn read_camera_keys(path: &Path) -> Result<CameraKeys, SceneError> {
+    let text = std::fs::read_to_string(path).map_err(|source| SceneError::Read { path: path.to_path_buf(), source })?;
+    let parse =
+        |message: String| SceneError::Parse { path: path.to_path_buf(), line: None, column: None, key: None, message };
+    let table: toml::Table = toml::from_str(&text).map_err(|e| parse(e.message().to_string()))?;
+    let keys = match table.get("camera") {
+        Some(toml::Value::Table(t)) if table.len() == 1 => t.clone(),
+        _ => table,
+    };
+    keys.try_into().map_err(|e: toml::de::Error| parse(format!("camera: {}", e.message())))
+}
