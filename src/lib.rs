@@ -27,7 +27,7 @@
 //! | [`bench`](mod@bench) | `lpm bench`: the profiled stream (JSON) and the time-against-error study |
 //! | `serve` | `lpm serve`: the HTTP job server, its durable SQLite queue and the `submit`/`status`/`fetch` client (cargo feature `service`, on by default) |
 //! | [`sweep`](mod@sweep) | `lpm sweep`: frames and parameter sweeps as numbered tasks, one task per run, Slurm array scripts |
-//! | [`plot`] | small dependency-free plots (log/linear axes, series, legend) written as SVG and PNG, with an embedded bitmap font |
+//! | [`plot`] | small dependency-free plots (log/linear axes, series, legend) written as SVG |
 //!
 //! The binary (`src/main.rs`) is a thin CLI over [`job`], [`reference::job`], [`compare`], [`bench`](mod@bench)
 //! and the output readers.

@@ -8,7 +8,7 @@
 //! "full" turns those reductions off, so each auto run can be set against its full twin); the
 //! Monte-Carlo reference runs again across photon counts (other seeds). Every run is timed and compared with the reference over the voxels where the reference's
 //! relative standard error is small ([`crate::compare`]). The results go to `accuracy.json`,
-//! `accuracy.csv` and a log-log plot `accuracy.png` / `accuracy.svg` of seconds against relative L2
+//! `accuracy.csv` and a log-log plot `accuracy.svg` of seconds against relative L2
 //! error, one line per directions per face, precision and plan.
 
 use crate::compare::{compare_dirs, CompareOptions, Comparison, CoreMask};
@@ -462,7 +462,5 @@ fn write_outputs(out: &Path, report: &AccuracyReport) -> Result<(), AccuracyErro
     };
     let svg = out.join("accuracy.svg");
     figure.write_svg(&svg).map_err(|source| AccuracyError::Write { path: svg, source })?;
-    let png = out.join("accuracy.png");
-    figure.write_png(&png).map_err(|source| AccuracyError::Write { path: png, source })?;
     Ok(())
 }
