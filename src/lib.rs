@@ -43,10 +43,11 @@
 //!    ([`solver::fields::StoreFields`]) are more files of the same bricks.
 //! 3. **Plan** — [`solver::plan::Plan`] decides what the scene needs (channels, directions, storage
 //!    directions and precision, beams) and derives each direction's offset tables and collect row.
-//! 4. **Order loop** — [`solver::orders::run_orders`] propagates one scattering order at a time
-//!    through a [`solver::orders::Backend`] and then runs the host passes itself, through the
-//!    backend's [`solver::orders::OrderFields`]: commit the order, checkpoint, and at the end the
-//!    energy balance and the geometric tail.
+//! 4. **Order loop** — [`solver::orders::run_orders`] has a [`solver::orders::Backend`] propagate
+//!    one scattering order at a time into its fields, then runs the host passes itself, written
+//!    once in [`solver::passes`] for both kinds of field (the store's f32 files, the twin's f64
+//!    memory): commit the order, the stop rule's remaining error, a checkpoint (store only), and
+//!    at the end the energy balance and the geometric tail.
 //! 5. **Backend** — either the CPU twin ([`solver::cpu`], f64, in memory, its sweeps plane by plane
 //!    on every core: `solver/cpu_sweep.rs`, bitwise the same at any thread count) or the GPU driver
 //!    ([`solver::gpu`]): `sizes` → `budget` (the memory plan) → `resources` (everything on the
@@ -67,7 +68,7 @@
 //! | a shader interface (push constants, bindings, flags) | `solver/gpu/layout.rs`, `glsl/common.glsl`, the binding lists in `solver/gpu/encoder.rs`; `tests/it/shader_interface.rs` fails until both sides agree; `tools/compile_shaders.sh` regenerates `spirv/` |
 //! | a device buffer or its size | `solver/gpu/sizes.rs` (the one place sizes are computed), then `resources.rs`; the planner follows |
 //! | scheduling of slices, overlap, copies | `solver/gpu/streamer.rs` (and `copier.rs`, `slice.rs`) |
-//! | a host pass between orders | `solver/fields.rs` ([`solver::orders::OrderFields`] for the store) and the twin's impl in `solver/cpu.rs` |
+//! | a host pass between orders | `solver/passes.rs` (once, for the store's fields and the twin's); checkpoints in `solver/fields.rs` |
 //! | a Vulkan object kind | [`vk`] (destroy functions take the object by value; the driver wraps it in `Owned`) |
 //! | an output file | [`output`] (atomic writes) and [`job`]; README's outputs list |
 //! | a CLI flag or environment variable | `src/main.rs` only (clap, with `env` for variables) |
