@@ -88,7 +88,7 @@
 //! - **Unsafe at the boundary**: a function whose contract the caller must uphold is `unsafe fn`
 //!   with a `# Safety` section; every `unsafe` block says why it holds.
 //! - **Configuration from the CLI**: the library reads no environment variable (the kill test's
-//!   hook, compiled out of release builds, is the one exception).
+//!   hook, compiled in only with the `test-hooks` cargo feature, is the one exception).
 //! - **Errors are typed** (thiserror) and name the file and the field; outputs are written to a
 //!   temporary name and renamed when complete.
 //!

@@ -138,13 +138,13 @@ impl<'a> GpuBackend<'a> {
             budget,
             options.max_slices_in_flight,
         )?;
-        // The kill test's hook (tests/it/resume.rs): compiled into debug builds (what `cargo test`
-        // runs) and builds with the `test-hooks` feature only, never into a release binary. The one
-        // environment variable read outside the CLI: plumbing a test hook through the job API
-        // would make it part of that API.
-        #[cfg(any(debug_assertions, feature = "test-hooks"))]
+        // The kill test's hook (tests/it/resume.rs): compiled only into builds with the
+        // `test-hooks` cargo feature (tools/test.sh turns it on), never into a plain or release
+        // build. The one environment variable read outside the CLI: plumbing a test hook through
+        // the job API would make it part of that API.
+        #[cfg(feature = "test-hooks")]
         let abort_at_slice = std::env::var("LPM_TEST_ABORT_AT_SLICE").ok().and_then(|v| v.parse().ok());
-        #[cfg(not(any(debug_assertions, feature = "test-hooks")))]
+        #[cfg(not(feature = "test-hooks"))]
         let abort_at_slice = None;
         let mut streamer = SliceStreamer::new(&ctx, plan, memory, options.profile, abort_at_slice, options.cancel)?;
         let resources = DeviceResources::new(&ctx, plan, &memory, &mut streamer)?;
