@@ -53,7 +53,8 @@
 //!    ([`solver::gpu`]): `sizes` → `budget` (the memory plan) → `resources` (everything on the
 //!    device, all-or-nothing) → `streamer` (slices through the slots: gather on the copy workers,
 //!    upload, compute, download, scatter, against timeline semaphores) → `encoder` (push constants,
-//!    descriptor sets, dispatches of `glsl/propagate.comp` and `glsl/collect.comp`) → [`vk`].
+//!    one descriptor set per step bound once for both kernels, which share a pipeline layout, and
+//!    the dispatches of `glsl/propagate.comp` and `glsl/collect.comp`) → [`vk`].
 //! 6. **Outputs** — [`job`] exports the committed fluence and source ([`output`], atomically),
 //!    renders the image from the source ([`render`]) and writes `report.json`. Independently,
 //!    [`reference`](mod@reference) solves the same scene by Monte Carlo, and [`compare`] holds one
@@ -65,11 +66,11 @@
 //! |---|---|
 //! | a scene key | `scene/raw.rs` (the file's shape), `scene/validate.rs` (check and default), `scene/types.rs`, README |
 //! | the physics of a sweep | `glsl/*.comp` **and** its twin in [`solver::cpu`]; [`solver::segment`] for the segment solution |
-//! | a shader interface (push constants, bindings, flags) | `solver/gpu/layout.rs`, `glsl/common.glsl`, the binding lists in `solver/gpu/encoder.rs`; `tests/it/shader_interface.rs` fails until both sides agree; `tools/compile_shaders.sh` regenerates `spirv/` |
+//! | a shader interface (push constants, bindings, flags) | `solver/gpu/layout.rs`, `glsl/common.glsl`, the shared set's bindings (`SWEEP_BINDINGS`, `sweep_bindings`) in `solver/gpu/encoder.rs`; `tests/it/shader_interface.rs` fails until both sides agree; `tools/compile_shaders.sh` regenerates `spirv/` |
 //! | a device buffer or its size | `solver/gpu/sizes.rs` (the one place sizes are computed), then `resources.rs`; the planner follows |
 //! | scheduling of slices, overlap, copies | `solver/gpu/streamer.rs` (and `copier.rs`, `slice.rs`) |
 //! | a host pass between orders | `solver/passes.rs` (once, for the store's fields and the twin's); checkpoints in `solver/fields.rs` |
-//! | a Vulkan object kind | [`vk`] (destroy functions take the object by value; the driver wraps it in `Owned`) |
+//! | a Vulkan object kind | [`vk`] (destroy functions take the object by value and are `unsafe fn`: the device must be done with it; the driver wraps it in `Owned`) |
 //! | an output file | [`output`] (atomic writes) and [`job`]; README's outputs list |
 //! | a CLI flag or environment variable | `src/main.rs` only (clap, with `env` for variables) |
 //!
@@ -79,7 +80,8 @@
 //!   receives each direction's contribution as its own addition, in direction order, so results are
 //!   bitwise identical run to run and at any memory budget.
 //! - **Every kernel has a twin**: the CPU twin walks the same voxels with the same formulas in f64
-//!   and the GPU is tested against it.
+//!   and the GPU is tested against it. The host passes between orders are not twinned but shared:
+//!   written once ([`solver::passes`]) over both backends' fields.
 //! - **Sizes from one place**: the budget planner and the allocations use `solver/gpu/sizes.rs`;
 //!   a test holds the planned bytes equal to the bytes allocated.
 //! - **The shader interface is checked, not commented**: reflection of the committed SPIR-V.

@@ -8,6 +8,7 @@
 //! says so.
 
 pub mod accuracy;
+mod accuracy_outputs;
 
 use crate::job::JobError;
 use crate::scene::Scene;
