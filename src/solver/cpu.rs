@@ -3,7 +3,7 @@
 //!
 //! It walks exactly the voxels the GPU walks (same offset tables, same wrap rule, same segment
 //! formulas, empty bricks skipped) but keeps every field in memory, so it is meant for volumes that
-//! fit in RAM. Its sweep ([`super::cpu_sweep`]) reads like the two kernels: per plane, a step of
+//! fit in RAM. Its sweep (`solver/cpu_sweep.rs`) reads like the two kernels: per plane, a step of
 //! every ray (`glsl/propagate.comp`) and a collect of every voxel (`glsl/collect.comp`), each on
 //! every core of the current rayon pool, with the same bits at any thread count. When the plan stores the gained source in
 //! f16, the twin rounds it exactly where the GPU does: once per order, before the rays gain it,
