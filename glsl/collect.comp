@@ -10,14 +10,16 @@
 
 layout(local_size_x = 16, local_size_y = 4, local_size_z = 1) in;
 
+// One descriptor-set layout for both kernels (src/solver/gpu/encoder.rs SWEEP_BINDINGS): the
+// bindings propagate.comp uses keep its numbers, collect's own ones follow from 9.
 layout(std430, binding = 0) readonly buffer Directions { Direction dirs[]; };
-layout(std430, binding = 1) readonly buffer CollectRows { float rows[]; };       // [dir][storage]
+layout(std430, binding = 1) readonly buffer Offsets { ivec4 offsets[]; };        // [dir][na]: o_b, o_c, w_b, w_c bits
 layout(std430, binding = 2) readonly buffer SlotTable { int medium_slot[]; };
 layout(std430, binding = 3) readonly buffer Density { float density[]; };
-layout(std430, binding = 4) readonly buffer Deposit { float deposit[]; };        // [dispatch dir][ch][plane][lc][lb]
-layout(std430, binding = 5) buffer SourceNext { float j_next[]; };               // [slot][d·C+ch][slab voxel]
-layout(std430, binding = 6) buffer Fluence { float fluence[]; };                 // [slot][ch][slab voxel]
-layout(std430, binding = 7) readonly buffer Offsets { ivec4 offsets[]; };        // [dir][na]: o_b, o_c, w_b, w_c bits
+layout(std430, binding = 8) readonly buffer Deposit { float deposit[]; };        // [dispatch dir][ch][plane][lc][lb]
+layout(std430, binding = 9) readonly buffer CollectRows { float rows[]; };       // [dir][storage]
+layout(std430, binding = 10) buffer SourceNext { float j_next[]; };              // [slot][d·C+ch][slab voxel]
+layout(std430, binding = 11) buffer Fluence { float fluence[]; };                // [slot][ch][slab voxel]
 
 // The voxel's share of what direction `di` of the dispatch deposited in channel `ch`: lattice
 // column c + 1 meets voxel column c with weight 1 − w, column c with weight w (per axis). Terms of

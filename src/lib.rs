@@ -27,7 +27,7 @@
 //! | [`bench`](mod@bench) | `lpm bench`: the profiled stream (JSON) and the time-against-error study |
 //! | `serve` | `lpm serve`: the HTTP job server, its durable SQLite queue and the `submit`/`status`/`fetch` client (cargo feature `service`, on by default) |
 //! | [`sweep`](mod@sweep) | `lpm sweep`: frames and parameter sweeps as numbered tasks, one task per run, Slurm array scripts |
-//! | [`plot`] | small dependency-free plots (log/linear axes, series, legend) written as SVG and PNG, with an embedded bitmap font |
+//! | [`plot`] | small dependency-free plots (log/linear axes, series, legend) written as SVG |
 //!
 //! The binary (`src/main.rs`) is a thin CLI over [`job`], [`reference::job`], [`compare`], [`bench`](mod@bench)
 //! and the output readers.
@@ -43,16 +43,18 @@
 //!    ([`solver::fields::StoreFields`]) are more files of the same bricks.
 //! 3. **Plan** — [`solver::plan::Plan`] decides what the scene needs (channels, directions, storage
 //!    directions and precision, beams) and derives each direction's offset tables and collect row.
-//! 4. **Order loop** — [`solver::orders::run_orders`] propagates one scattering order at a time
-//!    through a [`solver::orders::Backend`] and then runs the host passes itself, through the
-//!    backend's [`solver::orders::OrderFields`]: commit the order, checkpoint, and at the end the
-//!    energy balance and the geometric tail.
+//! 4. **Order loop** — [`solver::orders::run_orders`] has a [`solver::orders::Backend`] propagate
+//!    one scattering order at a time into its fields, then runs the host passes itself, written
+//!    once in [`solver::passes`] for both kinds of field (the store's f32 files, the twin's f64
+//!    memory): commit the order, the stop rule's remaining error, a checkpoint (store only), and
+//!    at the end the energy balance and the geometric tail.
 //! 5. **Backend** — either the CPU twin ([`solver::cpu`], f64, in memory, its sweeps plane by plane
 //!    on every core: `solver/cpu_sweep.rs`, bitwise the same at any thread count) or the GPU driver
 //!    ([`solver::gpu`]): `sizes` → `budget` (the memory plan) → `resources` (everything on the
 //!    device, all-or-nothing) → `streamer` (slices through the slots: gather on the copy workers,
 //!    upload, compute, download, scatter, against timeline semaphores) → `encoder` (push constants,
-//!    descriptor sets, dispatches of `glsl/propagate.comp` and `glsl/collect.comp`) → [`vk`].
+//!    one descriptor set per step bound once for both kernels, which share a pipeline layout, and
+//!    the dispatches of `glsl/propagate.comp` and `glsl/collect.comp`) → [`vk`].
 //! 6. **Outputs** — [`job`] exports the committed fluence and source ([`output`], atomically: raw +
 //!    NRRD header, and sparse OpenVDB grids), keeps `render-data/` (density and source in brick
 //!    form, linked from the store) and renders the image from it ([`render`]: `lpm render` renders
@@ -66,11 +68,11 @@
 //! |---|---|
 //! | a scene key | `scene/raw.rs` (the file's shape), `scene/validate.rs` (check and default), `scene/types.rs`, README |
 //! | the physics of a sweep | `glsl/*.comp` **and** its twin in [`solver::cpu`]; [`solver::segment`] for the segment solution |
-//! | a shader interface (push constants, bindings, flags) | `solver/gpu/layout.rs`, `glsl/common.glsl`, the binding lists in `solver/gpu/encoder.rs`; `tests/it/shader_interface.rs` fails until both sides agree; `tools/compile_shaders.sh` regenerates `spirv/` |
+//! | a shader interface (push constants, bindings, flags) | `solver/gpu/layout.rs`, `glsl/common.glsl`, the shared set's bindings (`SWEEP_BINDINGS`, `sweep_bindings`) in `solver/gpu/encoder.rs`; `tests/it/shader_interface.rs` fails until both sides agree; `tools/compile_shaders.sh` regenerates `spirv/` |
 //! | a device buffer or its size | `solver/gpu/sizes.rs` (the one place sizes are computed), then `resources.rs`; the planner follows |
 //! | scheduling of slices, overlap, copies | `solver/gpu/streamer.rs` (and `copier.rs`, `slice.rs`) |
-//! | a host pass between orders | `solver/fields.rs` ([`solver::orders::OrderFields`] for the store) and the twin's impl in `solver/cpu.rs` |
-//! | a Vulkan object kind | [`vk`] (destroy functions take the object by value; the driver wraps it in `Owned`) |
+//! | a host pass between orders | `solver/passes.rs` (once, for the store's fields and the twin's); checkpoints in `solver/fields.rs` |
+//! | a Vulkan object kind | [`vk`] (destroy functions take the object by value and are `unsafe fn`: the device must be done with it; the driver wraps it in `Owned`) |
 //! | an output file | [`output`] (atomic writes) and [`job`]; README's outputs list |
 //! | a CLI flag or environment variable | `src/main.rs` only (clap, with `env` for variables) |
 //!
@@ -80,7 +82,8 @@
 //!   receives each direction's contribution as its own addition, in direction order, so results are
 //!   bitwise identical run to run and at any memory budget.
 //! - **Every kernel has a twin**: the CPU twin walks the same voxels with the same formulas in f64
-//!   and the GPU is tested against it.
+//!   and the GPU is tested against it. The host passes between orders are not twinned but shared:
+//!   written once ([`solver::passes`]) over both backends' fields.
 //! - **Sizes from one place**: the budget planner and the allocations use `solver/gpu/sizes.rs`;
 //!   a test holds the planned bytes equal to the bytes allocated.
 //! - **The shader interface is checked, not commented**: reflection of the committed SPIR-V.
@@ -89,7 +92,7 @@
 //! - **Unsafe at the boundary**: a function whose contract the caller must uphold is `unsafe fn`
 //!   with a `# Safety` section; every `unsafe` block says why it holds.
 //! - **Configuration from the CLI**: the library reads no environment variable (the kill test's
-//!   hook, compiled out of release builds, is the one exception).
+//!   hook, compiled in only with the `test-hooks` cargo feature, is the one exception).
 //! - **Errors are typed** (thiserror) and name the file and the field; outputs are written to a
 //!   temporary name and renamed when complete.
 //!

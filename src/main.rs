@@ -347,7 +347,7 @@ enum BenchCommand {
     },
     /// Time against error: the solver across directions per face, tolerances, storage precisions and
     /// plans, and the Monte-Carlo reference across photon counts, each timed and compared with a long Monte-Carlo run; writes
-    /// accuracy.json, accuracy.csv, accuracy.png and accuracy.svg (log-log) into --out.
+    /// accuracy.json, accuracy.csv and accuracy.svg (a log-log plot) into --out.
     Accuracy {
         /// The scene file (TOML).
         scene: PathBuf,
@@ -892,7 +892,7 @@ fn run(cli: Cli) -> Result<()> {
                     r.peak_device_bytes.map_or("n/a".to_string(), |b| b.to_string())
                 );
             }
-            println!("wrote accuracy.json, accuracy.csv, accuracy.png and accuracy.svg to {}", out.display());
+            println!("wrote accuracy.json, accuracy.csv and accuracy.svg to {}", out.display());
             Ok(())
         }
         Command::Bench {

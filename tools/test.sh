@@ -19,8 +19,9 @@ export LPM_VALIDATION=1
 export VK_LOADER_DEBUG=none
 log="$(mktemp)"
 trap 'rm -f "$log"' EXIT
-# pipefail (above): a failing cargo test fails the script here.
-cargo test --no-fail-fast "$@" 2>&1 | tee "$log"
+# pipefail (above): a failing cargo test fails the script here. `test-hooks` compiles in the kill
+# test's hook (LPM_TEST_ABORT_AT_SLICE, tests/it/resume.rs), which no plain or release build has.
+cargo test --no-fail-fast --features test-hooks "$@" 2>&1 | tee "$log"
 # A short bounded fuzzing run of every fuzz target (issue 13): 20 s each, after the build.
 # tools/fuzz.sh explains RUSTC_BOOTSTRAP and does long runs; it installs cargo-fuzz if missing.
 LPM_FUZZ_SANITIZER=none bash tools/fuzz.sh 20 scene raw vdb nanovdb

@@ -6,14 +6,14 @@
 //! storage precisions of the gained source (f32 against f16 at otherwise equal settings, with the
 //! device bytes each used) and plans (`solver.plan`: "auto" models only what the scene needs,
 //! "full" turns those reductions off, so each auto run can be set against its full twin); the
-//! Monte-Carlo reference runs again across photon counts (other seeds). Every run is timed and compared with the reference over the voxels where the reference's
-//! relative standard error is small ([`crate::compare`]). The results go to `accuracy.json`,
-//! `accuracy.csv` and a log-log plot `accuracy.png` / `accuracy.svg` of seconds against relative L2
-//! error, one line per directions per face, precision and plan.
+//! Monte-Carlo reference runs again across photon counts (other seeds). Every run is timed and
+//! compared with the reference over the voxels where the reference's relative standard error is
+//! small ([`crate::compare`]). The results go to `accuracy.json`, `accuracy.csv` and a log-log plot
+//! `accuracy.svg` of seconds against relative L2 error, one line per directions per face,
+//! precision and plan (written by `accuracy_outputs`).
 
 use crate::compare::{compare_dirs, CompareOptions, Comparison, CoreMask};
 use crate::job::{self, SolveJob};
-use crate::plot::{Figure, Series, Style};
 use crate::reference::job::{self as reference_job, ReferenceJob};
 use crate::scene::{ForwardPeak, PlanMode, SpatialScheme, StoragePrecision};
 use crate::solver::BackendKind;
@@ -193,7 +193,7 @@ pub fn run(
         max_relative_stderr: opts.max_relative_stderr,
         rows,
     };
-    write_outputs(out, &report)?;
+    super::accuracy_outputs::write(out, &report)?;
     Ok(report)
 }
 
@@ -385,87 +385,4 @@ fn with_solver_settings(scene: &Path, dir: &Path, run: &SolverRun) -> Result<Pat
         toml::to_string(&value).map_err(|e| AccuracyError::Scene { path: copy.clone(), message: e.to_string() })?;
     crate::output::write_atomic(&copy, |w| std::io::Write::write_all(w, text.as_bytes()))?;
     Ok(copy)
-}
-
-fn write_outputs(out: &Path, report: &AccuracyReport) -> Result<(), AccuracyError> {
-    crate::output::write_json_atomic(&out.join("accuracy.json"), report)?;
-    let opt = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:e}"));
-    let mut csv = String::from(
-        "method,setting,seconds,relative_l2,rmse,max_relative_error,mean_bias,reference_noise_l2,noise_corrected_l2,voxels_compared,orders,residual,storage_precision,peak_device_bytes,planned_device_bytes,plan,channels,storage_directions,core_relative_l2,core_mean_bias,core_voxels_compared,spatial,forward_peak\n",
-    );
-    for r in &report.rows {
-        csv.push_str(&format!(
-            "{},{},{:e},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
-            r.method,
-            r.setting,
-            r.seconds,
-            opt(r.relative_l2),
-            opt(r.rmse),
-            opt(r.max_relative_error),
-            opt(r.mean_bias),
-            opt(r.reference_noise_l2),
-            opt(r.noise_corrected_l2),
-            r.voxels_compared,
-            r.orders.map_or(String::new(), |o| o.to_string()),
-            opt(r.residual),
-            r.storage_precision.as_deref().unwrap_or(""),
-            r.peak_device_bytes.map_or(String::new(), |b| b.to_string()),
-            r.planned_device_bytes.map_or(String::new(), |b| b.to_string()),
-            r.plan.as_deref().unwrap_or(""),
-            r.channels.map_or(String::new(), |c| c.to_string()),
-            r.storage_directions.map_or(String::new(), |d| d.to_string()),
-            opt(r.core_relative_l2),
-            opt(r.core_mean_bias),
-            r.core_voxels_compared,
-            r.spatial.as_deref().unwrap_or(""),
-            r.forward_peak.as_deref().unwrap_or("")
-        ));
-    }
-    crate::output::write_atomic(&out.join("accuracy.csv"), |w| std::io::Write::write_all(w, csv.as_bytes()))?;
-
-    // One series per directions-per-face, precision and plan (its points are the tolerances), one
-    // for Monte Carlo. A setting reads "k=… tol=… precision[ plan=…]".
-    let point = |r: &AccuracyRow| r.relative_l2.map(|e| (r.seconds, e));
-    let line_of = |r: &AccuracyRow| {
-        let words: Vec<&str> = r.setting.split(' ').collect();
-        words
-            .iter()
-            .filter(|w| !w.starts_with("tol=") && !w.starts_with("max_orders="))
-            .copied()
-            .collect::<Vec<_>>()
-            .join(" ")
-    };
-    let mut series: Vec<Series> = Vec::new();
-    let mut lines: Vec<String> = Vec::new();
-    for r in report.rows.iter().filter(|r| r.method == "lpm") {
-        let line = line_of(r);
-        if !lines.contains(&line) {
-            lines.push(line);
-        }
-    }
-    for line in lines {
-        let points = report.rows.iter().filter(|r| r.method == "lpm" && line_of(r) == line).filter_map(point).collect();
-        series.push(Series { name: format!("LPM {line}, tolerances"), points, style: Style::LineAndMarkers });
-    }
-    series.push(Series {
-        name: "Monte Carlo, photon counts".into(),
-        points: report.rows.iter().filter(|r| r.method == "monte-carlo").filter_map(point).collect(),
-        style: Style::LineAndMarkers,
-    });
-    let name = Path::new(&report.scene).file_name().map_or(report.scene.clone(), |n| n.to_string_lossy().into_owned());
-    let figure = Figure {
-        title: format!("Time against error: {name}"),
-        x_label: "seconds".into(),
-        y_label: "relative L2 error of fluence".into(),
-        log_x: true,
-        log_y: true,
-        series,
-        width: 900,
-        height: 600,
-    };
-    let svg = out.join("accuracy.svg");
-    figure.write_svg(&svg).map_err(|source| AccuracyError::Write { path: svg, source })?;
-    let png = out.join("accuracy.png");
-    figure.write_png(&png).map_err(|source| AccuracyError::Write { path: png, source })?;
-    Ok(())
 }

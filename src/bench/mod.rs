@@ -8,6 +8,7 @@
 //! says so.
 
 pub mod accuracy;
+mod accuracy_outputs;
 
 use crate::job::JobError;
 use crate::scene::Scene;
@@ -89,7 +90,7 @@ fn run_stream(
     for order in 0..orders.max(1) {
         let t = Instant::now();
         gpu.propagate_order(order)?;
-        gpu.fields().commit_order()?;
+        gpu.fields().0.commit_order(&plan);
         let wall = t.elapsed().as_secs_f64();
         let now = gpu.stream_stats().unwrap_or_default();
         let upload = now.upload_seconds - before.upload_seconds;

@@ -1,7 +1,7 @@
 //! The figure description (series, styles, axes options) and its entry points.
 
 use super::layout::Layout;
-use super::{raster, svg};
+use super::svg;
 use std::io;
 use std::path::Path;
 
@@ -50,7 +50,7 @@ pub struct Figure {
     pub log_x: bool,
     pub log_y: bool,
     pub series: Vec<Series>,
-    /// Size in pixels (the PNG's size and the SVG's user units).
+    /// Size in pixels (the SVG's width, height and user units).
     pub width: u32,
     pub height: u32,
 }
@@ -84,30 +84,10 @@ impl Figure {
         svg::render(&Layout::new(self))
     }
 
-    /// The figure rasterised: (width, height, row-major RGB bytes, 3 per pixel).
-    pub fn to_rgb8(&self) -> (u32, u32, Vec<u8>) {
-        let rgb = raster::render(&Layout::new(self));
-        (self.width, self.height, rgb)
-    }
-
     /// Writes [`Figure::to_svg`] to `path`, atomically (temporary file, then rename).
     pub fn write_svg(&self, path: &Path) -> io::Result<()> {
         let text = self.to_svg();
         write_atomic(path, |w| io::Write::write_all(w, text.as_bytes()))
-    }
-
-    /// Writes [`Figure::to_rgb8`] as an 8-bit RGB PNG to `path`, atomically.
-    pub fn write_png(&self, path: &Path) -> io::Result<()> {
-        let (width, height, rgb) = self.to_rgb8();
-        write_atomic(path, |out| {
-            let mut encoder = png::Encoder::new(out, width, height);
-            encoder.set_color(png::ColorType::Rgb);
-            encoder.set_depth(png::BitDepth::Eight);
-            encoder.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
-            let mut writer = encoder.write_header().map_err(io::Error::other)?;
-            writer.write_image_data(&rgb).map_err(io::Error::other)?;
-            writer.finish().map_err(io::Error::other)
-        })
     }
 }
 

@@ -1,16 +1,14 @@
-//! (Over 450 lines: the one layout both renderers share; see issue 10 on replacing the plot code
-//! with a crate.)
+//! Where everything goes, in pixels: the plot rectangle, grid lines, ticks, series (mapped to
+//! pixels), legend and texts. The SVG renderer ([`super::svg`]) only writes this down.
 //!
-//! Where everything goes, in pixels, shared by the SVG and the raster renderers so both draw the
-//! same picture: the plot rectangle, grid lines, ticks, series (mapped to pixels), legend and texts.
-//!
-//! Coordinates are pixel centres: pixel (i, j) of the raster is centred on (i, j). Text sizes come
-//! from the bitmap font ([`super::font`]) at an integer scale; the SVG uses a sans-serif font of
-//! about the same cap height.
+//! Coordinates are pixel centres: pixel (i, j) is centred on (i, j). Text is sized by simple
+//! metrics ([`CAP_H`], [`ADVANCE`] per unit of text scale) that a sans-serif font of
+//! [`super::svg`]'s size about fills; the layout reserves space by them, so long labels and legend
+//! names never overlap.
 
 use super::axes::Axis;
 use super::figure::{visible, Figure};
-use super::font;
+use super::marker::{Marker, MARKERS, P};
 
 /// An sRGB colour.
 pub type Rgb = [u8; 3];
@@ -35,9 +33,15 @@ pub(crate) const GRID_MAJOR: Rgb = [0xDD, 0xDD, 0xDD];
 pub(crate) const GRID_MINOR: Rgb = [0xF0, 0xF0, 0xF0];
 pub(crate) const LEGEND_BORDER: Rgb = [0xAA, 0xAA, 0xAA];
 
-/// Scale of the bitmap font for labels, ticks, legend and footnote; and for the title.
+/// Text scale for labels, ticks, legend and footnote; and for the title.
 pub(crate) const TEXT_SCALE: u32 = 2;
 pub(crate) const TITLE_SCALE: u32 = 3;
+/// Cap height of text (height of a capital above the baseline) per unit of text scale, in pixels.
+pub(crate) const CAP_H: u32 = 7;
+/// Horizontal advance per character per unit of text scale, in pixels (a glyph 5 wide and a gap
+/// of 1: the last character's gap is not counted in a text's width).
+pub(crate) const ADVANCE: u32 = 6;
+const GAP: u32 = 1;
 /// Stroke width of series lines.
 pub(crate) const LINE_WIDTH: u32 = 2;
 
@@ -51,72 +55,8 @@ const NOTE_GAP: f64 = 10.0;
 const LEGEND_INSET: f64 = 10.0;
 const LEGEND_SAMPLE: f64 = 34.0;
 const LEGEND_PAD: f64 = 8.0;
-
-/// The marker shapes, one per series (cycling).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) enum Marker {
-    Circle,
-    Square,
-    TriangleUp,
-    Diamond,
-    Cross,
-    Plus,
-    TriangleDown,
-    Star,
-}
-
-const MARKERS: [Marker; 8] = [
-    Marker::Circle,
-    Marker::Square,
-    Marker::TriangleUp,
-    Marker::Diamond,
-    Marker::Cross,
-    Marker::Plus,
-    Marker::TriangleDown,
-    Marker::Star,
-];
-
-pub(crate) type P = (f64, f64);
-
-/// A marker's geometry: filled circle, filled polygon, or 2 px strokes.
-pub(crate) enum Shape {
-    Circle { c: P, r: f64 },
-    Polygon(Vec<P>),
-    Strokes(Vec<(P, P)>),
-}
-
-impl Marker {
-    pub(crate) fn shape(self, (x, y): P) -> Shape {
-        match self {
-            Marker::Circle => Shape::Circle { c: (x, y), r: 4.6 },
-            Marker::Square => {
-                let h = 4.1;
-                Shape::Polygon(vec![(x - h, y - h), (x + h, y - h), (x + h, y + h), (x - h, y + h)])
-            }
-            Marker::TriangleUp => Shape::Polygon(vec![(x, y - 6.1), (x + 5.6, y + 4.1), (x - 5.6, y + 4.1)]),
-            Marker::TriangleDown => Shape::Polygon(vec![(x, y + 6.1), (x - 5.6, y - 4.1), (x + 5.6, y - 4.1)]),
-            Marker::Diamond => Shape::Polygon(vec![(x, y - 6.3), (x + 5.1, y), (x, y + 6.3), (x - 5.1, y)]),
-            Marker::Cross => {
-                let h = 4.5;
-                Shape::Strokes(vec![((x - h, y - h), (x + h, y + h)), ((x - h, y + h), (x + h, y - h))])
-            }
-            Marker::Plus => {
-                let h = 5.5;
-                Shape::Strokes(vec![((x - h, y), (x + h, y)), ((x, y - h), (x, y + h))])
-            }
-            Marker::Star => {
-                let points = (0..10)
-                    .map(|k| {
-                        let r = if k % 2 == 0 { 6.6 } else { 2.8 };
-                        let a = std::f64::consts::PI * (k as f64) / 5.0;
-                        (x + r * a.sin(), y - r * a.cos())
-                    })
-                    .collect();
-                Shape::Polygon(points)
-            }
-        }
-    }
-}
+/// The farthest a pixel coordinate may lie from the origin.
+const FAR: f64 = 1e6;
 
 /// A rectangle of pixel centres, x0 ≤ x1, y0 ≤ y1 (inclusive).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -155,9 +95,9 @@ pub(crate) struct Text {
 }
 
 impl Text {
-    /// Horizontal extent (or vertical, for vertical text) of the bitmap rendering: (start, end).
+    /// Horizontal extent (or vertical, for vertical text) reserved for the text: (start, end).
     pub(crate) fn extent(&self) -> (f64, f64) {
-        let w = f64::from(font::text_width(&self.text, self.scale));
+        let w = width(&self.text, self.scale);
         let at = if self.vertical { self.y } else { self.x };
         let start = match (self.anchor, self.vertical) {
             (Anchor::Start, false) => at,
@@ -210,11 +150,17 @@ fn text(text: &str, x: f64, y: f64, anchor: Anchor, class: &'static str) -> Text
 }
 
 fn cap(scale: u32) -> f64 {
-    f64::from(font::CAP_H * scale)
+    f64::from(CAP_H * scale)
 }
 
-fn width(s: &str, scale: u32) -> f64 {
-    f64::from(font::text_width(s, scale))
+/// Width in pixels reserved for `text` at `scale` (no trailing gap).
+fn width(text: &str, scale: u32) -> f64 {
+    let n = text.chars().count() as u32;
+    if n == 0 {
+        0.0
+    } else {
+        f64::from((n * ADVANCE - GAP) * scale)
+    }
 }
 
 /// The footnote for skipped points, if any.
@@ -282,8 +228,12 @@ impl Layout {
         let x1 = (w - 1.0 - right).max(x0 + 1.0);
         let y1 = (h - 1.0 - bottom).max(y0 + 1.0);
         let plot = Rect { x0, y0, x1, y1 };
-        let px = |v: f64| x0 + x_axis.frac(v) * (x1 - x0);
-        let py = |v: f64| y1 - y_axis.frac(v) * (y1 - y0);
+        // Far-off points (an axis that could not span the data, as with ±1e308) are pulled in to
+        // finite pixels well outside the plot, where the clip path hides them: an SVG coordinate
+        // must be a finite number.
+        let finite = |t: f64| if t.is_nan() { -FAR } else { t.clamp(-FAR, FAR) };
+        let px = |v: f64| finite(x0 + x_axis.frac(v) * (x1 - x0));
+        let py = |v: f64| finite(y1 - y_axis.frac(v) * (y1 - y0));
 
         let mut layout = Layout {
             width: fig.width,

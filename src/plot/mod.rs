@@ -1,8 +1,8 @@
 //! Small dependency-free 2-D plots (the "time against error" figure of `lpm bench accuracy`),
-//! written as SVG and as PNG.
+//! written as SVG. (The data behind a plot is written beside it as CSV by its caller.)
 //!
 //! A [`Figure`] holds a title, axis labels, linear or log10 axes and several [`Series`] (line,
-//! markers or both). Both outputs are drawn from one pixel layout, so they show the same picture:
+//! markers or both), laid out in pixels and written down as SVG:
 //!
 //! * **Axes.** The range is the data range padded by 5 % (a single value is widened around
 //!   itself). Log axes label every decade (`1e-3`, `1e-2`, `0.1`, `1`, `10`, `100`, `1e3`) and put
@@ -14,11 +14,13 @@
 //!   triangle, star). Lines are 2 px wide, drawn in the order of the points.
 //! * **Legend.** A boxed legend in the plot corner that covers the fewest data points (top-right
 //!   on a tie).
-//! * **Text.** The SVG uses `<text>` in a sans-serif font. The PNG needs no font files: text is
-//!   drawn from a 5×7 bitmap font embedded in [`font`], at 2× (3× bold for the title).
+//! * **Text.** `<text>` in a sans-serif font; the layout reserves room for it by simple metrics
+//!   (7 px cap height and 6 px per character at 1×; labels at 2×, the title at 3× bold).
 //!
 //! Output is deterministic (same figure, same bytes) and written atomically (a temporary file
-//! `<path>.tmp-<pid>` renamed over the target; removed on error). There is no anti-aliasing.
+//! `<path>.tmp-<pid>` renamed over the target; removed on error). A hand-written rasteriser and
+//! bitmap font for a PNG twin were removed (issue 10): viewers and browsers draw SVG, and
+//! `accuracy.csv` holds the numbers for any other plotting tool.
 //!
 //! ```
 //! use lpm::plot::{Figure, Series, Style};
@@ -28,15 +30,12 @@
 //! fig.series.push(Series::new("LPM", vec![(0.5, 0.1), (2.0, 0.02), (9.0, 0.004)], Style::LineAndMarkers));
 //! let svg = fig.to_svg();
 //! assert!(svg.starts_with("<svg") && svg.contains("Accuracy"));
-//! let (w, h, rgb) = fig.to_rgb8();
-//! assert_eq!(rgb.len(), (w * h * 3) as usize);
 //! ```
 
 pub mod axes;
 mod figure;
-pub mod font;
 mod layout;
-mod raster;
+mod marker;
 mod svg;
 
 pub use figure::{Figure, Series, Style};

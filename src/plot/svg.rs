@@ -1,14 +1,15 @@
 //! The SVG renderer: the [`Layout`] as a standalone SVG 1.1 document. Text stays text (`<text>`,
 //! font-family sans-serif); everything is shifted by half a pixel so that 1 px lines on pixel
-//! centres are crisp and match the raster rendering.
+//! centres are crisp.
 
 use super::layout::{
-    Anchor, Layout, Rect, Rgb, Shape, Text, BACKGROUND, GRID_MAJOR, GRID_MINOR, INK, LEGEND_BORDER, LINE_WIDTH, P,
+    Anchor, Layout, Rect, Rgb, Text, BACKGROUND, CAP_H, GRID_MAJOR, GRID_MINOR, INK, LEGEND_BORDER, LINE_WIDTH,
 };
+use super::marker::{Shape, P};
 use std::fmt::Write;
 
-/// SVG font size per bitmap-font scale step: a sans-serif capital is about 0.72 em, the bitmap
-/// capital 7 pixels per scale step.
+/// SVG font size per text-scale step: a sans-serif capital is about 0.72 em, and the layout
+/// reserves [`CAP_H`] = 7 pixels of cap height per scale step.
 const FONT_SIZE_PER_SCALE: f64 = 9.5;
 
 pub(crate) fn render(l: &Layout) -> String {
@@ -171,7 +172,7 @@ fn shape(s: &mut String, shape: &Shape) {
 
 fn text(s: &mut String, t: &Text) {
     let size = num(FONT_SIZE_PER_SCALE * f64::from(t.scale));
-    let cap = f64::from(super::font::CAP_H * t.scale);
+    let cap = f64::from(CAP_H * t.scale);
     let anchor = match t.anchor {
         Anchor::Start => "start",
         Anchor::Middle => "middle",

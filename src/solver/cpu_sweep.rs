@@ -39,10 +39,9 @@ pub(super) struct SweepInputs<'a> {
     pub occupied: &'a [bool],
 }
 
-/// The fields a sweep adds into, per voxel: fluence `[voxel][ch]` (over all orders and of this
-/// order) and the next order's source `[voxel][d·C + ch]`.
+/// The fields a sweep adds into, per voxel: this order's fluence `[voxel][ch]` (the order loop
+/// adds it to the total, `super::passes`) and the next order's source `[voxel][d·C + ch]`.
 pub(super) struct SweepOutputs<'a> {
-    pub fluence: &'a mut [f64],
     pub fluence_order: &'a mut [f64],
     pub j_next: &'a mut [f64],
 }
@@ -272,7 +271,6 @@ fn collect_plane(
     let [lb, lc] = sweep.lattice();
     let o = dir.offsets[t as usize];
     let w = dir.weights[t as usize];
-    let fluence = SharedRows::new(outputs.fluence);
     let fluence_order = SharedRows::new(outputs.fluence_order);
     let j_next = SharedRows::new(outputs.j_next);
     (0..nc).into_par_iter().for_each(|vc| {
@@ -310,10 +308,7 @@ fn collect_plane(
                 // SAFETY: voxel v lies in plane t and row vc, which only this task visits; the
                 // plane's voxels are distinct (`FaceSweep::voxel` is one-to-one), so no other task
                 // reads or writes element v of these fields while the loop runs.
-                unsafe {
-                    *fluence.at(v * c + ch) += share;
-                    *fluence_order.at(v * c + ch) += share;
-                }
+                unsafe { *fluence_order.at(v * c + ch) += share };
                 let sigma_s = rho * plan.coefficients(ch).1;
                 if sigma_s > 0.0 {
                     for (d, m) in dir.collect_row.iter().enumerate() {

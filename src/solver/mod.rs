@@ -6,7 +6,8 @@
 //! - [`cpu`] is the f64 twin of the GPU kernels, [`gpu`] the Vulkan driver;
 //! - [`orders`] runs scattering orders until [`remaining`] says every voxel of the medium is within
 //!   the tolerance of its converged value; [`energy`] keeps the books;
-//! - [`fields`] holds the solver's fields in the brick store and the host passes over them;
+//! - [`passes`] are the host passes between orders, written once over both backends' fields;
+//! - [`fields`] holds the solver's fields in the brick store, and checkpoints;
 //! - [`cancel`] is the request to stop a solve at the next slice, its checkpoint kept;
 //! - [`warm`] starts a solve from a guess (the previous frame's solution) and still converges to
 //!   the cold solve's answer.
@@ -19,6 +20,7 @@ pub mod energy;
 pub mod fields;
 pub mod gpu;
 pub mod orders;
+pub mod passes;
 pub mod plan;
 pub mod remaining;
 pub mod segment;

@@ -1,46 +1,40 @@
-//! The order loop, shared by both backends: propagate an order, fold its new source into the
-//! total, and stop when every voxel of the medium is estimated to be within the tolerance of its
-//! converged value ([`super::remaining`]), or, with `solver.extrapolate_tail`, when the geometric
-//! tail of the series is known to the tolerance.
+//! The order loop, shared by both backends: propagate an order (the backend's one job), fold it
+//! into the totals with the host passes ([`super::passes`]), checkpoint, and stop when every voxel
+//! of the medium is estimated to be within the tolerance of its converged value
+//! ([`super::remaining`]), or, with `solver.extrapolate_tail`, when the geometric tail of the
+//! series is known to the tolerance.
 
 use super::energy::{EnergyBalance, Tallies};
 use super::fields::LoopState;
+use super::passes::{FieldPlanes, Medium, OrderFieldSet};
 use super::plan::Plan;
 use super::remaining::{tail_factor, RemainingError};
 use super::SolveError;
 use serde::Serialize;
 use std::time::{Duration, Instant};
 
-/// What differs between the backends: how one order is propagated. Order 0 sweeps the sun beams
-/// and carries the boundary light (and the emission); every order deposits fluence and the next
-/// order's source into the backend's [`OrderFields`].
+/// What differs between the backends: how one order is propagated, and where the fields live.
+/// Order 0 sweeps the sun beams and carries the boundary light (and the emission); every order
+/// deposits fluence and the next order's source into the backend's [`OrderFieldSet`]. The host
+/// passes between orders (commit, tail, remaining error, energy) are the order loop's, written
+/// once in [`super::passes`] for both kinds of field.
 pub trait Backend {
+    /// Where a field lives: files of f32 in the brick store, or f64 in memory.
+    type Field: FieldPlanes;
+    /// The medium's density over the fields' units.
+    type Medium: Medium;
     /// Propagates one order (the beams first when `order == 0`) and returns its boundary tallies.
     fn propagate_order(&mut self, order: u32) -> Result<Tallies, SolveError>;
-    /// The fields the order loop folds each order into.
-    fn fields(&mut self) -> &mut dyn OrderFields;
-}
-
-/// The host passes the order loop runs between orders, over the fields wherever a backend keeps
-/// them (the brick store for the GPU driver, memory for the CPU twin).
-pub trait OrderFields {
-    /// Adds the order's fluence and new source to the totals, makes the new source the next
-    /// order's, and returns its scattered power per channel (Σ_x Σ_d Ω_d·J^d·h³).
-    fn commit_order(&mut self) -> Result<[f64; 3], SolveError>;
-    /// Adds `factor[ch]` times the last order's fluence and the last source to the totals: the
-    /// geometric tail of the order series.
-    fn apply_tail(&mut self, factor: [f64; 3]) -> Result<(), SolveError>;
-    /// Records the state after a completed order so that a killed solve can resume from it (a
-    /// no-op where checkpoints are off).
-    fn checkpoint(&mut self, state: &LoopState) -> Result<(), SolveError>;
-    /// Power emitted (order 0) and absorbed (all orders so far), per channel.
-    fn emitted_and_absorbed(&mut self) -> Result<([f64; 3], [f64; 3]), SolveError>;
-    /// The remaining relative error over the medium's voxels after the last finished order, for
-    /// tail factors `factor[ch]` = ρ/(1 − ρ) (see [`super::remaining`]).
-    fn remaining_error(&mut self, factor: [f64; 3]) -> Result<RemainingError, SolveError>;
-    /// The signed power of the last, unpropagated source when it differs from the norm the loop
-    /// keeps (a warm start's residual, see [`super::warm`]); `None`: the norm is the power.
-    fn unpropagated_power(&mut self) -> Result<Option<[f64; 3]>, SolveError> {
+    /// The fields the order loop folds each order into, and the medium they cover.
+    fn fields(&mut self) -> (&mut OrderFieldSet<Self::Field>, &Self::Medium);
+    /// Records the state after a completed order so that a killed solve can resume from it. Only
+    /// the brick store's fields outlive the process; the default does nothing.
+    fn checkpoint(&mut self, _state: &LoopState) -> Result<(), SolveError> {
+        Ok(())
+    }
+    /// The power emitted when order 0's source is a per-voxel emission ([`super::emission`]),
+    /// which the uniform emission the energy pass counts does not cover; `None` otherwise.
+    fn emission_field_power(&mut self) -> Result<Option<[f64; 3]>, SolveError> {
         Ok(None)
     }
 }
@@ -201,9 +195,9 @@ pub struct OrderOutcome {
 /// Runs orders until the tolerance or the cap, from `start` (a fresh solve passes the default
 /// state; a resumed one the state of its checkpoint). `progress(order, measure)` is called after
 /// each order.
-pub fn run_orders(
+pub fn run_orders<B: Backend + ?Sized>(
     plan: &Plan,
-    backend: &mut dyn Backend,
+    backend: &mut B,
     start: LoopState,
     mut progress: impl FnMut(u32, f64),
 ) -> Result<OrderOutcome, SolveError> {
@@ -234,7 +228,7 @@ pub fn run_orders(
         let t = Instant::now();
         let mut tallies = state.tallies();
         tallies.add(&backend.propagate_order(order)?);
-        let new = backend.fields().commit_order()?;
+        let new = backend.fields().0.commit_order(plan);
         for c in 0..3 {
             state.total_power[c] += new[c];
             let last = state.last_new_power[c];
@@ -247,7 +241,10 @@ pub fn run_orders(
         state.orders_done += 1;
         let residual = residual_of(&state);
         remaining = match tail_factors(plan, &state) {
-            Some(factor) if !exhausted(&state) => Some(backend.fields().remaining_error(factor)?),
+            Some(factor) if !exhausted(&state) => {
+                let (fields, medium) = backend.fields();
+                Some(fields.remaining_error(medium, plan, factor))
+            }
             _ => None,
         };
         state.history.push(OrderRecord {
@@ -257,7 +254,7 @@ pub fn run_orders(
             remaining_max: remaining.map(|r| r.max),
             seconds: t.elapsed().as_secs_f64(),
         });
-        backend.fields().checkpoint(&state)?;
+        backend.checkpoint(&state)?;
         // What the stop rule compares with the tolerance: the per-voxel remaining error (the power
         // residual while no ratio is known yet, and under the tail's own rule).
         let measure = match remaining {
@@ -269,8 +266,13 @@ pub fn run_orders(
         converged = done(&state, remaining);
     }
     // The balance covers the propagated orders; the tail is reported on its own.
-    let (emitted, absorbed) = backend.fields().emitted_and_absorbed()?;
-    let unpropagated = backend.fields().unpropagated_power()?.unwrap_or(state.last_new_power);
+    let (emitted, absorbed) = {
+        let (fields, medium) = backend.fields();
+        fields.emitted_and_absorbed(medium, plan)
+    };
+    let emitted = backend.emission_field_power()?.unwrap_or(emitted);
+    // A warm start's last source is a residual of either sign: its signed power, not the norm.
+    let unpropagated = backend.fields().0.signed_last_power(plan).unwrap_or(state.last_new_power);
     let energy = EnergyBalance::new(&state.tallies(), emitted, absorbed, unpropagated, plan.channels as usize);
     let tail = if extrapolate { tail_estimate(plan, &state) } else { None };
     let residual = match &tail {
@@ -278,7 +280,7 @@ pub fn run_orders(
         None => residual_of(&state),
     };
     if let Some(t) = &tail {
-        backend.fields().apply_tail(t.factor)?;
+        backend.fields().0.apply_tail(plan, t.factor);
         tracing::info!(ratio = t.ratio[0], power = t.power, "added the geometric tail of the order series");
     }
     Ok(OrderOutcome {

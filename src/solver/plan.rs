@@ -1,5 +1,8 @@
 //! The plan: what this scene needs, decided once before solving and reported.
 //!
+//! (Just over 450 lines: every choice the plan makes sits beside the reason it reports, so one file
+//! says what a solve will model.)
+//!
 //! - channels: 1 when the medium and every light are grey, else 3 (RGB);
 //! - storage directions for the source: 1 when the medium is isotropic (g = 0), else k_s×k_s per face;
 //! - emission: only when some channel emits;

@@ -190,7 +190,7 @@ impl Recorder {
         groups: [u32; 3],
     ) -> Result<(), VkError> {
         self.check_dispatch(p, push_constants, groups)?;
-        check_buffers(&self.ctx, p, buffers)?;
+        check_buffers(&self.ctx, p.name(), p.storage_buffers, buffers)?;
         let set = if buffers.is_empty() { None } else { Some(self.allocate_set(p)?) };
         let device = self.ctx.device();
         if let Some(set) = set {
@@ -243,6 +243,24 @@ impl Recorder {
             device.cmd_bind_pipeline(self.cb, vk::PipelineBindPoint::COMPUTE, p.raw);
             device.cmd_bind_descriptor_sets(self.cb, vk::PipelineBindPoint::COMPUTE, p.layout, 0, &[set.raw], &[]);
         }
+        Ok(())
+    }
+
+    /// Binds pipeline `p` alone, keeping the descriptor set bound before: `p` must share the layout
+    /// of the pipeline that set was bound with ([`Context::create_compute_pipeline_with_layout`]),
+    /// else the set is not compatible (checked against the set, as in [`Recorder::bind`]).
+    ///
+    /// [`Context::create_compute_pipeline_with_layout`]: super::Context::create_compute_pipeline_with_layout
+    pub fn switch_pipeline(&mut self, p: &ComputePipeline, set: &DescriptorSet) -> Result<(), VkError> {
+        if set.set_layout != p.set_layout {
+            return Err(VkError::InvalidArgument(format!(
+                "pipeline `{}` does not share the layout descriptor set `{}` was made for",
+                p.name(),
+                set.name
+            )));
+        }
+        // SAFETY: recording into our command buffer; the pipeline is alive.
+        unsafe { self.ctx.device().cmd_bind_pipeline(self.cb, vk::PipelineBindPoint::COMPUTE, p.raw) };
         Ok(())
     }
 

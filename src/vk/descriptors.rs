@@ -9,7 +9,7 @@ use ash::vk;
 use super::commands::BufferRange;
 use super::context::Context;
 use super::error::{VkError, VkResultExt};
-use super::pipeline::ComputePipeline;
+use super::pipeline::{ComputePipeline, PipelineLayout};
 
 /// A descriptor set of one pipeline's layout, with its own pool. Free it with
 /// [`Context::destroy_descriptor_set`] once no pending command buffer uses it.
@@ -29,16 +29,37 @@ impl Context {
         p: &ComputePipeline,
         buffers: &[BufferRange],
     ) -> Result<DescriptorSet, VkError> {
-        check_buffers(self, p, buffers)?;
+        check_buffers(self, p.name(), p.storage_buffers, buffers)?;
+        self.make_set(name, p.set_layout, buffers)
+    }
+
+    /// Makes a descriptor set of a shared `layout` (for every pipeline made with it) with `buffers`
+    /// bound to bindings 0.. (checked against the layout and the device limits first).
+    pub fn create_descriptor_set_in(
+        &self,
+        name: &str,
+        layout: &PipelineLayout,
+        buffers: &[BufferRange],
+    ) -> Result<DescriptorSet, VkError> {
+        check_buffers(self, layout.name(), layout.storage_buffers, buffers)?;
+        self.make_set(name, layout.set_layout, buffers)
+    }
+
+    fn make_set(
+        &self,
+        name: &str,
+        set_layout: vk::DescriptorSetLayout,
+        buffers: &[BufferRange],
+    ) -> Result<DescriptorSet, VkError> {
         let device = self.device();
         let sizes = [vk::DescriptorPoolSize::default()
             .ty(vk::DescriptorType::STORAGE_BUFFER)
-            .descriptor_count(p.storage_buffers.max(1))];
+            .descriptor_count((buffers.len() as u32).max(1))];
         let pool_info = vk::DescriptorPoolCreateInfo::default().max_sets(1).pool_sizes(&sizes);
         // SAFETY: `sizes` outlives the call.
         let pool = unsafe { device.create_descriptor_pool(&pool_info, None) }
             .op_with(|| format!("creating the descriptor pool of `{name}`"))?;
-        let set_layouts = [p.set_layout];
+        let set_layouts = [set_layout];
         let info = vk::DescriptorSetAllocateInfo::default().descriptor_pool(pool).set_layouts(&set_layouts);
         // SAFETY: live, empty pool sized for this layout.
         let raw = match unsafe { device.allocate_descriptor_sets(&info) } {
@@ -68,26 +89,33 @@ impl Context {
         // SAFETY: `infos` outlives the call; the set is not in use yet.
         unsafe { device.update_descriptor_sets(&writes, &[]) };
         self.set_name(raw, name);
-        Ok(DescriptorSet { raw, set_layout: p.set_layout, pool, name: name.to_owned() })
+        Ok(DescriptorSet { raw, set_layout, pool, name: name.to_owned() })
     }
 
-    /// Frees a descriptor set; no pending command buffer may use it.
-    pub fn destroy_descriptor_set(&self, set: DescriptorSet) {
+    /// Frees a descriptor set.
+    ///
+    /// # Safety
+    /// No pending command buffer may use it (a set bound in a submitted command buffer must stay
+    /// alive until that submission has completed).
+    pub unsafe fn destroy_descriptor_set(&self, set: DescriptorSet) {
         // SAFETY: by the caller's guarantee; destroying the pool frees the set.
         unsafe { self.device().destroy_descriptor_pool(set.pool, None) };
     }
 }
 
-/// Checks buffers bound to `p`'s bindings 0..: their count, their ranges against the buffers and
-/// the device limits. Makes no Vulkan call.
-pub(crate) fn check_buffers(ctx: &Context, p: &ComputePipeline, buffers: &[BufferRange]) -> Result<(), VkError> {
+/// Checks buffers bound to bindings 0.. of `name`'s layout of `storage_buffers` bindings: their
+/// count, their ranges against the buffers and the device limits. Makes no Vulkan call.
+pub(crate) fn check_buffers(
+    ctx: &Context,
+    name: &str,
+    storage_buffers: u32,
+    buffers: &[BufferRange],
+) -> Result<(), VkError> {
     let limits = ctx.limits();
-    let name = p.name();
-    if buffers.len() != p.storage_buffers as usize {
+    if buffers.len() != storage_buffers as usize {
         return Err(VkError::InvalidArgument(format!(
-            "dispatch of `{name}` binds {} buffers; the pipeline has {} storage-buffer bindings",
+            "dispatch of `{name}` binds {} buffers; the pipeline has {storage_buffers} storage-buffer bindings",
             buffers.len(),
-            p.storage_buffers
         )));
     }
     for (binding, r) in buffers.iter().enumerate() {

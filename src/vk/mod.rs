@@ -6,7 +6,8 @@
 //!   logical device, a compute [`Queue`] and where possible a separate transfer queue, and the
 //!   `gpu-allocator` memory allocator);
 //! - [`Buffer`]s, the only resource kind the solver needs (storage buffers and staging buffers);
-//! - [`ComputePipeline`]s, each with one descriptor set of storage buffers plus push constants, and
+//! - [`ComputePipeline`]s, each with one descriptor set of storage buffers plus push constants
+//!   (several may share one [`PipelineLayout`], so a set bound once serves them all), and
 //!   [`DescriptorSet`]s made once for buffers that do not change and bound by handle;
 //! - [`TimelineSemaphore`]s, the only synchronisation primitive between submissions and with the host;
 //! - [`Recorder`], a one-shot command buffer that records dispatches, copies and barriers and is
@@ -49,7 +50,7 @@ pub use descriptors::DescriptorSet;
 pub use device::{Limits, Queue};
 pub use error::VkError;
 pub use memory::{Buffer, HostBuffer};
-pub use pipeline::ComputePipeline;
+pub use pipeline::{ComputePipeline, PipelineLayout};
 pub use query::TimestampQueryPool;
 pub use sync::TimelineSemaphore;
 

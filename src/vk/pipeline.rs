@@ -1,6 +1,10 @@
 //! Compute pipelines. Each has one descriptor set whose bindings 0..n are all storage buffers, and
 //! an optional push-constant block: that is all the solver's kernels use, and keeping one shape
 //! lets the recorder allocate and write descriptor sets without per-pipeline metadata.
+//!
+//! Several pipelines may share one [`PipelineLayout`] (the solver's two kernels do): a descriptor
+//! set bound once then serves each of them, and switching pipelines does not disturb it (Vulkan's
+//! pipeline-layout compatibility).
 
 use std::io::Cursor;
 
@@ -12,6 +16,27 @@ use super::error::{VkError, VkResultExt};
 /// SPIR-V magic number (first word of every module).
 const SPIRV_MAGIC: u32 = 0x0723_0203;
 
+/// A pipeline layout: one descriptor set of `storage_buffers` storage-buffer bindings (set 0,
+/// bindings 0..n) and a push-constant block, shareable by several pipelines.
+pub struct PipelineLayout {
+    pub(crate) raw: vk::PipelineLayout,
+    pub(crate) set_layout: vk::DescriptorSetLayout,
+    pub(crate) storage_buffers: u32,
+    pub(crate) push_constant_bytes: u32,
+    name: String,
+}
+
+impl PipelineLayout {
+    /// The name given at creation.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+    /// How many storage buffers a descriptor set of this layout binds.
+    pub fn storage_buffers(&self) -> u32 {
+        self.storage_buffers
+    }
+}
+
 /// A compute pipeline with its layout and descriptor-set layout.
 pub struct ComputePipeline {
     pub(crate) raw: vk::Pipeline,
@@ -19,6 +44,8 @@ pub struct ComputePipeline {
     pub(crate) set_layout: vk::DescriptorSetLayout,
     pub(crate) storage_buffers: u32,
     pub(crate) push_constant_bytes: u32,
+    /// The layout was made for this pipeline alone (and is destroyed with it), not shared.
+    owns_layout: bool,
     name: String,
 }
 
@@ -56,16 +83,15 @@ fn spirv_words(name: &str, spirv: &[u8]) -> Result<Vec<u32>, VkError> {
 }
 
 impl Context {
-    /// Creates a compute pipeline from SPIR-V (entry point `main`) with `storage_buffers` bindings
-    /// in set 0 and a `push_constant_bytes` push-constant block (0 for none).
-    pub fn create_compute_pipeline(
+    /// Creates a pipeline layout with `storage_buffers` bindings in set 0 and a
+    /// `push_constant_bytes` push-constant block (0 for none), for pipelines to share
+    /// ([`Context::create_compute_pipeline_with_layout`]).
+    pub fn create_pipeline_layout(
         &self,
         name: &str,
-        spirv: &[u8],
         storage_buffers: u32,
         push_constant_bytes: u32,
-    ) -> Result<ComputePipeline, VkError> {
-        let words = spirv_words(name, spirv)?;
+    ) -> Result<PipelineLayout, VkError> {
         let max_pc = self.limits().max_push_constants_size;
         if push_constant_bytes % 4 != 0 {
             return Err(VkError::InvalidArgument(format!(
@@ -102,7 +128,7 @@ impl Context {
         let layout_info =
             vk::PipelineLayoutCreateInfo::default().set_layouts(&set_layouts).push_constant_ranges(ranges);
         // SAFETY: arrays outlive the call.
-        let layout = match unsafe { device.create_pipeline_layout(&layout_info, None) } {
+        let raw = match unsafe { device.create_pipeline_layout(&layout_info, None) } {
             Ok(l) => l,
             Err(r) => {
                 // SAFETY: unused.
@@ -110,25 +136,73 @@ impl Context {
                 return Err(VkError::from_vk(format!("creating the pipeline layout of `{name}`"), r));
             }
         };
+        self.set_name(raw, name);
+        self.set_name(set_layout, name);
+        Ok(PipelineLayout { raw, set_layout, storage_buffers, push_constant_bytes, name: name.to_owned() })
+    }
 
-        let module_info = vk::ShaderModuleCreateInfo::default().code(&words);
-        // SAFETY: `words` is SPIR-V with a checked header and outlives the call.
-        let module = match unsafe { device.create_shader_module(&module_info, None) } {
-            Ok(m) => m,
-            Err(r) => {
-                // SAFETY: unused.
-                unsafe {
-                    device.destroy_pipeline_layout(layout, None);
-                    device.destroy_descriptor_set_layout(set_layout, None);
-                }
-                return Err(VkError::from_vk(format!("creating the shader module of `{name}`"), r));
+    /// Destroys a pipeline layout.
+    ///
+    /// # Safety
+    /// No pipeline made with it may be alive ([`Context::destroy_pipeline`] them first), and no
+    /// pending command buffer may use it.
+    pub unsafe fn destroy_pipeline_layout(&self, layout: PipelineLayout) {
+        // SAFETY: by the caller's guarantee nothing uses the layout any more.
+        unsafe {
+            self.device().destroy_pipeline_layout(layout.raw, None);
+            self.device().destroy_descriptor_set_layout(layout.set_layout, None);
+        }
+    }
+
+    /// Creates a compute pipeline from SPIR-V (entry point `main`) with `storage_buffers` bindings
+    /// in set 0 and a `push_constant_bytes` push-constant block (0 for none), on a layout of its
+    /// own.
+    pub fn create_compute_pipeline(
+        &self,
+        name: &str,
+        spirv: &[u8],
+        storage_buffers: u32,
+        push_constant_bytes: u32,
+    ) -> Result<ComputePipeline, VkError> {
+        let words = spirv_words(name, spirv)?;
+        let layout = self.create_pipeline_layout(name, storage_buffers, push_constant_bytes)?;
+        match self.pipeline_on(name, &words, &layout) {
+            Ok(mut p) => {
+                p.owns_layout = true;
+                Ok(p)
             }
-        };
+            Err(e) => {
+                // SAFETY: no pipeline was made with the layout.
+                unsafe { self.destroy_pipeline_layout(layout) };
+                Err(e)
+            }
+        }
+    }
+
+    /// Creates a compute pipeline from SPIR-V (entry point `main`) on a shared `layout`, which
+    /// must outlive it (see [`Context::destroy_pipeline_layout`]).
+    pub fn create_compute_pipeline_with_layout(
+        &self,
+        name: &str,
+        spirv: &[u8],
+        layout: &PipelineLayout,
+    ) -> Result<ComputePipeline, VkError> {
+        let words = spirv_words(name, spirv)?;
+        self.pipeline_on(name, &words, layout)
+    }
+
+    /// The pipeline of `words` on `layout` (not owning it).
+    fn pipeline_on(&self, name: &str, words: &[u32], layout: &PipelineLayout) -> Result<ComputePipeline, VkError> {
+        let device = self.device();
+        let module_info = vk::ShaderModuleCreateInfo::default().code(words);
+        // SAFETY: `words` is SPIR-V with a checked header and outlives the call.
+        let module = unsafe { device.create_shader_module(&module_info, None) }
+            .op_with(|| format!("creating the shader module of `{name}`"))?;
         let stage = vk::PipelineShaderStageCreateInfo::default()
             .stage(vk::ShaderStageFlags::COMPUTE)
             .module(module)
             .name(c"main");
-        let infos = [vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout)];
+        let infos = [vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout.raw)];
         // SAFETY: all handles alive; `infos` outlives the call.
         let created = unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &infos, None) };
         // The module is only needed while the pipeline is created.
@@ -141,29 +215,37 @@ impl Context {
                     Err((_, r)) => r,
                     Ok(_) => vk::Result::ERROR_UNKNOWN,
                 };
-                // SAFETY: unused.
-                unsafe {
-                    device.destroy_pipeline_layout(layout, None);
-                    device.destroy_descriptor_set_layout(set_layout, None);
-                }
                 return Err(VkError::from_vk(format!("creating compute pipeline `{name}`"), r));
             }
         };
         self.set_name(raw, name);
-        self.set_name(layout, name);
-        self.set_name(set_layout, name);
-        tracing::debug!(name, storage_buffers, push_constant_bytes, "compute pipeline created");
-        Ok(ComputePipeline { raw, layout, set_layout, storage_buffers, push_constant_bytes, name: name.to_owned() })
+        let (storage_buffers, push_constant_bytes) = (layout.storage_buffers, layout.push_constant_bytes);
+        tracing::debug!(name, storage_buffers, push_constant_bytes, layout = layout.name(), "compute pipeline created");
+        Ok(ComputePipeline {
+            raw,
+            layout: layout.raw,
+            set_layout: layout.set_layout,
+            storage_buffers,
+            push_constant_bytes,
+            owns_layout: false,
+            name: name.to_owned(),
+        })
     }
 
-    /// Destroys a pipeline. Command buffers that used it must have completed (or be retired: they
-    /// only reference it while executing).
-    pub fn destroy_pipeline(&self, p: ComputePipeline) {
-        // SAFETY: by the caller's guarantee no pending work uses it.
+    /// Destroys a pipeline (and its layout, unless that is shared).
+    ///
+    /// # Safety
+    /// The device must no longer use the pipeline: command buffers that used it must have
+    /// completed (a retired one only refers to it while executing).
+    pub unsafe fn destroy_pipeline(&self, p: ComputePipeline) {
+        // SAFETY: by the caller's guarantee no pending work uses it; a layout it owns is used by
+        // no other pipeline.
         unsafe {
             self.device().destroy_pipeline(p.raw, None);
-            self.device().destroy_pipeline_layout(p.layout, None);
-            self.device().destroy_descriptor_set_layout(p.set_layout, None);
+            if p.owns_layout {
+                self.device().destroy_pipeline_layout(p.layout, None);
+                self.device().destroy_descriptor_set_layout(p.set_layout, None);
+            }
         }
     }
 }

@@ -59,8 +59,11 @@ impl Context {
         Ok(TimestampQueryPool { raw, count })
     }
 
-    /// Destroys a query pool; no pending work may use it.
-    pub fn destroy_timestamp_pool(&self, pool: TimestampQueryPool) {
+    /// Destroys a query pool.
+    ///
+    /// # Safety
+    /// No pending command buffer may write or reset its queries.
+    pub unsafe fn destroy_timestamp_pool(&self, pool: TimestampQueryPool) {
         // SAFETY: by the caller's guarantee.
         unsafe { self.device().destroy_query_pool(pool.raw, None) };
     }

@@ -64,10 +64,14 @@ impl Context {
         Ok(TimelineSemaphore { raw, name: name.to_owned() })
     }
 
-    /// Destroys a timeline. No pending submission may wait on or signal it. Resources retired on it
-    /// are freed first when it has reached their values (waiting a bounded time for that); any that
-    /// cannot be are kept until the context is dropped, with a warning.
-    pub fn destroy_timeline(&self, t: TimelineSemaphore) {
+    /// Destroys a timeline. Resources retired on it are freed first when it has reached their
+    /// values (waiting a bounded time for that); any that cannot be are kept until the context is
+    /// dropped, with a warning.
+    ///
+    /// # Safety
+    /// No pending submission may wait on or signal it (Vulkan forbids destroying a semaphore a
+    /// queue still uses; wait for the values submitted against it first).
+    pub unsafe fn destroy_timeline(&self, t: TimelineSemaphore) {
         if let Err(e) = self.collect_garbage() {
             tracing::warn!(%e, "collecting garbage before destroying timeline `{}`", t.name);
         }

@@ -315,7 +315,7 @@ fn bench_accuracy_writes_json_csv_and_plots() {
     assert_eq!(csv.lines().count(), 7);
     assert!(csv.lines().next().unwrap().contains("storage_precision,peak_device_bytes"));
     assert!(std::fs::read_to_string(out.join("accuracy.svg")).unwrap().contains("Monte Carlo"));
-    assert!(std::fs::metadata(out.join("accuracy.png")).unwrap().len() > 1000);
+    assert!(std::fs::metadata(out.join("accuracy.svg")).unwrap().len() > 1000);
 }
 
 #[test]

@@ -1,6 +1,8 @@
 //! Every integration test in one test crate (`[[test]] name = "it"` in Cargo.toml): one binary to
 //! compile and link instead of one per file, with `tests/common` compiled once. Each file is a
-//! module named after what it tests; run one with `cargo test --test it budget::`.
+//! module named after what it tests; run one with `cargo test --test it budget::`. The kill test
+//! (`resume::`) needs lpm's test hook, compiled in only with `--features test-hooks` (tools/test.sh
+//! passes it); without it that test fails and says so.
 
 #[path = "../common/mod.rs"]
 mod common;

@@ -1,5 +1,5 @@
-//! The plot module: SVG structure, PNG round trip, colours and text present, ticks, skipped
-//! points, determinism, atomic writes; and an example figure rendered to `target/plot-example.png`.
+//! The plot module: SVG structure, colours and text present, ticks, skipped points, determinism,
+//! atomic writes; and example figures rendered to `target/plot-example*.svg`.
 
 use lpm::plot::axes::{linear_ticks, log_ticks};
 use lpm::plot::{series_colour, Figure, Series, Style, PALETTE};
@@ -40,15 +40,6 @@ fn scratch(name: &str) -> PathBuf {
     let _ = fs::remove_dir_all(&dir);
     fs::create_dir_all(&dir).expect("create scratch dir");
     dir
-}
-
-fn decode(path: &Path) -> (png::OutputInfo, Vec<u8>) {
-    let decoder = png::Decoder::new(fs::File::open(path).expect("open png"));
-    let mut reader = decoder.read_info().expect("png header");
-    let mut buf = vec![0; reader.output_buffer_size()];
-    let info = reader.next_frame(&mut buf).expect("png frame");
-    buf.truncate(info.buffer_size());
-    (info, buf)
 }
 
 #[test]
@@ -93,50 +84,35 @@ fn svg_is_well_formed_enough() {
 }
 
 #[test]
-fn png_round_trips_with_the_right_size() {
-    let dir = scratch("roundtrip");
-    let mut fig = accuracy_figure();
-    fig.width = 700;
-    fig.height = 450;
-    let path = dir.join("fig.png");
-    fig.write_png(&path).expect("write png");
-    let (info, buf) = decode(&path);
-    assert_eq!((info.width, info.height), (700, 450));
-    assert_eq!(info.color_type, png::ColorType::Rgb);
-    assert_eq!(info.bit_depth, png::BitDepth::Eight);
-    let (w, h, rgb) = fig.to_rgb8();
-    assert_eq!((w, h), (700, 450));
-    assert_eq!(buf, rgb);
-}
-
-#[test]
-fn every_series_colour_is_drawn() {
+fn every_series_colour_is_drawn_and_the_palette_is_distinct() {
     let fig = accuracy_figure();
-    let (_, _, rgb) = fig.to_rgb8();
+    let svg = fig.to_svg();
     for i in 0..fig.series.len() {
         let c = series_colour(i);
-        let n = rgb.chunks(3).filter(|p| *p == c).count();
-        assert!(n > 50, "series {i} colour {c:?}: only {n} pixels");
+        let hex = format!("#{:02x}{:02x}{:02x}", c[0], c[1], c[2]);
+        // The series group draws in its colour (stroke for lines, fill and stroke for markers).
+        assert!(svg.matches(&format!("\"{hex}\"")).count() >= 2, "series {i} colour {hex}");
     }
     // Eight series, eight distinct colours.
     let mut palette = PALETTE.to_vec();
+    palette.sort();
     palette.dedup();
     assert_eq!(palette.len(), 8);
 }
 
 #[test]
-fn title_text_is_drawn_in_the_title_band() {
+fn title_is_drawn_in_the_title_band_and_a_blank_one_keeps_the_layout() {
     let fig = accuracy_figure();
-    let (w, _, rgb) = fig.to_rgb8();
-    let band =
-        |rgb: &[u8]| -> usize { rgb[..(w * 40 * 3) as usize].chunks(3).filter(|p| *p != [255, 255, 255]).count() };
-    let with_title = band(&rgb);
-    assert!(with_title > 200, "{with_title} title pixels");
-    // A blank title keeps the same layout and leaves the band empty.
+    let svg = fig.to_svg();
+    let title = svg.lines().find(|l| l.starts_with("<text class=\"title\"")).expect("title text");
+    assert!(title.contains("font-weight=\"bold\"") && title.contains(">Time against error</text>"), "{title}");
+    let y: f64 = title.split(" y=\"").nth(1).and_then(|r| r.split('"').next()).expect("y").parse().expect("number");
+    assert!(y < 40.0, "title baseline at {y}");
+    // A blank title keeps the same plot rectangle (the frame is where it was).
+    let frame = |svg: &str| svg.lines().find(|l| l.starts_with("<rect class=\"frame\"")).map(str::to_string);
     let mut blank = fig.clone();
     blank.title = " ".to_string();
-    let (_, _, rgb) = blank.to_rgb8();
-    assert_eq!(band(&rgb), 0);
+    assert_eq!(frame(&blank.to_svg()), frame(&svg));
 }
 
 #[test]
@@ -170,20 +146,20 @@ fn degenerate_and_empty_figures_render() {
     for (log_x, log_y) in [(false, false), (true, true)] {
         fig.log_x = log_x;
         fig.log_y = log_y;
-        let (_, _, rgb) = fig.to_rgb8();
-        assert!(rgb.chunks(3).any(|p| p == series_colour(0)));
-        assert!(fig.to_svg().contains("</svg>"));
+        let svg = fig.to_svg();
+        assert!(svg.contains("<circle") && svg.trim_end().ends_with("</svg>"), "{svg}");
     }
     let empty = Figure::new("", "", "");
-    let (w, h, rgb) = empty.to_rgb8();
-    assert_eq!(rgb.len(), (w * h * 3) as usize);
+    let svg = empty.to_svg();
+    assert!(svg.trim_end().ends_with("</svg>") && !svg.contains("class=\"series\""));
     let tiny = Figure { width: 3, height: 2, ..accuracy_figure() };
-    assert_eq!(tiny.to_rgb8().2.len(), 18);
+    assert!(tiny.to_svg().contains(r#"width="3" height="2""#));
     let huge = Figure {
         series: vec![Series::new("wild", vec![(-1e308, 1e308), (1e308, -1e308), (0.0, 0.0)], Style::Line)],
         ..Figure::new("wild", "", "")
     };
-    let _ = huge.to_rgb8();
+    let svg = huge.to_svg();
+    assert!(!svg.contains("NaN") && !svg.contains("inf"), "non-finite coordinates in {svg}");
 }
 
 #[test]
@@ -191,9 +167,9 @@ fn output_is_deterministic() {
     let dir = scratch("determinism");
     let fig = accuracy_figure();
     assert_eq!(fig.to_svg(), fig.to_svg());
-    let (a, b) = (dir.join("a.png"), dir.join("b.png"));
-    fig.write_png(&a).expect("write a");
-    fig.clone().write_png(&b).expect("write b");
+    let (a, b) = (dir.join("a.svg"), dir.join("b.svg"));
+    fig.write_svg(&a).expect("write a");
+    fig.clone().write_svg(&b).expect("write b");
     assert_eq!(fs::read(&a).expect("read a"), fs::read(&b).expect("read b"));
 }
 
@@ -202,24 +178,20 @@ fn writes_are_atomic() {
     let dir = scratch("atomic");
     let fig = accuracy_figure();
     fig.write_svg(&dir.join("fig.svg")).expect("write svg");
-    fig.write_png(&dir.join("fig.png")).expect("write png");
-    fig.write_png(&dir.join("fig.png")).expect("overwrite png");
+    fig.write_svg(&dir.join("fig.svg")).expect("overwrite svg");
     let mut names: Vec<String> = fs::read_dir(&dir)
         .expect("list")
         .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
         .collect();
     names.sort();
-    assert_eq!(names, ["fig.png", "fig.svg"]);
+    assert_eq!(names, ["fig.svg"]);
     assert_eq!(fs::read_to_string(dir.join("fig.svg")).expect("read svg"), fig.to_svg());
     // A failing write leaves nothing behind and says where.
-    let missing = dir.join("no-such-dir").join("fig.png");
-    let err = fig.write_png(&missing).expect_err("missing directory");
+    let missing = dir.join("no-such-dir").join("fig.svg");
+    let err = fig.write_svg(&missing).expect_err("missing directory");
     assert!(err.to_string().contains("no-such-dir"), "{err}");
-    // A zero-sized figure cannot be a PNG: the error removes the temporary.
-    let empty = Figure { width: 0, height: 0, ..accuracy_figure() };
-    assert!(empty.write_png(&dir.join("zero.png")).is_err());
     let count = fs::read_dir(&dir).expect("list").count();
-    assert_eq!(count, 2, "temporary left behind");
+    assert_eq!(count, 1, "temporary left behind");
 }
 
 #[test]
@@ -227,7 +199,6 @@ fn example_figure_is_rendered_for_inspection() {
     let target = Path::new(env!("CARGO_MANIFEST_DIR")).join("target");
     fs::create_dir_all(&target).expect("target dir");
     let fig = accuracy_figure();
-    fig.write_png(&target.join("plot-example.png")).expect("write example png");
     fig.write_svg(&target.join("plot-example.svg")).expect("write example svg");
     let mut lin = Figure::new("Linear axes, one skipped", "order", "fluence");
     lin.series.push(Series::new(
@@ -243,16 +214,6 @@ fn example_figure_is_rendered_for_inspection() {
     lin.series.push(Series::new("c", vec![(2.0, f64::NAN), (3.0, 1.0)], Style::Markers));
     lin.width = 640;
     lin.height = 420;
-    lin.write_png(&target.join("plot-example-linear.png")).expect("write linear example");
-
-    // Every glyph of the bitmap font, in the legend.
-    let ascii: String = (32u8..127).map(char::from).collect();
-    let mut specimen = Figure::new("Font specimen: 5x7 at 2x, title 3x bold", "x label", "y label");
-    for (i, chunk) in ascii.as_bytes().chunks(24).enumerate() {
-        let name = String::from_utf8_lossy(chunk).into_owned();
-        specimen.series.push(Series::new(name, vec![(i as f64, 0.0), (i as f64 + 1.0, 1.0)], Style::Line));
-    }
-    specimen.width = 800;
-    specimen.height = 360;
-    specimen.write_png(&target.join("plot-font-specimen.png")).expect("write specimen");
+    lin.write_svg(&target.join("plot-example-linear.svg")).expect("write linear example");
+    assert!(fs::read_to_string(target.join("plot-example-linear.svg")).expect("read").contains("Not shown: 1"));
 }

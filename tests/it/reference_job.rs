@@ -1,11 +1,10 @@
 //! `lpm::reference::job`: the reference run from a scene file to its output directory, then compared
 //! with a solve of the same scene.
-use crate::common::{temp_dir, write_scene, write_scene_as};
+use crate::common::{temp_dir, validated, write_scene, write_scene_as};
 use lpm::compare::{compare_dirs, CompareOptions};
 use lpm::job::SolveJob;
 use lpm::reference::job::{run, ReferenceJob, ReferenceJobError};
 use lpm::solver::BackendKind;
-use lpm::vk::ContextOptions;
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
 
@@ -97,7 +96,9 @@ fn furnace_reference_writes_its_outputs_and_agrees_with_the_solver() {
         scene,
         out: solved.clone(),
         backend: BackendKind::Cpu,
-        vk: ContextOptions::default(),
+        // Validation on, as every test's Vulkan (ContextOptions::default() no longer reads
+        // LPM_VALIDATION: the CLI does).
+        vk: validated(),
         keep_store: false,
         no_image: false,
         no_fields: false,

@@ -5,6 +5,13 @@ use crate::common::{killable_cloud_scene, temp_dir};
 fn lpm(args: &[&str], abort_at: Option<u32>) -> std::process::Output {
     let mut cmd = crate::common::lpm_command(args);
     if let Some(n) = abort_at {
+        // The hook is compiled into lpm only with the `test-hooks` feature: without it the solve
+        // would simply finish, and this test would test nothing.
+        if !cfg!(feature = "test-hooks") {
+            panic!(
+                "this kill test needs lpm's test hook: run it with `cargo test --features test-hooks` (tools/test.sh does)"
+            );
+        }
         cmd.env("LPM_TEST_ABORT_AT_SLICE", n.to_string());
     }
     cmd.output().expect("run lpm")

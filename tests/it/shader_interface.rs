@@ -1,18 +1,19 @@
 //! The interface between the host and the kernels, checked against the committed SPIR-V instead of
 //! "keep in sync" comments: the push-constant block's members sit at the Rust struct's
-//! `offset_of!`, the `Direction` table's members at `GpuDirection`'s, the kernels bind exactly the
-//! storage buffers the host binds (set 0, bindings 0..n), their workgroup size is the one the
+//! `offset_of!`, the `Direction` table's members at `GpuDirection`'s, both kernels declare their
+//! storage buffers in the one descriptor set they share (set 0), each at the binding the host
+//! writes that buffer to and every binding used, their workgroup size is the one the
 //! dispatch grid is computed with, and the `FLAG_*` bits of glsl/common.glsl are the Rust ones. A
 //! small test kernel (glsl/segment_test.comp) evaluates the GLSL segment functions against
 //! src/solver/segment.rs over optical depths 1e-8 … 1e4.
 
-use lpm::solver::gpu::encoder::LOCAL_SIZE;
+use lpm::solver::gpu::encoder::{LOCAL_SIZE, SWEEP_BINDINGS};
 use lpm::solver::gpu::layout::{self, GpuDirection, SweepPush};
-use lpm::solver::gpu::resources::{COLLECT_BINDINGS, PROPAGATE_BINDINGS};
+use lpm::solver::gpu::resources::SWEEP_BINDING_COUNT;
 use lpm::vk::{vk, BufferRange, Context, ContextOptions, MemoryLocation, Recorder};
 use rspirv::dr::{Instruction, Module, Operand};
 use rspirv::spirv::{Decoration, ExecutionMode, Op, StorageClass};
-use std::collections::HashMap;
+use std::collections::{BTreeSet, HashMap};
 use std::mem::offset_of;
 
 const PROPAGATE_SPV: &[u8] = include_bytes!("../../spirv/propagate.spv");
@@ -112,13 +113,27 @@ fn push_block(module: &Module) -> (Vec<(String, u32)>, u32) {
     struct_members(module, ty)
 }
 
-/// The storage-buffer bindings as (set, binding), sorted.
-fn storage_bindings(module: &Module) -> Vec<(u32, u32)> {
-    let mut b: Vec<(u32, u32)> = variables(module, StorageClass::StorageBuffer)
+/// The name glslang gives `target` (a block's type name: `Directions`, `Deposit`, ...).
+fn name_of(module: &Module, target: u32) -> String {
+    module
+        .debug_names
+        .iter()
+        .find(|n| n.class.opcode == Op::Name && id(&n.operands[0]) == target)
+        .and_then(|n| match &n.operands[1] {
+            Operand::LiteralString(s) => Some(s.clone()),
+            _ => None,
+        })
+        .unwrap_or_default()
+}
+
+/// The storage-buffer bindings as (set, binding, block name), sorted.
+fn storage_bindings(module: &Module) -> Vec<(u32, u32, String)> {
+    let mut b: Vec<(u32, u32, String)> = variables(module, StorageClass::StorageBuffer)
         .iter()
         .map(|v| {
             let d = decorations(module, v.result_id.expect("a variable id"));
-            (d[&Decoration::DescriptorSet].expect("a set"), d[&Decoration::Binding].expect("a binding"))
+            let block = name_of(module, pointee(module, v.result_type.expect("a typed variable")));
+            (d[&Decoration::DescriptorSet].expect("a set"), d[&Decoration::Binding].expect("a binding"), block)
         })
         .collect();
     b.sort_unstable();
@@ -178,15 +193,31 @@ fn the_direction_table_matches_gpu_direction() {
 }
 
 #[test]
-fn kernels_bind_exactly_the_storage_buffers_the_host_binds() {
-    for (name, spirv, count) in
-        [("propagate", PROPAGATE_SPV, PROPAGATE_BINDINGS), ("collect", COLLECT_SPV, COLLECT_BINDINGS)]
-    {
+fn both_kernels_bind_the_one_shared_set_as_the_host_writes_it() {
+    assert_eq!(SWEEP_BINDINGS.len(), SWEEP_BINDING_COUNT as usize);
+    let mut used = BTreeSet::new();
+    for (name, spirv, expected) in [
+        ("propagate", PROPAGATE_SPV, &[0u32, 1, 2, 3, 4, 5, 6, 7, 8][..]),
+        ("collect", COLLECT_SPV, &[0, 1, 2, 3, 8, 9, 10, 11][..]),
+    ] {
         let module = load(spirv);
-        let expected: Vec<(u32, u32)> = (0..count).map(|b| (0, b)).collect();
-        assert_eq!(storage_bindings(&module), expected, "{name}: storage-buffer bindings (set, binding)");
+        let bindings = storage_bindings(&module);
+        for (set, binding, block) in &bindings {
+            assert_eq!(*set, 0, "{name}: {block} is not in the shared set 0");
+            let host = SWEEP_BINDINGS.get(*binding as usize).copied();
+            assert_eq!(
+                host,
+                Some(block.as_str()),
+                "{name}: binding {binding} is {block} in GLSL, {host:?} on the host"
+            );
+            used.insert(*binding);
+        }
+        let numbers: Vec<u32> = bindings.iter().map(|b| b.1).collect();
+        assert_eq!(numbers, expected, "{name}: the bindings it declares");
         assert_eq!(other_descriptors(&module), 0, "{name}: the host binds storage buffers only");
     }
+    // Every binding of the shared set is used by some kernel: the host writes nothing for nothing.
+    assert_eq!(used, (0..SWEEP_BINDING_COUNT).collect::<BTreeSet<_>>());
 }
 
 #[test]
@@ -254,10 +285,10 @@ fn glsl_segment_functions_match_the_rust_ones() {
     }
     // f32 arithmetic: a few ulps (2^-23 ≈ 1.2e-7) of the f64 values.
     assert!(worst.0 < 2e-6, "largest relative difference {:e} at x = {:e}", worst.0, worst.1);
-    ctx.destroy_timeline(timeline);
-    ctx.destroy_pipeline(pipeline);
     // SAFETY: the timeline wait above: the only submission using them has completed.
     unsafe {
+        ctx.destroy_timeline(timeline);
+        ctx.destroy_pipeline(pipeline);
         ctx.destroy_host_buffer(input);
         ctx.destroy_host_buffer(output);
     }

@@ -89,8 +89,11 @@ fn fill_copy_readback() -> Result<(), VkError> {
     assert_eq!(ctx.pending_garbage(), 0, "everything retired on value 1 must be freed once it is reached");
     assert_eq!(ctx.allocated_bytes(), 0);
     assert!(ctx.peak_allocated_bytes() >= 2 * bytes);
-    ctx.destroy_pipeline(pipeline);
-    ctx.destroy_timeline(timeline);
+    // SAFETY: the wait for value 1 above: the one submission using them has completed.
+    unsafe {
+        ctx.destroy_pipeline(pipeline);
+        ctx.destroy_timeline(timeline);
+    }
     assert_clean(&ctx);
     Ok(())
 }
@@ -140,9 +143,11 @@ fn binding_larger_than_max_storage_range_is_refused() -> Result<(), VkError> {
 
     // Never submitted: dropping the recorder frees its pools at once.
     drop(rec);
-    // SAFETY: the recorder that used it was never submitted.
-    unsafe { ctx.destroy_buffer(small) };
-    ctx.destroy_pipeline(pipeline);
+    // SAFETY: the recorder that used them was never submitted.
+    unsafe {
+        ctx.destroy_buffer(small);
+        ctx.destroy_pipeline(pipeline);
+    }
     assert_eq!(ctx.allocated_bytes(), 0);
     assert_clean(&ctx);
     Ok(())
@@ -187,8 +192,11 @@ fn two_submissions_ordered_by_timeline() -> Result<(), VkError> {
     ctx.retire_buffer(readback, &timeline, 2);
     ctx.collect_garbage()?;
     assert_eq!(ctx.pending_garbage(), 0);
-    ctx.destroy_pipeline(pipeline);
-    ctx.destroy_timeline(timeline);
+    // SAFETY: the wait for value 2 above: both submissions using them have completed.
+    unsafe {
+        ctx.destroy_pipeline(pipeline);
+        ctx.destroy_timeline(timeline);
+    }
     assert_clean(&ctx);
     Ok(())
 }
@@ -214,7 +222,8 @@ fn host_signal_releases_gpu_work_and_garbage() -> Result<(), VkError> {
     ctx.collect_garbage()?;
     assert_eq!(ctx.pending_garbage(), 0);
     assert_eq!(ctx.allocated_bytes(), 0);
-    ctx.destroy_timeline(timeline);
+    // SAFETY: the wait for value 2 above: the one submission waiting on and signalling it is done.
+    unsafe { ctx.destroy_timeline(timeline) };
     assert_clean(&ctx);
     Ok(())
 }
@@ -242,9 +251,12 @@ fn timestamps() -> Result<(), VkError> {
     eprintln!("fill of 1 MiB: {:.3} ms", (t[1] - t[0]) as f64 * f64::from(ctx.limits().timestamp_period_ns) * 1e-6);
     ctx.retire_buffer(buf, &timeline, 1);
     ctx.collect_garbage()?;
-    ctx.destroy_timestamp_pool(pool);
-    ctx.destroy_pipeline(pipeline);
-    ctx.destroy_timeline(timeline);
+    // SAFETY: the wait for value 1 above: the one submission using them has completed.
+    unsafe {
+        ctx.destroy_timestamp_pool(pool);
+        ctx.destroy_pipeline(pipeline);
+        ctx.destroy_timeline(timeline);
+    }
     assert_clean(&ctx);
     Ok(())
 }

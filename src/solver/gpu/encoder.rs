@@ -3,16 +3,18 @@
 //! `directions_per_dispatch`, planes in chunks of `planes_per_dispatch`, each `propagate.comp`
 //! followed by `collect.comp` unless the slice is vacuum).
 //!
-//! The buffers each kernel binds are listed here too ([`propagate_bindings`],
-//! [`collect_bindings`]); the resources write them into descriptor sets once per solve, and a step
-//! binds those sets by handle.
+//! The buffers the kernels bind are listed here too ([`SWEEP_BINDINGS`], [`sweep_bindings`]): both
+//! kernels share one pipeline layout, so one descriptor set per sweep and slot serves both. The
+//! resources write the sets once per solve; a step binds its set once, by handle, and only
+//! switches pipelines between the kernels (the command buffer is the step's own, so this is as
+//! seldom as a set can be bound).
 //!
 //! It records into a [`Recorder`] and submits nothing: when to submit and what to wait for is the
 //! streamer's business (`streamer`).
 
 use super::budget::MemoryPlan;
 use super::layout::{half_source_flags, SweepPush, FLAG_GAIN, FLAG_LAST_SLICE, FLAG_VACUUM};
-use super::resources::{DeviceResources, SharedBuffers, SlotBuffers, SweepSets, COLLECT_BINDINGS, PROPAGATE_BINDINGS};
+use super::resources::{DeviceResources, SharedBuffers, SweepSets, SWEEP_BINDING_COUNT};
 use super::slice::SliceLayout;
 use super::tables::SweepTables;
 use crate::solver::plan::Plan;
@@ -88,15 +90,33 @@ pub fn push_constants(plan: &Plan, sweep: &FaceSweep, layout: &SliceLayout) -> S
     }
 }
 
-/// The buffers `propagate.comp` binds for a sweep's `tables` and a slot's `slot_table`, `density`
-/// and `source_prev` (the vacuum stand-in for a vacuum slice). The array's length is the
-/// pipeline's binding count (checked against the SPIR-V by `tests/it/shader_interface.rs`).
-pub fn propagate_bindings<'b>(
+/// The shared descriptor set's bindings, by the name of the buffer block each kernel declares
+/// there: `propagate.comp` uses 0..=8, `collect.comp` 0..=3 and 8..=11. `tests/it/shader_interface.rs`
+/// checks these names and numbers against both kernels' SPIR-V.
+pub const SWEEP_BINDINGS: [&str; SWEEP_BINDING_COUNT as usize] = [
+    "Directions",
+    "Offsets",
+    "SlotTable",
+    "Density",
+    "SourcePrev",
+    "Rays",
+    "RaysIn",
+    "RaysOut",
+    "Deposit",
+    "CollectRows",
+    "SourceNext",
+    "Fluence",
+];
+
+/// The buffers of a sweep's descriptor set, in [`SWEEP_BINDINGS`] order: the sweep's `tables`, a
+/// slot's `[slot_table, density, source_prev, source_next, fluence]` (the vacuum stand-in five
+/// times for a vacuum slice) and the shared ray state and deposit.
+pub fn sweep_bindings<'b>(
     tables: &'b SweepTables,
-    slot: [&'b Buffer; 3],
+    slot: [&'b Buffer; 5],
     shared: &'b SharedBuffers,
-) -> [BufferRange<'b>; PROPAGATE_BINDINGS as usize] {
-    let [slot_table, density, source_prev] = slot;
+) -> [BufferRange<'b>; SWEEP_BINDING_COUNT as usize] {
+    let [slot_table, density, source_prev, source_next, fluence] = slot;
     [
         BufferRange::from(&*tables.directions),
         BufferRange::from(&*tables.offsets),
@@ -107,24 +127,9 @@ pub fn propagate_bindings<'b>(
         BufferRange::from(&*shared.rays_in),
         BufferRange::from(&*shared.rays_out),
         BufferRange::from(&*shared.deposit),
-    ]
-}
-
-/// The buffers `collect.comp` binds for a sweep's `tables` and a slot.
-pub fn collect_bindings<'b>(
-    tables: &'b SweepTables,
-    slot: &'b SlotBuffers,
-    shared: &'b SharedBuffers,
-) -> [BufferRange<'b>; COLLECT_BINDINGS as usize] {
-    [
-        BufferRange::from(&*tables.directions),
         BufferRange::from(&*tables.rows),
-        BufferRange::from(&*slot.slot_table),
-        BufferRange::from(&*slot.density),
-        BufferRange::from(&*shared.deposit),
-        BufferRange::from(&*slot.source_next),
-        BufferRange::from(&*slot.fluence),
-        BufferRange::from(&*tables.offsets),
+        BufferRange::from(source_next),
+        BufferRange::from(fluence),
     ]
 }
 
@@ -151,11 +156,13 @@ pub fn record_compute(
         rec.transfer_to_compute();
     }
     let tables = step.tables;
-    let sets = step.sets;
-    // The slot's sets, or the vacuum's (the last propagate set; a vacuum slice collects nothing).
-    let propagate_set = &sets.propagate[step.slot.unwrap_or(sets.propagate.len() - 1)];
-    let collect_set = step.slot.map(|s| &sets.collect[s]);
-    let mut bound = false;
+    let sets = &step.sets.slots;
+    // The slot's set, or the vacuum's (the last; a vacuum slice collects nothing), bound once for
+    // both kernels: they share the pipeline layout, so switching pipelines keeps it bound.
+    let set = &sets[step.slot.unwrap_or(sets.len() - 1)];
+    let collect = step.slot.is_some();
+    rec.bind(&res.propagate, set)?;
+    let mut on_collect = false;
     let mut push = push_constants(plan, step.sweep, step.layout);
     let range = step.layout.range;
     let group = memory.directions_per_dispatch;
@@ -181,15 +188,15 @@ pub fn record_compute(
                 continue;
             }
             let bytes = bytemuck::bytes_of(&push);
-            // Switching pipelines needs the set bound again (the two layouts differ).
-            if !bound || collect_set.is_some() {
-                rec.bind(&res.propagate, propagate_set)?;
-                bound = true;
+            if on_collect {
+                rec.switch_pipeline(&res.propagate, set)?;
+                on_collect = false;
             }
             rec.dispatch_bound(&res.propagate, bytes, ray_workgroups(step.sweep, n))?;
             rec.compute_to_compute();
-            if let Some(set) = collect_set {
-                rec.bind(&res.collect, set)?;
+            if collect {
+                rec.switch_pipeline(&res.collect, set)?;
+                on_collect = true;
                 rec.dispatch_bound(&res.collect, bytes, voxel_workgroups(step.sweep, t1 - t0))?;
                 rec.compute_to_compute();
             }

@@ -53,8 +53,9 @@ mod streamer;
 mod tables;
 
 use super::energy::Tallies;
-use super::fields::{StoreFields, StoreOrderFields};
-use super::orders::{Backend, OrderFields};
+use super::fields::{LoopState, StoreFields};
+use super::orders::Backend;
+use super::passes::{OrderFieldSet, StoreMedium};
 use super::plan::{half_scale_exponent, Plan, Precision, SweepDirection};
 use super::sweep::FaceSweep;
 use super::SolveError;
@@ -104,7 +105,11 @@ pub struct GpuBackend<'a> {
     ctx: Arc<Context>,
     plan: &'a Plan,
     store: &'a BrickStore,
-    host: StoreOrderFields<'a>,
+    fields: &'a mut StoreFields,
+    /// The store's density as the host passes walk it.
+    medium: StoreMedium<'a>,
+    /// The scene digest checkpoints are written under; `None`: no checkpoints.
+    checkpoint_digest: Option<String>,
     memory: MemoryPlan,
     /// The f16 previous source's scale exponent for the order being propagated (`None`: f32).
     half_exponent: Option<i32>,
@@ -133,13 +138,13 @@ impl<'a> GpuBackend<'a> {
             budget,
             options.max_slices_in_flight,
         )?;
-        // The kill test's hook (tests/it/resume.rs): compiled into debug builds (what `cargo test`
-        // runs) and builds with the `test-hooks` feature only, never into a release binary. The one
-        // environment variable read outside the CLI: plumbing a test hook through the job API
-        // would make it part of that API.
-        #[cfg(any(debug_assertions, feature = "test-hooks"))]
+        // The kill test's hook (tests/it/resume.rs): compiled only into builds with the
+        // `test-hooks` cargo feature (tools/test.sh turns it on), never into a plain or release
+        // build. The one environment variable read outside the CLI: plumbing a test hook through
+        // the job API would make it part of that API.
+        #[cfg(feature = "test-hooks")]
         let abort_at_slice = std::env::var("LPM_TEST_ABORT_AT_SLICE").ok().and_then(|v| v.parse().ok());
-        #[cfg(not(any(debug_assertions, feature = "test-hooks")))]
+        #[cfg(not(feature = "test-hooks"))]
         let abort_at_slice = None;
         let mut streamer = SliceStreamer::new(&ctx, plan, memory, options.profile, abort_at_slice, options.cancel)?;
         let resources = DeviceResources::new(&ctx, plan, &memory, &mut streamer)?;
@@ -161,7 +166,9 @@ impl<'a> GpuBackend<'a> {
             ctx,
             plan,
             store,
-            host: StoreOrderFields::new(fields, plan, store),
+            fields,
+            medium: StoreMedium::new(store),
+            checkpoint_digest: None,
             memory,
             half_exponent: None,
             progress: None,
@@ -170,7 +177,7 @@ impl<'a> GpuBackend<'a> {
 
     /// Writes a checkpoint into the store after every completed order.
     pub fn enable_checkpoints(&mut self, digest: String) {
-        self.host.enable_checkpoints(digest);
+        self.checkpoint_digest = Some(digest);
     }
 
     /// Streaming time and bytes measured so far (when profiling).
@@ -208,7 +215,7 @@ impl<'a> GpuBackend<'a> {
         let mut tallies = Tallies::default();
         for first in (0..dirs.len()).step_by(pass) {
             let pass_dirs = first as u32..(first + pass).min(dirs.len()) as u32;
-            let mut io = Stream { plan, store: self.store, fields: &mut *self.host.fields, res: &self.resources };
+            let mut io = Stream { plan, store: self.store, fields: &mut *self.fields, res: &self.resources };
             let job =
                 Pass { tables, sets, sweep: &sweep, dirs: pass_dirs.clone(), flags, half_exponent: self.half_exponent };
             self.streamer.stream_pass(&mut io, &job)?;
@@ -257,13 +264,13 @@ fn read_tallies(
     Ok(tallies)
 }
 
-impl Backend for GpuBackend<'_> {
+impl<'a> Backend for GpuBackend<'a> {
     fn propagate_order(&mut self, order: u32) -> Result<Tallies, SolveError> {
         let plan = self.plan;
-        self.host.fields.begin_order()?;
+        self.fields.begin_order()?;
         // The scale of this order's f16 source, from its largest value (exact: a power of two).
-        self.half_exponent = (plan.source_precision == Precision::F16)
-            .then(|| half_scale_exponent(self.host.fields.source_prev.max_abs()));
+        self.half_exponent =
+            (plan.source_precision == Precision::F16).then(|| half_scale_exponent(self.fields.source_prev.max_abs()));
         let face_dirs: Vec<usize> = plan.faces.iter().map(Vec::len).collect();
         let passes = progress::passes_per_order(order, &face_dirs, plan.beams.len(), self.memory.directions_per_pass);
         self.progress = Some(progress::PassProgress::new(order, passes));
@@ -286,7 +293,24 @@ impl Backend for GpuBackend<'_> {
         Ok(tallies)
     }
 
-    fn fields(&mut self) -> &mut dyn OrderFields {
-        &mut self.host
+    type Field = crate::store::Field;
+    type Medium = StoreMedium<'a>;
+
+    fn fields(&mut self) -> (&mut OrderFieldSet<crate::store::Field>, &StoreMedium<'a>) {
+        (self.fields, &self.medium)
+    }
+
+    fn emission_field_power(&mut self) -> Result<Option<[f64; 3]>, SolveError> {
+        if !self.plan.emission_field {
+            return Ok(None);
+        }
+        Ok(Some(super::emission::emitted_power(self.store, self.plan)?))
+    }
+
+    fn checkpoint(&mut self, state: &LoopState) -> Result<(), SolveError> {
+        match &self.checkpoint_digest {
+            Some(digest) => self.fields.write_checkpoint(self.store.dir(), digest, state),
+            None => Ok(()),
+        }
     }
 }

@@ -8,7 +8,9 @@
 //! last submitted values when dropped, before any buffer or pipeline after them is freed; a
 //! temporary (the tables' staging) is dropped after its submission was waited for.
 
-use crate::vk::{Buffer, ComputePipeline, Context, DescriptorSet, HostBuffer, TimelineSemaphore, TimestampQueryPool};
+use crate::vk::{
+    Buffer, ComputePipeline, Context, DescriptorSet, HostBuffer, PipelineLayout, TimelineSemaphore, TimestampQueryPool,
+};
 use std::mem::ManuallyDrop;
 use std::ops::{Deref, DerefMut};
 use std::sync::Arc;
@@ -38,25 +40,36 @@ impl Destroy for HostBuffer {
 
 impl Destroy for DescriptorSet {
     unsafe fn destroy(self, ctx: &Context) {
-        ctx.destroy_descriptor_set(self)
+        // SAFETY: as above.
+        unsafe { ctx.destroy_descriptor_set(self) }
     }
 }
 
 impl Destroy for ComputePipeline {
     unsafe fn destroy(self, ctx: &Context) {
-        ctx.destroy_pipeline(self)
+        // SAFETY: as above.
+        unsafe { ctx.destroy_pipeline(self) }
+    }
+}
+
+impl Destroy for PipelineLayout {
+    unsafe fn destroy(self, ctx: &Context) {
+        // SAFETY: as above; and the pipelines made with it are declared (so dropped) before it.
+        unsafe { ctx.destroy_pipeline_layout(self) }
     }
 }
 
 impl Destroy for TimelineSemaphore {
     unsafe fn destroy(self, ctx: &Context) {
-        ctx.destroy_timeline(self)
+        // SAFETY: as above.
+        unsafe { ctx.destroy_timeline(self) }
     }
 }
 
 impl Destroy for TimestampQueryPool {
     unsafe fn destroy(self, ctx: &Context) {
-        ctx.destroy_timestamp_pool(self)
+        // SAFETY: as above.
+        unsafe { ctx.destroy_timestamp_pool(self) }
     }
 }
 

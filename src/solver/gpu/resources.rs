@@ -1,6 +1,7 @@
-//! The device resources of a solve, built all-or-nothing: the two kernels' pipelines, the slots'
-//! buffers and staging, the buffers shared by the slots, every sweep's tables, and the kernels'
-//! descriptor sets for each sweep and slot (written once: the buffers never change).
+//! The device resources of a solve, built all-or-nothing: the two kernels' pipelines on one shared
+//! pipeline layout, the slots' buffers and staging, the buffers shared by the slots, every sweep's
+//! tables, and one descriptor set per sweep and slot that serves both kernels (written once: the
+//! buffers never change), so a compute step binds its set once.
 //!
 //! Every object is an `Owned` value, so a constructor that fails half-way frees what it made by
 //! dropping it, and a finished [`DeviceResources`] frees everything when dropped. Whoever submits
@@ -16,15 +17,14 @@ use super::streamer::SliceStreamer;
 use super::tables::SweepTables;
 use crate::solver::plan::Plan;
 use crate::solver::SolveError;
-use crate::vk::{Buffer, ComputePipeline, Context, DescriptorSet, HostBuffer, MemoryLocation};
+use crate::vk::{Buffer, ComputePipeline, Context, DescriptorSet, HostBuffer, MemoryLocation, PipelineLayout};
 use ash::vk;
 use std::sync::Arc;
 
 const PROPAGATE_SPV: &[u8] = include_bytes!("../../../spirv/propagate.spv");
 const COLLECT_SPV: &[u8] = include_bytes!("../../../spirv/collect.spv");
-/// Storage buffers bound to `propagate.comp` and to `collect.comp` (see [`super::encoder`]).
-pub const PROPAGATE_BINDINGS: u32 = 9;
-pub const COLLECT_BINDINGS: u32 = 8;
+/// Storage buffers in the descriptor set both kernels share (see [`super::encoder::SWEEP_BINDINGS`]).
+pub const SWEEP_BINDING_COUNT: u32 = 12;
 
 /// The device buffers and staging of one slice in flight.
 pub struct SlotBuffers {
@@ -49,11 +49,10 @@ pub struct SharedBuffers {
     pub vacuum: Owned<Buffer>,
 }
 
-/// One sweep's descriptor sets, written once: `propagate[s]` binds slot s (`propagate[slots]` the
-/// vacuum stand-in), `collect[s]` slot s.
+/// One sweep's descriptor sets of the shared layout, written once: `slots[s]` binds slot s, and
+/// the last one (`slots[slot count]`) the vacuum stand-in.
 pub struct SweepSets {
-    pub propagate: Vec<Owned<DescriptorSet>>,
-    pub collect: Vec<Owned<DescriptorSet>>,
+    pub slots: Vec<Owned<DescriptorSet>>,
 }
 
 pub struct DeviceResources {
@@ -62,6 +61,8 @@ pub struct DeviceResources {
     pub beam_sets: Vec<SweepSets>,
     pub propagate: Owned<ComputePipeline>,
     pub collect: Owned<ComputePipeline>,
+    /// The layout both pipelines share; declared after them, so freed after them.
+    pub layout: Owned<PipelineLayout>,
     pub slots: Vec<SlotBuffers>,
     pub shared: SharedBuffers,
     pub face_tables: Vec<SweepTables>,
@@ -148,11 +149,12 @@ impl DeviceResources {
             });
         }
         let push_bytes = std::mem::size_of::<SweepPush>() as u32;
-        let pipeline = |name: &str, spirv: &[u8], bindings: u32| -> Result<Owned<ComputePipeline>, SolveError> {
-            Ok(Owned::new(ctx, ctx.create_compute_pipeline(name, spirv, bindings, push_bytes)?))
+        let layout = Owned::new(ctx, ctx.create_pipeline_layout("sweep", SWEEP_BINDING_COUNT, push_bytes)?);
+        let pipeline = |name: &str, spirv: &[u8]| -> Result<Owned<ComputePipeline>, SolveError> {
+            Ok(Owned::new(ctx, ctx.create_compute_pipeline_with_layout(name, spirv, &layout)?))
         };
-        let propagate = pipeline("propagate", PROPAGATE_SPV, PROPAGATE_BINDINGS)?;
-        let collect = pipeline("collect", COLLECT_SPV, COLLECT_BINDINGS)?;
+        let propagate = pipeline("propagate", PROPAGATE_SPV)?;
+        let collect = pipeline("collect", COLLECT_SPV)?;
         let face_tables =
             plan.faces.iter().map(|face| SweepTables::upload(ctx, streamer, face)).collect::<Result<Vec<_>, _>>()?;
         let beam_tables = plan
@@ -163,30 +165,35 @@ impl DeviceResources {
         let sets = |tables: &[SweepTables], what: &str| -> Result<Vec<SweepSets>, SolveError> {
             let mut all = Vec::with_capacity(tables.len());
             for (i, t) in tables.iter().enumerate() {
-                let mut propagate_sets = Vec::with_capacity(slots.len() + 1);
+                let mut sets = Vec::with_capacity(slots.len() + 1);
                 for (s, slot) in slots.iter().enumerate() {
-                    let bindings =
-                        encoder::propagate_bindings(t, [&slot.slot_table, &slot.density, &slot.source_prev], &shared);
-                    let name = format!("propagate {what} {i} slot {s}");
-                    propagate_sets.push(Owned::new(ctx, ctx.create_descriptor_set(&name, &propagate, &bindings)?));
+                    let buffers =
+                        [&slot.slot_table, &slot.density, &slot.source_prev, &slot.source_next, &slot.fluence];
+                    let bindings = encoder::sweep_bindings(t, buffers.map(|b| &**b), &shared);
+                    let name = format!("{what} {i} slot {s}");
+                    sets.push(Owned::new(ctx, ctx.create_descriptor_set_in(&name, &layout, &bindings)?));
                 }
                 let v = &*shared.vacuum;
-                let bindings = encoder::propagate_bindings(t, [v, v, v], &shared);
-                let name = format!("propagate {what} {i} vacuum");
-                propagate_sets.push(Owned::new(ctx, ctx.create_descriptor_set(&name, &propagate, &bindings)?));
-                let mut collect_sets = Vec::with_capacity(slots.len());
-                for (s, slot) in slots.iter().enumerate() {
-                    let bindings = encoder::collect_bindings(t, slot, &shared);
-                    let name = format!("collect {what} {i} slot {s}");
-                    collect_sets.push(Owned::new(ctx, ctx.create_descriptor_set(&name, &collect, &bindings)?));
-                }
-                all.push(SweepSets { propagate: propagate_sets, collect: collect_sets });
+                let bindings = encoder::sweep_bindings(t, [v; 5], &shared);
+                let name = format!("{what} {i} vacuum");
+                sets.push(Owned::new(ctx, ctx.create_descriptor_set_in(&name, &layout, &bindings)?));
+                all.push(SweepSets { slots: sets });
             }
             Ok(all)
         };
         let face_sets = sets(&face_tables, "face")?;
         let beam_sets = sets(&beam_tables, "beam")?;
-        Ok(DeviceResources { face_sets, beam_sets, propagate, collect, slots, shared, face_tables, beam_tables })
+        Ok(DeviceResources {
+            face_sets,
+            beam_sets,
+            propagate,
+            collect,
+            layout,
+            slots,
+            shared,
+            face_tables,
+            beam_tables,
+        })
     }
 
     /// The bytes of every buffer made for the solve: those held now, plus the largest of the
