@@ -12,6 +12,10 @@
 //! `OUT/.lpm-work`, and `--resume` continues it (bitwise the same result as an uninterrupted
 //! solve). A solve without `--resume` refuses to start over such a checkpoint unless `--fresh`
 //! says to discard it ([`JobError::CheckpointExists`]).
+//!
+//! Just over 450 lines because the job is one sequence (lock, scene, store, solve, export, render
+//! data, image, report, publish) whose every step must leave `OUT` whole if the next one fails;
+//! reading it in one place is what makes that property checkable.
 
 use crate::output::{self, FieldMeta, OutputError};
 use crate::render;

@@ -10,6 +10,10 @@
 //! [`crate::store::vdb`] reads (see that module for the format); OpenVDB's reader
 //! (`python3-openvdb` in `tests/it/vdb_output.rs`) is the test that the files are right.
 //!
+//! Over 450 lines because the file is written top to bottom in the order its bytes appear (header,
+//! grid descriptors, metadata, transform, topology, values): one format in one file reads against
+//! the OpenVDB layout without jumping between modules.
+//!
 //! A field of several components (RGB fluence, a source per storage direction) is written as one
 //! float grid per component (`fluence_r`, `fluence_g`, `fluence_b`), not as one `Vec3s` grid:
 //! Houdini's and Blender's volume shaders read scalar float grids by name (a density-like field

@@ -1,11 +1,12 @@
-//! The HTTP API under `/v1`: the route table, request parsing and the handlers.
+//! The HTTP API under `/v1`: the dispatcher and the handlers (the route table and query parsing
+//! are in `routes.rs`, re-exported here).
 //!
 //! [`ROUTES`] is the one list of what the server answers; the dispatcher matches requests against
 //! it and a test checks it against the OpenAPI document (`openapi.json`) both ways. Handlers return
 //! `Result<Reply, ApiError>`; [`ApiError::status`] is the one place errors become status codes, and
 //! every error body is `{"error": "<one line>"}`.
 
-use super::confine::{self, ConfineError};
+use super::confine;
 use super::db::{self, Cancel, Insert, Requeue};
 use super::Shared;
 use crate::scene::Scene;
@@ -14,43 +15,9 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 use tiny_http::{Header, Request, Response};
 
-/// What a route does.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Handler {
-    Health,
-    OpenApi,
-    Submit,
-    List,
-    Get,
-    Cancel,
-    Resume,
-    Events,
-    Outputs,
-    Output,
-    Upload,
-}
-
-/// One route: method, path pattern (`{name}` matches one path segment) and handler.
-pub struct Route {
-    pub method: &'static str,
-    pub path: &'static str,
-    pub handler: Handler,
-}
-
-/// Every route the server answers.
-pub const ROUTES: &[Route] = &[
-    Route { method: "GET", path: "/v1/health", handler: Handler::Health },
-    Route { method: "GET", path: "/v1/openapi.json", handler: Handler::OpenApi },
-    Route { method: "POST", path: "/v1/jobs", handler: Handler::Submit },
-    Route { method: "GET", path: "/v1/jobs", handler: Handler::List },
-    Route { method: "GET", path: "/v1/jobs/{id}", handler: Handler::Get },
-    Route { method: "DELETE", path: "/v1/jobs/{id}", handler: Handler::Cancel },
-    Route { method: "POST", path: "/v1/jobs/{id}/resume", handler: Handler::Resume },
-    Route { method: "GET", path: "/v1/jobs/{id}/events", handler: Handler::Events },
-    Route { method: "GET", path: "/v1/jobs/{id}/outputs", handler: Handler::Outputs },
-    Route { method: "GET", path: "/v1/jobs/{id}/outputs/{name}", handler: Handler::Output },
-    Route { method: "PUT", path: "/v1/volumes/{name}", handler: Handler::Upload },
-];
+pub use super::prepare::{prepare_scene, prepare_scene_with, Uploads};
+use super::routes::Query;
+pub use super::routes::{route, Handler, Route, ROUTES};
 
 /// The OpenAPI 3 document served at `/v1/openapi.json`.
 pub const OPENAPI: &str = include_str!("openapi.json");
@@ -210,83 +177,6 @@ fn respond(shared: &Shared, request: &mut Request) -> Result<Reply, ApiError> {
     }
 }
 
-/// The route for `method` and `path`, and the values of its `{…}` segments.
-pub fn route(method: &str, path: &str) -> Result<(Handler, Vec<String>), ApiError> {
-    let segments: Vec<&str> = path.trim_end_matches('/').split('/').collect();
-    let mut path_known = false;
-    for r in ROUTES {
-        let pattern: Vec<&str> = r.path.split('/').collect();
-        if pattern.len() != segments.len() {
-            continue;
-        }
-        let mut params = Vec::new();
-        let matched = pattern.iter().zip(&segments).all(|(p, s)| {
-            if p.starts_with('{') {
-                params.push(percent_decode(s));
-                !s.is_empty()
-            } else {
-                p == s
-            }
-        });
-        if matched {
-            path_known = true;
-            if r.method == method {
-                return Ok((r.handler, params));
-            }
-        }
-    }
-    if path_known {
-        Err(ApiError::MethodNotAllowed { method: method.to_string(), path: path.to_string() })
-    } else {
-        Err(ApiError::NotFound(format!("no such endpoint: {path}")))
-    }
-}
-
-fn percent_decode(s: &str) -> String {
-    let bytes = s.as_bytes();
-    let mut out = Vec::with_capacity(bytes.len());
-    let mut i = 0;
-    while i < bytes.len() {
-        if bytes[i] == b'%' && i + 2 < bytes.len() {
-            if let Some(b) = std::str::from_utf8(&bytes[i + 1..i + 3]).ok().and_then(|h| u8::from_str_radix(h, 16).ok())
-            {
-                out.push(b);
-                i += 3;
-                continue;
-            }
-        }
-        out.push(bytes[i]);
-        i += 1;
-    }
-    String::from_utf8_lossy(&out).into_owned()
-}
-
-pub struct Query<'a>(&'a str);
-
-impl Query<'_> {
-    fn get(&self, key: &str) -> Option<String> {
-        self.0
-            .split('&')
-            .filter_map(|kv| kv.split_once('=').or(Some((kv, ""))))
-            .find(|(k, _)| *k == key)
-            .map(|(_, v)| percent_decode(v))
-    }
-
-    fn parse<T: std::str::FromStr>(&self, key: &str) -> Result<Option<T>, ApiError> {
-        self.get(key)
-            .map(|v| v.parse().map_err(|_| ApiError::BadRequest(format!("query parameter {key}: cannot parse {v:?}"))))
-            .transpose()
-    }
-
-    fn flag(&self, key: &str) -> Result<bool, ApiError> {
-        match self.get(key).as_deref() {
-            None | Some("false") | Some("0") => Ok(false),
-            Some("") | Some("true") | Some("1") => Ok(true),
-            Some(v) => Err(ApiError::BadRequest(format!("query parameter {key}: expected true or false, got {v:?}"))),
-        }
-    }
-}
-
 pub(super) fn authorize(shared: &Shared, request: &Request) -> Result<(), ApiError> {
     let Some(token) = &shared.opts.token else { return Ok(()) };
     let sent = request
@@ -334,73 +224,6 @@ fn health(shared: &Shared) -> Result<Reply, ApiError> {
     let counts: serde_json::Map<String, serde_json::Value> =
         shared.db.counts()?.into_iter().map(|(k, v)| (k, v.into())).collect();
     Ok(Reply::json(200, &serde_json::json!({ "status": "ok", "version": env!("CARGO_PKG_VERSION"), "jobs": counts })))
-}
-
-/// The scene keys that name a volume file.
-const VOLUME_KEYS: [&str; 3] = ["raw", "vdb", "nrrd"];
-
-/// Files uploaded with a scene (multipart parts): their directory and names.
-pub struct Uploads<'a> {
-    pub dir: &'a Path,
-    pub names: &'a [String],
-}
-
-/// Validates a scene sent by a client as the CLI would (`lpm solve scene.toml`), with its volume
-/// path confined to the data root and made absolute. Returns the text the solve will read.
-pub fn prepare_scene(data: &Path, text: &str) -> Result<(String, Scene), ApiError> {
-    prepare_scene_with(data, text, None)
-}
-
-/// [`prepare_scene`], where a volume path that is exactly the name of an uploaded file names that
-/// file.
-pub fn prepare_scene_with(data: &Path, text: &str, uploads: Option<&Uploads>) -> Result<(String, Scene), ApiError> {
-    let mut value: toml::Table = match toml::from_str(text) {
-        Ok(v) => v,
-        // Let the scene loader word the syntax error, exactly as the CLI does.
-        Err(_) => {
-            return match validate(text) {
-                Err(e) => Err(e),
-                Ok(_) => Err(ApiError::BadRequest("scene.toml: not a TOML table".into())),
-            }
-        }
-    };
-    let Some(toml::Value::Table(volume)) = value.get_mut("volume") else { return validate(text) };
-    for key in VOLUME_KEYS {
-        let Some(toml::Value::String(named)) = volume.get(key) else { continue };
-        let bad = |m: String| ApiError::BadRequest(format!("scene.toml: volume.{key}: {m}"));
-        let uploaded = uploads.filter(|u| u.names.iter().any(|n| n == named));
-        let real = match uploaded {
-            Some(u) => u.dir.join(named),
-            None => confine_named(data, Path::new(named)).map_err(bad)?,
-        };
-        // A detached NRRD header names its data file: that file must be under the root too.
-        if key == "nrrd" {
-            if let Ok(header) = crate::store::nrrd_input::nrrd_header(&real) {
-                if let crate::store::nrrd_input::header::DataSource::Detached(file) = &header.data {
-                    confine_named(data, file).map_err(|m| bad(format!("its data file: {m}")))?;
-                }
-            }
-        }
-        let real = real.to_str().ok_or_else(|| bad("the path is not UTF-8".into()))?.to_string();
-        volume.insert(key.into(), toml::Value::String(real));
-    }
-    // Written anew with the confined absolute path (positions in a later message refer to this text).
-    let text = toml::to_string(&value).map_err(|e| ApiError::Internal(format!("cannot write the scene: {e}")))?;
-    validate(&text)
-}
-
-/// `path` confined to the data root, or why not (in words).
-fn confine_named(data: &Path, path: &Path) -> Result<std::path::PathBuf, String> {
-    confine::confine(data, path).map_err(|e| match e {
-        ConfineError::Unresolvable { path, reason } => format!("{path}: {reason}"),
-        e => e.to_string(),
-    })
-}
-
-/// The scene as `lpm solve scene.toml` would load it: the same checks, the same message.
-fn validate(text: &str) -> Result<(String, Scene), ApiError> {
-    let scene = Scene::from_toml_str(text, Path::new("scene.toml")).map_err(|e| ApiError::BadRequest(e.to_string()))?;
-    Ok((text.to_string(), scene))
 }
 
 fn submit(shared: &Shared, request: &mut Request, query: &Query) -> Result<Reply, ApiError> {

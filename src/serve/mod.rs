@@ -53,6 +53,8 @@ pub mod confine;
 pub mod db;
 pub mod events;
 pub mod multipart;
+mod prepare;
+mod routes;
 pub mod upload;
 pub mod worker;
 
