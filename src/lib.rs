@@ -67,6 +67,7 @@
 //! | change | where |
 //! |---|---|
 //! | a scene key | `scene/raw.rs` (the file's shape), `scene/validate.rs` (check and default), `scene/types.rs`, README |
+//! | a scene key that names a file | as above, **and** `serve/prepare.rs` (`VOLUME_KEYS`): the server confines every such path to its data root |
 //! | the physics of a sweep | `glsl/*.comp` **and** its twin in [`solver::cpu`]; [`solver::segment`] for the segment solution |
 //! | a shader interface (push constants, bindings, flags) | `solver/gpu/layout.rs`, `glsl/common.glsl`, the shared set's bindings (`SWEEP_BINDINGS`, `sweep_bindings`) in `solver/gpu/encoder.rs`; `tests/it/shader_interface.rs` fails until both sides agree; `tools/compile_shaders.sh` regenerates `spirv/` |
 //! | a device buffer or its size | `solver/gpu/sizes.rs` (the one place sizes are computed), then `resources.rs`; the planner follows |
