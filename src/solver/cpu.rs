@@ -48,22 +48,19 @@ impl<'a> CpuTwin<'a> {
         if bytes > 16 << 30 {
             return Err(SolveError::TooLargeForCpu { bytes: bytes as u64 });
         }
+        // Per brick of the store's grid, whether it holds medium (the store's own rule).
+        let grid = crate::store::BrickGrid::new(plan.dims);
+        let mut occupied = vec![false; grid.brick_count()];
         let mut values = Vec::with_capacity(voxels);
         for z in 0..nz {
             for y in 0..ny {
                 for x in 0..nx {
-                    values.push(density([x, y, z]) as f64);
+                    let rho = density([x, y, z]);
+                    if rho != 0.0 {
+                        occupied[grid.locate([x, y, z]).0] = true;
+                    }
+                    values.push(rho as f64);
                 }
-            }
-        }
-        let bricks = plan.dims.map(|n| n.div_ceil(crate::store::BRICK_EDGE) as usize);
-        let mut occupied = vec![false; bricks[0] * bricks[1] * bricks[2]];
-        for (i, &rho) in values.iter().enumerate() {
-            if rho != 0.0 {
-                let (x, rest) = (i % nx as usize, i / nx as usize);
-                let (y, z) = (rest % ny as usize, rest / ny as usize);
-                let e = crate::store::BRICK_EDGE as usize;
-                occupied[x / e + bricks[0] * (y / e + bricks[1] * (z / e))] = true;
             }
         }
         Ok(CpuTwin {

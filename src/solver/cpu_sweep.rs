@@ -27,7 +27,7 @@ use super::energy::Tallies;
 use super::plan::{Plan, SweepDirection};
 use super::segment::segment;
 use super::sweep::{lattice_column, taps, FaceSweep};
-use crate::store::BRICK_EDGE;
+use crate::store::{BrickGrid, BRICK_EDGE};
 use rayon::prelude::*;
 
 /// Read-only inputs of a sweep, per voxel (x fastest).
@@ -71,7 +71,7 @@ pub(super) fn sweep_direction(
     let [lb, lc] = sweep.lattice();
     let (lb_us, lc_us) = (lb as usize, lc as usize);
     let birth: [f64; 3] = if mode.boundary { dir.boundary } else { [0.0; 3] };
-    let geometry = Geometry::new(plan);
+    let geometry = Geometry { grid: BrickGrid::new(plan.dims) };
 
     // Ray state in slot order (row q, column p): radiance, and this plane's segment average.
     let mut radiance = vec![birth; lb_us * lc_us];
@@ -84,39 +84,35 @@ pub(super) fn sweep_direction(
             row[ch] = birth[ch] * lb as f64;
         }
     }
-    // Wrap counts per slot column and row at the previous plane: a change is a ray that left.
-    let mut wrap_b: Vec<i32> = (0..lb).map(|p| lattice_column(p, dir.offsets[0][0], nb).1).collect();
-    let mut wrap_c: Vec<i32> = (0..lc).map(|q| lattice_column(q, dir.offsets[0][1], nc).1).collect();
-    let mut now_b = wrap_b.clone();
-    let mut now_c = wrap_c.clone();
+    // Lattice column and wrap count of every slot column (b) and row (c), at the previous plane
+    // and at this one: computed once per plane, shared by every ray. A changed wrap count is a ray
+    // that left.
+    let columns = |t: usize| -> [Vec<Column>; 2] {
+        let o = dir.offsets[t];
+        [(0..lb).map(|p| lattice_column(p, o[0], nb)).collect(), (0..lc).map(|q| lattice_column(q, o[1], nc)).collect()]
+    };
+    let [mut wrap_b, mut wrap_c] = columns(0);
 
     for t in 0..na {
-        let o = dir.offsets[t as usize];
         let w = dir.weights[t as usize];
-        for p in 0..lb {
-            now_b[p as usize] = lattice_column(p, o[0], nb).1;
-        }
-        for q in 0..lc {
-            now_c[q as usize] = lattice_column(q, o[1], nc).1;
-        }
+        let [now_b, now_c] = columns(t as usize);
         let vacuum = geometry.vacuum_plane(&sweep, t, inputs.occupied);
-        let step = PlaneStep { plan, dir, mode, inputs, sweep: &sweep, geometry: &geometry, t, o, w, birth, vacuum };
+        let step = PlaneStep { plan, dir, mode, inputs, sweep: &sweep, geometry: &geometry, t, w, birth, vacuum };
         radiance
             .par_chunks_mut(lb_us)
             .zip(average.par_chunks_mut(lb_us))
             .zip(born.par_iter_mut().zip(left.par_iter_mut()))
             .enumerate()
             .for_each(|(q, ((l_row, avg_row), (born_row, left_row)))| {
-                let q = q as u32;
-                let row_wrapped = now_c[q as usize] != wrap_c[q as usize];
-                for p in 0..lb {
-                    let wrapped = t > 0 && (row_wrapped || now_b[p as usize] != wrap_b[p as usize]);
-                    let (l, avg) = (&mut l_row[p as usize], &mut avg_row[p as usize]);
-                    step.ray(p, q, wrapped, l, avg, born_row, left_row);
+                let (cc, row_wrap) = now_c[q];
+                let row_wrapped = row_wrap != wrap_c[q].1;
+                for (p, &(cb, wrap)) in now_b.iter().enumerate() {
+                    let wrapped = t > 0 && (row_wrapped || wrap != wrap_b[p].1);
+                    let (l, avg) = (&mut l_row[p], &mut avg_row[p]);
+                    step.ray([cb, cc], wrapped, l, avg, born_row, left_row);
                 }
             });
-        std::mem::swap(&mut wrap_b, &mut now_b);
-        std::mem::swap(&mut wrap_c, &mut now_c);
+        (wrap_b, wrap_c) = (now_b, now_c);
         if !vacuum {
             collect_plane(plan, dir, &sweep, &geometry, t, &average, inputs, outputs);
         }
@@ -139,42 +135,36 @@ pub(super) fn sweep_direction(
     tallies
 }
 
-/// Voxel indexing and brick occupancy of the volume.
+/// A slot's lattice column in a plane and how often it has wrapped ([`lattice_column`]).
+type Column = (u32, i32);
+
+/// Voxel indexing (x fastest, the twin's layout) and the store's brick grid.
 struct Geometry {
-    dims: [u32; 3],
-    bricks: [u32; 3],
+    grid: BrickGrid,
 }
 
 impl Geometry {
-    fn new(plan: &Plan) -> Self {
-        let bricks = plan.dims.map(|n| n.div_ceil(BRICK_EDGE));
-        Geometry { dims: plan.dims, bricks }
-    }
-
     fn index(&self, v: [u32; 3]) -> usize {
-        v[0] as usize + self.dims[0] as usize * (v[1] as usize + self.dims[1] as usize * v[2] as usize)
+        let [nx, ny, _] = self.grid.dims.map(|d| d as usize);
+        v[0] as usize + nx * (v[1] as usize + ny * v[2] as usize)
     }
 
     fn brick(&self, v: [u32; 3]) -> usize {
-        self.brick_index(v.map(|x| x / BRICK_EDGE))
-    }
-
-    fn brick_index(&self, b: [u32; 3]) -> usize {
-        b[0] as usize + self.bricks[0] as usize * (b[1] as usize + self.bricks[1] as usize * b[2] as usize)
+        self.grid.locate(v).0
     }
 
     /// Whether every brick the plane `t` crosses is empty (then rays cross it unchanged).
     fn vacuum_plane(&self, sweep: &FaceSweep, t: u32, occupied: &[bool]) -> bool {
         let f = sweep.geometry();
         let a = sweep.plane_coordinate(t) / BRICK_EDGE;
-        let (kb, kc) = (self.bricks[f.lateral[0]], self.bricks[f.lateral[1]]);
+        let (kb, kc) = (self.grid.bricks[f.lateral[0]], self.grid.bricks[f.lateral[1]]);
         (0..kc).all(|bc| {
             (0..kb).all(|bb| {
                 let mut b = [0u32; 3];
                 b[f.axis] = a;
                 b[f.lateral[0]] = bb;
                 b[f.lateral[1]] = bc;
-                !occupied[self.brick_index(b)]
+                !occupied[self.grid.brick_index(b)]
             })
         })
     }
@@ -189,19 +179,17 @@ struct PlaneStep<'s, 'a> {
     sweep: &'s FaceSweep,
     geometry: &'s Geometry,
     t: u32,
-    o: [i32; 2],
     w: [f64; 2],
     birth: [f64; 3],
     vacuum: bool,
 }
 
 impl PlaneStep<'_, '_> {
-    /// Advances slot (p, q) through the plane: rebirth after a wrap, gather, exact segment.
-    #[allow(clippy::too_many_arguments)]
+    /// Advances the ray at lattice column `[cb, cc]` through the plane: rebirth after a wrap,
+    /// gather, exact segment.
     fn ray(
         &self,
-        p: u32,
-        q: u32,
+        [cb, cc]: [u32; 2],
         wrapped: bool,
         l: &mut [f64; 3],
         avg: &mut [f64; 3],
@@ -221,8 +209,6 @@ impl PlaneStep<'_, '_> {
             return;
         }
         let [nb, nc] = [self.sweep.n[1], self.sweep.n[2]];
-        let (cb, _) = lattice_column(p, self.o[0], nb);
-        let (cc, _) = lattice_column(q, self.o[1], nc);
         let comps = self.plan.source_components() as usize;
         let k0 = self.dir.gain_storage as usize * c;
         let mut rho = 0.0;
