@@ -130,10 +130,7 @@ fn run_in(
     let emission: Option<PerVoxel> = match (&scene.volume.emission, &scene.volume.source) {
         (None, _) => None,
         (Some(EmissionGrid::Raw { path }), _) => {
-            let values = raw_densities(path, dims).map_err(|e| match e {
-                StoreError::BadDensity { path, voxel, value } => StoreError::BadEmission { path, voxel, value },
-                other => other,
-            })?;
+            let values = raw_densities(path, dims).map_err(StoreError::into_emission)?;
             let (nx, ny) = (dims[0] as usize, dims[1] as usize);
             Some(Box::new(move |v: [u32; 3]| {
                 values.get((v[2] as usize * ny + v[1] as usize) * nx + v[0] as usize).copied().unwrap_or(0.0)

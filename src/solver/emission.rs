@@ -13,12 +13,29 @@ use super::SolveError;
 use crate::store::emission::open_emission;
 use crate::store::{BrickStore, Field, BRICK_VOXELS};
 
+/// σa·Le per channel: the order-0 source of a voxel of density 1 and emission factor 1.
+fn scales(plan: &Plan) -> [f64; 3] {
+    std::array::from_fn(|ch| {
+        if ch < plan.channels as usize {
+            plan.coefficients(ch).2 * plan.medium.emission[ch]
+        } else {
+            0.0
+        }
+    })
+}
+
+/// A voxel's order-0 source `ρ·σa·Le·e` as stored (f32): the one formula for what is written and
+/// for the power counted.
+fn source_value(rho: f32, scale: f64, e: f32) -> f32 {
+    (rho as f64 * scale * e as f64) as f32
+}
+
 /// Writes the order-0 source of the emission field into `source` (fresh: all zero).
 pub fn write_initial_source(store: &BrickStore, plan: &Plan, source: &mut Field) -> Result<(), SolveError> {
     let emission = open_emission(store)?;
     let c = plan.channels as usize;
     let storage = plan.storage.solid_angle.len();
-    let scale: Vec<f64> = (0..c).map(|ch| plan.coefficients(ch).2 * plan.medium.emission[ch]).collect();
+    let scale = scales(plan);
     let bricks: Vec<usize> = store.occupied_bricks().collect();
     for brick in bricks {
         let (Some(density), Some(e), Some(dst)) =
@@ -26,13 +43,16 @@ pub fn write_initial_source(store: &BrickStore, plan: &Plan, source: &mut Field)
         else {
             continue;
         };
+        // Component d·C + ch: channel ch's block, the same for every storage direction d.
         for ch in 0..c {
-            for d in 0..storage {
-                let k = d * c + ch;
-                let out = &mut dst[k * BRICK_VOXELS..(k + 1) * BRICK_VOXELS];
-                for ((o, &rho), &e) in out.iter_mut().zip(density).zip(e) {
-                    *o = (rho as f64 * scale[ch] * e as f64) as f32;
-                }
+            let (first, rest) = dst.split_at_mut(c * BRICK_VOXELS);
+            let block = &mut first[ch * BRICK_VOXELS..(ch + 1) * BRICK_VOXELS];
+            for ((o, &rho), &e) in block.iter_mut().zip(density).zip(e) {
+                *o = source_value(rho, scale[ch], e);
+            }
+            for d in 1..storage {
+                let k = (d - 1) * c + ch;
+                rest[k * BRICK_VOXELS..(k + 1) * BRICK_VOXELS].copy_from_slice(block);
             }
         }
     }
@@ -47,14 +67,14 @@ pub fn emitted_power(store: &BrickStore, plan: &Plan) -> Result<[f64; 3], SolveE
     let c = plan.channels as usize;
     let h3 = plan.voxel_size.powi(3);
     let four_pi: f64 = plan.storage.solid_angle.iter().sum();
+    let scale = scales(plan);
     let mut power = [0.0; 3];
     for brick in store.occupied_bricks() {
         let (Some(density), Some(e)) = (store.density_brick(brick), emission.brick(brick)) else {
             continue;
         };
         for ch in 0..c {
-            let scale = plan.coefficients(ch).2 * plan.medium.emission[ch];
-            let sum: f64 = density.iter().zip(e).map(|(&rho, &e)| (rho as f64 * scale * e as f64) as f32 as f64).sum();
+            let sum: f64 = density.iter().zip(e).map(|(&rho, &e)| source_value(rho, scale[ch], e) as f64).sum();
             power[ch] += four_pi * sum * h3;
         }
     }

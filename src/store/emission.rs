@@ -40,10 +40,7 @@ pub fn import_emission(store: &BrickStore, grid: &EmissionGrid, source: &VolumeS
     let mut values = vec![0f32; crate::store::BRICK_VOXELS];
     for brick in bricks {
         let coords = store.grid().brick_coords(brick);
-        fill(coords, &mut values).map_err(|e| match e {
-            StoreError::BadDensity { path, voxel, value } => StoreError::BadEmission { path, voxel, value },
-            other => other,
-        })?;
+        fill(coords, &mut values).map_err(StoreError::into_emission)?;
         if let Some(dst) = field.brick_mut(brick) {
             dst.copy_from_slice(&values);
         }

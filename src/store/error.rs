@@ -63,6 +63,15 @@ fn short_f32(v: f32) -> String {
 }
 
 impl StoreError {
+    /// The same error with a bad value reported as an emission value: the density importers read
+    /// emission files too, and their messages must name what the file holds.
+    pub(crate) fn into_emission(self) -> StoreError {
+        match self {
+            StoreError::BadDensity { path, voxel, value } => StoreError::BadEmission { path, voxel, value },
+            other => other,
+        }
+    }
+
     pub(crate) fn io(path: impl Into<PathBuf>, action: &'static str) -> impl FnOnce(std::io::Error) -> StoreError {
         let path = path.into();
         move |source| StoreError::Io { path, action, source }
