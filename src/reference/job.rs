@@ -131,10 +131,7 @@ fn run_in(
         (None, _) => None,
         (Some(EmissionGrid::Raw { path }), _) => {
             let values = raw_densities(path, dims).map_err(StoreError::into_emission)?;
-            let (nx, ny) = (dims[0] as usize, dims[1] as usize);
-            Some(Box::new(move |v: [u32; 3]| {
-                values.get((v[2] as usize * ny + v[1] as usize) * nx + v[0] as usize).copied().unwrap_or(0.0)
-            }))
+            Some(Box::new(dense_lookup(values, dims)))
         }
         (Some(EmissionGrid::Vdb { grid }), VolumeSource::Vdb { path, index_min, .. }) => {
             let vdb = crate::store::vdb::vdb_grid_over(path, grid, dims, *index_min)?;
@@ -158,12 +155,7 @@ fn run_in(
             super::run_with_emission(&scene, &|v| procedural::density(shape, seed, dims, v), emission, channels, &opts)
         }
         VolumeSource::Raw { path } => {
-            let values = raw_densities(path, dims)?;
-            let (nx, ny) = (dims[0] as usize, dims[1] as usize);
-            let at = |v: [u32; 3]| {
-                let i = (v[2] as usize * ny + v[1] as usize) * nx + v[0] as usize;
-                values.get(i).copied().unwrap_or(0.0)
-            };
+            let at = dense_lookup(raw_densities(path, dims)?, dims);
             super::run_with_emission(&scene, &at, emission, channels, &opts)
         }
         VolumeSource::Vdb { path, grid, index_min } => {
@@ -179,11 +171,7 @@ fn run_in(
                 values.extend_from_slice(v);
                 Ok(())
             })?;
-            let (nx, ny) = (dims[0] as usize, dims[1] as usize);
-            let at = |v: [u32; 3]| {
-                let i = (v[2] as usize * ny + v[1] as usize) * nx + v[0] as usize;
-                values.get(i).copied().unwrap_or(0.0)
-            };
+            let at = dense_lookup(values, dims);
             super::run_with_emission(&scene, &at, emission, channels, &opts)
         }
     };
@@ -208,6 +196,12 @@ fn run_in(
 
 /// The densities of a raw volume file (x fastest), checked by the same importer as the solver's
 /// (NaN, infinite or negative values are errors naming the voxel).
+/// Voxel v of `values` (x fastest, `dims`); 0 past the end (a short array is caught by its reader).
+fn dense_lookup(values: Vec<f32>, dims: [u32; 3]) -> impl Fn([u32; 3]) -> f32 + Sync {
+    let (nx, ny) = (dims[0] as usize, dims[1] as usize);
+    move |v| values.get((v[2] as usize * ny + v[1] as usize) * nx + v[0] as usize).copied().unwrap_or(0.0)
+}
+
 fn raw_densities(path: &Path, dims: [u32; 3]) -> Result<Vec<f32>, StoreError> {
     let raw = store::raw_density(path, dims)?;
     let grid = BrickGrid::new(dims);
