@@ -88,6 +88,31 @@ pub struct SolveJob {
     pub no_render_data: bool,
 }
 
+impl SolveJob {
+    /// A solve of `scene` into `out` with the CLI's defaults: the GPU backend, the default Vulkan
+    /// options, every output (fields, VDB files, image over the sky, render data), the scene's
+    /// memory budget, no resume or warm start. Callers change what differs with `..`.
+    pub fn new(scene: PathBuf, out: PathBuf) -> SolveJob {
+        SolveJob {
+            scene,
+            out,
+            backend: BackendKind::Gpu,
+            vk: ContextOptions::default(),
+            keep_store: false,
+            no_image: false,
+            no_fields: false,
+            device_memory_budget: None,
+            resume: false,
+            fresh: false,
+            cancel: None,
+            warm_start: None,
+            vdb_precision: Default::default(),
+            background: Default::default(),
+            no_render_data: false,
+        }
+    }
+}
+
 /// The work directory (brick store and checkpoint) of a solve writing to `out`.
 pub fn work_dir(out: &Path) -> PathBuf {
     out.join(".lpm-work")

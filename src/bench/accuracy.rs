@@ -255,21 +255,12 @@ fn solver_row(
     let t = Instant::now();
     let report = job::run(
         &SolveJob {
-            scene: scene_copy,
-            out: dir.clone(),
             backend: opts.backend,
             vk: opts.vk.clone(),
-            keep_store: false,
             no_image: true,
-            no_fields: false,
-            device_memory_budget: None,
-            resume: false,
             fresh: true,
-            cancel: None,
-            warm_start: None,
-            vdb_precision: Default::default(),
-            background: Default::default(),
             no_render_data: true,
+            ..SolveJob::new(scene_copy, dir.clone())
         },
         |_, _| {},
     )?;

@@ -182,21 +182,10 @@ fn bad_emission_input_is_refused_with_its_name() {
 /// The image of a solve (CPU backend, transparent background), as RGBA pixels.
 fn image_of(scene: PathBuf, out: &Path) -> Vec<[f32; 4]> {
     let job = lpm::job::SolveJob {
-        scene,
-        out: out.to_path_buf(),
         backend: Cpu,
-        vk: lpm::vk::ContextOptions::default(),
-        keep_store: false,
-        no_image: false,
         no_fields: true,
-        device_memory_budget: None,
-        resume: false,
-        fresh: false,
-        vdb_precision: Default::default(),
         background: lpm::render::Background::Transparent,
-        no_render_data: false,
-        cancel: None,
-        warm_start: None,
+        ..lpm::job::SolveJob::new(scene, out.to_path_buf())
     };
     lpm::job::run(&job, |_, _| {}).expect("solve");
     image_pixels(&out.join("image.exr"))

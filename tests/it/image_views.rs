@@ -7,27 +7,11 @@ use lpm::job::SolveJob;
 use lpm::render::Background;
 use lpm::scene::{default_camera, fitted_default_camera, Projection, Scene};
 use lpm::solver::BackendKind;
-use lpm::vk::ContextOptions;
 use std::path::{Path, PathBuf};
 
 fn solve(scene: PathBuf, out: &Path, background: Background) {
-    let job = SolveJob {
-        scene,
-        out: out.to_path_buf(),
-        backend: BackendKind::Cpu,
-        vk: ContextOptions::default(),
-        keep_store: false,
-        no_image: false,
-        no_fields: true,
-        device_memory_budget: None,
-        resume: false,
-        fresh: false,
-        vdb_precision: Default::default(),
-        background,
-        no_render_data: false,
-        cancel: None,
-        warm_start: None,
-    };
+    let job =
+        SolveJob { backend: BackendKind::Cpu, no_fields: true, background, ..SolveJob::new(scene, out.to_path_buf()) };
     lpm::job::run(&job, |_, _| {}).expect("solve");
 }
 

@@ -10,7 +10,6 @@ use lpm::job::SolveJob;
 use lpm::solver::BackendKind;
 use lpm::store::nanovdb::read_nanovdb_bytes;
 use lpm::store::vdb::VdbReader;
-use lpm::vk::ContextOptions;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -91,21 +90,10 @@ fn nanovdb_converted_by_nanovdb_convert_reads_like_the_vdb_it_came_from() {
 
 fn solve(scene: PathBuf, out: &Path) -> Vec<u8> {
     let job = SolveJob {
-        scene,
-        out: out.to_path_buf(),
         backend: BackendKind::Cpu,
-        vk: ContextOptions::default(),
-        keep_store: false,
         no_image: true,
-        no_fields: false,
-        device_memory_budget: None,
-        resume: false,
-        fresh: false,
-        vdb_precision: Default::default(),
-        background: Default::default(),
         no_render_data: true,
-        cancel: None,
-        warm_start: None,
+        ..SolveJob::new(scene, out.to_path_buf())
     };
     lpm::job::run(&job, |_, _| {}).expect("solve");
     std::fs::read(out.join("fluence.raw")).unwrap()

@@ -93,23 +93,11 @@ fn furnace_reference_writes_its_outputs_and_agrees_with_the_solver() {
     // The solver (CPU twin) on the same scene, compared against the reference.
     let solved = dir.join("solve");
     let solve = SolveJob {
-        scene,
-        out: solved.clone(),
         backend: BackendKind::Cpu,
         // Validation on, as every test's Vulkan (ContextOptions::default() no longer reads
         // LPM_VALIDATION: the CLI does).
         vk: validated(),
-        keep_store: false,
-        no_image: false,
-        no_fields: false,
-        device_memory_budget: None,
-        resume: false,
-        fresh: false,
-        cancel: None,
-        warm_start: None,
-        vdb_precision: Default::default(),
-        background: Default::default(),
-        no_render_data: false,
+        ..SolveJob::new(scene, solved.clone())
     };
     lpm::job::run(&solve, |_, _| {}).expect("solve job");
     let c = compare_dirs(&solved, &reference, &CompareOptions::default()).expect("compare");

@@ -10,27 +10,16 @@ use crate::common::{temp_dir, write_scene};
 use lpm::job::SolveJob;
 use lpm::output::VdbPrecision;
 use lpm::solver::BackendKind;
-use lpm::vk::ContextOptions;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 
 fn solve(scene: PathBuf, out: &Path, precision: VdbPrecision) -> lpm::job::Report {
     let job = SolveJob {
-        scene,
-        out: out.to_path_buf(),
         backend: BackendKind::Cpu,
-        vk: ContextOptions::default(),
-        keep_store: false,
         no_image: true,
-        no_fields: false,
-        device_memory_budget: None,
-        resume: false,
-        fresh: false,
         vdb_precision: precision,
-        background: Default::default(),
         no_render_data: true,
-        cancel: None,
-        warm_start: None,
+        ..SolveJob::new(scene, out.to_path_buf())
     };
     lpm::job::run(&job, |_, _| {}).expect("solve")
 }

@@ -158,21 +158,12 @@ fn a_far_guess_still_converges_to_the_cold_answer() {
     let (bright, normal) = (scene(1.5, 9.0), scene(0.5, 3.0));
     let solve = |scene: &Path, out: &str, warm: Option<&Path>| {
         let job = lpm::job::SolveJob {
-            scene: scene.to_path_buf(),
-            out: dir.join(out),
-            backend: lpm::solver::BackendKind::Gpu,
             vk: crate::common::validated(),
-            keep_store: false,
             no_image: true,
-            no_fields: false,
-            device_memory_budget: None,
-            resume: false,
             fresh: true,
-            cancel: None,
-            vdb_precision: Default::default(),
-            background: Default::default(),
             no_render_data: true,
             warm_start: warm.map(Path::to_path_buf),
+            ..lpm::job::SolveJob::new(scene.to_path_buf(), dir.join(out))
         };
         lpm::job::run(&job, |_, _| {}).expect("solve")
     };
@@ -190,21 +181,13 @@ fn a_far_guess_still_converges_to_the_cold_answer() {
 
     // The CPU twin refuses a warm start rather than ignoring it.
     let job = lpm::job::SolveJob {
-        scene: normal.clone(),
-        out: dir.join("cpu"),
         backend: lpm::solver::BackendKind::Cpu,
         vk: crate::common::validated(),
-        keep_store: false,
         no_image: true,
-        no_fields: false,
-        device_memory_budget: None,
-        resume: false,
         fresh: true,
-        cancel: None,
-        vdb_precision: Default::default(),
-        background: Default::default(),
         no_render_data: true,
         warm_start: Some(dir.join("bright")),
+        ..lpm::job::SolveJob::new(normal.clone(), dir.join("cpu"))
     };
     let e = lpm::job::run(&job, |_, _| {}).unwrap_err();
     assert!(e.to_string().contains("warm start needs the GPU backend"), "{e}");
