@@ -160,15 +160,7 @@ pub(crate) fn read_topology<S: Read + Seek>(s: &mut Stream<S>, enc: &mut Encodin
     if u64::from(tiles) * entry_size + u64::from(children) * 12 > s.remaining() {
         return Err(s.truncated("the root table", at));
     }
-    let mut tree = Tree {
-        background: enc.background,
-        root: HashMap::new(),
-        node5: Vec::new(),
-        node4: Vec::new(),
-        leaf_masks: Vec::new(),
-        leaf_values: Vec::new(),
-        bbox: None,
-    };
+    let mut tree = Tree::with_background(enc.background);
     let check_origin = |s: &Stream<S>, at: u64, o: [i32; 3]| {
         if o.iter().any(|v| v & (SPAN5 - 1) != 0) {
             Err(s.malformed("the root table", at, format!("root entry origin {o:?} is not a multiple of {SPAN5}")))
