@@ -13,7 +13,7 @@
 //! solve). A solve without `--resume` refuses to start over such a checkpoint unless `--fresh`
 //! says to discard it ([`JobError::CheckpointExists`]).
 //!
-//! Just over 450 lines because the job is one sequence (lock, scene, store, solve, export, render
+//! Over 450 lines because the job is one sequence (lock, scene, store, solve, export, render
 //! data, image, report, publish) whose every step must leave `OUT` whole if the next one fails;
 //! reading it in one place is what makes that property checkable.
 

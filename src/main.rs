@@ -681,7 +681,8 @@ fn run(cli: Cli) -> Result<()> {
             retention_hours,
         } => {
             let mut opts = lpm::serve::ServeOptions::new(listen, data);
-            opts.token = lpm::serve::load_token(token_file.as_deref()).map_err(anyhow::Error::msg)?;
+            opts.token = lpm::serve::load_token(token_file.as_deref(), std::env::var("LPM_SERVE_TOKEN").ok())
+                .map_err(anyhow::Error::msg)?;
             opts.devices = devices;
             opts.workers_per_device = workers;
             opts.max_queued = max_queued;
@@ -948,7 +949,8 @@ fn run_task(manifest: &std::path::Path, task: &str, template: &SolveJob) -> Resu
     };
     let sweep = lpm::sweep::Sweep::load(manifest)?;
     let dir = lpm::sweep::task_dir(&sweep.dir, index);
-    match lpm::sweep::task::run(&sweep, index, template)? {
+    let slurm_job = std::env::var("SLURM_JOB_ID").ok();
+    match lpm::sweep::task::run(&sweep, index, template, slurm_job.as_deref())? {
         lpm::sweep::task::RunOutcome::AlreadyDone => println!("task {index} is already done: {}", dir.display()),
         lpm::sweep::task::RunOutcome::Solved { orders, resumed } => println!(
             "task {index} solved in {orders} orders{}; outputs in {}",

@@ -182,13 +182,14 @@ impl Shared {
     }
 }
 
-/// Reads the token from `file`, else from `LPM_SERVE_TOKEN`.
-pub fn load_token(file: Option<&Path>) -> Result<Option<String>, String> {
+/// Reads the token from `file`, else takes `from_env` (the CLI reads `LPM_SERVE_TOKEN`: the
+/// library reads no environment).
+pub fn load_token(file: Option<&Path>, from_env: Option<String>) -> Result<Option<String>, String> {
     let token = match file {
         Some(f) => {
             Some(std::fs::read_to_string(f).map_err(|e| format!("cannot read the token file {}: {e}", f.display()))?)
         }
-        None => std::env::var("LPM_SERVE_TOKEN").ok(),
+        None => from_env,
     };
     Ok(token.map(|t| t.trim().to_string()))
 }

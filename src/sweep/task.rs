@@ -58,8 +58,13 @@ pub fn try_lock(path: &Path) -> Result<Option<Lock>, std::io::Error> {
 }
 
 /// How a task is run: the solve's own options (backend, device, …); `scene`, `out` and `resume`
-/// are set per task.
-pub fn run(sweep: &Sweep, index: usize, template: &SolveJob) -> Result<RunOutcome, SweepError> {
+/// are set per task. `slurm_job`: the Slurm job id, noted in the task's `attempts.log`.
+pub fn run(
+    sweep: &Sweep,
+    index: usize,
+    template: &SolveJob,
+    slurm_job: Option<&str>,
+) -> Result<RunOutcome, SweepError> {
     let task = sweep.task(index)?;
     let dir = prepare(sweep, task)?;
     let lock_path = dir.join("lock");
@@ -92,7 +97,7 @@ pub fn run(sweep: &Sweep, index: usize, template: &SolveJob) -> Result<RunOutcom
             (None, None) => "started".to_string(),
         },
         std::process::id(),
-        std::env::var("SLURM_JOB_ID").map(|j| format!(", Slurm job {j}")).unwrap_or_default()
+        slurm_job.map(|j| format!(", Slurm job {j}")).unwrap_or_default()
     );
     let log = dir.join("attempts.log");
     std::fs::OpenOptions::new()
