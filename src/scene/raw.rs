@@ -78,6 +78,7 @@ pub(crate) struct RawSolver {
     pub plan: Option<String>,
     pub spatial: Option<String>,
     pub forward_peak: Option<String>,
+    pub diffusion_correction: Option<String>,
 }
 
 /// A 3-vector written as an array of exactly 3 values. serde's own `[T; 3]` reads the first three

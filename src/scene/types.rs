@@ -126,6 +126,31 @@ pub struct SolverSettings {
     pub spatial: SpatialScheme,
     /// What to do with a strong forward peak of the phase function (`solver.forward_peak`).
     pub forward_peak: ForwardPeak,
+    /// Whether the lattice's numerical diffusion is taken back out of each order's scattered
+    /// source (`solver.diffusion_correction`, see `solver::antidiffusion`).
+    pub diffusion_correction: DiffusionCorrection,
+}
+
+/// `solver.diffusion_correction`: the rays meet the voxels at a lateral offset from their true
+/// positions, which spreads the scattered light sideways a little every order (numerical
+/// diffusion; dense cores read bright). `auto` takes the known spread back out of each order's
+/// source with conservative anti-diffusive fluxes whenever the medium scatters; `off` keeps the
+/// lattice's raw result (for comparison).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum DiffusionCorrection {
+    #[default]
+    Auto,
+    Off,
+}
+
+impl DiffusionCorrection {
+    /// The scene file's spelling: "auto" or "off".
+    pub fn name(self) -> &'static str {
+        match self {
+            DiffusionCorrection::Auto => "auto",
+            DiffusionCorrection::Off => "off",
+        }
+    }
 }
 
 /// `solver.forward_peak`: how a phase function with a strong forward peak is modelled. A few storage

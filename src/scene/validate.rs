@@ -6,8 +6,8 @@
 
 use super::raw::{ByteSize, Channels, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
 use super::{
-    EmissionGrid, ForwardPeak, Light, Medium, PlanMode, Scene, SceneError, Shape, SolverSettings, SpatialScheme,
-    StoragePrecision, Volume, VolumeSource,
+    DiffusionCorrection, EmissionGrid, ForwardPeak, Light, Medium, PlanMode, Scene, SceneError, Shape, SolverSettings,
+    SpatialScheme, StoragePrecision, Volume, VolumeSource,
 };
 use glam::DVec3;
 use std::path::{Path, PathBuf};
@@ -60,6 +60,7 @@ const PRECISIONS: &str = "\"auto\", \"f16\", \"f32\"";
 const PLAN_MODES: &str = "\"auto\", \"full\"";
 const SPATIAL_SCHEMES: &str = "\"constant\", \"linear\"";
 const FORWARD_PEAKS: &str = "\"auto\", \"delta-m\", \"keep\"";
+const DIFFUSION_CORRECTIONS: &str = "\"auto\", \"off\"";
 
 pub(crate) struct Validator<'a> {
     pub path: &'a Path,
@@ -414,6 +415,7 @@ impl Validator<'_> {
                 plan: PlanMode::Auto,
                 spatial: SpatialScheme::default(),
                 forward_peak: ForwardPeak::default(),
+                diffusion_correction: DiffusionCorrection::default(),
             });
         };
         let k = match s.directions_per_face {
@@ -489,6 +491,16 @@ impl Validator<'_> {
                 ))
             }
         };
+        let diffusion_correction = match s.diffusion_correction.as_deref() {
+            None | Some("auto") => DiffusionCorrection::Auto,
+            Some("off") => DiffusionCorrection::Off,
+            Some(other) => {
+                return Err(self.err(
+                    "solver.diffusion_correction",
+                    format!("unknown diffusion correction \"{other}\", expected one of {DIFFUSION_CORRECTIONS}"),
+                ))
+            }
+        };
         Ok(SolverSettings {
             directions_per_face: k,
             storage_directions_per_face: ks,
@@ -500,6 +512,7 @@ impl Validator<'_> {
             plan,
             spatial,
             forward_peak,
+            diffusion_correction,
         })
     }
 

@@ -12,6 +12,7 @@
 //! - [`warm`] starts a solve from a guess (the previous frame's solution) and still converges to
 //!   the cold solve's answer.
 
+pub mod antidiffusion;
 pub mod cancel;
 pub mod cpu;
 mod cpu_sweep;

@@ -25,7 +25,7 @@
 
 use super::sweep::{lateral_slope, lattice, plane_path_length, FaceSweep};
 use crate::quadrature::{cube_face_of, phase, PropagationSet, StorageSet};
-use crate::scene::{ForwardPeak, Light, Medium, PlanMode, Scene, SpatialScheme, StoragePrecision};
+use crate::scene::{DiffusionCorrection, ForwardPeak, Light, Medium, PlanMode, Scene, SpatialScheme, StoragePrecision};
 use glam::DVec3;
 use serde::Serialize;
 
@@ -132,6 +132,9 @@ pub struct Plan {
     pub mode: PlanMode,
     /// `solver.spatial`: how rays meet the voxels of a plane.
     pub spatial: SpatialScheme,
+    /// κ per volume axis (voxels²) of the anti-diffusive fluxes applied to each order's scattered
+    /// source (`solver.diffusion_correction`, [`super::antidiffusion`]); zero: none.
+    pub diffusion_correction: [f64; 3],
     /// The scene's Henyey–Greenstein g (the medium above holds the one solved, after δ-M).
     pub phase_g: f64,
     /// The mean cosine of the discrete scattering (see `phase::effective_mean_cosine`).
@@ -167,6 +170,8 @@ pub struct PlanSummary {
     pub mode: String,
     /// "linear" or "constant" (`solver.spatial`).
     pub spatial: String,
+    /// κ per axis of the diffusion correction (zeros: off).
+    pub diffusion_correction: [f64; 3],
     /// The scene's g, the g solved (after δ-M scaling) and the g the discrete scattering behaves
     /// like; the δ-M forward fraction f when applied.
     pub phase_g: f64,
@@ -242,7 +247,7 @@ impl Plan {
                     power_per_radiance: h * h * h / path_length * weight,
                 }
             };
-        let faces = (0..6)
+        let faces: Vec<Vec<SweepDirection>> = (0..6)
             .map(|face| {
                 let start = face * propagation.per_face();
                 propagation
@@ -290,6 +295,7 @@ impl Plan {
             if full { " (kept under plan = \"full\": skipping them is exact)" } else { "" }
         ));
         let source_precision = choose_precision(scene, full, &mut reasons);
+        let diffusion_correction = choose_diffusion_correction(scene, &medium, &faces, spatial, &mut reasons);
 
         Plan {
             dims,
@@ -310,6 +316,7 @@ impl Plan {
             source_precision,
             mode: scene.solver.plan,
             spatial,
+            diffusion_correction,
             phase_g: scene.medium.g,
             effective_g,
             delta_m,
@@ -349,6 +356,7 @@ impl Plan {
             storage_precision: self.source_precision,
             mode: self.mode.name().to_string(),
             spatial: self.spatial.name().to_string(),
+            diffusion_correction: self.diffusion_correction,
             phase_g: self.phase_g,
             solved_g: self.medium.g,
             effective_g: self.effective_g,
@@ -363,6 +371,39 @@ pub const FULL_PLAN_REASON: &str = "plan = \"full\": the plan's reductions are o
      k_s×k_s storage directions per face and f32 storage of the gained source (unless \
      storage_precision names f16), whatever the scene needs; kept: empty bricks are skipped and \
      the emission term is left out when nothing emits (both exact: they add nothing)";
+
+/// κ per axis of the anti-diffusive fluxes (`solver.diffusion_correction`): half the lateral
+/// spread the lattice adds per order, when the medium scatters and the correction is not off.
+fn choose_diffusion_correction(
+    scene: &Scene,
+    medium: &Medium,
+    faces: &[Vec<SweepDirection>],
+    spatial: SpatialScheme,
+    reasons: &mut Vec<String>,
+) -> [f64; 3] {
+    let scatters = medium.albedo.iter().zip(&medium.sigma_t).any(|(&a, &s)| a > 0.0 && s > 0.0);
+    if !scatters {
+        return [0.0; 3];
+    }
+    match scene.solver.diffusion_correction {
+        DiffusionCorrection::Off => {
+            reasons.push("diffusion correction off: the lattice's lateral spread stays in the scattered light".into());
+            [0.0; 3]
+        }
+        DiffusionCorrection::Auto => {
+            let kappa = super::antidiffusion::coefficients(faces, spatial);
+            reasons.push(format!(
+                "diffusion correction: the lattice spreads each order's scattered light sideways by a \
+                 variance of {:.3}/{:.3}/{:.3} voxels² along x/y/z; anti-diffusive fluxes between \
+                 neighbouring voxels take it back (κ = half of it, conservative and positive)",
+                2.0 * kappa[0],
+                2.0 * kappa[1],
+                2.0 * kappa[2]
+            ));
+            kappa
+        }
+    }
+}
 
 /// g from which `solver.forward_peak = "auto"` applies δ-M scaling.
 pub const DELTA_M_MIN_G: f64 = 0.5;
