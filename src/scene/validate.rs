@@ -6,8 +6,8 @@
 
 use super::raw::{ByteSize, Channels, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
 use super::{
-    EmissionGrid, EnvironmentLight, ForwardPeak, Light, MapUp, Medium, PlanMode, Scene, SceneError, Shape, SolverSettings, SpatialScheme,
-    StoragePrecision, Volume, VolumeSource,
+    EmissionGrid, EnvironmentLight, ForwardPeak, Light, MapUp, Medium, PlanMode, Scene, SceneError, Shape,
+    SolverSettings, SpatialScheme, StoragePrecision, Volume, VolumeSource,
 };
 use glam::DVec3;
 use std::path::{Path, PathBuf};
@@ -480,12 +480,7 @@ impl Validator<'_> {
                 )));
             }
         }
-        Ok(Light::Environment(EnvironmentLight {
-            map: std::sync::Arc::new(map),
-            intensity,
-            up,
-            rotation_degrees,
-        }))
+        Ok(Light::Environment(EnvironmentLight { map: std::sync::Arc::new(map), intensity, up, rotation_degrees }))
     }
 
     fn solver(&self, s: Option<RawSolver>) -> R<SolverSettings> {

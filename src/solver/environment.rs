@@ -13,7 +13,7 @@
 //! constant map gives exactly its value, and the sum over cells of radiance × cell solid angle is
 //! the map's power up to the sub-pixel quantisation of the cells' edges.
 //!
-//! # The sun-like peak ([`extract_sun`])
+//! # The sun-like peak
 //!
 //! A sun in an HDR map is a few pixels thousands of times brighter than the sky. Averaged into one
 //! direction cell it would light the volume from that cell's centre, with ray effects (streaks) in
@@ -115,13 +115,17 @@ fn extract_sun(env: &EnvironmentLight, map: &mut Scaled) -> Option<ExtractedSun>
     let omega = |i: usize| env.map.pixel_solid_angle(i / w);
     let centre = |i: usize| env.direction_at((i % w) as f64 + 0.5, (i / w) as f64 + 0.5);
     // The brightest pixel (the first in row order among equals, so the rule is deterministic).
-    let (peak, peak_y) = (0..w * h).map(|i| (i, map.luminance(i))).fold((0, f64::NEG_INFINITY), |best, c| {
-        if c.1 > best.1 {
-            c
-        } else {
-            best
-        }
-    });
+    let (peak, peak_y) =
+        (0..w * h).map(|i| (i, map.luminance(i))).fold(
+            (0, f64::NEG_INFINITY),
+            |best, c| {
+                if c.1 > best.1 {
+                    c
+                } else {
+                    best
+                }
+            },
+        );
     if !(peak_y > 0.0) {
         return None;
     }
@@ -267,5 +271,72 @@ impl EnvironmentBoundary {
             .zip(&propagation.directions)
             .map(|(a, d)| if a[3] > 0.0 { [a[0] / a[3], a[1] / a[3], a[2] / a[3]] } else { env.radiance(-d.omega) })
             .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::{EnvironmentMap, MapUp};
+    use std::sync::Arc;
+
+    fn light(w: usize, f: impl Fn(usize, usize) -> f32) -> EnvironmentLight {
+        let h = w / 2;
+        let rgb = (0..w * h).map(|i| [f(i % w, i / w); 3]).collect();
+        let map = EnvironmentMap { path: "m.exr".into(), width: w, height: h, rgb };
+        EnvironmentLight { map: Arc::new(map), intensity: [1.0; 3], up: MapUp::Z, rotation_degrees: 0.0 }
+    }
+
+    /// Σ over cells of radiance × cell solid angle, and the map's Σ L·Ω.
+    fn powers(env: &EnvironmentLight, b: &EnvironmentBoundary, prop: &PropagationSet) -> (f64, f64) {
+        let cells: f64 = b.radiance.iter().zip(&prop.directions).map(|(r, d)| r[0] * d.solid_angle).sum();
+        let m = &env.map;
+        let map: f64 = (0..m.width * m.height).map(|i| m.rgb[i][0] as f64 * m.pixel_solid_angle(i / m.width)).sum();
+        (cells, map)
+    }
+
+    #[test]
+    fn one_bright_pixel_lands_in_the_cell_its_light_travels_in_with_its_power() {
+        // A pixel far smaller than a cell, between direction centres: sampling the map at the
+        // centres would miss it; the cell average keeps its power.
+        for k in [2, 5] {
+            let prop = PropagationSet::new(k);
+            let env = light(128, |x, y| if (x, y) == (37, 21) { 1.0 } else { 0.0 });
+            // (Not through `environment_boundary`: a lone pixel on black is a perfect sun.)
+            let sums = cell_sums(&env, &Scaled::new(&env), &prop);
+            let b = EnvironmentBoundary { radiance: EnvironmentBoundary::from_sums(&env, &prop, &sums), sun: None };
+            let lit: Vec<usize> = (0..prop.len()).filter(|&i| b.radiance[i][0] > 0.0).collect();
+            let travel = -env.direction_at(37.5, 21.5);
+            assert!(lit.contains(&prop.containing(travel)), "k={k}: {lit:?}");
+            let (cells, pixels) = powers(&env, &b, &prop);
+            // (The pixel's light is averaged over the cell's received sub-pixels, whose solid
+            // angle approximates the cell's: the power is kept to the quantisation of its edges.)
+            assert!((cells / pixels - 1.0).abs() < 0.05, "k={k}: cells {cells}, map {pixels}");
+        }
+    }
+
+    #[test]
+    fn a_smooth_map_keeps_its_power_and_a_sun_is_taken_out_whole() {
+        let prop = PropagationSet::new(4);
+        let smooth = light(64, |x, y| 1.0 + (x as f32 * 0.1).sin().abs() + y as f32 * 0.05);
+        let b = environment_boundary(&smooth, &prop);
+        assert!(b.sun.is_none(), "no sun in a smooth map");
+        let (cells, pixels) = powers(&smooth, &b, &prop);
+        assert!((cells / pixels - 1.0).abs() < 2e-3, "cells {cells}, map {pixels}");
+
+        // A 2×2 sun of 1e4 on a sky of 1: the excess over 1 becomes the beam, the sky stays.
+        let sunny = light(512, |x, y| if (200..202).contains(&x) && (100..102).contains(&y) { 1e4 } else { 1.0 });
+        let b = environment_boundary(&sunny, &prop);
+        let sun = b.sun.expect("a sun");
+        let excess: f64 = (100..102).map(|y| 2.0 * (1e4 - 1.0) * sunny.map.pixel_solid_angle(y)).sum();
+        assert_eq!(sun.pixels, 4);
+        // The irradiance is the excess's flux through a plane facing the mean direction: its
+        // pixels' cosines to it (within 0.5°) make it a few 1e-5 less than Σ (L − 1)·Ω.
+        assert!((sun.irradiance[0] / excess - 1.0).abs() < 1e-4, "{:?} against {excess}", sun.irradiance);
+        assert!(sun.direction.angle_between(sunny.direction_at(201.0, 101.0)) < 1e-3);
+        assert!(b.radiance.iter().all(|r| (r[0] - 1.0).abs() < 1e-12));
+        // Too dim to stand out (20 times the sky): left in the map.
+        let dim = light(512, |x, y| if (200..202).contains(&x) && (100..102).contains(&y) { 20.0 } else { 1.0 });
+        assert!(environment_boundary(&dim, &prop).sun.is_none());
     }
 }
