@@ -385,4 +385,14 @@ mod tests {
         assert!(set_key(&mut t, "lights[3].radiance", 2.0.into()).is_err());
         assert!(set_key(&mut t, "medium.albedo.x", 2.0.into()).is_err());
     }
+
+    #[test]
+    fn an_environment_map_is_named_from_the_base_scene() {
+        let mut t: toml::Table =
+            toml::from_str("[volume]\nraw = \"d.raw\"\n[[lights]]\nkind = \"environment\"\nmap = \"maps/sky.exr\"\n")
+                .unwrap();
+        resolve_volume(&mut t, Path::new("/scenes"), None).unwrap();
+        assert_eq!(t["lights"][0]["map"].as_str(), Some("/scenes/maps/sky.exr"));
+        assert_eq!(t["volume"]["raw"].as_str(), Some("/scenes/d.raw"));
+    }
 }
