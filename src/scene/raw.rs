@@ -63,6 +63,11 @@ pub(crate) struct RawLight {
     #[serde(default, deserialize_with = "exactly3_opt")]
     pub direction: Option<[f64; 3]>,
     pub irradiance: Option<Channels>,
+    /// `environment`: the lat-long EXR file, its scale, zenith axis and turn about it (degrees).
+    pub map: Option<String>,
+    pub intensity: Option<Channels>,
+    pub up: Option<String>,
+    pub rotation: Option<f64>,
 }
 
 #[derive(Debug, Deserialize)]

@@ -1,6 +1,7 @@
 //! The typed scene: what `Scene::load` produces after validation. Every value here has been checked
 //! (finite, in range), so the solver never re-validates.
 
+pub use super::environment::{EnvironmentLight, EnvironmentMap, MapUp};
 use glam::DVec3;
 use std::path::PathBuf;
 
@@ -100,6 +101,9 @@ pub enum Light {
     /// Directional light. `direction` is unit length and points toward the sun; `irradiance` is
     /// measured on a plane perpendicular to the beam.
     Sun { direction: DVec3, irradiance: [f64; 3] },
+    /// A lat-long environment map: the radiance arriving from each direction outside the volume
+    /// (see [`super::environment`] for its orientation). At most one per scene.
+    Environment(EnvironmentLight),
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -283,6 +287,7 @@ impl Light {
         let v = match self {
             Light::Sky { radiance } => radiance,
             Light::Sun { irradiance, .. } => irradiance,
+            Light::Environment(env) => return env.is_grey(),
         };
         v[0] == v[1] && v[1] == v[2]
     }

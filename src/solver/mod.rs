@@ -18,6 +18,7 @@ pub mod cpu;
 mod cpu_sweep;
 pub mod emission;
 pub mod energy;
+pub mod environment;
 pub mod fields;
 pub mod gpu;
 pub mod orders;

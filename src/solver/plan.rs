@@ -8,6 +8,8 @@
 //! - emission: only when some channel emits;
 //! - empty bricks: known from the store; they hold no medium and no source;
 //! - the sun(s): each a collimated beam swept along its own direction;
+//! - an environment map: its mean over each direction's cell joins the sky's boundary radiance, and
+//!   its sun-like peak, when it has one, is one more beam (see `solver::environment`);
 //! - the storage precision of the source the rays gain (the previous order's): f16 when the
 //!   tolerance is at least [`F16_MIN_TOLERANCE`] (`solver.storage_precision = "auto"`), else f32.
 //!   Only that source is rounded, once per order as the rays gain it, and scaled by a power of two
@@ -23,6 +25,7 @@
 //! Everything both backends need to sweep a face is derived here ([`SweepDirection`]) so that the
 //! CPU twin and the GPU driver consume identical tables.
 
+use super::environment::environment_boundary;
 use super::sweep::{lateral_slope, lattice, plane_path_length, FaceSweep};
 use crate::quadrature::{cube_face_of, phase, PropagationSet, StorageSet};
 use crate::scene::{DiffusionCorrection, ForwardPeak, Light, Medium, PlanMode, Scene, SpatialScheme, StoragePrecision};
@@ -226,6 +229,43 @@ impl Plan {
                 (0..3).for_each(|c| sky[c] += radiance[c]);
             }
         }
+        // An environment map adds its mean over each direction's cell to the sky, and its
+        // sun-like peak, when it has one, becomes one more beam.
+        let environment = scene.lights.iter().find_map(|l| match l {
+            Light::Environment(env) => Some((env, environment_boundary(env, &propagation))),
+            _ => None,
+        });
+        let boundary_of = |i: usize| match &environment {
+            Some((_, b)) => [0, 1, 2].map(|c| sky[c] + b.radiance[i][c]),
+            None => sky,
+        };
+        if let Some((env, b)) = &environment {
+            reasons.push(format!(
+                "environment map {} ({} × {} pixels): each direction's boundary radiance is the map's \
+                 mean over its cell",
+                env.map.path.display(),
+                env.map.width,
+                env.map.height
+            ));
+            reasons.push(match &b.sun {
+                Some(s) => format!(
+                    "the map's sun-like peak ({} pixels, {:.2e} sr, {:.1} % of its power) is swept as a beam \
+                     toward [{:.4}, {:.4}, {:.4}] with irradiance [{:.4e}, {:.4e}, {:.4e}]: no ray effects",
+                    s.pixels,
+                    s.solid_angle,
+                    100.0 * s.share,
+                    s.direction.x,
+                    s.direction.y,
+                    s.direction.z,
+                    s.irradiance[0],
+                    s.irradiance[1],
+                    s.irradiance[2]
+                ),
+                None => "the map has no sun-like peak (a region of at most 0.01 sr at least 100 times \
+                         brighter than the rest): nothing extracted"
+                    .into(),
+            });
+        }
         // Everything about one swept direction that follows from its geometry; `weight` is its
         // solid angle (a beam: 1, its boundary value being an irradiance).
         let swept =
@@ -257,22 +297,25 @@ impl Plan {
                     .map(|(j, d)| {
                         let i = start + j;
                         let row = collect[i * s..(i + 1) * s].to_vec();
-                        swept(face, d.omega, d.solid_angle, sky, storage.owner[i], row)
+                        swept(face, d.omega, d.solid_angle, boundary_of(i), storage.owner[i], row)
                     })
                     .collect()
             })
             .collect();
 
+        let extracted = environment.as_ref().and_then(|(_, b)| b.sun.as_ref()).map(|s| (s.direction, s.irradiance));
         let beams: Vec<SweepDirection> = scene
             .lights
             .iter()
             .filter_map(|light| match light {
-                Light::Sun { direction, irradiance } => {
-                    let travel = -*direction;
-                    let row = phase::beam_row(&propagation, &storage, medium.g, travel);
-                    Some(swept(cube_face_of(travel), travel, 1.0, *irradiance, 0, row))
-                }
-                Light::Sky { .. } => None,
+                Light::Sun { direction, irradiance } => Some((*direction, *irradiance)),
+                Light::Sky { .. } | Light::Environment(_) => None,
+            })
+            .chain(extracted)
+            .map(|(direction, irradiance)| {
+                let travel = -direction;
+                let row = phase::beam_row(&propagation, &storage, medium.g, travel);
+                swept(cube_face_of(travel), travel, 1.0, irradiance, 0, row)
             })
             .collect();
         if !beams.is_empty() {
