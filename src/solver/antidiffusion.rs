@@ -109,9 +109,9 @@ pub fn sharpen<F: FieldPlanes + Sync, U: VoxelUnits<V = F::V>>(dst: &mut F, src:
     let comps = src.components();
     let dims = units.dims();
     let old = src.values();
-    // The fluxes of one component out of voxel `local` of `unit` (value index `at`), summed in the
-    // fixed order −x, +x, −y, +y, −z, +z.
     let value = |unit: usize, k: usize, local: usize| old[unit * unit_len + k * unit_voxels + local].to_f64();
+    // The new value of component k of voxel `local` of `unit`: the old one less its fluxes to the
+    // face neighbours in the medium, summed in the fixed order −x, +x, −y, +y, −z, +z.
     let new_value = |unit: usize, local: usize, k: usize, neighbours: &[Option<(usize, usize)>; 6]| -> f64 {
         let s = value(unit, k, local);
         let mut change = 0.0;
