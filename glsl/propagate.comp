@@ -2,7 +2,10 @@
 // Propagate: one thread per ray per direction. Each thread marches its ray through the planes of
 // the slice, gathers the medium and the source from the (up to) two-by-two voxels it lies between
 // with the plane's lattice weights, writes its segment-average radiance into its lattice cell of T,
-// and carries the ray's radiance to the next slice in the ray buffer. The rays of one direction
+// and carries the ray's radiance to the next slice in the ray buffer (after the last slice: what
+// leaves through the far face). A ray leaving through a side adds its radiance to the side's tally
+// of its axis (half to each across an edge); the births need no tally, the host counts them from
+// the offsets (src/solver/sweep.rs, side_births). The rays of one direction
 // occupy distinct lattice cells in every plane (see src/solver/sweep.rs), so no two threads write
 // the same T entry; collect.comp pulls each voxel's share from the cells around it.
 // CPU twin: CpuTwin::sweep in src/solver/cpu.rs.
@@ -18,8 +21,8 @@ layout(std430, binding = 3) readonly buffer Density { float density[]; };       
 // The previous source: f32 bits, or f16 pairs with FLAG_HALF_SOURCE (see gained_source).
 layout(std430, binding = 4) readonly buffer SourcePrev { uint j_prev[]; };       // [slot][d·C+ch][slab voxel]
 layout(std430, binding = 5) buffer Rays { float ray_l[]; };                      // [dir][ch][ray]
-layout(std430, binding = 6) buffer RaysIn { float ray_in[]; };                   // [dir][ch][ray]
-layout(std430, binding = 7) buffer RaysOut { float ray_out[]; };                 // [dir][ch][ray]
+layout(std430, binding = 6) buffer RaysOutB { float ray_out_b[]; };              // [dir][ch][ray]: left through a b side
+layout(std430, binding = 7) buffer RaysOutC { float ray_out_c[]; };              // [dir][ch][ray]: left through a c side
 layout(std430, binding = 8) writeonly buffer Deposit { float deposit[]; };       // [dispatch dir][ch][plane][lc][lb]
 
 // Element i of the previous source. f16 values are unscaled by 2^-e (exact: a power of two); slab
@@ -49,12 +52,12 @@ void main() {
     bool boundary = (pc.flags & FLAG_BOUNDARY) != 0u;
     vec3 birth = boundary ? dir.boundary.rgb : vec3(0.0);
 
-    vec3 l = vec3(0.0), tin = vec3(0.0), tout = vec3(0.0);
+    vec3 l = vec3(0.0), out_b = vec3(0.0), out_c = vec3(0.0);
     for (uint ch = 0u; ch < C; ++ch) {
         uint r = (ri * C + ch) * rays + ray;
         l[ch] = ray_l[r];
-        tin[ch] = ray_in[r];
-        tout[ch] = ray_out[r];
+        out_b[ch] = ray_out_b[r];
+        out_c[ch] = ray_out_c[r];
     }
 
     uint planes = pc.t1 - pc.t0;
@@ -82,20 +85,20 @@ void main() {
         if (t > 0u) {
             cb += o.x - prev_o.x;
             cc += o.y - prev_o.y;
-            bool wrapped = false;
-            if (cb >= lb_n) { cb -= lb_n; wrapped = true; } else if (cb < 0) { cb += lb_n; wrapped = true; }
-            if (cc >= lc_n) { cc -= lc_n; wrapped = true; } else if (cc < 0) { cc += lc_n; wrapped = true; }
-            if (wrapped) {
-                // The ray left through a side: a new one enters from the opposite side.
-                tout += l;
+            bool wrapped_b = false, wrapped_c = false;
+            if (cb >= lb_n) { cb -= lb_n; wrapped_b = true; } else if (cb < 0) { cb += lb_n; wrapped_b = true; }
+            if (cc >= lc_n) { cc -= lc_n; wrapped_c = true; } else if (cc < 0) { cc += lc_n; wrapped_c = true; }
+            if (wrapped_b || wrapped_c) {
+                // The ray left through a side (half through each across an edge): a new one
+                // enters from the opposite side.
+                float share = (wrapped_b && wrapped_c) ? 0.5 : 1.0;
+                if (wrapped_b) out_b += share * l;
+                if (wrapped_c) out_c += share * l;
                 born = true;
             }
         }
         prev_o = o;
-        if (born) {
-            l = birth;
-            tin += birth;
-        }
+        if (born) l = birth;
         // Vacuum slices hold no medium: the ray keeps its radiance and nothing is deposited.
         if ((pc.flags & FLAG_VACUUM) != 0u) continue;
         // Gather from voxel columns (cb − 1, cb) × (cc − 1, cc) with weights (1 − w, w) per axis;
@@ -138,14 +141,10 @@ void main() {
             deposit[(local_dir * C + ch) * planes * rays + cell] = avg;
         }
     }
-    if ((pc.flags & FLAG_LAST_SLICE) != 0u) {
-        tout += l;
-        l = vec3(0.0);
-    }
     for (uint ch = 0u; ch < C; ++ch) {
         uint r = (ri * C + ch) * rays + ray;
         ray_l[r] = l[ch];
-        ray_in[r] = tin[ch];
-        ray_out[r] = tout[ch];
+        ray_out_b[r] = out_b[ch];
+        ray_out_c[r] = out_c[ch];
     }
 }

@@ -23,7 +23,7 @@
 //! kept there), and a plane whose bricks are all empty is a vacuum plane in which rays only wrap
 //! (crossing vacuum changes no radiance, so this is exact).
 
-use super::energy::Tallies;
+use super::energy::{opposite_face, volume_face, Tallies};
 use super::plan::{Plan, SweepDirection};
 use super::segment::{segment, segment_linear};
 use super::sweep::{lattice_column, taps, FaceSweep};
@@ -76,12 +76,15 @@ pub(super) fn sweep_direction(
     // Ray state in slot order (row q, column p): radiance, and this plane's segment average.
     let mut radiance = vec![birth; lb_us * lc_us];
     let mut average = vec![[0.0f64; 3]; lb_us * lc_us];
-    // Tallies per row of slots, summed in row order at the end. Every ray is born at plane 0.
-    let mut born = vec![[0.0f64; 3]; lc_us];
-    let mut left = vec![[0.0f64; 3]; lc_us];
-    for row in &mut born {
+    // Tallies per row of slots, summed in row order at the end. Every ray is born at plane 0, on
+    // the face the sweep enters by.
+    let f = sweep.geometry();
+    let (near, far) = (volume_face(f.axis, f.sign < 0.0), volume_face(f.axis, f.sign > 0.0));
+    let mut rows = vec![RowTally::default(); lc_us];
+    for row in &mut rows {
         for ch in 0..c {
-            row[ch] = birth[ch] * lb as f64;
+            row.born[ch] = birth[ch] * lb as f64;
+            row.face_in[near][ch] = birth[ch] * lb as f64;
         }
     }
     // Lattice column and wrap count of every slot column (b) and row (c), at the previous plane
@@ -101,15 +104,15 @@ pub(super) fn sweep_direction(
         radiance
             .par_chunks_mut(lb_us)
             .zip(average.par_chunks_mut(lb_us))
-            .zip(born.par_iter_mut().zip(left.par_iter_mut()))
+            .zip(rows.par_iter_mut())
             .enumerate()
-            .for_each(|(q, ((l_row, avg_row), (born_row, left_row)))| {
+            .for_each(|(q, ((l_row, avg_row), tally))| {
                 let (cc, row_wrap) = now_c[q];
-                let row_wrapped = row_wrap != wrap_c[q].1;
                 for (p, &(cb, wrap)) in now_b.iter().enumerate() {
-                    let wrapped = t > 0 && (row_wrapped || wrap != wrap_b[p].1);
+                    // How the slot's wrap counts changed: +1 past n (the + side), −1 below 0.
+                    let wraps = if t > 0 { [wrap - wrap_b[p].1, row_wrap - wrap_c[q].1] } else { [0; 2] };
                     let (l, avg) = (&mut l_row[p], &mut avg_row[p]);
-                    step.ray([cb, cc], wrapped, l, avg, born_row, left_row);
+                    step.ray([cb, cc], wraps, l, avg, tally);
                 }
             });
         (wrap_b, wrap_c) = (now_b, now_c);
@@ -121,18 +124,33 @@ pub(super) fn sweep_direction(
     for (q, row) in radiance.chunks(lb_us).enumerate() {
         for l in row {
             for ch in 0..c {
-                left[q][ch] += l[ch];
+                rows[q].left[ch] += l[ch];
+                rows[q].face_out[far][ch] += l[ch];
             }
         }
     }
     let mut tallies = Tallies::default();
+    let power = dir.power_per_radiance;
     for ch in 0..c {
-        let born: f64 = born.iter().map(|r| r[ch]).sum();
-        let left: f64 = left.iter().map(|r| r[ch]).sum();
-        tallies.boundary_in[ch] = born * dir.power_per_radiance;
-        tallies.boundary_out[ch] = left * dir.power_per_radiance;
+        tallies.boundary_in[ch] = rows.iter().map(|r| r.born[ch]).sum::<f64>() * power;
+        tallies.boundary_out[ch] = rows.iter().map(|r| r.left[ch]).sum::<f64>() * power;
+        for face in 0..6 {
+            tallies.face_in[face][ch] = rows.iter().map(|r| r.face_in[face][ch]).sum::<f64>() * power;
+            tallies.face_out[face][ch] = rows.iter().map(|r| r.face_out[face][ch]).sum::<f64>() * power;
+        }
     }
     tallies
+}
+
+/// The radiance one row of slots carried in and out: in all, and per face of the volume
+/// ([`super::energy::VOLUME_FACES`]). The totals are kept apart from the faces' so that tests can
+/// check that the split adds up.
+#[derive(Clone, Copy, Default)]
+struct RowTally {
+    born: [f64; 3],
+    left: [f64; 3],
+    face_in: [[f64; 3]; 6],
+    face_out: [[f64; 3]; 6],
 }
 
 /// A slot's lattice column in a plane and how often it has wrapped ([`lattice_column`]).
@@ -185,24 +203,30 @@ struct PlaneStep<'s, 'a> {
 }
 
 impl PlaneStep<'_, '_> {
-    /// Advances the ray at lattice column `[cb, cc]` through the plane: rebirth after a wrap,
-    /// gather, exact segment.
-    fn ray(
-        &self,
-        [cb, cc]: [u32; 2],
-        wrapped: bool,
-        l: &mut [f64; 3],
-        avg: &mut [f64; 3],
-        born: &mut [f64; 3],
-        left: &mut [f64; 3],
-    ) {
+    /// Advances the ray at lattice column `[cb, cc]` through the plane: rebirth after a wrap
+    /// (`wraps`: per lateral axis, +1 when the slot passed n, −1 when it went below 0), gather,
+    /// exact segment.
+    fn ray(&self, [cb, cc]: [u32; 2], wraps: [i32; 2], l: &mut [f64; 3], avg: &mut [f64; 3], tally: &mut RowTally) {
         let c = self.plan.channels as usize;
+        let wrapped = wraps != [0, 0];
         if wrapped {
-            // The ray left through a side: a new one enters from the opposite side.
+            // The ray left through a side: a new one enters from the opposite side. Across an
+            // edge (both axes wrap) each side takes half.
+            let lateral = self.sweep.geometry().lateral;
+            let share = if wraps[0] != 0 && wraps[1] != 0 { 0.5 } else { 1.0 };
+            for k in 0..2 {
+                if wraps[k] != 0 {
+                    let exit = volume_face(lateral[k], wraps[k] > 0);
+                    for ch in 0..c {
+                        tally.face_out[exit][ch] += share * l[ch];
+                        tally.face_in[opposite_face(exit)][ch] += share * self.birth[ch];
+                    }
+                }
+            }
             for ch in 0..c {
-                left[ch] += l[ch];
+                tally.left[ch] += l[ch];
                 l[ch] = self.birth[ch];
-                born[ch] += self.birth[ch];
+                tally.born[ch] += self.birth[ch];
             }
         }
         if self.vacuum {

@@ -1,18 +1,45 @@
-//! Energy bookkeeping: what enters, what leaves, what is absorbed, what is still in flight.
+//! Energy bookkeeping: what enters, what leaves, what is absorbed, what is still in flight, and
+//! through which face of the volume the boundary power goes.
 //!
 //! Per channel, in watts up to the common factor of the world unit: rays born at the boundary carry
 //! `L·h²|ω_a|Ω_i` (a beam: `E·h²|ω_a|`), emission adds `4π·σa·Le·h³` per voxel, absorption takes
 //! `σa·φ·h³`, rays leaving the volume take their power with them, and the source of the last order
 //! (computed but not propagated) holds `Σ_d Ω_d J^d·h³`. The discretisation conserves energy
 //! exactly, so `in + emitted = out + absorbed + unpropagated` to round-off.
+//!
+//! The boundary power is also split by the six faces of the volume ([`VOLUME_FACES`]): a sweep's
+//! rays are born on its near face (plane 0) and leave through its far face (after the last plane)
+//! or, when their lattice slot wraps, through a lateral side (a wrap past n is the + side, below 0
+//! the − side, [`super::sweep`]); the ray born in the wrapped slot enters through the opposite
+//! side. A ray whose slot wraps in both lateral axes in one plane crosses an edge: its power is
+//! split evenly between the two sides (rule kept by both backends and `sweep::side_births`).
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
-/// Radiance tallies of one sweep, already multiplied by the ray power factors.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+/// The six faces of the volume in report order: index `2·axis + 1` for the + side of an axis,
+/// `2·axis` for the − side ([`volume_face`]).
+pub const VOLUME_FACES: [&str; 6] = ["-x", "+x", "-y", "+y", "-z", "+z"];
+
+/// The index in [`VOLUME_FACES`] of the face of `axis` on the + side (`positive`) or the − side.
+pub const fn volume_face(axis: usize, positive: bool) -> usize {
+    2 * axis + positive as usize
+}
+
+/// The face across the volume from face `f`.
+pub const fn opposite_face(f: usize) -> usize {
+    f ^ 1
+}
+
+/// Power tallies of one sweep (or of the whole solve so far), already multiplied by the ray power
+/// factors: the totals, and the same split by the face the power crossed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Tallies {
     pub boundary_in: [f64; 3],
     pub boundary_out: [f64; 3],
+    /// Per face ([`VOLUME_FACES`] order) and channel: the power rays carried in through it.
+    pub face_in: [[f64; 3]; 6],
+    /// Per face and channel: the power rays carried out through it.
+    pub face_out: [[f64; 3]; 6],
 }
 
 impl Tallies {
@@ -20,7 +47,44 @@ impl Tallies {
         for c in 0..3 {
             self.boundary_in[c] += other.boundary_in[c];
             self.boundary_out[c] += other.boundary_out[c];
+            for f in 0..6 {
+                self.face_in[f][c] += other.face_in[f][c];
+                self.face_out[f][c] += other.face_out[f][c];
+            }
         }
+    }
+}
+
+/// The power through one face of the volume, per channel, as `report.json` gives it.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct FacePower {
+    /// `-x`, `+x`, `-y`, `+y`, `-z` or `+z`.
+    pub face: &'static str,
+    pub power_in: [f64; 3],
+    pub power_out: [f64; 3],
+    /// `power_out / power_in` of this face (null where nothing entered): the reflectance when the
+    /// light enters through this face alone (a sun or a sky on one side).
+    pub reflectance: [Option<f64>; 3],
+    /// The opposite face's `power_out` over this face's `power_in`: the transmittance in that case.
+    pub transmittance: [Option<f64>; 3],
+}
+
+impl FacePower {
+    fn new(f: usize, tallies: &Tallies, channels: usize) -> Self {
+        let mut p = FacePower {
+            face: VOLUME_FACES[f],
+            power_in: tallies.face_in[f],
+            power_out: tallies.face_out[f],
+            ..FacePower::default()
+        };
+        for c in 0..channels {
+            let incoming = tallies.face_in[f][c];
+            if incoming > 0.0 {
+                p.reflectance[c] = Some(tallies.face_out[f][c] / incoming);
+                p.transmittance[c] = Some(tallies.face_out[opposite_face(f)][c] / incoming);
+            }
+        }
+        p
     }
 }
 
@@ -31,10 +95,15 @@ pub struct EnergyBalance {
     pub emitted: [f64; 3],
     pub boundary_out: [f64; 3],
     pub absorbed: [f64; 3],
+    /// `absorbed / (boundary_in + emitted)` (0 where nothing came in).
+    pub absorptance: [f64; 3],
     /// Scattered power of the last computed order, not propagated further.
     pub unpropagated: [f64; 3],
     /// max over channels of |in + emitted − out − absorbed − unpropagated| / (in + emitted).
     pub relative_imbalance: f64,
+    /// The boundary power split by the face of the volume it crossed (`-x`, `+x`, `-y`, `+y`,
+    /// `-z`, `+z`); the faces' sums are `boundary_in` and `boundary_out`.
+    pub faces: [FacePower; 6],
 }
 
 impl EnergyBalance {
@@ -46,11 +115,13 @@ impl EnergyBalance {
         channels: usize,
     ) -> Self {
         let mut worst: f64 = 0.0;
+        let mut absorptance = [0.0; 3];
         for c in 0..channels {
             let source = tallies.boundary_in[c] + emitted[c];
             let sink = tallies.boundary_out[c] + absorbed[c] + unpropagated[c];
             if source > 0.0 {
                 worst = worst.max((source - sink).abs() / source);
+                absorptance[c] = absorbed[c] / source;
             } else if sink > 0.0 {
                 worst = f64::INFINITY;
             }
@@ -60,8 +131,41 @@ impl EnergyBalance {
             emitted,
             boundary_out: tallies.boundary_out,
             absorbed,
+            absorptance,
             unpropagated,
             relative_imbalance: worst,
+            faces: std::array::from_fn(|f| FacePower::new(f, tallies, channels)),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn faces_are_indexed_by_axis_and_side() {
+        for (axis, name) in ["x", "y", "z"].iter().enumerate() {
+            assert_eq!(VOLUME_FACES[volume_face(axis, true)], format!("+{name}"));
+            assert_eq!(VOLUME_FACES[volume_face(axis, false)], format!("-{name}"));
+            assert_eq!(opposite_face(volume_face(axis, true)), volume_face(axis, false));
+        }
+    }
+
+    #[test]
+    fn reflectance_and_transmittance_are_fractions_of_the_face_input() {
+        let mut t = Tallies::default();
+        t.face_in[5] = [10.0, 0.0, 0.0];
+        t.face_out[5] = [2.0, 0.0, 0.0];
+        t.face_out[4] = [5.0, 0.0, 0.0];
+        t.boundary_in = [10.0, 0.0, 0.0];
+        t.boundary_out = [7.0, 0.0, 0.0];
+        let e = EnergyBalance::new(&t, [0.0; 3], [3.0, 0.0, 0.0], [0.0; 3], 1);
+        assert_eq!(e.faces[5].face, "+z");
+        assert_eq!(e.faces[5].reflectance[0], Some(0.2));
+        assert_eq!(e.faces[5].transmittance[0], Some(0.5));
+        assert_eq!(e.faces[4].reflectance[0], None);
+        assert_eq!(e.absorptance[0], 0.3);
+        assert!(e.relative_imbalance < 1e-15);
     }
 }

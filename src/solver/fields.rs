@@ -25,8 +25,9 @@ use std::path::Path;
 
 const CHECKPOINT: &str = "checkpoint.json";
 /// 2: fluence covers the occupied bricks only (version 1 stored it for every brick); 3: a third
-/// source file (`source_scratch`, the diffusion correction's output) rotates with the other two.
-const CHECKPOINT_VERSION: u32 = 3;
+/// source file (`source_scratch`, the diffusion correction's output) rotates with the other two; 4:
+/// the boundary tallies are split by the faces of the volume.
+const CHECKPOINT_VERSION: u32 = 4;
 
 /// The solver's fields as files of f32 in the brick store.
 pub type StoreFields = OrderFieldSet<Field>;
@@ -36,7 +37,8 @@ pub type StoreFields = OrderFieldSet<Field>;
 pub struct LoopState {
     /// Orders completed (the next order to propagate).
     pub orders_done: u32,
-    pub tallies: [[f64; 3]; 2],
+    /// The boundary power in and out so far, in all and per face.
+    pub tallies: Tallies,
     pub total_power: [f64; 3],
     pub last_new_power: [f64; 3],
     /// Per channel, the new power of the order before the last, and the ratio of the last two
@@ -54,7 +56,7 @@ pub struct LoopState {
 
 impl LoopState {
     pub fn tallies(&self) -> Tallies {
-        Tallies { boundary_in: self.tallies[0], boundary_out: self.tallies[1] }
+        self.tallies
     }
 }
 

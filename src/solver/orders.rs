@@ -241,7 +241,7 @@ pub fn run_orders<B: Backend + ?Sized>(
             state.previous_new_power[c] = last;
         }
         state.last_new_power = new;
-        state.tallies = [tallies.boundary_in, tallies.boundary_out];
+        state.tallies = tallies;
         state.orders_done += 1;
         let residual = residual_of(&state);
         remaining = match tail_factors(plan, &state) {

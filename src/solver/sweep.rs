@@ -34,6 +34,13 @@
 //! projected) and solid angle Ω_i, so its power is L·h²·|ω_a|·Ω_i; the sweeps tally the radiance of
 //! rays at birth and at exit and the solver turns those tallies into boundary power in and out
 //! (rays within half a voxel of a side count whole: their weight outside meets only vacuum).
+//! Which face of the volume a ray crosses is [`FaceRoles`]: born on the near face at plane 0,
+//! leaving through the far face after the last plane, or through a lateral side when its slot
+//! wraps (the + side when the column passes n, the − side below 0; offsets are monotonic in t,
+//! so every ray of a direction wraps the same way) while the ray born in its slot enters through
+//! the opposite side. A slot wrapping in both lateral axes in one plane is a ray crossing an edge:
+//! its power counts half to each side. The births per side depend on the offsets alone
+//! ([`side_births`]), so the GPU tallies only what rays carry out.
 
 use crate::quadrature::{Face, FACES};
 use crate::scene::SpatialScheme;
@@ -132,6 +139,57 @@ impl FaceSweep {
         }
         out
     }
+}
+
+/// The faces of the volume ([`crate::solver::energy::VOLUME_FACES`] indices) one direction's rays
+/// cross.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FaceRoles {
+    /// Every ray is born here at plane 0.
+    pub near: usize,
+    /// The rays still inside after the last plane leave here.
+    pub far: usize,
+    /// Per lateral axis (b, c): the side a ray leaves through when its slot wraps and the side the
+    /// ray born in its place enters through; `None` where the rays never wrap along that axis.
+    pub sides: [Option<(usize, usize)>; 2],
+}
+
+impl FaceSweep {
+    /// The faces crossed by the rays of a direction with per-plane lattice `offsets`.
+    pub fn face_roles(&self, offsets: &[[i32; 2]]) -> FaceRoles {
+        use crate::solver::energy::volume_face;
+        let f = self.geometry();
+        let forward = f.sign > 0.0;
+        let mut sides = [None; 2];
+        if let (Some(first), Some(last)) = (offsets.first(), offsets.last()) {
+            for k in 0..2 {
+                let moved = last[k] - first[k];
+                if moved != 0 {
+                    let exit = volume_face(f.lateral[k], moved > 0);
+                    sides[k] = Some((exit, volume_face(f.lateral[k], moved < 0)));
+                }
+            }
+        }
+        FaceRoles { near: volume_face(f.axis, !forward), far: volume_face(f.axis, forward), sides }
+    }
+}
+
+/// Per lateral axis (b, c), the rays born through that side over a whole sweep with per-plane
+/// lattice `offsets` on a lattice of `lattice` slots per axis: when the offset moves by one column
+/// along b, one slot per row of the lattice wraps (and likewise along c); a slot wrapping along
+/// both counts half to each (module docs). The rays born at plane 0 are not included.
+pub fn side_births(offsets: &[[i32; 2]], lattice: [u32; 2]) -> [f64; 2] {
+    let [lb, lc] = lattice.map(f64::from);
+    let mut births = [0.0; 2];
+    for w in offsets.windows(2) {
+        let (db, dc) = ((w[1][0] - w[0][0]).abs(), (w[1][1] - w[0][1]).abs());
+        debug_assert!(db <= 1 && dc <= 1, "offsets move by at most one column per plane");
+        let (db, dc) = (db as f64, dc as f64);
+        let both = db * dc;
+        births[0] += db * lc - 0.5 * both;
+        births[1] += dc * lb - 0.5 * both;
+    }
+    births
 }
 
 /// Lateral slope (δ_b, δ_c) of a direction of travel on its face: the lateral distance covered per

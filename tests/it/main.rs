@@ -8,6 +8,7 @@
 mod common;
 
 mod acceleration;
+mod boundary_faces;
 mod budget;
 mod cli;
 mod compare;

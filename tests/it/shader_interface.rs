@@ -240,7 +240,6 @@ fn flag_bits_are_the_rust_ones() {
         ("FLAG_BOUNDARY".to_string(), layout::FLAG_BOUNDARY),
         ("FLAG_GAIN".to_string(), layout::FLAG_GAIN),
         ("FLAG_EMIT".to_string(), layout::FLAG_EMIT),
-        ("FLAG_LAST_SLICE".to_string(), layout::FLAG_LAST_SLICE),
         ("FLAG_VACUUM".to_string(), layout::FLAG_VACUUM),
         ("FLAG_HALF_SOURCE".to_string(), layout::FLAG_HALF_SOURCE),
     ]);

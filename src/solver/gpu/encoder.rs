@@ -13,7 +13,7 @@
 //! streamer's business (`streamer`).
 
 use super::budget::MemoryPlan;
-use super::layout::{half_source_flags, SweepPush, FLAG_GAIN, FLAG_LAST_SLICE, FLAG_VACUUM};
+use super::layout::{half_source_flags, SweepPush, FLAG_GAIN, FLAG_VACUUM};
 use super::resources::{DeviceResources, SharedBuffers, SweepSets, SWEEP_BINDING_COUNT};
 use super::slice::SliceLayout;
 use super::tables::SweepTables;
@@ -44,9 +44,8 @@ pub struct ComputeStep<'s> {
     pub flags: u32,
     /// The f16 previous source's scale exponent (`None`: f32).
     pub half_exponent: Option<i32>,
-    /// The first and the last slice of the pass.
+    /// The first slice of the pass (the ray state starts from zero).
     pub first: bool,
-    pub last: bool,
 }
 
 /// The workgroups of one `propagate.comp` dispatch over `sweep`'s rays (n + 1 per lateral axis:
@@ -100,8 +99,8 @@ pub const SWEEP_BINDINGS: [&str; SWEEP_BINDING_COUNT as usize] = [
     "Density",
     "SourcePrev",
     "Rays",
-    "RaysIn",
-    "RaysOut",
+    "RaysOutB",
+    "RaysOutC",
     "Deposit",
     "CollectRows",
     "SourceNext",
@@ -124,8 +123,8 @@ pub fn sweep_bindings<'b>(
         BufferRange::from(density),
         BufferRange::from(source_prev),
         BufferRange::from(&*shared.rays),
-        BufferRange::from(&*shared.rays_in),
-        BufferRange::from(&*shared.rays_out),
+        BufferRange::from(&*shared.rays_out_b),
+        BufferRange::from(&*shared.rays_out_c),
         BufferRange::from(&*shared.deposit),
         BufferRange::from(&*tables.rows),
         BufferRange::from(source_next),
@@ -150,7 +149,7 @@ pub fn record_compute(
     // Earlier compute submissions wrote the ray state and the deposit this one uses.
     rec.compute_to_compute();
     if step.first {
-        for b in [&shared.rays, &shared.rays_in, &shared.rays_out] {
+        for b in [&shared.rays, &shared.rays_out_b, &shared.rays_out_c] {
             rec.fill_buffer(b, 0, vk::WHOLE_SIZE, 0);
         }
         rec.transfer_to_compute();
@@ -179,11 +178,11 @@ pub fn record_compute(
             let t1 = (t0 + chunk).min(range.t1);
             push.t0 = t0;
             push.t1 = t1;
-            let last_chunk = step.last && t1 == range.t1;
-            push.flags = step.flags | vacuum | half | if last_chunk { FLAG_LAST_SLICE } else { 0 };
+            push.flags = step.flags | vacuum | half;
             // Across vacuum, rays that do not move sideways keep everything: the kernel would
             // only read and write back the ray state (a big share of a sparse volume's time).
-            if step.slot.is_none() && !last_chunk && tables.still(base..base + n, t0, t1) {
+            // After the last slice the ray buffer holds what leaves through the far face.
+            if step.slot.is_none() && tables.still(base..base + n, t0, t1) {
                 t0 = t1;
                 continue;
             }

@@ -37,7 +37,7 @@
 //!   workers (`copier`) gathering and scattering each slice's bricks (`slice`);
 //! - [`encoder`]: one slice's compute step as commands (push constants, bindings, dispatches);
 //! - this file: the order as sweeps and passes (the [`Backend`] the order loop drives), and the
-//!   tallies read back after each pass.
+//!   tallies read back after each pass (per face of the volume).
 
 pub mod budget;
 mod copier;
@@ -57,7 +57,7 @@ use super::fields::{LoopState, StoreFields};
 use super::orders::Backend;
 use super::passes::{OrderFieldSet, StoreMedium};
 use super::plan::{half_scale_exponent, Plan, Precision, SweepDirection};
-use super::sweep::FaceSweep;
+use super::sweep::{side_births, FaceSweep};
 use super::SolveError;
 use crate::store::BrickStore;
 use crate::vk::{Context, Recorder};
@@ -223,19 +223,25 @@ impl<'a> GpuBackend<'a> {
                 p.pass_done();
             }
             let pass_directions = &dirs[pass_dirs.start as usize..pass_dirs.end as usize];
-            tallies.add(&read_tallies(&mut self.streamer, &self.resources, plan, &sweep, pass_directions)?);
+            let boundary = flags & FLAG_BOUNDARY != 0;
+            tallies.add(&read_tallies(&mut self.streamer, &self.resources, plan, &sweep, pass_directions, boundary)?);
         }
         Ok(tallies)
     }
 }
 
-/// Downloads the rays' birth and exit tallies of the pass just finished, as powers.
+/// Downloads what the rays of the pass just finished carried out, as powers per face: the ray
+/// buffer holds the radiance leaving through the far face, the two side buffers what left through
+/// the sides of each lateral axis ([`FaceSweep::face_roles`]). What came in needs no download:
+/// every ray is born at plane 0 and wherever its slot wraps, with the direction's boundary radiance
+/// when `boundary` (else zero), so the births follow from the offsets ([`side_births`]).
 fn read_tallies(
     streamer: &mut SliceStreamer,
     res: &DeviceResources,
     plan: &Plan,
     sweep: &FaceSweep,
     dirs: &[SweepDirection],
+    boundary: bool,
 ) -> Result<Tallies, SolveError> {
     let c = plan.channels as usize;
     let rays = sweep.rays();
@@ -245,20 +251,37 @@ fn read_tallies(
     let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "tallies")?;
     rec.compute_to_transfer();
     let region = |dst| [vk::BufferCopy { src_offset: 0, dst_offset: dst, size: bytes }];
-    rec.copy_buffer(&shared.rays_in, &shared.tallies, &region(0));
-    rec.copy_buffer(&shared.rays_out, &shared.tallies, &region(bytes));
+    rec.copy_buffer(&shared.rays, &shared.tallies, &region(0));
+    rec.copy_buffer(&shared.rays_out_b, &shared.tallies, &region(bytes));
+    rec.copy_buffer(&shared.rays_out_c, &shared.tallies, &region(2 * bytes));
     rec.transfer_to_host();
     streamer.submit_and_wait(rec)?;
-    let values: &[f32] = bytemuck::cast_slice(&shared.tallies.bytes()[..2 * bytes as usize]);
-    let (born, left) = values.split_at(values.len() / 2);
+    let values: &[f32] = bytemuck::cast_slice(&shared.tallies.bytes()[..3 * bytes as usize]);
+    let per_buffer = values.len() / 3;
     let mut tallies = Tallies::default();
     for (d, dir) in dirs.iter().enumerate() {
+        let roles = sweep.face_roles(&dir.offsets);
+        let births = side_births(&dir.offsets, sweep.lattice());
+        let power = dir.power_per_radiance;
         for ch in 0..c {
             let range = (d * c + ch) * rays..(d * c + ch + 1) * rays;
-            let sum_in: f64 = born[range.clone()].iter().map(|&v| v as f64).sum();
-            let sum_out: f64 = left[range].iter().map(|&v| v as f64).sum();
-            tallies.boundary_in[ch] += sum_in * dir.power_per_radiance;
-            tallies.boundary_out[ch] += sum_out * dir.power_per_radiance;
+            let sum = |buffer: usize| -> f64 {
+                values[buffer * per_buffer..][range.clone()].iter().map(|&v| v as f64).sum::<f64>() * power
+            };
+            let far = sum(0);
+            tallies.face_out[roles.far][ch] += far;
+            tallies.boundary_out[ch] += far;
+            let birth = if boundary { dir.boundary[ch] * power } else { 0.0 };
+            tallies.face_in[roles.near][ch] += birth * rays as f64;
+            tallies.boundary_in[ch] += birth * rays as f64;
+            for (k, side) in roles.sides.iter().enumerate() {
+                let Some((exit, entry)) = *side else { continue };
+                let out = sum(1 + k);
+                tallies.face_out[exit][ch] += out;
+                tallies.boundary_out[ch] += out;
+                tallies.face_in[entry][ch] += birth * births[k];
+                tallies.boundary_in[ch] += birth * births[k];
+            }
         }
     }
     Ok(tallies)

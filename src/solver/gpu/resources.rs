@@ -40,8 +40,9 @@ pub struct SlotBuffers {
 /// Buffers shared by all slots: ray state and the deposit.
 pub struct SharedBuffers {
     pub rays: Owned<Buffer>,
-    pub rays_in: Owned<Buffer>,
-    pub rays_out: Owned<Buffer>,
+    /// What rays carried out through a side of lateral axis b, and of axis c (per ray).
+    pub rays_out_b: Owned<Buffer>,
+    pub rays_out_c: Owned<Buffer>,
     pub deposit: Owned<Buffer>,
     /// The staging the rays' tallies come home through.
     pub tallies: Owned<HostBuffer>,
@@ -110,8 +111,8 @@ impl DeviceResources {
         );
         let shared = SharedBuffers {
             rays: buffer(ctx, "rays", s.ray_buffer, storage, gpu)?,
-            rays_in: buffer(ctx, "rays in", s.ray_buffer, storage, gpu)?,
-            rays_out: buffer(ctx, "rays out", s.ray_buffer, storage, gpu)?,
+            rays_out_b: buffer(ctx, "rays out b", s.ray_buffer, storage, gpu)?,
+            rays_out_c: buffer(ctx, "rays out c", s.ray_buffer, storage, gpu)?,
             deposit: buffer(ctx, "deposit", s.deposit, storage, gpu)?,
             tallies: host_buffer(
                 ctx,
@@ -201,7 +202,7 @@ impl DeviceResources {
     /// planner's `planned_bytes` is this figure (tested).
     pub fn buffer_bytes(&self) -> u64 {
         let sh = &self.shared;
-        let shared: [&Buffer; 6] = [&sh.rays, &sh.rays_in, &sh.rays_out, &sh.deposit, &sh.tallies, &sh.vacuum];
+        let shared: [&Buffer; 6] = [&sh.rays, &sh.rays_out_b, &sh.rays_out_c, &sh.deposit, &sh.tallies, &sh.vacuum];
         let shared: u64 = shared.iter().map(|b| b.size()).sum();
         let slots: u64 = self
             .slots

@@ -89,11 +89,12 @@ impl SlotSizes {
 /// stand-in.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct SharedSizes {
-    /// Each of the three ray buffers (radiance, born, left): `pass` directions × channels × rays.
+    /// Each of the three ray buffers (radiance, then what left through the far face; what left
+    /// through a side of axis b; of axis c): `pass` directions × channels × rays.
     pub ray_buffer: u64,
     /// `group` directions × channels × `planes` planes × rays.
     pub deposit: u64,
-    /// The two tally buffers come home through this.
+    /// The three ray buffers come home through this after a pass (the tallies by face).
     pub tallies: u64,
     pub vacuum: u64,
 }
@@ -105,7 +106,7 @@ impl SharedSizes {
         SharedSizes {
             ray_buffer: buffer_bytes(ray_buffer),
             deposit: buffer_bytes(group as u64 * c * planes as u64 * rays * 4),
-            tallies: buffer_bytes(2 * ray_buffer),
+            tallies: buffer_bytes(3 * ray_buffer),
             vacuum: VACUUM_BYTES,
         }
     }

@@ -165,7 +165,7 @@ impl SliceStreamer {
             if self.cancel.is_some_and(|c| c.is_raised()) {
                 return Err(SolveError::Cancelled);
             }
-            let (first, last) = (i == 0, i + 1 == slices.len());
+            let first = i == 0;
             let half = if gain { pass.half_exponent.map(power_of_two) } else { None };
             let layout = SliceLayout::new(io.store, pass.sweep, *range, gain, c, comps, half);
             let step = |slot, layout| ComputeStep {
@@ -178,7 +178,6 @@ impl SliceStreamer {
                 flags: pass.flags,
                 half_exponent: pass.half_exponent,
                 first,
-                last,
             };
             if layout.is_vacuum() {
                 self.value += 1;
