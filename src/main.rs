@@ -1037,6 +1037,22 @@ fn info(dir: &std::path::Path, json: bool) -> Result<()> {
         r["tolerance"]
     );
     println!("energy    relative imbalance {}", r["energy"]["relative_imbalance"]);
+    // The first channel's power through each face (reports written before faces existed have none).
+    if let Some(faces) = r["energy"]["faces"].as_array() {
+        let first = |v: &serde_json::Value| v[0].as_f64().map_or("-".to_string(), |x| format!("{x:.4e}"));
+        let row: Vec<String> = faces
+            .iter()
+            .map(|f| {
+                format!(
+                    "{} in {} out {}",
+                    f["face"].as_str().unwrap_or("?"),
+                    first(&f["power_in"]),
+                    first(&f["power_out"])
+                )
+            })
+            .collect();
+        println!("faces     {} (channel 0)", row.join("; "));
+    }
     if let Some(t) = r.get("tail").filter(|t| !t.is_null()) {
         println!(
             "tail      geometric tail added: ratio {}, power {}, uncertainty {}",

@@ -5,7 +5,7 @@
 //! - [`sweep`] and [`segment`] are the discretisation (voxels walked, exact segment solution);
 //! - [`cpu`] is the f64 twin of the GPU kernels, [`gpu`] the Vulkan driver;
 //! - [`orders`] runs scattering orders until [`remaining`] says every voxel of the medium is within
-//!   the tolerance of its converged value; [`energy`] keeps the books;
+//!   the tolerance of its converged value; [`energy`] keeps the books (per face of the volume too);
 //! - [`passes`] are the host passes between orders, written once over both backends' fields;
 //! - [`fields`] holds the solver's fields in the brick store, and checkpoints;
 //! - [`cancel`] is the request to stop a solve at the next slice, its checkpoint kept;

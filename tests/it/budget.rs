@@ -62,6 +62,13 @@ fn any_budget_gives_bitwise_the_same_fluence_and_source() {
         assert!(m.planned_bytes <= budget, "{m:?}");
         assert!(solved.run.peak_device_bytes <= budget, "peak {} over budget {budget}", solved.run.peak_device_bytes);
         assert!(bits(&solved) == bits(&reference), "budget {budget} ({m:?}) changed the result");
+        // The power through each face, summed pass by pass (so in another order of f64 sums).
+        let (e, r) = (&solved.run.outcome.energy, &reference.run.outcome.energy);
+        for (f, g) in e.faces.iter().zip(&r.faces) {
+            for (a, b) in [(f.power_in[0], g.power_in[0]), (f.power_out[0], g.power_out[0])] {
+                assert!((a - b).abs() <= 1e-9 * r.boundary_in[0], "{}: {a} vs {b} (budget {budget})", f.face);
+            }
+        }
         eprintln!("budget {budget}: {m:?}");
         cuts.push((
             m.slices_in_flight,

@@ -93,6 +93,10 @@ fn solve_writes_every_output_with_the_documented_layout() {
     assert!(report["peak_device_bytes"].as_u64().unwrap() > 0);
     assert!(report["device"].as_str().unwrap().len() > 3);
     assert!(report["seconds"].as_array().unwrap().len() >= 4);
+    let faces = report["energy"]["faces"].as_array().unwrap();
+    assert_eq!(faces.len(), 6);
+    assert_eq!(faces[5]["face"], "+z");
+    assert!(faces.iter().all(|f| f["power_out"][0].as_f64().unwrap() > 0.0), "{faces:?}");
     // No temporary files or store left behind.
     let leftovers: Vec<_> = std::fs::read_dir(&out)
         .unwrap()
@@ -106,6 +110,7 @@ fn solve_writes_every_output_with_the_documented_layout() {
     assert!(o.status.success(), "{}", stderr(&o));
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(text.contains("3 channel(s)") && text.contains("fluence.raw") && text.contains("residual"), "{text}");
+    assert!(text.contains("faces     -x in "), "{text}");
 }
 
 #[test]
