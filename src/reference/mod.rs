@@ -171,6 +171,21 @@ pub fn run_with_emission(
     channels: u32,
     opts: &ReferenceOptions,
 ) -> ReferenceResult {
+    match emission {
+        Some(e) => run_with_emission_rgb(scene, density, Some(&|v| [e(v); 3]), channels, opts),
+        None => run_with_emission_rgb(scene, density, None, channels, opts),
+    }
+}
+
+/// [`run_with_emission`] with an emission factor per channel (r, g, b; a temperature grid's
+/// blackbody factors, see [`crate::scene::blackbody`]): the medium emits `σa·Le_c·e_c(v)`.
+pub fn run_with_emission_rgb(
+    scene: &Scene,
+    density: &(dyn Fn([u32; 3]) -> f32 + Sync),
+    emission: Option<&(dyn Fn([u32; 3]) -> [f32; 3] + Sync)>,
+    channels: u32,
+    opts: &ReferenceOptions,
+) -> ReferenceResult {
     let start = Instant::now();
     let channels: usize = if channels >= 3 { 3 } else { 1 };
     let dims = scene.volume.dims;
@@ -185,11 +200,17 @@ pub fn run_with_emission(
         }
     }
     let setups: Vec<ChannelSetup> = (0..channels).map(|c| ChannelSetup::new(scene, &grid, c)).collect();
-    let cdf = if setups.iter().any(|s| s.sources.iter().any(|x| x.0 == fluence::Source::Emission)) {
-        emission_cdf(&grid)
-    } else {
-        Vec::new()
-    };
+    // Per channel: a temperature's emission differs between r, g and b, and so does where it is.
+    let cdfs: Vec<Vec<f64>> = setups
+        .iter()
+        .map(|s| {
+            if s.sources.iter().any(|x| x.0 == fluence::Source::Emission) {
+                emission_cdf(&grid, s.ch)
+            } else {
+                Vec::new()
+            }
+        })
+        .collect();
     let batches = opts.batches.max(2) as usize;
     let per_batch = opts.photons.div_ceil(batches as u64);
     let threads = if opts.threads == 0 {
@@ -219,7 +240,7 @@ pub fn run_with_emission(
                 let (ch, b) = (job / batches, job % batches);
                 let mut rng = Rng::new(opts.seed, b as u64, ch as u64, TAG_PHOTONS);
                 let mut est = Vec::new();
-                trace_batch(&grid, &setups[ch], &cdf, per_batch, &mut rng, &mut est);
+                trace_batch(&grid, &setups[ch], &cdfs[ch], per_batch, &mut rng, &mut est);
                 // A poisoned lock means another worker panicked; that panic is re-raised by scope.
                 if let Ok(mut c) = combiner.lock() {
                     c.submit(job, batches, est);

@@ -1,16 +1,21 @@
-//! Per-voxel emission (`volume.emission_raw` / `volume.emission_grid`): the source it gives the
-//! first order, and the power it emits.
+//! Per-voxel emission (`volume.emission_raw` / `emission_grid`, or a temperature grid's blackbody
+//! emission): the source it gives the first order, and the power it emits.
 //!
 //! A uniformly emitting medium adds `ρ·σa·Le` to what the rays gain in order 0 inside the kernel
-//! (`FLAG_EMIT`). A per-voxel emission `e(v)` needs no kernel of its own: emission is isotropic,
-//! so it *is* an order-0 source, `J_d(v) = ρ(v)·σa·Le·e(v)` in every storage direction d, and it
-//! is written into the source the first order gains before the order loop starts. Both backends
+//! (`FLAG_EMIT`). A per-voxel emission `e(v)` (`volume.emission_*` or `volume.temperature_*`)
+//! needs no kernel of its own: emission is isotropic, so it *is* an order-0 source,
+//! `J_d(v) = ρ(v)·σa·Le·e(v)` in every storage direction d, and it is written into the source the
+//! first order gains before the order loop starts. Both backends
 //! then propagate it exactly as they propagate a scattered source (and the GPU stores it in f16
 //! where the plan stores sources in f16), and the twin reads the very same f32 values.
+//!
+//! The field's factor is grey (one component) or per channel (three: a temperature grid's
+//! blackbody colour, see [`crate::store::emission`]); channel `ch` reads
+//! [`channel_block`]`(brick, ch)` either way.
 
 use super::plan::Plan;
 use super::SolveError;
-use crate::store::emission::open_emission;
+use crate::store::emission::{channel_block, open_emission};
 use crate::store::{BrickStore, Field, BRICK_VOXELS};
 
 /// σa·Le per channel: the order-0 source of a voxel of density 1 and emission factor 1.
@@ -47,7 +52,7 @@ pub fn write_initial_source(store: &BrickStore, plan: &Plan, source: &mut Field)
         for ch in 0..c {
             let (first, rest) = dst.split_at_mut(c * BRICK_VOXELS);
             let block = &mut first[ch * BRICK_VOXELS..(ch + 1) * BRICK_VOXELS];
-            for ((o, &rho), &e) in block.iter_mut().zip(density).zip(e) {
+            for ((o, &rho), &e) in block.iter_mut().zip(density).zip(channel_block(e, ch)) {
                 *o = source_value(rho, scale[ch], e);
             }
             for d in 1..storage {
@@ -74,6 +79,7 @@ pub fn emitted_power(store: &BrickStore, plan: &Plan) -> Result<[f64; 3], SolveE
             continue;
         };
         for ch in 0..c {
+            let e = channel_block(e, ch);
             let sum: f64 = density.iter().zip(e).map(|(&rho, &e)| source_value(rho, scale[ch], e) as f64).sum();
             power[ch] += four_pi * sum * h3;
         }
