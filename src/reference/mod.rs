@@ -19,8 +19,9 @@
 //! - **sun** of irradiance E toward `direction`: a point uniform on a rectangle perpendicular to the
 //!   beam that covers the box's projection (outside the box), travelling along −`direction`; kept only
 //!   if the ray hits the box (misses still count in N); P = E·A_rect;
-//! - **emission**: a voxel with probability ∝ σa·Le·h³ (∝ ρ per channel), a uniform point in it, an
-//!   isotropic direction; P = 4π·Σ σa·Le·h³.
+//! - **emission**: a voxel with probability ∝ σa·Le·h³ (∝ ρ·e_c(v) per channel c, e the per-voxel
+//!   emission factor: 1, a grey grid's value, or a temperature's blackbody factor for that
+//!   channel), a uniform point in it, an isotropic direction; P = 4π·Σ σa·Le·h³.
 //!
 //! Free flights are sampled by **delta (Woodcock) tracking** against a per-brick majorant grid
 //! (16³-voxel bricks, majorant σ·ρ_max; bricks are crossed with a DDA, tracking restarts at each brick

@@ -40,24 +40,25 @@
 //! rgb(T) = max(0, M · XYZ(T))             (M: XYZ → linear Rec. 709)
 //! ```
 //!
-//! - The colour-matching functions are the multi-lobe Gaussian fit of Wyman, Sloan and Shirley
-//!   ("Simple Analytic Approximations to the CIE XYZ Color Matching Functions", JCGT 2(2), 2013),
-//!   whose error is below the spread between CIE data sets: a dozen constants instead of a
-//!   471-row table. The chromaticities it gives follow the published Planckian locus to ~10⁻³
-//!   (tested against Kim et al.'s cubic fit of it).
-//! - The integral runs over 360–830 nm (the CIE range) at 5 nm steps (trapezoid rule): the
-//!   integrand is smooth on that scale (the narrowest lobe has σ = 11.8 nm), so the sum agrees
-//!   with a 0.25 nm Simpson integration to ~10⁻⁶ (tested).
+//! - The colour-matching functions are the CIE 1931 2° standard observer's table at 5 nm
+//!   ([`CIE_1931_2DEG_5NM`], 360–830 nm: the CIE's own 5 nm values, which its 1 nm table
+//!   interpolates). An analytic fit (Wyman, Sloan & Shirley 2013) was tried first and rejected:
+//!   its red tail is off enough that at 1000 K, where that tail is all a flame emits, it gave three
+//!   times the true green. With the table the chromaticities follow the published Planckian locus
+//!   to ~10⁻⁴ (1000 K: x = 0.6528, y = 0.3445; tested against it and Kim et al.'s fit of it).
+//! - The integral is the trapezoid rule over the table's 95 wavelengths: against the 1 nm table
+//!   it differs by ~10⁻⁶ (the integrand is smooth on the 5 nm scale), and a Simpson integration
+//!   over the same samples agrees to that (tested).
 //! - Three representative wavelengths (e.g. `B(610 nm)`, `B(550 nm)`, `B(465 nm)`) were the
 //!   cheaper alternative, rejected: a channel responds to a broad band, and point samples give the
 //!   wrong hue and saturation (a 6500 K body is not near white through them).
 //! - Below about 1900 K the blackbody's chromaticity lies outside the Rec. 709 gamut and `M`
-//!   gives a slightly negative blue (or, far down, green): those components are clamped to 0, as
+//!   gives a slightly negative blue (and below about 950 K green): those components are clamped to 0, as
 //!   renderers do. Red is positive at every temperature, so `Y(T_ref) > 0`.
 //!
 //! `B` is evaluated in W·m⁻²·sr⁻¹·nm⁻¹ and the CMFs are dimensionless, so `rgb` is in
 //! W·m⁻²·sr⁻¹ (a radiance): only ratios of it reach the solver. 95 exponentials per voxel are
-//! cheap next to the solve (about a microsecond), and voxels below the cutoff cost nothing.
+//! cheap next to the solve (about a microsecond a voxel), and voxels below the cutoff cost nothing.
 
 use super::Blackbody;
 use std::sync::OnceLock;
@@ -75,10 +76,110 @@ pub const REFERENCE_RANGE: (f64, f64) = (100.0, 1.0e6);
 const H: f64 = 6.626_070_15e-34;
 const C: f64 = 299_792_458.0;
 const K: f64 = 1.380_649e-23;
-/// First wavelength, last wavelength and step of the integration (nm).
-const LAMBDA_FIRST: f64 = 360.0;
-const LAMBDA_LAST: f64 = 830.0;
-const LAMBDA_STEP: f64 = 5.0;
+/// First wavelength and step (nm) of [`CIE_1931_2DEG_5NM`], the integration's wavelengths.
+pub const LAMBDA_FIRST: f64 = 360.0;
+pub const LAMBDA_STEP: f64 = 5.0;
+
+/// The CIE 1931 2° standard observer's colour-matching functions x̄, ȳ, z̄ from 360 to 830 nm
+/// every 5 nm (CIE 015; the values as tabulated by the Colour & Vision Research Laboratory, CVRL).
+#[rustfmt::skip]
+pub const CIE_1931_2DEG_5NM: [[f64; 3]; 95] = [
+    [0.000129900000, 0.000003917000, 0.000606100000], // 360 nm
+    [0.000232100000, 0.000006965000, 0.001086000000], // 365 nm
+    [0.000414900000, 0.000012390000, 0.001946000000], // 370 nm
+    [0.000741600000, 0.000022020000, 0.003486000000], // 375 nm
+    [0.001368000000, 0.000039000000, 0.006450001000], // 380 nm
+    [0.002236000000, 0.000064000000, 0.010549990000], // 385 nm
+    [0.004243000000, 0.000120000000, 0.020050010000], // 390 nm
+    [0.007650000000, 0.000217000000, 0.036210000000], // 395 nm
+    [0.014310000000, 0.000396000000, 0.067850010000], // 400 nm
+    [0.023190000000, 0.000640000000, 0.110200000000], // 405 nm
+    [0.043510000000, 0.001210000000, 0.207400000000], // 410 nm
+    [0.077630000000, 0.002180000000, 0.371300000000], // 415 nm
+    [0.134380000000, 0.004000000000, 0.645600000000], // 420 nm
+    [0.214770000000, 0.007300000000, 1.039050100000], // 425 nm
+    [0.283900000000, 0.011600000000, 1.385600000000], // 430 nm
+    [0.328500000000, 0.016840000000, 1.622960000000], // 435 nm
+    [0.348280000000, 0.023000000000, 1.747060000000], // 440 nm
+    [0.348060000000, 0.029800000000, 1.782600000000], // 445 nm
+    [0.336200000000, 0.038000000000, 1.772110000000], // 450 nm
+    [0.318700000000, 0.048000000000, 1.744100000000], // 455 nm
+    [0.290800000000, 0.060000000000, 1.669200000000], // 460 nm
+    [0.251100000000, 0.073900000000, 1.528100000000], // 465 nm
+    [0.195360000000, 0.090980000000, 1.287640000000], // 470 nm
+    [0.142100000000, 0.112600000000, 1.041900000000], // 475 nm
+    [0.095640000000, 0.139020000000, 0.812950100000], // 480 nm
+    [0.057950010000, 0.169300000000, 0.616200000000], // 485 nm
+    [0.032010000000, 0.208020000000, 0.465180000000], // 490 nm
+    [0.014700000000, 0.258600000000, 0.353300000000], // 495 nm
+    [0.004900000000, 0.323000000000, 0.272000000000], // 500 nm
+    [0.002400000000, 0.407300000000, 0.212300000000], // 505 nm
+    [0.009300000000, 0.503000000000, 0.158200000000], // 510 nm
+    [0.029100000000, 0.608200000000, 0.111700000000], // 515 nm
+    [0.063270000000, 0.710000000000, 0.078249990000], // 520 nm
+    [0.109600000000, 0.793200000000, 0.057250010000], // 525 nm
+    [0.165500000000, 0.862000000000, 0.042160000000], // 530 nm
+    [0.225749900000, 0.914850100000, 0.029840000000], // 535 nm
+    [0.290400000000, 0.954000000000, 0.020300000000], // 540 nm
+    [0.359700000000, 0.980300000000, 0.013400000000], // 545 nm
+    [0.433449900000, 0.994950100000, 0.008749999000], // 550 nm
+    [0.512050100000, 1.000000000000, 0.005749999000], // 555 nm
+    [0.594500000000, 0.995000000000, 0.003900000000], // 560 nm
+    [0.678400000000, 0.978600000000, 0.002749999000], // 565 nm
+    [0.762100000000, 0.952000000000, 0.002100000000], // 570 nm
+    [0.842500000000, 0.915400000000, 0.001800000000], // 575 nm
+    [0.916300000000, 0.870000000000, 0.001650001000], // 580 nm
+    [0.978600000000, 0.816300000000, 0.001400000000], // 585 nm
+    [1.026300000000, 0.757000000000, 0.001100000000], // 590 nm
+    [1.056700000000, 0.694900000000, 0.001000000000], // 595 nm
+    [1.062200000000, 0.631000000000, 0.000800000000], // 600 nm
+    [1.045600000000, 0.566800000000, 0.000600000000], // 605 nm
+    [1.002600000000, 0.503000000000, 0.000340000000], // 610 nm
+    [0.938400000000, 0.441200000000, 0.000240000000], // 615 nm
+    [0.854449900000, 0.381000000000, 0.000190000000], // 620 nm
+    [0.751400000000, 0.321000000000, 0.000100000000], // 625 nm
+    [0.642400000000, 0.265000000000, 0.000049999990], // 630 nm
+    [0.541900000000, 0.217000000000, 0.000030000000], // 635 nm
+    [0.447900000000, 0.175000000000, 0.000020000000], // 640 nm
+    [0.360800000000, 0.138200000000, 0.000010000000], // 645 nm
+    [0.283500000000, 0.107000000000, 0.000000000000], // 650 nm
+    [0.218700000000, 0.081600000000, 0.000000000000], // 655 nm
+    [0.164900000000, 0.061000000000, 0.000000000000], // 660 nm
+    [0.121200000000, 0.044580000000, 0.000000000000], // 665 nm
+    [0.087400000000, 0.032000000000, 0.000000000000], // 670 nm
+    [0.063600000000, 0.023200000000, 0.000000000000], // 675 nm
+    [0.046770000000, 0.017000000000, 0.000000000000], // 680 nm
+    [0.032900000000, 0.011920000000, 0.000000000000], // 685 nm
+    [0.022700000000, 0.008210000000, 0.000000000000], // 690 nm
+    [0.015840000000, 0.005723000000, 0.000000000000], // 695 nm
+    [0.011359160000, 0.004102000000, 0.000000000000], // 700 nm
+    [0.008110916000, 0.002929000000, 0.000000000000], // 705 nm
+    [0.005790346000, 0.002091000000, 0.000000000000], // 710 nm
+    [0.004109457000, 0.001484000000, 0.000000000000], // 715 nm
+    [0.002899327000, 0.001047000000, 0.000000000000], // 720 nm
+    [0.002049190000, 0.000740000000, 0.000000000000], // 725 nm
+    [0.001439971000, 0.000520000000, 0.000000000000], // 730 nm
+    [0.000999949300, 0.000361100000, 0.000000000000], // 735 nm
+    [0.000690078600, 0.000249200000, 0.000000000000], // 740 nm
+    [0.000476021300, 0.000171900000, 0.000000000000], // 745 nm
+    [0.000332301100, 0.000120000000, 0.000000000000], // 750 nm
+    [0.000234826100, 0.000084800000, 0.000000000000], // 755 nm
+    [0.000166150500, 0.000060000000, 0.000000000000], // 760 nm
+    [0.000117413000, 0.000042400000, 0.000000000000], // 765 nm
+    [0.000083075270, 0.000030000000, 0.000000000000], // 770 nm
+    [0.000058706520, 0.000021200000, 0.000000000000], // 775 nm
+    [0.000041509940, 0.000014990000, 0.000000000000], // 780 nm
+    [0.000029353260, 0.000010600000, 0.000000000000], // 785 nm
+    [0.000020673830, 0.000007465700, 0.000000000000], // 790 nm
+    [0.000014559770, 0.000005257800, 0.000000000000], // 795 nm
+    [0.000010253980, 0.000003702900, 0.000000000000], // 800 nm
+    [0.000007221456, 0.000002607800, 0.000000000000], // 805 nm
+    [0.000005085868, 0.000001836600, 0.000000000000], // 810 nm
+    [0.000003581652, 0.000001293400, 0.000000000000], // 815 nm
+    [0.000002522525, 0.000000910930, 0.000000000000], // 820 nm
+    [0.000001776509, 0.000000641530, 0.000000000000], // 825 nm
+    [0.000001251141, 0.000000451810, 0.000000000000], // 830 nm
+];
 
 /// XYZ → linear Rec. 709 (sRGB primaries, D65 white), rows r, g, b (IEC 61966-2-1).
 pub const XYZ_TO_REC709: [[f64; 3]; 3] = [
@@ -88,24 +189,6 @@ pub const XYZ_TO_REC709: [[f64; 3]; 3] = [
 ];
 /// Rec. 709 luminance of linear r, g, b (the Y row of the inverse of [`XYZ_TO_REC709`]).
 pub const REC709_LUMINANCE: [f64; 3] = [0.212_671, 0.715_160, 0.072_169];
-
-/// One piecewise Gaussian lobe of the colour-matching-function fit: `a·exp(−½((λ − μ)/σ)²)`, σ
-/// on the left of μ and σ' on its right.
-fn lobe(lambda: f64, a: f64, mu: f64, sigma_left: f64, sigma_right: f64) -> f64 {
-    let s = if lambda < mu { sigma_left } else { sigma_right };
-    let t = (lambda - mu) / s;
-    a * (-0.5 * t * t).exp()
-}
-
-/// CIE 1931 2° colour-matching functions x̄, ȳ, z̄ at `lambda` nm (Wyman, Sloan & Shirley 2013,
-/// multi-lobe fit).
-pub fn cie_xyz_bar(lambda: f64) -> [f64; 3] {
-    let x = lobe(lambda, 1.056, 599.8, 37.9, 31.0) + lobe(lambda, 0.362, 442.0, 16.0, 26.7)
-        - lobe(lambda, 0.065, 501.1, 20.4, 26.2);
-    let y = lobe(lambda, 0.821, 568.8, 46.9, 40.5) + lobe(lambda, 0.286, 530.9, 16.3, 31.1);
-    let z = lobe(lambda, 1.217, 437.0, 11.8, 36.0) + lobe(lambda, 0.681, 459.0, 26.0, 13.8);
-    [x, y, z]
-}
 
 /// Planck's spectral radiance B(λ, T) in W·m⁻²·sr⁻¹·nm⁻¹, λ in nm, T in kelvin.
 pub fn planck(lambda_nm: f64, kelvin: f64) -> f64 {
@@ -125,19 +208,39 @@ struct Node {
 fn nodes() -> &'static [Node] {
     static NODES: OnceLock<Vec<Node>> = OnceLock::new();
     NODES.get_or_init(|| {
-        let n = ((LAMBDA_LAST - LAMBDA_FIRST) / LAMBDA_STEP).round() as usize;
-        (0..=n)
-            .map(|i| {
+        let n = CIE_1931_2DEG_5NM.len() - 1;
+        CIE_1931_2DEG_5NM
+            .iter()
+            .enumerate()
+            .map(|(i, xyz)| {
                 let lambda = LAMBDA_FIRST + i as f64 * LAMBDA_STEP;
                 let l = lambda * 1e-9;
                 let end = if i == 0 || i == n { 0.5 } else { 1.0 };
                 let scale = end * LAMBDA_STEP * 2.0 * H * C * C / l.powi(5) * 1e-9;
-                let xyz = cie_xyz_bar(lambda);
                 let w = XYZ_TO_REC709.map(|row| scale * (row[0] * xyz[0] + row[1] * xyz[1] + row[2] * xyz[2]));
                 Node { c: H * C / (l * K), w }
             })
             .collect()
     })
+}
+
+/// The blackbody's CIE 1931 XYZ at `kelvin` (W·m⁻²·sr⁻¹; the same sum as [`blackbody_rgb`]
+/// before the matrix): for chromaticities.
+pub fn blackbody_xyz(kelvin: f64) -> [f64; 3] {
+    let mut xyz = [0.0; 3];
+    if !(kelvin > 0.0) {
+        return xyz;
+    }
+    let n = CIE_1931_2DEG_5NM.len() - 1;
+    for (i, bar) in CIE_1931_2DEG_5NM.iter().enumerate() {
+        let lambda = LAMBDA_FIRST + i as f64 * LAMBDA_STEP;
+        let end = if i == 0 || i == n { 0.5 } else { 1.0 };
+        let b = end * LAMBDA_STEP * planck(lambda, kelvin);
+        for (o, w) in xyz.iter_mut().zip(bar) {
+            *o += w * b;
+        }
+    }
+    xyz
 }
 
 /// The blackbody's colour at `kelvin` in linear Rec. 709, unclamped (`M·XYZ(T)`, W·m⁻²·sr⁻¹).
