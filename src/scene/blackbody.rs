@@ -46,9 +46,11 @@
 //!   its red tail is off enough that at 1000 K, where that tail is all a flame emits, it gave three
 //!   times the true green. With the table the chromaticities follow the published Planckian locus
 //!   to ~10⁻⁴ (1000 K: x = 0.6528, y = 0.3445; tested against it and Kim et al.'s fit of it).
-//! - The integral is the trapezoid rule over the table's 95 wavelengths: against the 1 nm table
-//!   it differs by ~10⁻⁶ (the integrand is smooth on the 5 nm scale), and a Simpson integration
-//!   over the same samples agrees to that (tested).
+//! - The integral is the trapezoid rule over the table's 95 wavelengths. Against the same rule
+//!   over the CIE's 1 nm table it differs by at most 1.1·10⁻⁶ in X and Y from 600 K to 6500 K
+//!   (checked when this was written; Z, which matters only where it is large, by 4·10⁻⁴ at 600 K
+//!   and ~10⁻⁶ above 1500 K). Simpson's rule or a linear interpolation of the 5 nm table are
+//!   worse: the table is not a polynomial on that scale.
 //! - Three representative wavelengths (e.g. `B(610 nm)`, `B(550 nm)`, `B(465 nm)`) were the
 //!   cheaper alternative, rejected: a channel responds to a broad band, and point samples give the
 //!   wrong hue and saturation (a 6500 K body is not near white through them).
