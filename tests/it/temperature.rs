@@ -286,9 +286,9 @@ fn the_hot_core_agrees_with_monte_carlo() {
     }
     let err = relative_l2(&lpm_phi, &mc);
     eprintln!("temperature vs Monte Carlo: relative L2 {err:.3e}");
-    // As for the emission grid's core (tests/it/emission.rs): Monte-Carlo noise plus the LPM's own
-    // error at the core's sharp edges.
-    assert!(err < 0.08, "relative L2 {err}");
+    // Measured 7.5e−2, and the same at 3·10⁶ photons: the LPM's own error at the core's sharp
+    // edges (k = 4), not Monte-Carlo noise; the totals (within 0.7%) are the tight check.
+    assert!(err < 0.085, "relative L2 {err}");
 }
 
 #[test]
