@@ -4,7 +4,7 @@
 
     /usr/bin/python3 tools/fire_vdb.py tools/scenes/fire.vdb [N]
 
-N (default 64) is the volume's width in voxels; the volume is N × 1.5N × N, y up, voxel size 3/N
+N (default 80) is the volume's width in voxels; the volume is N × 1.5N × N, y up, voxel size 3/N
 world units (metres): 3 m wide, 4.5 m tall whatever N. Needs OpenVDB's Python module and numpy
 (Debian: python3-openvdb, python3-numpy; tools/setup.sh installs them).
 
@@ -58,7 +58,7 @@ def main():
     if len(sys.argv) not in (2, 3):
         sys.exit(__doc__)
     path = sys.argv[1]
-    n = int(sys.argv[2]) if len(sys.argv) == 3 else 64
+    n = int(sys.argv[2]) if len(sys.argv) == 3 else 80
     nx, ny, nz = n, (3 * n) // 2, n
     rng = np.random.default_rng(7)
     # Voxel-centre coordinates: x, z in [-0.5, 0.5] across, y in [0, 1.5] up (units of the width).
@@ -72,21 +72,22 @@ def main():
     sway_z = 0.05 * np.sin(4.0 * Y + 2.1) * smoothstep(0.1, 1.0, Y)
     r = np.sqrt((X - sway_x) ** 2 + (Z - sway_z) ** 2) * (1.0 + 0.35 * wobble)
 
-    # Flame: a teardrop over the burner (y ≈ 0.05), up to ~0.7 high, hottest low in its core.
-    height = 0.7 * (1.0 + 0.25 * fbm((nx, ny, nz), (2, 3, 2), 3, rng))
+    # Flame: a teardrop over the burner (y ≈ 0.05), up to ~0.8 high, hottest low in its core.
+    height = 0.8 * (1.0 + 0.3 * fbm((nx, ny, nz), (3, 4, 3), 3, rng))
     h = np.clip((Y - 0.04) / height, 0.0, 1.0)
-    flame_radius = 0.17 * np.sqrt(np.clip(h, 0.0, 1.0)) * (1.0 - h) ** 0.6 * 1.8 + 1e-6
+    flame_radius = 0.4 * np.sqrt(h) * (1.0 - h) ** 0.6 + 1e-6
     inside = np.clip(1.0 - (r / flame_radius) ** 2, 0.0, 1.0) * (Y > 0.04)
-    heat = inside * (1.0 - 0.55 * h)
+    flicker = fbm((nx, ny, nz), (6, 8, 6), 3, rng)
+    heat = np.clip(inside * (1.0 - 0.55 * h) * (1.0 + 0.5 * flicker), 0.0, 1.0)
     temperature = np.where(heat > 0.0, 900.0 + 1100.0 * heat, 300.0)
 
     # Smoke: a plume widening as it climbs, thin around the flame, thickest above it.
-    plume_radius = 0.10 + 0.22 * smoothstep(0.1, 1.4, Y)
+    plume_radius = 0.14 + 0.20 * smoothstep(0.1, 1.4, Y)
     detail = fbm((nx, ny, nz), (5, 7, 5), 4, rng)
     plume = np.clip(1.0 - (r / plume_radius) ** 2, 0.0, 1.0) ** 0.8
-    rise = 0.25 + 0.75 * smoothstep(0.35, 0.9, Y)
+    rise = 0.35 + 0.65 * smoothstep(0.2, 0.8, Y)
     fade = 1.0 - smoothstep(1.2, 1.5, Y)
-    density = plume * rise * fade * np.clip(0.75 + 0.6 * detail, 0.0, None)
+    density = plume * rise * fade * np.clip(0.6 + 1.2 * detail, 0.0, None) ** 1.5
     # Fire glows where there is medium to emit: give the flame a little soot of its own.
     density = np.maximum(density, 0.35 * inside)
 

@@ -70,8 +70,15 @@ impl Grid {
                 *m = 0.0;
             }
         }
-        let grid =
-            Grid { dims, bricks, density: values, brick_max, brick_min, emission: Vec::new(), emission_weight: [total; 3] };
+        let grid = Grid {
+            dims,
+            bricks,
+            density: values,
+            brick_max,
+            brick_min,
+            emission: Vec::new(),
+            emission_weight: [total; 3],
+        };
         (grid, bad)
     }
 

@@ -135,7 +135,13 @@ fn run_in(
     let result = match &scene.volume.source {
         VolumeSource::Procedural { shape, seed } => {
             let (shape, seed): (Shape, u64) = (*shape, *seed);
-            super::run_with_emission_rgb(&scene, &|v| procedural::density(shape, seed, dims, v), emission, channels, &opts)
+            super::run_with_emission_rgb(
+                &scene,
+                &|v| procedural::density(shape, seed, dims, v),
+                emission,
+                channels,
+                &opts,
+            )
         }
         VolumeSource::Raw { path } => {
             let at = dense_lookup(raw_densities(path, dims)?, dims);
@@ -182,7 +188,11 @@ fn run_in(
 /// Voxel v of `values` (x fastest, `dims`); 0 past the end (a short array is caught by its reader).
 /// A scene's per-voxel emission factors, every voxel (x fastest): a grey grid's values in every
 /// channel, or a temperature grid's blackbody factors (with the store's checks and messages).
-fn emission_factors(job: &ReferenceJob, scene: &Scene, grid: &EmissionGrid) -> Result<Vec<[f32; 3]>, ReferenceJobError> {
+fn emission_factors(
+    job: &ReferenceJob,
+    scene: &Scene,
+    grid: &EmissionGrid,
+) -> Result<Vec<[f32; 3]>, ReferenceJobError> {
     let dims = scene.volume.dims;
     let label = store::emission::field_label(grid);
     let bad = |e: StoreError| if grid.blackbody().is_some() { e.into_temperature(&label) } else { e.into_emission() };

@@ -6,8 +6,8 @@
 
 use super::raw::{ByteSize, Channels, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
 use super::{
-    ForwardPeak, Light, Medium, PlanMode, Scene, SceneError, Shape, SolverSettings, SpatialScheme,
-    StoragePrecision, Volume, VolumeSource,
+    ForwardPeak, Light, Medium, PlanMode, Scene, SceneError, Shape, SolverSettings, SpatialScheme, StoragePrecision,
+    Volume, VolumeSource,
 };
 use emission::{BlackbodyKeys, EmissionKeys};
 use glam::DVec3;

@@ -3,7 +3,8 @@
 //! (Just over 450 lines: every choice the plan makes sits beside the reason it reports, so one file
 //! says what a solve will model.)
 //!
-//! - channels: 1 when the medium and every light are grey, else 3 (RGB);
+//! - channels: 1 when the medium, every light and the emission grid are grey (a temperature grid's
+//!   blackbody colour never is), else 3 (RGB);
 //! - storage directions for the source: 1 when the medium is isotropic (g = 0), else k_s×k_s per face;
 //! - emission: only when some channel emits;
 //! - empty bricks: known from the store; they hold no medium and no source;
@@ -282,7 +283,7 @@ impl Plan {
         reasons.push(if let (true, Some(b)) = (emission_field, blackbody) {
             format!(
                 "emission per voxel from a temperature grid: the first order's source is σa·Le·f(T) per \
-                 channel, f the blackbody colour at {} K per grid unit, luminance 1 at {} K, none below {} K",
+                 channel, T = {} K × the grid's value, f the blackbody colour (luminance 1 at {} K, 0 below {} K)",
                 b.scale, b.reference, b.cutoff
             )
         } else if emission_field {

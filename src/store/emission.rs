@@ -107,7 +107,8 @@ pub fn import_emission(
                 let origin = store.grid().brick_origin(coords);
                 for (l, &t) in values.iter().enumerate() {
                     // Local index l = x + 16·(y + 16·z) (see store::grid::local_index).
-                    let voxel = [origin[0] + (l % 16) as u32, origin[1] + (l / 16 % 16) as u32, origin[2] + (l / 256) as u32];
+                    let voxel =
+                        [origin[0] + (l % 16) as u32, origin[1] + (l / 16 % 16) as u32, origin[2] + (l / 256) as u32];
                     let f = temperature_factors(map, max_emission, t, voxel, &path)?;
                     for (c, v) in f.into_iter().enumerate() {
                         dst[c * BRICK_VOXELS + l] = v;

@@ -51,7 +51,8 @@ fn xyz_trapezoid(t: f64) -> [f64; 3] {
 
 /// Linear Rec. 709 of XYZ (sRGB's matrix, IEC 61966-2-1), negative components clamped.
 fn rec709(xyz: [f64; 3]) -> [f64; 3] {
-    let m = [[3.2404542, -1.5371385, -0.4985314], [-0.9692660, 1.8760108, 0.0415560], [0.0556434, -0.2040259, 1.0572252]];
+    let m =
+        [[3.2404542, -1.5371385, -0.4985314], [-0.9692660, 1.8760108, 0.0415560], [0.0556434, -0.2040259, 1.0572252]];
     m.map(|r| (r[0] * xyz[0] + r[1] * xyz[1] + r[2] * xyz[2]).max(0.0))
 }
 
@@ -83,7 +84,13 @@ fn planck_integrates_to_stefan_boltzmann() {
         let mut s = 0.0;
         for i in 0..=n {
             let u = a + i as f64 * h;
-            let w = if i == 0 || i == n { 1.0 } else if i % 2 == 1 { 4.0 } else { 2.0 };
+            let w = if i == 0 || i == n {
+                1.0
+            } else if i % 2 == 1 {
+                4.0
+            } else {
+                2.0
+            };
             s += w * planck(u.exp(), t) * u.exp();
         }
         let total = s * h / 3.0;
@@ -117,7 +124,10 @@ fn the_colour_follows_the_published_planckian_locus() {
     for t in [1667.0, 1800.0, 2000.0, 2500.0, 3000.0, 4000.0, 5000.0, 6500.0, 10000.0, 25000.0] {
         let ((cx, cy), (kx, ky)) = (chromaticity(t), kim_xy(t));
         worst = worst.max((cx - kx).abs()).max((cy - ky).abs());
-        assert!((cx - kx).abs() < 1e-3 && (cy - ky).abs() < 1e-3, "{t} K: ({cx:.4}, {cy:.4}) vs Kim ({kx:.4}, {ky:.4})");
+        assert!(
+            (cx - kx).abs() < 1e-3 && (cy - ky).abs() < 1e-3,
+            "{t} K: ({cx:.4}, {cy:.4}) vs Kim ({kx:.4}, {ky:.4})"
+        );
     }
     eprintln!("chromaticity vs Kim et al.'s Planckian locus: worst {worst:.2e}");
     for (t, px, py) in [(1000.0, 0.6528, 0.3444), (1500.0, 0.5857, 0.3931)] {
@@ -375,7 +385,11 @@ fn bad_temperature_input_is_refused_with_its_name() {
     for (file, medium, expect) in [
         ("nan.raw", "", ["nan.raw", "(1, 2, 3)", "temperature NaN", "volume.temperature_raw"]),
         ("neg.raw", "", ["neg.raw", "(3, 0, 2)", "temperature -5", "non-negative"]),
-        ("ok.raw", "temperature_scale = 1e9\n", ["ok.raw", "(0, 0, 0)", "1.0000e12 K", "lower medium.temperature_scale"]),
+        (
+            "ok.raw",
+            "temperature_scale = 1e9\n",
+            ["ok.raw", "(0, 0, 0)", "1.0000e12 K", "lower medium.temperature_scale"],
+        ),
     ] {
         let path = write_scene(&dir, &format!("{base}temperature_raw = \"{file}\"\n{tail}{medium}"));
         let sc = Scene::load(&path).expect("valid scene");

@@ -96,10 +96,9 @@ impl Validator<'_> {
         let (raw_key, grid_key) = (format!("volume.{what}_raw"), format!("volume.{what}_grid"));
         match (raw, grid) {
             (None, None) => Ok(None),
-            (Some(_), Some(_)) => Err(self.err(
-                grid_key,
-                format!("set at most one of `{what}_raw` and `{what}_grid`, but both are set"),
-            )),
+            (Some(_), Some(_)) => {
+                Err(self.err(grid_key, format!("set at most one of `{what}_raw` and `{what}_grid`, but both are set")))
+            }
             (Some(raw), None) => {
                 let voxels = volume.dims.iter().map(|&d| u64::from(d)).product::<u64>();
                 Ok(Some(Values::Raw(self.raw_file_at(&raw_key, &raw, volume.dims, voxels)?)))
@@ -134,10 +133,9 @@ impl Validator<'_> {
             Some(t) => {
                 let t = self.finite("medium.temperature_reference", t)?;
                 if !(lo..=hi).contains(&t) {
-                    return Err(self.err(
-                        "medium.temperature_reference",
-                        format!("must be in [{lo}, {hi:e}] kelvin, got {t}"),
-                    ));
+                    return Err(
+                        self.err("medium.temperature_reference", format!("must be in [{lo}, {hi:e}] kelvin, got {t}"))
+                    );
                 }
                 t
             }
