@@ -13,7 +13,7 @@
 //! blackbody colour, see [`crate::store::emission`]); channel `ch` reads
 //! [`channel_block`]`(brick, ch)` either way.
 
-use super::plan::Plan;
+use super::plan::{half_scale_exponent, power_of_two, Plan, Precision};
 use super::SolveError;
 use crate::store::emission::{channel_block, open_emission};
 use crate::store::{BrickStore, Field, BRICK_VOXELS};
@@ -65,24 +65,41 @@ pub fn write_initial_source(store: &BrickStore, plan: &Plan, source: &mut Field)
     Ok(())
 }
 
-/// Power the emission field emits, per channel: Σ 4π·ρσa·Le·e·h³, with the source values as
-/// written (f32), so that the energy balance closes to round-off.
+/// Power the emission field emits, per channel: Σ 4π·ρσa·Le·e·h³, with the source values as the
+/// rays gain them, so that the energy balance closes to round-off: the f32 values written, or,
+/// where the plan stores the gained source in f16, those values rounded as both backends round
+/// them before order 0 (scaled by the power of two [`half_scale_exponent`] picks from the largest,
+/// rounded to f16, scaled back). Counting the f32 values there left the balance off by the
+/// rounding, ~2·10⁻⁵ for a fire whose temperatures span a wide range of radiance.
 pub fn emitted_power(store: &BrickStore, plan: &Plan) -> Result<[f64; 3], SolveError> {
     let emission = open_emission(store)?;
     let c = plan.channels as usize;
     let h3 = plan.voxel_size.powi(3);
     let four_pi: f64 = plan.storage.solid_angle.iter().sum();
     let scale = scales(plan);
-    let mut power = [0.0; 3];
-    for brick in store.occupied_bricks() {
-        let (Some(density), Some(e)) = (store.density_brick(brick), emission.brick(brick)) else {
-            continue;
-        };
-        for ch in 0..c {
-            let e = channel_block(e, ch);
-            let sum: f64 = density.iter().zip(e).map(|(&rho, &e)| source_value(rho, scale[ch], e) as f64).sum();
-            power[ch] += four_pi * sum * h3;
+    // Each voxel's source value per channel, brick by brick, for `visit`.
+    let each = |visit: &mut dyn FnMut(usize, f32)| {
+        for brick in store.occupied_bricks() {
+            let (Some(density), Some(e)) = (store.density_brick(brick), emission.brick(brick)) else {
+                continue;
+            };
+            for (ch, &s) in scale.iter().enumerate().take(c) {
+                for (&rho, &e) in density.iter().zip(channel_block(e, ch)) {
+                    visit(ch, source_value(rho, s, e));
+                }
+            }
         }
-    }
-    Ok(power)
+    };
+    let gained: Box<dyn Fn(f32) -> f64> = if plan.source_precision == Precision::F16 {
+        let mut largest = 0f32;
+        each(&mut |_, v| largest = largest.max(v.abs()));
+        let e = half_scale_exponent(largest);
+        let (up, down) = (power_of_two(e), power_of_two(-e));
+        Box::new(move |v| (half::f16::from_f32(v * up).to_f32() * down) as f64)
+    } else {
+        Box::new(|v| v as f64)
+    };
+    let mut sums = [0.0f64; 3];
+    each(&mut |ch, v| sums[ch] += gained(v));
+    Ok(sums.map(|s| four_pi * s * h3))
 }

@@ -232,6 +232,22 @@ fn gpu_matches_the_twin_and_energy_balances() {
 }
 
 #[test]
+fn with_f16_storage_the_balance_counts_the_emission_as_the_rays_gain_it() {
+    // The gained source is rounded to f16 before order 0: the emitted power must be counted from
+    // the rounded values (counted from the f32 ones, the balance was 1.9e−5 off on the example
+    // fire, now 2.7e−6; what remains, 3.7e−6 here, is the later orders' rounding, as in any f16
+    // solve).
+    let mut sc = hot_sphere("temperature-f16", [1.0; 3], |v| 500.0 + 80.0 * ((v[0] + 2 * v[1] + 3 * v[2]) % 23) as f32);
+    sc.solver.storage_precision = lpm::scene::StoragePrecision::F16;
+    for backend in [Cpu, Gpu] {
+        let s = solve("temperature-f16-solve", &sc, backend);
+        assert_eq!(s.run.plan.source_precision, lpm::solver::plan::Precision::F16);
+        let e = &s.run.outcome.energy;
+        assert!(e.relative_imbalance < 1e-5, "{backend:?}: {e:?}");
+    }
+}
+
+#[test]
 fn a_temperature_grid_solves_like_the_emission_grid_it_equals() {
     // One temperature in the core: its blackbody factors f are one colour, so the same emission is
     // an emission grid of ones there with medium.emission = tint·f.
@@ -242,7 +258,7 @@ fn a_temperature_grid_solves_like_the_emission_grid_it_equals() {
     let mut glow = hot.clone();
     let path = temp_dir("temperature-equal-e").join("emission.raw");
     write_raw(&path, [20, 22, 18], |v| if core(v) > 0.0 { 1.0 } else { 0.0 });
-    let f = BlackbodyMap::new(&DEFAULT).factors(t0 as f32);
+    let f = BlackbodyMap::new(&DEFAULT).factors(t0);
     glow.medium.emission = std::array::from_fn(|c| tint[c] * f[c]);
     glow.volume.emission = Some(EmissionGrid::Raw { path });
     for backend in [Cpu, Gpu] {
@@ -403,7 +419,7 @@ fn bad_temperature_input_is_refused_with_its_name() {
             threads: 1,
             image_samples_per_pixel: 0,
         };
-        let err = lpm::reference::job::run(&job).err().expect("refused").to_string();
+        let err = lpm::reference::job::run(&job).expect_err("refused").to_string();
         assert!(expect.iter().all(|e| err.contains(e)), "reference: {err}");
     }
 }
