@@ -183,9 +183,6 @@ fn run_in(
     Ok(report)
 }
 
-/// The densities of a raw volume file (x fastest), checked by the same importer as the solver's
-/// (NaN, infinite or negative values are errors naming the voxel).
-/// Voxel v of `values` (x fastest, `dims`); 0 past the end (a short array is caught by its reader).
 /// A scene's per-voxel emission factors, every voxel (x fastest): a grey grid's values in every
 /// channel, or a temperature grid's blackbody factors (with the store's checks and messages).
 fn emission_factors(
@@ -240,16 +237,20 @@ fn emission_factors(
         .collect()
 }
 
+/// [`dense_lookup`] of per-channel emission factors.
 fn dense_lookup_rgb(values: &[[f32; 3]], dims: [u32; 3]) -> impl Fn([u32; 3]) -> [f32; 3] + Sync + '_ {
     let (nx, ny) = (dims[0] as usize, dims[1] as usize);
     move |v| values.get((v[2] as usize * ny + v[1] as usize) * nx + v[0] as usize).copied().unwrap_or([0.0; 3])
 }
 
+/// Voxel v of `values` (x fastest, `dims`); 0 past the end (a short array is caught by its reader).
 fn dense_lookup(values: Vec<f32>, dims: [u32; 3]) -> impl Fn([u32; 3]) -> f32 + Sync {
     let (nx, ny) = (dims[0] as usize, dims[1] as usize);
     move |v| values.get((v[2] as usize * ny + v[1] as usize) * nx + v[0] as usize).copied().unwrap_or(0.0)
 }
 
+/// The densities of a raw volume file (x fastest), checked by the same importer as the solver's
+/// (NaN, infinite or negative values are errors naming the voxel).
 fn raw_densities(path: &Path, dims: [u32; 3]) -> Result<Vec<f32>, StoreError> {
     let raw = store::raw_density(path, dims)?;
     let grid = BrickGrid::new(dims);
