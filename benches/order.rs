@@ -47,6 +47,7 @@ fn bench_scene() -> Scene {
             plan: PlanMode::Auto,
             spatial: SpatialScheme::default(),
             forward_peak: ForwardPeak::default(),
+            diffusion_correction: DiffusionCorrection::default(),
         },
         camera: None,
     }

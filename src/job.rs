@@ -425,7 +425,13 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
     };
     let mut published = Vec::new();
     if !job.no_render_data {
-        render::keep::keep(&stage.join(render::RENDER_DATA), &store, &fields.source_total, &render_data)?;
+        render::keep::keep(
+            &stage.join(render::RENDER_DATA),
+            &store,
+            &fields.source_total,
+            render::keep::environment_light(&scene.lights),
+            &render_data,
+        )?;
         published.push(render::RENDER_DATA.to_string());
     }
     if !job.no_image {
@@ -435,6 +441,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
             &store,
             &fields.source_total,
             emission.as_ref(),
+            render::keep::environment_light(&scene.lights),
             &camera,
             job.background,
         );

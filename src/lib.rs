@@ -1,8 +1,9 @@
 //! # lpm — Light Propagation Maps, streamed out of core, on Vulkan
 //!
 //! lpm solves the radiative transfer equation in a voxel volume of absorbing, scattering and emitting
-//! medium lit by a sky and a sun, and renders images from the solution. The method is Fattal's Light
-//! Propagation Maps (a discrete-ordinates method) in the parallel, streamed form of Gruson et al. 2012:
+//! medium lit by a sky, an HDR environment map and suns, and renders images from the solution. The
+//! method is Fattal's Light Propagation Maps (a discrete-ordinates method) in the parallel, streamed
+//! form of Gruson et al. 2012:
 //! the volume is tiled into 16³ bricks kept in memory-mapped files, and each of the six cube faces is
 //! swept slice of bricks by slice of bricks, the ray state travelling with the sweep on the device.
 //! Only occupied bricks are stored, streamed and solved (empty space is crossed by the rays but holds
@@ -109,7 +110,9 @@
 //! opposite side as a new ray. Along its segment in a voxel the exact constant-coefficient solution is
 //! used ([`solver::segment`]): what the ray deposits is its segment-average radiance, from which the
 //! collect step forms the fluence and the next order's in-scattered source. The sun is one more
-//! "direction" swept along its exact direction, so its uncollided light shows no ray effects.
+//! "direction" swept along its exact direction, so its uncollided light shows no ray effects. An
+//! environment map is boundary radiance averaged over each direction's cell, its sun-like peak
+//! taken out as one more beam ([`solver::environment`]).
 
 pub mod bench;
 pub mod compare;

@@ -90,7 +90,8 @@ fn run_stream(
     for order in 0..orders.max(1) {
         let t = Instant::now();
         gpu.propagate_order(order)?;
-        gpu.fields().0.commit_order(&plan);
+        let (fields, medium) = gpu.fields();
+        fields.commit_order(&plan, medium);
         let wall = t.elapsed().as_secs_f64();
         let now = gpu.stream_stats().unwrap_or_default();
         let upload = now.upload_seconds - before.upload_seconds;

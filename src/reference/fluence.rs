@@ -1,6 +1,7 @@
 //! Forward light tracing of one batch of photons for one channel, with the track-length estimator
 //! of fluence.
 
+use super::environment::EnvChannel;
 use super::grid::{box_interval, Grid};
 // The only thing taken from the rest of the crate: the typed scene.
 use super::phase::{basis, cosine_hemisphere, sample_hg, uniform_sphere};
@@ -27,6 +28,8 @@ pub struct ChannelSetup {
     pub le: f64,
     /// Sum of the sky radiances.
     pub sky: f64,
+    /// The environment map's channel, if the scene has one.
+    pub environment: Option<EnvChannel>,
     /// (unit direction toward the sun, irradiance) for each sun with irradiance > 0.
     pub suns: Vec<(DVec3, f64)>,
     /// Photon sources with their power (world units, W) — the probabilities of picking them.
@@ -40,6 +43,7 @@ pub struct ChannelSetup {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Source {
     Sky,
+    Environment,
     /// Index into `ChannelSetup::suns`.
     Sun(usize),
     Emission,
@@ -62,6 +66,7 @@ impl ChannelSetup {
         let le = m.emission[ch];
         let mut sky = 0.0;
         let mut suns = Vec::new();
+        let mut environment = None;
         for light in &scene.lights {
             match light {
                 lpm_scene::Light::Sky { radiance } => sky += radiance[ch],
@@ -71,6 +76,7 @@ impl ChannelSetup {
                         suns.push((*direction / len, irradiance[ch]));
                     }
                 }
+                lpm_scene::Light::Environment(env) => environment = Some(EnvChannel::new(env, ch)),
             }
         }
         let e = grid.extent();
@@ -78,6 +84,11 @@ impl ChannelSetup {
         if sky > 0.0 {
             let area = 2.0 * (e.x * e.y + e.y * e.z + e.z * e.x) * h * h;
             sources.push((Source::Sky, PI * sky * area));
+        }
+        if let Some(env) = environment.as_ref().filter(|env| env.power > 0.0) {
+            // Through a disk of radius R (the box's half diagonal) facing each direction.
+            let r = 0.5 * e.length();
+            sources.push((Source::Environment, env.power * PI * r * r * h * h));
         }
         for (i, &(dir, irr)) in suns.iter().enumerate() {
             let (_, _, eu, ev) = sun_rectangle(e, -dir);
@@ -89,7 +100,18 @@ impl ChannelSetup {
             sources.push((Source::Emission, emitted));
         }
         let power = sources.iter().map(|s| s.1).sum();
-        ChannelSetup { ch, sigma, albedo, g: m.g, le, sky, suns, sources, power, h }
+        ChannelSetup { ch, sigma, albedo, g: m.g, le, sky, environment, suns, sources, power, h }
+    }
+
+    /// Radiance arriving from outside the box along the direction `toward` (unit): the sky plus
+    /// the environment map.
+    pub fn sky_radiance(&self, toward: DVec3) -> f64 {
+        self.sky + self.environment.as_ref().map_or(0.0, |e| e.radiance(toward))
+    }
+
+    /// Some light arrives from outside the box along some direction (sky or map).
+    pub fn has_sky(&self) -> bool {
+        self.sky > 0.0 || self.environment.as_ref().is_some_and(|e| e.power > 0.0)
     }
 }
 
@@ -146,6 +168,18 @@ fn emit(grid: &Grid, setup: &ChannelSetup, cdf: &[f64], rng: &mut Rng) -> Option
             n[axis] = if high { -1.0 } else { 1.0 };
             let d = cosine_hemisphere(n, rng.uniform(), rng.uniform());
             Some((p, d))
+        }
+        Source::Environment => {
+            // A direction toward the sky ∝ L, then a point uniform on the disk of radius R facing
+            // it (outside the box), travelling away from the sky; misses count in N.
+            let d = -setup.environment.as_ref()?.sample(rng)?;
+            let (u, v) = basis(d);
+            let c = 0.5 * e;
+            let r = 0.5 * e.length();
+            let (rho, a) = (r * rng.uniform().sqrt(), 2.0 * PI * rng.uniform());
+            let o = c - d * (r + 1.0) + u * (rho * a.cos()) + v * (rho * a.sin());
+            let (t0, _) = box_interval(o, d, e)?;
+            Some((o + d * t0.max(0.0), d))
         }
         Source::Sun(i) => {
             let d = -setup.suns.get(i)?.0;

@@ -74,7 +74,7 @@ pub fn radiance(grid: &Grid, s: &ChannelSetup, o: DVec3, d: DVec3, rng: &mut Rng
     let mut d = d;
     // Bring the camera ray to the box.
     match box_interval(o, d, extent) {
-        None => return s.sky,
+        None => return s.sky_radiance(d),
         Some((t0, _)) => p = o + d * t0.max(0.0),
     }
     let mut scattered = false;
@@ -86,7 +86,7 @@ pub fn radiance(grid: &Grid, s: &ChannelSetup, o: DVec3, d: DVec3, rng: &mut Rng
             // estimation (its direction sampled from the phase function), so only the primary ray
             // sees the sky here; the sun is a delta and never seen directly.
             if !scattered {
-                l += beta * s.sky;
+                l += beta * s.sky_radiance(d);
             }
             break;
         };
@@ -109,10 +109,10 @@ pub fn radiance(grid: &Grid, s: &ChannelSetup, o: DVec3, d: DVec3, rng: &mut Rng
             }
         }
         // Next-event estimation to the sky along a phase-sampled direction (phase / pdf = 1).
-        if s.sky > 0.0 {
+        if s.has_sky() {
             let w = sample_hg(s.g, rng.uniform(), rng.uniform(), d);
             let tr = transmittance(grid, s.sigma, p, w, exit_distance(grid, p, w), rng);
-            l += beta * tr * s.sky;
+            l += beta * tr * s.sky_radiance(w);
         }
         scattered = true;
         if beta < RR_WEIGHT {

@@ -16,6 +16,11 @@
 //! photon carries the same power P/N (P = total power of the channel's sources):
 //! - **sky** of radiance L: a point uniform on the box surface (face ∝ area), a cosine-weighted
 //!   inward direction; the power entering the box is P = π·L·A (A the box's surface area);
+//! - **environment map**: a direction toward the sky with density ∝ L (a pixel ∝ L·Ω, then uniform
+//!   in its solid angle: the map is constant per pixel), then a point uniform on a disk of radius R
+//!   (the box's half diagonal) facing it, outside the box, travelling away from the sky; kept only
+//!   if the ray hits the box; P = π·R²·∫L dΩ. The lat-long mapping is written again in
+//!   `reference/environment.rs` from its definition, not taken from the scene module;
 //! - **sun** of irradiance E toward `direction`: a point uniform on a rectangle perpendicular to the
 //!   beam that covers the box's projection (outside the box), travelling along −`direction`; kept only
 //!   if the ray hits the box (misses still count in N); P = E·A_rect;
@@ -48,7 +53,8 @@
 //! first, ray through a jittered point of the pixel) are delta tracked; at each real collision the
 //! collision estimator adds (1 − α)·Le (= σa·Le/σt, the emission), the throughput is multiplied by α
 //! and next-event estimation adds each sun (transmittance × phase × E) and the sky (one direction
-//! sampled from the phase function: transmittance × sky radiance, since phase/pdf = 1). Transmittances
+//! sampled from the phase function: transmittance × the sky's and the map's radiance from there,
+//! since phase/pdf = 1). Transmittances
 //! are estimated by residual ratio tracking (the brick minimum integrated exactly; exact optical depth
 //! in regular-tracked bricks). The path then continues in an
 //! HG-sampled direction with Russian roulette. Only a primary ray that escapes adds the sky (after a
@@ -57,6 +63,7 @@
 // `!(x > 0.0)` is used on purpose throughout: it is true for NaN as well.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+mod environment;
 mod fluence;
 mod grid;
 mod image;

@@ -2,7 +2,7 @@
 
 use super::camera::RayGenerator;
 use super::march::march_ray;
-use crate::scene::{Camera, Medium};
+use crate::scene::{Camera, EnvironmentLight, Medium};
 use crate::store::{BrickStore, Field};
 use glam::DVec3;
 use std::sync::Mutex;
@@ -22,7 +22,7 @@ pub struct Image {
 /// What a camera ray that leaves the volume sees (`--background`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Background {
-    /// The scene's sky radiance, baked into the colour (alpha still says how opaque the medium is).
+    /// The scene's sky radiance and environment map, baked into the colour (alpha still says how opaque the medium is).
     #[default]
     Sky,
     /// Nothing: the colour is the medium's own light only, which is premultiplied by alpha (the
@@ -56,6 +56,9 @@ pub struct RenderInputs<'a> {
     pub medium: &'a Medium,
     /// Radiance seen where a ray leaves the volume (zero for [`Background::Transparent`]).
     pub background: [f64; 3],
+    /// An environment map seen behind the volume, on top of `background` (`None` for
+    /// [`Background::Transparent`] or a scene without one).
+    pub environment: Option<&'a EnvironmentLight>,
     pub camera: &'a Camera,
 }
 
@@ -92,8 +95,9 @@ pub fn render(inputs: &RenderInputs) -> Image {
                 for (x, (px, a)) in row.chunks_mut(3).zip(alpha_row.iter_mut()).enumerate() {
                     let (origin, dir) = rays.ray(x as u32, y as u32);
                     let (l, t) = march_ray(inputs, origin, dir);
+                    let map = inputs.environment.map_or([0.0; 3], |env| env.radiance(dir));
                     for ch in 0..3 {
-                        px[ch] = (l[ch] + t[ch] * inputs.background[ch]) as f32;
+                        px[ch] = (l[ch] + t[ch] * (inputs.background[ch] + map[ch])) as f32;
                     }
                     *a = (1.0 - (t[0] + t[1] + t[2]) / 3.0) as f32;
                 }

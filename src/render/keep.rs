@@ -10,6 +10,7 @@
 //! |---|---|
 //! | `bricks.json`, `density.bricks` | the brick store's table and density (see [`crate::store`]) |
 //! | `source.field` | the in-scattered source summed over orders, in brick form |
+//! | `environment.exr` | the scene's environment map, when it has one (the background) |
 //! | `render.json` | [`RenderData`]: everything else, written last |
 //!
 //! The three brick files are hard links to the solve's own store files (no copy, no extra space
@@ -19,7 +20,9 @@
 use super::{render, Background, Image, RenderInputs};
 use crate::output::{write_json_atomic, OutputError};
 use crate::quadrature::{PropagationSet, StorageSet};
-use crate::scene::{camera_from_keys, Camera, CameraKeys, Light, Medium, Projection, SceneError, VolumeFrame};
+use crate::scene::{
+    camera_from_keys, Camera, CameraKeys, EnvironmentLight, Light, MapUp, Medium, Projection, SceneError, VolumeFrame,
+};
 use crate::store::{BrickStore, Coverage, Field};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -56,6 +59,28 @@ pub struct RenderData {
     /// voxel by voxel.
     #[serde(default)]
     pub emission_per_voxel: bool,
+    /// The scene's environment map, seen behind the volume with `--background sky`: its file is
+    /// kept as `environment.exr` (linked or copied).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub environment: Option<EnvironmentData>,
+}
+
+/// How the kept `environment.exr` lies around the volume (`[[lights]] kind = "environment"`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EnvironmentData {
+    pub intensity: [f64; 3],
+    /// "z" or "y".
+    pub up: String,
+    pub rotation: f64,
+}
+
+/// The name of the kept environment map in `render-data/`.
+const ENVIRONMENT_FILE: &str = "environment.exr";
+
+impl EnvironmentData {
+    fn new(env: &EnvironmentLight) -> EnvironmentData {
+        EnvironmentData { intensity: env.intensity, up: env.up.name().to_string(), rotation: env.rotation_degrees }
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -156,6 +181,7 @@ impl RenderData {
             sky: sky_radiance(lights),
             camera: camera.into(),
             emission_per_voxel: false,
+            environment: environment_light(lights).map(EnvironmentData::new),
         }
     }
 }
@@ -171,9 +197,24 @@ pub fn sky_radiance(lights: &[Light]) -> [f64; 3] {
     sky
 }
 
+/// The scene's environment light, if it has one (at most one: the validator says so).
+pub fn environment_light(lights: &[Light]) -> Option<&EnvironmentLight> {
+    lights.iter().find_map(|l| match l {
+        Light::Environment(env) => Some(env),
+        _ => None,
+    })
+}
+
 /// Writes `dir` (a new directory, e.g. in a staging directory): links to `store`'s table and
-/// density and to `source`'s file, then `render.json`.
-pub fn keep(dir: &Path, store: &BrickStore, source: &Field, data: &RenderData) -> Result<(), OutputError> {
+/// density and to `source`'s file (and the environment map's, when `environment` is given), then
+/// `render.json`.
+pub fn keep(
+    dir: &Path,
+    store: &BrickStore,
+    source: &Field,
+    environment: Option<&EnvironmentLight>,
+    data: &RenderData,
+) -> Result<(), OutputError> {
     let io = |path: &Path, action: &'static str| {
         let path = path.to_path_buf();
         move |source| OutputError::Io { path, action, source }
@@ -188,6 +229,9 @@ pub fn keep(dir: &Path, store: &BrickStore, source: &Field, data: &RenderData) -
     if data.emission_per_voxel {
         let name = format!("{}.field", crate::store::emission::EMISSION_FIELD);
         files.push((store.dir().join(&name), name));
+    }
+    if let Some(env) = environment {
+        files.push((env.map.path.clone(), ENVIRONMENT_FILE.to_string()));
     }
     for (from, name) in files {
         let to = dir.join(name);
@@ -207,6 +251,8 @@ pub struct Kept {
     pub emission: Option<Field>,
     /// The camera the solve rendered with, in the volume's frame.
     pub camera: Camera,
+    /// The environment map behind the volume, read back from `environment.exr`.
+    pub environment: Option<EnvironmentLight>,
 }
 
 /// Opens `out/render-data` as the solve left it, checking that the pieces fit together.
@@ -256,18 +302,50 @@ pub fn open(out: &Path) -> Result<Kept, OutputError> {
     let storage_dirs = if data.storage_per_face == 0 { 1 } else { 6 * data.storage_per_face * data.storage_per_face };
     let source = store.open_field(SOURCE_FIELD, storage_dirs * data.channels, Coverage::Occupied)?;
     let emission = if data.emission_per_voxel { Some(crate::store::emission::open_emission(&store)?) } else { None };
-    Ok(Kept { data, store, source, emission, camera })
+    let environment = match &data.environment {
+        None => None,
+        Some(e) => {
+            let up = match e.up.as_str() {
+                "z" => MapUp::Z,
+                "y" => MapUp::Y,
+                other => return Err(invalid(format!("environment: unknown up axis \"{other}\""))),
+            };
+            let fine = e.intensity.iter().all(|v| v.is_finite() && *v >= 0.0) && e.rotation.is_finite();
+            if !fine {
+                return Err(invalid("environment: a non-finite or negative intensity or rotation".into()));
+            }
+            let file = dir.join(ENVIRONMENT_FILE);
+            let map = crate::scene::environment::read_map(&file)
+                .map_err(|m| OutputError::Invalid { path: file.clone(), message: format!("environment map: {m}") })?;
+            Some(EnvironmentLight {
+                map: std::sync::Arc::new(map),
+                intensity: e.intensity,
+                up,
+                rotation_degrees: e.rotation,
+            })
+        }
+    };
+    Ok(Kept { data, store, source, emission, camera, environment })
 }
 
 impl Kept {
     /// Renders the kept result through `camera` (volume frame) over `background`.
     pub fn render(&self, camera: &Camera, background: Background) -> Image {
-        render_solved(&self.data, &self.store, &self.source, self.emission.as_ref(), camera, background)
+        render_solved(
+            &self.data,
+            &self.store,
+            &self.source,
+            self.emission.as_ref(),
+            self.environment.as_ref(),
+            camera,
+            background,
+        )
     }
 }
 
 /// Renders a solved `source` (with its `store` and, where the medium emits per voxel, the store's
-/// `emission` field) as `data` describes it, through `camera` (volume frame) over `background`:
+/// `emission` field) as `data` describes it, through `camera` (volume frame) over `background`
+/// (with `environment`, the scene's map, behind the volume for [`Background::Sky`]):
 /// the one path both `lpm solve` and `lpm render` take, so a render of the kept data from the
 /// solve's view is bitwise the solve's image.
 pub fn render_solved(
@@ -275,6 +353,7 @@ pub fn render_solved(
     store: &BrickStore,
     source: &Field,
     emission: Option<&Field>,
+    environment: Option<&EnvironmentLight>,
     camera: &Camera,
     background: Background,
 ) -> Image {
@@ -298,6 +377,10 @@ pub fn render_solved(
         background: match background {
             Background::Sky => data.sky,
             Background::Transparent => [0.0; 3],
+        },
+        environment: match background {
+            Background::Sky => environment,
+            Background::Transparent => None,
         },
         camera,
     })

@@ -4,7 +4,8 @@
 //! `h` the voxel size; the volume spans `[0, dims·h]`. Each pixel's ray is walked voxel by voxel
 //! (3D DDA, Amanatides–Woo); inside a voxel the medium is constant, so the radiance gathered over the
 //! segment uses the exact closed form of the transfer equation ([`march`]). What the camera sees
-//! beyond the volume is a uniform background radiance.
+//! beyond the volume is the sky's uniform radiance plus the environment map's pixel in the ray's
+//! direction.
 //!
 //! [`render`] produces linear radiance and alpha = 1 − transmittance ([`Image`]); the background
 //! is the sky, or nothing ([`Background::Transparent`]: premultiplied colour, for compositing).

@@ -61,6 +61,11 @@ pub enum SceneError {
         .path.display(), .raw_path.display(), .dims[0], .dims[1], .dims[2]
     )]
     RawSize { path: PathBuf, key: String, raw_path: PathBuf, dims: [u32; 3], expected: u64, actual: u64 },
+
+    /// The environment map named by `lights[i].map` is missing, not an OpenEXR file, not a 2:1
+    /// lat-long image, or holds a NaN, infinite or negative pixel.
+    #[error("{}: {key}: environment map {}: {problem}", .path.display(), .map_path.display())]
+    Map { path: PathBuf, key: String, map_path: PathBuf, problem: String },
 }
 
 impl SceneError {
@@ -72,7 +77,8 @@ impl SceneError {
             | SceneError::Parse { path, .. }
             | SceneError::Invalid { path, .. }
             | SceneError::RawFile { path, .. }
-            | SceneError::RawSize { path, .. } => path,
+            | SceneError::RawSize { path, .. }
+            | SceneError::Map { path, .. } => path,
         }
     }
 
@@ -81,9 +87,10 @@ impl SceneError {
         match self {
             SceneError::Read { .. } | SceneError::BadFile { .. } => None,
             SceneError::Parse { key, .. } => key.as_deref(),
-            SceneError::Invalid { key, .. } | SceneError::RawFile { key, .. } | SceneError::RawSize { key, .. } => {
-                Some(key)
-            }
+            SceneError::Invalid { key, .. }
+            | SceneError::RawFile { key, .. }
+            | SceneError::RawSize { key, .. }
+            | SceneError::Map { key, .. } => Some(key),
         }
     }
 }

@@ -28,6 +28,7 @@
 //! checked later by the brick importer (here only the file's existence and size are checked).
 
 pub mod blackbody;
+pub mod environment;
 mod error;
 mod locate;
 pub mod procedural;

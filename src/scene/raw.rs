@@ -70,6 +70,11 @@ pub(crate) struct RawLight {
     #[serde(default, deserialize_with = "exactly3_opt")]
     pub direction: Option<[f64; 3]>,
     pub irradiance: Option<Channels>,
+    /// `environment`: the lat-long EXR file, its scale, zenith axis and turn about it (degrees).
+    pub map: Option<String>,
+    pub intensity: Option<Channels>,
+    pub up: Option<String>,
+    pub rotation: Option<f64>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -85,6 +90,7 @@ pub(crate) struct RawSolver {
     pub plan: Option<String>,
     pub spatial: Option<String>,
     pub forward_peak: Option<String>,
+    pub diffusion_correction: Option<String>,
 }
 
 /// A 3-vector written as an array of exactly 3 values. serde's own `[T; 3]` reads the first three

@@ -1,6 +1,7 @@
 //! The typed scene: what `Scene::load` produces after validation. Every value here has been checked
 //! (finite, in range), so the solver never re-validates.
 
+pub use super::environment::{EnvironmentLight, EnvironmentMap, MapUp};
 use glam::DVec3;
 use std::path::PathBuf;
 
@@ -158,6 +159,9 @@ pub enum Light {
     /// Directional light. `direction` is unit length and points toward the sun; `irradiance` is
     /// measured on a plane perpendicular to the beam.
     Sun { direction: DVec3, irradiance: [f64; 3] },
+    /// A lat-long environment map: the radiance arriving from each direction outside the volume
+    /// (see [`super::environment`] for its orientation). At most one per scene.
+    Environment(EnvironmentLight),
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -184,6 +188,31 @@ pub struct SolverSettings {
     pub spatial: SpatialScheme,
     /// What to do with a strong forward peak of the phase function (`solver.forward_peak`).
     pub forward_peak: ForwardPeak,
+    /// Whether the lattice's numerical diffusion is taken back out of each order's scattered
+    /// source (`solver.diffusion_correction`, see `solver::antidiffusion`).
+    pub diffusion_correction: DiffusionCorrection,
+}
+
+/// `solver.diffusion_correction`: the rays meet the voxels at a lateral offset from their true
+/// positions, which spreads the scattered light sideways a little every order (numerical
+/// diffusion; dense cores read bright). `auto` takes the known spread back out of each order's
+/// source with conservative anti-diffusive fluxes whenever the medium scatters; `off` keeps the
+/// lattice's raw result (for comparison).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum DiffusionCorrection {
+    #[default]
+    Auto,
+    Off,
+}
+
+impl DiffusionCorrection {
+    /// The scene file's spelling: "auto" or "off".
+    pub fn name(self) -> &'static str {
+        match self {
+            DiffusionCorrection::Auto => "auto",
+            DiffusionCorrection::Off => "off",
+        }
+    }
 }
 
 /// `solver.forward_peak`: how a phase function with a strong forward peak is modelled. A few storage
@@ -326,6 +355,7 @@ impl Light {
         let v = match self {
             Light::Sky { radiance } => radiance,
             Light::Sun { irradiance, .. } => irradiance,
+            Light::Environment(env) => return env.is_grey(),
         };
         v[0] == v[1] && v[1] == v[2]
     }

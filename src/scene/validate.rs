@@ -6,8 +6,8 @@
 
 use super::raw::{ByteSize, Channels, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
 use super::{
-    ForwardPeak, Light, Medium, PlanMode, Scene, SceneError, Shape, SolverSettings, SpatialScheme, StoragePrecision,
-    Volume, VolumeSource,
+    DiffusionCorrection, EnvironmentLight, ForwardPeak, Light, MapUp, Medium, PlanMode, Scene,
+    SceneError, Shape, SolverSettings, SpatialScheme, StoragePrecision, Volume, VolumeSource,
 };
 use emission::{BlackbodyKeys, EmissionKeys};
 use glam::DVec3;
@@ -56,12 +56,14 @@ pub const DEFAULT_TOLERANCE: f64 = 1e-4;
 pub const DEFAULT_SEED: u64 = 1;
 
 const SHAPES: &str = "\"sphere\", \"box\", \"cloud\"";
-const LIGHT_KINDS: &str = "\"sky\", \"sun\"";
+const LIGHT_KINDS: &str = "\"sky\", \"sun\", \"environment\"";
+const MAP_UPS: &str = "\"z\", \"y\"";
 const PROJECTIONS: &str = "\"pinhole\", \"orthographic\"";
 const PRECISIONS: &str = "\"auto\", \"f16\", \"f32\"";
 const PLAN_MODES: &str = "\"auto\", \"full\"";
 const SPATIAL_SCHEMES: &str = "\"constant\", \"linear\"";
 const FORWARD_PEAKS: &str = "\"auto\", \"delta-m\", \"keep\"";
+const DIFFUSION_CORRECTIONS: &str = "\"auto\", \"off\"";
 
 pub(crate) struct Validator<'a> {
     pub path: &'a Path,
@@ -90,6 +92,14 @@ impl Validator<'_> {
             );
         }
         let lights = raw.lights.into_iter().enumerate().map(|(i, l)| self.light(i, l)).collect::<R<Vec<_>>>()?;
+        let maps: Vec<usize> =
+            lights.iter().enumerate().filter(|(_, l)| matches!(l, Light::Environment(_))).map(|(i, _)| i).collect();
+        if let [_, second, ..] = maps[..] {
+            return Err(self.err(
+                format!("lights[{second}].kind"),
+                "a scene has at most one environment light (combine the maps into one image)",
+            ));
+        }
         let solver = self.solver(raw.solver)?;
         // The solver and renderer work in the volume's frame (its corner at 0): the camera comes
         // back in it.
@@ -348,7 +358,24 @@ impl Validator<'_> {
             }
         };
         let missing = |name: &str, kind: &str| self.err(key(name), format!("is required for a {kind} light"));
+        if l.kind == "sky" || l.kind == "sun" {
+            for (name, present) in [
+                ("map", l.map.is_some()),
+                ("intensity", l.intensity.is_some()),
+                ("up", l.up.is_some()),
+                ("rotation", l.rotation.is_some()),
+            ] {
+                reject_extra(name, present, &l.kind)?;
+            }
+        }
         match l.kind.as_str() {
+            "environment" => {
+                reject_extra("radiance", l.radiance.is_some(), "environment")?;
+                reject_extra("direction", l.direction.is_some(), "environment")?;
+                reject_extra("irradiance", l.irradiance.is_some(), "environment")?;
+                let file = l.map.ok_or_else(|| missing("map", "environment"))?;
+                self.environment(i, &file, l.intensity, l.up, l.rotation)
+            }
             "sky" => {
                 reject_extra("direction", l.direction.is_some(), "sky")?;
                 reject_extra("irradiance", l.irradiance.is_some(), "sky")?;
@@ -375,6 +402,62 @@ impl Validator<'_> {
         }
     }
 
+    /// `lights[i]` of kind "environment": reads and checks the map (see [`super::environment`]).
+    fn environment(
+        &self,
+        i: usize,
+        file: &str,
+        intensity: Option<Channels>,
+        up: Option<String>,
+        rotation: Option<f64>,
+    ) -> R<Light> {
+        let key = |name: &str| format!("lights[{i}].{name}");
+        let intensity = match intensity {
+            None => [1.0; 3],
+            Some(c) => self.channels(&key("intensity"), c, |k, v| self.non_negative(k, v, Some(MAX_LIGHT)))?,
+        };
+        let up = match up.as_deref() {
+            None | Some("z") => MapUp::Z,
+            Some("y") => MapUp::Y,
+            Some(other) => {
+                return Err(self.err(key("up"), format!("unknown up axis \"{other}\", expected one of {MAP_UPS}")))
+            }
+        };
+        let rotation_degrees = match rotation {
+            None => 0.0,
+            Some(r) => {
+                let r = self.finite(&key("rotation"), r)?;
+                if r.abs() > 360.0 {
+                    return Err(self.err(key("rotation"), format!("must be within ±360 degrees, got {r}")));
+                }
+                r
+            }
+        };
+        if file.trim().is_empty() {
+            return Err(self.err(key("map"), "must name a file, got an empty string"));
+        }
+        let base = self.path.parent().unwrap_or_else(|| Path::new(""));
+        let joined = base.join(file);
+        let map_path = std::path::absolute(&joined).unwrap_or(joined);
+        let map_err = |problem: String| SceneError::Map {
+            path: self.path.to_path_buf(),
+            key: key("map"),
+            map_path: map_path.clone(),
+            problem,
+        };
+        let map = super::environment::read_map(&map_path).map_err(map_err)?;
+        let brightest = map.rgb.iter().flatten().fold(0.0f32, |m, &v| m.max(v)) as f64;
+        for c in 0..3 {
+            if brightest * intensity[c] > MAX_LIGHT {
+                return Err(map_err(format!(
+                    "its brightest pixel ({brightest:e}) × lights[{i}].intensity ({:e}) is more than the limit of {MAX_LIGHT:e}",
+                    intensity[c]
+                )));
+            }
+        }
+        Ok(Light::Environment(EnvironmentLight { map: std::sync::Arc::new(map), intensity, up, rotation_degrees }))
+    }
+
     fn solver(&self, s: Option<RawSolver>) -> R<SolverSettings> {
         let Some(s) = s else {
             return Ok(SolverSettings {
@@ -388,6 +471,7 @@ impl Validator<'_> {
                 plan: PlanMode::Auto,
                 spatial: SpatialScheme::default(),
                 forward_peak: ForwardPeak::default(),
+                diffusion_correction: DiffusionCorrection::default(),
             });
         };
         let k = match s.directions_per_face {
@@ -463,6 +547,16 @@ impl Validator<'_> {
                 ))
             }
         };
+        let diffusion_correction = match s.diffusion_correction.as_deref() {
+            None | Some("auto") => DiffusionCorrection::Auto,
+            Some("off") => DiffusionCorrection::Off,
+            Some(other) => {
+                return Err(self.err(
+                    "solver.diffusion_correction",
+                    format!("unknown diffusion correction \"{other}\", expected one of {DIFFUSION_CORRECTIONS}"),
+                ))
+            }
+        };
         Ok(SolverSettings {
             directions_per_face: k,
             storage_directions_per_face: ks,
@@ -474,6 +568,7 @@ impl Validator<'_> {
             plan,
             spatial,
             forward_peak,
+            diffusion_correction,
         })
     }
 

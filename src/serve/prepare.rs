@@ -10,6 +10,8 @@ use std::path::Path;
 /// The `[volume]` keys that name a file: each is confined to the data root (or names an upload).
 /// A new key that names a file must be added here, or a client could name any file on the host.
 const VOLUME_KEYS: [&str; 6] = ["raw", "vdb", "nvdb", "nrrd", "emission_raw", "temperature_raw"];
+/// The `[[lights]]` key that names a file (an environment light's `map`), confined the same way.
+const LIGHT_FILE_KEY: &str = "map";
 
 /// Files uploaded with a scene (multipart parts): their directory and names.
 pub struct Uploads<'a> {
@@ -55,6 +57,20 @@ pub fn prepare_scene_with(data: &Path, text: &str, uploads: Option<&Uploads>) ->
         }
         let real = real.to_str().ok_or_else(|| bad("the path is not UTF-8".into()))?.to_string();
         volume.insert(key.into(), toml::Value::String(real));
+    }
+    // An environment light's map is a file too.
+    if let Some(toml::Value::Array(lights)) = value.get_mut("lights") {
+        for (i, light) in lights.iter_mut().enumerate() {
+            let toml::Value::Table(light) = light else { continue };
+            let Some(toml::Value::String(named)) = light.get(LIGHT_FILE_KEY) else { continue };
+            let bad = |m: String| ApiError::BadRequest(format!("scene.toml: lights[{i}].{LIGHT_FILE_KEY}: {m}"));
+            let real = match uploads.filter(|u| u.names.iter().any(|n| n == named)) {
+                Some(u) => u.dir.join(named),
+                None => confine_named(data, Path::new(named)).map_err(bad)?,
+            };
+            let real = real.to_str().ok_or_else(|| bad("the path is not UTF-8".into()))?.to_string();
+            light.insert(LIGHT_FILE_KEY.into(), toml::Value::String(real));
+        }
     }
     // Written anew with the confined absolute path (positions in a later message refer to this text).
     let text = toml::to_string(&value).map_err(|e| ApiError::Internal(format!("cannot write the scene: {e}")))?;

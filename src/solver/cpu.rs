@@ -16,14 +16,14 @@
 use super::cpu_sweep::{sweep_direction, SweepInputs, SweepMode, SweepOutputs};
 use super::energy::Tallies;
 use super::orders::Backend;
-use super::passes::{MemField, OrderFieldSet};
+use super::passes::{MemField, OrderFieldSet, VoxelMedium};
 use super::plan::{half_scale_exponent, Plan, Precision, SweepDirection};
 use super::SolveError;
 
 pub struct CpuTwin<'a> {
     plan: &'a Plan,
     /// Density per voxel, x fastest.
-    density: Vec<f64>,
+    medium: VoxelMedium,
     /// Per 16³ brick (x fastest): whether it holds medium. Empty bricks are skipped, as on the GPU.
     occupied: Vec<bool>,
     /// The fields: sources `[voxel][d·C + ch]`, fluence `[voxel][ch]`.
@@ -41,9 +41,9 @@ impl<'a> CpuTwin<'a> {
         let voxels = nx as usize * ny as usize * nz as usize;
         let comps = plan.source_components() as usize;
         let half = plan.source_precision == Precision::F16;
-        // Previous, next, total and spare sources (and the rounded one); order, total and spare
-        // fluence; density.
-        let sources = if half { 5 } else { 4 };
+        // Previous, next, scratch, total and spare sources (and the rounded one); order, total and
+        // spare fluence; density.
+        let sources = if half { 6 } else { 5 };
         let bytes = voxels as u128 * (sources * comps + 3 * plan.channels as usize + 1) as u128 * 8;
         if bytes > 16 << 30 {
             return Err(SolveError::TooLargeForCpu { bytes: bytes as u64 });
@@ -65,7 +65,7 @@ impl<'a> CpuTwin<'a> {
         }
         Ok(CpuTwin {
             plan,
-            density: values,
+            medium: VoxelMedium { density: values, dims: plan.dims },
             occupied,
             fields: OrderFieldSet::in_memory(plan, voxels),
             j_gain: if half { vec![0.0; voxels * comps] } else { Vec::new() },
@@ -114,7 +114,7 @@ impl<'a> CpuTwin<'a> {
     fn sweep(&mut self, dir: &SweepDirection, boundary: bool, gain: bool, emit: bool) -> Tallies {
         let fields = &mut self.fields;
         let gained = if self.j_gain.is_empty() { &fields.source_prev.values } else { &self.j_gain };
-        let inputs = SweepInputs { density: &self.density, gained, occupied: &self.occupied };
+        let inputs = SweepInputs { density: &self.medium.density, gained, occupied: &self.occupied };
         let mut outputs =
             SweepOutputs { fluence_order: &mut fields.fluence.values, j_next: &mut fields.source_next.values };
         sweep_direction(self.plan, dir, SweepMode { boundary, gain, emit }, &inputs, &mut outputs)
@@ -150,10 +150,10 @@ impl Backend for CpuTwin<'_> {
     }
 
     type Field = MemField;
-    type Medium = Vec<f64>;
+    type Medium = VoxelMedium;
 
-    fn fields(&mut self) -> (&mut OrderFieldSet<MemField>, &Vec<f64>) {
-        (&mut self.fields, &self.density)
+    fn fields(&mut self) -> (&mut OrderFieldSet<MemField>, &VoxelMedium) {
+        (&mut self.fields, &self.medium)
     }
 
     fn emission_field_power(&mut self) -> Result<Option<[f64; 3]>, SolveError> {

@@ -25,7 +25,7 @@
 
 use super::energy::Tallies;
 use super::plan::{Plan, SweepDirection};
-use super::segment::segment;
+use super::segment::{segment, segment_linear};
 use super::sweep::{lattice_column, taps, FaceSweep};
 use crate::store::{BrickGrid, BRICK_EDGE};
 use rayon::prelude::*;
@@ -225,16 +225,86 @@ impl PlaneStep<'_, '_> {
                 }
             }
         }
+        let mode_exp = std::env::var("LPM_EXP_SLOPE").unwrap_or_default();
+        let mut slope = [0.0f64; 3];
+        if self.mode.gain && !mode_exp.is_empty() && mode_exp != "none" {
+            let o = |t: u32| self.dir.offsets[t as usize];
+            let prev = if wrapped || self.t == 0 {
+                [0.0; 3]
+            } else {
+                let (ot, op) = (o(self.t), o(self.t - 1));
+                self.gather_j(self.t - 1, [cb as i64 - (ot[0] - op[0]) as i64, cc as i64 - (ot[1] - op[1]) as i64])
+            };
+            let next = if self.t + 1 >= self.sweep.n[0] {
+                [0.0; 3]
+            } else {
+                let (ot, on) = (o(self.t), o(self.t + 1));
+                self.gather_j(self.t + 1, [cb as i64 + (on[0] - ot[0]) as i64, cc as i64 + (on[1] - ot[1]) as i64])
+            };
+            for ch in 0..c {
+                let (a, b) = (j[ch] - prev[ch], next[ch] - j[ch]);
+                slope[ch] = match mode_exp.as_str() {
+                    "central" => 0.5 * (a + b),
+                    "up" => a,
+                    "down" => b,
+                    "neg" => -0.5 * (a + b),
+                    "minmod" => {
+                        if a * b <= 0.0 {
+                            0.0
+                        } else if a.abs() < b.abs() {
+                            a
+                        } else {
+                            b
+                        }
+                    }
+                    "mc" => {
+                        if a * b <= 0.0 {
+                            0.0
+                        } else {
+                            a.signum() * (0.5 * (a + b)).abs().min(2.0 * a.abs()).min(2.0 * b.abs())
+                        }
+                    }
+                    _ => panic!("slope"),
+                };
+            }
+        }
         for ch in 0..c {
             let (st, _, sa) = self.plan.coefficients(ch);
             let mut jc = j[ch];
             if self.mode.gain && self.mode.emit {
                 jc += rho * sa * self.plan.medium.emission[ch];
             }
-            let (out, a) = segment(l[ch], jc, rho * st, self.dir.path_length);
+            let (out, a) = if slope[ch] != 0.0 {
+                segment_linear(l[ch], jc, slope[ch], rho * st, self.dir.path_length)
+            } else {
+                segment(l[ch], jc, rho * st, self.dir.path_length)
+            };
             l[ch] = out;
             avg[ch] = a;
         }
+    }
+}
+
+impl PlaneStep<'_, '_> {
+    fn gather_j(&self, t: u32, col: [i64; 2]) -> [f64; 3] {
+        let [nb, nc] = [self.sweep.n[1], self.sweep.n[2]];
+        let mut j = [0.0; 3];
+        if col[0] < 0 || col[0] > nb as i64 || col[1] < 0 || col[1] > nc as i64 {
+            return j;
+        }
+        let c = self.plan.channels as usize;
+        let comps = self.plan.source_components() as usize;
+        let k0 = self.dir.gain_storage as usize * c;
+        let w = self.dir.weights[t as usize];
+        for (vc, tc) in taps(col[1] as u32, w[1], nc) {
+            for (vb, tb) in taps(col[0] as u32, w[0], nb) {
+                let v = self.geometry.index(self.sweep.voxel(t, vb, vc));
+                for ch in 0..c {
+                    j[ch] += tb * tc * self.inputs.gained[v * comps + k0 + ch];
+                }
+            }
+        }
+        j
     }
 }
 

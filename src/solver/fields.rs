@@ -24,8 +24,9 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 const CHECKPOINT: &str = "checkpoint.json";
-/// 2: fluence covers the occupied bricks only (version 1 stored it for every brick).
-const CHECKPOINT_VERSION: u32 = 2;
+/// 2: fluence covers the occupied bricks only (version 1 stored it for every brick); 3: a third
+/// source file (`source_scratch`, the diffusion correction's output) rotates with the other two.
+const CHECKPOINT_VERSION: u32 = 3;
 
 /// The solver's fields as files of f32 in the brick store.
 pub type StoreFields = OrderFieldSet<Field>;
@@ -65,6 +66,7 @@ struct Checkpoint {
     /// Field file names in their current roles.
     source_prev: String,
     source_next: String,
+    source_scratch: String,
     source_total: String,
     source_spare: String,
     fluence_total: String,
@@ -80,6 +82,7 @@ impl OrderFieldSet<Field> {
         Ok(OrderFieldSet {
             source_prev: store.create_field("source_a", comps, Coverage::Occupied)?,
             source_next: store.create_field("source_b", comps, Coverage::Occupied)?,
+            source_scratch: store.create_field("source_c", comps, Coverage::Occupied)?,
             fluence: store.create_field("fluence_order", c, Coverage::Occupied)?,
             source_total: store.create_field("total_a", comps, Coverage::Occupied)?,
             source_spare: store.create_field("total_b", comps, Coverage::Occupied)?,
@@ -110,6 +113,7 @@ impl OrderFieldSet<Field> {
         let fields = OrderFieldSet {
             source_prev: store.open_field(&cp.source_prev, comps, Coverage::Occupied)?,
             source_next: store.open_field(&cp.source_next, comps, Coverage::Occupied)?,
+            source_scratch: store.open_field(&cp.source_scratch, comps, Coverage::Occupied)?,
             fluence: store.open_field("fluence_order", c, Coverage::Occupied)?,
             source_total: store.open_field(&cp.source_total, comps, Coverage::Occupied)?,
             source_spare: store.open_field(&cp.source_spare, comps, Coverage::Occupied)?,
@@ -136,6 +140,7 @@ impl OrderFieldSet<Field> {
             digest: digest.to_string(),
             source_prev: self.source_prev.name().to_string(),
             source_next: self.source_next.name().to_string(),
+            source_scratch: self.source_scratch.name().to_string(),
             source_total: self.source_total.name().to_string(),
             source_spare: self.source_spare.name().to_string(),
             fluence_total: self.fluence_total.name().to_string(),

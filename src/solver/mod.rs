@@ -12,11 +12,13 @@
 //! - [`warm`] starts a solve from a guess (the previous frame's solution) and still converges to
 //!   the cold solve's answer.
 
+pub mod antidiffusion;
 pub mod cancel;
 pub mod cpu;
 mod cpu_sweep;
 pub mod emission;
 pub mod energy;
+pub mod environment;
 pub mod fields;
 pub mod gpu;
 pub mod orders;

@@ -4,6 +4,7 @@
 //! ([`super::remaining`]), or, with `solver.extrapolate_tail`, when the geometric tail of the
 //! series is known to the tolerance.
 
+use super::antidiffusion::VoxelUnits;
 use super::energy::{EnergyBalance, Tallies};
 use super::fields::LoopState;
 use super::passes::{FieldPlanes, Medium, OrderFieldSet};
@@ -20,9 +21,9 @@ use std::time::{Duration, Instant};
 /// once in [`super::passes`] for both kinds of field.
 pub trait Backend {
     /// Where a field lives: files of f32 in the brick store, or f64 in memory.
-    type Field: FieldPlanes;
-    /// The medium's density over the fields' units.
-    type Medium: Medium;
+    type Field: FieldPlanes + Sync;
+    /// The medium's density over the fields' units, and where those units lie in the volume.
+    type Medium: Medium + VoxelUnits<V = <Self::Field as FieldPlanes>::V>;
     /// Propagates one order (the beams first when `order == 0`) and returns its boundary tallies.
     fn propagate_order(&mut self, order: u32) -> Result<Tallies, SolveError>;
     /// The fields the order loop folds each order into, and the medium they cover.
@@ -228,7 +229,10 @@ pub fn run_orders<B: Backend + ?Sized>(
         let t = Instant::now();
         let mut tallies = state.tallies();
         tallies.add(&backend.propagate_order(order)?);
-        let new = backend.fields().0.commit_order(plan);
+        let new = {
+            let (fields, medium) = backend.fields();
+            fields.commit_order(plan, medium)
+        };
         for c in 0..3 {
             state.total_power[c] += new[c];
             let last = state.last_new_power[c];

@@ -17,6 +17,7 @@
 //! ([`super::warm`]) and its signed last power are passes here too (store only, in practice: the
 //! twin starts cold).
 
+use super::antidiffusion::{self, VoxelUnits};
 use super::plan::Plan;
 use super::remaining::{RemainingError, RemainingTally};
 use super::SolveError;
@@ -28,7 +29,9 @@ use std::ops::{Add, Mul, Sub};
 pub const RELEASE_UNITS: usize = 1024;
 
 /// A value of a field: f32 in the brick store, f64 in the twin.
-pub trait Value: Copy + PartialOrd + Add<Output = Self> + Sub<Output = Self> + Mul<Output = Self> {
+pub trait Value:
+    Copy + Send + Sync + PartialOrd + Add<Output = Self> + Sub<Output = Self> + Mul<Output = Self>
+{
     const ZERO: Self;
     const ONE: Self;
     /// `v` rounded to this precision (`as` semantics).
@@ -153,8 +156,9 @@ pub trait Medium {
 
 /// The store's density over its occupied bricks, in slot order (the order the fields store them).
 pub struct StoreMedium<'a> {
-    store: &'a BrickStore,
-    bricks: Vec<usize>,
+    pub(super) store: &'a BrickStore,
+    /// The occupied bricks in slot order: unit `i` is brick `bricks[i]`.
+    pub(super) bricks: Vec<usize>,
 }
 
 impl<'a> StoreMedium<'a> {
@@ -173,11 +177,16 @@ impl Medium for StoreMedium<'_> {
     }
 }
 
-/// The twin's density: one unit per voxel.
-impl Medium for Vec<f64> {
+/// The twin's medium: one unit per voxel, voxels x fastest over `dims`.
+pub struct VoxelMedium {
+    pub density: Vec<f64>,
+    pub dims: [u32; 3],
+}
+
+impl Medium for VoxelMedium {
     type V = f64;
     fn density(&self, unit: usize) -> Option<&[f64]> {
-        self.get(unit..unit + 1)
+        self.density.get(unit..unit + 1)
     }
     fn release_all(&self) {}
 }
@@ -194,6 +203,9 @@ pub struct OrderFieldSet<F> {
     pub source_prev: F,
     /// The source this order scatters (the next order's), accumulated over the order's sweeps.
     pub source_next: F,
+    /// Where the end-of-order pass writes the corrected `source_next` before the two swap
+    /// ([`super::antidiffusion`]); its contents mean nothing between orders.
+    pub(crate) source_scratch: F,
     /// This order's fluence, accumulated over its sweeps.
     pub fluence: F,
     /// Committed sums over the completed orders.
@@ -217,6 +229,7 @@ impl OrderFieldSet<MemField> {
         OrderFieldSet {
             source_prev: MemField::zeros(comps, voxels),
             source_next: MemField::zeros(comps, voxels),
+            source_scratch: MemField::zeros(comps, voxels),
             fluence: MemField::zeros(c, voxels),
             source_total: MemField::zeros(comps, voxels),
             fluence_total: MemField::zeros(c, voxels),
@@ -257,7 +270,14 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
     /// [`super::warm`]). The order's accumulators are cleared by [`OrderFieldSet::begin_order`],
     /// after any checkpoint is written: until then they still hold what the previous checkpoint
     /// names.
-    pub fn commit_order(&mut self, plan: &Plan) -> [f64; 3] {
+    pub fn commit_order<U: VoxelUnits<V = F::V>>(&mut self, plan: &Plan, units: &U) -> [f64; 3]
+    where
+        F: Sync,
+    {
+        if plan.diffusion_correction.iter().any(|&k| k > 0.0) {
+            antidiffusion::sharpen(&mut self.source_scratch, &self.source_next, units, plan.diffusion_correction);
+            std::mem::swap(&mut self.source_next, &mut self.source_scratch);
+        }
         let c = plan.channels as usize;
         let comps = plan.source_components() as usize;
         let h3 = plan.voxel_size.powi(3);

@@ -9,6 +9,8 @@
 //! - emission: only when some channel emits;
 //! - empty bricks: known from the store; they hold no medium and no source;
 //! - the sun(s): each a collimated beam swept along its own direction;
+//! - an environment map: its mean over each direction's cell joins the sky's boundary radiance, and
+//!   its sun-like peak, when it has one, is one more beam (see `solver::environment`);
 //! - the storage precision of the source the rays gain (the previous order's): f16 when the
 //!   tolerance is at least [`F16_MIN_TOLERANCE`] (`solver.storage_precision = "auto"`), else f32.
 //!   Only that source is rounded, once per order as the rays gain it, and scaled by a power of two
@@ -24,9 +26,10 @@
 //! Everything both backends need to sweep a face is derived here ([`SweepDirection`]) so that the
 //! CPU twin and the GPU driver consume identical tables.
 
+use super::environment::environment_boundary;
 use super::sweep::{lateral_slope, lattice, plane_path_length, FaceSweep};
 use crate::quadrature::{cube_face_of, phase, PropagationSet, StorageSet};
-use crate::scene::{ForwardPeak, Light, Medium, PlanMode, Scene, SpatialScheme, StoragePrecision};
+use crate::scene::{DiffusionCorrection, ForwardPeak, Light, Medium, PlanMode, Scene, SpatialScheme, StoragePrecision};
 use glam::DVec3;
 use serde::Serialize;
 
@@ -133,6 +136,9 @@ pub struct Plan {
     pub mode: PlanMode,
     /// `solver.spatial`: how rays meet the voxels of a plane.
     pub spatial: SpatialScheme,
+    /// κ per volume axis (voxels²) of the anti-diffusive fluxes applied to each order's scattered
+    /// source (`solver.diffusion_correction`, [`super::antidiffusion`]); zero: none.
+    pub diffusion_correction: [f64; 3],
     /// The scene's Henyey–Greenstein g (the medium above holds the one solved, after δ-M).
     pub phase_g: f64,
     /// The mean cosine of the discrete scattering (see `phase::effective_mean_cosine`).
@@ -168,6 +174,8 @@ pub struct PlanSummary {
     pub mode: String,
     /// "linear" or "constant" (`solver.spatial`).
     pub spatial: String,
+    /// κ per axis of the diffusion correction (zeros: off).
+    pub diffusion_correction: [f64; 3],
     /// The scene's g, the g solved (after δ-M scaling) and the g the discrete scattering behaves
     /// like; the δ-M forward fraction f when applied.
     pub phase_g: f64,
@@ -222,6 +230,43 @@ impl Plan {
                 (0..3).for_each(|c| sky[c] += radiance[c]);
             }
         }
+        // An environment map adds its mean over each direction's cell to the sky, and its
+        // sun-like peak, when it has one, becomes one more beam.
+        let environment = scene.lights.iter().find_map(|l| match l {
+            Light::Environment(env) => Some((env, environment_boundary(env, &propagation))),
+            _ => None,
+        });
+        let boundary_of = |i: usize| match &environment {
+            Some((_, b)) => [0, 1, 2].map(|c| sky[c] + b.radiance[i][c]),
+            None => sky,
+        };
+        if let Some((env, b)) = &environment {
+            reasons.push(format!(
+                "environment map {} ({} × {} pixels): each direction's boundary radiance is the map's \
+                 mean over its cell",
+                env.map.path.display(),
+                env.map.width,
+                env.map.height
+            ));
+            reasons.push(match &b.sun {
+                Some(s) => format!(
+                    "the map's sun-like peak ({} pixels, {:.2e} sr, {:.1} % of its power) is swept as a beam \
+                     toward [{:.4}, {:.4}, {:.4}] with irradiance [{:.4e}, {:.4e}, {:.4e}]: no ray effects",
+                    s.pixels,
+                    s.solid_angle,
+                    100.0 * s.share,
+                    s.direction.x,
+                    s.direction.y,
+                    s.direction.z,
+                    s.irradiance[0],
+                    s.irradiance[1],
+                    s.irradiance[2]
+                ),
+                None => "the map has no sun-like peak (a region of at most 0.01 sr at least 100 times \
+                         brighter than the rest): nothing extracted"
+                    .into(),
+            });
+        }
         // Everything about one swept direction that follows from its geometry; `weight` is its
         // solid angle (a beam: 1, its boundary value being an irradiance).
         let swept =
@@ -243,7 +288,7 @@ impl Plan {
                     power_per_radiance: h * h * h / path_length * weight,
                 }
             };
-        let faces = (0..6)
+        let faces: Vec<Vec<SweepDirection>> = (0..6)
             .map(|face| {
                 let start = face * propagation.per_face();
                 propagation
@@ -253,22 +298,25 @@ impl Plan {
                     .map(|(j, d)| {
                         let i = start + j;
                         let row = collect[i * s..(i + 1) * s].to_vec();
-                        swept(face, d.omega, d.solid_angle, sky, storage.owner[i], row)
+                        swept(face, d.omega, d.solid_angle, boundary_of(i), storage.owner[i], row)
                     })
                     .collect()
             })
             .collect();
 
+        let extracted = environment.as_ref().and_then(|(_, b)| b.sun.as_ref()).map(|s| (s.direction, s.irradiance));
         let beams: Vec<SweepDirection> = scene
             .lights
             .iter()
             .filter_map(|light| match light {
-                Light::Sun { direction, irradiance } => {
-                    let travel = -*direction;
-                    let row = phase::beam_row(&propagation, &storage, medium.g, travel);
-                    Some(swept(cube_face_of(travel), travel, 1.0, *irradiance, 0, row))
-                }
-                Light::Sky { .. } => None,
+                Light::Sun { direction, irradiance } => Some((*direction, *irradiance)),
+                Light::Sky { .. } | Light::Environment(_) => None,
+            })
+            .chain(extracted)
+            .map(|(direction, irradiance)| {
+                let travel = -direction;
+                let row = phase::beam_row(&propagation, &storage, medium.g, travel);
+                swept(cube_face_of(travel), travel, 1.0, irradiance, 0, row)
             })
             .collect();
         if !beams.is_empty() {
@@ -298,6 +346,7 @@ impl Plan {
             if full { " (kept under plan = \"full\": skipping them is exact)" } else { "" }
         ));
         let source_precision = choose_precision(scene, full, &mut reasons);
+        let diffusion_correction = choose_diffusion_correction(scene, &medium, &faces, spatial, &mut reasons);
 
         Plan {
             dims,
@@ -318,6 +367,7 @@ impl Plan {
             source_precision,
             mode: scene.solver.plan,
             spatial,
+            diffusion_correction,
             phase_g: scene.medium.g,
             effective_g,
             delta_m,
@@ -357,6 +407,7 @@ impl Plan {
             storage_precision: self.source_precision,
             mode: self.mode.name().to_string(),
             spatial: self.spatial.name().to_string(),
+            diffusion_correction: self.diffusion_correction,
             phase_g: self.phase_g,
             solved_g: self.medium.g,
             effective_g: self.effective_g,
@@ -371,6 +422,39 @@ pub const FULL_PLAN_REASON: &str = "plan = \"full\": the plan's reductions are o
      k_s×k_s storage directions per face and f32 storage of the gained source (unless \
      storage_precision names f16), whatever the scene needs; kept: empty bricks are skipped and \
      the emission term is left out when nothing emits (both exact: they add nothing)";
+
+/// κ per axis of the anti-diffusive fluxes (`solver.diffusion_correction`): half the lateral
+/// spread the lattice adds per order, when the medium scatters and the correction is not off.
+fn choose_diffusion_correction(
+    scene: &Scene,
+    medium: &Medium,
+    faces: &[Vec<SweepDirection>],
+    spatial: SpatialScheme,
+    reasons: &mut Vec<String>,
+) -> [f64; 3] {
+    let scatters = medium.albedo.iter().zip(&medium.sigma_t).any(|(&a, &s)| a > 0.0 && s > 0.0);
+    if !scatters {
+        return [0.0; 3];
+    }
+    match scene.solver.diffusion_correction {
+        DiffusionCorrection::Off => {
+            reasons.push("diffusion correction off: the lattice's lateral spread stays in the scattered light".into());
+            [0.0; 3]
+        }
+        DiffusionCorrection::Auto => {
+            let kappa = super::antidiffusion::coefficients(faces, spatial);
+            reasons.push(format!(
+                "diffusion correction: the lattice spreads each order's scattered light sideways by a \
+                 variance of {:.3}/{:.3}/{:.3} voxels² along x/y/z; anti-diffusive fluxes between \
+                 neighbouring voxels take it back (κ = half of it, conservative and positive)",
+                2.0 * kappa[0],
+                2.0 * kappa[1],
+                2.0 * kappa[2]
+            ));
+            kappa
+        }
+    }
+}
 
 /// g from which `solver.forward_peak = "auto"` applies δ-M scaling.
 pub const DELTA_M_MIN_G: f64 = 0.5;

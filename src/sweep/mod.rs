@@ -257,9 +257,21 @@ pub fn task_dir(dir: &Path, index: usize) -> PathBuf {
     dir.join(format!("task-{index:04}"))
 }
 
-/// Substitutes `{frame}` / `{frame:0W}` in volume.raw and makes it absolute (relative to the
-/// base scene's directory, as for any scene), so the task's scene can live anywhere.
+/// Substitutes `{frame}` / `{frame:0W}` in volume.raw and makes it and an environment light's
+/// `map` absolute (relative to the base scene's directory, as for any scene), so the task's scene
+/// can live anywhere.
 fn resolve_volume(scene: &mut toml::Table, base: &Path, frame: Option<i64>) -> Result<(), String> {
+    // An environment light's map, like the volume, is named relative to the base scene.
+    if let Some(toml::Value::Array(lights)) = scene.get_mut("lights") {
+        for light in lights.iter_mut() {
+            if let Some(toml::Value::String(map)) = light.get("map") {
+                let absolute = base.join(map).to_string_lossy().into_owned();
+                if let toml::Value::Table(t) = light {
+                    t.insert("map".into(), toml::Value::String(absolute));
+                }
+            }
+        }
+    }
     let Some(toml::Value::Table(volume)) = scene.get_mut("volume") else { return Ok(()) };
     let Some(toml::Value::String(raw)) = volume.get("raw") else {
         return match frame {
@@ -372,5 +384,15 @@ mod tests {
         assert_eq!(t["lights"][0]["radiance"].as_float(), Some(2.0));
         assert!(set_key(&mut t, "lights[3].radiance", 2.0.into()).is_err());
         assert!(set_key(&mut t, "medium.albedo.x", 2.0.into()).is_err());
+    }
+
+    #[test]
+    fn an_environment_map_is_named_from_the_base_scene() {
+        let mut t: toml::Table =
+            toml::from_str("[volume]\nraw = \"d.raw\"\n[[lights]]\nkind = \"environment\"\nmap = \"maps/sky.exr\"\n")
+                .unwrap();
+        resolve_volume(&mut t, Path::new("/scenes"), None).unwrap();
+        assert_eq!(t["lights"][0]["map"].as_str(), Some("/scenes/maps/sky.exr"));
+        assert_eq!(t["volume"]["raw"].as_str(), Some("/scenes/d.raw"));
     }
 }

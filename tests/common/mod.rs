@@ -29,6 +29,7 @@ pub fn scene(shape: Shape, dims: [u32; 3], sigma_t: [f64; 3], albedo: [f64; 3], 
             plan: PlanMode::Auto,
             spatial: SpatialScheme::Linear,
             forward_peak: ForwardPeak::Auto,
+            diffusion_correction: DiffusionCorrection::Auto,
         },
         camera: None,
     }

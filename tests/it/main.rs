@@ -14,6 +14,7 @@ mod compare;
 mod cpu_physics;
 mod cpu_threads;
 mod emission;
+mod environment;
 mod forward_peak;
 mod gpu_solver;
 mod hard_cases;

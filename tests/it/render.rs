@@ -84,6 +84,7 @@ fn inputs<'a>(
         storage_lookup: lookup,
         medium,
         background,
+        environment: None,
         camera,
     }
 }

@@ -365,13 +365,14 @@ fn token_confinement_and_limits() {
         assert_eq!(s, 400, "{raw}: {body}");
         assert!(body["error"].as_str().unwrap().contains(why), "{raw}: {body}");
     }
-    // Every other key that names a file is confined the same way: a per-voxel emission file and a
-    // NanoVDB file outside the root are refused before anything reads them.
+    // Every other key that names a file is confined the same way: a per-voxel emission file, a
+    // NanoVDB file and an environment map outside the root are refused before anything reads them.
     let outside = dir.join("outside.raw");
     let outside = outside.to_str().unwrap();
     let emission = TINY.replace("dims = [16, 16, 16]", &format!("dims = [16, 16, 16]\nemission_raw = \"{outside}\""));
     let nvdb = TINY.replace("procedural = \"sphere\"\ndims = [16, 16, 16]", "nvdb = \"/etc/passwd\"");
-    for (scene, key) in [(emission, "volume.emission_raw"), (nvdb, "volume.nvdb")] {
+    let map = TINY.replace("[solver]", &format!("[[lights]]\nkind = \"environment\"\nmap = \"{outside}\"\n[solver]"));
+    for (scene, key) in [(emission, "volume.emission_raw"), (nvdb, "volume.nvdb"), (map, "lights[1].map")] {
         let (s, body) = post(good, &scene);
         assert_eq!(s, 400, "{key}: {body}");
         let error = body["error"].as_str().unwrap();
