@@ -6,8 +6,8 @@
 
 use super::raw::{ByteSize, Channels, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
 use super::{
-    DiffusionCorrection, EnvironmentLight, ForwardPeak, Light, MapUp, Medium, PlanMode, Scene,
-    SceneError, Shape, SolverSettings, SpatialScheme, StoragePrecision, Volume, VolumeSource,
+    DiffusionCorrection, EnvironmentLight, ForwardPeak, Light, MapUp, Medium, PlanMode, Scene, SceneError, Shape,
+    SolverSettings, SpatialScheme, StoragePrecision, Volume, VolumeSource,
 };
 use emission::{BlackbodyKeys, EmissionKeys};
 use glam::DVec3;
