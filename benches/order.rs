@@ -73,12 +73,14 @@ fn order(c: &mut Criterion) {
         let mut gpu = GpuBackend::new(ctx.clone(), &plan, &store, &mut fields, lpm::solver::gpu::GpuOptions::default())
             .expect("GPU backend");
         gpu.propagate_order(0).expect("order 0");
-        gpu.fields().0.commit_order(&plan);
+        let (fields, medium) = gpu.fields();
+        fields.commit_order(&plan, medium);
         group.bench_function(label, |b| b.iter(|| gpu.propagate_order(1).expect("order")));
     }
     let mut twin = CpuTwin::new(&plan, |v| store.density_at(v)).expect("twin");
     twin.propagate_order(0).expect("order 0");
-    twin.fields().0.commit_order(&plan);
+    let (fields, medium) = twin.fields();
+    fields.commit_order(&plan, medium);
     group.bench_function("cpu twin (f64, 1 thread)", |b| b.iter(|| twin.propagate_order(1).expect("order")));
     group.finish();
     let _ = std::fs::remove_dir_all(&dir);

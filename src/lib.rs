@@ -47,7 +47,9 @@
 //! 4. **Order loop** — [`solver::orders::run_orders`] has a [`solver::orders::Backend`] propagate
 //!    one scattering order at a time into its fields, then runs the host passes itself, written
 //!    once in [`solver::passes`] for both kinds of field (the store's f32 files, the twin's f64
-//!    memory): commit the order, the stop rule's remaining error, a checkpoint (store only), and
+//!    memory): commit the order (first taking the lattice's numerical diffusion back out of its
+//!    source when `solver.diffusion_correction = "on"`: [`solver::antidiffusion`], a neighbour
+//!    stencil over either layout), the stop rule's remaining error, a checkpoint (store only), and
 //!    at the end the energy balance and the geometric tail.
 //! 5. **Backend** — either the CPU twin ([`solver::cpu`], f64, in memory, its sweeps plane by plane
 //!    on every core: `solver/cpu_sweep.rs`, bitwise the same at any thread count) or the GPU driver

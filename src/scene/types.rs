@@ -195,21 +195,23 @@ pub struct SolverSettings {
 
 /// `solver.diffusion_correction`: the rays meet the voxels at a lateral offset from their true
 /// positions, which spreads the scattered light sideways a little every order (numerical
-/// diffusion; dense cores read bright). `auto` takes the known spread back out of each order's
-/// source with conservative anti-diffusive fluxes whenever the medium scatters; `off` keeps the
-/// lattice's raw result (for comparison).
+/// diffusion; thick, high-albedo media read bright inside). `on` takes the spread the lattice is
+/// known to add back out of each order's scattered source with conservative anti-diffusive
+/// fluxes (when the medium scatters). Off by default: it halves the excess in homogeneous thick
+/// boxes but did not yet improve a heterogeneous cloud's core (benches/RESULTS.md, "Diffusion
+/// correction").
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum DiffusionCorrection {
+    On,
     #[default]
-    Auto,
     Off,
 }
 
 impl DiffusionCorrection {
-    /// The scene file's spelling: "auto" or "off".
+    /// The scene file's spelling: "on" or "off".
     pub fn name(self) -> &'static str {
         match self {
-            DiffusionCorrection::Auto => "auto",
+            DiffusionCorrection::On => "on",
             DiffusionCorrection::Off => "off",
         }
     }

@@ -63,7 +63,7 @@ const PRECISIONS: &str = "\"auto\", \"f16\", \"f32\"";
 const PLAN_MODES: &str = "\"auto\", \"full\"";
 const SPATIAL_SCHEMES: &str = "\"constant\", \"linear\"";
 const FORWARD_PEAKS: &str = "\"auto\", \"delta-m\", \"keep\"";
-const DIFFUSION_CORRECTIONS: &str = "\"auto\", \"off\"";
+const DIFFUSION_CORRECTIONS: &str = "\"on\", \"off\"";
 
 pub(crate) struct Validator<'a> {
     pub path: &'a Path,
@@ -548,8 +548,8 @@ impl Validator<'_> {
             }
         };
         let diffusion_correction = match s.diffusion_correction.as_deref() {
-            None | Some("auto") => DiffusionCorrection::Auto,
-            Some("off") => DiffusionCorrection::Off,
+            Some("on") => DiffusionCorrection::On,
+            None | Some("off") => DiffusionCorrection::Off,
             Some(other) => {
                 return Err(self.err(
                     "solver.diffusion_correction",

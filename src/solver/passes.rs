@@ -1,8 +1,9 @@
 //! The host passes between orders, written once for both backends: commit an order, add the
 //! geometric tail, the remaining error of the stop rule, and the energy books.
 //!
-//! Both backends keep the same set of fields ([`OrderFieldSet`]): the previous and next source,
-//! this order's fluence, the committed totals and a spare copy of each total. They differ only in
+//! Both backends keep the same set of fields ([`OrderFieldSet`]): the previous and next source (and a
+//! scratch source the diffusion correction writes into, [`super::antidiffusion`]), this order's
+//! fluence, the committed totals and a spare copy of each total. They differ only in
 //! where a field lives and in what precision: the GPU driver's are memory-mapped files of f32 in
 //! the brick store ([`crate::store::Field`]), the CPU twin's vectors of f64 in memory
 //! ([`MemField`]). Both implement [`FieldPlanes`]: a field is a run of *units* (a brick of the
@@ -261,7 +262,10 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
         self.warm_started = true;
     }
 
-    /// The end-of-order pass: commits the order's fluence and source into the spare copies, makes
+    /// The end-of-order pass: with the diffusion correction on, first writes the corrected new
+    /// source into the scratch field and makes it the new source (the order's own accumulator is
+    /// named by no checkpoint, so nothing a resume needs is touched). Then commits the order's
+    /// fluence and source into the spare copies, makes
     /// them the committed ones and the new source the next order's previous one, and returns the
     /// new source's scattered power per channel: Σ|J|·Ω·h³, the norm the ratio and the tail are
     /// estimated from (for a cold solve J ≥ 0 and this is the power itself). After the first order

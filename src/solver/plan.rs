@@ -423,8 +423,8 @@ pub const FULL_PLAN_REASON: &str = "plan = \"full\": the plan's reductions are o
      storage_precision names f16), whatever the scene needs; kept: empty bricks are skipped and \
      the emission term is left out when nothing emits (both exact: they add nothing)";
 
-/// κ per axis of the anti-diffusive fluxes (`solver.diffusion_correction`): half the lateral
-/// spread the lattice adds per order, when the medium scatters and the correction is not off.
+/// κ per axis of the anti-diffusive fluxes (`solver.diffusion_correction = "on"`): half the
+/// lateral spread the lattice adds per order, when the medium scatters.
 fn choose_diffusion_correction(
     scene: &Scene,
     medium: &Medium,
@@ -437,11 +437,8 @@ fn choose_diffusion_correction(
         return [0.0; 3];
     }
     match scene.solver.diffusion_correction {
-        DiffusionCorrection::Off => {
-            reasons.push("diffusion correction off: the lattice's lateral spread stays in the scattered light".into());
-            [0.0; 3]
-        }
-        DiffusionCorrection::Auto => {
+        DiffusionCorrection::Off => [0.0; 3],
+        DiffusionCorrection::On => {
             let kappa = super::antidiffusion::coefficients(faces, spatial);
             reasons.push(format!(
                 "diffusion correction: the lattice spreads each order's scattered light sideways by a \

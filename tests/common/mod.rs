@@ -29,7 +29,7 @@ pub fn scene(shape: Shape, dims: [u32; 3], sigma_t: [f64; 3], albedo: [f64; 3], 
             plan: PlanMode::Auto,
             spatial: SpatialScheme::Linear,
             forward_peak: ForwardPeak::Auto,
-            diffusion_correction: DiffusionCorrection::Auto,
+            diffusion_correction: DiffusionCorrection::Off,
         },
         camera: None,
     }
@@ -245,6 +245,8 @@ irradiance = 2.0
 directions_per_face = 3
 max_orders = {max_orders}
 tolerance = 1e-12
+# On so that the kill tests also cover the third source file it rotates through the checkpoints.
+diffusion_correction = "on"
 "#,
         dims[0], dims[1], dims[2]
     )

@@ -13,6 +13,7 @@ mod cli;
 mod compare;
 mod cpu_physics;
 mod cpu_threads;
+mod diffusion_correction;
 mod emission;
 mod environment;
 mod forward_peak;

@@ -33,7 +33,7 @@ fn scene(dims: [u32; 3], h: f64, sigma_t: f64, albedo: f64, g: f64, emission: f6
             plan: PlanMode::Auto,
             spatial: SpatialScheme::Linear,
             forward_peak: ForwardPeak::Auto,
-            diffusion_correction: DiffusionCorrection::Auto,
+            diffusion_correction: DiffusionCorrection::Off,
         },
         camera: None,
     }
