@@ -53,10 +53,11 @@
 //!   worse: the table is not a polynomial on that scale.
 //! - Three representative wavelengths (e.g. `B(610 nm)`, `B(550 nm)`, `B(465 nm)`) were the
 //!   cheaper alternative, rejected: a channel responds to a broad band, and point samples give the
-//!   wrong hue and saturation (a 6500 K body is not near white through them).
+//!   wrong hue where fire lives (at 1500 K, green 0.31 of red instead of 0.13: a yellow flame
+//!   where it is orange).
 //! - Below about 1900 K the blackbody's chromaticity lies outside the Rec. 709 gamut and `M`
-//!   gives a slightly negative blue (and below about 950 K green): those components are clamped to 0, as
-//!   renderers do. Red is positive at every temperature, so `Y(T_ref) > 0`.
+//!   gives a slightly negative blue (and below about 950 K green): those components are clamped
+//!   to 0, as renderers do. Red is positive at every temperature, so `Y(T_ref) > 0`.
 //!
 //! `B` is evaluated in W·m⁻²·sr⁻¹·nm⁻¹ and the CMFs are dimensionless, so `rgb` is in
 //! W·m⁻²·sr⁻¹ (a radiance): only ratios of it reach the solver. 95 exponentials per voxel are
