@@ -19,7 +19,7 @@
 
 use crate::output::{self, FieldMeta, OutputError};
 use crate::render;
-use crate::scene::{Light, Scene, SceneError};
+use crate::scene::{Scene, SceneError};
 use crate::solver::{self, BackendKind, SolveError, SolveRun};
 use crate::vk::ContextOptions;
 use serde::Serialize;
@@ -263,7 +263,7 @@ fn check_space(job: &SolveJob, scene: &Scene) -> Result<(), JobError> {
         return Ok(());
     }
     let voxels: u64 = scene.volume.dims.iter().map(|&d| u64::from(d)).product();
-    let per_voxel = if scene.medium.is_grey() && scene.lights.iter().all(Light::is_grey) { 4 } else { 12 };
+    let per_voxel = if scene.is_grey() { 4 } else { 12 };
     let needed = voxels.saturating_mul(per_voxel).saturating_mul(2);
     output::space::ensure_free(
         &job.out,

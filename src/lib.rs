@@ -15,8 +15,8 @@
 //!
 //! | module | what it owns |
 //! |---|---|
-//! | [`scene`] | the TOML job description, validated into typed values and typed errors |
-//! | [`store`] | the 16³ brick store: memory-mapped field files, empty-brick table, importers (raw, OpenVDB `.vdb`, NanoVDB `.nvdb`, NRRD), the per-voxel emission field |
+//! | [`scene`] | the TOML job description, validated into typed values and typed errors; the physics every layer shares from it (procedural densities, the blackbody colour of a temperature) |
+//! | [`store`] | the 16³ brick store: memory-mapped field files, empty-brick table, importers (raw, OpenVDB `.vdb`, NanoVDB `.nvdb`, NRRD), the per-voxel emission field (grey, or r, g, b from a temperature grid) |
 //! | [`output`] | atomic writes (temporary name, then rename), outputs published as a set, the exported raw/json/nhdr layout and the sparse OpenVDB export (our own writer) |
 //! | [`quadrature`] | propagation directions and their solid angles, storage directions, phase tables |
 //! | [`vk`] | the thin Vulkan layer: instance, device, queues, buffers, pipelines, timeline sync |
@@ -75,6 +75,7 @@
 //! | a shader interface (push constants, bindings, flags) | `solver/gpu/layout.rs`, `glsl/common.glsl`, the shared set's bindings (`SWEEP_BINDINGS`, `sweep_bindings`) in `solver/gpu/encoder.rs`; `tests/it/shader_interface.rs` fails until both sides agree; `tools/compile_shaders.sh` regenerates `spirv/` |
 //! | a device buffer or its size | `solver/gpu/sizes.rs` (the one place sizes are computed), then `resources.rs`; the planner follows |
 //! | scheduling of slices, overlap, copies | `solver/gpu/streamer.rs` (and `copier.rs`, `slice.rs`) |
+//! | what a per-voxel emission or temperature means | `scene/blackbody.rs` (temperature → colour), `store/emission.rs` (the field the solver, the renderer and the reference read), `solver/emission.rs` (the order-0 source and its power) |
 //! | a host pass between orders | `solver/passes.rs` (once, for the store's fields and the twin's); checkpoints in `solver/fields.rs` |
 //! | a Vulkan object kind | [`vk`] (destroy functions take the object by value and are `unsafe fn`: the device must be done with it; the driver wraps it in `Owned`) |
 //! | an output file | [`output`] (atomic writes) and [`job`]; README's outputs list |

@@ -18,6 +18,8 @@ pub const RR_WEIGHT: f64 = 0.1;
 /// One channel's optical constants and light sources, in grid units.
 #[derive(Clone, Debug)]
 pub struct ChannelSetup {
+    /// The channel (0 = r): which per-voxel emission factor applies.
+    pub ch: usize,
     /// σt at density 1 per grid unit (σt[ch] × voxel size).
     pub sigma: f64,
     pub albedo: f64,
@@ -93,12 +95,12 @@ impl ChannelSetup {
             sources.push((Source::Sun(i), irr * 4.0 * eu * ev * h * h));
         }
         let sigma_a_world = m.sigma_t[ch] * (1.0 - albedo);
-        let emitted = 4.0 * PI * sigma_a_world * le * grid.emission_weight * h * h * h;
+        let emitted = 4.0 * PI * sigma_a_world * le * grid.emission_weight[ch] * h * h * h;
         if emitted > 0.0 {
             sources.push((Source::Emission, emitted));
         }
         let power = sources.iter().map(|s| s.1).sum();
-        ChannelSetup { sigma, albedo, g: m.g, le, sky, environment, suns, sources, power, h }
+        ChannelSetup { ch, sigma, albedo, g: m.g, le, sky, environment, suns, sources, power, h }
     }
 
     /// Radiance arriving from outside the box along the direction `toward` (unit): the sky plus
@@ -113,14 +115,15 @@ impl ChannelSetup {
     }
 }
 
-/// Cumulative density × emission factor over voxels (x fastest), for sampling emission positions.
-pub fn emission_cdf(grid: &Grid) -> Vec<f64> {
+/// Cumulative density × channel `ch`'s emission factor over voxels (x fastest), for sampling
+/// emission positions.
+pub fn emission_cdf(grid: &Grid, ch: usize) -> Vec<f64> {
     let mut acc = 0.0f64;
     grid.density
         .iter()
         .enumerate()
         .map(|(i, &d)| {
-            acc += d as f64 * grid.emission_factor(i);
+            acc += d as f64 * grid.emission_factor(i, ch);
             acc
         })
         .collect()

@@ -18,11 +18,12 @@ pub struct Grid {
     /// Largest and smallest density in each brick (x fastest over bricks).
     pub brick_max: Vec<f32>,
     pub brick_min: Vec<f32>,
-    /// Per-voxel emission factor e(v) (x fastest), or empty: the medium emits uniformly (e = 1).
-    pub emission: Vec<f32>,
-    /// Σ ρ·e over the voxels (Σ ρ when the medium emits uniformly): what the emitted power is
-    /// proportional to.
-    pub emission_weight: f64,
+    /// Per-voxel emission factor e(v) per channel (x fastest), or empty: the medium emits
+    /// uniformly (e = 1).
+    pub emission: Vec<[f32; 3]>,
+    /// Σ ρ·e over the voxels per channel (Σ ρ when the medium emits uniformly): what the emitted
+    /// power is proportional to.
+    pub emission_weight: [f64; 3],
 }
 
 impl Grid {
@@ -69,37 +70,43 @@ impl Grid {
                 *m = 0.0;
             }
         }
-        let grid =
-            Grid { dims, bricks, density: values, brick_max, brick_min, emission: Vec::new(), emission_weight: total };
+        let grid = Grid {
+            dims,
+            bricks,
+            density: values,
+            brick_max,
+            brick_min,
+            emission: Vec::new(),
+            emission_weight: [total; 3],
+        };
         (grid, bad)
     }
 
-    /// Sets a per-voxel emission factor, sampled once per voxel (non-finite or negative values
-    /// count as 0, returned as their number).
-    pub fn set_emission(&mut self, emission: &(dyn Fn([u32; 3]) -> f32 + Sync)) -> u64 {
+    /// Sets a per-voxel emission factor per channel, sampled once per voxel (a non-finite or
+    /// negative value counts as 0; the number of voxels with one is returned).
+    pub fn set_emission(&mut self, emission: &(dyn Fn([u32; 3]) -> [f32; 3] + Sync)) -> u64 {
         let mut bad = 0;
         let mut values = Vec::with_capacity(self.density.len());
         for z in 0..self.dims[2] {
             for y in 0..self.dims[1] {
                 for x in 0..self.dims[0] {
                     let e = emission([x, y, z]);
-                    values.push(if e.is_finite() && e >= 0.0 {
-                        e
-                    } else {
+                    if !e.iter().all(|v| v.is_finite() && *v >= 0.0) {
                         bad += 1;
-                        0.0
-                    });
+                    }
+                    values.push(e.map(|v| if v.is_finite() && v >= 0.0 { v } else { 0.0 }));
                 }
             }
         }
-        self.emission_weight = self.density.iter().zip(&values).map(|(&d, &e)| d as f64 * e as f64).sum();
+        self.emission_weight =
+            std::array::from_fn(|ch| self.density.iter().zip(&values).map(|(&d, e)| d as f64 * e[ch] as f64).sum());
         self.emission = values;
         bad
     }
 
-    /// The emission factor of voxel `i` (1 when the medium emits uniformly).
-    pub fn emission_factor(&self, i: usize) -> f64 {
-        self.emission.get(i).map_or(1.0, |&e| e as f64)
+    /// The emission factor of voxel `i` in channel `ch` (1 when the medium emits uniformly).
+    pub fn emission_factor(&self, i: usize, ch: usize) -> f64 {
+        self.emission.get(i).map_or(1.0, |e| e[ch] as f64)
     }
 
     pub fn voxel_count(&self) -> usize {

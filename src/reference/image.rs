@@ -94,7 +94,7 @@ pub fn radiance(grid: &Grid, s: &ChannelSetup, o: DVec3, d: DVec3, rng: &mut Rng
         // Collision estimator: at a real collision (pdf σt·T) the source term σa·Le/σt = (1 − α)·Le.
         if s.le > 0.0 {
             let v = [0, 1, 2].map(|a| (p[a].floor() as i64).clamp(0, grid.dims[a] as i64 - 1));
-            l += beta * (1.0 - s.albedo) * s.le * grid.emission_factor(grid.voxel_index(v));
+            l += beta * (1.0 - s.albedo) * s.le * grid.emission_factor(grid.voxel_index(v), s.ch);
         }
         beta *= s.albedo;
         if !(beta > 0.0) {

@@ -110,7 +110,7 @@ fn run_in(
 ) -> Result<ReferenceReport, ReferenceJobError> {
     let dims = scene.volume.dims;
     let h = scene.volume.voxel_size;
-    let grey = scene.medium.is_grey() && scene.lights.iter().all(|l| l.is_grey());
+    let grey = scene.is_grey();
     let channels = if grey { 1 } else { 3 };
     // The reference frames its image with the scene's camera; give it the renderer's default view so
     // the two images match pixel for pixel.
@@ -126,43 +126,32 @@ fn run_in(
         ..ReferenceOptions::default()
     };
     // A per-voxel emission, read from the scene's files as the densities are (not from lpm's store).
-    type PerVoxel = Box<dyn Fn([u32; 3]) -> f32 + Sync>;
-    let emission: Option<PerVoxel> = match (&scene.volume.emission, &scene.volume.source) {
-        (None, _) => None,
-        (Some(EmissionGrid::Raw { path }), _) => {
-            let values = raw_densities(path, dims).map_err(StoreError::into_emission)?;
-            Some(Box::new(dense_lookup(values, dims)))
-        }
-        (Some(EmissionGrid::Vdb { grid }), VolumeSource::Vdb { path, index_min, .. }) => {
-            let vdb = crate::store::vdb::vdb_grid_over(path, grid, dims, *index_min)?;
-            let index_min = *index_min;
-            Some(Box::new(move |v: [u32; 3]| {
-                vdb.grid().tree.value(std::array::from_fn(|i| index_min[i] + v[i] as i32))
-            }))
-        }
-        (Some(EmissionGrid::Vdb { grid }), _) => {
-            return Err(StoreError::Corrupt {
-                path: job.scene.clone(),
-                message: format!("emission grid \"{grid}\" needs a `vdb` volume"),
-            }
-            .into())
-        }
+    let emission = match &scene.volume.emission {
+        None => None,
+        Some(grid) => Some(emission_factors(job, &scene, grid)?),
     };
-    let emission = emission.as_deref();
+    let emission = emission.as_ref().map(|values| dense_lookup_rgb(values, dims));
+    let emission = emission.as_ref().map(|f| f as &(dyn Fn([u32; 3]) -> [f32; 3] + Sync));
     let result = match &scene.volume.source {
         VolumeSource::Procedural { shape, seed } => {
             let (shape, seed): (Shape, u64) = (*shape, *seed);
-            super::run_with_emission(&scene, &|v| procedural::density(shape, seed, dims, v), emission, channels, &opts)
+            super::run_with_emission_rgb(
+                &scene,
+                &|v| procedural::density(shape, seed, dims, v),
+                emission,
+                channels,
+                &opts,
+            )
         }
         VolumeSource::Raw { path } => {
             let at = dense_lookup(raw_densities(path, dims)?, dims);
-            super::run_with_emission(&scene, &at, emission, channels, &opts)
+            super::run_with_emission_rgb(&scene, &at, emission, channels, &opts)
         }
         VolumeSource::Vdb { path, grid, index_min } => {
             let vdb = crate::store::vdb::vdb_density(path, grid, dims, *index_min)?;
             let tree = &vdb.grid().tree;
             let at = |v: [u32; 3]| tree.value(std::array::from_fn(|i| index_min[i] + v[i] as i32));
-            super::run_with_emission(&scene, &at, emission, channels, &opts)
+            super::run_with_emission_rgb(&scene, &at, emission, channels, &opts)
         }
         VolumeSource::Nrrd { path } => {
             let header = store::nrrd_input::nrrd_header(path)?;
@@ -172,7 +161,7 @@ fn run_in(
                 Ok(())
             })?;
             let at = dense_lookup(values, dims);
-            super::run_with_emission(&scene, &at, emission, channels, &opts)
+            super::run_with_emission_rgb(&scene, &at, emission, channels, &opts)
         }
     };
     let outputs = write_outputs(&result, h, stage)?;
@@ -194,14 +183,74 @@ fn run_in(
     Ok(report)
 }
 
-/// The densities of a raw volume file (x fastest), checked by the same importer as the solver's
-/// (NaN, infinite or negative values are errors naming the voxel).
+/// A scene's per-voxel emission factors, every voxel (x fastest): a grey grid's values in every
+/// channel, or a temperature grid's blackbody factors (with the store's checks and messages).
+fn emission_factors(
+    job: &ReferenceJob,
+    scene: &Scene,
+    grid: &EmissionGrid,
+) -> Result<Vec<[f32; 3]>, ReferenceJobError> {
+    let dims = scene.volume.dims;
+    let label = store::emission::field_label(grid);
+    let bad = |e: StoreError| if grid.blackbody().is_some() { e.into_temperature(&label) } else { e.into_emission() };
+    let (values, path) = match (grid.raw_path(), grid.vdb_grid(), &scene.volume.source) {
+        (Some(path), _, _) => (raw_densities(path, dims).map_err(bad)?, path.to_path_buf()),
+        (None, Some(name), VolumeSource::Vdb { path, index_min, .. }) => {
+            let vdb = crate::store::vdb::vdb_grid_over(path, name, dims, *index_min)?;
+            let tree = &vdb.grid().tree;
+            let mut values = Vec::with_capacity(dims.iter().map(|&d| d as usize).product());
+            for z in 0..dims[2] {
+                for y in 0..dims[1] {
+                    for x in 0..dims[0] {
+                        let value = tree.value(std::array::from_fn(|i| index_min[i] + [x, y, z][i] as i32));
+                        if !(value.is_finite() && value >= 0.0) {
+                            let e = StoreError::BadDensity { path: path.clone(), voxel: [x, y, z], value };
+                            return Err(bad(e).into());
+                        }
+                        values.push(value);
+                    }
+                }
+            }
+            (values, path.clone())
+        }
+        (None, name, _) => {
+            return Err(StoreError::Corrupt {
+                path: job.scene.clone(),
+                message: format!("emission grid \"{}\" needs a `vdb` volume", name.unwrap_or_default()),
+            }
+            .into())
+        }
+    };
+    let Some(blackbody) = grid.blackbody() else {
+        return Ok(values.into_iter().map(|e| [e; 3]).collect());
+    };
+    let map = crate::scene::blackbody::BlackbodyMap::new(blackbody);
+    let max_emission = scene.medium.emission.iter().fold(0f64, |m, &v| m.max(v));
+    let (nx, ny) = (dims[0] as usize, dims[1] as usize);
+    values
+        .iter()
+        .enumerate()
+        .map(|(i, &t)| {
+            let voxel = [(i % nx) as u32, (i / nx % ny) as u32, (i / (nx * ny)) as u32];
+            store::emission::temperature_factors(&map, max_emission, t, voxel, &path).map_err(Into::into)
+        })
+        .collect()
+}
+
+/// [`dense_lookup`] of per-channel emission factors.
+fn dense_lookup_rgb(values: &[[f32; 3]], dims: [u32; 3]) -> impl Fn([u32; 3]) -> [f32; 3] + Sync + '_ {
+    let (nx, ny) = (dims[0] as usize, dims[1] as usize);
+    move |v| values.get((v[2] as usize * ny + v[1] as usize) * nx + v[0] as usize).copied().unwrap_or([0.0; 3])
+}
+
 /// Voxel v of `values` (x fastest, `dims`); 0 past the end (a short array is caught by its reader).
 fn dense_lookup(values: Vec<f32>, dims: [u32; 3]) -> impl Fn([u32; 3]) -> f32 + Sync {
     let (nx, ny) = (dims[0] as usize, dims[1] as usize);
     move |v| values.get((v[2] as usize * ny + v[1] as usize) * nx + v[0] as usize).copied().unwrap_or(0.0)
 }
 
+/// The densities of a raw volume file (x fastest), checked by the same importer as the solver's
+/// (NaN, infinite or negative values are errors naming the voxel).
 fn raw_densities(path: &Path, dims: [u32; 3]) -> Result<Vec<f32>, StoreError> {
     let raw = store::raw_density(path, dims)?;
     let grid = BrickGrid::new(dims);

@@ -24,8 +24,9 @@
 //! - **sun** of irradiance E toward `direction`: a point uniform on a rectangle perpendicular to the
 //!   beam that covers the box's projection (outside the box), travelling along −`direction`; kept only
 //!   if the ray hits the box (misses still count in N); P = E·A_rect;
-//! - **emission**: a voxel with probability ∝ σa·Le·h³ (∝ ρ per channel), a uniform point in it, an
-//!   isotropic direction; P = 4π·Σ σa·Le·h³.
+//! - **emission**: a voxel with probability ∝ σa·Le·h³ (∝ ρ·e_c(v) per channel c, e the per-voxel
+//!   emission factor: 1, a grey grid's value, or a temperature's blackbody factor for that
+//!   channel), a uniform point in it, an isotropic direction; P = 4π·Σ σa·Le·h³.
 //!
 //! Free flights are sampled by **delta (Woodcock) tracking** against a per-brick majorant grid
 //! (16³-voxel bricks, majorant σ·ρ_max; bricks are crossed with a DDA, tracking restarts at each brick
@@ -178,6 +179,21 @@ pub fn run_with_emission(
     channels: u32,
     opts: &ReferenceOptions,
 ) -> ReferenceResult {
+    match emission {
+        Some(e) => run_with_emission_rgb(scene, density, Some(&|v| [e(v); 3]), channels, opts),
+        None => run_with_emission_rgb(scene, density, None, channels, opts),
+    }
+}
+
+/// [`run_with_emission`] with an emission factor per channel (r, g, b; a temperature grid's
+/// blackbody factors, see [`crate::scene::blackbody`]): the medium emits `σa·Le_c·e_c(v)`.
+pub fn run_with_emission_rgb(
+    scene: &Scene,
+    density: &(dyn Fn([u32; 3]) -> f32 + Sync),
+    emission: Option<&(dyn Fn([u32; 3]) -> [f32; 3] + Sync)>,
+    channels: u32,
+    opts: &ReferenceOptions,
+) -> ReferenceResult {
     let start = Instant::now();
     let channels: usize = if channels >= 3 { 3 } else { 1 };
     let dims = scene.volume.dims;
@@ -192,11 +208,17 @@ pub fn run_with_emission(
         }
     }
     let setups: Vec<ChannelSetup> = (0..channels).map(|c| ChannelSetup::new(scene, &grid, c)).collect();
-    let cdf = if setups.iter().any(|s| s.sources.iter().any(|x| x.0 == fluence::Source::Emission)) {
-        emission_cdf(&grid)
-    } else {
-        Vec::new()
-    };
+    // Per channel: a temperature's emission differs between r, g and b, and so does where it is.
+    let cdfs: Vec<Vec<f64>> = setups
+        .iter()
+        .map(|s| {
+            if s.sources.iter().any(|x| x.0 == fluence::Source::Emission) {
+                emission_cdf(&grid, s.ch)
+            } else {
+                Vec::new()
+            }
+        })
+        .collect();
     let batches = opts.batches.max(2) as usize;
     let per_batch = opts.photons.div_ceil(batches as u64);
     let threads = if opts.threads == 0 {
@@ -226,7 +248,7 @@ pub fn run_with_emission(
                 let (ch, b) = (job / batches, job % batches);
                 let mut rng = Rng::new(opts.seed, b as u64, ch as u64, TAG_PHOTONS);
                 let mut est = Vec::new();
-                trace_batch(&grid, &setups[ch], &cdf, per_batch, &mut rng, &mut est);
+                trace_batch(&grid, &setups[ch], &cdfs[ch], per_batch, &mut rng, &mut est);
                 // A poisoned lock means another worker panicked; that panic is re-raised by scope.
                 if let Ok(mut c) = combiner.lock() {
                     c.submit(job, batches, est);

@@ -44,8 +44,9 @@ pub struct RenderInputs<'a> {
     /// In-scattered source J summed over orders; `Coverage::Occupied`; component
     /// `d·channels + ch` for storage direction d and channel ch.
     pub source: &'a Field,
-    /// The per-voxel emission factor e(v) (one component, occupied bricks): the medium emits
-    /// `e(v)·medium.emission`; `None`: it emits `medium.emission` everywhere.
+    /// The per-voxel emission factor e(v) (occupied bricks; one grey component, or r, g, b from a
+    /// temperature grid): the medium emits `e(v)·medium.emission`; `None`: it emits
+    /// `medium.emission` everywhere.
     pub emission: Option<&'a Field>,
     /// 1 (grey: channel 0 serves r, g and b) or 3.
     pub channels: u32,

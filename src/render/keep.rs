@@ -54,8 +54,9 @@ pub struct RenderData {
     pub sky: [f64; 3],
     /// The camera the solve rendered with (the scene's, or the default view).
     pub camera: CameraData,
-    /// The medium emits per voxel: `emission.field` (the store's emission factor) is kept too and
-    /// scales `medium.emission` voxel by voxel.
+    /// The medium emits per voxel: `emission.field` (the store's emission factor: one grey
+    /// component, or r, g, b from a temperature grid) is kept too and scales `medium.emission`
+    /// voxel by voxel.
     #[serde(default)]
     pub emission_per_voxel: bool,
     /// The scene's environment map, seen behind the volume with `--background sky`: its file is

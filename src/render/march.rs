@@ -93,13 +93,18 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
             let corners = trilinear(mid / h, grid.dims);
             let sample = |f: &dyn Fn([u32; 3]) -> f64| corners.iter().map(|&(v, w)| w * f(v)).sum::<f64>();
             let density = sample(&|v| inputs.store.density_at(v) as f64);
-            let glow = inputs.emission.map_or(1.0, |e| sample(&|v| e.value(v, 0) as f64));
+            // The emission factor per channel: a grey field's one component, or r, g, b.
+            let glow: [f64; 3] = match inputs.emission {
+                None => [1.0; 3],
+                Some(e) if e.components() == 1 => [sample(&|v| e.value(v, 0) as f64); 3],
+                Some(e) => std::array::from_fn(|ch| sample(&|v| e.value(v, ch as u32) as f64)),
+            };
             for ch in 0..3 {
                 let sigma_t = density * m.sigma_t[ch];
                 let sigma_a = sigma_t * (1.0 - m.albedo[ch]);
                 let j_ch = if inputs.channels == 1 { 0 } else { ch as u32 };
                 let j = sample(&|v| inputs.source.value(v, d * inputs.channels + j_ch) as f64);
-                let q = j + sigma_a * m.emission[ch] * glow;
+                let q = j + sigma_a * m.emission[ch] * glow[ch];
                 let x = sigma_t * s;
                 // ∫₀ˢ e^{−σt·u} du, exact as σt → 0 (where it tends to s).
                 let path = if sigma_t > 0.0 { -(-x).exp_m1() / sigma_t } else { s };

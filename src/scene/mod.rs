@@ -27,6 +27,7 @@
 //! Densities of procedural volumes come from [`procedural`]; the values of raw density files are
 //! checked later by the brick importer (here only the file's existence and size are checked).
 
+pub mod blackbody;
 pub mod environment;
 mod error;
 mod locate;

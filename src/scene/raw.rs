@@ -41,6 +41,9 @@ pub(crate) struct RawVolume {
     /// Per-voxel emission: a raw f32 file of the volume's dims, or a grid of the `vdb` file.
     pub emission_raw: Option<String>,
     pub emission_grid: Option<String>,
+    /// Per-voxel temperature (blackbody emission): a raw f32 file or a grid of the `vdb` file.
+    pub temperature_raw: Option<String>,
+    pub temperature_grid: Option<String>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -50,6 +53,10 @@ pub(crate) struct RawMedium {
     pub albedo: Channels,
     pub g: Option<f64>,
     pub emission: Option<Channels>,
+    /// How a temperature grid becomes blackbody emission (see `scene::blackbody`).
+    pub temperature_scale: Option<f64>,
+    pub temperature_reference: Option<f64>,
+    pub temperature_cutoff: Option<f64>,
 }
 
 /// One `[[lights]]` entry. Kept flat (rather than a serde-tagged enum) so that an unknown `kind`

@@ -33,8 +33,10 @@ pub struct Volume {
     /// validator moves it into the volume's frame (see [`Camera`]).
     pub origin: DVec3,
     /// Per-voxel emission `e(v)` (≥ 0): the medium's emitted radiance in voxel v is
-    /// `Le(v) = e(v)·medium.emission` (the colour, 1 when not given), its source `σa(v)·Le(v)`.
-    /// `None`: the medium emits `medium.emission` uniformly (where it absorbs).
+    /// `Le(v) = e(v)·medium.emission` (the colour, 1 when not given), its source `σa(v)·Le(v)`;
+    /// from a temperature grid `e(v)` has a value per channel, the blackbody's (see
+    /// [`super::blackbody`]). `None`: the medium emits `medium.emission` uniformly (where it
+    /// absorbs).
     pub emission: Option<EmissionGrid>,
 }
 
@@ -46,6 +48,62 @@ pub enum EmissionGrid {
     /// Grid `grid` of the volume's OpenVDB file, read over the density's voxels (its own active
     /// bounding box may be smaller: voxels outside it are 0).
     Vdb { grid: String },
+    /// A temperature (`volume.temperature_raw`), read as [`EmissionGrid::Raw`], mapped to
+    /// blackbody radiance per channel.
+    TemperatureRaw { path: PathBuf, blackbody: Blackbody },
+    /// A temperature grid of the volume's OpenVDB file (`volume.temperature_grid`), read as
+    /// [`EmissionGrid::Vdb`], mapped to blackbody radiance per channel.
+    TemperatureVdb { grid: String, blackbody: Blackbody },
+}
+
+/// How a temperature grid's values become blackbody emission (`[medium] temperature_*`; see
+/// [`super::blackbody`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Blackbody {
+    /// Kelvin per unit of the grid (`temperature_scale`, > 0; 1: the grid holds kelvin).
+    pub scale: f64,
+    /// The temperature (K) whose radiance has luminance `medium.emission` (`temperature_reference`).
+    pub reference: f64,
+    /// Voxels colder than this (K) emit nothing (`temperature_cutoff`, ≥ 0).
+    pub cutoff: f64,
+}
+
+impl EmissionGrid {
+    /// The raw file the values come from, if any.
+    pub fn raw_path(&self) -> Option<&std::path::Path> {
+        match self {
+            EmissionGrid::Raw { path } | EmissionGrid::TemperatureRaw { path, .. } => Some(path),
+            EmissionGrid::Vdb { .. } | EmissionGrid::TemperatureVdb { .. } => None,
+        }
+    }
+
+    /// The grid of the volume's VDB file the values come from, if any.
+    pub fn vdb_grid(&self) -> Option<&str> {
+        match self {
+            EmissionGrid::Vdb { grid } | EmissionGrid::TemperatureVdb { grid, .. } => Some(grid),
+            EmissionGrid::Raw { .. } | EmissionGrid::TemperatureRaw { .. } => None,
+        }
+    }
+
+    /// The temperature mapping, when the grid holds temperatures.
+    pub fn blackbody(&self) -> Option<&Blackbody> {
+        match self {
+            EmissionGrid::TemperatureRaw { blackbody, .. } | EmissionGrid::TemperatureVdb { blackbody, .. } => {
+                Some(blackbody)
+            }
+            EmissionGrid::Raw { .. } | EmissionGrid::Vdb { .. } => None,
+        }
+    }
+
+    /// Emission factors per voxel: 1 (a grey factor scaling `medium.emission`) or 3 (r, g, b: a
+    /// temperature's blackbody colour).
+    pub fn components(&self) -> u32 {
+        if self.blackbody().is_some() {
+            3
+        } else {
+            1
+        }
+    }
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -270,6 +328,16 @@ pub enum Projection {
     Pinhole { fov_y_degrees: f64 },
     /// Height of the view in world units (> 0).
     Orthographic { height: f64 },
+}
+
+impl Scene {
+    /// True when one channel describes the scene: the medium, every light and the per-voxel
+    /// emission (a temperature's blackbody colour is never grey) are the same in r, g and b.
+    pub fn is_grey(&self) -> bool {
+        self.medium.is_grey()
+            && self.lights.iter().all(Light::is_grey)
+            && self.volume.emission.as_ref().is_none_or(|e| e.components() == 1)
+    }
 }
 
 impl Medium {

@@ -6,13 +6,15 @@
 
 use super::raw::{ByteSize, Channels, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
 use super::{
-    DiffusionCorrection, EmissionGrid, EnvironmentLight, ForwardPeak, Light, MapUp, Medium, PlanMode, Scene,
-    SceneError, Shape, SolverSettings, SpatialScheme, StoragePrecision, Volume, VolumeSource,
+    DiffusionCorrection, EnvironmentLight, ForwardPeak, Light, MapUp, Medium, PlanMode, Scene, SceneError, Shape,
+    SolverSettings, SpatialScheme, StoragePrecision, Volume, VolumeSource,
 };
+use emission::{BlackbodyKeys, EmissionKeys};
 use glam::DVec3;
 use std::path::{Path, PathBuf};
 
 mod camera;
+mod emission;
 mod nrrd_volume;
 mod vdb_volume;
 
@@ -74,12 +76,14 @@ impl Validator<'_> {
         SceneError::Invalid { path: self.path.to_path_buf(), key: key.into(), problem: problem.into() }
     }
 
-    pub fn scene(&self, raw: RawScene) -> R<Scene> {
-        let volume = self.volume(raw.volume)?;
+    pub fn scene(&self, mut raw: RawScene) -> R<Scene> {
+        let blackbody = BlackbodyKeys::take(&mut raw.medium);
+        let volume = self.volume(raw.volume, blackbody)?;
         let emission_given = raw.medium.emission.is_some();
         let mut medium = self.medium(raw.medium)?;
         if volume.emission.is_some() && !emission_given {
-            // A per-voxel emission grid without a colour emits its own values in every channel.
+            // A per-voxel emission grid without a colour emits its own values in every channel (a
+            // temperature grid its blackbody colour, luminance 1 at the reference temperature).
             medium.emission = [1.0; 3];
         }
         if raw.lights.len() > MAX_LIGHTS {
@@ -184,41 +188,11 @@ impl Validator<'_> {
 
     // ---- sections -------------------------------------------------------------------------
 
-    fn volume(&self, mut v: RawVolume) -> R<Volume> {
-        let (emission_raw, emission_grid) = (v.emission_raw.take(), v.emission_grid.take());
+    fn volume(&self, mut v: RawVolume, blackbody: BlackbodyKeys) -> R<Volume> {
+        let keys = EmissionKeys::take(&mut v);
         let mut volume = self.volume_source(v)?;
-        volume.emission = self.emission_grid(emission_raw, emission_grid, &volume)?;
+        volume.emission = self.emission(keys, blackbody, &volume)?;
         Ok(volume)
-    }
-
-    /// `volume.emission_raw` / `volume.emission_grid`, once the volume's dims are known.
-    fn emission_grid(&self, raw: Option<String>, grid: Option<String>, volume: &Volume) -> R<Option<EmissionGrid>> {
-        match (raw, grid) {
-            (None, None) => Ok(None),
-            (Some(_), Some(_)) => Err(self.err(
-                "volume.emission_grid",
-                "set at most one of `emission_raw` and `emission_grid`, but both are set",
-            )),
-            (Some(raw), None) => {
-                let voxels = volume.dims.iter().map(|&d| u64::from(d)).product::<u64>();
-                let path = self.raw_file_at("volume.emission_raw", &raw, volume.dims, voxels)?;
-                Ok(Some(EmissionGrid::Raw { path }))
-            }
-            (None, Some(grid)) => {
-                let VolumeSource::Vdb { path, .. } = &volume.source else {
-                    return Err(self.err(
-                        "volume.emission_grid",
-                        "only applies to a `vdb` volume (use `emission_raw` for a raw file of the volume's dims)",
-                    ));
-                };
-                if grid.trim().is_empty() {
-                    return Err(self.err("volume.emission_grid", "must name a grid, got an empty string"));
-                }
-                crate::store::vdb::vdb_info(path, &grid)
-                    .map_err(|e| self.err("volume.emission_grid", e.to_string()))?;
-                Ok(Some(EmissionGrid::Vdb { grid }))
-            }
-        }
     }
 
     fn volume_source(&self, mut v: RawVolume) -> R<Volume> {

@@ -147,7 +147,7 @@ pub fn build_store(scene: &Scene, dir: &Path) -> Result<BrickStore, SolveError> 
         }
     };
     if let Some(grid) = &scene.volume.emission {
-        crate::store::emission::import_emission(&store, grid, &scene.volume.source)?;
+        crate::store::emission::import_emission(&store, grid, &scene.volume.source, &scene.medium)?;
     }
     Ok(store)
 }

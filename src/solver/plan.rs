@@ -3,7 +3,8 @@
 //! (Just over 450 lines: every choice the plan makes sits beside the reason it reports, so one file
 //! says what a solve will model.)
 //!
-//! - channels: 1 when the medium and every light are grey, else 3 (RGB);
+//! - channels: 1 when the medium, every light and the emission grid are grey (a temperature grid's
+//!   blackbody colour never is), else 3 (RGB);
 //! - storage directions for the source: 1 when the medium is isotropic (g = 0), else k_s×k_s per face;
 //! - emission: only when some channel emits;
 //! - empty bricks: known from the store; they hold no medium and no source;
@@ -326,7 +327,14 @@ impl Plan {
         }
         let emission_field = medium.has_emission() && scene.volume.emission.is_some();
         let emission = medium.has_emission() && !emission_field;
-        reasons.push(if emission_field {
+        let blackbody = scene.volume.emission.as_ref().and_then(|e| e.blackbody());
+        reasons.push(if let (true, Some(b)) = (emission_field, blackbody) {
+            format!(
+                "emission per voxel from a temperature grid: the first order's source is σa·Le·f(T) per \
+                 channel, T = {} K × the grid's value, f the blackbody colour (luminance 1 at {} K, 0 below {} K)",
+                b.scale, b.reference, b.cutoff
+            )
+        } else if emission_field {
             "emission per voxel: the first order's source is σa·Le·e(v) from the emission grid".into()
         } else if emission {
             "emission on: the medium emits σa·Le".into()
@@ -485,11 +493,11 @@ fn choose_forward_peak(scene: &Scene, reasons: &mut Vec<String>) -> (Medium, Opt
 
 /// 1 channel when the medium and every light are grey (and the plan may reduce), else 3.
 fn choose_channels(scene: &Scene, full: bool, reasons: &mut Vec<String>) -> u32 {
-    let grey = scene.medium.is_grey() && scene.lights.iter().all(Light::is_grey);
+    let grey = scene.is_grey();
     let (channels, why) = match (grey, full) {
         (true, false) => (1, "1 channel: the medium and every light are grey"),
         (true, true) => (3, "3 channels: plan = \"full\" (the medium and every light are grey, so 1 would do)"),
-        (false, _) => (3, "3 channels: the medium or a light differs between r, g and b"),
+        (false, _) => (3, "3 channels: the medium, a light or the emission grid differs between r, g and b"),
     };
     reasons.push(why.into());
     channels

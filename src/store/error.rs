@@ -25,6 +25,10 @@ pub enum StoreError {
         path.display(), voxel[0], voxel[1], voxel[2], short_f32(*value))]
     BadEmission { path: PathBuf, voxel: [u32; 3], value: f32 },
 
+    #[error("{}: voxel ({}, {}, {}) has temperature {}; {problem}",
+        path.display(), voxel[0], voxel[1], voxel[2], short_f32(*value))]
+    BadTemperature { path: PathBuf, voxel: [u32; 3], value: f32, problem: String },
+
     #[error("volume dims {}×{}×{} are invalid: {reason}", dims[0], dims[1], dims[2])]
     BadDims { dims: [u32; 3], reason: &'static str },
 
@@ -68,6 +72,20 @@ impl StoreError {
     pub(crate) fn into_emission(self) -> StoreError {
         match self {
             StoreError::BadDensity { path, voxel, value } => StoreError::BadEmission { path, voxel, value },
+            other => other,
+        }
+    }
+
+    /// The same error with a bad value reported as a temperature (see [`StoreError::into_emission`]).
+    /// `field` says where the values came from (`volume.temperature_raw`, `grid "temperature"`).
+    pub(crate) fn into_temperature(self, field: &str) -> StoreError {
+        match self {
+            StoreError::BadDensity { path, voxel, value } => StoreError::BadTemperature {
+                path,
+                voxel,
+                value,
+                problem: format!("temperatures ({field}) must be finite and non-negative"),
+            },
             other => other,
         }
     }

@@ -40,6 +40,7 @@ mod spatial_accuracy;
 mod spirv_current;
 mod stop_rule;
 mod store_and_outputs;
+mod temperature;
 mod vdb_input;
 mod vdb_nrrd;
 mod vdb_output;

@@ -372,7 +372,14 @@ fn token_confinement_and_limits() {
     let emission = TINY.replace("dims = [16, 16, 16]", &format!("dims = [16, 16, 16]\nemission_raw = \"{outside}\""));
     let nvdb = TINY.replace("procedural = \"sphere\"\ndims = [16, 16, 16]", "nvdb = \"/etc/passwd\"");
     let map = TINY.replace("[solver]", &format!("[[lights]]\nkind = \"environment\"\nmap = \"{outside}\"\n[solver]"));
-    for (scene, key) in [(emission, "volume.emission_raw"), (nvdb, "volume.nvdb"), (map, "lights[1].map")] {
+    let temperature =
+        TINY.replace("dims = [16, 16, 16]", &format!("dims = [16, 16, 16]\ntemperature_raw = \"{outside}\""));
+    for (scene, key) in [
+        (emission, "volume.emission_raw"),
+        (temperature, "volume.temperature_raw"),
+        (nvdb, "volume.nvdb"),
+        (map, "lights[1].map"),
+    ] {
         let (s, body) = post(good, &scene);
         assert_eq!(s, 400, "{key}: {body}");
         let error = body["error"].as_str().unwrap();
