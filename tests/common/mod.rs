@@ -119,15 +119,7 @@ pub fn raw_scene(
     density: impl Fn([u32; 3]) -> f32,
 ) -> Scene {
     let path = temp_dir(name).join("density.raw");
-    let mut bytes = Vec::new();
-    for z in 0..dims[2] {
-        for y in 0..dims[1] {
-            for x in 0..dims[0] {
-                bytes.extend_from_slice(&density([x, y, z]).to_le_bytes());
-            }
-        }
-    }
-    std::fs::write(&path, bytes).expect("write raw");
+    write_raw_field(&path, dims, density);
     let mut s = scene(Shape::Box, dims, [sigma_t; 3], [albedo; 3], lights);
     s.volume.source = VolumeSource::Raw { path };
     s
@@ -250,4 +242,44 @@ diffusion_correction = "on"
 "#,
         dims[0], dims[1], dims[2]
     )
+}
+
+/// The image of a solve of the scene file `scene` into `out` (CPU backend, transparent
+/// background, no field exports), as RGBA pixels.
+pub fn image_of(scene: PathBuf, out: &std::path::Path) -> Vec<[f32; 4]> {
+    let job = lpm::job::SolveJob {
+        backend: lpm::solver::BackendKind::Cpu,
+        no_fields: true,
+        background: lpm::render::Background::Transparent,
+        ..lpm::job::SolveJob::new(scene, out.to_path_buf())
+    };
+    lpm::job::run(&job, |_, _| {}).expect("solve");
+    read_exr_rgba(&out.join("image.exr"))
+}
+
+/// An EXR's RGBA pixels, row-major.
+pub fn read_exr_rgba(path: &std::path::Path) -> Vec<[f32; 4]> {
+    let image = exr::prelude::read_first_rgba_layer_from_file(
+        path,
+        |res, _| (res.width(), vec![[0.0f32; 4]; res.width() * res.height()]),
+        |img: &mut (usize, Vec<[f32; 4]>), pos, (r, g, b, a): (f32, f32, f32, f32)| {
+            let w = img.0;
+            img.1[pos.y() * w + pos.x()] = [r, g, b, a];
+        },
+    )
+    .expect("read exr");
+    image.layer_data.channel_data.pixels.1
+}
+
+/// Writes `f` over a `dims` volume as a headerless raw f32 file (x fastest, little endian).
+pub fn write_raw_field(path: &std::path::Path, dims: [u32; 3], f: impl Fn([u32; 3]) -> f32) {
+    let mut bytes = Vec::new();
+    for z in 0..dims[2] {
+        for y in 0..dims[1] {
+            for x in 0..dims[0] {
+                bytes.extend_from_slice(&f([x, y, z]).to_le_bytes());
+            }
+        }
+    }
+    std::fs::write(path, bytes).expect("write raw");
 }

@@ -5,19 +5,7 @@ use crate::common::*;
 use lpm::reference::{run_with_emission, ReferenceOptions};
 use lpm::scene::{EmissionGrid, Scene, Shape};
 use lpm::solver::BackendKind::{Cpu, Gpu};
-use std::path::{Path, PathBuf};
-
-fn write_raw(path: &Path, dims: [u32; 3], f: impl Fn([u32; 3]) -> f32) {
-    let mut bytes = Vec::new();
-    for z in 0..dims[2] {
-        for y in 0..dims[1] {
-            for x in 0..dims[0] {
-                bytes.extend_from_slice(&f([x, y, z]).to_le_bytes());
-            }
-        }
-    }
-    std::fs::write(path, bytes).expect("write raw");
-}
+use std::path::PathBuf;
 
 /// A glowing core: emission 4 in a small cube off centre, 0 elsewhere.
 fn core(v: [u32; 3]) -> f32 {
@@ -32,7 +20,7 @@ fn core(v: [u32; 3]) -> f32 {
 fn glowing_sphere(name: &str, tint: [f64; 3], e: impl Fn([u32; 3]) -> f32) -> (Scene, PathBuf) {
     let dims = [20, 22, 18];
     let path = temp_dir(name).join("emission.raw");
-    write_raw(&path, dims, e);
+    write_raw_field(&path, dims, e);
     let mut sc = scene(Shape::Sphere, dims, [0.8, 0.6, 0.4], [0.7, 0.6, 0.5], vec![sky(0.2)]);
     sc.medium.emission = tint;
     sc.volume.emission = Some(EmissionGrid::Raw { path: path.clone() });
@@ -83,7 +71,7 @@ fn the_glowing_core_agrees_with_monte_carlo() {
     // Grey, so one channel; no sky: all light comes from the emission grid.
     let dims = [20, 22, 18];
     let path = temp_dir("emission-mc").join("emission.raw");
-    write_raw(&path, dims, core);
+    write_raw_field(&path, dims, core);
     let mut sc = scene(Shape::Box, dims, [0.3; 3], [0.8; 3], vec![]);
     sc.medium.emission = [1.0; 3];
     sc.volume.emission = Some(EmissionGrid::Raw { path });
@@ -140,7 +128,7 @@ openvdb.write(sys.argv[1], grids=[d, f])
     let a = Scene::load(&write_scene_as(&dir, "vdb.toml", &text("emission_grid = \"flame\""))).expect("vdb scene");
     // The same flame as a raw file over the density's voxels (index −3 is voxel 0).
     let raw = dir.join("flame.raw");
-    write_raw(&raw, [16; 3], |v| {
+    write_raw_field(&raw, [16; 3], |v| {
         let c = v.map(|x| x as i32 - 3);
         if (2..7).contains(&c[0]) && (0..5).contains(&c[1]) && (3..9).contains(&c[2]) {
             0.5 * (1 + (c[0] + c[1] + c[2]) % 3) as f32
@@ -158,7 +146,7 @@ openvdb.write(sys.argv[1], grids=[d, f])
 #[test]
 fn bad_emission_input_is_refused_with_its_name() {
     let dir = temp_dir("emission-bad");
-    write_raw(&dir.join("nan.raw"), [4, 4, 4], |v| if v == [1, 2, 3] { f32::NAN } else { 1.0 });
+    write_raw_field(&dir.join("nan.raw"), [4, 4, 4], |v| if v == [1, 2, 3] { f32::NAN } else { 1.0 });
     std::fs::write(dir.join("short.raw"), [0u8; 12]).expect("write");
     let base = "[volume]\nprocedural = \"box\"\ndims = [4, 4, 4]\n";
     let tail = "[medium]\nsigma_t = 1.0\nalbedo = 0.5\n";
@@ -179,38 +167,12 @@ fn bad_emission_input_is_refused_with_its_name() {
     assert!(err.contains("nan.raw") && err.contains("(1, 2, 3)") && err.contains("emission"), "{err}");
 }
 
-/// The image of a solve (CPU backend, transparent background), as RGBA pixels.
-fn image_of(scene: PathBuf, out: &Path) -> Vec<[f32; 4]> {
-    let job = lpm::job::SolveJob {
-        backend: Cpu,
-        no_fields: true,
-        background: lpm::render::Background::Transparent,
-        ..lpm::job::SolveJob::new(scene, out.to_path_buf())
-    };
-    lpm::job::run(&job, |_, _| {}).expect("solve");
-    image_pixels(&out.join("image.exr"))
-}
-
-/// An EXR's RGBA pixels, row-major.
-fn image_pixels(path: &Path) -> Vec<[f32; 4]> {
-    let image = exr::prelude::read_first_rgba_layer_from_file(
-        path,
-        |res, _| (res.width(), vec![[0.0f32; 4]; res.width() * res.height()]),
-        |img: &mut (usize, Vec<[f32; 4]>), pos, (r, g, b, a): (f32, f32, f32, f32)| {
-            let w = img.0;
-            img.1[pos.y() * w + pos.x()] = [r, g, b, a];
-        },
-    )
-    .expect("read exr");
-    image.layer_data.channel_data.pixels.1
-}
-
 #[test]
 fn the_image_shows_the_glow_where_the_grid_emits() {
     let dir = temp_dir("emission-image");
     let dims = [20, 22, 18];
-    write_raw(&dir.join("core.raw"), dims, core);
-    write_raw(&dir.join("ones.raw"), dims, |_| 1.0);
+    write_raw_field(&dir.join("core.raw"), dims, core);
+    write_raw_field(&dir.join("ones.raw"), dims, |_| 1.0);
     let text = |emission: &str| {
         format!(
             "[volume]\nprocedural = \"box\"\ndims = [20, 22, 18]\n{emission}\n[medium]\nsigma_t = 0.1\nalbedo = 0.5\n\
@@ -246,5 +208,5 @@ fn the_image_shows_the_glow_where_the_grid_emits() {
     .expect("run lpm render");
     assert!(status.success());
     std::fs::copy(&again, out.join("image.exr")).expect("copy");
-    assert!(image_pixels(&out.join("image.exr")) == glowing, "lpm render must reproduce the solve's image");
+    assert!(read_exr_rgba(&out.join("image.exr")) == glowing, "lpm render must reproduce the solve's image");
 }

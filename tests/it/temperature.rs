@@ -7,19 +7,7 @@ use crate::common::*;
 use lpm::scene::blackbody::{blackbody_rgb, blackbody_xyz, planck, BlackbodyMap, CIE_1931_2DEG_5NM};
 use lpm::scene::{Blackbody, EmissionGrid, Scene, Shape};
 use lpm::solver::BackendKind::{Cpu, Gpu};
-use std::path::{Path, PathBuf};
-
-fn write_raw(path: &Path, dims: [u32; 3], f: impl Fn([u32; 3]) -> f32) {
-    let mut bytes = Vec::new();
-    for z in 0..dims[2] {
-        for y in 0..dims[1] {
-            for x in 0..dims[0] {
-                bytes.extend_from_slice(&f([x, y, z]).to_le_bytes());
-            }
-        }
-    }
-    std::fs::write(path, bytes).expect("write raw");
-}
+use std::path::Path;
 
 const DEFAULT: Blackbody = Blackbody { scale: 1.0, reference: 1500.0, cutoff: 500.0 };
 
@@ -186,7 +174,7 @@ fn core_temperature(v: [u32; 3]) -> f32 {
 fn hot_sphere(name: &str, tint: [f64; 3], t: impl Fn([u32; 3]) -> f32) -> Scene {
     let dims = [20, 22, 18];
     let path = temp_dir(name).join("temperature.raw");
-    write_raw(&path, dims, t);
+    write_raw_field(&path, dims, t);
     let mut sc = scene(Shape::Sphere, dims, [0.6; 3], [0.5; 3], vec![sky(0.01)]);
     sc.medium.emission = tint;
     sc.volume.emission = Some(EmissionGrid::TemperatureRaw { path, blackbody: DEFAULT });
@@ -257,7 +245,7 @@ fn a_temperature_grid_solves_like_the_emission_grid_it_equals() {
     let hot = hot_sphere("temperature-equal", tint, core);
     let mut glow = hot.clone();
     let path = temp_dir("temperature-equal-e").join("emission.raw");
-    write_raw(&path, [20, 22, 18], |v| if core(v) > 0.0 { 1.0 } else { 0.0 });
+    write_raw_field(&path, [20, 22, 18], |v| if core(v) > 0.0 { 1.0 } else { 0.0 });
     let f = BlackbodyMap::new(&DEFAULT).factors(t0);
     glow.medium.emission = std::array::from_fn(|c| tint[c] * f[c]);
     glow.volume.emission = Some(EmissionGrid::Raw { path });
@@ -285,7 +273,7 @@ fn read_f32(path: &Path) -> Vec<f64> {
 fn the_hot_core_agrees_with_monte_carlo() {
     // No light but the fire; the reference job reads the scene file and its temperature file itself.
     let dir = temp_dir("temperature-mc");
-    write_raw(&dir.join("t.raw"), [20, 22, 18], core_temperature);
+    write_raw_field(&dir.join("t.raw"), [20, 22, 18], core_temperature);
     let text = "[volume]\nprocedural = \"box\"\ndims = [20, 22, 18]\ntemperature_raw = \"t.raw\"\n\
                 [medium]\nsigma_t = 0.3\nalbedo = 0.8\ntemperature_reference = 2000\n\
                 [solver]\ndirections_per_face = 4\ntolerance = 1e-5\n";
@@ -353,7 +341,7 @@ openvdb.write(sys.argv[1], grids=[d, t])
     // The same temperatures as a raw file over the density's voxels (index −3 is voxel 0); they
     // are exact in half precision (multiples of 0.25, 1.5 to 2.25: 1500–2250 K, some blue).
     let raw = dir.join("t.raw");
-    write_raw(&raw, [16; 3], |v| {
+    write_raw_field(&raw, [16; 3], |v| {
         let c = v.map(|x| x as i32 - 3);
         if (2..7).contains(&c[0]) && (0..5).contains(&c[1]) && (3..9).contains(&c[2]) {
             1.5 + 0.25 * ((c[0] + c[1] + c[2]) % 4) as f32
@@ -374,9 +362,9 @@ openvdb.write(sys.argv[1], grids=[d, t])
 #[test]
 fn bad_temperature_input_is_refused_with_its_name() {
     let dir = temp_dir("temperature-bad");
-    write_raw(&dir.join("nan.raw"), [4, 4, 4], |v| if v == [1, 2, 3] { f32::NAN } else { 1000.0 });
-    write_raw(&dir.join("neg.raw"), [4, 4, 4], |v| if v == [3, 0, 2] { -5.0 } else { 1000.0 });
-    write_raw(&dir.join("ok.raw"), [4, 4, 4], |_| 1000.0);
+    write_raw_field(&dir.join("nan.raw"), [4, 4, 4], |v| if v == [1, 2, 3] { f32::NAN } else { 1000.0 });
+    write_raw_field(&dir.join("neg.raw"), [4, 4, 4], |v| if v == [3, 0, 2] { -5.0 } else { 1000.0 });
+    write_raw_field(&dir.join("ok.raw"), [4, 4, 4], |_| 1000.0);
     std::fs::write(dir.join("short.raw"), [0u8; 12]).expect("write");
     let base = "[volume]\nprocedural = \"box\"\ndims = [4, 4, 4]\n";
     let tail = "[medium]\nsigma_t = 1.0\nalbedo = 0.5\n";
@@ -424,36 +412,10 @@ fn bad_temperature_input_is_refused_with_its_name() {
     }
 }
 
-/// The image of a solve (CPU backend, transparent background), as RGBA pixels.
-fn image_of(scene: PathBuf, out: &Path) -> Vec<[f32; 4]> {
-    let job = lpm::job::SolveJob {
-        backend: Cpu,
-        no_fields: true,
-        background: lpm::render::Background::Transparent,
-        ..lpm::job::SolveJob::new(scene, out.to_path_buf())
-    };
-    lpm::job::run(&job, |_, _| {}).expect("solve");
-    read_exr(&out.join("image.exr"))
-}
-
-/// An EXR's RGBA pixels, row-major.
-fn read_exr(path: &Path) -> Vec<[f32; 4]> {
-    let image = exr::prelude::read_first_rgba_layer_from_file(
-        path,
-        |res, _| (res.width(), vec![[0.0f32; 4]; res.width() * res.height()]),
-        |img: &mut (usize, Vec<[f32; 4]>), pos, (r, g, b, a): (f32, f32, f32, f32)| {
-            let w = img.0;
-            img.1[pos.y() * w + pos.x()] = [r, g, b, a];
-        },
-    )
-    .expect("read exr");
-    image.layer_data.channel_data.pixels.1
-}
-
 #[test]
 fn the_image_glows_in_fire_colours_and_re_renders() {
     let dir = temp_dir("temperature-image");
-    write_raw(&dir.join("t.raw"), [20, 22, 18], core_temperature);
+    write_raw_field(&dir.join("t.raw"), [20, 22, 18], core_temperature);
     let text = "[volume]\nprocedural = \"box\"\ndims = [20, 22, 18]\ntemperature_raw = \"t.raw\"\n\
                 [medium]\nsigma_t = 0.1\nalbedo = 0.5\n[solver]\ndirections_per_face = 2\nmax_orders = 2\n\
                 [camera]\nwidth = 40\nheight = 36\n";
@@ -476,5 +438,5 @@ fn the_image_glows_in_fire_colours_and_re_renders() {
     .status()
     .expect("run lpm render");
     assert!(status.success());
-    assert!(read_exr(&again) == pixels, "lpm render must reproduce the solve's image");
+    assert!(read_exr_rgba(&again) == pixels, "lpm render must reproduce the solve's image");
 }
