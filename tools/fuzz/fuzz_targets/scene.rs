@@ -19,6 +19,9 @@ fuzz_target!(|data: &[u8]| {
                 assert!(finite(irradiance));
                 assert!((direction.length() - 1.0).abs() < 1e-12, "{direction}");
             }
+            // The map is read when the scene loads; here its directory does not exist, so an
+            // accepted environment light would mean a map was never checked.
+            Light::Environment(env) => panic!("environment light accepted without its map: {:?}", env.intensity),
         }
     }
     assert!(scene.volume.dims.iter().all(|&d| d >= 1 && d <= lpm::scene::validate::MAX_DIM));
