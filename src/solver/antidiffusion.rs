@@ -69,8 +69,6 @@ pub fn lattice_spread(faces: &[Vec<SweepDirection>], spatial: SpatialScheme) -> 
         total_weight += dir.fluence_weight;
         let planes = dir.weights.len().max(1) as f64;
         for (i, &axis) in face.lateral.iter().enumerate() {
-            // The exact lateral displacement at the middle of plane t is δ·(t + ½) voxels.
-            let slope = dir.omega[axis] / dir.omega[face.axis].abs();
             let per_plane = |t: usize| -> f64 {
                 match spatial {
                     SpatialScheme::Linear => {
@@ -78,7 +76,9 @@ pub fn lattice_spread(faces: &[Vec<SweepDirection>], spatial: SpatialScheme) -> 
                         2.0 * w * (1.0 - w)
                     }
                     SpatialScheme::Constant => {
-                        let d = slope * (t as f64 + 0.5);
+                        // The exact lateral displacement at the middle of plane t is δ·(t + ½)
+                        // voxels; the ray meets the nearest column.
+                        let d = dir.omega[axis] / dir.omega[face.axis].abs() * (t as f64 + 0.5);
                         let e = d - d.round();
                         2.0 * e * e
                     }

@@ -283,3 +283,20 @@ pub fn write_raw_field(path: &std::path::Path, dims: [u32; 3], f: impl Fn([u32; 
     }
     std::fs::write(path, bytes).expect("write raw");
 }
+
+/// `lpm render OUT --background transparent --image IMAGE`: the solved result in `out` rendered
+/// again from its kept render data, as RGBA pixels.
+pub fn rerender_transparent(out: &std::path::Path, image: &std::path::Path) -> Vec<[f32; 4]> {
+    let status = lpm_command(&[
+        "render",
+        out.to_str().expect("utf-8"),
+        "--background",
+        "transparent",
+        "--image",
+        image.to_str().expect("utf-8"),
+    ])
+    .status()
+    .expect("run lpm render");
+    assert!(status.success(), "lpm render failed");
+    read_exr_rgba(image)
+}

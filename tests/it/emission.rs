@@ -195,18 +195,8 @@ fn the_image_shows_the_glow_where_the_grid_emits() {
     assert!(glowing.iter().filter(|p| p[0] < 0.05 * brightest[0]).count() > glowing.len() / 4);
     // `lpm render` re-renders it from the kept data, the emission field included: the same pixels.
     let out = dir.join("core");
-    let again = dir.join("again.exr");
-    let status = lpm_command(&[
-        "render",
-        out.to_str().expect("utf-8"),
-        "--background",
-        "transparent",
-        "--image",
-        again.to_str().expect("utf-8"),
-    ])
-    .status()
-    .expect("run lpm render");
-    assert!(status.success());
-    std::fs::copy(&again, out.join("image.exr")).expect("copy");
-    assert!(read_exr_rgba(&out.join("image.exr")) == glowing, "lpm render must reproduce the solve's image");
+    assert!(
+        rerender_transparent(&out, &dir.join("again.exr")) == glowing,
+        "lpm render must reproduce the solve's image"
+    );
 }

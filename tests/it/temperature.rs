@@ -426,17 +426,8 @@ fn the_image_glows_in_fire_colours_and_re_renders() {
     assert!(brightest[0] > brightest[1] && brightest[1] > brightest[2], "{brightest:?}");
     assert!(pixels.iter().filter(|p| p[0] < 0.05 * brightest[0]).count() > pixels.len() / 4);
     // `lpm render` re-renders it from the kept data, the three-component emission field included.
-    let again = dir.join("again.exr");
-    let status = lpm_command(&[
-        "render",
-        out.to_str().expect("utf-8"),
-        "--background",
-        "transparent",
-        "--image",
-        again.to_str().expect("utf-8"),
-    ])
-    .status()
-    .expect("run lpm render");
-    assert!(status.success());
-    assert!(read_exr_rgba(&again) == pixels, "lpm render must reproduce the solve's image");
+    assert!(
+        rerender_transparent(&out, &dir.join("again.exr")) == pixels,
+        "lpm render must reproduce the solve's image"
+    );
 }
