@@ -30,6 +30,7 @@ fn bench_scene() -> Scene {
             voxel_size: 1.0,
             origin: DVec3::ZERO,
             emission: None,
+            albedo: None,
         },
         medium: Medium { sigma_t: [0.5, 0.4, 0.3], albedo: [0.9; 3], g: 0.0, emission: [0.0; 3] },
         lights: vec![

@@ -417,9 +417,15 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
         &scene.lights,
         &camera,
     );
-    render_data.emission_per_voxel = plan.emission_field;
-    let emission = if plan.emission_field {
+    render_data.emission_per_voxel = plan.emission_grid;
+    render_data.albedo_per_voxel = plan.albedo_field;
+    let emission = if plan.emission_grid {
         Some(crate::store::emission::open_emission(&store).map_err(SolveError::from)?)
+    } else {
+        None
+    };
+    let albedo = if plan.albedo_field {
+        Some(crate::store::albedo::open_albedo(&store).map_err(SolveError::from)?)
     } else {
         None
     };
@@ -440,7 +446,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
             &render_data,
             &store,
             &fields.source_total,
-            emission.as_ref(),
+            render::VoxelFactors { emission: emission.as_ref(), albedo: albedo.as_ref() },
             render::keep::environment_light(&scene.lights),
             &camera,
             job.background,

@@ -38,6 +38,14 @@ impl Image {
     }
 }
 
+/// The per-voxel factors a solved volume may have besides its density: the emission factor and
+/// the albedo factor (the store's `emission` and `albedo` fields).
+#[derive(Clone, Copy, Default)]
+pub struct VoxelFactors<'a> {
+    pub emission: Option<&'a Field>,
+    pub albedo: Option<&'a Field>,
+}
+
 /// Everything a render reads.
 pub struct RenderInputs<'a> {
     pub store: &'a BrickStore,
@@ -48,6 +56,9 @@ pub struct RenderInputs<'a> {
     /// temperature grid): the medium emits `e(v)·medium.emission`; `None`: it emits
     /// `medium.emission` everywhere.
     pub emission: Option<&'a Field>,
+    /// The per-voxel albedo factor a(v) (occupied bricks, one component): the medium absorbs
+    /// `σt·(1 − albedo·a(v))`, which scales its emission; `None`: `medium.albedo` everywhere.
+    pub albedo: Option<&'a Field>,
     /// 1 (grey: channel 0 serves r, g and b) or 3.
     pub channels: u32,
     pub storage_dirs: u32,

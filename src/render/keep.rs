@@ -17,7 +17,7 @@
 //! while `--keep-store` keeps them too), or copies where a link cannot be made. The directory is
 //! published with the solve's other outputs as one set.
 
-use super::{render, Background, Image, RenderInputs};
+use super::{render, Background, Image, RenderInputs, VoxelFactors};
 use crate::output::{write_json_atomic, OutputError};
 use crate::quadrature::{PropagationSet, StorageSet};
 use crate::scene::{
@@ -59,6 +59,10 @@ pub struct RenderData {
     /// voxel by voxel.
     #[serde(default)]
     pub emission_per_voxel: bool,
+    /// The albedo varies per voxel: `albedo.field` (the store's albedo factor, one component) is
+    /// kept too and scales `medium.albedo` voxel by voxel (it changes σa, hence the emission).
+    #[serde(default)]
+    pub albedo_per_voxel: bool,
     /// The scene's environment map, seen behind the volume with `--background sky`: its file is
     /// kept as `environment.exr` (linked or copied).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -181,6 +185,7 @@ impl RenderData {
             sky: sky_radiance(lights),
             camera: camera.into(),
             emission_per_voxel: false,
+            albedo_per_voxel: false,
             environment: environment_light(lights).map(EnvironmentData::new),
         }
     }
@@ -230,6 +235,10 @@ pub fn keep(
         let name = format!("{}.field", crate::store::emission::EMISSION_FIELD);
         files.push((store.dir().join(&name), name));
     }
+    if data.albedo_per_voxel {
+        let name = format!("{}.field", crate::store::albedo::ALBEDO_FIELD);
+        files.push((store.dir().join(&name), name));
+    }
     if let Some(env) = environment {
         files.push((env.map.path.clone(), ENVIRONMENT_FILE.to_string()));
     }
@@ -249,6 +258,8 @@ pub struct Kept {
     pub source: Field,
     /// The per-voxel emission factor, when the medium emits per voxel.
     pub emission: Option<Field>,
+    /// The per-voxel albedo factor, when the albedo varies per voxel.
+    pub albedo: Option<Field>,
     /// The camera the solve rendered with, in the volume's frame.
     pub camera: Camera,
     /// The environment map behind the volume, read back from `environment.exr`.
@@ -302,6 +313,7 @@ pub fn open(out: &Path) -> Result<Kept, OutputError> {
     let storage_dirs = if data.storage_per_face == 0 { 1 } else { 6 * data.storage_per_face * data.storage_per_face };
     let source = store.open_field(SOURCE_FIELD, storage_dirs * data.channels, Coverage::Occupied)?;
     let emission = if data.emission_per_voxel { Some(crate::store::emission::open_emission(&store)?) } else { None };
+    let albedo = if data.albedo_per_voxel { Some(crate::store::albedo::open_albedo(&store)?) } else { None };
     let environment = match &data.environment {
         None => None,
         Some(e) => {
@@ -325,7 +337,7 @@ pub fn open(out: &Path) -> Result<Kept, OutputError> {
             })
         }
     };
-    Ok(Kept { data, store, source, emission, camera, environment })
+    Ok(Kept { data, store, source, emission, albedo, camera, environment })
 }
 
 impl Kept {
@@ -335,7 +347,7 @@ impl Kept {
             &self.data,
             &self.store,
             &self.source,
-            self.emission.as_ref(),
+            VoxelFactors { emission: self.emission.as_ref(), albedo: self.albedo.as_ref() },
             self.environment.as_ref(),
             camera,
             background,
@@ -343,8 +355,8 @@ impl Kept {
     }
 }
 
-/// Renders a solved `source` (with its `store` and, where the medium emits per voxel, the store's
-/// `emission` field) as `data` describes it, through `camera` (volume frame) over `background`
+/// Renders a solved `source` (with its `store` and, where the medium emits or scatters per voxel,
+/// the store's `emission` and `albedo` fields) as `data` describes it, through `camera` (volume frame) over `background`
 /// (with `environment`, the scene's map, behind the volume for [`Background::Sky`]):
 /// the one path both `lpm solve` and `lpm render` take, so a render of the kept data from the
 /// solve's view is bitwise the solve's image.
@@ -352,7 +364,7 @@ pub fn render_solved(
     data: &RenderData,
     store: &BrickStore,
     source: &Field,
-    emission: Option<&Field>,
+    factors: VoxelFactors,
     environment: Option<&EnvironmentLight>,
     camera: &Camera,
     background: Background,
@@ -369,7 +381,8 @@ pub fn render_solved(
     render(&RenderInputs {
         store,
         source,
-        emission,
+        emission: factors.emission,
+        albedo: factors.albedo,
         channels: data.channels,
         storage_dirs: storage.len() as u32,
         storage_lookup: &lookup,

@@ -99,9 +99,11 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                 Some(e) if e.components() == 1 => [sample(&|v| e.value(v, 0) as f64); 3],
                 Some(e) => std::array::from_fn(|ch| sample(&|v| e.value(v, ch as u32) as f64)),
             };
+            // The albedo factor a(v) (1 without an albedo grid), sampled like the density.
+            let albedo = inputs.albedo.map_or(1.0, |a| sample(&|v| a.value(v, 0) as f64));
             for ch in 0..3 {
                 let sigma_t = density * m.sigma_t[ch];
-                let sigma_a = sigma_t * (1.0 - m.albedo[ch]);
+                let sigma_a = sigma_t * (1.0 - m.albedo[ch] * albedo);
                 let j_ch = if inputs.channels == 1 { 0 } else { ch as u32 };
                 let j = sample(&|v| inputs.source.value(v, d * inputs.channels + j_ch) as f64);
                 let q = j + sigma_a * m.emission[ch] * glow[ch];

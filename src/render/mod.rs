@@ -20,6 +20,6 @@ mod write;
 
 pub use crate::scene::default_camera;
 pub use camera::RayGenerator;
-pub use image::{render, tone_map, Background, Image, RenderInputs};
+pub use image::{render, tone_map, Background, Image, RenderInputs, VoxelFactors};
 pub use keep::{render_solved, RenderData, RENDER_DATA};
 pub use write::{write_exr, write_images, write_png, write_png_rgba};

@@ -44,6 +44,9 @@ pub(crate) struct RawVolume {
     /// Per-voxel temperature (blackbody emission): a raw f32 file or a grid of the `vdb` file.
     pub temperature_raw: Option<String>,
     pub temperature_grid: Option<String>,
+    /// Per-voxel albedo factor in [0, 1]: a raw f32 file or a grid of the `vdb` file.
+    pub albedo_raw: Option<String>,
+    pub albedo_grid: Option<String>,
 }
 
 #[derive(Debug, Deserialize)]

@@ -38,6 +38,46 @@ pub struct Volume {
     /// [`super::blackbody`]). `None`: the medium emits `medium.emission` uniformly (where it
     /// absorbs).
     pub emission: Option<EmissionGrid>,
+    /// Per-voxel albedo factor `a(v)` in [0, 1]: the single-scattering albedo of voxel v in
+    /// channel c is `medium.albedo[c]·a(v)` (so σs(v) = ρσt·albedo·a(v), σa(v) = ρσt·(1 −
+    /// albedo·a(v))). `None`: `medium.albedo` everywhere.
+    pub albedo: Option<AlbedoGrid>,
+}
+
+/// Where a per-voxel albedo factor comes from (`volume.albedo_raw` / `albedo_grid`).
+#[derive(Clone, Debug, PartialEq)]
+pub enum AlbedoGrid {
+    /// Little-endian f32, x fastest, the volume's dims; an absolute path.
+    Raw { path: PathBuf },
+    /// Grid `grid` of the volume's OpenVDB file, read over the density's voxels (voxels its tree
+    /// does not cover read its background value).
+    Vdb { grid: String },
+}
+
+impl AlbedoGrid {
+    /// The raw file the values come from, if any.
+    pub fn raw_path(&self) -> Option<&std::path::Path> {
+        match self {
+            AlbedoGrid::Raw { path } => Some(path),
+            AlbedoGrid::Vdb { .. } => None,
+        }
+    }
+
+    /// The grid of the volume's VDB file the values come from, if any.
+    pub fn vdb_grid(&self) -> Option<&str> {
+        match self {
+            AlbedoGrid::Vdb { grid } => Some(grid),
+            AlbedoGrid::Raw { .. } => None,
+        }
+    }
+
+    /// Where the values come from, for messages: the scene key or the VDB grid.
+    pub fn label(&self) -> String {
+        match self {
+            AlbedoGrid::Vdb { grid } => format!("grid \"{grid}\""),
+            AlbedoGrid::Raw { .. } => "volume.albedo_raw".into(),
+        }
+    }
 }
 
 /// Where a per-voxel emission comes from.

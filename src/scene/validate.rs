@@ -9,10 +9,12 @@ use super::{
     DiffusionCorrection, EnvironmentLight, ForwardPeak, Light, MapUp, Medium, PlanMode, Scene, SceneError, Shape,
     SolverSettings, SpatialScheme, StoragePrecision, Volume, VolumeSource,
 };
+use albedo::AlbedoKeys;
 use emission::{BlackbodyKeys, EmissionKeys};
 use glam::DVec3;
 use std::path::{Path, PathBuf};
 
+mod albedo;
 mod camera;
 mod emission;
 mod nrrd_volume;
@@ -101,6 +103,7 @@ impl Validator<'_> {
             ));
         }
         let solver = self.solver(raw.solver)?;
+        self.albedo_with_forward_peak(&volume, solver.forward_peak)?;
         // The solver and renderer work in the volume's frame (its corner at 0): the camera comes
         // back in it.
         let frame = VolumeFrame { dims: volume.dims, voxel_size: volume.voxel_size, origin: volume.origin };
@@ -190,8 +193,10 @@ impl Validator<'_> {
 
     fn volume(&self, mut v: RawVolume, blackbody: BlackbodyKeys) -> R<Volume> {
         let keys = EmissionKeys::take(&mut v);
+        let albedo = AlbedoKeys::take(&mut v);
         let mut volume = self.volume_source(v)?;
         volume.emission = self.emission(keys, blackbody, &volume)?;
+        volume.albedo = self.albedo(albedo, &volume)?;
         Ok(volume)
     }
 
@@ -262,7 +267,7 @@ impl Validator<'_> {
                 VolumeSource::Raw { path: self.raw_file(&raw, dims, voxels)? }
             }
         };
-        Ok(Volume { source, dims, voxel_size, origin, emission: None })
+        Ok(Volume { source, dims, voxel_size, origin, emission: None, albedo: None })
     }
 
     /// Checks a volume's size: each of `d` in 1..=MAX_DIM and the product at most MAX_VOXELS.

@@ -214,7 +214,7 @@ mod tests {
 
     fn field(dims: [u32; 3], comps: usize, f: impl Fn([u32; 3], usize) -> f64) -> MemField {
         let n = dims.iter().map(|&d| d as usize).product::<usize>();
-        let layout = VoxelMedium { density: vec![], dims };
+        let layout = VoxelMedium { density: vec![], albedo: vec![], dims };
         let mut m = MemField::zeros(comps, n);
         for i in 0..n {
             let v = layout.voxel_of(i, 0);
@@ -227,7 +227,7 @@ mod tests {
 
     fn medium(dims: [u32; 3], density: impl Fn([u32; 3]) -> f64) -> VoxelMedium {
         let f = field(dims, 1, |v, _| density(v));
-        VoxelMedium { density: f.values, dims }
+        VoxelMedium { density: f.values, albedo: vec![], dims }
     }
 
     #[test]

@@ -65,7 +65,7 @@ impl<'a> CpuTwin<'a> {
         }
         Ok(CpuTwin {
             plan,
-            medium: VoxelMedium { density: values, dims: plan.dims },
+            medium: VoxelMedium { density: values, albedo: Vec::new(), dims: plan.dims },
             occupied,
             fields: OrderFieldSet::in_memory(plan, voxels),
             j_gain: if half { vec![0.0; voxels * comps] } else { Vec::new() },
@@ -90,6 +90,22 @@ impl<'a> CpuTwin<'a> {
             }
         }
         self.emitted_field = Some(power);
+    }
+
+    /// Takes each voxel's albedo factor a(v) from `albedo` (the store's field, as the GPU's host
+    /// passes read it): each order's scattered source is multiplied by it and absorption counted
+    /// with it ([`super::passes`]).
+    pub fn set_albedo(&mut self, albedo: &crate::store::Field) {
+        let [nx, ny, nz] = self.plan.dims;
+        let mut values = Vec::with_capacity(self.medium.density.len());
+        for z in 0..nz {
+            for y in 0..ny {
+                for x in 0..nx {
+                    values.push(albedo.value([x, y, z], 0) as f64);
+                }
+            }
+        }
+        self.medium.albedo = values;
     }
 
     fn index(&self, v: [u32; 3]) -> usize {

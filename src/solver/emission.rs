@@ -12,49 +12,81 @@
 //! The field's factor is grey (one component) or per channel (three: a temperature grid's
 //! blackbody colour, see [`crate::store::emission`]); channel `ch` reads
 //! [`channel_block`]`(brick, ch)` either way.
+//!
+//! With a per-voxel albedo (`volume.albedo_*`, [`crate::store::albedo`]) σa varies per voxel,
+//! `σa(v) = ρ·(σt − σs·a(v))`, so a uniform emission takes this path too (with e = 1): the kernels'
+//! `FLAG_EMIT` only knows the medium's σa.
 
 use super::plan::{half_scale_exponent, power_of_two, Plan, Precision};
 use super::SolveError;
+use crate::store::albedo::open_albedo;
 use crate::store::emission::{channel_block, open_emission};
 use crate::store::{BrickStore, Field, BRICK_VOXELS};
 
-/// σa·Le per channel: the order-0 source of a voxel of density 1 and emission factor 1.
-fn scales(plan: &Plan) -> [f64; 3] {
+/// (σt·Le, σs·Le) per channel: a voxel of density 1, emission factor 1 and albedo factor a has
+/// the order-0 source σt·Le − σs·Le·a = σa·Le (a = 1 without an albedo grid).
+fn scales(plan: &Plan) -> [(f64, f64); 3] {
     std::array::from_fn(|ch| {
         if ch < plan.channels as usize {
-            plan.coefficients(ch).2 * plan.medium.emission[ch]
+            let (st, ss, _) = plan.coefficients(ch);
+            let le = plan.medium.emission[ch];
+            (st * le, ss * le)
         } else {
-            0.0
+            (0.0, 0.0)
         }
     })
 }
 
-/// A voxel's order-0 source `ρ·σa·Le·e` as stored (f32): the one formula for what is written and
-/// for the power counted.
-fn source_value(rho: f32, scale: f64, e: f32) -> f32 {
-    (rho as f64 * scale * e as f64) as f32
+/// A voxel's order-0 source `ρ·(σt − σs·a)·Le·e` as stored (f32): the one formula for what is
+/// written and for the power counted. Without an albedo grid (a = 1) this is `ρ·σa·Le·e` exactly
+/// as before the albedo grid existed.
+fn source_value(rho: f32, (st_le, ss_le): (f64, f64), a: f32, e: f32) -> f32 {
+    (rho as f64 * (st_le - ss_le * a as f64) * e as f64) as f32
 }
 
-/// Writes the order-0 source of the emission field into `source` (fresh: all zero).
+/// The per-voxel fields the emission's source is formed from: the emission factor (when the
+/// scene has an emission grid) and the albedo factor (when it has an albedo grid).
+struct Factors {
+    emission: Option<Field>,
+    albedo: Option<Field>,
+}
+
+impl Factors {
+    fn open(store: &BrickStore, plan: &Plan) -> Result<Factors, SolveError> {
+        Ok(Factors {
+            emission: if plan.emission_grid { Some(open_emission(store)?) } else { None },
+            albedo: if plan.albedo_field { Some(open_albedo(store)?) } else { None },
+        })
+    }
+
+    /// Calls `visit(local, source)` for every voxel of `brick` in channel `ch` (density `density`).
+    fn each(&self, brick: usize, density: &[f32], ch: usize, scale: (f64, f64), visit: &mut dyn FnMut(usize, f32)) {
+        let e = self.emission.as_ref().and_then(|f| f.brick(brick)).map(|b| channel_block(b, ch));
+        let a = self.albedo.as_ref().and_then(|f| f.brick(brick));
+        for (l, &rho) in density.iter().enumerate() {
+            let e = e.map_or(1.0, |e| e[l]);
+            let a = a.map_or(1.0, |a| a[l]);
+            visit(l, source_value(rho, scale, a, e));
+        }
+    }
+}
+
+/// Writes the order-0 source of the per-voxel emission into `source` (fresh: all zero).
 pub fn write_initial_source(store: &BrickStore, plan: &Plan, source: &mut Field) -> Result<(), SolveError> {
-    let emission = open_emission(store)?;
+    let factors = Factors::open(store, plan)?;
     let c = plan.channels as usize;
     let storage = plan.storage.solid_angle.len();
     let scale = scales(plan);
     let bricks: Vec<usize> = store.occupied_bricks().collect();
     for brick in bricks {
-        let (Some(density), Some(e), Some(dst)) =
-            (store.density_brick(brick), emission.brick(brick), source.brick_mut(brick))
-        else {
+        let (Some(density), Some(dst)) = (store.density_brick(brick), source.brick_mut(brick)) else {
             continue;
         };
         // Component d·C + ch: channel ch's block, the same for every storage direction d.
         for ch in 0..c {
             let (first, rest) = dst.split_at_mut(c * BRICK_VOXELS);
             let block = &mut first[ch * BRICK_VOXELS..(ch + 1) * BRICK_VOXELS];
-            for ((o, &rho), &e) in block.iter_mut().zip(density).zip(channel_block(e, ch)) {
-                *o = source_value(rho, scale[ch], e);
-            }
+            factors.each(brick, density, ch, scale[ch], &mut |l, v| block[l] = v);
             for d in 1..storage {
                 let k = (d - 1) * c + ch;
                 rest[k * BRICK_VOXELS..(k + 1) * BRICK_VOXELS].copy_from_slice(block);
@@ -65,14 +97,14 @@ pub fn write_initial_source(store: &BrickStore, plan: &Plan, source: &mut Field)
     Ok(())
 }
 
-/// Power the emission field emits, per channel: Σ 4π·ρσa·Le·e·h³, with the source values as the
-/// rays gain them, so that the energy balance closes to round-off: the f32 values written, or,
+/// Power the per-voxel emission emits, per channel: Σ 4π·ρσa(v)·Le·e·h³, with the source values as
+/// the rays gain them, so that the energy balance closes to round-off: the f32 values written, or,
 /// where the plan stores the gained source in f16, those values rounded as both backends round
 /// them before order 0 (scaled by the power of two [`half_scale_exponent`] picks from the largest,
 /// rounded to f16, scaled back). Counting the f32 values there left the balance off by the
 /// rounding, ~2·10⁻⁵ for a fire whose temperatures span a wide range of radiance.
 pub fn emitted_power(store: &BrickStore, plan: &Plan) -> Result<[f64; 3], SolveError> {
-    let emission = open_emission(store)?;
+    let factors = Factors::open(store, plan)?;
     let c = plan.channels as usize;
     let h3 = plan.voxel_size.powi(3);
     let four_pi: f64 = plan.storage.solid_angle.iter().sum();
@@ -80,13 +112,11 @@ pub fn emitted_power(store: &BrickStore, plan: &Plan) -> Result<[f64; 3], SolveE
     // Each voxel's source value per channel, brick by brick, for `visit`.
     let each = |visit: &mut dyn FnMut(usize, f32)| {
         for brick in store.occupied_bricks() {
-            let (Some(density), Some(e)) = (store.density_brick(brick), emission.brick(brick)) else {
+            let Some(density) = store.density_brick(brick) else {
                 continue;
             };
             for (ch, &s) in scale.iter().enumerate().take(c) {
-                for (&rho, &e) in density.iter().zip(channel_block(e, ch)) {
-                    visit(ch, source_value(rho, s, e));
-                }
+                factors.each(brick, density, ch, s, &mut |_, v| visit(ch, v));
             }
         }
     };

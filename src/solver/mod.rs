@@ -149,6 +149,9 @@ pub fn build_store(scene: &Scene, dir: &Path) -> Result<BrickStore, SolveError> 
     if let Some(grid) = &scene.volume.emission {
         crate::store::emission::import_emission(&store, grid, &scene.volume.source, &scene.medium)?;
     }
+    if let Some(grid) = &scene.volume.albedo {
+        crate::store::albedo::import_albedo(&store, grid, &scene.volume.source)?;
+    }
     Ok(store)
 }
 
@@ -269,6 +272,9 @@ pub fn solve_from(
         BackendKind::Cpu => {
             let t = Instant::now();
             let mut twin = cpu::CpuTwin::new(&plan, |v| store.density_at(v))?;
+            if plan.albedo_field {
+                twin.set_albedo(&crate::store::albedo::open_albedo(store)?);
+            }
             if plan.emission_field {
                 // The same f32 order-0 source the GPU gains, and the power it emits.
                 twin.set_initial_source(&fields.source_prev, emission::emitted_power(store, &plan)?);

@@ -23,7 +23,7 @@ pub trait Backend {
     /// Where a field lives: files of f32 in the brick store, or f64 in memory.
     type Field: FieldPlanes + Sync;
     /// The medium's density over the fields' units, and where those units lie in the volume.
-    type Medium: Medium + VoxelUnits<V = <Self::Field as FieldPlanes>::V>;
+    type Medium: Medium<V = <Self::Field as FieldPlanes>::V> + VoxelUnits<V = <Self::Field as FieldPlanes>::V>;
     /// Propagates one order (the beams first when `order == 0`) and returns its boundary tallies.
     fn propagate_order(&mut self, order: u32) -> Result<Tallies, SolveError>;
     /// The fields the order loop folds each order into, and the medium they cover.

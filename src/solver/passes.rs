@@ -147,11 +147,17 @@ impl FieldPlanes for MemField {
     }
 }
 
-/// The medium's density over the same units as the fields: unit `i`'s densities.
+/// The medium's density (and per-voxel albedo factor, when the scene has one) over the same units
+/// as the fields: unit `i`'s values.
 pub trait Medium {
     type V: Value;
     fn density(&self, unit: usize) -> Option<&[Self::V]>;
-    /// Hands back every resident page of the density.
+    /// The albedo factor `a(v)` of unit `i`'s voxels (`volume.albedo_*`, see
+    /// [`crate::store::albedo`]); `None` everywhere when the albedo is uniform.
+    fn albedo(&self, unit: usize) -> Option<&[Self::V]>;
+    /// Whether the medium has a per-voxel albedo factor at all.
+    fn has_albedo(&self) -> bool;
+    /// Hands back every resident page of the density (and the albedo factor).
     fn release_all(&self);
 }
 
@@ -160,11 +166,15 @@ pub struct StoreMedium<'a> {
     pub(super) store: &'a BrickStore,
     /// The occupied bricks in slot order: unit `i` is brick `bricks[i]`.
     pub(super) bricks: Vec<usize>,
+    /// The store's albedo factor field, when the plan has one.
+    albedo: Option<Field>,
 }
 
 impl<'a> StoreMedium<'a> {
-    pub fn new(store: &'a BrickStore) -> Self {
-        StoreMedium { store, bricks: store.occupied_bricks().collect() }
+    /// The store's medium; with `plan.albedo_field` its albedo factor field is opened too.
+    pub fn new(store: &'a BrickStore, plan: &Plan) -> Result<Self, SolveError> {
+        let albedo = if plan.albedo_field { Some(crate::store::albedo::open_albedo(store)?) } else { None };
+        Ok(StoreMedium { store, bricks: store.occupied_bricks().collect(), albedo })
     }
 }
 
@@ -173,14 +183,25 @@ impl Medium for StoreMedium<'_> {
     fn density(&self, unit: usize) -> Option<&[f32]> {
         self.store.density_brick(*self.bricks.get(unit)?)
     }
+    fn albedo(&self, unit: usize) -> Option<&[f32]> {
+        self.albedo.as_ref()?.brick(*self.bricks.get(unit)?)
+    }
+    fn has_albedo(&self) -> bool {
+        self.albedo.is_some()
+    }
     fn release_all(&self) {
         self.store.release_all_density();
+        if let Some(a) = &self.albedo {
+            a.release_all();
+        }
     }
 }
 
 /// The twin's medium: one unit per voxel, voxels x fastest over `dims`.
 pub struct VoxelMedium {
     pub density: Vec<f64>,
+    /// The albedo factor per voxel (x fastest), or empty: the albedo is uniform.
+    pub albedo: Vec<f64>,
     pub dims: [u32; 3],
 }
 
@@ -188,6 +209,12 @@ impl Medium for VoxelMedium {
     type V = f64;
     fn density(&self, unit: usize) -> Option<&[f64]> {
         self.density.get(unit..unit + 1)
+    }
+    fn albedo(&self, unit: usize) -> Option<&[f64]> {
+        self.albedo.get(unit..unit + 1)
+    }
+    fn has_albedo(&self) -> bool {
+        !self.albedo.is_empty()
     }
     fn release_all(&self) {}
 }
@@ -262,7 +289,9 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
         self.warm_started = true;
     }
 
-    /// The end-of-order pass: with the diffusion correction on, first writes the corrected new
+    /// The end-of-order pass: with a per-voxel albedo, first multiplies the new source by each
+    /// voxel's albedo factor a(v) (the sweeps scattered with `medium.albedo`; see
+    /// [`scale_by_albedo`]). With the diffusion correction on, then writes the corrected new
     /// source into the scratch field and makes it the new source (the order's own accumulator is
     /// named by no checkpoint, so nothing a resume needs is touched). Then commits the order's
     /// fluence and source into the spare copies, makes
@@ -274,10 +303,13 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
     /// [`super::warm`]). The order's accumulators are cleared by [`OrderFieldSet::begin_order`],
     /// after any checkpoint is written: until then they still hold what the previous checkpoint
     /// names.
-    pub fn commit_order<U: VoxelUnits<V = F::V>>(&mut self, plan: &Plan, units: &U) -> [f64; 3]
+    pub fn commit_order<U: VoxelUnits<V = F::V> + Medium<V = F::V>>(&mut self, plan: &Plan, units: &U) -> [f64; 3]
     where
         F: Sync,
     {
+        if units.has_albedo() {
+            scale_by_albedo(&mut self.source_next, units);
+        }
         if plan.diffusion_correction.iter().any(|&k| k > 0.0) {
             antidiffusion::sharpen(&mut self.source_scratch, &self.source_next, units, plan.diffusion_correction);
             std::mem::swap(&mut self.source_next, &mut self.source_scratch);
@@ -393,24 +425,66 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
             }
             let Some(density) = medium.density(unit) else { continue };
             let phi = &values[unit * per_unit..(unit + 1) * per_unit];
+            let albedo = medium.albedo(unit);
             for ch in 0..c {
-                let sa = plan.coefficients(ch).2;
+                let (st, ss, sa) = plan.coefficients(ch);
                 let phi = &phi[ch * n..(ch + 1) * n];
                 let (mut rho_sum, mut rho_phi) = (0.0, 0.0);
-                for (&rho, &f) in density.iter().zip(phi) {
-                    rho_sum += rho.to_f64();
-                    rho_phi += rho.to_f64() * f.to_f64();
+                if let Some(albedo) = albedo {
+                    // σa(v) per unit density = σt − σs·a(v), the same expression as the emission's
+                    // source (`solver::emission`).
+                    for ((&rho, &f), &a) in density.iter().zip(phi).zip(albedo) {
+                        rho_sum += rho.to_f64();
+                        rho_phi += (st - ss * a.to_f64()) * rho.to_f64() * f.to_f64();
+                    }
+                    absorbed[ch] += rho_phi * h3;
+                } else {
+                    for (&rho, &f) in density.iter().zip(phi) {
+                        rho_sum += rho.to_f64();
+                        rho_phi += rho.to_f64() * f.to_f64();
+                    }
+                    absorbed[ch] += sa * rho_phi * h3;
                 }
                 if plan.emission {
                     emitted[ch] += four_pi * sa * plan.medium.emission[ch] * rho_sum * h3;
                 }
-                absorbed[ch] += sa * rho_phi * h3;
             }
         }
         medium.release_all();
         self.fluence_total.release_all();
         (emitted, absorbed)
     }
+}
+
+/// `source[v] ·= a(v)` for every component of every voxel, in the field's precision: the sweeps
+/// scatter with `medium.albedo`, a voxel of albedo factor a(v) scatters a(v) of that (and absorbs
+/// the rest, which the energy books count with the same a(v)). Done before the diffusion
+/// correction, whose fluxes conserve the total they are given: scaling after it would move power
+/// between voxels of different albedo and the books would no longer close.
+fn scale_by_albedo<F: FieldPlanes, M: Medium<V = F::V>>(source: &mut F, medium: &M) {
+    let units = source.units();
+    let per_unit = source.unit_len();
+    let block_len = source.unit_voxels();
+    for unit in 0..units {
+        if unit % RELEASE_UNITS == 0 && unit > 0 {
+            source.release(unit - RELEASE_UNITS, RELEASE_UNITS);
+            medium.release_all();
+        }
+        let values = &mut source.values_mut()[unit * per_unit..(unit + 1) * per_unit];
+        match medium.albedo(unit) {
+            Some(a) => {
+                for block in values.chunks_mut(block_len) {
+                    for (s, &a) in block.iter_mut().zip(a) {
+                        *s = *s * a;
+                    }
+                }
+            }
+            // A unit the medium does not hold has no medium, hence no source: keep it zero.
+            None => values.iter_mut().for_each(|s| *s = F::V::ZERO),
+        }
+    }
+    source.release_all();
+    medium.release_all();
 }
 
 /// `next −= guess`, block by block; calls `block_sum(block, Σ|next|)` for each block (a warm

@@ -121,9 +121,16 @@ pub struct Plan {
     pub medium: Medium,
     /// The medium emits `medium.emission` uniformly (the kernels add it in order 0).
     pub emission: bool,
-    /// The medium emits per voxel (`volume.emission_*`): the order-0 source is written from the
-    /// store's emission field before the orders start (see `solver::emission`).
+    /// The medium emits per voxel (`volume.emission_*`, or a uniform emission over a per-voxel
+    /// albedo, whose σa varies per voxel): the order-0 source is written from the store's fields
+    /// before the orders start (see `solver::emission`).
     pub emission_field: bool,
+    /// The store holds an emission factor field (`volume.emission_*` / `temperature_*`).
+    pub emission_grid: bool,
+    /// The albedo varies per voxel (`volume.albedo_*`): each order's scattered source is multiplied
+    /// by the store's albedo factor before it is committed, and absorption is counted with it (see
+    /// `solver::passes`).
+    pub albedo_field: bool,
     pub max_orders: u32,
     pub tolerance: f64,
     /// Add the geometric tail of the order series once it is settled (see `orders::tail_estimate`).
@@ -161,8 +168,11 @@ pub struct PlanSummary {
     pub storage_directions_per_face: u32,
     pub suns: usize,
     pub emission: bool,
-    /// The emission comes from a per-voxel grid.
+    /// The emission's source is written per voxel (an emission grid, or σa varying with an albedo
+    /// grid).
     pub emission_per_voxel: bool,
+    /// The albedo varies per voxel (`volume.albedo_*`).
+    pub albedo_per_voxel: bool,
     pub bricks_total: usize,
     pub bricks_empty: usize,
     pub max_orders: u32,
@@ -325,17 +335,30 @@ impl Plan {
                 beams.len()
             ));
         }
-        let emission_field = medium.has_emission() && scene.volume.emission.is_some();
+        let albedo_field = scene.volume.albedo.is_some();
+        if albedo_field {
+            reasons.push(
+                "albedo per voxel: each order's scattered source is multiplied by a(v) from the albedo grid \
+                 (albedo medium.albedo·a(v)), absorption counted as ρσt·(1 − albedo·a(v))"
+                    .into(),
+            );
+        }
+        let emission_grid = medium.has_emission() && scene.volume.emission.is_some();
+        // With a per-voxel albedo σa varies per voxel, so even a uniform emission's source
+        // σa(v)·Le is written per voxel rather than added by the kernels.
+        let emission_field = medium.has_emission() && (emission_grid || albedo_field);
         let emission = medium.has_emission() && !emission_field;
         let blackbody = scene.volume.emission.as_ref().and_then(|e| e.blackbody());
-        reasons.push(if let (true, Some(b)) = (emission_field, blackbody) {
+        reasons.push(if let (true, Some(b)) = (emission_grid, blackbody) {
             format!(
                 "emission per voxel from a temperature grid: the first order's source is σa·Le·f(T) per \
                  channel, T = {} K × the grid's value, f the blackbody colour (luminance 1 at {} K, 0 below {} K)",
                 b.scale, b.reference, b.cutoff
             )
-        } else if emission_field {
+        } else if emission_grid {
             "emission per voxel: the first order's source is σa·Le·e(v) from the emission grid".into()
+        } else if emission_field {
+            "emission per voxel: the first order's source is σa(v)·Le, σa(v) from the albedo grid".into()
         } else if emission {
             "emission on: the medium emits σa·Le".into()
         } else {
@@ -359,6 +382,8 @@ impl Plan {
             medium,
             emission,
             emission_field,
+            emission_grid,
+            albedo_field,
             max_orders: scene.solver.max_orders,
             tolerance: scene.solver.tolerance,
             extrapolate_tail: scene.solver.extrapolate_tail,
@@ -399,6 +424,7 @@ impl Plan {
             suns: self.beams.len(),
             emission: self.emission || self.emission_field,
             emission_per_voxel: self.emission_field,
+            albedo_per_voxel: self.albedo_field,
             bricks_total: self.bricks_total,
             bricks_empty: self.bricks_empty,
             max_orders: self.max_orders,
@@ -463,6 +489,14 @@ pub const DELTA_M_MIN_G: f64 = 0.5;
 fn choose_forward_peak(scene: &Scene, reasons: &mut Vec<String>) -> (Medium, Option<f64>) {
     let m = &scene.medium;
     let g = m.g;
+    if scene.volume.albedo.is_some() && g > 0.0 {
+        // σt' = σt·(1 − f·albedo) would vary with each voxel's albedo; the validator refuses an
+        // explicit "delta-m" with an albedo grid.
+        reasons.push(format!(
+            "phase function kept as it is (g = {g}): δ-M scaling does not combine with a per-voxel albedo"
+        ));
+        return (m.clone(), None);
+    }
     let apply = match scene.solver.forward_peak {
         ForwardPeak::Keep => false,
         ForwardPeak::DeltaM => g > 0.0,

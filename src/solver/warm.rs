@@ -54,7 +54,7 @@ pub enum WarmStartError {
     Unusable { dir: PathBuf, message: String },
     #[error("warm start needs the GPU backend (the CPU twin keeps its fields in memory)")]
     NeedsGpu,
-    #[error("warm start does not yet combine with a per-voxel emission grid (volume.emission_raw / emission_grid): solve this frame cold")]
+    #[error("warm start does not yet combine with a per-voxel emission (an emission or temperature grid, or emission over a per-voxel albedo): solve this frame cold")]
     WithEmissionGrid,
 }
 

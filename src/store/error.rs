@@ -25,6 +25,10 @@ pub enum StoreError {
         path.display(), voxel[0], voxel[1], voxel[2], short_f32(*value))]
     BadEmission { path: PathBuf, voxel: [u32; 3], value: f32 },
 
+    #[error("{}: voxel ({}, {}, {}) has albedo factor {} ({field}); albedo factors must be finite and in [0, 1]",
+        path.display(), voxel[0], voxel[1], voxel[2], short_f32(*value))]
+    BadAlbedo { path: PathBuf, field: String, voxel: [u32; 3], value: f32 },
+
     #[error("{}: voxel ({}, {}, {}) has temperature {}; {problem}",
         path.display(), voxel[0], voxel[1], voxel[2], short_f32(*value))]
     BadTemperature { path: PathBuf, voxel: [u32; 3], value: f32, problem: String },
@@ -72,6 +76,17 @@ impl StoreError {
     pub(crate) fn into_emission(self) -> StoreError {
         match self {
             StoreError::BadDensity { path, voxel, value } => StoreError::BadEmission { path, voxel, value },
+            other => other,
+        }
+    }
+
+    /// The same error with a bad value reported as an albedo factor (see
+    /// [`StoreError::into_emission`]); `field` says where the values came from.
+    pub(crate) fn into_albedo(self, field: &str) -> StoreError {
+        match self {
+            StoreError::BadDensity { path, voxel, value } => {
+                StoreError::BadAlbedo { path, field: field.to_string(), voxel, value }
+            }
             other => other,
         }
     }

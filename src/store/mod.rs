@@ -16,12 +16,13 @@
 //! |---|---|
 //! | `bricks.json` | dims, voxel size, the brick table (slot of each brick or `null`), occupied count |
 //! | `density.bricks` | the occupied bricks' densities, in brick-index order, 4096 f32 (native = little-endian) each |
-//! | `<name>.field` | a field, see [`Field`] |
+//! | `<name>.field` | a field, see [`Field`] (the per-voxel `emission` and `albedo` factors, [`emission`] and [`albedo`], are fields too) |
 //!
 //! Importers that feed [`BrickStore::create_with`] live in [`import`] (raw f32), [`vdb`] (OpenVDB
 //! grids, read by our own reader; NanoVDB grids through [`nanovdb`] into the same sparse tree) and
 //! [`nrrd_input`] (NRRD volumes, decoded to raw first).
 
+pub mod albedo;
 mod atomic;
 mod brick_store;
 pub mod emission;

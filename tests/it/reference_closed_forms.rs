@@ -19,6 +19,7 @@ fn scene(dims: [u32; 3], h: f64, sigma_t: f64, albedo: f64, g: f64, emission: f6
             voxel_size: h,
             origin: glam::DVec3::ZERO,
             emission: None,
+            albedo: None,
         },
         medium: Medium { sigma_t: [sigma_t; 3], albedo: [albedo; 3], g, emission: [emission; 3] },
         lights,

@@ -79,6 +79,7 @@ fn inputs<'a>(
         store,
         source,
         emission: None,
+        albedo: None,
         channels,
         storage_dirs,
         storage_lookup: lookup,

@@ -55,7 +55,7 @@ impl BlackbodyKeys {
 }
 
 /// Where a grid's values come from: a raw file or a grid of the volume's VDB file.
-enum Values {
+pub(super) enum Values {
     Raw(std::path::PathBuf),
     Vdb(String),
 }
@@ -91,8 +91,8 @@ impl Validator<'_> {
         }))
     }
 
-    /// `volume.<what>_raw` / `volume.<what>_grid`.
-    fn values(&self, raw: Option<String>, grid: Option<String>, what: &str, volume: &Volume) -> R<Option<Values>> {
+    /// `volume.<what>_raw` / `volume.<what>_grid` (also read by [`super::albedo`]).
+    pub(super) fn values(&self, raw: Option<String>, grid: Option<String>, what: &str, volume: &Volume) -> R<Option<Values>> {
         let (raw_key, grid_key) = (format!("volume.{what}_raw"), format!("volume.{what}_grid"));
         match (raw, grid) {
             (None, None) => Ok(None),

@@ -48,6 +48,6 @@ impl Validator<'_> {
             (false, Some(c)) => DVec3::from_array(c),
             _ => origin,
         };
-        Ok(Volume { source: VolumeSource::Nrrd { path }, dims, voxel_size, origin, emission: None })
+        Ok(Volume { source: VolumeSource::Nrrd { path }, dims, voxel_size, origin, emission: None, albedo: None })
     }
 }

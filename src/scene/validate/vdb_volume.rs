@@ -66,6 +66,7 @@ impl Validator<'_> {
             voxel_size,
             origin,
             emission: None,
+            albedo: None,
         })
     }
 }

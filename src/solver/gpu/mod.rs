@@ -160,6 +160,7 @@ impl<'a> GpuBackend<'a> {
             planes_per_dispatch = memory.planes_per_dispatch,
             "GPU backend ready"
         );
+        let medium = StoreMedium::new(store, plan)?;
         Ok(GpuBackend {
             streamer,
             resources,
@@ -167,7 +168,7 @@ impl<'a> GpuBackend<'a> {
             plan,
             store,
             fields,
-            medium: StoreMedium::new(store),
+            medium,
             checkpoint_digest: None,
             memory,
             half_exponent: None,
