@@ -94,8 +94,14 @@ impl ChannelSetup {
             let (_, _, eu, ev) = sun_rectangle(e, -dir);
             sources.push((Source::Sun(i), irr * 4.0 * eu * ev * h * h));
         }
-        let sigma_a_world = m.sigma_t[ch] * (1.0 - albedo);
-        let emitted = 4.0 * PI * sigma_a_world * le * grid.emission_weight[ch] * h * h * h;
+        let emitted = if grid.albedo.is_empty() {
+            let sigma_a_world = m.sigma_t[ch] * (1.0 - albedo);
+            4.0 * PI * sigma_a_world * le * grid.emission_weight[ch] * h * h * h
+        } else {
+            // σa varies per voxel: Σ ρ·e·(1 − albedo·a(v)) over the voxels, times σt.
+            let weight: f64 = (0..grid.voxel_count()).filter_map(|i| grid.absorbing_weight(i, ch, albedo)).sum();
+            4.0 * PI * m.sigma_t[ch] * le * weight * h * h * h
+        };
         if emitted > 0.0 {
             sources.push((Source::Emission, emitted));
         }
@@ -116,14 +122,15 @@ impl ChannelSetup {
 }
 
 /// Cumulative density × channel `ch`'s emission factor over voxels (x fastest), for sampling
-/// emission positions.
-pub fn emission_cdf(grid: &Grid, ch: usize) -> Vec<f64> {
+/// emission positions (× 1 − albedo·a(v) with an albedo grid, whose σa varies per voxel;
+/// `medium_albedo` is the channel's `medium.albedo`).
+pub fn emission_cdf(grid: &Grid, ch: usize, medium_albedo: f64) -> Vec<f64> {
     let mut acc = 0.0f64;
     grid.density
         .iter()
         .enumerate()
         .map(|(i, &d)| {
-            acc += d as f64 * grid.emission_factor(i, ch);
+            acc += grid.absorbing_weight(i, ch, medium_albedo).unwrap_or(d as f64 * grid.emission_factor(i, ch));
             acc
         })
         .collect()
@@ -227,7 +234,7 @@ pub fn trace_batch(grid: &Grid, setup: &ChannelSetup, cdf: &[f64], n: u64, rng: 
             tally_segment(grid, p, d, hit.unwrap_or(t_exit), w, out);
             let Some(t) = hit else { break };
             p += d * t;
-            w *= setup.albedo;
+            w *= setup.albedo * grid.albedo_at(p);
             if w < RR_WEIGHT {
                 if rng.uniform() * RR_WEIGHT < w {
                     w = RR_WEIGHT;

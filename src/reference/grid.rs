@@ -22,8 +22,11 @@ pub struct Grid {
     /// uniformly (e = 1).
     pub emission: Vec<[f32; 3]>,
     /// Σ ρ·e over the voxels per channel (Σ ρ when the medium emits uniformly): what the emitted
-    /// power is proportional to.
+    /// power is proportional to (without an albedo grid; see [`Grid::absorbing_weight`]).
     pub emission_weight: [f64; 3],
+    /// Per-voxel albedo factor a(v) in [0, 1] (x fastest), or empty: the albedo is the medium's
+    /// everywhere (a = 1).
+    pub albedo: Vec<f32>,
 }
 
 impl Grid {
@@ -78,6 +81,7 @@ impl Grid {
             brick_min,
             emission: Vec::new(),
             emission_weight: [total; 3],
+            albedo: Vec::new(),
         };
         (grid, bad)
     }
@@ -102,6 +106,50 @@ impl Grid {
             std::array::from_fn(|ch| self.density.iter().zip(&values).map(|(&d, e)| d as f64 * e[ch] as f64).sum());
         self.emission = values;
         bad
+    }
+
+    /// Sets a per-voxel albedo factor a(v), sampled once per voxel (a value that is not finite or
+    /// lies outside [0, 1] is clamped into it, NaN to 0; the number of voxels with one is returned).
+    pub fn set_albedo(&mut self, albedo: &(dyn Fn([u32; 3]) -> f32 + Sync)) -> u64 {
+        let mut bad = 0;
+        let mut values = Vec::with_capacity(self.density.len());
+        for z in 0..self.dims[2] {
+            for y in 0..self.dims[1] {
+                for x in 0..self.dims[0] {
+                    let a = albedo([x, y, z]);
+                    if !(0.0..=1.0).contains(&a) {
+                        bad += 1;
+                    }
+                    values.push(if a.is_nan() { 0.0 } else { a.clamp(0.0, 1.0) });
+                }
+            }
+        }
+        self.albedo = values;
+        bad
+    }
+
+    /// The albedo factor of voxel `i` (1 without an albedo grid).
+    #[inline]
+    pub fn albedo_factor(&self, i: usize) -> f64 {
+        self.albedo.get(i).map_or(1.0, |&a| a as f64)
+    }
+
+    /// The albedo factor at the point `p` (grid units) of a collision.
+    #[inline]
+    pub fn albedo_at(&self, p: DVec3) -> f64 {
+        if self.albedo.is_empty() {
+            return 1.0;
+        }
+        let v = [0, 1, 2].map(|a| (p[a].floor() as i64).clamp(0, self.dims[a] as i64 - 1));
+        self.albedo_factor(self.voxel_index(v))
+    }
+
+    /// What the emission of voxel `i` in channel `ch` is proportional to: ρ·e·(1 − α·a(v)) with α
+    /// the medium's albedo of the channel (its σa(v) over σt); `None` without an albedo grid, where
+    /// the medium's σa is the same in every voxel and [`Grid::emission_weight`] serves.
+    pub fn absorbing_weight(&self, i: usize, ch: usize, medium_albedo: f64) -> Option<f64> {
+        let a = *self.albedo.get(i)? as f64;
+        Some(self.density[i] as f64 * self.emission_factor(i, ch) * (1.0 - medium_albedo * a))
     }
 
     /// The emission factor of voxel `i` in channel `ch` (1 when the medium emits uniformly).

@@ -92,11 +92,13 @@ pub fn radiance(grid: &Grid, s: &ChannelSetup, o: DVec3, d: DVec3, rng: &mut Rng
         };
         p += d * t;
         // Collision estimator: at a real collision (pdf σt·T) the source term σa·Le/σt = (1 − α)·Le.
+        // With an albedo grid, α is the medium's albedo times the voxel's factor a(v).
+        let albedo = s.albedo * grid.albedo_at(p);
         if s.le > 0.0 {
             let v = [0, 1, 2].map(|a| (p[a].floor() as i64).clamp(0, grid.dims[a] as i64 - 1));
-            l += beta * (1.0 - s.albedo) * s.le * grid.emission_factor(grid.voxel_index(v), s.ch);
+            l += beta * (1.0 - albedo) * s.le * grid.emission_factor(grid.voxel_index(v), s.ch);
         }
-        beta *= s.albedo;
+        beta *= albedo;
         if !(beta > 0.0) {
             break;
         }

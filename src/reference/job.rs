@@ -18,7 +18,7 @@
 use super::{ReferenceOptions, ReferenceResult};
 use crate::output::{self, FieldMeta, OutputError};
 use crate::render::{self, Image};
-use crate::scene::{procedural, EmissionGrid, Scene, SceneError, Shape, VolumeSource};
+use crate::scene::{procedural, AlbedoGrid, EmissionGrid, Scene, SceneError, Shape, VolumeSource};
 use crate::store::{self, BrickGrid, StoreError, BRICK_VOXELS};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -132,26 +132,28 @@ fn run_in(
     };
     let emission = emission.as_ref().map(|values| dense_lookup_rgb(values, dims));
     let emission = emission.as_ref().map(|f| f as &(dyn Fn([u32; 3]) -> [f32; 3] + Sync));
+    // A per-voxel albedo factor, read from the scene's files the same way.
+    let albedo = match &scene.volume.albedo {
+        None => None,
+        Some(grid) => Some(albedo_factors(job, &scene, grid)?),
+    };
+    let albedo = albedo.map(|values| dense_lookup(values, dims));
+    let albedo = albedo.as_ref().map(|f| f as &(dyn Fn([u32; 3]) -> f32 + Sync));
+    let fields = super::VoxelFields { emission, albedo };
     let result = match &scene.volume.source {
         VolumeSource::Procedural { shape, seed } => {
             let (shape, seed): (Shape, u64) = (*shape, *seed);
-            super::run_with_emission_rgb(
-                &scene,
-                &|v| procedural::density(shape, seed, dims, v),
-                emission,
-                channels,
-                &opts,
-            )
+            super::run_with_fields(&scene, &|v| procedural::density(shape, seed, dims, v), fields, channels, &opts)
         }
         VolumeSource::Raw { path } => {
             let at = dense_lookup(raw_densities(path, dims)?, dims);
-            super::run_with_emission_rgb(&scene, &at, emission, channels, &opts)
+            super::run_with_fields(&scene, &at, fields, channels, &opts)
         }
         VolumeSource::Vdb { path, grid, index_min } => {
             let vdb = crate::store::vdb::vdb_density(path, grid, dims, *index_min)?;
             let tree = &vdb.grid().tree;
             let at = |v: [u32; 3]| tree.value(std::array::from_fn(|i| index_min[i] + v[i] as i32));
-            super::run_with_emission_rgb(&scene, &at, emission, channels, &opts)
+            super::run_with_fields(&scene, &at, fields, channels, &opts)
         }
         VolumeSource::Nrrd { path } => {
             let header = store::nrrd_input::nrrd_header(path)?;
@@ -161,7 +163,7 @@ fn run_in(
                 Ok(())
             })?;
             let at = dense_lookup(values, dims);
-            super::run_with_emission_rgb(&scene, &at, emission, channels, &opts)
+            super::run_with_fields(&scene, &at, fields, channels, &opts)
         }
     };
     let outputs = write_outputs(&result, h, stage)?;
@@ -235,6 +237,42 @@ fn emission_factors(
             store::emission::temperature_factors(&map, max_emission, t, voxel, &path).map_err(Into::into)
         })
         .collect()
+}
+
+/// A scene's per-voxel albedo factors, every voxel (x fastest), checked as the store checks them
+/// (finite, in [0, 1]; the error names the file, the key or grid, and the voxel).
+fn albedo_factors(job: &ReferenceJob, scene: &Scene, grid: &AlbedoGrid) -> Result<Vec<f32>, ReferenceJobError> {
+    let dims = scene.volume.dims;
+    let label = grid.label();
+    let (values, path) = match (grid.raw_path(), grid.vdb_grid(), &scene.volume.source) {
+        (Some(path), _, _) => (raw_densities(path, dims).map_err(|e| e.into_albedo(&label))?, path.to_path_buf()),
+        (None, Some(name), VolumeSource::Vdb { path, index_min, .. }) => {
+            let vdb = crate::store::vdb::vdb_grid_over(path, name, dims, *index_min)?;
+            let tree = &vdb.grid().tree;
+            let mut values = Vec::with_capacity(dims.iter().map(|&d| d as usize).product());
+            for z in 0..dims[2] {
+                for y in 0..dims[1] {
+                    for x in 0..dims[0] {
+                        values.push(tree.value(std::array::from_fn(|i| index_min[i] + [x, y, z][i] as i32)));
+                    }
+                }
+            }
+            (values, path.clone())
+        }
+        (None, name, _) => {
+            return Err(StoreError::Corrupt {
+                path: job.scene.clone(),
+                message: format!("albedo grid \"{}\" needs a `vdb` volume", name.unwrap_or_default()),
+            }
+            .into())
+        }
+    };
+    let (nx, ny) = (dims[0] as usize, dims[1] as usize);
+    for (i, &a) in values.iter().enumerate() {
+        let voxel = [(i % nx) as u32, (i / nx % ny) as u32, (i / (nx * ny)) as u32];
+        store::albedo::check_albedo(a, voxel, &path, &label)?;
+    }
+    Ok(values)
 }
 
 /// [`dense_lookup`] of per-channel emission factors.

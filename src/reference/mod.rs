@@ -194,6 +194,29 @@ pub fn run_with_emission_rgb(
     channels: u32,
     opts: &ReferenceOptions,
 ) -> ReferenceResult {
+    run_with_fields(scene, density, VoxelFields { emission, albedo: None }, channels, opts)
+}
+
+/// The per-voxel fields a reference run may have besides the density (see [`run_with_fields`]).
+#[derive(Clone, Copy, Default)]
+pub struct VoxelFields<'a> {
+    /// The emission factor per channel e_c(v) (the scene's `volume.emission_*` / temperature).
+    pub emission: Option<&'a (dyn Fn([u32; 3]) -> [f32; 3] + Sync)>,
+    /// The albedo factor a(v) in [0, 1] (the scene's `volume.albedo_*`): voxel v's albedo is
+    /// `medium.albedo·a(v)` (collisions keep that fraction of the weight; σa(v) = σt·(1 −
+    /// albedo·a(v)) emits).
+    pub albedo: Option<&'a (dyn Fn([u32; 3]) -> f32 + Sync)>,
+}
+
+/// [`run_with_emission_rgb`] with a per-voxel albedo factor too.
+pub fn run_with_fields(
+    scene: &Scene,
+    density: &(dyn Fn([u32; 3]) -> f32 + Sync),
+    fields: VoxelFields,
+    channels: u32,
+    opts: &ReferenceOptions,
+) -> ReferenceResult {
+    let emission = fields.emission;
     let start = Instant::now();
     let channels: usize = if channels >= 3 { 3 } else { 1 };
     let dims = scene.volume.dims;
@@ -207,13 +230,19 @@ pub fn run_with_emission_rgb(
             tracing::warn!(voxels = bad, "reference: non-finite or negative emission values replaced by 0");
         }
     }
+    if let Some(albedo) = fields.albedo {
+        let bad = grid.set_albedo(albedo);
+        if bad > 0 {
+            tracing::warn!(voxels = bad, "reference: albedo factors outside [0, 1] clamped into it");
+        }
+    }
     let setups: Vec<ChannelSetup> = (0..channels).map(|c| ChannelSetup::new(scene, &grid, c)).collect();
     // Per channel: a temperature's emission differs between r, g and b, and so does where it is.
     let cdfs: Vec<Vec<f64>> = setups
         .iter()
         .map(|s| {
             if s.sources.iter().any(|x| x.0 == fluence::Source::Emission) {
-                emission_cdf(&grid, s.ch)
+                emission_cdf(&grid, s.ch, s.albedo)
             } else {
                 Vec::new()
             }
