@@ -8,6 +8,7 @@
 mod common;
 
 mod acceleration;
+mod albedo_grid;
 mod boundary_faces;
 mod budget;
 mod cli;
