@@ -22,7 +22,8 @@ fn two_regions(v: [u32; 3]) -> f32 {
 /// An RGB sphere under a sky and a sun, g = 0.3 (several storage directions), with the albedo
 /// factor `a` from a raw file.
 fn sphere_with_albedo(name: &str, a: impl Fn([u32; 3]) -> f32) -> (Scene, PathBuf) {
-    let path = temp_dir(name).join("albedo.raw");
+    // Not `name` itself: `solve` clears a directory of its own name.
+    let path = temp_dir(&format!("{name}-input")).join("albedo.raw");
     write_raw_field(&path, DIMS, a);
     let mut sc = scene(
         Shape::Sphere,
@@ -178,7 +179,7 @@ fn emission_over_an_albedo_grid_uses_the_voxels_absorption() {
 #[test]
 fn two_regions_agree_with_monte_carlo() {
     // Grey, g = 0, sky only: a box of σt 0.3 per voxel, one half of albedo 0.99, the other 0.2.
-    let path = temp_dir("albedo-mc").join("albedo.raw");
+    let path = temp_dir("albedo-mc-input").join("albedo.raw");
     write_raw_field(&path, DIMS, two_regions);
     let mut sc = scene(Shape::Box, DIMS, [0.3; 3], [1.0; 3], vec![sky(1.0)]);
     sc.volume.albedo = Some(AlbedoGrid::Raw { path });
@@ -247,7 +248,8 @@ openvdb.write(sys.argv[1], grids=[d, a])
 fn vdb_albedo(v: [u32; 3]) -> f32 {
     let c = v.map(|x| x as i32 - 3);
     if (-1..9).contains(&c[0]) && (0..11).contains(&c[1]) && (2..9).contains(&c[2]) {
-        0.1 * ((c[0] + c[1] + c[2]).rem_euclid(10)) as f32 + 0.05
+        // In f64 and rounded once to f32, as Python computes and OpenVDB stores it.
+        (0.1 * ((c[0] + c[1] + c[2]).rem_euclid(10)) as f64 + 0.05) as f32
     } else {
         0.5
     }
