@@ -440,3 +440,55 @@ fn a_cancelled_solve_with_an_albedo_grid_resumes_to_the_same_bits() {
     };
     assert!(f(&whole) == f(&cut), "a resumed solve must end with the uninterrupted one's bits");
 }
+
+#[test]
+fn a_warm_start_with_an_albedo_grid_converges_to_the_cold_answer() {
+    // The guess (the previous frame's source) is already scaled by a(v); order 0's commit scales
+    // b + K·x0 before taking x0 back off, so the residual is the scaled one.
+    let dir = temp_dir("albedo-warm");
+    write_raw_field(&dir.join("albedo.raw"), DIMS, two_regions);
+    let tolerance = 1e-3;
+    let text = |sky: f64, tolerance: f64| {
+        format!(
+            "[volume]\nprocedural = \"sphere\"\ndims = [{}, {}, {}]\nalbedo_raw = \"albedo.raw\"\n\
+             [medium]\nsigma_t = 0.8\nalbedo = 0.95\n[[lights]]\nkind = \"sky\"\nradiance = {sky}\n\
+             [[lights]]\nkind = \"sun\"\ndirection = [0.3, -0.5, 1.0]\nirradiance = 2.0\n\
+             [solver]\ndirections_per_face = 3\nmax_orders = 400\ntolerance = {tolerance}\n",
+            DIMS[0], DIMS[1], DIMS[2]
+        )
+    };
+    let solve_job = |name: &str, sky: f64, tolerance: f64, warm: Option<&str>| {
+        let scene = write_scene_as(&dir, &format!("{name}.toml"), &text(sky, tolerance));
+        let job = lpm::job::SolveJob {
+            no_image: true,
+            warm_start: warm.map(|w| dir.join(w)),
+            ..lpm::job::SolveJob::new(scene, dir.join(name))
+        };
+        lpm::job::run(&job, |_, _| {}).expect("solve");
+        let report: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(dir.join(name).join("report.json")).expect("report")).expect("json");
+        let fluence: Vec<f32> = std::fs::read(dir.join(name).join("fluence.raw"))
+            .expect("fluence")
+            .chunks(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect();
+        (report, fluence)
+    };
+    solve_job("previous", 0.4, tolerance, None);
+    let (warm_report, warm) = solve_job("warm", 0.5, tolerance, Some("previous"));
+    let (cold_report, _) = solve_job("cold", 0.5, tolerance, None);
+    let (_, answer) = solve_job("answer", 0.5, 1e-7, None);
+    let error = warm
+        .iter()
+        .zip(&answer)
+        .filter(|(_, b)| b.is_finite() && **b > 0.0)
+        .map(|(&a, &b)| ((a as f64 - b as f64) / b as f64).abs())
+        .fold(0.0, f64::max);
+    let (warm_orders, cold_orders) = (warm_report["orders"].as_u64().unwrap(), cold_report["orders"].as_u64().unwrap());
+    eprintln!("albedo grid, warm start: {warm_orders} orders (cold {cold_orders}), per-voxel error {error:.3e}");
+    assert!(warm_report["warm_start"].is_string(), "{warm_report}");
+    assert!(error <= 1.5 * tolerance, "the warm start is off the answer by {error:.3e}");
+    assert!(warm_orders < cold_orders, "the warm start saved no order: {warm_orders} vs {cold_orders}");
+    let imbalance = warm_report["energy"]["relative_imbalance"].as_f64().unwrap();
+    assert!(imbalance < 1e-4, "warm start energy imbalance {imbalance:.3e}");
+}
