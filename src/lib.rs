@@ -16,7 +16,7 @@
 //! | module | what it owns |
 //! |---|---|
 //! | [`scene`] | the TOML job description, validated into typed values and typed errors; the physics every layer shares from it (procedural densities, the blackbody colour of a temperature) |
-//! | [`store`] | the 16³ brick store: memory-mapped field files, empty-brick table, importers (raw, OpenVDB `.vdb`, NanoVDB `.nvdb`, NRRD), the per-voxel emission field (grey, or r, g, b from a temperature grid) |
+//! | [`store`] | the 16³ brick store: memory-mapped field files, empty-brick table, importers (raw, OpenVDB `.vdb`, NanoVDB `.nvdb`, NRRD), the per-voxel emission field (grey, or r, g, b from a temperature grid) and albedo factor field |
 //! | [`output`] | atomic writes (temporary name, then rename), outputs published as a set, the exported raw/json/nhdr layout and the sparse OpenVDB export (our own writer) |
 //! | [`quadrature`] | propagation directions and their solid angles, storage directions, phase tables |
 //! | [`vk`] | the thin Vulkan layer: instance, device, queues, buffers, pipelines, timeline sync |
@@ -49,7 +49,8 @@
 //!    once in [`solver::passes`] for both kinds of field (the store's f32 files, the twin's f64
 //!    memory): commit the order (first taking the lattice's numerical diffusion back out of its
 //!    source when `solver.diffusion_correction = "on"`: [`solver::antidiffusion`], a neighbour
-//!    stencil over either layout), the stop rule's remaining error, a checkpoint (store only), and
+//!    stencil over either layout; a per-voxel albedo factor multiplies the source first,
+//!    `store::albedo`), the stop rule's remaining error, a checkpoint (store only), and
 //!    at the end the energy balance and the geometric tail.
 //! 5. **Backend** — either the CPU twin ([`solver::cpu`], f64, in memory, its sweeps plane by plane
 //!    on every core: `solver/cpu_sweep.rs`, bitwise the same at any thread count) or the GPU driver
@@ -76,6 +77,7 @@
 //! | a device buffer or its size | `solver/gpu/sizes.rs` (the one place sizes are computed), then `resources.rs`; the planner follows |
 //! | scheduling of slices, overlap, copies | `solver/gpu/streamer.rs` (and `copier.rs`, `slice.rs`) |
 //! | what a per-voxel emission or temperature means | `scene/blackbody.rs` (temperature → colour), `store/emission.rs` (the field the solver, the renderer and the reference read), `solver/emission.rs` (the order-0 source and its power) |
+//! | what a per-voxel albedo means | `store/albedo.rs` (the field), `solver/passes.rs` (the source scaled by it, absorption), `solver/emission.rs` (σa per voxel), `render/march.rs`, `reference/grid.rs` |
 //! | a host pass between orders | `solver/passes.rs` (once, for the store's fields and the twin's); checkpoints in `solver/fields.rs` |
 //! | a Vulkan object kind | [`vk`] (destroy functions take the object by value and are `unsafe fn`: the device must be done with it; the driver wraps it in `Owned`) |
 //! | an output file | [`output`] (atomic writes) and [`job`]; README's outputs list |

@@ -26,7 +26,8 @@
 //!   if the ray hits the box (misses still count in N); P = E·A_rect;
 //! - **emission**: a voxel with probability ∝ σa·Le·h³ (∝ ρ·e_c(v) per channel c, e the per-voxel
 //!   emission factor: 1, a grey grid's value, or a temperature's blackbody factor for that
-//!   channel), a uniform point in it, an isotropic direction; P = 4π·Σ σa·Le·h³.
+//!   channel; times 1 − albedo·a(v) with a per-voxel albedo factor, whose σa varies per voxel), a
+//!   uniform point in it, an isotropic direction; P = 4π·Σ σa·Le·h³.
 //!
 //! Free flights are sampled by **delta (Woodcock) tracking** against a per-brick majorant grid
 //! (16³-voxel bricks, majorant σ·ρ_max; bricks are crossed with a DDA, tracking restarts at each brick
@@ -39,7 +40,8 @@
 //! to the box exit) is walked through the voxels with an exact 3D DDA and w·ℓ is tallied in each
 //! voxel it crosses; φ = Σ w·ℓ / V_voxel is an unbiased estimate of the fluence (all orders,
 //! uncollided light included). At a real collision the weight is multiplied by the albedo (implicit
-//! absorption), Russian roulette applies below relative weight 0.1 (unbiased: survivors are
+//! absorption; with a per-voxel albedo factor a(v), `volume.albedo_*`, by `albedo·a(v)` of the voxel
+//! collided in, which also sets that voxel's σa for the emission), Russian roulette applies below relative weight 0.1 (unbiased: survivors are
 //! re-weighted), and the new direction is sampled from HG.
 //!
 //! Photons run in batches; batch b of channel c uses its own random stream keyed by (seed, b, c);

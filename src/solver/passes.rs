@@ -1,6 +1,11 @@
 //! The host passes between orders, written once for both backends: commit an order, add the
 //! geometric tail, the remaining error of the stop rule, and the energy books.
 //!
+//! A per-voxel albedo (`volume.albedo_*`) lives here too: the sweeps scatter with the medium's
+//! albedo, and the commit multiplies each voxel's new source by its factor a(v) before anything
+//! reads it (the stop rule, the tail, checkpoints and the next order all see the scaled source);
+//! absorption in the energy books uses σa(v) = ρ·(σt − σs·a(v)).
+//!
 //! Both backends keep the same set of fields ([`OrderFieldSet`]): the previous and next source (and a
 //! scratch source the diffusion correction writes into, [`super::antidiffusion`]), this order's
 //! fluence, the committed totals and a spare copy of each total. They differ only in

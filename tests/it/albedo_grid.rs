@@ -169,7 +169,8 @@ fn emission_over_an_albedo_grid_uses_the_voxels_absorption() {
     let mut uniform = ones.clone();
     uniform.volume.albedo = None;
     for backend in [Cpu, Gpu] {
-        let (a, b) = (solve("albedo-emission-ones", &ones, backend), solve("albedo-emission-uniform", &uniform, backend));
+        let (a, b) =
+            (solve("albedo-emission-ones", &ones, backend), solve("albedo-emission-uniform", &uniform, backend));
         assert!(b.run.plan.emission && !b.run.plan.emission_field);
         let err = relative_l2(&a.fluence_all(), &b.fluence_all());
         assert!(err <= 1e-6, "{backend:?}: relative L2 {err}");
@@ -192,7 +193,7 @@ fn two_regions_agree_with_monte_carlo() {
     let lpm_phi: Vec<f64> = lpm.fluence_all();
     let mc_phi: Vec<f64> = mc.fluence.iter().map(|&v| v as f64).collect();
     // Per half: the mean fluence and its Monte-Carlo standard error (batch estimate, per voxel).
-    let [nx, ny, _] = DIMS.map(|d| d as usize);
+    let nx = DIMS[0] as usize;
     let half = |i: usize| ((i % nx) >= nx / 2) as usize;
     let (mut sums, mut counts, mut var) = ([[0.0f64; 2]; 2], [0usize; 2], [0.0f64; 2]);
     for (i, (&l, &m)) in lpm_phi.iter().zip(&mc_phi).enumerate() {
@@ -202,11 +203,13 @@ fn two_regions_agree_with_monte_carlo() {
         counts[h] += 1;
         var[h] += (mc.std_error[i] as f64).powi(2);
     }
-    let _ = ny;
     for h in 0..2 {
         let (l, m) = (sums[h][0] / counts[h] as f64, sums[h][1] / counts[h] as f64);
         let se = var[h].sqrt() / counts[h] as f64;
-        eprintln!("albedo two regions, half {h}: LPM {l:.5e}, Monte Carlo {m:.5e} ± {se:.1e} ({:+.3} %)", 100.0 * (l / m - 1.0));
+        eprintln!(
+            "albedo two regions, half {h}: LPM {l:.5e}, Monte Carlo {m:.5e} ± {se:.1e} ({:+.3} %)",
+            100.0 * (l / m - 1.0)
+        );
         // The LPM's own discretisation error at k = 4 is of a few per cent here, grid or no grid:
         // measured +0.03 % (bright half) and +2.1 % (dark half), and +2.0 to +2.1 % in both halves
         // of the same box with a uniform albedo of 0.2. The Monte-Carlo error bar is far below it.
@@ -248,7 +251,9 @@ fn the_image_emits_with_the_voxels_absorption_and_lpm_render_keeps_the_grid() {
              [camera]\nwidth = 40\nheight = 36\n"
         )
     };
-    let image = |name: &str, albedo: &str| image_of(write_scene_as(&dir, &format!("{name}.toml"), &text(albedo)), &dir.join(name));
+    let image = |name: &str, albedo: &str| {
+        image_of(write_scene_as(&dir, &format!("{name}.toml"), &text(albedo)), &dir.join(name))
+    };
     let ones = image("ones", "albedo_raw = \"ones.raw\"");
     let uniform = image("uniform", "");
     let zeros = image("zeros", "albedo_raw = \"zeros.raw\"");
@@ -381,7 +386,10 @@ fn bad_albedo_input_is_refused_with_its_name() {
         assert!(err.contains(expect), "{keys}: {err}");
     }
     // A grid the VDB file does not have: named with the grids it does have.
-    let path = write_scene(&dir, "[volume]\nvdb = \"smoke.vdb\"\nalbedo_grid = \"albedoo\"\n[medium]\nsigma_t = 1.0\nalbedo = 0.5\n");
+    let path = write_scene(
+        &dir,
+        "[volume]\nvdb = \"smoke.vdb\"\nalbedo_grid = \"albedoo\"\n[medium]\nsigma_t = 1.0\nalbedo = 0.5\n",
+    );
     let err = Scene::load(&path).expect_err("a missing grid").to_string();
     assert!(err.contains("volume.albedo_grid") && err.contains("albedoo") && err.contains("\"albedo\""), "{err}");
     // Values above 1, negative or NaN: the import names the file, the key, the voxel and "albedo".
@@ -390,7 +398,10 @@ fn bad_albedo_input_is_refused_with_its_name() {
         let sc = Scene::load(&path).expect("valid scene");
         let err = lpm::solver::build_store(&sc, &dir.join(format!("store-{name}"))).err().expect("refused").to_string();
         assert!(
-            err.contains(name) && err.contains("(1, 2, 3)") && err.contains("albedo") && err.contains("volume.albedo_raw"),
+            err.contains(name)
+                && err.contains("(1, 2, 3)")
+                && err.contains("albedo")
+                && err.contains("volume.albedo_raw"),
             "{err}"
         );
     }
@@ -408,14 +419,13 @@ fn a_cancelled_solve_with_an_albedo_grid_resumes_to_the_same_bits() {
     let (mut sc, _) = sphere_with_albedo("albedo-resume", two_regions);
     sc.solver.diffusion_correction = DiffusionCorrection::On;
     sc.solver.max_orders = 5;
-    let run = |dir: &std::path::Path, store: &lpm::store::BrickStore, resume: bool, cancel_after: Option<u32>| {
+    let run = |store: &lpm::store::BrickStore, resume: bool, cancel_after: Option<u32>| {
         let cancel = lpm::solver::cancel::CancelFlag::new();
         let options = lpm::solver::gpu::GpuOptions {
             checkpoints: true,
-            cancel: Some(cancel.clone()),
+            cancel: Some(cancel),
             ..lpm::solver::gpu::GpuOptions::default()
         };
-        let _ = dir;
         lpm::solver::solve_with(&sc, store, BackendKind::Gpu, validated(), options, resume, |order, _| {
             if cancel_after.is_some_and(|n| order >= n) {
                 cancel.raise();
@@ -424,12 +434,12 @@ fn a_cancelled_solve_with_an_albedo_grid_resumes_to_the_same_bits() {
     };
     let whole_dir = temp_dir("albedo-resume-whole");
     let whole_store = lpm::solver::build_store(&sc, &whole_dir.join("store")).expect("store");
-    let (_, whole) = run(&whole_dir, &whole_store, false, None).expect("uninterrupted solve");
+    let (_, whole) = run(&whole_store, false, None).expect("uninterrupted solve");
     let cut_dir = temp_dir("albedo-resume-cut");
     let cut_store = lpm::solver::build_store(&sc, &cut_dir.join("store")).expect("store");
-    let err = run(&cut_dir, &cut_store, false, Some(1)).err().expect("the solve is cancelled");
+    let err = run(&cut_store, false, Some(1)).err().expect("the solve is cancelled");
     assert!(matches!(err, lpm::solver::SolveError::Cancelled), "{err}");
-    let (resumed, cut) = run(&cut_dir, &cut_store, true, None).expect("resumed solve");
+    let (resumed, cut) = run(&cut_store, true, None).expect("resumed solve");
     assert_eq!(resumed.outcome.orders, 5);
     assert!(resumed.outcome.history.len() == 5);
     let f = |fields: &lpm::solver::fields::StoreFields| {

@@ -92,7 +92,13 @@ impl Validator<'_> {
     }
 
     /// `volume.<what>_raw` / `volume.<what>_grid` (also read by [`super::albedo`]).
-    pub(super) fn values(&self, raw: Option<String>, grid: Option<String>, what: &str, volume: &Volume) -> R<Option<Values>> {
+    pub(super) fn values(
+        &self,
+        raw: Option<String>,
+        grid: Option<String>,
+        what: &str,
+        volume: &Volume,
+    ) -> R<Option<Values>> {
         let (raw_key, grid_key) = (format!("volume.{what}_raw"), format!("volume.{what}_grid"));
         match (raw, grid) {
             (None, None) => Ok(None),
