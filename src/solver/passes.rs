@@ -296,7 +296,7 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
 
     /// The end-of-order pass: with a per-voxel albedo, first multiplies the new source by each
     /// voxel's albedo factor a(v) (the sweeps scattered with `medium.albedo`; see
-    /// [`scale_by_albedo`]). With the diffusion correction on, then writes the corrected new
+    /// `scale_by_albedo`). With the diffusion correction on, then writes the corrected new
     /// source into the scratch field and makes it the new source (the order's own accumulator is
     /// named by no checkpoint, so nothing a resume needs is touched). Then commits the order's
     /// fluence and source into the spare copies, makes
