@@ -38,6 +38,12 @@ pub mod validate;
 
 pub use error::SceneError;
 pub use types::*;
+
+/// The `[volume]` keys that name a file (relative to the scene file). Whatever moves or confines a
+/// scene's files uses this list: the job server confines each to its data root
+/// (`serve/prepare.rs`), a sweep task makes each absolute (`sweep`). A new key that names a file
+/// goes here.
+pub const VOLUME_FILE_KEYS: [&str; 7] = ["raw", "vdb", "nvdb", "nrrd", "emission_raw", "temperature_raw", "albedo_raw"];
 pub use validate::{camera_from_keys, default_camera, fitted_default_camera, CameraKeys, VolumeFrame};
 
 use std::path::Path;

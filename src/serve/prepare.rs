@@ -9,7 +9,7 @@ use std::path::Path;
 
 /// The `[volume]` keys that name a file: each is confined to the data root (or names an upload).
 /// A new key that names a file must be added here, or a client could name any file on the host.
-const VOLUME_KEYS: [&str; 7] = ["raw", "vdb", "nvdb", "nrrd", "emission_raw", "temperature_raw", "albedo_raw"];
+const VOLUME_KEYS: [&str; 7] = crate::scene::VOLUME_FILE_KEYS;
 /// The `[[lights]]` key that names a file (an environment light's `map`), confined the same way.
 const LIGHT_FILE_KEY: &str = "map";
 

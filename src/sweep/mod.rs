@@ -257,9 +257,10 @@ pub fn task_dir(dir: &Path, index: usize) -> PathBuf {
     dir.join(format!("task-{index:04}"))
 }
 
-/// Substitutes `{frame}` / `{frame:0W}` in volume.raw and makes it and an environment light's
-/// `map` absolute (relative to the base scene's directory, as for any scene), so the task's scene
-/// can live anywhere.
+/// Substitutes `{frame}` / `{frame:0W}` in volume.raw and makes it, every other file the volume
+/// names ([`crate::scene::VOLUME_FILE_KEYS`]: `vdb`, `emission_raw`, `albedo_raw`, …) and an
+/// environment light's `map` absolute (relative to the base scene's directory, as for any scene),
+/// so the task's scene can live anywhere.
 fn resolve_volume(scene: &mut toml::Table, base: &Path, frame: Option<i64>) -> Result<(), String> {
     // An environment light's map, like the volume, is named relative to the base scene.
     if let Some(toml::Value::Array(lights)) = scene.get_mut("lights") {
@@ -273,6 +274,12 @@ fn resolve_volume(scene: &mut toml::Table, base: &Path, frame: Option<i64>) -> R
         }
     }
     let Some(toml::Value::Table(volume)) = scene.get_mut("volume") else { return Ok(()) };
+    for key in crate::scene::VOLUME_FILE_KEYS.into_iter().filter(|&k| k != "raw") {
+        if let Some(toml::Value::String(named)) = volume.get(key) {
+            let absolute = base.join(named).to_string_lossy().into_owned();
+            volume.insert(key.into(), toml::Value::String(absolute));
+        }
+    }
     let Some(toml::Value::String(raw)) = volume.get("raw") else {
         return match frame {
             Some(_) => Err("frames: the scene's volume.raw must name the frame's file with {frame}".into()),
@@ -394,5 +401,18 @@ mod tests {
         resolve_volume(&mut t, Path::new("/scenes"), None).unwrap();
         assert_eq!(t["lights"][0]["map"].as_str(), Some("/scenes/maps/sky.exr"));
         assert_eq!(t["volume"]["raw"].as_str(), Some("/scenes/d.raw"));
+    }
+
+    #[test]
+    fn every_file_the_volume_names_is_named_from_the_base_scene() {
+        let mut t: toml::Table = toml::from_str(
+            "[volume]\nvdb = \"sim/smoke.vdb\"\nalbedo_raw = \"a.raw\"\nemission_raw = \"/abs/e.raw\"\ngrid = \"density\"\n",
+        )
+        .unwrap();
+        resolve_volume(&mut t, Path::new("/scenes"), None).unwrap();
+        assert_eq!(t["volume"]["vdb"].as_str(), Some("/scenes/sim/smoke.vdb"));
+        assert_eq!(t["volume"]["albedo_raw"].as_str(), Some("/scenes/a.raw"));
+        assert_eq!(t["volume"]["emission_raw"].as_str(), Some("/abs/e.raw"));
+        assert_eq!(t["volume"]["grid"].as_str(), Some("density"), "a grid name is not a file");
     }
 }
