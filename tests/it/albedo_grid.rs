@@ -344,6 +344,19 @@ fn a_vdb_albedo_grid_is_read_voxel_for_voxel_and_solves_like_raw() {
         }
     }
     assert!(bits(&sa) == bits(&sb), "the VDB albedo grid must solve like the same values given raw");
+    // The same file converted to NanoVDB by NanoVDB's own converter (libnanovdb-tools, installed
+    // by tools/setup.sh), named by `nvdb`: its albedo grid solves to the same bits.
+    let out = std::process::Command::new("nanovdb_convert")
+        .arg("-f")
+        .arg(dir.join("smoke.vdb"))
+        .arg(dir.join("smoke.nvdb"))
+        .output()
+        .expect("run nanovdb_convert (tools/setup.sh installs it)");
+    assert!(out.status.success(), "nanovdb_convert: {}", String::from_utf8_lossy(&out.stderr));
+    let nano = text("albedo_grid = \"albedo\"").replace("vdb = \"smoke.vdb\"", "nvdb = \"smoke.nvdb\"");
+    let c = Scene::load(&write_scene_as(&dir, "nvdb.toml", &nano)).expect("nvdb scene");
+    let sc = solve("albedo-vdb-c", &c, Gpu);
+    assert!(bits(&sc) == bits(&sa), "the NanoVDB albedo grid must solve like the OpenVDB one");
     // The Monte-Carlo reference job reads the grid from the VDB file itself: the same photons
     // (same seed, one thread) give the same fluence as from the raw file.
     let reference = |scene: &str, out: &str| {

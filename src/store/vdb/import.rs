@@ -115,8 +115,12 @@ pub fn vdb_density(path: &Path, grid: &str, dims: [u32; 3], index_min: [i32; 3])
 /// whatever its own active bounding box: a per-voxel field such as emission, which usually covers
 /// only part of the density. Voxels outside its active voxels read its background value.
 pub fn vdb_grid_over(path: &Path, grid: &str, dims: [u32; 3], index_min: [i32; 3]) -> Result<VdbDensity, StoreError> {
-    let mut r = open(path)?;
-    let g = r.read_grid(grid, true).map_err(|e| vdb_error(path, e))?;
+    // A NanoVDB file named by `vdb`/`nvdb` holds its other grids too (as `vdb_density` reads it).
+    let g = if crate::store::nanovdb::is_nanovdb(path) {
+        read_nanovdb(path, grid)?.0
+    } else {
+        open(path)?.read_grid(grid, true).map_err(|e| vdb_error(path, e))?
+    };
     let mut info = info_of(path, &g, Vec::new())?;
     info.dims = dims.map(u64::from);
     info.index_min = index_min;
