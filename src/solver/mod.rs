@@ -24,6 +24,7 @@ pub mod gpu;
 pub mod orders;
 pub mod passes;
 pub mod plan;
+pub mod point;
 pub mod remaining;
 pub mod segment;
 pub mod sweep;
@@ -257,7 +258,12 @@ pub fn solve_from(
             } else if plan.emission_field {
                 emission::write_initial_source(store, &plan, &mut fields.source_prev)?;
             }
-            (fields, fields::LoopState::default())
+            // The point lights' uncollided fluence and first scattering go into order 0's own
+            // accumulators (still zero), as a sun's beam sweep deposits them: only here, so a
+            // resumed solve never adds them twice; their power travels in the loop state.
+            let point_light_power =
+                point::write_order0(store, &plan, &mut fields.fluence, &mut fields.source_next)?;
+            (fields, fields::LoopState { point_light_power, ..fields::LoopState::default() })
         }
     };
     phases.push(("plan".to_string(), t.elapsed().as_secs_f64()));
@@ -272,6 +278,10 @@ pub fn solve_from(
             if plan.emission_field {
                 // The same f32 order-0 source the GPU gains, and the power it emits.
                 twin.set_initial_source(&fields.source_prev, emission::emitted_power(store, &plan)?);
+            }
+            if !plan.point_lights.is_empty() {
+                // The same f32 values the GPU's order 0 starts from.
+                twin.set_order0_accumulators(&fields.fluence, &fields.source_next);
             }
             phases.push(("setup".to_string(), t.elapsed().as_secs_f64()));
             let t = Instant::now();

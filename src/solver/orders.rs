@@ -277,7 +277,14 @@ pub fn run_orders<B: Backend + ?Sized>(
     let emitted = backend.emission_field_power()?.unwrap_or(emitted);
     // A warm start's last source is a residual of either sign: its signed power, not the norm.
     let unpropagated = backend.fields().0.signed_last_power(plan).unwrap_or(state.last_new_power);
-    let energy = EnergyBalance::new(&state.tallies(), emitted, absorbed, unpropagated, plan.channels as usize);
+    let energy = EnergyBalance::new(
+        &state.tallies(),
+        emitted,
+        state.point_light_power,
+        absorbed,
+        unpropagated,
+        plan.channels as usize,
+    );
     let tail = if extrapolate { tail_estimate(plan, &state) } else { None };
     let residual = match &tail {
         Some(t) => t.uncertainty / (state.total_power.iter().sum::<f64>() + t.power),
