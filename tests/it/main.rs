@@ -25,6 +25,7 @@ mod nanovdb_input;
 mod out_of_core;
 mod plan_full;
 mod plot;
+mod point_light;
 mod precision;
 mod property_solve;
 mod reference_closed_forms;
