@@ -261,8 +261,7 @@ pub fn solve_from(
             // The point lights' uncollided fluence and first scattering go into order 0's own
             // accumulators (still zero), as a sun's beam sweep deposits them: only here, so a
             // resumed solve never adds them twice; their power travels in the loop state.
-            let point_light_power =
-                point::write_order0(store, &plan, &mut fields.fluence, &mut fields.source_next)?;
+            let point_light_power = point::write_order0(store, &plan, &mut fields.fluence, &mut fields.source_next)?;
             (fields, fields::LoopState { point_light_power, ..fields::LoopState::default() })
         }
     };
