@@ -9,6 +9,8 @@
 //! - [`passes`] are the host passes between orders, written once over both backends' fields;
 //! - [`fields`] holds the solver's fields in the brick store, and checkpoints;
 //! - [`cancel`] is the request to stop a solve at the next slice, its checkpoint kept;
+//! - [`point`] computes point lights' uncollided light exactly on the host and writes it, with its
+//!   first scattering, into order 0's fields (before order 0, and only in a fresh solve);
 //! - [`warm`] starts a solve from a guess (the previous frame's solution) and still converges to
 //!   the cold solve's answer.
 
