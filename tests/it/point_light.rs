@@ -314,3 +314,45 @@ fn bad_point_light_input_is_refused_with_its_name() {
     assert_eq!(sc.lights, vec![point([2.0, 1.0, 2.0], [1.0, 2.0, 3.0])]);
     assert!(!sc.is_grey());
 }
+
+#[test]
+fn a_warm_start_converges_to_the_cold_answer() {
+    // A frame solved again from its own solution (the guess is the answer to the tolerance): the
+    // point lights' order-0 contributions must enter once, as a sun's do.
+    let dir = temp_dir("point-warm");
+    let text = "[volume]\nprocedural = \"sphere\"\ndims = [18, 18, 18]\n[medium]\nsigma_t = 0.5\nalbedo = 0.9\n\
+                [[lights]]\nkind = \"point\"\nposition = [6.5, 8.0, 9.5]\nintensity = 3.0\n\
+                [[lights]]\nkind = \"point\"\nposition = [9.0, -8.0, 9.0]\nintensity = 40.0\n\
+                [solver]\ndirections_per_face = 2\nmax_orders = 200\ntolerance = 1e-4\n";
+    let scene = write_scene(&dir, text);
+    let job = |out: &str, warm: Option<std::path::PathBuf>| {
+        let job = lpm::job::SolveJob {
+            vk: validated(),
+            no_image: true,
+            warm_start: warm,
+            ..lpm::job::SolveJob::new(scene.clone(), dir.join(out))
+        };
+        lpm::job::run(&job, |_, _| {}).expect("solve");
+        let report: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(dir.join(out).join("report.json")).expect("report")).expect("json");
+        let fluence: Vec<f32> = std::fs::read(dir.join(out).join("fluence.raw"))
+            .expect("fluence")
+            .chunks(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect();
+        (report, fluence)
+    };
+    let (cold, a) = job("cold", None);
+    let (warm, b) = job("warm", Some(dir.join("cold")));
+    let orders = |r: &serde_json::Value| r["orders"].as_u64().expect("orders");
+    assert!(orders(&warm) < orders(&cold), "warm {} vs cold {} orders", orders(&warm), orders(&cold));
+    let worst = a
+        .iter()
+        .zip(&b)
+        .filter(|(a, _)| a.is_finite() && **a > 0.0)
+        .map(|(&a, &b)| ((b as f64 - a as f64) / a as f64).abs())
+        .fold(0.0, f64::max);
+    assert!(worst < 1e-3, "warm vs cold: largest relative difference {worst:.3e}");
+    let imbalance = warm["energy"]["relative_imbalance"].as_f64().expect("imbalance");
+    assert!(imbalance < 1e-4, "warm start energy imbalance {imbalance:.3e} ({})", warm["energy"]);
+}
