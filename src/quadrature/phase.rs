@@ -134,6 +134,16 @@ impl BeamRows {
         p.iter().zip(&self.solid_angle).map(|(p, w)| p / w).collect()
     }
 
+    /// Whether every beam has the same row (g = 0 or a single storage direction).
+    pub fn is_isotropic(&self) -> bool {
+        self.sub.is_none()
+    }
+
+    /// Storage directions (the length of a row).
+    pub fn storage_len(&self) -> usize {
+        self.solid_angle.len()
+    }
+
     /// The row of light arriving from every direction alike (no preferred direction of travel):
     /// `1/4π` in every storage direction.
     pub fn isotropic_row(&self) -> Vec<f64> {
