@@ -1,7 +1,8 @@
 //! # lpm — Light Propagation Maps, streamed out of core, on Vulkan
 //!
 //! lpm solves the radiative transfer equation in a voxel volume of absorbing, scattering and emitting
-//! medium lit by a sky, an HDR environment map and suns, and renders images from the solution. The
+//! medium lit by a sky, an HDR environment map, suns and point lights, and renders images from the
+//! solution. The
 //! method is Fattal's Light Propagation Maps (a discrete-ordinates method) in the parallel, streamed
 //! form of Gruson et al. 2012:
 //! the volume is tiled into 16³ bricks kept in memory-mapped files, and each of the six cube faces is
@@ -116,7 +117,9 @@
 //! collect step forms the fluence and the next order's in-scattered source. The sun is one more
 //! "direction" swept along its exact direction, so its uncollided light shows no ray effects. An
 //! environment map is boundary radiance averaged over each direction's cell, its sun-like peak
-//! taken out as one more beam ([`solver::environment`]).
+//! taken out as one more beam ([`solver::environment`]). A point light's uncollided light is
+//! computed exactly from the point on the host (a DDA from the light to every voxel), and its
+//! first scattering joins order 0's new source ([`solver::point`]).
 
 pub mod bench;
 pub mod compare;

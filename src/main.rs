@@ -17,8 +17,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
     name = "lpm",
     version,
     about = "Light transport in participating media: Light Propagation Maps streamed out of core on Vulkan",
-    long_about = "Solves multiple scattering of light in a voxel volume of smoke, cloud or fog lit by a sky \
-                  and suns, and renders it. See README.md for the scene format and the outputs."
+    long_about = "Solves multiple scattering of light in a voxel volume of smoke, cloud or fog lit by a sky, \
+                  an environment map, suns and point lights, and renders it. See README.md for the scene \
+                  format and the outputs."
 )]
 struct Cli {
     /// Log detail: error, warn, info, debug or trace (RUST_LOG overrides).

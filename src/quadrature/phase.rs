@@ -89,21 +89,67 @@ pub fn collect_matrix(prop: &PropagationSet, storage: &StorageSet, g: f64) -> Ve
 /// The collect row of a collimated beam travelling along `travel`: `P(beam→d)/Ω_d`, so that a
 /// segment-average irradiance Ē scatters into J^d = σs·Ē·row\[d\].
 pub fn beam_row(prop: &PropagationSet, storage: &StorageSet, g: f64, travel: DVec3) -> Vec<f64> {
-    let s = storage.len();
-    let mut p = vec![0.0; s];
-    if g == 0.0 || storage.is_isotropic() {
-        let total: f64 = storage.solid_angle.iter().sum();
-        for d in 0..s {
-            p[d] = storage.solid_angle[d] / total;
+    BeamRows::new(prop, storage, g).row(travel)
+}
+
+/// [`beam_row`] for many beam directions (a point light's, one per voxel): the fine quadrature of
+/// the sphere is built once.
+pub struct BeamRows {
+    /// The fine quadrature, `None` when the row is the isotropic one whatever the direction.
+    sub: Option<SubCells>,
+    owner: Vec<u32>,
+    solid_angle: Vec<f64>,
+    g: f64,
+}
+
+impl BeamRows {
+    pub fn new(prop: &PropagationSet, storage: &StorageSet, g: f64) -> Self {
+        let isotropic = g == 0.0 || storage.is_isotropic();
+        BeamRows {
+            sub: (!isotropic).then(|| SubCells::new(prop, refinement(prop).max(4))),
+            owner: storage.owner.clone(),
+            solid_angle: storage.solid_angle.clone(),
+            g,
         }
-    } else {
-        let sub = SubCells::new(prop, refinement(prop).max(4));
-        for &(wb, ob, ib) in &sub.samples {
-            p[storage.owner[ib] as usize] += ob * henyey_greenstein(g, travel.dot(wb));
-        }
-        normalise_rows(&mut p, s);
     }
-    p.iter().zip(&storage.solid_angle).map(|(p, w)| p / w).collect()
+
+    /// The row of a beam travelling along `travel` (unit length; ignored when isotropic).
+    pub fn row(&self, travel: DVec3) -> Vec<f64> {
+        let s = self.solid_angle.len();
+        let mut p = vec![0.0; s];
+        match &self.sub {
+            None => {
+                let total: f64 = self.solid_angle.iter().sum();
+                for d in 0..s {
+                    p[d] = self.solid_angle[d] / total;
+                }
+            }
+            Some(sub) => {
+                for &(wb, ob, ib) in &sub.samples {
+                    p[self.owner[ib] as usize] += ob * henyey_greenstein(self.g, travel.dot(wb));
+                }
+                normalise_rows(&mut p, s);
+            }
+        }
+        p.iter().zip(&self.solid_angle).map(|(p, w)| p / w).collect()
+    }
+
+    /// Whether every beam has the same row (g = 0 or a single storage direction).
+    pub fn is_isotropic(&self) -> bool {
+        self.sub.is_none()
+    }
+
+    /// Storage directions (the length of a row).
+    pub fn storage_len(&self) -> usize {
+        self.solid_angle.len()
+    }
+
+    /// The row of light arriving from every direction alike (no preferred direction of travel):
+    /// `1/4π` in every storage direction.
+    pub fn isotropic_row(&self) -> Vec<f64> {
+        let total: f64 = self.solid_angle.iter().sum();
+        vec![1.0 / total; self.solid_angle.len()]
+    }
 }
 
 fn normalise_rows(p: &mut [f64], s: usize) {

@@ -32,6 +32,8 @@ pub struct ChannelSetup {
     pub environment: Option<EnvChannel>,
     /// (unit direction toward the sun, irradiance) for each sun with irradiance > 0.
     pub suns: Vec<(DVec3, f64)>,
+    /// (position in grid units, intensity in W/sr) for each point light with intensity > 0.
+    pub points: Vec<(DVec3, f64)>,
     /// Photon sources with their power (world units, W) — the probabilities of picking them.
     pub sources: Vec<(Source, f64)>,
     /// Sum of the source powers.
@@ -49,6 +51,8 @@ pub enum Source {
     Environment,
     /// Index into `ChannelSetup::suns`.
     Sun(usize),
+    /// Index into `ChannelSetup::points`.
+    Point(usize),
     Emission,
 }
 
@@ -70,6 +74,7 @@ impl ChannelSetup {
         let mut sky = 0.0;
         let mut suns = Vec::new();
         let mut environment = None;
+        let mut points = Vec::new();
         for light in &scene.lights {
             match light {
                 lpm_scene::Light::Sky { radiance } => sky += radiance[ch],
@@ -80,6 +85,11 @@ impl ChannelSetup {
                     }
                 }
                 lpm_scene::Light::Environment(env) => environment = Some(EnvChannel::new(env, ch)),
+                lpm_scene::Light::Point { position, intensity } => {
+                    if intensity[ch] > 0.0 {
+                        points.push((*position / h, intensity[ch]));
+                    }
+                }
             }
         }
         let e = grid.extent();
@@ -104,6 +114,10 @@ impl ChannelSetup {
             };
             sources.push((Source::Sun(i), irr * area * h * h));
         }
+        for (i, &(_, intensity)) in points.iter().enumerate() {
+            // Isotropic: 4π·I leaves the point (photons that miss the box still count in N).
+            sources.push((Source::Point(i), 4.0 * PI * intensity));
+        }
         let emitted = if grid.albedo.is_empty() {
             let sigma_a_world = m.sigma_t[ch] * (1.0 - albedo);
             4.0 * PI * sigma_a_world * le * grid.emission_weight[ch] * h * h * h
@@ -116,7 +130,7 @@ impl ChannelSetup {
             sources.push((Source::Emission, emitted));
         }
         let power = sources.iter().map(|s| s.1).sum();
-        ChannelSetup { ch, sigma, albedo, g: m.g, le, sky, environment, suns, sources, power, h, periodic }
+        ChannelSetup { ch, sigma, albedo, g: m.g, le, sky, environment, suns, points, sources, power, h, periodic }
     }
 
     /// Radiance arriving from outside the box along the direction `toward` (unit): the sky plus
@@ -219,6 +233,13 @@ fn emit(grid: &Grid, setup: &ChannelSetup, cdf: &[f64], rng: &mut Rng) -> Option
             let o = c - d * r + u * ((2.0 * rng.uniform() - 1.0) * eu) + v * ((2.0 * rng.uniform() - 1.0) * ev);
             let (t0, _) = box_interval(o, d, e)?;
             Some((o + d * t0.max(0.0), d))
+        }
+        Source::Point(i) => {
+            // An isotropic direction from the light; from outside, on to where it meets the box.
+            let q = setup.points.get(i)?.0;
+            let d = uniform_sphere(rng.uniform(), rng.uniform());
+            let (t0, _) = box_interval(q, d, e)?;
+            Some((q + d * t0.max(0.0), d))
         }
         Source::Emission => {
             let total = *cdf.last()?;

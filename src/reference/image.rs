@@ -110,6 +110,20 @@ pub fn radiance(grid: &Grid, s: &ChannelSetup, o: DVec3, d: DVec3, rng: &mut Rng
                 l += beta * tr * e * hg_eval(s.g, sun.dot(d));
             }
         }
+        // Next-event estimation to each point light at q: light travelling along −w (w toward
+        // the light) scatters into −d (cosine w·d), its irradiance I·T/r² (r in world units).
+        for &(q, intensity) in &s.points {
+            let to = q - p;
+            let r = to.length();
+            if !(r > 0.0) {
+                continue;
+            }
+            let w = to / r;
+            let tr = transmittance(grid, s.sigma, p, w, exit_distance(grid, p, w).min(r), rng);
+            if tr > 0.0 {
+                l += beta * tr * intensity / (r * r * s.h * s.h) * hg_eval(s.g, w.dot(d));
+            }
+        }
         // Next-event estimation to the sky along a phase-sampled direction (phase / pdf = 1).
         if s.has_sky() {
             let w = sample_hg(s.g, rng.uniform(), rng.uniform(), d);

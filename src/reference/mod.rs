@@ -3,7 +3,7 @@
 //! This module is the project's ground truth for accuracy figures. It solves the same transport
 //! problem as [`crate::solver`] (DESIGN.md §2: voxels of constant density ρ, σt = ρ·σt₁, σs = α·σt,
 //! Henyey–Greenstein scattering, emission σa·Le, a uniform sky and collimated suns outside a box of
-//! vacuum) with an entirely different method, and shares **no transport code** with the solver: it
+//! vacuum, point lights inside or outside it) with an entirely different method, and shares **no transport code** with the solver: it
 //! only reads the typed [`Scene`]. Directions, phase sampling, ray traversal,
 //! attenuation and tallies are all written here from the textbook definitions, so a bug in the
 //! discrete-ordinates solver (quadrature, sweep geometry, segment formulas, collect matrices) cannot
@@ -24,6 +24,8 @@
 //! - **sun** of irradiance E toward `direction`: a point uniform on a rectangle perpendicular to the
 //!   beam that covers the box's projection (outside the box), travelling along −`direction`; kept only
 //!   if the ray hits the box (misses still count in N); P = E·A_rect;
+//! - **point light** of intensity I at q: an isotropic direction from q, moved on to where it
+//!   meets the box when q lies outside (misses count in N); P = 4π·I;
 //! - **emission**: a voxel with probability ∝ σa·Le·h³ (∝ ρ·e_c(v) per channel c, e the per-voxel
 //!   emission factor: 1, a grey grid's value, or a temperature's blackbody factor for that
 //!   channel; times 1 − albedo·a(v) with a per-voxel albedo factor, whose σa varies per voxel), a
@@ -54,13 +56,15 @@
 //! Camera rays (pinhole with vertical field of view, or orthographic; `up` is the world up, top row
 //! first, ray through a jittered point of the pixel) are delta tracked; at each real collision the
 //! collision estimator adds (1 − α)·Le (= σa·Le/σt, the emission), the throughput is multiplied by α
-//! and next-event estimation adds each sun (transmittance × phase × E) and the sky (one direction
+//! and next-event estimation adds each sun (transmittance × phase × E), each point light
+//! (transmittance to the point × phase × I/r²) and the sky (one direction
 //! sampled from the phase function: transmittance × the sky's and the map's radiance from there,
 //! since phase/pdf = 1). Transmittances
 //! are estimated by residual ratio tracking (the brick minimum integrated exactly; exact optical depth
 //! in regular-tracked bricks). The path then continues in an
 //! HG-sampled direction with Russian roulette. Only a primary ray that escapes adds the sky (after a
-//! scattering event the sky is covered by next-event estimation); suns are never seen directly.
+//! scattering event the sky is covered by next-event estimation); suns and point lights are never
+//! seen directly.
 
 // `!(x > 0.0)` is used on purpose throughout: it is true for NaN as well.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]

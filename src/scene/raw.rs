@@ -88,6 +88,9 @@ pub(crate) struct RawLight {
     pub intensity: Option<Channels>,
     pub up: Option<String>,
     pub rotation: Option<f64>,
+    /// `point`: where the light is, in world units (the frame of `volume.origin`).
+    #[serde(default, deserialize_with = "exactly3_opt")]
+    pub position: Option<[f64; 3]>,
 }
 
 #[derive(Debug, Deserialize)]

@@ -220,6 +220,11 @@ pub enum Light {
     /// A lat-long environment map: the radiance arriving from each direction outside the volume
     /// (see [`super::environment`] for its orientation). At most one per scene.
     Environment(EnvironmentLight),
+    /// An isotropic point light (`kind = "point"`). `position` is in the volume's frame (corner
+    /// at 0, world units): the scene file gives a world position and the validator subtracts
+    /// `volume.origin`, as for the camera. It may lie inside or outside the volume. `intensity` is
+    /// the radiant intensity in W/sr per channel (the light emits 4π·intensity in all).
+    Point { position: DVec3, intensity: [f64; 3] },
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -415,6 +420,7 @@ impl Light {
         let v = match self {
             Light::Sky { radiance } => radiance,
             Light::Sun { irradiance, .. } => irradiance,
+            Light::Point { intensity, .. } => intensity,
             Light::Environment(env) => return env.is_grey(),
         };
         v[0] == v[1] && v[1] == v[2]

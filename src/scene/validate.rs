@@ -58,7 +58,7 @@ pub const DEFAULT_TOLERANCE: f64 = 1e-4;
 pub const DEFAULT_SEED: u64 = 1;
 
 const SHAPES: &str = "\"sphere\", \"box\", \"cloud\"";
-const LIGHT_KINDS: &str = "\"sky\", \"sun\", \"environment\"";
+const LIGHT_KINDS: &str = "\"sky\", \"sun\", \"environment\", \"point\"";
 const MAP_UPS: &str = "\"z\", \"y\"";
 const PROJECTIONS: &str = "\"pinhole\", \"orthographic\"";
 const PRECISIONS: &str = "\"auto\", \"f16\", \"f32\"";
@@ -93,7 +93,8 @@ impl Validator<'_> {
                 self.err("lights", format!("{} lights is more than the limit of {MAX_LIGHTS}", raw.lights.len()))
             );
         }
-        let lights = raw.lights.into_iter().enumerate().map(|(i, l)| self.light(i, l)).collect::<R<Vec<_>>>()?;
+        let lights =
+            raw.lights.into_iter().enumerate().map(|(i, l)| self.light(i, l, &volume)).collect::<R<Vec<_>>>()?;
         let maps: Vec<usize> =
             lights.iter().enumerate().filter(|(_, l)| matches!(l, Light::Environment(_))).map(|(i, _)| i).collect();
         if let [_, second, ..] = maps[..] {
@@ -109,6 +110,15 @@ impl Validator<'_> {
         let frame = VolumeFrame { dims: volume.dims, voxel_size: volume.voxel_size, origin: volume.origin };
         let camera = raw.camera.map(|c| self.camera(c, &frame)).transpose()?;
         let boundary = self.boundary(raw.boundary)?;
+        if boundary.any_periodic() {
+            if let Some(i) = lights.iter().position(|l| matches!(l, Light::Point { .. })) {
+                return Err(self.err(
+                    format!("lights[{i}].kind"),
+                    "a point light in a periodic volume would repeat with it; periodic boundaries take \
+                     sky, sun and environment light only",
+                ));
+            }
+        }
         Ok(Scene { path: self.path.to_path_buf(), volume, medium, lights, solver, camera, boundary })
     }
 
@@ -379,7 +389,7 @@ impl Validator<'_> {
         Ok(Medium { sigma_t, albedo, g, emission })
     }
 
-    fn light(&self, i: usize, l: RawLight) -> R<Light> {
+    fn light(&self, i: usize, l: RawLight, volume: &Volume) -> R<Light> {
         let key = |name: &str| format!("lights[{i}].{name}");
         let reject_extra = |name: &str, present: bool, kind: &str| -> R<()> {
             if present {
@@ -389,6 +399,9 @@ impl Validator<'_> {
             }
         };
         let missing = |name: &str, kind: &str| self.err(key(name), format!("is required for a {kind} light"));
+        if l.kind != "point" {
+            reject_extra("position", l.position.is_some(), &l.kind)?;
+        }
         if l.kind == "sky" || l.kind == "sun" {
             for (name, present) in [
                 ("map", l.map.is_some()),
@@ -400,6 +413,47 @@ impl Validator<'_> {
             }
         }
         match l.kind.as_str() {
+            "point" => {
+                for (name, present) in [
+                    ("radiance", l.radiance.is_some()),
+                    ("direction", l.direction.is_some()),
+                    ("irradiance", l.irradiance.is_some()),
+                    ("map", l.map.is_some()),
+                    ("up", l.up.is_some()),
+                    ("rotation", l.rotation.is_some()),
+                ] {
+                    reject_extra(name, present, "point")?;
+                }
+                let position = l.position.ok_or_else(|| missing("position", "point"))?;
+                let position = self.coordinates(&key("position"), position)?;
+                let intensity = l.intensity.ok_or_else(|| missing("intensity", "point"))?;
+                let intensity =
+                    self.channels(&key("intensity"), intensity, |k, v| self.non_negative(k, v, Some(MAX_LIGHT)))?;
+                // The light's irradiance one voxel edge away, I/h², bounds what any voxel receives
+                // (up to the near-light average's factor, `solver::point`): kept within the limit of
+                // every light value so that the fields stay finite.
+                let h2 = volume.voxel_size * volume.voxel_size;
+                if let Some(c) = (0..3).find(|&c| intensity[c] / h2 > MAX_LIGHT) {
+                    return Err(self.err(
+                        key("intensity"),
+                        format!(
+                            "{:e} W/sr gives {:e} W/m² one voxel ({} world units) away, more than the limit of {MAX_LIGHT:e}",
+                            intensity[c],
+                            intensity[c] / h2,
+                            volume.voxel_size
+                        ),
+                    ));
+                }
+                // The solver works in the volume's frame (its corner at 0), as for the camera.
+                let position = position - volume.origin;
+                if !position.is_finite() || position.abs().max_element() > MAX_COORDINATE {
+                    return Err(self.err(
+                        key("position"),
+                        format!("lies more than {MAX_COORDINATE:e} world units from volume.origin"),
+                    ));
+                }
+                Ok(Light::Point { position, intensity })
+            }
             "environment" => {
                 reject_extra("radiance", l.radiance.is_some(), "environment")?;
                 reject_extra("direction", l.direction.is_some(), "environment")?;

@@ -112,6 +112,28 @@ impl<'a> CpuTwin<'a> {
         self.medium.albedo = values;
     }
 
+    /// Starts order 0's accumulators from `fluence` and `source_next` (store fields, as the GPU's
+    /// order 0 starts from them) instead of zero: the point lights' uncollided fluence and first
+    /// scattering ([`super::point`]).
+    pub fn set_order0_accumulators(&mut self, fluence: &crate::store::Field, source_next: &crate::store::Field) {
+        let (c, comps) = (self.plan.channels, self.plan.source_components());
+        let [nx, ny, nz] = self.plan.dims;
+        for z in 0..nz {
+            for y in 0..ny {
+                for x in 0..nx {
+                    let i = self.index([x, y, z]);
+                    for ch in 0..c {
+                        self.fields.fluence.values[i * c as usize + ch as usize] = fluence.value([x, y, z], ch) as f64;
+                    }
+                    for k in 0..comps {
+                        self.fields.source_next.values[i * comps as usize + k as usize] =
+                            source_next.value([x, y, z], k) as f64;
+                    }
+                }
+            }
+        }
+    }
+
     fn index(&self, v: [u32; 3]) -> usize {
         let [nx, ny, _] = self.plan.dims;
         v[0] as usize + nx as usize * (v[1] as usize + ny as usize * v[2] as usize)

@@ -4,8 +4,11 @@
 //! Per channel, in watts up to the common factor of the world unit: rays born at the boundary carry
 //! `L·h²|ω_a|Ω_i` (a beam: `E·h²|ω_a|`), emission adds `4π·σa·Le·h³` per voxel, absorption takes
 //! `σa·φ·h³`, rays leaving the volume take their power with them, and the source of the last order
-//! (computed but not propagated) holds `Σ_d Ω_d J^d·h³`. The discretisation conserves energy
-//! exactly, so `in + emitted = out + absorbed + unpropagated` to round-off.
+//! (computed but not propagated) holds `Σ_d Ω_d J^d·h³`. A point light gives the medium
+//! `Σ ρσt·E·h³` (its uncollided light's interactions, `solver::point`); what of it never
+//! interacts is in neither side. The discretisation conserves energy exactly, so
+//! `in + emitted + point lights = out + absorbed + unpropagated` to round-off. The per-face
+//! tallies hold only what crosses the faces as rays: not the uncollided point light.
 //!
 //! The boundary power is also split by the six faces of the volume ([`VOLUME_FACES`]): a sweep's
 //! rays are born on its near face (plane 0) and leave through its far face (after the last plane)
@@ -93,13 +96,17 @@ impl FacePower {
 pub struct EnergyBalance {
     pub boundary_in: [f64; 3],
     pub emitted: [f64; 3],
+    /// The power point lights give the medium, `Σ ρσt·E·h³` (their uncollided light that
+    /// interacts; what passes through or misses the volume is not counted anywhere).
+    pub point_lights: [f64; 3],
     pub boundary_out: [f64; 3],
     pub absorbed: [f64; 3],
-    /// `absorbed / (boundary_in + emitted)` (0 where nothing came in).
+    /// `absorbed / (boundary_in + emitted + point_lights)` (0 where nothing came in).
     pub absorptance: [f64; 3],
     /// Scattered power of the last computed order, not propagated further.
     pub unpropagated: [f64; 3],
-    /// max over channels of |in + emitted − out − absorbed − unpropagated| / (in + emitted).
+    /// max over channels of |in + emitted + point lights − out − absorbed − unpropagated| /
+    /// (in + emitted + point lights).
     pub relative_imbalance: f64,
     /// The boundary power split by the face of the volume it crossed (`-x`, `+x`, `-y`, `+y`,
     /// `-z`, `+z`); the faces' sums are `boundary_in` and `boundary_out`.
@@ -110,6 +117,7 @@ impl EnergyBalance {
     pub fn new(
         tallies: &Tallies,
         emitted: [f64; 3],
+        point_lights: [f64; 3],
         absorbed: [f64; 3],
         unpropagated: [f64; 3],
         channels: usize,
@@ -117,7 +125,7 @@ impl EnergyBalance {
         let mut worst: f64 = 0.0;
         let mut absorptance = [0.0; 3];
         for c in 0..channels {
-            let source = tallies.boundary_in[c] + emitted[c];
+            let source = tallies.boundary_in[c] + emitted[c] + point_lights[c];
             let sink = tallies.boundary_out[c] + absorbed[c] + unpropagated[c];
             if source > 0.0 {
                 worst = worst.max((source - sink).abs() / source);
@@ -129,6 +137,7 @@ impl EnergyBalance {
         EnergyBalance {
             boundary_in: tallies.boundary_in,
             emitted,
+            point_lights,
             boundary_out: tallies.boundary_out,
             absorbed,
             absorptance,
@@ -160,7 +169,7 @@ mod tests {
         t.face_out[4] = [5.0, 0.0, 0.0];
         t.boundary_in = [10.0, 0.0, 0.0];
         t.boundary_out = [7.0, 0.0, 0.0];
-        let e = EnergyBalance::new(&t, [0.0; 3], [3.0, 0.0, 0.0], [0.0; 3], 1);
+        let e = EnergyBalance::new(&t, [0.0; 3], [0.0; 3], [3.0, 0.0, 0.0], [0.0; 3], 1);
         assert_eq!(e.faces[5].face, "+z");
         assert_eq!(e.faces[5].reflectance[0], Some(0.2));
         assert_eq!(e.faces[5].transmittance[0], Some(0.5));

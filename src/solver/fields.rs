@@ -57,6 +57,11 @@ pub struct LoopState {
     /// its energy balance the same way.
     #[serde(default)]
     pub warm_start: bool,
+    /// The power the point lights gave the medium before order 0 ([`super::point`]): computed
+    /// once by a fresh solve and kept here, so that a resumed solve (which writes nothing before
+    /// its orders) closes its energy books the same way.
+    #[serde(default)]
+    pub point_light_power: [f64; 3],
 }
 
 impl LoopState {

@@ -10,6 +10,8 @@
 //! - [`passes`] are the host passes between orders, written once over both backends' fields;
 //! - [`fields`] holds the solver's fields in the brick store, and checkpoints;
 //! - [`cancel`] is the request to stop a solve at the next slice, its checkpoint kept;
+//! - [`point`] computes point lights' uncollided light exactly on the host and writes it, with its
+//!   first scattering, into order 0's fields (before order 0, and only in a fresh solve);
 //! - [`warm`] starts a solve from a guess (the previous frame's solution) and still converges to
 //!   the cold solve's answer.
 
@@ -26,6 +28,7 @@ pub mod orders;
 pub mod passes;
 pub mod periodic;
 pub mod plan;
+pub mod point;
 pub mod remaining;
 pub mod segment;
 pub mod sweep;
@@ -262,7 +265,11 @@ pub fn solve_from(
             } else if plan.emission_field {
                 emission::write_initial_source(store, &plan, &mut fields.source_prev)?;
             }
-            (fields, fields::LoopState::default())
+            // The point lights' uncollided fluence and first scattering go into order 0's own
+            // accumulators (still zero), as a sun's beam sweep deposits them: only here, so a
+            // resumed solve never adds them twice; their power travels in the loop state.
+            let point_light_power = point::write_order0(store, &plan, &mut fields.fluence, &mut fields.source_next)?;
+            (fields, fields::LoopState { point_light_power, ..fields::LoopState::default() })
         }
     };
     phases.push(("plan".to_string(), t.elapsed().as_secs_f64()));
@@ -280,6 +287,10 @@ pub fn solve_from(
             if plan.emission_field {
                 // The same f32 order-0 source the GPU gains, and the power it emits.
                 twin.set_initial_source(&fields.source_prev, emission::emitted_power(store, &plan)?);
+            }
+            if !plan.point_lights.is_empty() {
+                // The same f32 values the GPU's order 0 starts from.
+                twin.set_order0_accumulators(&fields.fluence, &fields.source_next);
             }
             phases.push(("setup".to_string(), t.elapsed().as_secs_f64()));
             let t = Instant::now();

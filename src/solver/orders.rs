@@ -289,7 +289,14 @@ pub fn run_orders<B: Backend + ?Sized>(
     // (What periodic sweeps carry over was counted as out when it left.)
     let last_source: [f64; 3] = std::array::from_fn(|c| state.last_new_power[c] - state.last_carried_power[c]);
     let unpropagated = backend.fields().0.signed_last_power(plan).unwrap_or(last_source);
-    let energy = EnergyBalance::new(&state.tallies(), emitted, absorbed, unpropagated, plan.channels as usize);
+    let energy = EnergyBalance::new(
+        &state.tallies(),
+        emitted,
+        state.point_light_power,
+        absorbed,
+        unpropagated,
+        plan.channels as usize,
+    );
     let tail = if extrapolate { tail_estimate(plan, &state) } else { None };
     let residual = match &tail {
         Some(t) => t.uncertainty / (state.total_power.iter().sum::<f64>() + t.power),

@@ -9,6 +9,8 @@
 //! - emission: only when some channel emits;
 //! - empty bricks: known from the store; they hold no medium and no source;
 //! - the sun(s): each a collimated beam swept along its own direction;
+//! - point lights: their uncollided light computed exactly from each point on the host, its first
+//!   scattering order 0's source (see `solver::point`);
 //! - an environment map: its mean over each direction's cell joins the sky's boundary radiance, and
 //!   its sun-like peak, when it has one, is one more beam (see `solver::environment`);
 //! - the storage precision of the source the rays gain (the previous order's): f16 when the
@@ -28,6 +30,7 @@
 
 use super::environment::environment_boundary;
 use super::periodic::{periodic_lattice, periodic_slope};
+use super::point::PointLight;
 use super::sweep::{lateral_slope, lattice, plane_path_length, FaceSweep};
 use crate::quadrature::{cube_face_of, phase, PropagationSet, StorageSet, FACES};
 use crate::scene::{DiffusionCorrection, ForwardPeak, Light, Medium, PlanMode, Scene, SpatialScheme, StoragePrecision};
@@ -122,6 +125,8 @@ pub struct Plan {
     pub faces: Vec<Vec<SweepDirection>>,
     /// The sun beams (each a single direction swept once, before the first order).
     pub beams: Vec<SweepDirection>,
+    /// The point lights, positions in voxel units (see [`super::point`]).
+    pub point_lights: Vec<PointLight>,
     pub medium: Medium,
     /// The medium emits `medium.emission` uniformly (the kernels add it in order 0).
     pub emission: bool,
@@ -173,6 +178,8 @@ pub struct PlanSummary {
     pub storage_directions: usize,
     pub storage_directions_per_face: u32,
     pub suns: usize,
+    /// Point lights (their uncollided light computed on the host, see `solver::point`).
+    pub point_lights: usize,
     pub emission: bool,
     /// The emission's source is written per voxel (an emission grid, or σa varying with an albedo
     /// grid).
@@ -352,7 +359,7 @@ impl Plan {
             .iter()
             .filter_map(|light| match light {
                 Light::Sun { direction, irradiance } => Some((*direction, *irradiance)),
-                Light::Sky { .. } | Light::Environment(_) => None,
+                Light::Sky { .. } | Light::Environment(_) | Light::Point { .. } => None,
             })
             .chain(extracted)
             .map(|(direction, irradiance)| {
@@ -365,6 +372,23 @@ impl Plan {
             reasons.push(format!(
                 "{} sun beam(s) swept along their exact directions: no ray effects in direct light",
                 beams.len()
+            ));
+        }
+        let point_lights: Vec<PointLight> = scene
+            .lights
+            .iter()
+            .filter_map(|light| match light {
+                Light::Point { position, intensity } => {
+                    Some(PointLight { position: *position / h, intensity: *intensity })
+                }
+                _ => None,
+            })
+            .collect();
+        if !point_lights.is_empty() {
+            reasons.push(format!(
+                "{} point light(s): uncollided light computed exactly from each point on the host; its \
+                 first scattering is order 0's source",
+                point_lights.len()
             ));
         }
         let albedo_field = scene.volume.albedo.is_some();
@@ -411,6 +435,7 @@ impl Plan {
             storage,
             faces,
             beams,
+            point_lights,
             medium,
             emission,
             emission_field,
@@ -461,6 +486,7 @@ impl Plan {
             storage_directions: self.storage.len(),
             storage_directions_per_face: self.storage.per_face,
             suns: self.beams.len(),
+            point_lights: self.point_lights.len(),
             emission: self.emission || self.emission_field,
             emission_per_voxel: self.emission_field,
             albedo_per_voxel: self.albedo_field,

@@ -27,6 +27,7 @@ mod out_of_core;
 mod periodic;
 mod plan_full;
 mod plot;
+mod point_light;
 mod precision;
 mod property_solve;
 mod reference_closed_forms;

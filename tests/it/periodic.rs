@@ -190,6 +190,10 @@ fn boundary_keys_are_checked() {
         ("[boundary]\ny = \"reflective\"\n", "boundary.y"),
         ("[boundary]\nz = \"wrap\"\n", "boundary.z"),
         ("[boundary]\nw = \"open\"\n", "w"),
+        (
+            "[boundary]\nx = \"periodic\"\n[[lights]]\nkind = \"point\"\nposition = [1, 1, 1]\nintensity = 1.0\n",
+            "lights[0].kind",
+        ),
     ] {
         let err = lpm::scene::Scene::from_toml_str(&format!("{base}{text}"), Path::new("t.toml"))
             .expect_err(text)

@@ -19,6 +19,10 @@ fuzz_target!(|data: &[u8]| {
                 assert!(finite(irradiance));
                 assert!((direction.length() - 1.0).abs() < 1e-12, "{direction}");
             }
+            Light::Point { position, intensity } => {
+                assert!(finite(intensity));
+                assert!(position.is_finite() && position.abs().max_element() <= lpm::scene::validate::MAX_COORDINATE);
+            }
             // The map is read when the scene loads; here its directory does not exist, so an
             // accepted environment light would mean a map was never checked.
             Light::Environment(env) => panic!("environment light accepted without its map: {:?}", env.intensity),
