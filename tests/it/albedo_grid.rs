@@ -134,6 +134,26 @@ fn two_regions_gpu_matches_the_twin_balances_and_repeats() {
 }
 
 #[test]
+fn a_point_light_over_two_regions_matches_the_twin_and_balances() {
+    // The point light's first scattering is written into order 0's new source, which the commit
+    // scales by a(v) like any scattered source; its uncollided fluence is absorbed with σa(v).
+    let (mut sc, _) = sphere_with_albedo("albedo-point", two_regions);
+    sc.lights =
+        vec![lpm::scene::Light::Point { position: glam::DVec3::new(6.0, 7.5, 6.5), intensity: [40.0, 30.0, 20.0] }];
+    two_regions_on_both_backends("albedo-point", &sc);
+}
+
+#[test]
+fn a_periodic_slab_over_two_regions_matches_the_twin_and_balances() {
+    // Periodic in x and y (what leaves one side enters the other, the carried light a ray state,
+    // not a source): the scaling and the books are unchanged by it.
+    let (mut sc, _) = sphere_with_albedo("albedo-periodic", two_regions);
+    sc.volume.source = lpm::scene::VolumeSource::Procedural { shape: Shape::Box, seed: 7 };
+    sc.boundary = lpm::scene::Boundary { periodic: [true, true, false] };
+    two_regions_on_both_backends("albedo-periodic", &sc);
+}
+
+#[test]
 fn emission_over_an_albedo_grid_uses_the_voxels_absorption() {
     // A uniform emission: with an albedo grid σa varies per voxel, so its source is written per
     // voxel (σa(v)·Le) rather than added by the kernels.
