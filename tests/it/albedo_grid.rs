@@ -535,3 +535,46 @@ fn a_warm_start_with_an_albedo_grid_converges_to_the_cold_answer() {
     let imbalance = warm_report["energy"]["relative_imbalance"].as_f64().unwrap();
     assert!(imbalance < 1e-4, "warm start energy imbalance {imbalance:.3e}");
 }
+
+#[test]
+fn a_killed_solve_with_an_albedo_grid_resumes_to_the_same_bits() {
+    // The kill test of resume.rs with an albedo grid: the checkpoints hold the scaled source.
+    if !cfg!(feature = "test-hooks") {
+        panic!(
+            "this kill test needs lpm's test hook: run it with `cargo test --features test-hooks` (tools/test.sh does)"
+        );
+    }
+    let dir = temp_dir("albedo-kill");
+    let dims = [34, 30, 38];
+    write_raw_field(&dir.join("albedo.raw"), dims, |v| if v[0] < 17 { 0.99 } else { 0.3 });
+    let text = killable_cloud_scene(dims, 5).replacen("[volume]\n", "[volume]\nalbedo_raw = \"albedo.raw\"\n", 1);
+    let scene = write_scene_as(&dir, "scene.toml", &text);
+    let (s, whole, cut) = (scene.to_str().expect("utf-8"), dir.join("whole"), dir.join("cut"));
+    let lpm = |out: &std::path::Path, extra: &[&str], abort_at: Option<u32>| {
+        let mut args = vec!["solve", s, "--out", out.to_str().expect("utf-8"), "--no-image"];
+        args.extend_from_slice(extra);
+        let mut cmd = lpm_command(&args);
+        if let Some(n) = abort_at {
+            cmd.env("LPM_TEST_ABORT_AT_SLICE", n.to_string());
+        }
+        cmd.output().expect("run lpm")
+    };
+    let o = lpm(&whole, &[], None);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = lpm(&cut, &[], Some(70));
+    assert!(!o.status.success(), "the solve should have been killed");
+    let checkpoint: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(cut.join(".lpm-work/checkpoint.json")).expect("checkpoint"))
+            .expect("json");
+    let done = checkpoint["state"]["orders_done"].as_u64().expect("orders_done");
+    assert!((1..5).contains(&done), "killed after {done} orders");
+    let o = lpm(&cut, &["--resume"], None);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for f in ["fluence.raw", "source.raw"] {
+        let (a, b) = (std::fs::read(whole.join(f)).expect("whole"), std::fs::read(cut.join(f)).expect("cut"));
+        assert!(a == b, "{f} differs after resume");
+    }
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(cut.join("report.json")).expect("report")).expect("json");
+    assert_eq!(report["plan"]["albedo_per_voxel"], true);
+}
