@@ -50,7 +50,9 @@
 //! Computed brick by brick over the occupied bricks only, in parallel (rayon), straight into the
 //! memory-mapped fields in groups of [`RELEASE_UNITS`] bricks whose pages are then handed back: a
 //! store far larger than RAM never becomes a dense array. Each voxel's values depend on nothing
-//! but the scene, so the fields are bitwise the same at any thread count.
+//! but the scene, so the fields are bitwise the same at any thread count. The cost is one segment
+//! walk per voxel and light, ∝ N⁴ for an N³ volume (benches/RESULTS.md, "Point lights": 39 s for
+//! two lights over 256³ on two shared cores).
 
 use super::passes::RELEASE_UNITS;
 use super::plan::Plan;
