@@ -50,6 +50,7 @@ fn bench_scene() -> Scene {
             diffusion_correction: DiffusionCorrection::default(),
         },
         camera: None,
+        boundary: Default::default(),
     }
 }
 

@@ -25,8 +25,8 @@ layout(std430, binding = 11) buffer Fluence { float fluence[]; };               
 // column c + 1 meets voxel column c with weight 1 − w, column c with weight w (per axis). Terms of
 // weight 0 are left out (adding 0 would change nothing), in a fixed order.
 float pulled(uint di, uint ch, uint tt, uint vb, uint vc, vec2 w, uint planes, uint rays) {
-    uint lb_n = pc.nb + 1u;
-    uint lc_n = pc.nc + 1u;
+    uint lb_n = pc.nb + (periodic_b() ? 0u : 1u);
+    uint lc_n = pc.nc + (periodic_c() ? 0u : 1u);
     uint base = (di * pc.channels + ch) * planes * rays + tt * rays;
     float sum = 0.0;
     for (uint dc = 0u; dc < 2u; ++dc) {
@@ -35,7 +35,8 @@ float pulled(uint di, uint ch, uint tt, uint vb, uint vc, vec2 w, uint planes, u
         for (uint db = 0u; db < 2u; ++db) {
             float wb = db == 0u ? 1.0 - w.x : w.x;
             if (wb == 0.0) continue;
-            sum += (wb * wc) * deposit[base + (vc + 1u - dc) * lb_n + (vb + 1u - db)];
+            // On a periodic axis lattice column n is column 0 (a no-op on an open one).
+            sum += (wb * wc) * deposit[base + ((vc + 1u - dc) % lc_n) * lb_n + (vb + 1u - db) % lb_n];
         }
     }
     return sum;
@@ -52,7 +53,7 @@ void main() {
     int slot = medium_slot[slice_brick(vb, vc)];
     if (slot < 0) return;
 
-    uint rays = (pc.nb + 1u) * (pc.nc + 1u);
+    uint rays = (pc.nb + (periodic_b() ? 0u : 1u)) * (pc.nc + (periodic_c() ? 0u : 1u));
     uint C = pc.channels;
     uvec3 v = voxel_of(pc.t0 + tt, vb, vc);
     uint sv = slab_voxels();

@@ -8,7 +8,7 @@ layout(push_constant) uniform Push {
     uint t0;            // first plane of this slice (sweep order)
     uint t1;            // one past the last plane of this slice
     uint axis_sign;     // bits 0-1: sweep axis a; bit 2: 1 when the sweep runs toward −a
-    uint lateral;       // bits 0-1: axis b, bits 2-3: axis c
+    uint lateral;       // bits 0-1: axis b, bits 2-3: axis c; bit 4 (5): b (c) periodic
     uint bricks_b;      // bricks of the slice along b
     uint bricks_c;      // bricks of the slice along c
     uint dir_count;     // directions in this dispatch (the face's, or 1 beam)
@@ -31,6 +31,13 @@ const uint FLAG_VACUUM = 16u;    // the slice has no occupied brick: rays only m
 // 2^e with e = ((flags >> 16) & 255) - 128. Keep in sync with `half_source_flags` in
 // src/solver/gpu/layout.rs.
 const uint FLAG_HALF_SOURCE = 32u;
+// The sweep axis is periodic: rays enter plane 0 with the radiance the ray buffer starts with (what
+// the direction carried out last order, uploaded by the host: src/solver/periodic.rs).
+const uint FLAG_CARRY = 64u;
+// `lateral` bits 4 and 5: lateral axis b, c is periodic (n rays of period n, not n + 1).
+// Keep in sync with LATERAL_PERIODIC_* in src/solver/gpu/layout.rs.
+bool periodic_b() { return (pc.lateral & 16u) != 0u; }
+bool periodic_c() { return (pc.lateral & 32u) != 0u; }
 
 
 // Keep in sync with `GpuDirection` in src/solver/gpu/layout.rs.

@@ -38,9 +38,11 @@ void main() {
     uint p = gl_GlobalInvocationID.x;
     uint q = gl_GlobalInvocationID.y;
     uint local_dir = gl_GlobalInvocationID.z;
-    // n + 1 rays (lattice columns) per lateral axis of n voxels.
-    int lb_n = int(pc.nb) + 1;
-    int lc_n = int(pc.nc) + 1;
+    // n + 1 rays (lattice columns) per lateral axis of n voxels; n on a periodic axis, where a
+    // ray whose column wraps goes on (src/solver/periodic.rs).
+    bool per_b = periodic_b(), per_c = periodic_c();
+    int lb_n = int(pc.nb) + (per_b ? 0 : 1);
+    int lc_n = int(pc.nc) + (per_c ? 0 : 1);
     if (p >= uint(lb_n) || q >= uint(lc_n) || local_dir >= pc.dir_count) return;
     uint di = pc.dir_base + local_dir;   // index into the sweep's tables
     uint ri = pc.ray_base + local_dir;   // index into the pass's ray buffers
@@ -75,19 +77,23 @@ void main() {
         ivec2 o_end = offsets[base + pc.t1 - 1u].xy;
         int eb = cb + o_end.x - prev_o.x;
         int ec = cc + o_end.y - prev_o.y;
-        if (eb >= 0 && eb < lb_n && ec >= 0 && ec < lc_n) t_start = pc.t1;
+        if ((per_b || (eb >= 0 && eb < lb_n)) && (per_c || (ec >= 0 && ec < lc_n))) t_start = pc.t1;
     }
     uint sv = slab_voxels();
     for (uint t = t_start; t < pc.t1; ++t) {
         ivec4 entry = offsets[base + t];
         ivec2 o = entry.xy;
-        bool born = (t == 0u);
+        // On a periodic sweep axis the ray enters plane 0 with what it was given (FLAG_CARRY).
+        bool born = (t == 0u) && (pc.flags & FLAG_CARRY) == 0u;
         if (t > 0u) {
             cb += o.x - prev_o.x;
             cc += o.y - prev_o.y;
             bool wrapped_b = false, wrapped_c = false;
             if (cb >= lb_n) { cb -= lb_n; wrapped_b = true; } else if (cb < 0) { cb += lb_n; wrapped_b = true; }
             if (cc >= lc_n) { cc -= lc_n; wrapped_c = true; } else if (cc < 0) { cc += lc_n; wrapped_c = true; }
+            // A periodic axis has no side: its ray goes on.
+            wrapped_b = wrapped_b && !per_b;
+            wrapped_c = wrapped_c && !per_c;
             if (wrapped_b || wrapped_c) {
                 // The ray left through a side (half through each across an edge): a new one
                 // enters from the opposite side.
@@ -109,10 +115,12 @@ void main() {
         bool gain = (pc.flags & FLAG_GAIN) != 0u;
         for (int dc = 0; dc < 2; ++dc) {
             int vc = cc - 1 + dc;
+            if (vc < 0 && per_c) vc += int(pc.nc);
             float wc = dc == 0 ? 1.0 - w.y : w.y;
             if (wc == 0.0 || vc < 0 || vc >= int(pc.nc)) continue;
             for (int db = 0; db < 2; ++db) {
                 int vb = cb - 1 + db;
+                if (vb < 0 && per_b) vb += int(pc.nb);
                 float wb = db == 0 ? 1.0 - w.x : w.x;
                 if (wb == 0.0 || vb < 0 || vb >= int(pc.nb)) continue;
                 int slot = medium_slot[slice_brick(uint(vb), uint(vc))];

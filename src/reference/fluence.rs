@@ -40,6 +40,9 @@ pub struct ChannelSetup {
     pub power: f64,
     /// Voxel edge in world units.
     pub h: f64,
+    /// Per axis (x, y, z): periodic (`[boundary]`): a photon leaving through such a face comes
+    /// back through the opposite one, and no outside light enters through it.
+    pub periodic: [bool; 3],
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -90,9 +93,10 @@ impl ChannelSetup {
             }
         }
         let e = grid.extent();
+        let periodic = scene.boundary.periodic;
         let mut sources = Vec::new();
         if sky > 0.0 {
-            let area = 2.0 * (e.x * e.y + e.y * e.z + e.z * e.x) * h * h;
+            let area: f64 = open_face_areas(e, periodic).iter().sum::<f64>() * h * h;
             sources.push((Source::Sky, PI * sky * area));
         }
         if let Some(env) = environment.as_ref().filter(|env| env.power > 0.0) {
@@ -101,8 +105,14 @@ impl ChannelSetup {
             sources.push((Source::Environment, env.power * PI * r * r * h * h));
         }
         for (i, &(dir, irr)) in suns.iter().enumerate() {
-            let (_, _, eu, ev) = sun_rectangle(e, -dir);
-            sources.push((Source::Sun(i), irr * 4.0 * eu * ev * h * h));
+            let area = if periodic.contains(&true) {
+                // Through the open faces it lights, each with its projected area.
+                projected_open_areas(e, periodic, -dir).iter().sum::<f64>()
+            } else {
+                let (_, _, eu, ev) = sun_rectangle(e, -dir);
+                4.0 * eu * ev
+            };
+            sources.push((Source::Sun(i), irr * area * h * h));
         }
         for (i, &(_, intensity)) in points.iter().enumerate() {
             // Isotropic: 4π·I leaves the point (photons that miss the box still count in N).
@@ -114,7 +124,7 @@ impl ChannelSetup {
             sources.push((Source::Emission, emitted));
         }
         let power = sources.iter().map(|s| s.1).sum();
-        ChannelSetup { ch, sigma, albedo, g: m.g, le, sky, environment, suns, points, sources, power, h }
+        ChannelSetup { ch, sigma, albedo, g: m.g, le, sky, environment, suns, points, sources, power, h, periodic }
     }
 
     /// Radiance arriving from outside the box along the direction `toward` (unit): the sky plus
@@ -159,8 +169,8 @@ fn emit(grid: &Grid, setup: &ChannelSetup, cdf: &[f64], rng: &mut Rng) -> Option
     }
     match source {
         Source::Sky => {
-            // Face ∝ area, uniform point on it, cosine-weighted inward direction.
-            let areas = [e.y * e.z, e.y * e.z, e.x * e.z, e.x * e.z, e.x * e.y, e.x * e.y];
+            // Open face ∝ area, uniform point on it, cosine-weighted inward direction.
+            let areas = open_face_areas(e, setup.periodic);
             let total: f64 = areas.iter().sum();
             let mut y = rng.uniform() * total;
             let mut face = 5;
@@ -187,6 +197,16 @@ fn emit(grid: &Grid, setup: &ChannelSetup, cdf: &[f64], rng: &mut Rng) -> Option
             // A direction toward the sky ∝ L, then a point uniform on the disk of radius R facing
             // it (outside the box), travelling away from the sky; misses count in N.
             let d = -setup.environment.as_ref()?.sample(rng)?;
+            if setup.periodic.contains(&true) {
+                // Through the open faces only: accepted with probability (their projected area)
+                // / (the disk's), the power being the disk's; then a point on them ∝ that area.
+                let r = 0.5 * e.length();
+                let areas = projected_open_areas(e, setup.periodic, d);
+                if rng.uniform() * PI * r * r >= areas.iter().sum::<f64>() {
+                    return None;
+                }
+                return Some((point_on_faces(e, &areas, rng), d));
+            }
             let (u, v) = basis(d);
             let c = 0.5 * e;
             let r = 0.5 * e.length();
@@ -197,6 +217,9 @@ fn emit(grid: &Grid, setup: &ChannelSetup, cdf: &[f64], rng: &mut Rng) -> Option
         }
         Source::Sun(i) => {
             let d = -setup.suns.get(i)?.0;
+            if setup.periodic.contains(&true) {
+                return Some((point_on_faces(e, &projected_open_areas(e, setup.periodic, d), rng), d));
+            }
             let (u, v, eu, ev) = sun_rectangle(e, d);
             let c = 0.5 * e;
             let r = 0.5 * e.length() + 1.0;
@@ -224,6 +247,75 @@ fn emit(grid: &Grid, setup: &ChannelSetup, cdf: &[f64], rng: &mut Rng) -> Option
     }
 }
 
+/// Most times one photon crosses periodic faces before it is dropped (only a photon that meets
+/// no medium along a periodic axis gets near it).
+const MAX_WRAPS: u32 = 10_000;
+
+/// Areas of the six faces (−x, +x, −y, +y, −z, +z, grid units) of a box of extent `e`, zero for
+/// the faces of periodic axes (no outside light enters there).
+fn open_face_areas(e: DVec3, periodic: [bool; 3]) -> [f64; 6] {
+    std::array::from_fn(|f| {
+        let axis = f / 2;
+        if periodic[axis] {
+            0.0
+        } else {
+            e[(axis + 1) % 3] * e[(axis + 2) % 3]
+        }
+    })
+}
+
+/// The open faces' areas projected across the travel direction `d`, for the faces `d` enters by
+/// (zero for the others).
+fn projected_open_areas(e: DVec3, periodic: [bool; 3], d: DVec3) -> [f64; 6] {
+    let areas = open_face_areas(e, periodic);
+    std::array::from_fn(|f| {
+        let (axis, high) = (f / 2, f % 2 == 1);
+        // The −axis face is entered travelling +axis, the +axis face travelling −axis.
+        let inward = if high { -d[axis] } else { d[axis] };
+        areas[f] * inward.max(0.0)
+    })
+}
+
+/// A point uniform on the faces, face f picked ∝ `weights[f]`.
+fn point_on_faces(e: DVec3, weights: &[f64; 6], rng: &mut Rng) -> DVec3 {
+    let mut y = rng.uniform() * weights.iter().sum::<f64>();
+    let mut face = weights.iter().rposition(|&w| w > 0.0).unwrap_or(5);
+    for (i, w) in weights.iter().enumerate() {
+        if y < *w {
+            face = i;
+            break;
+        }
+        y -= w;
+    }
+    let (axis, high) = (face / 2, face % 2 == 1);
+    let mut p = DVec3::ZERO;
+    p[axis] = if high { e[axis] } else { 0.0 };
+    p[(axis + 1) % 3] = rng.uniform() * e[(axis + 1) % 3];
+    p[(axis + 2) % 3] = rng.uniform() * e[(axis + 2) % 3];
+    p
+}
+
+/// Where a photon leaving the box at `q` along `d` comes back in: the coordinate of every axis it
+/// leaves by moved to the opposite face, when all of them are periodic; `None` when it leaves for
+/// good through an open face.
+fn wrap_periodic(e: DVec3, periodic: [bool; 3], q: DVec3, d: DVec3) -> Option<DVec3> {
+    let mut p = q.clamp(DVec3::ZERO, e);
+    let mut wrapped = false;
+    for axis in 0..3 {
+        let tol = 1e-9 * e[axis].max(1.0);
+        let out_high = d[axis] > 0.0 && p[axis] >= e[axis] - tol;
+        let out_low = d[axis] < 0.0 && p[axis] <= tol;
+        if out_high || out_low {
+            if !periodic[axis] {
+                return None;
+            }
+            p[axis] = if out_high { 0.0 } else { e[axis] };
+            wrapped = true;
+        }
+    }
+    wrapped.then_some(p)
+}
+
 /// Trace `n` photons and return the batch's fluence estimate per voxel (world units, W/m²) in
 /// `out` (resized to the voxel count).
 pub fn trace_batch(grid: &Grid, setup: &ChannelSetup, cdf: &[f64], n: u64, rng: &mut Rng, out: &mut Vec<f64>) {
@@ -237,6 +329,7 @@ pub fn trace_batch(grid: &Grid, setup: &ChannelSetup, cdf: &[f64], n: u64, rng: 
             continue;
         };
         let mut w = 1.0f64;
+        let mut wraps = 0;
         loop {
             let t_exit = exit_distance(grid, p, d);
             if !(t_exit > 0.0) {
@@ -246,7 +339,18 @@ pub fn trace_batch(grid: &Grid, setup: &ChannelSetup, cdf: &[f64], n: u64, rng: 
             // The whole segment from the last real event to the next one (or the exit) is tallied,
             // null collisions included.
             tally_segment(grid, p, d, hit.unwrap_or(t_exit), w, out);
-            let Some(t) = hit else { break };
+            let Some(t) = hit else {
+                // Out through a periodic face: back in through the opposite one. (A photon that
+                // meets no medium along a periodic axis would circle for ever: cut it off.)
+                match wrap_periodic(grid.extent(), setup.periodic, p + d * t_exit, d) {
+                    Some(q) if wraps < MAX_WRAPS => {
+                        p = q;
+                        wraps += 1;
+                        continue;
+                    }
+                    _ => break,
+                }
+            };
             p += d * t;
             w *= setup.albedo;
             if w < RR_WEIGHT {

@@ -16,6 +16,16 @@ pub(crate) struct RawScene {
     pub lights: Vec<RawLight>,
     pub solver: Option<RawSolver>,
     pub camera: Option<super::validate::CameraKeys>,
+    pub boundary: Option<RawBoundary>,
+}
+
+/// `[boundary]`: per axis, how light crosses the two faces across it ("open" or "periodic").
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawBoundary {
+    pub x: Option<String>,
+    pub y: Option<String>,
+    pub z: Option<String>,
 }
 
 #[derive(Debug, Deserialize)]

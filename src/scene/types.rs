@@ -17,6 +17,24 @@ pub struct Scene {
     pub solver: SolverSettings,
     /// `None`: the renderer picks a default view of the whole volume.
     pub camera: Option<Camera>,
+    /// How light crosses the volume's faces.
+    pub boundary: Boundary,
+}
+
+/// How light crosses the faces of the volume, per axis (x, y, z): `open` (the default: the lights
+/// enter, what leaves is gone) or `periodic` (the volume repeats along the axis: what leaves
+/// through one face enters through the opposite one, as in a cloud field tiled without end; see
+/// `solver::periodic`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Boundary {
+    pub periodic: [bool; 3],
+}
+
+impl Boundary {
+    /// Whether any axis is periodic.
+    pub fn any_periodic(&self) -> bool {
+        self.periodic.iter().any(|&p| p)
+    }
 }
 
 /// The density grid: dims in voxels, the voxel edge in world units, and where densities come from.

@@ -4,10 +4,10 @@
 //! Over 450 lines because every scene key is checked here, next to its default: one place to read
 //! what a scene may say.
 
-use super::raw::{ByteSize, Channels, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
+use super::raw::{ByteSize, Channels, RawBoundary, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
 use super::{
-    DiffusionCorrection, EnvironmentLight, ForwardPeak, Light, MapUp, Medium, PlanMode, Scene, SceneError, Shape,
-    SolverSettings, SpatialScheme, StoragePrecision, Volume, VolumeSource,
+    Boundary, DiffusionCorrection, EnvironmentLight, ForwardPeak, Light, MapUp, Medium, PlanMode, Scene, SceneError,
+    Shape, SolverSettings, SpatialScheme, StoragePrecision, Volume, VolumeSource,
 };
 use emission::{BlackbodyKeys, EmissionKeys};
 use glam::DVec3;
@@ -106,7 +106,42 @@ impl Validator<'_> {
         // back in it.
         let frame = VolumeFrame { dims: volume.dims, voxel_size: volume.voxel_size, origin: volume.origin };
         let camera = raw.camera.map(|c| self.camera(c, &frame)).transpose()?;
-        Ok(Scene { path: self.path.to_path_buf(), volume, medium, lights, solver, camera })
+        let boundary = self.boundary(raw.boundary)?;
+        if boundary.any_periodic() {
+            if let Some(i) = lights.iter().position(|l| matches!(l, Light::Point { .. })) {
+                return Err(self.err(
+                    format!("lights[{i}].kind"),
+                    "a point light in a periodic volume would repeat with it; periodic boundaries take \
+                     sky, sun and environment light only",
+                ));
+            }
+        }
+        Ok(Scene { path: self.path.to_path_buf(), volume, medium, lights, solver, camera, boundary })
+    }
+
+    fn boundary(&self, b: Option<RawBoundary>) -> R<Boundary> {
+        let Some(b) = b else { return Ok(Boundary::default()) };
+        let mut periodic = [false; 3];
+        for (axis, (name, value)) in [("x", b.x), ("y", b.y), ("z", b.z)].into_iter().enumerate() {
+            periodic[axis] = match value.as_deref() {
+                None | Some("open") => false,
+                Some("periodic") => true,
+                Some("reflective") => {
+                    return Err(self.err(
+                        format!("boundary.{name}"),
+                        "reflective boundaries are not supported yet; for a mirror-symmetric problem, \
+                         solve the whole domain (mirror the volume)",
+                    ))
+                }
+                Some(other) => {
+                    return Err(self.err(
+                        format!("boundary.{name}"),
+                        format!("unknown boundary \"{other}\", expected \"open\" or \"periodic\""),
+                    ))
+                }
+            };
+        }
+        Ok(Boundary { periodic })
     }
 
     // ---- scalar helpers -------------------------------------------------------------------

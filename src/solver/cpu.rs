@@ -17,6 +17,7 @@ use super::cpu_sweep::{sweep_direction, SweepInputs, SweepMode, SweepOutputs};
 use super::energy::Tallies;
 use super::orders::Backend;
 use super::passes::{MemField, OrderFieldSet, VoxelMedium};
+use super::periodic::{CarryOf, PeriodicCarry};
 use super::plan::{half_scale_exponent, Plan, Precision, SweepDirection};
 use super::SolveError;
 
@@ -32,6 +33,8 @@ pub struct CpuTwin<'a> {
     j_gain: Vec<f64>,
     /// Power of a per-voxel emission (`solver::emission`), when the first order's source is one.
     emitted_field: Option<[f64; 3]>,
+    /// What the rays of periodic-axis sweeps carried out last order ([`super::periodic`]).
+    carry: PeriodicCarry,
 }
 
 impl<'a> CpuTwin<'a> {
@@ -70,6 +73,7 @@ impl<'a> CpuTwin<'a> {
             fields: OrderFieldSet::in_memory(plan, voxels),
             j_gain: if half { vec![0.0; voxels * comps] } else { Vec::new() },
             emitted_field: None,
+            carry: PeriodicCarry::new(plan),
         })
     }
 
@@ -133,13 +137,18 @@ impl<'a> CpuTwin<'a> {
     /// order's source ([`super::cpu_sweep`]: plane by plane, on the current rayon pool's threads).
     /// `boundary`: rays are born carrying the direction's boundary radiance (else zero); `gain`:
     /// rays gain the previous order's source (and the emission when `emit`).
-    fn sweep(&mut self, dir: &SweepDirection, boundary: bool, gain: bool, emit: bool) -> Tallies {
+    fn sweep(&mut self, dir: &SweepDirection, of: CarryOf, boundary: bool, gain: bool, emit: bool) -> Tallies {
         let fields = &mut self.fields;
         let gained = if self.j_gain.is_empty() { &fields.source_prev.values } else { &self.j_gain };
         let inputs = SweepInputs { density: &self.medium.density, gained, occupied: &self.occupied };
         let mut outputs =
             SweepOutputs { fluence_order: &mut fields.fluence.values, j_next: &mut fields.source_next.values };
-        sweep_direction(self.plan, dir, SweepMode { boundary, gain, emit }, &inputs, &mut outputs)
+        let birth = if boundary { dir.boundary } else { [0.0; 3] };
+        let entry = self.carry.entry(self.plan, of, dir, birth);
+        let mode = SweepMode { boundary, gain, emit };
+        let (tallies, exits) = sweep_direction(self.plan, dir, mode, entry.as_deref(), &inputs, &mut outputs);
+        self.carry.store_exit(self.plan, of, dir, exits);
+        tallies
     }
 }
 
@@ -158,14 +167,15 @@ impl Backend for CpuTwin<'_> {
                 *g = half::f16::from_f64(j * scale).to_f64() * unscale;
             }
         }
-        if order == 0 {
-            for beam in &plan.beams {
-                tallies.add(&self.sweep(beam, true, false, false));
+        for (b, beam) in plan.beams.iter().enumerate() {
+            if plan.beam_swept_in(b, order) {
+                tallies.add(&self.sweep(beam, CarryOf::Beam(b), order == 0, false, false));
             }
         }
-        for face in &plan.faces {
-            for dir in face {
-                tallies.add(&self.sweep(dir, order == 0, true, order == 0 && plan.emission));
+        for (face, dirs) in plan.faces.iter().enumerate() {
+            for (d, dir) in dirs.iter().enumerate() {
+                let of = CarryOf::Face { face, dir: d };
+                tallies.add(&self.sweep(dir, of, order == 0, true, order == 0 && plan.emission));
             }
         }
         Ok(tallies)
@@ -176,6 +186,10 @@ impl Backend for CpuTwin<'_> {
 
     fn fields(&mut self) -> (&mut OrderFieldSet<MemField>, &VoxelMedium) {
         (&mut self.fields, &self.medium)
+    }
+
+    fn carried_power(&self) -> [f64; 3] {
+        self.carry.power(self.plan)
     }
 
     fn emission_field_power(&mut self) -> Result<Option<[f64; 3]>, SolveError> {

@@ -26,7 +26,7 @@
 use super::energy::{opposite_face, volume_face, Tallies};
 use super::plan::{Plan, SweepDirection};
 use super::segment::segment;
-use super::sweep::{lattice_column, taps, FaceSweep};
+use super::sweep::FaceSweep;
 use crate::store::{BrickGrid, BRICK_EDGE};
 use rayon::prelude::*;
 
@@ -57,43 +57,51 @@ pub(super) struct SweepMode {
     pub emit: bool,
 }
 
-/// Marches every ray of `dir` through the volume; returns the boundary tallies.
+/// Marches every ray of `dir` through the volume; returns the boundary tallies and the radiance
+/// each slot carries out of the far face. `entry`: the radiance each slot enters plane 0 with when
+/// the sweep axis is periodic ([`super::periodic::entry_radiance`]); `None`: the boundary birth.
 pub(super) fn sweep_direction(
     plan: &Plan,
     dir: &SweepDirection,
     mode: SweepMode,
+    entry: Option<&[[f64; 3]]>,
     inputs: &SweepInputs,
     outputs: &mut SweepOutputs,
-) -> Tallies {
+) -> (Tallies, Vec<[f64; 3]>) {
     let c = plan.channels as usize;
-    let sweep = FaceSweep::new(dir.face, plan.dims);
-    let [na, nb, nc] = sweep.n;
+    let sweep = FaceSweep::for_plan(dir.face, plan);
+    let na = sweep.n[0];
     let [lb, lc] = sweep.lattice();
     let (lb_us, lc_us) = (lb as usize, lc as usize);
     let birth: [f64; 3] = if mode.boundary { dir.boundary } else { [0.0; 3] };
     let geometry = Geometry { grid: BrickGrid::new(plan.dims) };
 
     // Ray state in slot order (row q, column p): radiance, and this plane's segment average.
-    let mut radiance = vec![birth; lb_us * lc_us];
+    let mut radiance = match entry {
+        Some(e) => e.to_vec(),
+        None => vec![birth; lb_us * lc_us],
+    };
     let mut average = vec![[0.0f64; 3]; lb_us * lc_us];
     // Tallies per row of slots, summed in row order at the end. Every ray is born at plane 0, on
     // the face the sweep enters by.
     let f = sweep.geometry();
     let (near, far) = (volume_face(f.axis, f.sign < 0.0), volume_face(f.axis, f.sign > 0.0));
     let mut rows = vec![RowTally::default(); lc_us];
-    for row in &mut rows {
+    for (row, l_row) in rows.iter_mut().zip(radiance.chunks(lb_us)) {
         for ch in 0..c {
-            row.born[ch] = birth[ch] * lb as f64;
-            row.face_in[near][ch] = birth[ch] * lb as f64;
+            let born: f64 = l_row.iter().map(|l| l[ch]).sum();
+            row.born[ch] = born;
+            row.face_in[near][ch] = born;
         }
     }
     // Lattice column and wrap count of every slot column (b) and row (c), at the previous plane
     // and at this one: computed once per plane, shared by every ray. A changed wrap count is a ray
-    // that left.
+    // that left (on an open axis; on a periodic one it goes on).
     let columns = |t: usize| -> [Vec<Column>; 2] {
         let o = dir.offsets[t];
-        [(0..lb).map(|p| lattice_column(p, o[0], nb)).collect(), (0..lc).map(|q| lattice_column(q, o[1], nc)).collect()]
+        [(0..lb).map(|p| sweep.column(0, p, o[0])).collect(), (0..lc).map(|q| sweep.column(1, q, o[1])).collect()]
     };
+    let leaves = [!sweep.periodic[1] as i32, !sweep.periodic[2] as i32];
     let [mut wrap_b, mut wrap_c] = columns(0);
 
     for t in 0..na {
@@ -110,7 +118,11 @@ pub(super) fn sweep_direction(
                 let (cc, row_wrap) = now_c[q];
                 for (p, &(cb, wrap)) in now_b.iter().enumerate() {
                     // How the slot's wrap counts changed: +1 past n (the + side), −1 below 0.
-                    let wraps = if t > 0 { [wrap - wrap_b[p].1, row_wrap - wrap_c[q].1] } else { [0; 2] };
+                    let wraps = if t > 0 {
+                        [leaves[0] * (wrap - wrap_b[p].1), leaves[1] * (row_wrap - wrap_c[q].1)]
+                    } else {
+                        [0; 2]
+                    };
                     let (l, avg) = (&mut l_row[p], &mut avg_row[p]);
                     step.ray([cb, cc], wraps, l, avg, tally);
                 }
@@ -139,7 +151,7 @@ pub(super) fn sweep_direction(
             tallies.face_out[face][ch] = rows.iter().map(|r| r.face_out[face][ch]).sum::<f64>() * power;
         }
     }
-    tallies
+    (tallies, radiance)
 }
 
 /// The radiance one row of slots carried in and out: in all, and per face of the volume
@@ -153,7 +165,7 @@ struct RowTally {
     face_out: [[f64; 3]; 6],
 }
 
-/// A slot's lattice column in a plane and how often it has wrapped ([`lattice_column`]).
+/// A slot's lattice column in a plane and how often it has wrapped ([`FaceSweep::column`]).
 type Column = (u32, i32);
 
 /// Voxel indexing (x fastest, the twin's layout) and the store's brick grid.
@@ -232,13 +244,12 @@ impl PlaneStep<'_, '_> {
         if self.vacuum {
             return;
         }
-        let [nb, nc] = [self.sweep.n[1], self.sweep.n[2]];
         let comps = self.plan.source_components() as usize;
         let k0 = self.dir.gain_storage as usize * c;
         let mut rho = 0.0;
         let mut j = [0.0f64; 3];
-        for (vc, tc) in taps(cc, self.w[1], nc) {
-            for (vb, tb) in taps(cb, self.w[0], nb) {
+        for (vc, tc) in self.sweep.taps(1, cc, self.w[1]) {
+            for (vb, tb) in self.sweep.taps(0, cb, self.w[0]) {
                 let v = self.geometry.index(self.sweep.voxel(self.t, vb, vc));
                 let wt = tb * tc;
                 rho += wt * self.inputs.density[v];
@@ -291,7 +302,8 @@ fn collect_plane(
             }
             let v = geometry.index(voxel);
             // Lattice column k + 1 meets voxel column k with weight 1 − w, column k with w; the
-            // slot at lattice column ℓ is s = (ℓ − o − 1) mod (n + 1). Taps of weight 0 are left
+            // slot at lattice column ℓ is s = (ℓ − o − 1) mod (n + 1) (mod n on a periodic axis,
+            // where lattice column n is column 0). Taps of weight 0 are left
             // out, in collect.comp's order.
             let mut pulled = [0.0f64; 3];
             for dc in 0..2u32 {

@@ -39,8 +39,13 @@ pub struct LoopState {
     pub orders_done: u32,
     /// The boundary power in and out so far, in all and per face.
     pub tallies: Tallies,
+    /// The power injected so far and by the last order: scattered into the next order's source,
+    /// plus what periodic sweeps carry into the next order ([`super::periodic`]).
     pub total_power: [f64; 3],
     pub last_new_power: [f64; 3],
+    /// Of `last_new_power`, what periodic sweeps carry into the next order (not in any source).
+    #[serde(default)]
+    pub last_carried_power: [f64; 3],
     /// Per channel, the new power of the order before the last, and the ratio of the last two
     /// (for the tail estimate).
     #[serde(default)]

@@ -6,6 +6,7 @@
 //! - [`cpu`] is the f64 twin of the GPU kernels, [`gpu`] the Vulkan driver;
 //! - [`orders`] runs scattering orders until [`remaining`] says every voxel of the medium is within
 //!   the tolerance of its converged value; [`energy`] keeps the books (per face of the volume too);
+//! - [`periodic`] closes periodic boundaries (wrapping lattices, carried rays between orders);
 //! - [`passes`] are the host passes between orders, written once over both backends' fields;
 //! - [`fields`] holds the solver's fields in the brick store, and checkpoints;
 //! - [`cancel`] is the request to stop a solve at the next slice, its checkpoint kept;
@@ -25,6 +26,7 @@ pub mod fields;
 pub mod gpu;
 pub mod orders;
 pub mod passes;
+pub mod periodic;
 pub mod plan;
 pub mod point;
 pub mod remaining;

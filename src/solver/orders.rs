@@ -30,6 +30,12 @@ pub trait Backend {
     fn fields(&mut self) -> (&mut OrderFieldSet<Self::Field>, &Self::Medium);
     /// Records the state after a completed order so that a killed solve can resume from it. Only
     /// the brick store's fields outlive the process; the default does nothing.
+    /// Power (per channel) the rays of periodic sweeps carried out of the last order and carry
+    /// into the next ([`super::periodic`]); zero without periodic axes.
+    fn carried_power(&self) -> [f64; 3] {
+        [0.0; 3]
+    }
+
     fn checkpoint(&mut self, _state: &LoopState) -> Result<(), SolveError> {
         Ok(())
     }
@@ -229,10 +235,14 @@ pub fn run_orders<B: Backend + ?Sized>(
         let t = Instant::now();
         let mut tallies = state.tallies();
         tallies.add(&backend.propagate_order(order)?);
-        let new = {
+        let scattered = {
             let (fields, medium) = backend.fields();
             fields.commit_order(plan, medium)
         };
+        // What the next order propagates: the new source, and what periodic sweeps carry over.
+        let carried = backend.carried_power();
+        let new: [f64; 3] = std::array::from_fn(|c| scattered[c] + carried[c]);
+        state.last_carried_power = carried;
         for c in 0..3 {
             state.total_power[c] += new[c];
             let last = state.last_new_power[c];
@@ -276,7 +286,9 @@ pub fn run_orders<B: Backend + ?Sized>(
     };
     let emitted = backend.emission_field_power()?.unwrap_or(emitted);
     // A warm start's last source is a residual of either sign: its signed power, not the norm.
-    let unpropagated = backend.fields().0.signed_last_power(plan).unwrap_or(state.last_new_power);
+    // (What periodic sweeps carry over was counted as out when it left.)
+    let last_source: [f64; 3] = std::array::from_fn(|c| state.last_new_power[c] - state.last_carried_power[c]);
+    let unpropagated = backend.fields().0.signed_last_power(plan).unwrap_or(last_source);
     let energy = EnergyBalance::new(
         &state.tallies(),
         emitted,

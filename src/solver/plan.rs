@@ -29,9 +29,10 @@
 //! CPU twin and the GPU driver consume identical tables.
 
 use super::environment::environment_boundary;
+use super::periodic::{periodic_lattice, periodic_slope};
 use super::point::PointLight;
 use super::sweep::{lateral_slope, lattice, plane_path_length, FaceSweep};
-use crate::quadrature::{cube_face_of, phase, PropagationSet, StorageSet};
+use crate::quadrature::{cube_face_of, phase, PropagationSet, StorageSet, FACES};
 use crate::scene::{DiffusionCorrection, ForwardPeak, Light, Medium, PlanMode, Scene, SpatialScheme, StoragePrecision};
 use glam::DVec3;
 use serde::Serialize;
@@ -58,6 +59,9 @@ pub struct SweepDirection {
     pub collect_row: Vec<f64>,
     /// Power of a ray per unit radiance: h²·|ω_a|·Ω_i (·1 for a beam).
     pub power_per_radiance: f64,
+    /// When the sweep axis is periodic: the whole lattice columns M (per lateral axis) the rays
+    /// move over one period of the axis ([`super::periodic`]); zeros otherwise.
+    pub period_shift: [i32; 2],
 }
 
 /// The smallest tolerance at which `storage_precision = "auto"` stores the gained source in f16:
@@ -150,6 +154,8 @@ pub struct Plan {
     pub effective_g: f64,
     /// The forward-peak fraction f truncated by δ-M scaling, when applied.
     pub delta_m: Option<f64>,
+    /// Per volume axis (x, y, z): periodic (`[boundary]`, [`super::periodic`]).
+    pub periodic: [bool; 3],
     /// Why each choice was made, for the report.
     pub reasons: Vec<String>,
 }
@@ -189,6 +195,8 @@ pub struct PlanSummary {
     pub solved_g: f64,
     pub effective_g: f64,
     pub delta_m_fraction: Option<f64>,
+    /// Per axis (x, y, z): "open" or "periodic".
+    pub boundary: [&'static str; 3],
     pub reasons: Vec<String>,
 }
 
@@ -205,6 +213,16 @@ impl Plan {
         let (medium, delta_m) = choose_forward_peak(scene, &mut reasons);
         let channels = choose_channels(scene, full, &mut reasons);
         let spatial = scene.solver.spatial;
+        let periodic = scene.boundary.periodic;
+        if scene.boundary.any_periodic() {
+            let axes: Vec<&str> =
+                ["x", "y", "z"].into_iter().zip(periodic).filter(|(_, p)| *p).map(|(a, _)| a).collect();
+            reasons.push(format!(
+                "periodic along {}: rays wrap across those faces; directions swept along a periodic axis are \
+                 nudged to move whole voxels per period and carry what leaves into the next order",
+                axes.join(", ")
+            ));
+        }
         reasons.push(match spatial {
             SpatialScheme::Linear => "spatial scheme \"linear\": rays at their exact lateral positions gather \
                  and deposit bilinearly (second-order across the rays, no plane-sized error where light \
@@ -278,9 +296,22 @@ impl Plan {
         // solid angle (a beam: 1, its boundary value being an irradiance).
         let swept =
             |face: usize, omega: DVec3, weight: f64, boundary: [f64; 3], gain_storage: u32, collect_row: Vec<f64>| {
+                let sweep = FaceSweep::with_periodic(face, dims, periodic);
+                let planes = sweep.n[0];
+                let slope = lateral_slope(face, omega);
+                let (omega, (offsets, weights), period_shift) = if sweep.periodic[0] {
+                    // Nudged to whole columns per period (super::periodic); ω follows the slope.
+                    let (nudged, m) = periodic_slope(slope, planes);
+                    let f = FACES[face];
+                    let mut w = [0.0; 3];
+                    w[f.axis] = f.sign;
+                    w[f.lateral[0]] = nudged[0];
+                    w[f.lateral[1]] = nudged[1];
+                    (DVec3::from_array(w).normalize(), periodic_lattice(m, planes, spatial), m)
+                } else {
+                    (omega, lattice(slope, planes, spatial), [0; 2])
+                };
                 let path_length = plane_path_length(face, omega, h);
-                let planes = FaceSweep::new(face, dims).n[0];
-                let (offsets, weights) = lattice(lateral_slope(face, omega), planes, spatial);
                 SweepDirection {
                     face,
                     omega,
@@ -293,6 +324,7 @@ impl Plan {
                     collect_row,
                     // A ray's tube has cross-section h²·|ω_a| = h³/path_length.
                     power_per_radiance: h * h * h / path_length * weight,
+                    period_shift,
                 }
             };
         let faces: Vec<Vec<SweepDirection>> = (0..6)
@@ -396,8 +428,15 @@ impl Plan {
             phase_g: scene.medium.g,
             effective_g,
             delta_m,
+            periodic,
             reasons,
         }
+    }
+
+    /// Whether beam `b` is swept in order `order`: in order 0, and again in every order when its
+    /// sweep axis is periodic, to carry what it carried out ([`super::periodic`]).
+    pub fn beam_swept_in(&self, b: usize, order: u32) -> bool {
+        order == 0 || FaceSweep::for_plan(self.beams[b].face, self).periodic[0]
     }
 
     /// Source components per voxel: storage directions × channels (component = d·channels + ch).
@@ -438,6 +477,7 @@ impl Plan {
             solved_g: self.medium.g,
             effective_g: self.effective_g,
             delta_m_fraction: self.delta_m,
+            boundary: self.periodic.map(|p| if p { "periodic" } else { "open" }),
             reasons: self.reasons.clone(),
         }
     }

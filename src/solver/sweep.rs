@@ -52,6 +52,10 @@ pub struct FaceSweep {
     pub face: usize,
     /// (N_a, N_b, N_c): voxels along the sweep axis and the two lateral axes.
     pub n: [u32; 3],
+    /// Whether the sweep axis and the two lateral axes (a, b, c) are periodic
+    /// ([`super::periodic`]): a periodic lateral axis has n slots of period n, and its rays wrap
+    /// without leaving.
+    pub periodic: [bool; 3],
 }
 
 /// The planes of one slice (or sub-slice) of bricks, in sweep order: t0..t1, the brick coordinate
@@ -71,23 +75,59 @@ pub struct SliceRange {
 }
 
 impl FaceSweep {
+    /// The sweep of `face` through a volume of `dims` whose faces are all open.
     pub fn new(face: usize, dims: [u32; 3]) -> Self {
+        Self::with_periodic(face, dims, [false; 3])
+    }
+
+    /// The sweep of `face` through a volume of `dims` periodic along the axes (x, y, z) marked
+    /// in `periodic`.
+    pub fn with_periodic(face: usize, dims: [u32; 3], periodic: [bool; 3]) -> Self {
         let f = FACES[face];
-        FaceSweep { face, n: [dims[f.axis], dims[f.lateral[0]], dims[f.lateral[1]]] }
+        let abc = [f.axis, f.lateral[0], f.lateral[1]];
+        FaceSweep { face, n: abc.map(|x| dims[x]), periodic: abc.map(|x| periodic[x]) }
+    }
+
+    /// The sweep of `face` through the plan's volume and boundaries.
+    pub fn for_plan(face: usize, plan: &crate::solver::plan::Plan) -> Self {
+        Self::with_periodic(face, plan.dims, plan.periodic)
     }
 
     pub fn geometry(&self) -> Face {
         FACES[self.face]
     }
 
-    /// Rays (slots) of the map per lateral axis: one more than the voxels.
+    /// Rays (slots) of the map per lateral axis: one more than the voxels (as many on a periodic
+    /// axis).
     pub fn lattice(&self) -> [u32; 2] {
-        [self.n[1] + 1, self.n[2] + 1]
+        [1, 2].map(|k| self.n[k] + !self.periodic[k] as u32)
     }
 
-    /// Number of rays in the map: (n_b + 1)·(n_c + 1), one per lattice column pair.
+    /// Number of rays in the map, one per lattice column pair: (n_b + 1)·(n_c + 1) when open.
     pub fn rays(&self) -> usize {
-        (self.n[1] as usize + 1) * (self.n[2] as usize + 1)
+        let [lb, lc] = self.lattice();
+        lb as usize * lc as usize
+    }
+
+    /// Where slot `s` of lateral axis `k` (0: b, 1: c) lies with offset `o`: (lattice column,
+    /// wrap count) on the axis's lattice ([`lattice_column`] when open).
+    #[inline]
+    pub fn column(&self, k: usize, s: u32, o: i32) -> (u32, i32) {
+        let unwrapped = s as i64 + o as i64 + 1;
+        let period = self.lattice()[k] as i64;
+        (unwrapped.rem_euclid(period) as u32, unwrapped.div_euclid(period) as i32)
+    }
+
+    /// The voxel columns of lateral axis `k` a ray at lattice column `l` meets with weight `w`
+    /// ([`taps`]; on a periodic axis column −1 is column n − 1).
+    #[inline]
+    pub fn taps(&self, k: usize, l: u32, w: f64) -> impl Iterator<Item = (u32, f64)> {
+        let (n, periodic) = (self.n[1 + k], self.periodic[1 + k]);
+        let below = if periodic && l == 0 { n as i64 - 1 } else { l as i64 - 1 };
+        [(below, 1.0 - w), (l as i64, w)]
+            .into_iter()
+            .filter(move |&(c, wt)| wt != 0.0 && c >= 0 && c < n as i64)
+            .map(|(c, wt)| (c as u32, wt))
     }
 
     /// The coordinate along the axis of plane t.
@@ -162,7 +202,8 @@ impl FaceSweep {
         let forward = f.sign > 0.0;
         let mut sides = [None; 2];
         if let (Some(first), Some(last)) = (offsets.first(), offsets.last()) {
-            for k in 0..2 {
+            // A periodic lateral axis has no side a ray leaves through.
+            for k in (0..2).filter(|&k| !self.periodic[1 + k]) {
                 let moved = last[k] - first[k];
                 if moved != 0 {
                     let exit = volume_face(f.lateral[k], moved > 0);
@@ -179,12 +220,19 @@ impl FaceSweep {
 /// along b, one slot per row of the lattice wraps (and likewise along c); a slot wrapping along
 /// both counts half to each (module docs). The rays born at plane 0 are not included.
 pub fn side_births(offsets: &[[i32; 2]], lattice: [u32; 2]) -> [f64; 2] {
+    side_births_with(offsets, lattice, [false; 2])
+}
+
+/// [`side_births`] on lattices whose lateral axes (b, c) may be periodic: a periodic axis has no
+/// side (its rays wrap and go on), so none are born there, and a slot wrapping along it and an
+/// open axis at once is a plain birth on the open side.
+pub fn side_births_with(offsets: &[[i32; 2]], lattice: [u32; 2], periodic: [bool; 2]) -> [f64; 2] {
     let [lb, lc] = lattice.map(f64::from);
     let mut births = [0.0; 2];
     for w in offsets.windows(2) {
         let (db, dc) = ((w[1][0] - w[0][0]).abs(), (w[1][1] - w[0][1]).abs());
         debug_assert!(db <= 1 && dc <= 1, "offsets move by at most one column per plane");
-        let (db, dc) = (db as f64, dc as f64);
+        let (db, dc) = (db as f64 * !periodic[0] as u8 as f64, dc as f64 * !periodic[1] as u8 as f64);
         let both = db * dc;
         births[0] += db * lc - 0.5 * both;
         births[1] += dc * lb - 0.5 * both;

@@ -32,6 +32,7 @@ pub fn scene(shape: Shape, dims: [u32; 3], sigma_t: [f64; 3], albedo: [f64; 3], 
             diffusion_correction: DiffusionCorrection::Off,
         },
         camera: None,
+        boundary: Boundary::default(),
     }
 }
 

@@ -23,6 +23,7 @@ mod hard_cases;
 mod image_views;
 mod nanovdb_input;
 mod out_of_core;
+mod periodic;
 mod plan_full;
 mod plot;
 mod point_light;

@@ -13,7 +13,9 @@
 //! streamer's business (`streamer`).
 
 use super::budget::MemoryPlan;
-use super::layout::{half_source_flags, SweepPush, FLAG_GAIN, FLAG_VACUUM};
+use super::layout::{
+    half_source_flags, SweepPush, FLAG_CARRY, FLAG_GAIN, FLAG_VACUUM, LATERAL_PERIODIC_B, LATERAL_PERIODIC_C,
+};
 use super::resources::{DeviceResources, SharedBuffers, SweepSets, SWEEP_BINDING_COUNT};
 use super::slice::SliceLayout;
 use super::tables::SweepTables;
@@ -73,7 +75,10 @@ pub fn push_constants(plan: &Plan, sweep: &FaceSweep, layout: &SliceLayout) -> S
         t0: 0,
         t1: 0,
         axis_sign: face.axis as u32 | if face.sign < 0.0 { 4 } else { 0 },
-        lateral: face.lateral[0] as u32 | (face.lateral[1] as u32) << 2,
+        lateral: face.lateral[0] as u32
+            | (face.lateral[1] as u32) << 2
+            | if sweep.periodic[1] { LATERAL_PERIODIC_B } else { 0 }
+            | if sweep.periodic[2] { LATERAL_PERIODIC_C } else { 0 },
         bricks_b: layout.bricks_b,
         bricks_c: layout.bricks_c,
         dir_count: 0,
@@ -149,7 +154,19 @@ pub fn record_compute(
     // Earlier compute submissions wrote the ray state and the deposit this one uses.
     rec.compute_to_compute();
     if step.first {
-        for b in [&shared.rays, &shared.rays_out_b, &shared.rays_out_c] {
+        if step.flags & FLAG_CARRY != 0 {
+            // The rays start with what the host put in the staging buffer (solver::periodic): the
+            // pass's directions, [dir][ch][ray], as the ray buffer holds them.
+            let bytes = step.pass_dirs.len() as u64 * plan.channels as u64 * step.sweep.rays() as u64 * 4;
+            rec.copy_buffer(
+                &shared.tallies,
+                &shared.rays,
+                &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: bytes }],
+            );
+        } else {
+            rec.fill_buffer(&shared.rays, 0, vk::WHOLE_SIZE, 0);
+        }
+        for b in [&shared.rays_out_b, &shared.rays_out_c] {
             rec.fill_buffer(b, 0, vk::WHOLE_SIZE, 0);
         }
         rec.transfer_to_compute();

@@ -11,6 +11,12 @@ pub const FLAG_VACUUM: u32 = 16;
 /// The previous source is stored as f16 pairs, scaled by 2^e with e in bits 16–23 of `flags`
 /// (biased by 128; see [`half_source_flags`]).
 pub const FLAG_HALF_SOURCE: u32 = 32;
+/// The sweep axis is periodic: the rays enter plane 0 with the radiance the ray buffer starts
+/// with (uploaded: what the direction carried out last order, `solver::periodic`), not the birth.
+pub const FLAG_CARRY: u32 = 64;
+/// `lateral` bits 4 and 5: lateral axis b, c is periodic (n slots of period n, `solver::sweep`).
+pub const LATERAL_PERIODIC_B: u32 = 16;
+pub const LATERAL_PERIODIC_C: u32 = 32;
 pub const HALF_SCALE_SHIFT: u32 = 16;
 pub const HALF_SCALE_BIAS: i32 = 128;
 
@@ -32,7 +38,7 @@ pub struct SweepPush {
     pub t1: u32,
     /// Bits 0–1: sweep axis; bit 2: the sweep runs toward −axis.
     pub axis_sign: u32,
-    /// Bits 0–1: lateral axis b; bits 2–3: lateral axis c.
+    /// Bits 0–1: lateral axis b; bits 2–3: lateral axis c; bit 4 (5): b (c) is periodic.
     pub lateral: u32,
     pub bricks_b: u32,
     pub bricks_c: u32,

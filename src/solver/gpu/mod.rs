@@ -56,14 +56,15 @@ use super::energy::Tallies;
 use super::fields::{LoopState, StoreFields};
 use super::orders::Backend;
 use super::passes::{OrderFieldSet, StoreMedium};
+use super::periodic::{CarryOf, PeriodicCarry, RayRadiance};
 use super::plan::{half_scale_exponent, Plan, Precision, SweepDirection};
-use super::sweep::{side_births, FaceSweep};
+use super::sweep::{side_births_with, FaceSweep};
 use super::SolveError;
 use crate::store::BrickStore;
 use crate::vk::{Context, Recorder};
 use ash::vk;
 use budget::MemoryPlan;
-use layout::{FLAG_BOUNDARY, FLAG_EMIT, FLAG_GAIN};
+use layout::{FLAG_BOUNDARY, FLAG_CARRY, FLAG_EMIT, FLAG_GAIN};
 use resources::DeviceResources;
 use std::sync::Arc;
 use streamer::{Pass, SliceStreamer, Stream};
@@ -115,6 +116,8 @@ pub struct GpuBackend<'a> {
     half_exponent: Option<i32>,
     /// Passes done in the order being propagated (logged now and then).
     progress: Option<progress::PassProgress>,
+    /// What the rays of periodic-axis sweeps carried out last order ([`super::periodic`]).
+    carry: PeriodicCarry,
 }
 
 impl<'a> GpuBackend<'a> {
@@ -172,6 +175,7 @@ impl<'a> GpuBackend<'a> {
             memory,
             half_exponent: None,
             progress: None,
+            carry: PeriodicCarry::new(plan),
         })
     }
 
@@ -205,44 +209,102 @@ impl<'a> GpuBackend<'a> {
     /// each pass streaming every slice of the face in sweep order.
     fn sweep(&mut self, which: SweepOf, flags: u32) -> Result<Tallies, SolveError> {
         let plan = self.plan;
-        let res = &self.resources;
-        let (tables, sets, dirs): (_, _, &[SweepDirection]) = match which {
-            SweepOf::Face(i) => (&res.face_tables[i], &res.face_sets[i], &plan.faces[i]),
-            SweepOf::Beam(i) => (&res.beam_tables[i], &res.beam_sets[i], std::slice::from_ref(&plan.beams[i])),
+        let dirs: &[SweepDirection] = match which {
+            SweepOf::Face(i) => &plan.faces[i],
+            SweepOf::Beam(i) => std::slice::from_ref(&plan.beams[i]),
         };
-        let sweep = FaceSweep::new(dirs[0].face, plan.dims);
+        let sweep = FaceSweep::for_plan(dirs[0].face, plan);
         let pass = self.memory.directions_per_pass as usize;
+        let boundary = flags & FLAG_BOUNDARY != 0;
+        let carry_of = |d: usize| match which {
+            SweepOf::Face(face) => CarryOf::Face { face, dir: d },
+            SweepOf::Beam(b) => CarryOf::Beam(b),
+        };
         let mut tallies = Tallies::default();
         for first in (0..dirs.len()).step_by(pass) {
             let pass_dirs = first as u32..(first + pass).min(dirs.len()) as u32;
-            let mut io = Stream { plan, store: self.store, fields: &mut *self.fields, res: &self.resources };
+            let pass_directions = &dirs[pass_dirs.start as usize..pass_dirs.end as usize];
+            // A periodic sweep axis: the rays start with what they carried out last order, put
+            // where the first step copies the ray state from (the tally staging buffer).
+            let mut flags = flags;
+            let entries: Option<Vec<RayRadiance>> = sweep.periodic[0].then(|| {
+                pass_directions
+                    .iter()
+                    .enumerate()
+                    .map(|(i, dir)| {
+                        let birth = if boundary { dir.boundary } else { [0.0; 3] };
+                        self.carry.entry(plan, carry_of(first + i), dir, birth).unwrap_or_default()
+                    })
+                    .collect()
+            });
+            if let Some(entries) = &entries {
+                write_entries(&mut self.resources, plan.channels as usize, entries);
+                flags |= FLAG_CARRY;
+            }
+            let res = &self.resources;
+            let (tables, sets) = match which {
+                SweepOf::Face(i) => (&res.face_tables[i], &res.face_sets[i]),
+                SweepOf::Beam(i) => (&res.beam_tables[i], &res.beam_sets[i]),
+            };
+            let mut io = Stream { plan, store: self.store, fields: &mut *self.fields, res };
             let job =
                 Pass { tables, sets, sweep: &sweep, dirs: pass_dirs.clone(), flags, half_exponent: self.half_exponent };
             self.streamer.stream_pass(&mut io, &job)?;
             if let Some(p) = self.progress.as_mut() {
                 p.pass_done();
             }
-            let pass_directions = &dirs[pass_dirs.start as usize..pass_dirs.end as usize];
-            let boundary = flags & FLAG_BOUNDARY != 0;
-            tallies.add(&read_tallies(&mut self.streamer, &self.resources, plan, &sweep, pass_directions, boundary)?);
+            let births = Births { boundary, entries: entries.as_deref() };
+            let (pass_tallies, exits) =
+                read_tallies(&mut self.streamer, &self.resources, plan, &sweep, pass_directions, births)?;
+            tallies.add(&pass_tallies);
+            for (i, (dir, exit)) in pass_directions.iter().zip(exits).enumerate() {
+                self.carry.store_exit(plan, carry_of(first + i), dir, exit);
+            }
         }
         Ok(tallies)
     }
 }
 
+/// Puts the radiance the rays of a pass start with ([`super::periodic`]) into the tally staging
+/// buffer, laid out as the ray buffer: [direction][channel][ray], f32 (the values came from the
+/// f32 ray buffer, so the round trip is exact).
+fn write_entries(res: &mut DeviceResources, channels: usize, entries: &[RayRadiance]) {
+    let staging: &mut [f32] = bytemuck::cast_slice_mut(res.shared.tallies.bytes_mut());
+    let mut i = 0;
+    for entry in entries {
+        for ch in 0..channels {
+            for l in entry {
+                staging[i] = l[ch] as f32;
+                i += 1;
+            }
+        }
+    }
+}
+
+/// What the rays of a pass were born with at plane 0: the direction's boundary radiance
+/// (`boundary`; else zero) or, on a periodic sweep axis, their carried `entries`.
+#[derive(Clone, Copy)]
+struct Births<'e> {
+    boundary: bool,
+    entries: Option<&'e [RayRadiance]>,
+}
+
 /// Downloads what the rays of the pass just finished carried out, as powers per face: the ray
 /// buffer holds the radiance leaving through the far face, the two side buffers what left through
 /// the sides of each lateral axis ([`FaceSweep::face_roles`]). What came in needs no download:
-/// every ray is born at plane 0 and wherever its slot wraps, with the direction's boundary radiance
-/// when `boundary` (else zero), so the births follow from the offsets ([`side_births`]).
+/// every ray is born at plane 0 (with `births`) and wherever its slot wraps, with the direction's
+/// boundary radiance when `births.boundary` (else zero), so the births follow from the offsets
+/// ([`super::sweep::side_births`]). Also returns, per direction, the radiance each slot left the far face with
+/// (empty unless the sweep axis is periodic: what the next order carries in).
 fn read_tallies(
     streamer: &mut SliceStreamer,
     res: &DeviceResources,
     plan: &Plan,
     sweep: &FaceSweep,
     dirs: &[SweepDirection],
-    boundary: bool,
-) -> Result<Tallies, SolveError> {
+    births_at: Births,
+) -> Result<(Tallies, Vec<RayRadiance>), SolveError> {
+    let boundary = births_at.boundary;
     let c = plan.channels as usize;
     let rays = sweep.rays();
     let bytes = (dirs.len() * c * rays * 4) as u64;
@@ -261,7 +323,7 @@ fn read_tallies(
     let mut tallies = Tallies::default();
     for (d, dir) in dirs.iter().enumerate() {
         let roles = sweep.face_roles(&dir.offsets);
-        let births = side_births(&dir.offsets, sweep.lattice());
+        let births = side_births_with(&dir.offsets, sweep.lattice(), [sweep.periodic[1], sweep.periodic[2]]);
         let power = dir.power_per_radiance;
         for ch in 0..c {
             let range = (d * c + ch) * rays..(d * c + ch + 1) * rays;
@@ -272,8 +334,12 @@ fn read_tallies(
             tallies.face_out[roles.far][ch] += far;
             tallies.boundary_out[ch] += far;
             let birth = if boundary { dir.boundary[ch] * power } else { 0.0 };
-            tallies.face_in[roles.near][ch] += birth * rays as f64;
-            tallies.boundary_in[ch] += birth * rays as f64;
+            let near = match births_at.entries {
+                Some(entries) => entries[d].iter().map(|l| l[ch]).sum::<f64>() * power,
+                None => birth * rays as f64,
+            };
+            tallies.face_in[roles.near][ch] += near;
+            tallies.boundary_in[ch] += near;
             for (k, side) in roles.sides.iter().enumerate() {
                 let Some((exit, entry)) = *side else { continue };
                 let out = sum(1 + k);
@@ -284,7 +350,22 @@ fn read_tallies(
             }
         }
     }
-    Ok(tallies)
+    let exits = if sweep.periodic[0] {
+        (0..dirs.len())
+            .map(|d| {
+                let mut exit = vec![[0.0; 3]; rays];
+                for ch in 0..c {
+                    for (e, &v) in exit.iter_mut().zip(&values[(d * c + ch) * rays..][..rays]) {
+                        e[ch] = v as f64;
+                    }
+                }
+                exit
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    Ok((tallies, exits))
 }
 
 impl<'a> Backend for GpuBackend<'a> {
@@ -295,13 +376,14 @@ impl<'a> Backend for GpuBackend<'a> {
         self.half_exponent =
             (plan.source_precision == Precision::F16).then(|| half_scale_exponent(self.fields.source_prev.max_abs()));
         let face_dirs: Vec<usize> = plan.faces.iter().map(Vec::len).collect();
-        let passes = progress::passes_per_order(order, &face_dirs, plan.beams.len(), self.memory.directions_per_pass);
+        let beams: Vec<usize> = (0..plan.beams.len()).filter(|&b| plan.beam_swept_in(b, order)).collect();
+        let passes = progress::passes_per_order(&face_dirs, beams.len(), self.memory.directions_per_pass);
         self.progress = Some(progress::PassProgress::new(order, passes));
         let mut tallies = Tallies::default();
-        if order == 0 {
-            for beam in 0..plan.beams.len() {
-                tallies.add(&self.sweep(SweepOf::Beam(beam), FLAG_BOUNDARY)?);
-            }
+        // Beams in order 0; those along a periodic axis again in every order, carrying what they
+        // carried out (super::periodic).
+        for beam in beams {
+            tallies.add(&self.sweep(SweepOf::Beam(beam), if order == 0 { FLAG_BOUNDARY } else { 0 })?);
         }
         let mut flags = FLAG_GAIN;
         if order == 0 {
@@ -321,6 +403,10 @@ impl<'a> Backend for GpuBackend<'a> {
 
     fn fields(&mut self) -> (&mut OrderFieldSet<crate::store::Field>, &StoreMedium<'a>) {
         (self.fields, &self.medium)
+    }
+
+    fn carried_power(&self) -> [f64; 3] {
+        self.carry.power(self.plan)
     }
 
     fn emission_field_power(&mut self) -> Result<Option<[f64; 3]>, SolveError> {

@@ -118,7 +118,8 @@ impl DeviceResources {
                 ctx,
                 "tally staging",
                 s.tallies,
-                vk::BufferUsageFlags::TRANSFER_DST,
+                // Also the source of the rays' starting radiance on a periodic axis.
+                vk::BufferUsageFlags::TRANSFER_DST | vk::BufferUsageFlags::TRANSFER_SRC,
                 MemoryLocation::GpuToCpu,
             )?,
             vacuum: buffer(ctx, "vacuum", s.vacuum, storage, gpu)?,

@@ -1,0 +1,221 @@
+//! Periodic boundaries (`[boundary] x|y|z = "periodic"`): the volume repeats along an axis without
+//! end, so light leaving through one face of that axis enters through the opposite face.
+//!
+//! **Lateral axes of a sweep** are exact and need nothing between orders: the ray lattice of a
+//! periodic lateral axis of n voxels has n slots with period n (not n + 1 with a slot of vacuum,
+//! [`super::sweep`]), lattice column ℓ lies between voxel columns ℓ − 1 and ℓ modulo n, and a ray
+//! whose slot wraps simply goes on with its radiance: no ray leaves, none is born.
+//!
+//! **The sweep axis** cannot be closed inside one sweep (the rays entering at plane 0 are the
+//! ones leaving after the last plane), so it is closed across orders, like the source iteration
+//! itself: what the rays of a direction carry out through the far face in one order is what that
+//! direction's rays carry in through the near face in the next. To make that hand-over exact (no
+//! resampling between lattices) the plan nudges every direction swept along a periodic axis so
+//! that after one period of N planes its rays have moved a whole number M of columns per lateral
+//! axis: lateral slope δ' = round(δ·N)/N (a change of at most 1/(2N) per plane), so the offsets
+//! repeat with period N up to M and the weights repeat exactly. The ray leaving slot s then
+//! re-enters in slot s + M (modulo the lattice), at its own lateral position ([`entry_radiance`]).
+//! On an open lateral axis a ray whose column would wrap in that step has reached the side: it is
+//! not carried, and its slot is a ray born at the side (with the boundary radiance, as any ray born
+//! there). Sun beams along a periodic axis are swept again in every order, carrying what they
+//! carried out the order before (and gaining nothing else).
+//!
+//! Energy books: what leaves through a face of a periodic axis counts as out through that face,
+//! and what the next order carries in counts as in through the opposite face; a converged solve's
+//! net power through a periodic face is therefore ≈ 0, and the balance closes exactly as for open
+//! faces. The carried radiance of the last order is in the books as out (the solve stops there).
+//!
+//! The carried radiance is ray state between orders (per direction and slot, f64), held by the
+//! backend: [`PeriodicCarry`]. It is not in checkpoints: a resumed periodic solve starts it from
+//! zero again and converges to the same answer, but not bitwise to the uninterrupted run.
+
+use super::plan::{Plan, SweepDirection};
+use super::sweep::FaceSweep;
+use crate::scene::SpatialScheme;
+
+/// One direction's rays' radiance per slot (slot order: row c, column b) and channel.
+pub type RayRadiance = Vec<[f64; 3]>;
+
+/// What each direction swept along a periodic axis carried out of its far face in the last
+/// order it was swept: the radiance its rays carry in next time.
+#[derive(Clone, Debug, Default)]
+pub struct PeriodicCarry {
+    /// Per face (0..6) and direction of the face, then per beam: `None` until swept once.
+    faces: Vec<Vec<Option<RayRadiance>>>,
+    beams: Vec<Option<RayRadiance>>,
+}
+
+/// Which sweep a carried state belongs to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CarryOf {
+    /// Direction `dir` of face `face`.
+    Face {
+        face: usize,
+        dir: usize,
+    },
+    Beam(usize),
+}
+
+impl PeriodicCarry {
+    pub fn new(plan: &Plan) -> Self {
+        PeriodicCarry {
+            faces: plan.faces.iter().map(|f| vec![None; f.len()]).collect(),
+            beams: vec![None; plan.beams.len()],
+        }
+    }
+
+    fn slot(&mut self, of: CarryOf) -> &mut Option<RayRadiance> {
+        match of {
+            CarryOf::Face { face, dir } => &mut self.faces[face][dir],
+            CarryOf::Beam(b) => &mut self.beams[b],
+        }
+    }
+
+    /// The radiance every ray of `dir` starts with at plane 0 when its sweep axis is periodic
+    /// (`None` when it is open: the rays are born with `birth`, as always): what the same slot
+    /// carried out last time ([`entry_radiance`]), or `birth` where the ray enters by a side.
+    pub fn entry(&mut self, plan: &Plan, of: CarryOf, dir: &SweepDirection, birth: [f64; 3]) -> Option<RayRadiance> {
+        let sweep = FaceSweep::for_plan(dir.face, plan);
+        if !sweep.periodic[0] {
+            return None;
+        }
+        let exits = self.slot(of).take();
+        Some(entry_radiance(&sweep, dir, exits.as_deref(), birth))
+    }
+
+    /// The power the stored radiance carries into the next order, per channel.
+    pub fn power(&self, plan: &Plan) -> [f64; 3] {
+        let mut power = [0.0; 3];
+        let faces = self.faces.iter().zip(&plan.faces).flat_map(|(c, d)| c.iter().zip(d));
+        for (exits, dir) in faces.chain(self.beams.iter().zip(&plan.beams)) {
+            for l in exits.iter().flatten() {
+                for (p, v) in power.iter_mut().zip(l) {
+                    *p += v * dir.power_per_radiance;
+                }
+            }
+        }
+        power
+    }
+
+    /// Keeps what the rays of a periodic-axis sweep carried out of its far face.
+    pub fn store_exit(&mut self, plan: &Plan, of: CarryOf, dir: &SweepDirection, exits: RayRadiance) {
+        if FaceSweep::for_plan(dir.face, plan).periodic[0] {
+            *self.slot(of) = Some(exits);
+        }
+    }
+}
+
+/// The radiance each slot of `dir` enters plane 0 with, from `exits` (per slot: what it carried
+/// out after the last plane; `None`: nothing yet, as before the first order): slot s' takes what
+/// slot s = s' − M left with (per lateral axis, modulo the lattice), unless on an open lateral axis
+/// the ray of slot s wrapped in that step (it reached the side: slot s' is born there, `birth`).
+pub fn entry_radiance(
+    sweep: &FaceSweep,
+    dir: &SweepDirection,
+    exits: Option<&[[f64; 3]]>,
+    birth: [f64; 3],
+) -> RayRadiance {
+    let [lb, lc] = sweep.lattice();
+    let (last, first) = (dir.offsets[dir.offsets.len() - 1], dir.offsets[0]);
+    // Per lateral axis, for each entry slot: the exit slot it continues, or None (born at a side).
+    let source = |k: usize, period: u32| -> Vec<Option<u32>> {
+        let m = dir.period_shift[k] as i64;
+        let period = period as i64;
+        (0..period)
+            .map(|entry| {
+                let s = (entry - m).rem_euclid(period);
+                if sweep.periodic[1 + k] {
+                    return Some(s as u32);
+                }
+                // Unwrapped columns at the last plane and one period on (plane N ≡ plane 0 + M).
+                let before = s + last[k] as i64 + 1;
+                let after = s + first[k] as i64 + m + 1;
+                (before.div_euclid(period) == after.div_euclid(period)).then_some(s as u32)
+            })
+            .collect()
+    };
+    let (from_b, from_c) = (source(0, lb), source(1, lc));
+    let mut entry = Vec::with_capacity((lb * lc) as usize);
+    for q in &from_c {
+        for p in &from_b {
+            entry.push(match (p, q, exits) {
+                (Some(p), Some(q), Some(exits)) => exits[(*q * lb + *p) as usize],
+                (Some(_), Some(_), None) => [0.0; 3],
+                _ => birth,
+            });
+        }
+    }
+    entry
+}
+
+/// The lateral slope a direction with slope `slope` is swept with when its sweep axis (of
+/// `planes` planes) is periodic, and the whole columns M it moves per period: δ' = M/N with
+/// M = round(δ·N) (module docs).
+pub fn periodic_slope(slope: [f64; 2], planes: u32) -> ([f64; 2], [i32; 2]) {
+    let n = planes as f64;
+    let m = slope.map(|d| (d * n).round());
+    ([m[0] / n, m[1] / n], m.map(|v| v as i32))
+}
+
+/// [`super::sweep::lattice`] for the slope M/N, in exact integer arithmetic: D(t) = M·(2t + 1)/(2N),
+/// so the offsets of plane t + N are those of plane t plus M and the weights are equal, to the bit
+/// (a float product could round across an integer in one period and not in the next).
+pub fn periodic_lattice(m: [i32; 2], planes: u32, scheme: SpatialScheme) -> (Vec<[i32; 2]>, Vec<[f64; 2]>) {
+    let two_n = 2 * planes as i64;
+    let mut offsets = Vec::with_capacity(planes as usize);
+    let mut weights = Vec::with_capacity(planes as usize);
+    for t in 0..planes as i64 {
+        let mut o = [0; 2];
+        let mut w = [0.0; 2];
+        for k in 0..2 {
+            let num = m[k] as i64 * (2 * t + 1);
+            match scheme {
+                SpatialScheme::Linear => {
+                    o[k] = num.div_euclid(two_n) as i32;
+                    w[k] = num.rem_euclid(two_n) as f64 / two_n as f64;
+                }
+                SpatialScheme::Constant => {
+                    o[k] = (num + planes as i64).div_euclid(two_n) as i32 - 1;
+                    w[k] = 1.0;
+                }
+            }
+        }
+        offsets.push(o);
+        weights.push(w);
+    }
+    (offsets, weights)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::solver::sweep::lattice;
+
+    #[test]
+    fn a_periodic_lattice_repeats_after_one_period_and_matches_the_float_one() {
+        for scheme in [SpatialScheme::Linear, SpatialScheme::Constant] {
+            for slope in [0.0, 0.37, -0.81, 1.0, -0.02, 2.0 / 23.0] {
+                let planes = 23;
+                let (nudged, m) = periodic_slope([slope, -slope], planes);
+                assert!((nudged[0] - slope).abs() <= 0.5 / planes as f64 + 1e-15);
+                // Two periods, computed as one lattice of 2N planes with slope 2M/(2N).
+                let (offs, weights) = periodic_lattice(m.map(|v| 2 * v), 2 * planes, scheme);
+                let (one, one_w) = periodic_lattice(m, planes, scheme);
+                let (float, float_w) = lattice(nudged, planes, scheme);
+                for t in 0..planes as usize {
+                    let u = t + planes as usize;
+                    assert_eq!(offs[t], one[t]);
+                    assert_eq!(offs[u][0] - offs[t][0], m[0], "slope {slope} t {t}");
+                    assert_eq!(offs[u][1] - offs[t][1], m[1]);
+                    assert_eq!(weights[u], weights[t]);
+                    assert_eq!(weights[t], one_w[t]);
+                    // The same lattice as the float one, up to the float's rounding at ties.
+                    for k in 0..2 {
+                        let (a, b) = (one[t][k] as f64 + one_w[t][k], float[t][k] as f64 + float_w[t][k]);
+                        assert!((a - b).abs() < 1e-9 || scheme == SpatialScheme::Constant, "{a} {b}");
+                    }
+                }
+            }
+        }
+    }
+}
