@@ -29,11 +29,13 @@
 //!   sun's beam sweep deposits its uncollided fluence there);
 //! - the scattered source: `J_d(v) = ρ(v)·σs·E(v)·row_d(ω(v))`, with ω(v) the direction of travel
 //!   light → voxel and `row` the discrete phase row of a beam travelling along ω
-//!   ([`crate::quadrature::phase::BeamRows`], as the plan's sun beams use, tabulated over
-//!   directions and interpolated: `RowTable`; for an isotropic medium `1/4π`), goes into order 0's new source, so order 1 propagates it as it propagates the sun's
-//!   first scattering, and the source total (what the renderer integrates) holds it. Near the light
-//!   the row is that of the sub-points' mean direction of travel, blended with the isotropic row by
-//!   `1 − |mean flux|/E`: a light at the voxel's centre lights it from every side alike.
+//!   ([`crate::quadrature::phase::BeamRows`], as the plan's sun beams use; for an anisotropic
+//!   medium tabulated over directions and interpolated, `RowTable`; for an isotropic one `1/4π`),
+//!   goes into order 0's new source, so order 1 propagates it as it propagates the sun's first
+//!   scattering, and the source total (what the renderer integrates) holds it. Near the light the
+//!   row is that of the cells' irradiance-weighted mean direction of travel, blended with the
+//!   isotropic row by `1 − |mean flux|/E`: a light at the voxel's centre lights it from every side
+//!   alike.
 //!
 //! The GPU driver's fields are the store's f32 files; the CPU twin copies the very same f32
 //! values into its own (see [`super::cpu::CpuTwin::set_order0_accumulators`]).
@@ -48,7 +50,9 @@
 //! Computed brick by brick over the occupied bricks only, in parallel (rayon), straight into the
 //! memory-mapped fields in groups of [`RELEASE_UNITS`] bricks whose pages are then handed back: a
 //! store far larger than RAM never becomes a dense array. Each voxel's values depend on nothing
-//! but the scene, so the fields are bitwise the same at any thread count.
+//! but the scene, so the fields are bitwise the same at any thread count. The cost is one segment
+//! walk per voxel and light, ∝ N⁴ for an N³ volume (benches/RESULTS.md, "Point lights": 39 s for
+//! two lights over 256³ on two shared cores).
 
 use super::passes::RELEASE_UNITS;
 use super::plan::Plan;
