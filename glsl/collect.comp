@@ -35,8 +35,11 @@ float pulled(uint di, uint ch, uint tt, uint vb, uint vc, vec2 w, uint planes, u
         for (uint db = 0u; db < 2u; ++db) {
             float wb = db == 0u ? 1.0 - w.x : w.x;
             if (wb == 0.0) continue;
-            // On a periodic axis lattice column n is column 0 (a no-op on an open one).
-            sum += (wb * wc) * deposit[base + ((vc + 1u - dc) % lc_n) * lb_n + (vb + 1u - db) % lb_n];
+            // On a periodic axis lattice column n is column 0 (never reached on an open one).
+            uint lb = vb + 1u - db, lc = vc + 1u - dc;
+            if (lb == lb_n) lb = 0u;
+            if (lc == lc_n) lc = 0u;
+            sum += (wb * wc) * deposit[base + lc * lb_n + lb];
         }
     }
     return sum;

@@ -198,20 +198,10 @@ fn emission_factors(
     let (values, path) = match (grid.raw_path(), grid.vdb_grid(), &scene.volume.source) {
         (Some(path), _, _) => (raw_densities(path, dims).map_err(bad)?, path.to_path_buf()),
         (None, Some(name), VolumeSource::Vdb { path, index_min, .. }) => {
-            let vdb = crate::store::vdb::vdb_grid_over(path, name, dims, *index_min)?;
-            let tree = &vdb.grid().tree;
-            let mut values = Vec::with_capacity(dims.iter().map(|&d| d as usize).product());
-            for z in 0..dims[2] {
-                for y in 0..dims[1] {
-                    for x in 0..dims[0] {
-                        let value = tree.value(std::array::from_fn(|i| index_min[i] + [x, y, z][i] as i32));
-                        if !(value.is_finite() && value >= 0.0) {
-                            let e = StoreError::BadDensity { path: path.clone(), voxel: [x, y, z], value };
-                            return Err(bad(e).into());
-                        }
-                        values.push(value);
-                    }
-                }
+            let values = vdb_grid_values(path, name, dims, *index_min)?;
+            if let Some((i, &value)) = values.iter().enumerate().find(|(_, v)| !(v.is_finite() && **v >= 0.0)) {
+                let e = StoreError::BadDensity { path: path.clone(), voxel: voxel_of(i, dims), value };
+                return Err(bad(e).into());
             }
             (values, path.clone())
         }
@@ -228,15 +218,40 @@ fn emission_factors(
     };
     let map = crate::scene::blackbody::BlackbodyMap::new(blackbody);
     let max_emission = scene.medium.emission.iter().fold(0f64, |m, &v| m.max(v));
-    let (nx, ny) = (dims[0] as usize, dims[1] as usize);
     values
         .iter()
         .enumerate()
         .map(|(i, &t)| {
-            let voxel = [(i % nx) as u32, (i / nx % ny) as u32, (i / (nx * ny)) as u32];
-            store::emission::temperature_factors(&map, max_emission, t, voxel, &path).map_err(Into::into)
+            store::emission::temperature_factors(&map, max_emission, t, voxel_of(i, dims), &path).map_err(Into::into)
         })
         .collect()
+}
+
+/// Every voxel's value (x fastest) of grid `name` in the VDB file `path`, over the volume's `dims`
+/// from `index_min`.
+fn vdb_grid_values(
+    path: &Path,
+    name: &str,
+    dims: [u32; 3],
+    index_min: [i32; 3],
+) -> Result<Vec<f32>, ReferenceJobError> {
+    let vdb = crate::store::vdb::vdb_grid_over(path, name, dims, index_min)?;
+    let tree = &vdb.grid().tree;
+    let mut values = Vec::with_capacity(dims.iter().map(|&d| d as usize).product());
+    for z in 0..dims[2] {
+        for y in 0..dims[1] {
+            for x in 0..dims[0] {
+                values.push(tree.value(std::array::from_fn(|i| index_min[i] + [x, y, z][i] as i32)));
+            }
+        }
+    }
+    Ok(values)
+}
+
+/// The voxel at index `i` of an x-fastest array over `dims`.
+fn voxel_of(i: usize, dims: [u32; 3]) -> [u32; 3] {
+    let (nx, ny) = (dims[0] as usize, dims[1] as usize);
+    [(i % nx) as u32, (i / nx % ny) as u32, (i / (nx * ny)) as u32]
 }
 
 /// A scene's per-voxel albedo factors, every voxel (x fastest), checked as the store checks them
@@ -247,17 +262,7 @@ fn albedo_factors(job: &ReferenceJob, scene: &Scene, grid: &AlbedoGrid) -> Resul
     let (values, path) = match (grid.raw_path(), grid.vdb_grid(), &scene.volume.source) {
         (Some(path), _, _) => (raw_densities(path, dims).map_err(|e| e.into_albedo(&label))?, path.to_path_buf()),
         (None, Some(name), VolumeSource::Vdb { path, index_min, .. }) => {
-            let vdb = crate::store::vdb::vdb_grid_over(path, name, dims, *index_min)?;
-            let tree = &vdb.grid().tree;
-            let mut values = Vec::with_capacity(dims.iter().map(|&d| d as usize).product());
-            for z in 0..dims[2] {
-                for y in 0..dims[1] {
-                    for x in 0..dims[0] {
-                        values.push(tree.value(std::array::from_fn(|i| index_min[i] + [x, y, z][i] as i32)));
-                    }
-                }
-            }
-            (values, path.clone())
+            (vdb_grid_values(path, name, dims, *index_min)?, path.clone())
         }
         (None, name, _) => {
             return Err(StoreError::Corrupt {
@@ -267,10 +272,8 @@ fn albedo_factors(job: &ReferenceJob, scene: &Scene, grid: &AlbedoGrid) -> Resul
             .into())
         }
     };
-    let (nx, ny) = (dims[0] as usize, dims[1] as usize);
     for (i, &a) in values.iter().enumerate() {
-        let voxel = [(i % nx) as u32, (i / nx % ny) as u32, (i / (nx * ny)) as u32];
-        store::albedo::check_albedo(a, voxel, &path, &label)?;
+        store::albedo::check_albedo(a, voxel_of(i, dims), &path, &label)?;
     }
     Ok(values)
 }

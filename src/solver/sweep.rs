@@ -113,13 +113,12 @@ impl FaceSweep {
     /// wrap count) on the axis's lattice ([`lattice_column`] when open).
     #[inline]
     pub fn column(&self, k: usize, s: u32, o: i32) -> (u32, i32) {
-        let unwrapped = s as i64 + o as i64 + 1;
-        let period = self.lattice()[k] as i64;
-        (unwrapped.rem_euclid(period) as u32, unwrapped.div_euclid(period) as i32)
+        wrapped_column(s, o, self.lattice()[k])
     }
 
     /// The voxel columns of lateral axis `k` a ray at lattice column `l` meets with weight `w`
-    /// ([`taps`]; on a periodic axis column −1 is column n − 1).
+    /// (column ℓ − 1 with 1 − w and column ℓ with w, leaving out those outside the volume and those
+    /// of weight 0; on a periodic axis column −1 is column n − 1).
     #[inline]
     pub fn taps(&self, k: usize, l: u32, w: f64) -> impl Iterator<Item = (u32, f64)> {
         let (n, periodic) = (self.n[1 + k], self.periodic[1 + k]);
@@ -218,15 +217,10 @@ impl FaceSweep {
 /// Per lateral axis (b, c), the rays born through that side over a whole sweep with per-plane
 /// lattice `offsets` on a lattice of `lattice` slots per axis: when the offset moves by one column
 /// along b, one slot per row of the lattice wraps (and likewise along c); a slot wrapping along
-/// both counts half to each (module docs). The rays born at plane 0 are not included.
-pub fn side_births(offsets: &[[i32; 2]], lattice: [u32; 2]) -> [f64; 2] {
-    side_births_with(offsets, lattice, [false; 2])
-}
-
-/// [`side_births`] on lattices whose lateral axes (b, c) may be periodic: a periodic axis has no
-/// side (its rays wrap and go on), so none are born there, and a slot wrapping along it and an
-/// open axis at once is a plain birth on the open side.
-pub fn side_births_with(offsets: &[[i32; 2]], lattice: [u32; 2], periodic: [bool; 2]) -> [f64; 2] {
+/// both counts half to each (module docs). The rays born at plane 0 are not included. A
+/// `periodic` lateral axis has no side (its rays wrap and go on): none are born there, and a slot
+/// wrapping along it and an open axis at once is a plain birth on the open side.
+pub fn side_births(offsets: &[[i32; 2]], lattice: [u32; 2], periodic: [bool; 2]) -> [f64; 2] {
     let [lb, lc] = lattice.map(f64::from);
     let mut births = [0.0; 2];
     for w in offsets.windows(2) {
@@ -287,20 +281,15 @@ pub fn lattice(slope: [f64; 2], planes: u32, scheme: SpatialScheme) -> (Vec<[i32
 /// Where slot `s` (of `n + 1`) lies with offset `o`: (lattice column in 0..=n, wrap count).
 #[inline]
 pub fn lattice_column(s: u32, o: i32, n: u32) -> (u32, i32) {
-    let unwrapped = s as i64 + o as i64 + 1;
-    let period = n as i64 + 1;
-    (unwrapped.rem_euclid(period) as u32, unwrapped.div_euclid(period) as i32)
+    wrapped_column(s, o, n + 1)
 }
 
-/// The voxel columns a ray at lattice column `l` meets with weight `w` (of `n` columns), with their
-/// weights: column l − 1 with 1 − w and column l with w, leaving out those outside the volume and
-/// those of weight 0.
+/// Where slot `s` lies with offset `o` on a lattice of `period` slots: (column, wrap count).
 #[inline]
-pub fn taps(l: u32, w: f64, n: u32) -> impl Iterator<Item = (u32, f64)> {
-    [(l as i64 - 1, 1.0 - w), (l as i64, w)]
-        .into_iter()
-        .filter(move |&(c, wt)| wt != 0.0 && c >= 0 && c < n as i64)
-        .map(|(c, wt)| (c as u32, wt))
+fn wrapped_column(s: u32, o: i32, period: u32) -> (u32, i32) {
+    let unwrapped = s as i64 + o as i64 + 1;
+    let period = period as i64;
+    (unwrapped.rem_euclid(period) as u32, unwrapped.div_euclid(period) as i32)
 }
 
 #[cfg(test)]
@@ -350,8 +339,8 @@ mod tests {
                             let i = (cc * lb + cb) as usize;
                             assert!(!seen[i]);
                             seen[i] = true;
-                            for (vb, wb) in taps(cb, w[0], sweep.n[1]) {
-                                for (vc, wc) in taps(cc, w[1], sweep.n[2]) {
+                            for (vb, wb) in sweep.taps(0, cb, w[0]) {
+                                for (vc, wc) in sweep.taps(1, cc, w[1]) {
                                     cover[(vc * sweep.n[1] + vb) as usize] += wb * wc;
                                 }
                             }

@@ -8,11 +8,9 @@
 //! albedo grid never becomes a dense array in memory; a value that is not finite or lies outside
 //! [0, 1] is an error naming the file, the source of the values and the voxel.
 
+use super::import::voxel_grid_importer;
 use super::{BrickStore, Coverage, Field, StoreError, BRICK_VOXELS};
 use crate::scene::{AlbedoGrid, VolumeSource};
-
-/// Fills one brick (local x fastest) from an importer.
-type FillBrick = Box<dyn Fn([u32; 3], &mut [f32]) -> Result<(), StoreError>>;
 
 /// Name of the albedo field in the store.
 pub const ALBEDO_FIELD: &str = "albedo";
@@ -31,22 +29,8 @@ pub fn import_albedo(store: &BrickStore, grid: &AlbedoGrid, source: &VolumeSourc
     let dims = store.grid().dims;
     let label = grid.label();
     let mut field = store.create_field(ALBEDO_FIELD, 1, Coverage::Occupied)?;
-    let (fill, path): (FillBrick, std::path::PathBuf) = match (grid.raw_path(), grid.vdb_grid(), source) {
-        (Some(path), _, _) => {
-            let raw = super::import::raw_density(path, dims).map_err(|e| e.into_albedo(&label))?;
-            (Box::new(move |b, out| raw.fill_brick(b, out)), path.to_path_buf())
-        }
-        (None, Some(name), VolumeSource::Vdb { path, index_min, .. }) => {
-            let vdb = super::vdb::vdb_grid_over(path, name, dims, *index_min)?;
-            (Box::new(move |b, out| vdb.fill_brick(b, out)), path.clone())
-        }
-        (None, name, _) => {
-            return Err(StoreError::Corrupt {
-                path: store.dir().to_path_buf(),
-                message: format!("albedo grid \"{}\" needs a `vdb` volume", name.unwrap_or_default()),
-            })
-        }
-    };
+    let (fill, path) = voxel_grid_importer(grid.raw_path(), grid.vdb_grid(), source, dims, store.dir(), "albedo")
+        .map_err(|e| e.into_albedo(&label))?;
     let bricks: Vec<usize> = store.occupied_bricks().collect();
     let mut values = vec![0f32; BRICK_VOXELS];
     for brick in bricks {

@@ -14,13 +14,11 @@
 //! sparse emission grid never becomes a dense array in memory; a bad value is reported as an
 //! emission value or a temperature, naming the file and the voxel.
 
+use super::import::voxel_grid_importer;
 use super::{BrickStore, Coverage, Field, StoreError, BRICK_VOXELS};
 use crate::scene::blackbody::BlackbodyMap;
 use crate::scene::validate::MAX_LIGHT;
 use crate::scene::{EmissionGrid, Medium, VolumeSource};
-
-/// Fills one brick (local x fastest) from an importer.
-type FillBrick = Box<dyn Fn([u32; 3], &mut [f32]) -> Result<(), StoreError>>;
 
 /// Name of the emission field in the store.
 pub const EMISSION_FIELD: &str = "emission";
@@ -73,22 +71,7 @@ pub fn import_emission(
     let dims = store.grid().dims;
     let components = grid.components();
     let mut field = store.create_field(EMISSION_FIELD, components, Coverage::Occupied)?;
-    let (fill, path): (FillBrick, std::path::PathBuf) = match (grid.raw_path(), grid.vdb_grid(), source) {
-        (Some(path), _, _) => {
-            let raw = super::import::raw_density(path, dims)?;
-            (Box::new(move |b, out| raw.fill_brick(b, out)), path.to_path_buf())
-        }
-        (None, Some(name), VolumeSource::Vdb { path, index_min, .. }) => {
-            let vdb = super::vdb::vdb_grid_over(path, name, dims, *index_min)?;
-            (Box::new(move |b, out| vdb.fill_brick(b, out)), path.clone())
-        }
-        (None, name, _) => {
-            return Err(StoreError::Corrupt {
-                path: store.dir().to_path_buf(),
-                message: format!("emission grid \"{}\" needs a `vdb` volume", name.unwrap_or_default()),
-            })
-        }
-    };
+    let (fill, path) = voxel_grid_importer(grid.raw_path(), grid.vdb_grid(), source, dims, store.dir(), "emission")?;
     let label = field_label(grid);
     let blackbody = grid.blackbody().map(BlackbodyMap::new);
     let max_emission = medium.emission.iter().fold(0f64, |m, &v| m.max(v));

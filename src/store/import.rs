@@ -111,6 +111,36 @@ impl RawDensity {
     }
 }
 
+/// Fills one brick (local x fastest) from an importer.
+pub(crate) type FillBrick = Box<dyn Fn([u32; 3], &mut [f32]) -> Result<(), StoreError>>;
+
+/// The importer of a per-voxel grid beside the density (`what`: "emission", "albedo", for the
+/// message) and the file it reads: a raw file of the volume's `dims`, or grid `vdb_grid` of the
+/// volume's own VDB file (the only kind of volume a named grid can come from).
+pub(crate) fn voxel_grid_importer(
+    raw_path: Option<&Path>,
+    vdb_grid: Option<&str>,
+    source: &crate::scene::VolumeSource,
+    dims: [u32; 3],
+    store_dir: &Path,
+    what: &str,
+) -> Result<(FillBrick, PathBuf), StoreError> {
+    match (raw_path, vdb_grid, source) {
+        (Some(path), _, _) => {
+            let raw = raw_density(path, dims)?;
+            Ok((Box::new(move |b, out| raw.fill_brick(b, out)), path.to_path_buf()))
+        }
+        (None, Some(name), crate::scene::VolumeSource::Vdb { path, index_min, .. }) => {
+            let vdb = super::vdb::vdb_grid_over(path, name, dims, *index_min)?;
+            Ok((Box::new(move |b, out| vdb.fill_brick(b, out)), path.clone()))
+        }
+        (None, name, _) => Err(StoreError::Corrupt {
+            path: store_dir.to_path_buf(),
+            message: format!("{what} grid \"{}\" needs a `vdb` volume", name.unwrap_or_default()),
+        }),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -58,7 +58,7 @@ use super::orders::Backend;
 use super::passes::{OrderFieldSet, StoreMedium};
 use super::periodic::{CarryOf, PeriodicCarry, RayRadiance};
 use super::plan::{half_scale_exponent, Plan, Precision, SweepDirection};
-use super::sweep::{side_births_with, FaceSweep};
+use super::sweep::{side_births, FaceSweep};
 use super::SolveError;
 use crate::store::BrickStore;
 use crate::vk::{Context, Recorder};
@@ -295,7 +295,7 @@ struct Births<'e> {
 /// the sides of each lateral axis ([`FaceSweep::face_roles`]). What came in needs no download:
 /// every ray is born at plane 0 (with `births`) and wherever its slot wraps, with the direction's
 /// boundary radiance when `births.boundary` (else zero), so the births follow from the offsets
-/// ([`super::sweep::side_births`]). Also returns, per direction, the radiance each slot left the far face with
+/// ([`side_births`]). Also returns, per direction, the radiance each slot left the far face with
 /// (empty unless the sweep axis is periodic: what the next order carries in).
 fn read_tallies(
     streamer: &mut SliceStreamer,
@@ -324,7 +324,7 @@ fn read_tallies(
     let mut tallies = Tallies::default();
     for (d, dir) in dirs.iter().enumerate() {
         let roles = sweep.face_roles(&dir.offsets);
-        let births = side_births_with(&dir.offsets, sweep.lattice(), [sweep.periodic[1], sweep.periodic[2]]);
+        let births = side_births(&dir.offsets, sweep.lattice(), [sweep.periodic[1], sweep.periodic[2]]);
         let power = dir.power_per_radiance;
         for ch in 0..c {
             let range = (d * c + ch) * rays..(d * c + ch + 1) * rays;
