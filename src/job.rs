@@ -151,6 +151,9 @@ pub struct Report {
     pub store_bytes: u64,
     /// The device memory plan: budget, planned bytes and how the sweeps were cut (GPU only).
     pub device_memory: Option<solver::gpu::budget::MemoryPlan>,
+    /// Whether the store's pages stayed resident between passes, and why (the store's size against
+    /// the host memory budget; see `store::resident`).
+    pub host_memory: crate::store::resident::Residency,
     pub outputs: Vec<String>,
 }
 
@@ -340,8 +343,8 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
             },
             e => JobError::Solve(e),
         })?;
-    let SolveRun { plan, outcome, device, peak_device_bytes, memory, mut phases } = run;
-    let store_bytes = files_bytes(store.dir());
+    let SolveRun { plan, outcome, device, peak_device_bytes, memory, mut phases, residency } = run;
+    let store_bytes = store.file_bytes();
     phases.insert(0, ("store".to_string(), store_seconds));
     check_finite(&fields.fluence_total, &store, "fluence")?;
     check_finite(&fields.source_total, &store, "source")?;
@@ -479,6 +482,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
         peak_resident_bytes: peak_resident_bytes(),
         store_bytes,
         device_memory: memory,
+        host_memory: residency,
         outputs,
     };
     output::write_json_atomic(&stage.join("report.json"), &report)?;
@@ -497,15 +501,6 @@ pub fn vdb_placement(scene: &Scene) -> output::VdbPlacement {
         _ => [0; 3],
     };
     output::VdbPlacement::new(scene.volume.origin.to_array(), scene.volume.voxel_size, index_min)
-}
-
-/// Total length of the files in `dir` (not recursive; unreadable entries count as 0).
-fn files_bytes(dir: &Path) -> u64 {
-    std::fs::read_dir(dir)
-        .map(|entries| {
-            entries.flatten().filter_map(|e| e.metadata().ok()).filter(|m| m.is_file()).map(|m| m.len()).sum()
-        })
-        .unwrap_or(0)
 }
 
 /// The process's peak resident set (VmHWM in /proc/self/status), where the system has it.

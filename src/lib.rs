@@ -9,8 +9,10 @@
 //! swept slice of bricks by slice of bricks, the ray state travelling with the sweep on the device.
 //! Only occupied bricks are stored, streamed and solved (empty space is crossed by the rays but holds
 //! no medium, source or fluence); a slice that does not fit the device budget is streamed as
-//! sub-slices of fewer planes; and every pass over the memory-mapped files hands its pages back, so
-//! neither device nor host memory grows with the volume (see [`solver::gpu`] and [`store::Field`]).
+//! sub-slices of fewer planes; and a store larger than the host memory budget has every pass over
+//! its memory-mapped files hand the pages back, so neither device nor host memory grows with the
+//! volume (see [`solver::gpu`], [`store::Field`] and [`store::resident`]: a store that fits keeps its
+//! pages, so no pass faults the volume in again).
 //!
 //! ## Layout (each layer only uses the ones above it)
 //!
@@ -51,8 +53,10 @@
 //!    memory): commit the order (first taking the lattice's numerical diffusion back out of its
 //!    source when `solver.diffusion_correction = "on"`: [`solver::antidiffusion`], a neighbour
 //!    stencil over either layout; a per-voxel albedo factor multiplies the source first,
-//!    `store::albedo`), the stop rule's remaining error, a checkpoint (store only), and
-//!    at the end the energy balance and the geometric tail.
+//!    `store::albedo`), the stop rule's remaining error, a checkpoint (store only, at the cadence
+//!    of `solver.checkpoint_every_*`), and at the end the energy balance and the geometric tail.
+//!    The passes run on every core, with every sum taken in a fixed order (bitwise at any thread
+//!    count).
 //! 5. **Backend** — either the CPU twin ([`solver::cpu`], f64, in memory, its sweeps plane by plane
 //!    on every core: `solver/cpu_sweep.rs`, bitwise the same at any thread count) or the GPU driver
 //!    ([`solver::gpu`]): `sizes` → `budget` (the memory plan) → `resources` (everything on the

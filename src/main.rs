@@ -1076,6 +1076,14 @@ fn info(dir: &std::path::Path, json: bool) -> Result<()> {
     if let Some(peak) = r.get("peak_resident_bytes").and_then(|p| p.as_u64()) {
         println!("host      peak resident {peak} bytes; brick store {} bytes", r["store_bytes"]);
     }
+    if let Some(kept) = r["host_memory"]["kept_resident"].as_bool() {
+        let budget = r["host_memory"]["budget_bytes"].as_u64().map_or("none".to_string(), |b| format!("{b} bytes"));
+        println!(
+            "          store pages {} (budget {budget}, {})",
+            if kept { "kept resident" } else { "handed back after each pass" },
+            r["host_memory"]["budget_origin"].as_str().unwrap_or("?")
+        );
+    }
     if let Some(phases) = r["seconds"].as_array() {
         let line: Vec<String> = phases
             .iter()

@@ -17,6 +17,7 @@ use crate::solver::gpu::{budget::MemoryPlan, profile::StreamStats, GpuBackend, G
 use crate::solver::orders::Backend;
 use crate::solver::plan::Plan;
 use crate::solver::{self, SolveError};
+use crate::store::resident::{self, Residency};
 use crate::vk::{Context, ContextOptions};
 use serde::Serialize;
 use std::path::Path;
@@ -29,6 +30,10 @@ pub struct StreamOrder {
     pub upload_seconds: f64,
     pub compute_seconds: f64,
     pub download_seconds: f64,
+    /// Wall time the device's own timestamps do not cover: the host's gathers and scatters, the
+    /// end-of-order passes, waits. Exact where transfers and compute run one after the other (one
+    /// queue, lavapipe); where they overlap on a device it is a lower bound.
+    pub host_seconds: f64,
     /// Transfer time spent while compute was running, over all transfer time.
     pub hidden_transfer_fraction: f64,
     pub upload_bytes_per_second: f64,
@@ -48,6 +53,8 @@ pub struct StreamReport {
     pub channels: u32,
     pub directions: usize,
     pub memory: MemoryPlan,
+    /// Whether the store's pages stayed resident between passes ([`crate::store::resident`]).
+    pub host_memory: Residency,
     pub orders: Vec<StreamOrder>,
 }
 
@@ -79,6 +86,9 @@ fn run_stream(
     let total = store.grid().brick_count();
     let plan = Plan::new(scene, total, total - store.occupied_count());
     let mut fields = StoreFields::create(&store, &plan)?;
+    let residency =
+        Residency::decide(store.file_bytes(), scene.solver.host_memory_budget, resident::available_memory());
+    store.hold_pages(residency.kept_resident);
     let ctx = Context::new(vk).map_err(SolveError::from)?;
     let limits = ctx.limits();
     let options = GpuOptions { budget: scene.solver.device_memory_budget, profile: true, ..GpuOptions::default() };
@@ -104,6 +114,7 @@ fn run_stream(
             upload_seconds: upload,
             compute_seconds: now.compute_seconds - before.compute_seconds,
             download_seconds: download,
+            host_seconds: (wall - upload - download - (now.compute_seconds - before.compute_seconds)).max(0.0),
             hidden_transfer_fraction: if upload + download > 0.0 { hidden / (upload + download) } else { 0.0 },
             upload_bytes_per_second: per_second(now.upload_bytes - before.upload_bytes, upload),
             download_bytes_per_second: per_second(now.download_bytes - before.download_bytes, download),
@@ -131,6 +142,7 @@ fn run_stream(
         channels: plan.channels,
         directions: plan.propagation.len(),
         memory,
+        host_memory: residency,
         orders: rows,
     })
 }

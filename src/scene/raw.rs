@@ -101,12 +101,15 @@ pub(crate) struct RawSolver {
     pub max_orders: Option<i64>,
     pub tolerance: Option<f64>,
     pub device_memory_budget: Option<ByteSize>,
+    pub host_memory_budget: Option<ByteSize>,
     pub extrapolate_tail: Option<bool>,
     pub storage_precision: Option<String>,
     pub plan: Option<String>,
     pub spatial: Option<String>,
     pub forward_peak: Option<String>,
     pub diffusion_correction: Option<String>,
+    pub checkpoint_every_orders: Option<i64>,
+    pub checkpoint_every_seconds: Option<f64>,
 }
 
 /// A 3-vector written as an array of exactly 3 values. serde's own `[T; 3]` reads the first three

@@ -240,6 +240,9 @@ pub struct SolverSettings {
     pub tolerance: f64,
     /// Device memory budget in bytes; `None`: a safe fraction of the device's heap.
     pub device_memory_budget: Option<u64>,
+    /// Host memory the store may keep resident between passes, in bytes; `None`: half of what the
+    /// system reports available ([`crate::store::resident`]).
+    pub host_memory_budget: Option<u64>,
     /// Estimate the orders not propagated as a geometric series and add them (for high albedo),
     /// stopping once that estimate is within the tolerance.
     pub extrapolate_tail: bool,
@@ -254,6 +257,33 @@ pub struct SolverSettings {
     /// Whether the lattice's numerical diffusion is taken back out of each order's scattered
     /// source (`solver.diffusion_correction`, see `solver::antidiffusion`).
     pub diffusion_correction: DiffusionCorrection,
+    /// When the GPU backend checkpoints (`solver.checkpoint_every_orders`, `…_seconds`).
+    pub checkpoint: CheckpointCadence,
+}
+
+/// When the GPU driver writes a checkpoint: after an order when `every_orders` orders have passed
+/// since the last one, or `every_seconds`, whichever comes first; always after the last order; and
+/// after every order with the diffusion correction on (it writes the scratch field, see `solver::passes::Named`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CheckpointCadence {
+    pub every_orders: Option<u32>,
+    pub every_seconds: f64,
+}
+
+impl Default for CheckpointCadence {
+    /// Every five minutes: a killed solve loses at most that much, and a store that takes seconds
+    /// to flush is flushed rarely.
+    fn default() -> Self {
+        CheckpointCadence { every_orders: None, every_seconds: 300.0 }
+    }
+}
+
+impl CheckpointCadence {
+    /// Whether to checkpoint now, `orders` orders and `seconds` after the last checkpoint (or the
+    /// start), `last` when the solve ends with this order.
+    pub fn due(&self, orders: u32, seconds: f64, last: bool, diffusion_correction: bool) -> bool {
+        last || diffusion_correction || self.every_orders.is_some_and(|n| orders >= n) || seconds >= self.every_seconds
+    }
 }
 
 /// `solver.diffusion_correction`: the rays meet the voxels at a lateral offset from their true

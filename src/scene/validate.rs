@@ -6,8 +6,8 @@
 
 use super::raw::{ByteSize, Channels, RawBoundary, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
 use super::{
-    Boundary, DiffusionCorrection, EnvironmentLight, ForwardPeak, Light, MapUp, Medium, PlanMode, Scene, SceneError,
-    Shape, SolverSettings, SpatialScheme, StoragePrecision, Volume, VolumeSource,
+    Boundary, CheckpointCadence, DiffusionCorrection, EnvironmentLight, ForwardPeak, Light, MapUp, Medium, PlanMode,
+    Scene, SceneError, Shape, SolverSettings, SpatialScheme, StoragePrecision, Volume, VolumeSource,
 };
 use albedo::AlbedoKeys;
 use emission::{BlackbodyKeys, EmissionKeys};
@@ -551,12 +551,14 @@ impl Validator<'_> {
                 max_orders: DEFAULT_MAX_ORDERS,
                 tolerance: DEFAULT_TOLERANCE,
                 device_memory_budget: None,
+                host_memory_budget: None,
                 extrapolate_tail: false,
                 storage_precision: StoragePrecision::Auto,
                 plan: PlanMode::Auto,
                 spatial: SpatialScheme::default(),
                 forward_peak: ForwardPeak::default(),
                 diffusion_correction: DiffusionCorrection::default(),
+                checkpoint: CheckpointCadence::default(),
             });
         };
         let k = match s.directions_per_face {
@@ -592,6 +594,10 @@ impl Validator<'_> {
         let device_memory_budget = match s.device_memory_budget {
             None => None,
             Some(b) => Some(self.byte_size("solver.device_memory_budget", &b)?),
+        };
+        let host_memory_budget = match s.host_memory_budget {
+            None => None,
+            Some(b) => Some(self.byte_size("solver.host_memory_budget", &b)?),
         };
         let storage_precision = match s.storage_precision.as_deref() {
             None | Some("auto") => StoragePrecision::Auto,
@@ -642,18 +648,35 @@ impl Validator<'_> {
                 ))
             }
         };
+        let every_orders = match s.checkpoint_every_orders {
+            None => None,
+            Some(n) if (1..=i64::from(u32::MAX)).contains(&n) => Some(n as u32),
+            Some(n) => return Err(self.err("solver.checkpoint_every_orders", format!("must be at least 1, got {n}"))),
+        };
+        let every_seconds = match s.checkpoint_every_seconds {
+            None => CheckpointCadence::default().every_seconds,
+            Some(t) if t.is_finite() && t >= 0.0 => t,
+            Some(t) => {
+                return Err(self.err(
+                    "solver.checkpoint_every_seconds",
+                    format!("must be a finite number of seconds ≥ 0 (0: after every order), got {}", short(t)),
+                ))
+            }
+        };
         Ok(SolverSettings {
             directions_per_face: k,
             storage_directions_per_face: ks,
             max_orders,
             tolerance,
             device_memory_budget,
+            host_memory_budget,
             extrapolate_tail: s.extrapolate_tail.unwrap_or(false),
             storage_precision,
             plan,
             spatial,
             forward_peak,
             diffusion_correction,
+            checkpoint: CheckpointCadence { every_orders, every_seconds },
         })
     }
 

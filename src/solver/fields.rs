@@ -11,12 +11,18 @@
 //! writes `committed + this order` into the spares, flushes them, and only then writes
 //! `checkpoint.json` (atomically) naming the spares as committed. Nothing a checkpoint names is
 //! written afterwards until the next checkpoint replaces it, so a solve killed at any moment
-//! resumes from its last completed order and ends bitwise identical to an uninterrupted one (which
+//! resumes from its last checkpoint and ends bitwise identical to an uninterrupted one (which
 //! runs the very same passes).
+//!
+//! Checkpoints follow the cadence of [`crate::scene::CheckpointCadence`] (`solver.checkpoint_every_orders` /
+//! `solver.checkpoint_every_seconds`), not necessarily every order: flushing the committed fields
+//! writes them to disk, which on a large store costs more than a GPU's order. Between two
+//! checkpoints the passes keep off what the last one names ([`Named`]); the last order of a solve
+//! is always checkpointed.
 
 use super::energy::Tallies;
 use super::orders::OrderRecord;
-use super::passes::OrderFieldSet;
+use super::passes::{Named, OrderFieldSet};
 use super::plan::Plan;
 use super::SolveError;
 use crate::store::{BrickStore, Coverage, Field, StoreError};
@@ -103,6 +109,7 @@ impl OrderFieldSet<Field> {
             clean: true,
             initial_guess: false,
             warm_started: false,
+            named: Named::default(),
         })
     }
 
@@ -134,14 +141,16 @@ impl OrderFieldSet<Field> {
             clean: false,
             initial_guess: false,
             warm_started: cp.state.warm_start,
+            named: Named::after_checkpoint(),
         };
         // A killed order's partial sums are cleared when the next order begins; the order fields
         // still hold the last completed order's (the tail estimate may need its fluence).
         Ok(Some((fields, cp.state)))
     }
 
-    /// Flushes the committed state and records it in `checkpoint.json` (atomically).
-    pub fn write_checkpoint(&self, dir: &Path, digest: &str, state: &LoopState) -> Result<(), SolveError> {
+    /// Flushes the committed state and records it in `checkpoint.json` (atomically); until the
+    /// next checkpoint, no order writes what this one names (see [`Named`]).
+    pub fn write_checkpoint(&mut self, dir: &Path, digest: &str, state: &LoopState) -> Result<(), SolveError> {
         for f in [&self.source_prev, &self.source_total, &self.fluence_total, &self.fluence] {
             f.flush()?;
         }
@@ -159,6 +168,8 @@ impl OrderFieldSet<Field> {
             fluence_spare: self.fluence_spare.name().to_string(),
             state,
         };
-        crate::output::write_json_atomic(&dir.join(CHECKPOINT), &cp).map_err(SolveError::Checkpoint)
+        crate::output::write_json_atomic(&dir.join(CHECKPOINT), &cp).map_err(SolveError::Checkpoint)?;
+        self.checkpoint_written();
+        Ok(())
     }
 }

@@ -35,6 +35,7 @@ pub mod sweep;
 pub mod warm;
 
 use crate::scene::{Scene, VolumeSource};
+use crate::store::resident::{self, Residency};
 use crate::store::{import, BrickStore, StoreError};
 use crate::vk::{Context, ContextOptions, VkError};
 use fields::StoreFields;
@@ -98,6 +99,8 @@ pub struct SolveRun {
     pub memory: Option<gpu::budget::MemoryPlan>,
     /// Seconds spent per phase, in order.
     pub phases: Vec<(String, f64)>,
+    /// Whether the store's pages stayed resident between passes ([`crate::store::resident`]).
+    pub residency: Residency,
 }
 
 /// Builds the brick store for the scene's volume in `dir`.
@@ -197,11 +200,13 @@ pub fn solve(
 /// Identifies a scene for checkpoints: a resumed solve must be the same job.
 pub fn scene_digest(scene: &Scene) -> String {
     // FNV-1a over the validated scene and the crate version: stable across runs and platforms.
-    // Only what affects the solve is digested: the memory budget is left out (any budget gives
-    // bitwise the same result, so a solve may resume under another one), and so is the camera
+    // Only what affects the solve is digested: the memory budgets and the checkpoint cadence are
+    // left out (any gives bitwise the same result, so a solve may resume under another), and so is the camera
     // (it only affects the image, rendered after the solve).
     let mut scene = scene.clone();
     scene.solver.device_memory_budget = None;
+    scene.solver.host_memory_budget = None;
+    scene.solver.checkpoint = crate::scene::CheckpointCadence::default();
     scene.camera = None;
     let text = format!("{}|{:?}", env!("CARGO_PKG_VERSION"), scene);
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
@@ -272,6 +277,11 @@ pub fn solve_from(
             (fields, fields::LoopState { point_light_power, ..fields::LoopState::default() })
         }
     };
+    // Every field exists now: keep the store's pages resident if it fits the host memory budget.
+    let residency =
+        Residency::decide(store.file_bytes(), scene.solver.host_memory_budget, resident::available_memory());
+    store.hold_pages(residency.kept_resident);
+    tracing::info!("{}", residency.describe());
     phases.push(("plan".to_string(), t.elapsed().as_secs_f64()));
     for reason in &plan.reasons {
         tracing::info!("plan: {reason}");
@@ -307,7 +317,7 @@ pub fn solve_from(
             let mut gpu = gpu::GpuBackend::new(ctx.clone(), &plan, store, &mut fields, gpu_options)?;
             memory = Some(gpu.memory_plan());
             if gpu_options.checkpoints {
-                gpu.enable_checkpoints(digest.clone());
+                gpu.enable_checkpoints(digest.clone(), scene.solver.checkpoint);
             }
             phases.push(("setup".to_string(), t.elapsed().as_secs_f64()));
             let t = Instant::now();
@@ -326,5 +336,5 @@ pub fn solve_from(
     };
     fields.fluence_total.flush()?;
     fields.source_total.flush()?;
-    Ok((SolveRun { plan, outcome, device, peak_device_bytes: peak, memory, phases }, fields))
+    Ok((SolveRun { plan, outcome, device, peak_device_bytes: peak, memory, phases, residency }, fields))
 }

@@ -28,15 +28,16 @@ pub trait Backend {
     fn propagate_order(&mut self, order: u32) -> Result<Tallies, SolveError>;
     /// The fields the order loop folds each order into, and the medium they cover.
     fn fields(&mut self) -> (&mut OrderFieldSet<Self::Field>, &Self::Medium);
-    /// Records the state after a completed order so that a killed solve can resume from it. Only
-    /// the brick store's fields outlive the process; the default does nothing.
     /// Power (per channel) the rays of periodic sweeps carried out of the last order and carry
     /// into the next ([`super::periodic`]); zero without periodic axes.
     fn carried_power(&self) -> [f64; 3] {
         [0.0; 3]
     }
 
-    fn checkpoint(&mut self, _state: &LoopState) -> Result<(), SolveError> {
+    /// Records the state after a completed order so that a killed solve can resume from it, when
+    /// the backend's cadence says so (always when `last`: the solve ends with this order). Only
+    /// the brick store's fields outlive the process; the default does nothing.
+    fn checkpoint(&mut self, _state: &LoopState, _last: bool) -> Result<(), SolveError> {
         Ok(())
     }
     /// The power emitted when order 0's source is a per-voxel emission ([`super::emission`]),
@@ -268,7 +269,8 @@ pub fn run_orders<B: Backend + ?Sized>(
             remaining_max: remaining.map(|r| r.max),
             seconds: t.elapsed().as_secs_f64(),
         });
-        backend.checkpoint(&state)?;
+        converged = done(&state, remaining);
+        backend.checkpoint(&state, converged || state.orders_done >= plan.max_orders)?;
         // What the stop rule compares with the tolerance: the per-voxel remaining error (the power
         // residual while no ratio is known yet, and under the tail's own rule).
         let measure = match remaining {
@@ -277,7 +279,6 @@ pub fn run_orders<B: Backend + ?Sized>(
         };
         progress(order, measure);
         tracing::debug!(order, residual, remaining = remaining.map(|r| r.max), "order done");
-        converged = done(&state, remaining);
     }
     // The balance covers the propagated orders; the tail is reported on its own.
     let (emitted, absorbed) = {

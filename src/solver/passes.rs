@@ -17,6 +17,10 @@
 //! [`RELEASE_UNITS`], handing back the pages of a group when done with it (a no-op in memory), so
 //! a pass over fields far larger than RAM keeps the resident set bounded.
 //!
+//! The passes run on every core (rayon), each group of units split across threads, yet their
+//! results do not depend on the number of threads: element-wise updates are independent, and every
+//! sum is first taken per block or unit in a fixed order, then added up in unit order on one thread.
+//!
 //! Each pass does its arithmetic in the fields' own precision (`t + f·l` in f32 for the store, in
 //! f64 for the twin) and sums into f64, so the store's results are bitwise what they were before
 //! the passes were shared, and the twin stays an f64 reference. A warm start's first commit
@@ -28,11 +32,21 @@ use super::plan::Plan;
 use super::remaining::{RemainingError, RemainingTally};
 use super::SolveError;
 use crate::store::{BrickStore, Field, BRICK_VOXELS};
+use rayon::prelude::*;
 use std::ops::{Add, Mul, Sub};
 
 /// Units a pass walks before handing their pages back (see [`crate::store::Field`] on resident
 /// memory): a few tens of MiB per field of bricks.
 pub const RELEASE_UNITS: usize = 1024;
+
+/// Values a task of a parallel pass handles at least: below this, handing work to another thread
+/// costs more than it saves (the twin's units are single voxels).
+const VALUES_PER_TASK: usize = 4096;
+
+/// The fewest items of `len` values each a parallel task takes.
+fn min_items(len: usize) -> usize {
+    (VALUES_PER_TASK / len.max(1)).max(1)
+}
 
 /// A value of a field: f32 in the brick store, f64 in the twin.
 pub trait Value:
@@ -154,7 +168,7 @@ impl FieldPlanes for MemField {
 
 /// The medium's density (and per-voxel albedo factor, when the scene has one) over the same units
 /// as the fields: unit `i`'s values.
-pub trait Medium {
+pub trait Medium: Sync {
     type V: Value;
     fn density(&self, unit: usize) -> Option<&[Self::V]>;
     /// The albedo factor `a(v)` of unit `i`'s voxels (`volume.albedo_*`, see
@@ -253,6 +267,35 @@ pub struct OrderFieldSet<F> {
     pub(crate) initial_guess: bool,
     /// The solve started from a guess: its last source is a residual of either sign.
     pub(crate) warm_started: bool,
+    /// Which roles hold a field the last checkpoint names, so that orders between checkpoints
+    /// never write one (see [`Named`]); all false when no checkpoints are written.
+    pub(crate) named: Named,
+}
+
+/// Per role of [`OrderFieldSet`], whether the field in it is one the last checkpoint named (and
+/// must therefore not be written until the next checkpoint replaces it). The flags travel with
+/// the fields through every swap of roles. Checkpoints need not follow every order
+/// (`solver.checkpoint_every_*`): between two, the commit adds an order into the committed totals
+/// in place when their spares are named, and an order's new source goes into the scratch field
+/// when the named previous source has come round to the `source_next` role. The values are the
+/// same either way (`t + f·l`), so results are bitwise independent of the checkpoint cadence. The
+/// diffusion correction writes the scratch field, so with it a checkpoint follows every order.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Named {
+    pub prev: bool,
+    pub next: bool,
+    pub scratch: bool,
+    /// The committed totals (source and fluence swap together).
+    pub total: bool,
+    /// Their spare copies.
+    pub spare: bool,
+}
+
+impl Named {
+    /// Right after a checkpoint: it names the previous source and the committed totals.
+    pub fn after_checkpoint() -> Named {
+        Named { prev: true, total: true, ..Named::default() }
+    }
 }
 
 impl OrderFieldSet<MemField> {
@@ -271,6 +314,7 @@ impl OrderFieldSet<MemField> {
             clean: true,
             initial_guess: false,
             warm_started: false,
+            named: Named::default(),
         }
     }
 }
@@ -279,6 +323,14 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
     /// Clears the order's accumulators before an order starts (after any checkpoint is written:
     /// until then they hold what the previous checkpoint names).
     pub fn begin_order(&mut self) -> Result<(), SolveError> {
+        if self.named.next {
+            // The checkpoint's previous source came round to this role (no checkpoint after the
+            // last order): accumulate into the scratch field instead (see [`Named`]).
+            std::mem::swap(&mut self.source_next, &mut self.source_scratch);
+            std::mem::swap(&mut self.named.next, &mut self.named.scratch);
+            self.clean = false;
+        }
+        debug_assert!(!self.named.next, "an order would write a field the last checkpoint names");
         if !self.clean {
             self.source_next.clear()?;
             self.fluence.clear()?;
@@ -316,6 +368,9 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
             scale_by_albedo(&mut self.source_next, units);
         }
         if plan.diffusion_correction.iter().any(|&k| k > 0.0) {
+            // The cadence checkpoints after every order with the correction on (see [`Named`]).
+            debug_assert!(!self.named.scratch, "the correction would write a field the last checkpoint names");
+            std::mem::swap(&mut self.named.next, &mut self.named.scratch);
             antidiffusion::sharpen(&mut self.source_scratch, &self.source_next, units, plan.diffusion_correction);
             std::mem::swap(&mut self.source_next, &mut self.source_scratch);
         }
@@ -324,9 +379,11 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
         let h3 = plan.voxel_size.powi(3);
         let mut power = [0.0; 3];
         let weight = |k: usize| plan.storage.solid_angle[k / c] * h3;
+        // Into the spares, unless they are what the last checkpoint names: then in place.
+        let in_place = self.named.spare;
         combine(
-            &mut self.source_spare,
-            &self.source_total,
+            (!in_place).then_some(&mut self.source_spare),
+            &mut self.source_total,
             &self.source_next,
             |_| F::V::ONE,
             |block, sum| {
@@ -342,12 +399,32 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
             });
             self.initial_guess = false;
         }
-        combine(&mut self.fluence_spare, &self.fluence_total, &self.fluence, |_| F::V::ONE, |_, _| {});
-        std::mem::swap(&mut self.source_total, &mut self.source_spare);
-        std::mem::swap(&mut self.fluence_total, &mut self.fluence_spare);
+        combine(
+            (!in_place).then_some(&mut self.fluence_spare),
+            &mut self.fluence_total,
+            &self.fluence,
+            |_| F::V::ONE,
+            |_, _| {},
+        );
+        if !in_place {
+            self.swap_totals();
+        }
         std::mem::swap(&mut self.source_prev, &mut self.source_next);
+        std::mem::swap(&mut self.named.prev, &mut self.named.next);
         self.clean = false;
         power
+    }
+
+    /// The committed totals and their spares change roles (with their [`Named`] flags).
+    fn swap_totals(&mut self) {
+        std::mem::swap(&mut self.source_total, &mut self.source_spare);
+        std::mem::swap(&mut self.fluence_total, &mut self.fluence_spare);
+        std::mem::swap(&mut self.named.total, &mut self.named.spare);
+    }
+
+    /// Records that a checkpoint now names the fields in their current roles (see [`Named`]).
+    pub fn checkpoint_written(&mut self) {
+        self.named = Named::after_checkpoint();
     }
 
     /// The signed scattered power of the last (unpropagated) source, per channel, for a warm
@@ -371,15 +448,29 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
 
     /// Adds the estimated tail of the order series: `factor[ch]` times the last order's fluence and
     /// the last (unpropagated) source, written into the spare copies so that what a checkpoint
-    /// names stays intact.
+    /// names stays intact (in place if the spares are what it names).
     pub fn apply_tail(&mut self, plan: &Plan, factor: [f64; 3]) {
         let c = plan.channels as usize;
         let comps = plan.source_components() as usize;
         let f = |ch: usize| F::V::from_f64(factor[ch]);
-        combine(&mut self.source_spare, &self.source_total, &self.source_prev, |b| f((b % comps) % c), |_, _| {});
-        combine(&mut self.fluence_spare, &self.fluence_total, &self.fluence, |b| f(b % c), |_, _| {});
-        std::mem::swap(&mut self.source_total, &mut self.source_spare);
-        std::mem::swap(&mut self.fluence_total, &mut self.fluence_spare);
+        let in_place = self.named.spare;
+        combine(
+            (!in_place).then_some(&mut self.source_spare),
+            &mut self.source_total,
+            &self.source_prev,
+            |b| f((b % comps) % c),
+            |_, _| {},
+        );
+        combine(
+            (!in_place).then_some(&mut self.fluence_spare),
+            &mut self.fluence_total,
+            &self.fluence,
+            |b| f(b % c),
+            |_, _| {},
+        );
+        if !in_place {
+            self.swap_totals();
+        }
     }
 
     /// The remaining relative error over the medium's voxels (see [`super::remaining`]): after
@@ -391,26 +482,36 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
         let mut tally = RemainingTally::default();
         let (total, newest) = (self.fluence_total.values(), self.fluence.values());
         let per_unit = self.fluence.unit_len();
-        for unit in 0..self.fluence.units() {
-            if unit % RELEASE_UNITS == 0 {
-                medium.release_all();
-                self.fluence_total.release_all();
-                self.fluence.release_all();
-            }
-            let Some(density) = medium.density(unit) else { continue };
-            let (total, newest) = (&total[unit * per_unit..], &newest[unit * per_unit..]);
-            for (ch, &f) in factor.iter().enumerate().take(c) {
-                let range = ch * n..(ch + 1) * n;
-                for ((&rho, &t), &k) in density.iter().zip(&total[range.clone()]).zip(&newest[range]) {
-                    if rho > M::V::ZERO {
-                        tally.add(t.to_f64(), k.to_f64(), f);
+        let units = self.fluence.units();
+        let mut parts = Vec::new();
+        for first in (0..units).step_by(RELEASE_UNITS) {
+            // Each unit's tally on its own, then merged in unit order: the merged tally keeps the
+            // same voxels in the same order as one walk would (see `RemainingTally::merge`).
+            (first..(first + RELEASE_UNITS).min(units))
+                .into_par_iter()
+                .with_min_len(min_items(per_unit))
+                .map(|unit| {
+                    let mut part = RemainingTally::default();
+                    let Some(density) = medium.density(unit) else { return part };
+                    let (total, newest) = (&total[unit * per_unit..], &newest[unit * per_unit..]);
+                    for (ch, &f) in factor.iter().enumerate().take(c) {
+                        let range = ch * n..(ch + 1) * n;
+                        for ((&rho, &t), &k) in density.iter().zip(&total[range.clone()]).zip(&newest[range]) {
+                            if rho > M::V::ZERO {
+                                part.add(t.to_f64(), k.to_f64(), f);
+                            }
+                        }
                     }
-                }
+                    part
+                })
+                .collect_into_vec(&mut parts);
+            for part in parts.drain(..) {
+                tally.merge(part);
             }
+            medium.release_all();
+            self.fluence_total.release_all();
+            self.fluence.release_all();
         }
-        medium.release_all();
-        self.fluence_total.release_all();
-        self.fluence.release_all();
         tally.finish()
     }
 
@@ -423,40 +524,54 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
         let (mut emitted, mut absorbed) = ([0.0; 3], [0.0; 3]);
         let per_unit = self.fluence_total.unit_len();
         let values = self.fluence_total.values();
-        for unit in 0..self.fluence_total.units() {
-            if unit % RELEASE_UNITS == 0 {
-                medium.release_all();
-                self.fluence_total.release_all();
-            }
-            let Some(density) = medium.density(unit) else { continue };
-            let phi = &values[unit * per_unit..(unit + 1) * per_unit];
-            let albedo = medium.albedo(unit);
-            for ch in 0..c {
-                let (st, ss, sa) = plan.coefficients(ch);
-                let phi = &phi[ch * n..(ch + 1) * n];
-                let (mut rho_sum, mut rho_phi) = (0.0, 0.0);
-                if let Some(albedo) = albedo {
-                    // σa(v) per unit density = σt − σs·a(v), the same expression as the emission's
-                    // source (`solver::emission`).
-                    for ((&rho, &f), &a) in density.iter().zip(phi).zip(albedo) {
-                        rho_sum += rho.to_f64();
-                        rho_phi += (st - ss * a.to_f64()) * rho.to_f64() * f.to_f64();
+        let units = self.fluence_total.units();
+        let albedo_grid = medium.has_albedo();
+        let mut sums = Vec::new();
+        for first in (0..units).step_by(RELEASE_UNITS) {
+            // Per unit and channel: Σρ and Σ(σa-weighted) ρ·φ, each summed over the unit's voxels in
+            // order; then added up in unit order below.
+            (first..(first + RELEASE_UNITS).min(units))
+                .into_par_iter()
+                .with_min_len(min_items(per_unit))
+                .map(|unit| {
+                    let mut unit_sums = [(0.0f64, 0.0f64); 3];
+                    let density = medium.density(unit)?;
+                    let phi = &values[unit * per_unit..(unit + 1) * per_unit];
+                    let albedo = medium.albedo(unit);
+                    for (ch, sums) in unit_sums.iter_mut().enumerate().take(c) {
+                        let (st, ss, _) = plan.coefficients(ch);
+                        let phi = &phi[ch * n..(ch + 1) * n];
+                        let (mut rho_sum, mut rho_phi) = (0.0, 0.0);
+                        if let Some(albedo) = albedo {
+                            // σa(v) per unit density = σt − σs·a(v), the same expression as the
+                            // emission's source (`solver::emission`).
+                            for ((&rho, &f), &a) in density.iter().zip(phi).zip(albedo) {
+                                rho_sum += rho.to_f64();
+                                rho_phi += (st - ss * a.to_f64()) * rho.to_f64() * f.to_f64();
+                            }
+                        } else {
+                            for (&rho, &f) in density.iter().zip(phi) {
+                                rho_sum += rho.to_f64();
+                                rho_phi += rho.to_f64() * f.to_f64();
+                            }
+                        }
+                        *sums = (rho_sum, rho_phi);
                     }
-                    absorbed[ch] += rho_phi * h3;
-                } else {
-                    for (&rho, &f) in density.iter().zip(phi) {
-                        rho_sum += rho.to_f64();
-                        rho_phi += rho.to_f64() * f.to_f64();
+                    Some(unit_sums)
+                })
+                .collect_into_vec(&mut sums);
+            for unit_sums in sums.drain(..).flatten() {
+                for (ch, &(rho_sum, rho_phi)) in unit_sums.iter().enumerate().take(c) {
+                    let (_, _, sa) = plan.coefficients(ch);
+                    absorbed[ch] += if albedo_grid { rho_phi * h3 } else { sa * rho_phi * h3 };
+                    if plan.emission {
+                        emitted[ch] += four_pi * sa * plan.medium.emission[ch] * rho_sum * h3;
                     }
-                    absorbed[ch] += sa * rho_phi * h3;
-                }
-                if plan.emission {
-                    emitted[ch] += four_pi * sa * plan.medium.emission[ch] * rho_sum * h3;
                 }
             }
+            medium.release_all();
+            self.fluence_total.release_all();
         }
-        medium.release_all();
-        self.fluence_total.release_all();
         (emitted, absorbed)
     }
 }
@@ -470,44 +585,50 @@ fn scale_by_albedo<F: FieldPlanes, M: Medium<V = F::V>>(source: &mut F, medium: 
     let units = source.units();
     let per_unit = source.unit_len();
     let block_len = source.unit_voxels();
-    for unit in 0..units {
-        if unit % RELEASE_UNITS == 0 && unit > 0 {
-            source.release(unit - RELEASE_UNITS, RELEASE_UNITS);
-            medium.release_all();
-        }
-        let values = &mut source.values_mut()[unit * per_unit..(unit + 1) * per_unit];
-        match medium.albedo(unit) {
-            Some(a) => {
-                for block in values.chunks_mut(block_len) {
-                    for (s, &a) in block.iter_mut().zip(a) {
-                        *s = *s * a;
+    for first in (0..units).step_by(RELEASE_UNITS) {
+        let range = first * per_unit..(first + RELEASE_UNITS).min(units) * per_unit;
+        source.values_mut()[range].par_chunks_mut(per_unit).with_min_len(min_items(per_unit)).enumerate().for_each(
+            |(i, values)| match medium.albedo(first + i) {
+                Some(a) => {
+                    for block in values.chunks_mut(block_len) {
+                        for (s, &a) in block.iter_mut().zip(a) {
+                            *s = *s * a;
+                        }
                     }
                 }
-            }
-            // A unit the medium does not hold has no medium, hence no source: keep it zero.
-            None => values.iter_mut().for_each(|s| *s = F::V::ZERO),
-        }
+                // A unit the medium does not hold has no medium, hence no source: keep it zero.
+                None => values.iter_mut().for_each(|s| *s = F::V::ZERO),
+            },
+        );
+        source.release(first, RELEASE_UNITS);
+        medium.release_all();
     }
-    source.release_all();
-    medium.release_all();
 }
 
-/// `next −= guess`, block by block; calls `block_sum(block, Σ|next|)` for each block (a warm
-/// start's first commit, see [`OrderFieldSet::commit_order`]).
+/// `next −= guess`, block by block; calls `block_sum(block, Σ|next|)` for each block, in block
+/// order (a warm start's first commit, see [`OrderFieldSet::commit_order`]).
 fn subtract<F: FieldPlanes>(next: &mut F, guess: &F, mut block_sum: impl FnMut(usize, f64)) {
     let units = next.units();
     let per_unit = next.unit_len();
     let block_len = next.unit_voxels();
     let mut block = 0;
+    let mut sums = Vec::new();
     for first in (0..units).step_by(RELEASE_UNITS) {
         let range = first * per_unit..(first + RELEASE_UNITS).min(units) * per_unit;
         let (n, g) = (&mut next.values_mut()[range.clone()], &guess.values()[range]);
-        for (n, g) in n.chunks_mut(block_len).zip(g.chunks(block_len)) {
-            let mut sum = 0.0;
-            for (n, &g) in n.iter_mut().zip(g) {
-                *n = *n - g;
-                sum += n.to_f64().abs();
-            }
+        n.par_chunks_mut(block_len)
+            .zip(g.par_chunks(block_len))
+            .with_min_len(min_items(block_len))
+            .map(|(n, g)| {
+                let mut sum = 0.0;
+                for (n, &g) in n.iter_mut().zip(g) {
+                    *n = *n - g;
+                    sum += n.to_f64().abs();
+                }
+                sum
+            })
+            .collect_into_vec(&mut sums);
+        for &sum in &sums {
             block_sum(block, sum);
             block += 1;
         }
@@ -516,35 +637,65 @@ fn subtract<F: FieldPlanes>(next: &mut F, guess: &F, mut block_sum: impl FnMut(u
     }
 }
 
-/// `spare = total + factor(block)·last`, block by block (one component of one unit each), in the
-/// fields' precision; calls `block_sum(block, Σ|last|)` (summed in f64: the norm, as a warm
-/// start's residual has either sign; cold sources are ≥ 0) for each block. With factor 1 this is
-/// exactly `total + last`. The three fields' pages are handed back every [`RELEASE_UNITS`] units.
+/// `spare = total + factor(block)·last` (or, without a spare, `total += factor(block)·last`: the
+/// same values), block by block (one component of one unit each), in the fields' precision; calls
+/// `block_sum(block, Σ|last|)` (summed in f64: the norm, as a warm start's residual has either
+/// sign; cold sources are ≥ 0) for each block, in block order. With factor 1 this is exactly
+/// `total + last`. The fields' pages are handed back every [`RELEASE_UNITS`] units.
 fn combine<F: FieldPlanes>(
-    spare: &mut F,
-    total: &F,
+    mut spare: Option<&mut F>,
+    total: &mut F,
     last: &F,
-    factor: impl Fn(usize) -> F::V,
+    factor: impl Fn(usize) -> F::V + Sync,
     mut block_sum: impl FnMut(usize, f64),
 ) {
-    let units = spare.units();
-    let per_unit = spare.unit_len();
-    let block_len = spare.unit_voxels();
+    let units = total.units();
+    let per_unit = total.unit_len();
+    let block_len = total.unit_voxels();
     let mut block = 0;
+    let mut sums = Vec::new();
     for first in (0..units).step_by(RELEASE_UNITS) {
         let range = first * per_unit..(first + RELEASE_UNITS).min(units) * per_unit;
-        let (s, t, l) = (&mut spare.values_mut()[range.clone()], &total.values()[range.clone()], &last.values()[range]);
-        for ((s, t), l) in s.chunks_mut(block_len).zip(t.chunks(block_len)).zip(l.chunks(block_len)) {
-            let f = factor(block);
+        let l = &last.values()[range.clone()];
+        // (destination, the total it adds to: `None` when the destination is the total itself)
+        let (s, t) = match spare.as_deref_mut() {
+            Some(spare) => (&mut spare.values_mut()[range.clone()], Some(&total.values()[range])),
+            None => (&mut total.values_mut()[range], None),
+        };
+        let base = block;
+        let add = |i: usize, s: &mut [F::V], t: Option<&[F::V]>, l: &[F::V]| {
+            let f = factor(base + i);
             let mut sum = 0.0;
-            for ((s, &t), &l) in s.iter_mut().zip(t).zip(l) {
-                *s = t + f * l;
+            for (j, (s, &l)) in s.iter_mut().zip(l).enumerate() {
+                *s = t.map_or(*s, |t| t[j]) + f * l;
                 sum += l.to_f64().abs();
             }
+            sum
+        };
+        match t {
+            Some(t) => s
+                .par_chunks_mut(block_len)
+                .zip(t.par_chunks(block_len))
+                .zip(l.par_chunks(block_len))
+                .with_min_len(min_items(block_len))
+                .enumerate()
+                .map(|(i, ((s, t), l))| add(i, s, Some(t), l))
+                .collect_into_vec(&mut sums),
+            None => s
+                .par_chunks_mut(block_len)
+                .zip(l.par_chunks(block_len))
+                .with_min_len(min_items(block_len))
+                .enumerate()
+                .map(|(i, (s, l))| add(i, s, None, l))
+                .collect_into_vec(&mut sums),
+        }
+        for &sum in &sums {
             block_sum(block, sum);
             block += 1;
         }
-        spare.release(first, RELEASE_UNITS);
+        if let Some(spare) = spare.as_deref() {
+            spare.release(first, RELEASE_UNITS);
+        }
         total.release(first, RELEASE_UNITS);
         last.release(first, RELEASE_UNITS);
     }

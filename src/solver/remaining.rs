@@ -55,7 +55,9 @@ impl RemainingTally {
         if total > self.brightest {
             self.brightest = total;
         }
-        if total < DARK * self.brightest {
+        // Decided on the value as kept (f32), as `finish` decides: a voxel is dropped here only if
+        // it would be dropped there, so tallies merged in any grouping finish alike.
+        if ((total as f32) as f64) < DARK * self.brightest {
             return;
         }
         let e = if factor.is_finite() {
@@ -68,8 +70,26 @@ impl RemainingTally {
         self.pairs.push((total as f32, e as f32));
         // Bound the memory: drop pairs that have fallen below the floor since they were kept.
         if self.pairs.len() >= 1 << 22 {
-            let floor = (DARK * self.brightest) as f32;
-            self.pairs.retain(|&(t, _)| t >= floor);
+            self.prune();
+        }
+    }
+
+    /// Drops the kept pairs below the current dark floor (they would be dropped by `finish`).
+    fn prune(&mut self) {
+        let floor = DARK * self.brightest;
+        self.pairs.retain(|&(t, _)| t as f64 >= floor);
+    }
+
+    /// Appends the voxels `later` counted (voxels that come after this tally's, in the order a
+    /// single walk would meet them). The result finishes to bitwise what one walk over both would
+    /// give: a voxel either drops below the final dark floor in both or is kept in both, and kept
+    /// pairs stay in walk order.
+    pub fn merge(&mut self, later: RemainingTally) {
+        self.brightest = self.brightest.max(later.brightest);
+        let floor = DARK * self.brightest;
+        self.pairs.extend(later.pairs.into_iter().filter(|&(t, _)| t as f64 >= floor));
+        if self.pairs.len() >= 1 << 22 {
+            self.prune();
         }
     }
 
@@ -124,5 +144,33 @@ mod tests {
         assert!((t.finish().max - 0.01 / 1.01).abs() < 1e-6);
         t.add(0.5, 0.01, tail_factor(1.0));
         assert_eq!(t.finish().max, f64::INFINITY);
+    }
+
+    #[test]
+    fn merged_tallies_finish_as_one_walk() {
+        // Fluences over many decades (so the dark floor drops some voxels, early in one walk and
+        // late in a grouped one), in any grouping: the same bits.
+        let voxels: Vec<(f64, f64)> = (0..5000u64)
+            .map(|i| {
+                let x = (i.wrapping_mul(2654435761) % 1000) as f64 / 1000.0;
+                (10f64.powf(-16.0 * x) * (1.0 + (i % 7) as f64), 10f64.powf(-3.0 * x) * 0.01)
+            })
+            .collect();
+        let mut one = RemainingTally::default();
+        for &(t, k) in &voxels {
+            one.add(t, k, 0.9);
+        }
+        for group in [1, 3, 64, 999] {
+            let mut merged = RemainingTally::default();
+            for chunk in voxels.chunks(group) {
+                let mut part = RemainingTally::default();
+                for &(t, k) in chunk {
+                    part.add(t, k, 0.9);
+                }
+                merged.merge(part);
+            }
+            let (a, b) = (one.finish(), merged.finish());
+            assert!(a.max.to_bits() == b.max.to_bits() && a.l2.to_bits() == b.l2.to_bits(), "group {group}");
+        }
     }
 }

@@ -3,6 +3,7 @@
 use super::atomic::write_atomic_io;
 use super::field::{Coverage, Field};
 use super::grid::{BrickGrid, BRICK_VOXELS};
+use super::resident::PageHolding;
 use super::table::{BrickTable, DENSITY_FILE};
 use super::StoreError;
 use memmap2::Mmap;
@@ -20,6 +21,8 @@ const BRICKS_PER_WORKER: usize = 64;
 pub struct BrickStore {
     dir: PathBuf,
     table: Arc<BrickTable>,
+    /// Whether passes keep the pages of the store and its fields resident ([`super::resident`]).
+    pages: Arc<PageHolding>,
     /// `density.bricks`: the occupied bricks, 4096 f32 each, in slot order.
     density: Mmap,
 }
@@ -117,7 +120,7 @@ impl BrickStore {
         // SAFETY: the mapping is read-only and the store owns its directory; like every memory-mapped
         // file, it must not be truncated by another process while mapped.
         let density = unsafe { Mmap::map(&file) }.map_err(StoreError::io(&density_path, "memory-map"))?;
-        Ok(BrickStore { dir: dir.to_path_buf(), table: Arc::new(table), density })
+        Ok(BrickStore { dir: dir.to_path_buf(), table: Arc::new(table), pages: Arc::default(), density })
     }
 
     pub fn grid(&self) -> &BrickGrid {
@@ -168,6 +171,9 @@ impl BrickStore {
     /// Drops the density pages of occupied slots `first .. first + count` from the resident set
     /// (the values are kept; see [`Field`]'s docs on resident memory).
     pub fn release_density(&self, first: usize, count: usize) {
+        if self.pages.holds() {
+            return;
+        }
         let brick = BRICK_VOXELS * 4;
         super::field::release_read_only(&self.density, first * brick, count * brick);
     }
@@ -177,6 +183,21 @@ impl BrickStore {
         self.release_density(0, self.occupied_count());
     }
 
+    /// Keeps (`true`) or hands back (`false`, the default) the pages of the store and of every
+    /// field mapped from it after each pass; see [`super::resident`]. Values are never affected.
+    pub fn hold_pages(&self, hold: bool) {
+        self.pages.set(hold);
+    }
+
+    /// Bytes of the store's files on disk (density, table and every field), as allocated.
+    pub fn file_bytes(&self) -> u64 {
+        std::fs::read_dir(&self.dir)
+            .map(|entries| {
+                entries.flatten().filter_map(|e| e.metadata().ok()).filter(|m| m.is_file()).map(|m| m.len()).sum()
+            })
+            .unwrap_or(0)
+    }
+
     fn density_slice(&self) -> &[f32] {
         // The map is page-aligned, so the cast only fails for an empty map (all bricks empty).
         bytemuck::try_cast_slice(&self.density[..]).unwrap_or(&[])
@@ -184,12 +205,12 @@ impl BrickStore {
 
     /// Creates (or truncates) `<name>.field` in the store directory, zero-filled, and maps it.
     pub fn create_field(&self, name: &str, components: u32, coverage: Coverage) -> Result<Field, StoreError> {
-        Field::create(&self.dir, Arc::clone(&self.table), name, components, coverage)
+        Field::create(&self.dir, Arc::clone(&self.table), Arc::clone(&self.pages), name, components, coverage)
     }
 
     /// Maps an existing `<name>.field`, checking its size against the shape asked for.
     pub fn open_field(&self, name: &str, components: u32, coverage: Coverage) -> Result<Field, StoreError> {
-        Field::open(&self.dir, Arc::clone(&self.table), name, components, coverage)
+        Field::open(&self.dir, Arc::clone(&self.table), Arc::clone(&self.pages), name, components, coverage)
     }
 }
 

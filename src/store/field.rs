@@ -11,6 +11,7 @@
 //! disk up front (see `allocate`): a write through the map never meets a full disk.
 
 use super::grid::{BrickGrid, BRICK_VOXELS};
+use super::resident::PageHolding;
 use super::table::BrickTable;
 use super::StoreError;
 use memmap2::MmapMut;
@@ -33,6 +34,8 @@ pub struct Field {
     components: u32,
     coverage: Coverage,
     table: Arc<BrickTable>,
+    /// The store's switch: set, releases are no-ops (see [`super::resident`]).
+    pages: Arc<PageHolding>,
     file: File,
     map: MmapMut,
 }
@@ -41,6 +44,7 @@ impl Field {
     pub(crate) fn create(
         dir: &Path,
         table: Arc<BrickTable>,
+        pages: Arc<PageHolding>,
         name: &str,
         components: u32,
         coverage: Coverage,
@@ -55,12 +59,13 @@ impl Field {
             .map_err(StoreError::io(&path, "create"))?;
         file.set_len(len).map_err(StoreError::io(&path, "size"))?;
         allocate(&file, &path, len)?;
-        Self::map(path, file, table, name, components, coverage)
+        Self::map(path, file, table, pages, name, components, coverage)
     }
 
     pub(crate) fn open(
         dir: &Path,
         table: Arc<BrickTable>,
+        pages: Arc<PageHolding>,
         name: &str,
         components: u32,
         coverage: Coverage,
@@ -76,13 +81,14 @@ impl Field {
                 ),
             });
         }
-        Self::map(path, file, table, name, components, coverage)
+        Self::map(path, file, table, pages, name, components, coverage)
     }
 
     fn map(
         path: PathBuf,
         file: File,
         table: Arc<BrickTable>,
+        pages: Arc<PageHolding>,
         name: &str,
         components: u32,
         coverage: Coverage,
@@ -90,7 +96,7 @@ impl Field {
         // SAFETY: the field file belongs to the store directory; like every memory-mapped file it must
         // not be truncated by another process while mapped.
         let map = unsafe { MmapMut::map_mut(&file) }.map_err(StoreError::io(&path, "memory-map"))?;
-        Ok(Field { name: name.to_string(), path, components, coverage, table, file, map })
+        Ok(Field { name: name.to_string(), path, components, coverage, table, pages, file, map })
     }
 
     pub fn components(&self) -> u32 {
@@ -183,6 +189,9 @@ impl Field {
     /// Drops the pages of stored bricks `first .. first + count` from the resident set (see the
     /// module docs; the values are kept).
     pub fn release_stored(&self, first: usize, count: usize) {
+        if self.pages.holds() {
+            return;
+        }
         let brick_bytes = self.brick_len() * 4;
         release_mut(&self.map, first * brick_bytes, count * brick_bytes);
     }
@@ -203,6 +212,9 @@ impl Field {
 
     /// Drops every page of the field from the resident set (the values are kept).
     pub fn release_all(&self) {
+        if self.pages.holds() {
+            return;
+        }
         release_mut(&self.map, 0, self.map.len());
     }
 

@@ -7,8 +7,8 @@
 //! quantity (sources, fluence, accumulators) is a [`Field`]: a memory-mapped file holding, for each
 //! stored brick, `components × 4096` f32 values, component-major. A field either covers every brick
 //! ([`Coverage::Dense`]) or only the occupied ones ([`Coverage::Occupied`], indexed by slot). The
-//! solver's fields are all `Occupied`. Passes over fields hand their pages back to keep the resident
-//! set bounded (see [`Field`]).
+//! solver's fields are all `Occupied`. Passes over the fields of a store larger than the host memory
+//! budget hand their pages back to keep the resident set bounded (see [`Field`] and [`resident`]).
 //!
 //! Files in a store directory:
 //!
@@ -32,6 +32,7 @@ mod grid;
 pub mod import;
 pub mod nanovdb;
 pub mod nrrd_input;
+pub mod resident;
 mod space;
 mod table;
 pub mod vdb;

@@ -153,3 +153,19 @@ fn the_planned_bytes_are_the_bytes_allocated() {
         assert!(plans.len() >= 3, "{name}: {plans:?}");
     }
 }
+
+/// The host memory budget only decides whether the store's pages stay resident between passes
+/// (`store::resident`): a store kept resident and one whose pages are handed back after every pass
+/// give the same bits, and the run says which it did.
+#[test]
+fn keeping_the_store_resident_or_not_gives_the_same_bits() {
+    let mut kept = cloud();
+    kept.solver.host_memory_budget = Some(1 << 40);
+    let mut released = cloud();
+    released.solver.host_memory_budget = Some(1);
+    let (a, b) = (solve("host-kept", &kept, Gpu), solve("host-released", &released, Gpu));
+    assert!(a.run.residency.kept_resident && a.run.residency.budget_origin == "solver.host_memory_budget");
+    assert!(!b.run.residency.kept_resident);
+    assert!(a.run.residency.store_bytes > 0 && a.run.residency.store_bytes == b.run.residency.store_bytes);
+    assert!(bits(&a) == bits(&b), "resident and released stores solved differently");
+}

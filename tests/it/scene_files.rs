@@ -352,6 +352,29 @@ fn bad_budget_string() {
     rejects(&with("[solver]\ndevice_memory_budget = \"12X\"\n"), "solver.device_memory_budget", "unknown suffix");
     rejects(&with("[solver]\ndevice_memory_budget = 0\n"), "solver.device_memory_budget", "must be > 0");
     rejects(&with("[solver]\ndevice_memory_budget = \"0G\"\n"), "solver.device_memory_budget", "must be > 0");
+    rejects(&with("[solver]\nhost_memory_budget = \"lots\"\n"), "solver.host_memory_budget", "invalid byte size");
+    rejects(&with("[solver]\nhost_memory_budget = -5\n"), "solver.host_memory_budget", "must be > 0");
+}
+
+/// The host memory budget and the checkpoint cadence: read, defaulted, and bad values refused.
+#[test]
+fn host_memory_and_checkpoint_keys() {
+    let s = load(&with(
+        "[solver]\nhost_memory_budget = \"2G\"\ncheckpoint_every_orders = 4\ncheckpoint_every_seconds = 0\n",
+    ))
+    .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(s.solver.host_memory_budget, Some(2 << 30));
+    assert_eq!(s.solver.checkpoint, lpm::scene::CheckpointCadence { every_orders: Some(4), every_seconds: 0.0 });
+    let s = load(&with("")).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(s.solver.host_memory_budget, None);
+    assert_eq!(s.solver.checkpoint, lpm::scene::CheckpointCadence { every_orders: None, every_seconds: 300.0 });
+    // The cadence: the first of N orders or T seconds; always the last order and with the correction.
+    let c = lpm::scene::CheckpointCadence { every_orders: Some(3), every_seconds: 60.0 };
+    assert!(!c.due(1, 1.0, false, false) && c.due(3, 1.0, false, false) && c.due(1, 60.0, false, false));
+    assert!(c.due(1, 0.0, true, false) && c.due(1, 0.0, false, true));
+    rejects(&with("[solver]\ncheckpoint_every_orders = 0\n"), "solver.checkpoint_every_orders", "at least 1");
+    rejects(&with("[solver]\ncheckpoint_every_seconds = -1\n"), "solver.checkpoint_every_seconds", "≥ 0");
+    rejects(&with("[solver]\ncheckpoint_every_seconds = nan\n"), "solver.checkpoint_every_seconds", "finite");
 }
 
 #[test]

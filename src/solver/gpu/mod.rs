@@ -60,6 +60,7 @@ use super::periodic::{CarryOf, PeriodicCarry, RayRadiance};
 use super::plan::{half_scale_exponent, Plan, Precision, SweepDirection};
 use super::sweep::{side_births, FaceSweep};
 use super::SolveError;
+use crate::scene::CheckpointCadence;
 use crate::store::BrickStore;
 use crate::vk::{Context, Recorder};
 use ash::vk;
@@ -67,6 +68,7 @@ use budget::MemoryPlan;
 use layout::{FLAG_BOUNDARY, FLAG_CARRY, FLAG_EMIT, FLAG_GAIN};
 use resources::DeviceResources;
 use std::sync::Arc;
+use std::time::Instant;
 use streamer::{Pass, SliceStreamer, Stream};
 
 /// How the GPU backend runs.
@@ -77,7 +79,7 @@ pub struct GpuOptions {
     /// At most this many slices in flight: 2 lets transfers overlap compute, 1 forces one slice
     /// at a time (the single-queue schedule).
     pub max_slices_in_flight: u32,
-    /// Write a checkpoint into the store after every completed order (for `--resume`).
+    /// Write checkpoints into the store (for `--resume`), at the scene's cadence (`solver.checkpoint_every_*`).
     pub checkpoints: bool,
     /// Bracket every submission with GPU timestamps (for `lpm bench stream`).
     pub profile: bool,
@@ -109,8 +111,12 @@ pub struct GpuBackend<'a> {
     fields: &'a mut StoreFields,
     /// The store's density as the host passes walk it.
     medium: StoreMedium<'a>,
-    /// The scene digest checkpoints are written under; `None`: no checkpoints.
-    checkpoint_digest: Option<String>,
+    /// The scene digest checkpoints are written under and their cadence; `None`: no checkpoints.
+    checkpoints: Option<(String, CheckpointCadence)>,
+    /// Orders completed since the last checkpoint (or the start), and when that was.
+    since_checkpoint: (u32, Instant),
+    /// The state after the last completed order when the cadence skipped its checkpoint.
+    pending: Option<LoopState>,
     memory: MemoryPlan,
     /// The f16 previous source's scale exponent for the order being propagated (`None`: f32).
     half_exponent: Option<i32>,
@@ -172,7 +178,9 @@ impl<'a> GpuBackend<'a> {
             store,
             fields,
             medium,
-            checkpoint_digest: None,
+            checkpoints: None,
+            since_checkpoint: (0, Instant::now()),
+            pending: None,
             memory,
             half_exponent: None,
             progress: None,
@@ -180,9 +188,9 @@ impl<'a> GpuBackend<'a> {
         })
     }
 
-    /// Writes a checkpoint into the store after every completed order.
-    pub fn enable_checkpoints(&mut self, digest: String) {
-        self.checkpoint_digest = Some(digest);
+    /// Writes checkpoints into the store, after completed orders as `cadence` says.
+    pub fn enable_checkpoints(&mut self, digest: String, cadence: CheckpointCadence) {
+        self.checkpoints = Some((digest, cadence));
     }
 
     /// Streaming time and bytes measured so far (when profiling).
@@ -371,6 +379,64 @@ fn read_tallies(
 
 impl<'a> Backend for GpuBackend<'a> {
     fn propagate_order(&mut self, order: u32) -> Result<Tallies, SolveError> {
+        match self.propagate(order) {
+            // A cancelled solve keeps the checkpoint of its last completed order: the committed
+            // fields and the previous source are intact (this order only wrote its own
+            // accumulators), so a state the cadence skipped is checkpointed now.
+            Err(SolveError::Cancelled) => {
+                if let Some(state) = self.pending.take() {
+                    self.write_checkpoint(&state)?;
+                }
+                Err(SolveError::Cancelled)
+            }
+            result => result,
+        }
+    }
+
+    type Field = crate::store::Field;
+    type Medium = StoreMedium<'a>;
+
+    fn fields(&mut self) -> (&mut OrderFieldSet<crate::store::Field>, &StoreMedium<'a>) {
+        (self.fields, &self.medium)
+    }
+
+    fn carried_power(&self) -> [f64; 3] {
+        self.carry.power(self.plan)
+    }
+
+    fn emission_field_power(&mut self) -> Result<Option<[f64; 3]>, SolveError> {
+        if !self.plan.emission_field {
+            return Ok(None);
+        }
+        Ok(Some(super::emission::emitted_power(self.store, self.plan)?))
+    }
+
+    fn checkpoint(&mut self, state: &LoopState, last: bool) -> Result<(), SolveError> {
+        let Some((_, cadence)) = &self.checkpoints else { return Ok(()) };
+        self.since_checkpoint.0 += 1;
+        let (orders, since) = self.since_checkpoint;
+        let correction = self.plan.diffusion_correction.iter().any(|&k| k > 0.0);
+        if cadence.due(orders, since.elapsed().as_secs_f64(), last, correction) {
+            self.write_checkpoint(state)
+        } else {
+            self.pending = Some(state.clone());
+            Ok(())
+        }
+    }
+}
+
+impl GpuBackend<'_> {
+    /// Writes `state` as the checkpoint now (when checkpoints are on).
+    fn write_checkpoint(&mut self, state: &LoopState) -> Result<(), SolveError> {
+        let Some((digest, _)) = &self.checkpoints else { return Ok(()) };
+        self.fields.write_checkpoint(self.store.dir(), digest, state)?;
+        self.since_checkpoint = (0, Instant::now());
+        self.pending = None;
+        Ok(())
+    }
+
+    /// One order's sweeps (see [`Backend::propagate_order`]).
+    fn propagate(&mut self, order: u32) -> Result<Tallies, SolveError> {
         let plan = self.plan;
         self.fields.begin_order()?;
         // The scale of this order's f16 source, from its largest value (exact: a power of two).
@@ -397,30 +463,5 @@ impl<'a> Backend for GpuBackend<'a> {
             tallies.add(&self.sweep(SweepOf::Face(face), flags)?);
         }
         Ok(tallies)
-    }
-
-    type Field = crate::store::Field;
-    type Medium = StoreMedium<'a>;
-
-    fn fields(&mut self) -> (&mut OrderFieldSet<crate::store::Field>, &StoreMedium<'a>) {
-        (self.fields, &self.medium)
-    }
-
-    fn carried_power(&self) -> [f64; 3] {
-        self.carry.power(self.plan)
-    }
-
-    fn emission_field_power(&mut self) -> Result<Option<[f64; 3]>, SolveError> {
-        if !self.plan.emission_field {
-            return Ok(None);
-        }
-        Ok(Some(super::emission::emitted_power(self.store, self.plan)?))
-    }
-
-    fn checkpoint(&mut self, state: &LoopState) -> Result<(), SolveError> {
-        match &self.checkpoint_digest {
-            Some(digest) => self.fields.write_checkpoint(self.store.dir(), digest, state),
-            None => Ok(()),
-        }
     }
 }
