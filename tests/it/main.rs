@@ -22,6 +22,7 @@ mod forward_peak;
 mod gpu_solver;
 mod hard_cases;
 mod image_views;
+mod kobayashi;
 mod nanovdb_input;
 mod out_of_core;
 mod periodic;
