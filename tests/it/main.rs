@@ -21,6 +21,7 @@ mod environment;
 mod forward_peak;
 mod gpu_solver;
 mod hard_cases;
+mod i3rc;
 mod image_views;
 mod kobayashi;
 mod nanovdb_input;
