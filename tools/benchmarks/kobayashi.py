@@ -27,8 +27,9 @@ lpm's fluence is then the benchmark's scalar flux (particles/cm^2/s).
 Usage:
   kobayashi.py generate --problem 1 --case i --voxel-size 10 --out DIR [--k 5] [--tolerance 1e-4]
       writes DIR/density.raw, DIR/emission.raw, DIR/scene.toml and DIR/detectors.json
-  kobayashi.py compare SOLVE_DIR [--scene-dir DIR] [--markdown]
+  kobayashi.py compare SOLVE_DIR [--scene-dir DIR] [--markdown] [--json FILE]
       reads SOLVE_DIR/fluence.raw and prints lpm against the published values (C/E) per point
+      (--json: the same rows as JSON)
 Python 3 standard library only.
 """
 import argparse
@@ -36,7 +37,6 @@ import json
 import math
 import os
 import struct
-import sys
 
 SIGMA_T = 0.1  # /cm at density 1: source and shield
 VOID_DENSITY = 1e-3  # sigma_t 1e-4 /cm in the void
@@ -239,7 +239,7 @@ def compare(args):
         c = phi(d["voxel"])
         rows.append((d["set"], d["point"], c, d["published"], c / d["published"], d["published_rel_err"]))
     if args.markdown:
-        print(f"| set | point (cm) | lpm | published | C/E |")
+        print("| set | point (cm) | lpm | published | C/E |")
         print("|---|---|---|---|---|")
         for s, p, c, e, ce, err in rows:
             pe = f"{e:.5e}" + ("" if err is None else f" ({err:.5f})")
@@ -247,8 +247,10 @@ def compare(args):
     else:
         for s, p, c, e, ce, err in rows:
             print(f"{s} {tuple(p)!s:16} lpm {c:.5e} published {e:.5e} C/E {ce:.3f}")
-    json.dump([{"set": s, "point": p, "lpm": c, "published": e, "c_over_e": ce} for s, p, c, e, ce, _ in rows],
-              sys.stderr if args.json is None else open(args.json, "w"), indent=1)
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump([{"set": s, "point": p, "lpm": c, "published": e, "c_over_e": ce}
+                       for s, p, c, e, ce, _ in rows], f, indent=1)
 
 
 def main():
