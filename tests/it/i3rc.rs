@@ -1,0 +1,94 @@
+//! The I3RC step cloud (Cahalan et al. 2005, BAMS 86(9), 1275–1293; case 1, experiment 1: overhead
+//! sun, albedo 1, g = 0.85, optical depth 2 | 18 in two halves, periodic across) as written by
+//! `tools/benchmarks/i3rc.py` (32 × 4 × 16 voxels of 15.625 m, k = 3): a conservative periodic
+//! cloud must give R + T = 1 with no net flow through its periodic faces, lose no sunlight at its
+//! sides, be the same in every y row (it is uniform along y), and land near the consensus domain
+//! means. The GPU must match its twin. The comparison at more settings is in `benches/RESULTS.md`.
+use crate::common::*;
+use lpm::scene::Scene;
+use lpm::solver::BackendKind::{Cpu, Gpu};
+use std::path::PathBuf;
+
+/// Domain means of the I3RC consensus reflectance and transmittance (direct + diffuse), case 1
+/// experiment 1, averaged over its 32 columns (the generator holds the per-column values).
+const CONSENSUS_R: f64 = 0.327595;
+const CONSENSUS_T: f64 = 0.672398;
+
+/// Runs the generator into a directory of its own (`name`: tests run in parallel).
+fn generate(name: &str) -> Scene {
+    let dir = temp_dir(name);
+    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tools/benchmarks/i3rc.py");
+    let out = std::process::Command::new("/usr/bin/python3")
+        .arg(&script)
+        .args(["generate", "--ny", "4", "--k", "3", "--out"])
+        .arg(&dir)
+        .output()
+        .expect("run /usr/bin/python3");
+    assert!(out.status.success(), "i3rc.py: {}", String::from_utf8_lossy(&out.stderr));
+    Scene::load(&dir.join("scene.toml")).expect("the generated scene loads")
+}
+
+/// (R, T): the top face's outgoing over incoming power, the bottom face's outgoing (the direct
+/// beam included, as the consensus T) over the top's incoming.
+fn reflectance_transmittance(s: &Solved) -> (f64, f64) {
+    let faces = &s.run.outcome.energy.faces;
+    let sun = faces[5].power_in[0];
+    (faces[5].power_out[0] / sun, faces[4].power_out[0] / sun)
+}
+
+#[test]
+fn the_step_cloud_conserves_and_is_near_the_consensus() {
+    let sc = generate("i3rc-scene");
+    assert_eq!(sc.volume.dims, [32, 4, 16]);
+    let s = solve("i3rc-cpu", &sc, Cpu);
+    assert!(s.run.outcome.converged);
+    let e = &s.run.outcome.energy;
+    assert!(e.relative_imbalance < 1e-9, "{e:?}");
+    assert_eq!(e.absorbed[0], 0.0, "albedo 1 absorbs nothing");
+    // The sun (irradiance 1, overhead) brings exactly E × the top face's area, 0.5 km × 4·h: with
+    // periodic sides no ray is born beside the cloud.
+    let area = 0.5 * 4.0 * 0.015625;
+    assert!((e.faces[5].power_in[0] / area - 1.0).abs() < 1e-9, "sun power {}", e.faces[5].power_in[0]);
+    assert!(e.faces[4].power_in[0] == 0.0, "nothing enters from below");
+    // No net flow through a periodic face: what leaves one side enters the other (all but the
+    // light still in flight when the orders stop).
+    for f in 0..4 {
+        let (came, left) = (e.faces[f].power_in[0], e.faces[f ^ 1].power_out[0]);
+        assert!((came - left).abs() < 1e-4 * area, "face {f}: in {came} vs out of the opposite {left}");
+    }
+    // Conservative: R + T = 1 up to what the stop rule leaves (tolerance 1e-4; measured 0.999955).
+    let (r, t) = reflectance_transmittance(&s);
+    assert!((r + t - 1.0).abs() < 2e-4, "R {r} + T {t}");
+    // Near the consensus. Measured: R +7.1 %, T −3.5 %, the same at k = 3, 4, 5 and 8 (so not the
+    // propagation directions): the 2×2 storage directions per face cannot hold g = 0.85 even after
+    // δ-M scaling (3×3 storage: R +4.8 %; without δ-M: R +21 %). These bounds are lpm's measured
+    // error with margin, not a tuning target: see benches/RESULTS.md.
+    assert!((r / CONSENSUS_R - 1.0).abs() < 0.10, "R {r} vs consensus {CONSENSUS_R}");
+    assert!((t / CONSENSUS_T - 1.0).abs() < 0.05, "T {t} vs consensus {CONSENSUS_T}");
+    // The thick half reflects more than the thin half lets through its top: the fluence near the
+    // top of the thick half exceeds that of the thin half (consensus R 0.409 vs 0.246 per half).
+    let top = |x0: u32| (x0..x0 + 16).map(|x| s.fluence([x, 0, 15], 0)).sum::<f64>();
+    assert!(top(16) > top(0), "thick top {} vs thin top {}", top(16), top(0));
+    // Uniform along y: every y row alike, up to the lattice's own pattern (rays born where their
+    // slots wrap), measured 0.7 %.
+    let [nx, ny, nz] = s.run.plan.dims;
+    for (x, y, z) in (0..nz).flat_map(|z| (0..ny).flat_map(move |y| (0..nx).map(move |x| (x, y, z)))) {
+        let (a, b) = (s.fluence([x, y, z], 0), s.fluence([x, 0, z], 0));
+        assert!((a - b).abs() < 0.02 * b, "({x}, {y}, {z}): {a} vs row 0 {b}");
+    }
+}
+
+#[test]
+fn the_gpu_solves_the_step_cloud_as_its_twin() {
+    // A few orders (validation on): the same discretisation, faces' books included.
+    let mut sc = generate("i3rc-scene-gpu");
+    sc.solver.max_orders = 6;
+    sc.solver.tolerance = 1e-30;
+    let (g, c) = (solve("i3rc-gpu", &sc, Gpu), solve("i3rc-gpu-twin", &sc, Cpu));
+    let err = relative_l2(&g.fluence_all(), &c.fluence_all());
+    assert!(err <= 1e-4, "GPU vs twin: relative L2 {err}");
+    let (rg, tg) = reflectance_transmittance(&g);
+    let (rc, tc) = reflectance_transmittance(&c);
+    assert!((rg - rc).abs() < 1e-5 && (tg - tc).abs() < 1e-5, "GPU R {rg} T {tg} vs twin R {rc} T {tc}");
+    assert!(g.run.outcome.energy.relative_imbalance < 1e-5, "{:?}", g.run.outcome.energy);
+}
