@@ -66,6 +66,8 @@ const PLAN_MODES: &str = "\"auto\", \"full\"";
 const SPATIAL_SCHEMES: &str = "\"constant\", \"linear\"";
 const FORWARD_PEAKS: &str = "\"auto\", \"delta-m\", \"keep\"";
 const DIFFUSION_CORRECTIONS: &str = "\"on\", \"off\"";
+/// The fewest voxels a periodic axis may have (shorter periods lose light; see `Validator::scene`).
+const MIN_PERIODIC_VOXELS: u32 = 4;
 
 pub(crate) struct Validator<'a> {
     pub path: &'a Path,
@@ -117,6 +119,28 @@ impl Validator<'_> {
                     "a point light in a periodic volume would repeat with it; periodic boundaries take \
                      sky, sun and environment light only",
                 ));
+            }
+            // Known losses, refused rather than solved wrongly (benches/RESULTS.md, "Standard
+            // benchmarks"): the linear scheme's lattice loses light at periodic faces (R + T = 0.95
+            // on the conservative I3RC cloud), and so does a period of one voxel (0.91).
+            if solver.spatial == SpatialScheme::Linear {
+                return Err(self.err(
+                    "solver.spatial",
+                    "\"linear\" does not support periodic boundaries yet (it loses light at the periodic \
+                     faces); use \"constant\" (the default) with [boundary]",
+                ));
+            }
+            for (axis, name) in ["x", "y", "z"].iter().enumerate() {
+                if boundary.periodic[axis] && volume.dims[axis] < MIN_PERIODIC_VOXELS {
+                    return Err(self.err(
+                        format!("boundary.{name}"),
+                        format!(
+                            "a periodic axis needs at least {MIN_PERIODIC_VOXELS} voxels (the volume has {}): \
+                             shorter periods lose light; repeat the volume's voxels along it",
+                            volume.dims[axis]
+                        ),
+                    ));
+                }
             }
         }
         Ok(Scene { path: self.path.to_path_buf(), volume, medium, lights, solver, camera, boundary })

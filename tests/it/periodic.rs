@@ -194,10 +194,17 @@ fn boundary_keys_are_checked() {
             "[boundary]\nx = \"periodic\"\n[[lights]]\nkind = \"point\"\nposition = [1, 1, 1]\nintensity = 1.0\n",
             "lights[0].kind",
         ),
+        // Known losses refused (benches/RESULTS.md, "Standard benchmarks").
+        ("[boundary]\nx = \"periodic\"\n[solver]\nspatial = \"linear\"\n", "solver.spatial"),
     ] {
         let err = lpm::scene::Scene::from_toml_str(&format!("{base}{text}"), Path::new("t.toml"))
             .expect_err(text)
             .to_string();
         assert!(err.contains(words), "{err}");
     }
+    let short = base.replace("dims = [4, 4, 4]", "dims = [4, 3, 4]");
+    let err = lpm::scene::Scene::from_toml_str(&format!("{short}[boundary]\ny = \"periodic\"\n"), Path::new("t.toml"))
+        .expect_err("a 3-voxel period")
+        .to_string();
+    assert!(err.contains("boundary.y") && err.contains("at least 4 voxels"), "{err}");
 }
