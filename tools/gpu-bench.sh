@@ -165,7 +165,7 @@ label = "default (half the heap)" if sys.argv[3] == "full" else "1/8 of that pla
 kind = "CPU figure (lavapipe)" if r["device_is_cpu"] else "GPU"
 print(f"| {sys.argv[2]}³ | {label} ({m['planned_bytes'] / 2**20:.0f} MiB planned) | {o['wall_seconds']:.3f} s | "
       f"{o['updates_per_second'] / 1e9:.3f} G/s | {o['compute_seconds']:.3f} s | {o['upload_seconds']:.3f} / {o['download_seconds']:.3f} s | "
-      f"{o['hidden_transfer_fraction']:.2f} | {kind} |")
+      f"{o['hidden_transfer_fraction']:.2f} | {o.get('host_seconds', float('nan')):.3f} s | {kind} |")
 EOF
         done
     done
@@ -196,8 +196,8 @@ EOF
         echo
         echo "Command: \`bash tools/gpu-bench.sh run\` (SIZES=\"$sizes\", ORDERS=$orders; RGB cloud, k = 4, 96 directions)."
         echo
-        echo "| size | budget | wall per order | updates/s | compute | upload / download | hidden transfer | device |"
-        echo "|---|---|---|---|---|---|---|---|"
+        echo "| size | budget | wall per order | updates/s | compute | upload / download | hidden transfer | host | device |"
+        echo "|---|---|---|---|---|---|---|---|---|"
         cat "$rows"
         echo
         echo "| size | backend | time | device |"
