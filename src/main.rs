@@ -406,6 +406,55 @@ enum BenchCommand {
         #[arg(long, default_value_t = 0.05)]
         max_rel_stderr: f64,
     },
+    /// Grid refinement: the scene's medium solved at voxel sizes h, h/2, h/4, each finer fluence
+    /// averaged onto the coarsest grid, its error against the finest level and against the
+    /// Richardson extrapolation, and the fitted slope (the observed order); writes refine.json,
+    /// refine.csv and refine.svg (a log-log plot) into --out.
+    Refine {
+        /// The scene file (TOML): its grid is the coarsest level.
+        scene: PathBuf,
+        /// Output directory (the runs go to OUT/runs).
+        #[arg(long, short)]
+        out: PathBuf,
+        /// Grids to solve: h, h/2, … (2 to 4; 3 gives the Richardson extrapolation).
+        #[arg(long, default_value_t = 3)]
+        levels: u32,
+        /// Directions per face of every run; default: the scene's own.
+        #[arg(long)]
+        k: Option<u32>,
+        /// Solver tolerance of every run (tight, so that the discretisation is what is measured).
+        #[arg(long, default_value_t = 1e-5)]
+        tolerance: f64,
+        /// Order cap of every run; default: the scene's own.
+        #[arg(long)]
+        max_orders: Option<u32>,
+        /// Spatial schemes, one line each (comma-separated: constant, linear); default: the
+        /// scene's own.
+        #[arg(long, value_delimiter = ',', value_enum)]
+        spatial: Vec<SpatialArg>,
+        /// Diffusion-correction settings, one line each (comma-separated: off, on); default: the
+        /// scene's own.
+        #[arg(long, value_delimiter = ',', value_enum)]
+        diffusion_correction: Vec<DiffusionArg>,
+        /// The density quantile where the dense core starts (0.9: the densest 10 % of the medium).
+        #[arg(long, default_value_t = lpm::compare::DEFAULT_CORE_QUANTILE)]
+        core_quantile: f64,
+        /// Backend of the solver runs.
+        #[arg(long, value_enum, default_value_t = Backend::Gpu)]
+        backend: Backend,
+        /// Vulkan physical device index of the solver runs.
+        #[arg(long, env = "LPM_DEVICE")]
+        device: Option<usize>,
+        /// Enable the Khronos validation layer in the solver runs.
+        #[arg(long, env = "LPM_VALIDATION", value_parser = clap::builder::BoolishValueParser::new())]
+        validation: Option<bool>,
+    },
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum DiffusionArg {
+    Off,
+    On,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -898,6 +947,54 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Bench {
+            what:
+                BenchCommand::Refine {
+                    scene,
+                    out,
+                    levels,
+                    k,
+                    tolerance,
+                    max_orders,
+                    spatial,
+                    diffusion_correction,
+                    core_quantile,
+                    backend,
+                    device,
+                    validation,
+                },
+        } => {
+            let options = lpm::bench::refine::RefineOptions {
+                levels,
+                directions_per_face: k,
+                tolerance,
+                max_orders,
+                spatial: spatial
+                    .iter()
+                    .map(|s| match s {
+                        SpatialArg::Constant => lpm::scene::SpatialScheme::Constant,
+                        SpatialArg::Linear => lpm::scene::SpatialScheme::Linear,
+                    })
+                    .collect(),
+                diffusion_correction: diffusion_correction
+                    .iter()
+                    .map(|d| match d {
+                        DiffusionArg::Off => lpm::scene::DiffusionCorrection::Off,
+                        DiffusionArg::On => lpm::scene::DiffusionCorrection::On,
+                    })
+                    .collect(),
+                core_quantile,
+                backend: match backend {
+                    Backend::Gpu => BackendKind::Gpu,
+                    Backend::Cpu => BackendKind::Cpu,
+                },
+                vk: vk_options(device, validation),
+            };
+            let report = lpm::bench::refine::run(&scene, &out, &options, |line| tracing::info!("{line}"))?;
+            print_refine(&report);
+            println!("wrote refine.json, refine.csv and refine.svg to {}", out.display());
+            Ok(())
+        }
+        Command::Bench {
             what: BenchCommand::Stream { scene, orders, device_memory_budget, device, validation, json },
         } => {
             let vk = vk_options(device, validation);
@@ -912,6 +1009,51 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
     }
+}
+
+/// The refinement study as a table: per line and level, the change from the coarser level and the
+/// errors (whole medium and core) against the finest level and the extrapolation; then the orders.
+fn print_refine(report: &lpm::bench::refine::RefineReport) {
+    let f = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.3e}"));
+    println!(
+        "{:<28} {:>10} {:>16} {:>7} {:>10} {:>11} {:>11} {:>11} {:>11} {:>11}",
+        "line", "h", "dims", "orders", "seconds", "change", "vs finest", "core", "vs extrap.", "core"
+    );
+    for line in &report.lines {
+        for l in &line.levels {
+            println!(
+                "{:<28} {:>10.4} {:>16} {:>7} {:>10.2} {:>11} {:>11} {:>11} {:>11} {:>11}",
+                line.name,
+                l.voxel_size,
+                format!("{}x{}x{}", l.dims[0], l.dims[1], l.dims[2]),
+                l.orders,
+                l.seconds,
+                f(l.change_from_coarser),
+                f(l.error_vs_finest),
+                f(l.core_error_vs_finest),
+                f(l.error_vs_extrapolated),
+                f(l.core_error_vs_extrapolated)
+            );
+        }
+        let o = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.2}"));
+        println!(
+            "{:<28} observed order {} (core {}); slope vs extrapolation {} (core {}), vs finest {} (core {})",
+            line.name,
+            o(line.observed_order),
+            o(line.core_observed_order),
+            o(line.slope_vs_extrapolated),
+            o(line.core_slope_vs_extrapolated),
+            o(line.slope_vs_finest),
+            o(line.core_slope_vs_finest)
+        );
+    }
+    println!(
+        "{} coarse voxels measured ({} in the core, density ≥ {}); refine.svg plots the errors against the {}",
+        report.voxels_compared,
+        report.core_voxels_compared,
+        report.core_density_threshold,
+        if report.plotted == "extrapolated" { "Richardson extrapolation" } else { "finest level" }
+    );
 }
 
 fn render_again(
