@@ -310,9 +310,7 @@ fn measure(name: String, solved: Vec<SolvedLevel>, whole: &[bool], core: &[bool]
     let n = solved.len();
     let fields: Vec<&[f64]> = solved.iter().map(|s| s.coarse.as_slice()).collect();
     let l2 = |a: &[f64], b: &[f64], mask: &[bool]| relative_l2(a, b, mask, c);
-    let extrapolated = (n >= 3)
-        .then(|| richardson(fields[n - 3], fields[n - 2], fields[n - 1], whole, c))
-        .flatten();
+    let extrapolated = (n >= 3).then(|| richardson(fields[n - 3], fields[n - 2], fields[n - 1], whole, c)).flatten();
     let core_order = (n >= 3).then(|| observed_order(fields[n - 3], fields[n - 2], fields[n - 1], core, c)).flatten();
     let (spatial, diffusion_correction) =
         solved.first().map_or((String::new(), String::new()), |s| (s.spatial.clone(), s.diffusion_correction.clone()));
