@@ -405,6 +405,11 @@ enum BenchCommand {
         /// Compare only voxels whose reference relative standard error is at most this.
         #[arg(long, default_value_t = 0.05)]
         max_rel_stderr: f64,
+        /// Also run the grid-refinement study (as `bench refine`) with this many levels, into the
+        /// same --out (refine.json, refine.csv, refine.svg): at the first --k, the finest
+        /// --tolerances, each --spatial scheme.
+        #[arg(long)]
+        refine: Option<u32>,
     },
     /// Grid refinement: the scene's medium solved at voxel sizes h, h/2, h/4, each finer fluence
     /// averaged onto the coarsest grid, its error against the finest level and against the
@@ -474,6 +479,15 @@ enum PlanArg {
 enum SpatialArg {
     Constant,
     Linear,
+}
+
+impl SpatialArg {
+    fn scheme(self) -> lpm::scene::SpatialScheme {
+        match self {
+            SpatialArg::Constant => lpm::scene::SpatialScheme::Constant,
+            SpatialArg::Linear => lpm::scene::SpatialScheme::Linear,
+        }
+    }
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -869,8 +883,24 @@ fn run(cli: Cli) -> Result<()> {
                     device,
                     validation,
                     max_rel_stderr,
+                    refine,
                 },
         } => {
+            // The refinement study's settings, taken before the lists move into the options.
+            let refine_options = refine.map(|levels| lpm::bench::refine::RefineOptions {
+                levels,
+                directions_per_face: k.first().copied(),
+                tolerance: tolerances.iter().copied().fold(f64::INFINITY, f64::min),
+                max_orders: None,
+                spatial: spatial.iter().map(|s| s.scheme()).collect(),
+                diffusion_correction: Vec::new(),
+                core_quantile,
+                backend: match backend {
+                    Backend::Gpu => BackendKind::Gpu,
+                    Backend::Cpu => BackendKind::Cpu,
+                },
+                vk: vk_options(device, validation),
+            });
             let options = lpm::bench::accuracy::AccuracyOptions {
                 directions_per_face: k,
                 tolerances,
@@ -890,13 +920,7 @@ fn run(cli: Cli) -> Result<()> {
                         PlanArg::Full => lpm::scene::PlanMode::Full,
                     })
                     .collect(),
-                spatial: spatial
-                    .iter()
-                    .map(|s| match s {
-                        SpatialArg::Constant => lpm::scene::SpatialScheme::Constant,
-                        SpatialArg::Linear => lpm::scene::SpatialScheme::Linear,
-                    })
-                    .collect(),
+                spatial: spatial.iter().map(|s| s.scheme()).collect(),
                 forward_peaks: forward_peak
                     .iter()
                     .map(|p| match p {
@@ -944,6 +968,11 @@ fn run(cli: Cli) -> Result<()> {
                 );
             }
             println!("wrote accuracy.json, accuracy.csv and accuracy.svg to {}", out.display());
+            if let Some(options) = refine_options {
+                let report = lpm::bench::refine::run(&scene, &out, &options, |line| tracing::info!("{line}"))?;
+                print_refine(&report);
+                println!("wrote refine.json, refine.csv and refine.svg to {}", out.display());
+            }
             Ok(())
         }
         Command::Bench {
@@ -968,13 +997,7 @@ fn run(cli: Cli) -> Result<()> {
                 directions_per_face: k,
                 tolerance,
                 max_orders,
-                spatial: spatial
-                    .iter()
-                    .map(|s| match s {
-                        SpatialArg::Constant => lpm::scene::SpatialScheme::Constant,
-                        SpatialArg::Linear => lpm::scene::SpatialScheme::Linear,
-                    })
-                    .collect(),
+                spatial: spatial.iter().map(|s| s.scheme()).collect(),
                 diffusion_correction: diffusion_correction
                     .iter()
                     .map(|d| match d {
