@@ -263,3 +263,94 @@ fn bench_refine_refuses_bad_levels_with_a_clear_error() {
     assert_eq!(o.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&o.stderr).contains("--levels must be in 2..=4, not 7"));
 }
+
+/// A VDB density is read as the solver reads it and replicated into a raw file (the same
+/// piecewise-constant medium, at the VDB's own origin); a per-voxel grid of the VDB file is refused
+/// with an error naming the scene file and the key.
+#[test]
+fn a_refined_vdb_volume_is_replicated_and_its_grids_are_refused() {
+    let dir = temp_dir("refine-vdb");
+    let vdb = dir.join("slab.vdb");
+    let script = r#"
+import sys
+import pyopenvdb as openvdb
+d = openvdb.FloatGrid(); d.name = "density"
+a = openvdb.FloatGrid(0.5); a.name = "albedo"
+for x in range(-2, 4):
+    for y in range(0, 5):
+        for z in range(1, 4):
+            d.getAccessor().setValueOn((x, y, z), 0.5 + 0.1 * ((x + 2 * y + 3 * z) % 5))
+            a.getAccessor().setValueOn((x, y, z), 0.9)
+d.transform = openvdb.createLinearTransform(voxelSize=0.5)
+a.transform = openvdb.createLinearTransform(voxelSize=0.5)
+openvdb.write(sys.argv[1], grids=[d, a])
+"#;
+    let out = std::process::Command::new("/usr/bin/python3")
+        .args(["-c", script, vdb.to_str().unwrap()])
+        .output()
+        .expect("run /usr/bin/python3 (install python3-openvdb: tools/setup.sh)");
+    assert!(out.status.success(), "python3-openvdb: {}", String::from_utf8_lossy(&out.stderr));
+    let text = "[volume]\nvdb = \"slab.vdb\"\n[medium]\nsigma_t = 1.0\nalbedo = 0.8\n[[lights]]\nkind = \"sky\"\nradiance = 1.0\n";
+    let path = write_scene(&dir, text);
+    let loaded = Scene::load(&path).unwrap();
+    let refined = Scene::load(&write_refined_scene(&path, &loaded, &dir.join("h3"), 3, &keys()).unwrap()).unwrap();
+    assert!(matches!(refined.volume.source, VolumeSource::Raw { .. }), "{:?}", refined.volume.source);
+    assert_eq!(refined.volume.dims, loaded.volume.dims.map(|d| 3 * d));
+    assert_eq!(refined.volume.voxel_size, loaded.volume.voxel_size / 3.0);
+    assert_eq!(refined.volume.origin, loaded.volume.origin);
+    let coarse = lpm::solver::density_volume(&loaded, &dir.join("scratch-a")).unwrap();
+    let fine = lpm::solver::density_volume(&refined, &dir.join("scratch-b")).unwrap();
+    assert_eq!(fine, replicate(&coarse, loaded.volume.dims, 3));
+
+    let with_grid =
+        write_scene_as(&dir, "albedo.toml", &text.replace("[medium]", "albedo_grid = \"albedo\"\n[medium]"));
+    let loaded = Scene::load(&with_grid).unwrap();
+    let err = write_refined_scene(&with_grid, &loaded, &dir.join("refused"), 2, &keys()).unwrap_err().to_string();
+    assert!(err.contains("albedo.toml") && err.contains("volume.albedo_grid") && err.contains("albedo_raw"), "{err}");
+}
+
+/// `lpm bench accuracy --refine 3` writes the refinement study beside the accuracy study.
+#[test]
+fn bench_accuracy_refine_writes_the_second_plot() {
+    let dir = temp_dir("refine-accuracy-cli");
+    let scene = write_scene(
+        &dir,
+        "[volume]\nprocedural = \"box\"\ndims = [4, 4, 4]\n[medium]\nsigma_t = 1.0\nalbedo = 0.8\n[[lights]]\nkind = \"sky\"\nradiance = 1.0\n",
+    );
+    let out = dir.join("acc");
+    let o = lpm_command(&[
+        "bench",
+        "accuracy",
+        scene.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--k",
+        "2",
+        "--tolerances",
+        "1e-3,1e-5",
+        "--precisions",
+        "f32",
+        "--samples",
+        "2e4",
+        "--reference-samples",
+        "2e5",
+        "--max-rel-stderr",
+        "0.2",
+        "--backend",
+        "cpu",
+        "--refine",
+        "3",
+    ])
+    .output()
+    .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for f in ["accuracy.json", "accuracy.svg", "refine.json", "refine.csv", "refine.svg"] {
+        assert!(out.join(f).exists(), "{f} is missing");
+    }
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("refine.json")).unwrap()).unwrap();
+    assert_eq!(report["tolerance"], 1e-5, "the finest of --tolerances");
+    let levels = report["lines"][0]["levels"].as_array().unwrap();
+    assert_eq!(levels.len(), 3);
+    assert!(levels.iter().all(|l| l["error_vs_extrapolated"].as_f64().is_some_and(f64::is_finite)), "{levels:?}");
+}
