@@ -232,7 +232,9 @@ max_orders = 400
         let p = line["observed_order"].as_f64().unwrap();
         let slope = line["slope_vs_extrapolated"].as_f64().unwrap();
         eprintln!("{spatial}: observed order {p:.2}, slope {slope:.2}, errors {errors:?}");
-        assert!(p > 0.0 && slope > 0.0);
+        // Measured: constant p = 1.43, linear 1.39 (the 8³ box of benches/RESULTS.md: 1.52 and
+        // 1.34). Better than first order; a scheme that lost its order would fall below.
+        assert!(p > 1.2 && p < 3.0 && slope > 1.2 && slope < 3.0, "observed order {p}, slope {slope}");
     }
     let csv = std::fs::read_to_string(out.join("refine.csv")).unwrap();
     assert_eq!(csv.lines().count(), 1 + 6);
