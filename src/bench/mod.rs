@@ -11,6 +11,7 @@
 pub mod accuracy;
 mod accuracy_outputs;
 pub mod refine;
+mod refine_measure;
 mod refine_outputs;
 pub mod refine_scene;
 
