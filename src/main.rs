@@ -433,6 +433,11 @@ enum BenchCommand {
         /// Order cap of every run; default: the scene's own.
         #[arg(long)]
         max_orders: Option<u32>,
+        /// Refine a procedural volume by replicating its voxels (the same piecewise-constant
+        /// medium: the solver's error alone), not by generating it at the finer dims (the same
+        /// continuous medium sampled more finely: the default).
+        #[arg(long)]
+        replicate: bool,
         /// Spatial schemes, one line each (comma-separated: constant, linear); default: the
         /// scene's own.
         #[arg(long, value_delimiter = ',', value_enum)]
@@ -892,6 +897,7 @@ fn run(cli: Cli) -> Result<()> {
                 directions_per_face: k.first().copied(),
                 tolerance: tolerances.iter().copied().fold(f64::INFINITY, f64::min),
                 max_orders: None,
+                replicate_procedural: false,
                 spatial: spatial.iter().map(|s| s.scheme()).collect(),
                 diffusion_correction: Vec::new(),
                 core_quantile,
@@ -984,6 +990,7 @@ fn run(cli: Cli) -> Result<()> {
                     k,
                     tolerance,
                     max_orders,
+                    replicate,
                     spatial,
                     diffusion_correction,
                     core_quantile,
@@ -997,6 +1004,7 @@ fn run(cli: Cli) -> Result<()> {
                 directions_per_face: k,
                 tolerance,
                 max_orders,
+                replicate_procedural: replicate,
                 spatial: spatial.iter().map(|s| s.scheme()).collect(),
                 diffusion_correction: diffusion_correction
                     .iter()

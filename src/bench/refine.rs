@@ -41,6 +41,10 @@ pub struct RefineOptions {
     pub tolerance: f64,
     /// `solver.max_orders` of every run; `None`: the scene's own.
     pub max_orders: Option<u32>,
+    /// Refine a procedural volume by replicating its voxels (the same piecewise-constant medium:
+    /// the solver's error alone) rather than generating it at the finer dims (the default: the
+    /// same continuous medium, sampled more finely).
+    pub replicate_procedural: bool,
     /// `solver.spatial` schemes, one line each; empty: the scene's own.
     pub spatial: Vec<SpatialScheme>,
     /// `solver.diffusion_correction` settings, one line each; empty: the scene's own.
@@ -99,6 +103,9 @@ pub struct RefineReport {
     pub scene: String,
     pub backend: String,
     pub tolerance: f64,
+    /// How a procedural volume was refined: "resampled" or "replicated" (a file volume is always
+    /// replicated).
+    pub procedural: String,
     pub coarse_dims: [u32; 3],
     pub coarse_voxel_size: f64,
     pub core_quantile: f64,
@@ -204,6 +211,7 @@ pub fn run(
             BackendKind::Cpu => "cpu".into(),
         },
         tolerance: opts.tolerance,
+        procedural: if opts.replicate_procedural { "replicated".into() } else { "resampled".into() },
         coarse_dims: coarse,
         coarse_voxel_size: loaded.volume.voxel_size,
         core_quantile: opts.core_quantile,
@@ -254,7 +262,7 @@ fn solve_level(
 ) -> Result<SolvedLevel, RefineError> {
     let dir_name: String = name.chars().map(|c| if c.is_ascii_alphanumeric() || c == '=' { c } else { '-' }).collect();
     let dir = runs.join(format!("{dir_name}-h{factor}"));
-    let copy = write_refined_scene(scene_path, loaded, &dir.join("scene"), factor, keys)?;
+    let copy = write_refined_scene(scene_path, loaded, &dir.join("scene"), factor, opts.replicate_procedural, keys)?;
     let t = Instant::now();
     let report = job::run(
         &SolveJob {

@@ -5,7 +5,9 @@
 //! How the medium is carried to the finer grid:
 //! * a **procedural** volume is generated again at the finer dims: every shape is a function of
 //!   voxel-normalised coordinates (`scene::procedural`), so it is the same continuous medium
-//!   sampled more finely (the sphere's staircase and the cloud's voxel samples move with the grid);
+//!   sampled more finely (the sphere's staircase and the cloud's voxel samples move with the grid),
+//!   so the study measures the medium's sampling error with the solver's; or, asked to
+//!   (`replicate`), replicated as a file volume is, which leaves the solver's error alone;
 //! * any **file** volume (raw, OpenVDB, NanoVDB, NRRD) is read as the solver reads it and written as
 //!   a raw file with each voxel replicated f³ times: a piecewise-constant medium, exactly the same
 //!   medium on the finer grid;
@@ -51,12 +53,15 @@ pub fn replicate(values: &[f32], dims: [u32; 3], factor: u32) -> Vec<f32> {
 }
 
 /// Writes `dir/scene.toml`: the scene at `scene_path` (loaded as `loaded`) refined by `factor`,
-/// with `keys` set, and beside it the replicated raw files it needs. Returns the copy's path.
+/// with `keys` set, and beside it the replicated raw files it needs. A procedural volume is
+/// generated at the finer dims, or with `replicate` replicated like a file volume. Returns the
+/// copy's path.
 pub fn write_refined_scene(
     scene_path: &Path,
     loaded: &Scene,
     dir: &Path,
     factor: u32,
+    replicate_procedural: bool,
     keys: &SolverKeys,
 ) -> Result<PathBuf, RefineError> {
     let io = |path: &Path| {
@@ -96,13 +101,13 @@ pub fn write_refined_scene(
     volume.insert("dims".into(), Value::Array(dims.iter().map(|&d| Value::Integer(d.into())).collect()));
     volume.insert("voxel_size".into(), Value::Float(v.voxel_size / factor as f64));
     volume.insert("origin".into(), Value::Array(v.origin.to_array().iter().map(|&o| Value::Float(o)).collect()));
-    if !matches!(v.source, VolumeSource::Procedural { .. }) {
-        // A file volume: as the solver reads it, replicated into a raw file.
+    if replicate_procedural || !matches!(v.source, VolumeSource::Procedural { .. }) {
+        // As the solver reads it, replicated into a raw file.
         let scratch = dir.join("density-scratch");
         let density = crate::solver::density_volume(loaded, &scratch).map_err(crate::job::JobError::from)?;
         let raw = dir.join("density.raw");
         write_raw(&raw, &replicate(&density, v.dims, factor))?;
-        for key in ["vdb", "nvdb", "nrrd", "grid", "raw"] {
+        for key in ["procedural", "seed", "vdb", "nvdb", "nrrd", "grid", "raw"] {
             volume.remove(key);
         }
         volume.insert("raw".into(), Value::String(raw.display().to_string()));

@@ -77,7 +77,7 @@ radiance = 1.0
 "#,
     );
     let loaded = Scene::load(&path).unwrap();
-    let copy = write_refined_scene(&path, &loaded, &dir.join("h2"), 2, &keys()).unwrap();
+    let copy = write_refined_scene(&path, &loaded, &dir.join("h2"), 2, false, &keys()).unwrap();
     let refined = Scene::load(&copy).unwrap();
     assert_eq!(refined.volume.dims, [10, 8, 6]);
     assert_eq!(refined.volume.voxel_size, 0.25);
@@ -128,13 +128,20 @@ spatial = "linear"
         diffusion_correction: Some("on".into()),
         ..keys()
     };
-    let refined = Scene::load(&write_refined_scene(&path, &loaded, &dir.join("h4"), 4, &keys).unwrap()).unwrap();
+    let refined = Scene::load(&write_refined_scene(&path, &loaded, &dir.join("h4"), 4, false, &keys).unwrap()).unwrap();
     assert_eq!(refined.volume.dims, [64; 3]);
     assert_eq!(refined.volume.voxel_size, 0.25);
     assert_eq!(refined.volume.source, VolumeSource::Procedural { shape: lpm::scene::Shape::Cloud, seed: 7 });
     assert_eq!(refined.solver.directions_per_face, 2);
     assert_eq!(refined.solver.spatial, lpm::scene::SpatialScheme::Constant);
     assert_eq!(refined.solver.diffusion_correction, lpm::scene::DiffusionCorrection::On);
+    // Replicated instead: the 16³ cloud's voxels in blocks of 2³, as a raw volume.
+    let copy = write_refined_scene(&path, &loaded, &dir.join("h2-replicated"), 2, true, &keys).unwrap();
+    let replicated = Scene::load(&copy).unwrap();
+    assert!(matches!(replicated.volume.source, VolumeSource::Raw { .. }), "{:?}", replicated.volume.source);
+    let coarse = lpm::solver::density_volume(&loaded, &dir.join("scratch-a")).unwrap();
+    let fine = lpm::solver::density_volume(&replicated, &dir.join("scratch-b")).unwrap();
+    assert_eq!(fine, replicate(&coarse, [16; 3], 2));
 }
 
 #[test]
@@ -295,7 +302,8 @@ openvdb.write(sys.argv[1], grids=[d, a])
     let text = "[volume]\nvdb = \"slab.vdb\"\n[medium]\nsigma_t = 1.0\nalbedo = 0.8\n[[lights]]\nkind = \"sky\"\nradiance = 1.0\n";
     let path = write_scene(&dir, text);
     let loaded = Scene::load(&path).unwrap();
-    let refined = Scene::load(&write_refined_scene(&path, &loaded, &dir.join("h3"), 3, &keys()).unwrap()).unwrap();
+    let refined =
+        Scene::load(&write_refined_scene(&path, &loaded, &dir.join("h3"), 3, false, &keys()).unwrap()).unwrap();
     assert!(matches!(refined.volume.source, VolumeSource::Raw { .. }), "{:?}", refined.volume.source);
     assert_eq!(refined.volume.dims, loaded.volume.dims.map(|d| 3 * d));
     assert_eq!(refined.volume.voxel_size, loaded.volume.voxel_size / 3.0);
@@ -307,7 +315,8 @@ openvdb.write(sys.argv[1], grids=[d, a])
     let with_grid =
         write_scene_as(&dir, "albedo.toml", &text.replace("[medium]", "albedo_grid = \"albedo\"\n[medium]"));
     let loaded = Scene::load(&with_grid).unwrap();
-    let err = write_refined_scene(&with_grid, &loaded, &dir.join("refused"), 2, &keys()).unwrap_err().to_string();
+    let err =
+        write_refined_scene(&with_grid, &loaded, &dir.join("refused"), 2, false, &keys()).unwrap_err().to_string();
     assert!(err.contains("albedo.toml") && err.contains("volume.albedo_grid") && err.contains("albedo_raw"), "{err}");
 }
 
