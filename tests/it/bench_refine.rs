@@ -98,7 +98,7 @@ radiance = 1.0
 }
 
 #[test]
-fn a_refined_procedural_volume_is_generated_at_the_finer_dims() {
+fn a_refined_procedural_volume_is_generated_at_the_finer_dims_or_replicated() {
     let dir = temp_dir("refine-procedural-scene");
     let path = write_scene(
         &dir,
