@@ -69,6 +69,9 @@ pub fn write_refined_scene(
         move |source| RefineError::Io { path, source }
     };
     std::fs::create_dir_all(dir).map_err(io(dir))?;
+    // The copy names the files written beside it by absolute path: the loader resolves a relative
+    // one against the copy's own directory, not against the working directory.
+    let dir = &std::path::absolute(dir).map_err(io(dir))?;
     let text = std::fs::read_to_string(scene_path).map_err(io(scene_path))?;
     let mut value: Value = text.parse().map_err(|e: toml::de::Error| RefineError::Scene {
         path: scene_path.to_path_buf(),

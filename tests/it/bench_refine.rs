@@ -365,3 +365,25 @@ fn bench_accuracy_refine_writes_the_second_plot() {
     assert_eq!(levels.len(), 3);
     assert!(levels.iter().all(|l| l["error_vs_extrapolated"].as_f64().is_some_and(f64::is_finite)), "{levels:?}");
 }
+
+/// A relative `--out`: the scene copies name their replicated files by absolute path, so the
+/// loader finds them (it resolves a relative path against the copy's directory).
+#[test]
+fn bench_refine_with_a_relative_out_finds_its_replicated_files() {
+    let dir = temp_dir("refine-relative-out");
+    write_raw_field(&dir.join("density.raw"), [4, 4, 4], |v| 0.5 + 0.1 * (v[0] + v[2]) as f32);
+    write_scene(
+        &dir,
+        "[volume]\nraw = \"density.raw\"\ndims = [4, 4, 4]\n[medium]\nsigma_t = 1.0\nalbedo = 0.5\n[[lights]]\nkind = \"sky\"\nradiance = 1.0\n",
+    );
+    let o = lpm_command(&["bench", "refine", "scene.toml", "--out", "out", "--levels", "2", "--backend", "cpu"])
+        .current_dir(&dir)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("out/refine.json")).unwrap()).unwrap();
+    // Two levels: no extrapolation, the plot shows the error against the finer level.
+    assert_eq!(report["plotted"], "finest");
+    assert!(report["lines"][0]["levels"][0]["error_vs_finest"].as_f64().is_some_and(|e| e > 0.0 && e < 0.5));
+}
