@@ -16,10 +16,10 @@
 //!
 //! The slope of log error against log h is fitted by least squares ([`fit_slope`]). (b) is what
 //! `refine.svg` plots (when it exists: three levels or more, and changes that shrink); it is the
-//! better estimate of the true error: against the finest level a p-th order error reads
-//! (2^p + 1)/(2^p − 1)-fold too steep over two levels. The two finest points of (b) are a ratio 2^p
-//! apart by construction, so its slope mostly restates p; the coarsest point is the independent
-//! check. The outputs are `refine.json`, `refine.csv` and `refine.svg` (`refine_outputs`).
+//! better estimate of the true error: against the finest level a p-th order error reads too steep
+//! (the two coarser levels' errors are 2^p + 1 apart, not 2^p). The two finest points of (b) are a
+//! ratio 2^p apart by construction, so its slope mostly restates p; the coarsest point is the
+//! independent check. The outputs are `refine.json`, `refine.csv` and `refine.svg` (`refine_outputs`).
 
 pub use super::refine_measure::{average_down, fit_slope, observed_order, relative_l2, richardson};
 use super::refine_scene::{write_refined_scene, SolverKeys};
