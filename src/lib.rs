@@ -28,7 +28,7 @@
 //! | [`reference`](mod@reference) | the independent Monte-Carlo reference (shares only the scene with the solver) |
 //! | [`compare`] | accuracy figures of one output directory against another (e.g. a solve against a reference) |
 //! | [`job`] | a whole `lpm solve`: scene → store → solve → exported fields, image, report; checkpoints and resume |
-//! | [`bench`](mod@bench) | `lpm bench`: the profiled stream (JSON) and the time-against-error study |
+//! | [`bench`](mod@bench) | `lpm bench`: the profiled stream (JSON), the time-against-error study and the grid-refinement study (the same medium at h, h/2, h/4: error against h and the observed order) |
 //! | `serve` | `lpm serve`: the HTTP job server, its durable SQLite queue and the `submit`/`status`/`fetch` client (cargo feature `service`, on by default) |
 //! | [`sweep`](mod@sweep) | `lpm sweep`: frames and parameter sweeps as numbered tasks, one task per run, Slurm array scripts |
 //! | [`plot`] | small dependency-free plots (log/linear axes, series, legend) written as SVG |

@@ -405,7 +405,66 @@ enum BenchCommand {
         /// Compare only voxels whose reference relative standard error is at most this.
         #[arg(long, default_value_t = 0.05)]
         max_rel_stderr: f64,
+        /// Also run the grid-refinement study (as `bench refine`) with this many levels, into the
+        /// same --out (refine.json, refine.csv, refine.svg): at the first --k, the finest
+        /// --tolerances, each --spatial scheme.
+        #[arg(long)]
+        refine: Option<u32>,
     },
+    /// Grid refinement: the scene's medium solved at voxel sizes h, h/2, h/4, each finer fluence
+    /// averaged onto the coarsest grid, its error against the finest level and against the
+    /// Richardson extrapolation, and the fitted slope (the observed order); writes refine.json,
+    /// refine.csv and refine.svg (a log-log plot) into --out.
+    Refine {
+        /// The scene file (TOML): its grid is the coarsest level.
+        scene: PathBuf,
+        /// Output directory (the runs go to OUT/runs).
+        #[arg(long, short)]
+        out: PathBuf,
+        /// Grids to solve: h, h/2, … (2 to 4; 3 gives the Richardson extrapolation).
+        #[arg(long, default_value_t = 3)]
+        levels: u32,
+        /// Directions per face of every run; default: the scene's own.
+        #[arg(long)]
+        k: Option<u32>,
+        /// Solver tolerance of every run (tight, so that the discretisation is what is measured).
+        #[arg(long, default_value_t = 1e-5)]
+        tolerance: f64,
+        /// Order cap of every run; default: the scene's own.
+        #[arg(long)]
+        max_orders: Option<u32>,
+        /// Refine a procedural volume by replicating its voxels (the same piecewise-constant
+        /// medium: the solver's error alone), not by generating it at the finer dims (the same
+        /// continuous medium sampled more finely: the default).
+        #[arg(long)]
+        replicate: bool,
+        /// Spatial schemes, one line each (comma-separated: constant, linear); default: the
+        /// scene's own.
+        #[arg(long, value_delimiter = ',', value_enum)]
+        spatial: Vec<SpatialArg>,
+        /// Diffusion-correction settings, one line each (comma-separated: off, on); default: the
+        /// scene's own.
+        #[arg(long, value_delimiter = ',', value_enum)]
+        diffusion_correction: Vec<DiffusionArg>,
+        /// The density quantile where the dense core starts (0.9: the densest 10 % of the medium).
+        #[arg(long, default_value_t = lpm::compare::DEFAULT_CORE_QUANTILE)]
+        core_quantile: f64,
+        /// Backend of the solver runs.
+        #[arg(long, value_enum, default_value_t = Backend::Gpu)]
+        backend: Backend,
+        /// Vulkan physical device index of the solver runs.
+        #[arg(long, env = "LPM_DEVICE")]
+        device: Option<usize>,
+        /// Enable the Khronos validation layer in the solver runs.
+        #[arg(long, env = "LPM_VALIDATION", value_parser = clap::builder::BoolishValueParser::new())]
+        validation: Option<bool>,
+    },
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum DiffusionArg {
+    Off,
+    On,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -425,6 +484,15 @@ enum PlanArg {
 enum SpatialArg {
     Constant,
     Linear,
+}
+
+impl SpatialArg {
+    fn scheme(self) -> lpm::scene::SpatialScheme {
+        match self {
+            SpatialArg::Constant => lpm::scene::SpatialScheme::Constant,
+            SpatialArg::Linear => lpm::scene::SpatialScheme::Linear,
+        }
+    }
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -820,8 +888,25 @@ fn run(cli: Cli) -> Result<()> {
                     device,
                     validation,
                     max_rel_stderr,
+                    refine,
                 },
         } => {
+            // The refinement study's settings, taken before the lists move into the options.
+            let refine_options = refine.map(|levels| lpm::bench::refine::RefineOptions {
+                levels,
+                directions_per_face: k.first().copied(),
+                tolerance: tolerances.iter().copied().fold(f64::INFINITY, f64::min),
+                max_orders: None,
+                replicate_procedural: false,
+                spatial: spatial.iter().map(|s| s.scheme()).collect(),
+                diffusion_correction: Vec::new(),
+                core_quantile,
+                backend: match backend {
+                    Backend::Gpu => BackendKind::Gpu,
+                    Backend::Cpu => BackendKind::Cpu,
+                },
+                vk: vk_options(device, validation),
+            });
             let options = lpm::bench::accuracy::AccuracyOptions {
                 directions_per_face: k,
                 tolerances,
@@ -841,13 +926,7 @@ fn run(cli: Cli) -> Result<()> {
                         PlanArg::Full => lpm::scene::PlanMode::Full,
                     })
                     .collect(),
-                spatial: spatial
-                    .iter()
-                    .map(|s| match s {
-                        SpatialArg::Constant => lpm::scene::SpatialScheme::Constant,
-                        SpatialArg::Linear => lpm::scene::SpatialScheme::Linear,
-                    })
-                    .collect(),
+                spatial: spatial.iter().map(|s| s.scheme()).collect(),
                 forward_peaks: forward_peak
                     .iter()
                     .map(|p| match p {
@@ -895,6 +974,55 @@ fn run(cli: Cli) -> Result<()> {
                 );
             }
             println!("wrote accuracy.json, accuracy.csv and accuracy.svg to {}", out.display());
+            if let Some(options) = refine_options {
+                let report = lpm::bench::refine::run(&scene, &out, &options, |line| tracing::info!("{line}"))?;
+                print_refine(&report);
+                println!("wrote refine.json, refine.csv and refine.svg to {}", out.display());
+            }
+            Ok(())
+        }
+        Command::Bench {
+            what:
+                BenchCommand::Refine {
+                    scene,
+                    out,
+                    levels,
+                    k,
+                    tolerance,
+                    max_orders,
+                    replicate,
+                    spatial,
+                    diffusion_correction,
+                    core_quantile,
+                    backend,
+                    device,
+                    validation,
+                },
+        } => {
+            let options = lpm::bench::refine::RefineOptions {
+                levels,
+                directions_per_face: k,
+                tolerance,
+                max_orders,
+                replicate_procedural: replicate,
+                spatial: spatial.iter().map(|s| s.scheme()).collect(),
+                diffusion_correction: diffusion_correction
+                    .iter()
+                    .map(|d| match d {
+                        DiffusionArg::Off => lpm::scene::DiffusionCorrection::Off,
+                        DiffusionArg::On => lpm::scene::DiffusionCorrection::On,
+                    })
+                    .collect(),
+                core_quantile,
+                backend: match backend {
+                    Backend::Gpu => BackendKind::Gpu,
+                    Backend::Cpu => BackendKind::Cpu,
+                },
+                vk: vk_options(device, validation),
+            };
+            let report = lpm::bench::refine::run(&scene, &out, &options, |line| tracing::info!("{line}"))?;
+            print_refine(&report);
+            println!("wrote refine.json, refine.csv and refine.svg to {}", out.display());
             Ok(())
         }
         Command::Bench {
@@ -912,6 +1040,51 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
     }
+}
+
+/// The refinement study as a table: per line and level, the change from the coarser level and the
+/// errors (whole medium and core) against the finest level and the extrapolation; then the orders.
+fn print_refine(report: &lpm::bench::refine::RefineReport) {
+    let f = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.3e}"));
+    println!(
+        "{:<28} {:>10} {:>16} {:>7} {:>10} {:>11} {:>11} {:>11} {:>11} {:>11}",
+        "line", "h", "dims", "orders", "seconds", "change", "vs finest", "core", "vs extrap.", "core"
+    );
+    for line in &report.lines {
+        for l in &line.levels {
+            println!(
+                "{:<28} {:>10.4} {:>16} {:>7} {:>10.2} {:>11} {:>11} {:>11} {:>11} {:>11}",
+                line.name,
+                l.voxel_size,
+                format!("{}x{}x{}", l.dims[0], l.dims[1], l.dims[2]),
+                l.orders,
+                l.seconds,
+                f(l.change_from_coarser),
+                f(l.error_vs_finest),
+                f(l.core_error_vs_finest),
+                f(l.error_vs_extrapolated),
+                f(l.core_error_vs_extrapolated)
+            );
+        }
+        let o = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.2}"));
+        println!(
+            "{:<28} observed order {} (core {}); slope vs extrapolation {} (core {}), vs finest {} (core {})",
+            line.name,
+            o(line.observed_order),
+            o(line.core_observed_order),
+            o(line.slope_vs_extrapolated),
+            o(line.core_slope_vs_extrapolated),
+            o(line.slope_vs_finest),
+            o(line.core_slope_vs_finest)
+        );
+    }
+    println!(
+        "{} coarse voxels measured ({} in the core, density ≥ {}); refine.svg plots the errors against the {}",
+        report.voxels_compared,
+        report.core_voxels_compared,
+        report.core_density_threshold,
+        if report.plotted == "extrapolated" { "Richardson extrapolation" } else { "finest level" }
+    );
 }
 
 fn render_again(

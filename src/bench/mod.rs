@@ -1,4 +1,5 @@
-//! `lpm bench`: throughput measurements that print JSON.
+//! `lpm bench`: throughput measurements that print JSON, the time-against-error study
+//! ([`accuracy`]) and the grid-refinement study ([`refine`]).
 //!
 //! `stream` runs a few scattering orders of a scene on the GPU backend with every upload, compute
 //! and download submission bracketed by GPU timestamps, and reports per order the time in each, the
@@ -9,6 +10,10 @@
 
 pub mod accuracy;
 mod accuracy_outputs;
+pub mod refine;
+mod refine_measure;
+mod refine_outputs;
+pub mod refine_scene;
 
 use crate::job::JobError;
 use crate::scene::Scene;

@@ -296,7 +296,7 @@ pub fn compare_dirs(a: &Path, b: &Path, opts: &CompareOptions) -> Result<Compari
 
 /// The `q`-quantile of the non-zero densities (the lower one of the two around it); 0 when the
 /// volume is empty.
-fn density_quantile(density: &[f32], q: f64) -> f32 {
+pub fn density_quantile(density: &[f32], q: f64) -> f32 {
     let mut medium: Vec<f32> = density.iter().copied().filter(|&d| d > 0.0).collect();
     if medium.is_empty() {
         return 0.0;
