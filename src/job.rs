@@ -8,7 +8,8 @@
 //! every output is written into a staging directory and published with the others as one set
 //! ([`output::Staging`]). A solve whose fluence or source holds a NaN or an infinity anywhere it was
 //! solved fails ([`JobError::NonFinite`]) instead of reporting garbage. The GPU backend checkpoints
-//! the store after every order; a solve that is killed or fails after its first checkpoint keeps
+//! the store at the scene's cadence (`solver.checkpoint_every_*`, always after the last order); a
+//! solve that is killed or fails after its first checkpoint keeps
 //! `OUT/.lpm-work`, and `--resume` continues it (bitwise the same result as an uninterrupted
 //! solve). A solve without `--resume` refuses to start over such a checkpoint unless `--fresh`
 //! says to discard it ([`JobError::CheckpointExists`]).

@@ -7,7 +7,8 @@
 //! the server in an unknown state, and a crash or out-of-memory kill of one solve takes down neither
 //! the server nor the other jobs. The child is told to die with its parent (`PR_SET_PDEATHSIG`), so a
 //! server killed with `kill -9` leaves no orphan solving into a directory the next server will use.
-//! The solve checkpoints after every order; a job stopped for any reason resumes from there, to
+//! The solve checkpoints at its scene's cadence (and when cancelled, its last completed order); a
+//! job stopped for any reason resumes from its last checkpoint, to
 //! bitwise the result an uninterrupted solve gives. Cancelling sends the solve SIGTERM: it stops
 //! at its next slice (see [`crate::solver::cancel`]) and exits with status 3, its checkpoint kept.
 
