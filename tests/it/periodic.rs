@@ -9,6 +9,12 @@ use lpm::scene::{Boundary, Scene, Shape};
 use lpm::solver::BackendKind::{Cpu, Gpu};
 use std::path::Path;
 
+/// `scene` made periodic along `axes`. These tests build their scenes in code with the common
+/// default `spatial = "linear"`, which scene files may no longer pair with periodic boundaries (it
+/// loses a few per cent of the light at periodic faces in thick media, see
+/// `boundary_keys_are_checked` and benches/RESULTS.md): they keep checking that path's symmetry and
+/// books until it is fixed. Under "constant" the lattice's birth-plane pattern is about twice as
+/// large (layers vary by 1.1 %, the moved cloud by 2.5 %), above the bounds below.
 fn periodic(mut scene: Scene, axes: [bool; 3]) -> Scene {
     scene.boundary = Boundary { periodic: axes };
     scene
@@ -78,8 +84,8 @@ fn cloud_field(name: &str, shift: [u32; 2], sun_dir: [f64; 3]) -> Scene {
 }
 
 fn cloud_with(name: &str, shift: [u32; 2], lights: Vec<lpm::scene::Light>, albedo: f64) -> Scene {
-    let mut s = raw_scene(&format!("{name}-scene"), CLOUD_DIMS, 0.8, albedo, lights, cloud_density(shift));
-    s.boundary = Boundary { periodic: [true, true, false] };
+    let s = raw_scene(&format!("{name}-scene"), CLOUD_DIMS, 0.8, albedo, lights, cloud_density(shift));
+    let mut s = periodic(s, [true, true, false]);
     s.solver.tolerance = 1e-7;
     s
 }

@@ -48,8 +48,8 @@ CONSENSUS = {"R": mean(R), "T": mean(T), "R_thin": mean(R[:16]), "R_thick": mean
 
 
 def generate(args):
-    if args.ny < 1 or args.refine < 1:
-        raise SystemExit("--ny and --refine must be at least 1")
+    if args.ny < 4 or args.refine < 1:
+        raise SystemExit("--ny must be at least 4 (lpm refuses shorter periodic axes) and --refine at least 1")
     os.makedirs(args.out, exist_ok=True)
     ny, r = args.ny, args.refine
     nx, nz, h = NX * r, NZ * r, H_KM / r
@@ -125,12 +125,13 @@ def main():
     g = sub.add_parser("generate")
     g.add_argument("--out", required=True)
     g.add_argument("--ny", type=int, default=4,
-                   help="voxels along y (uniform, periodic); 4 or more: a one-voxel period loses light")
+                   help="voxels along y (uniform, periodic); at least 4 (lpm refuses shorter periods: they lose light)")
     g.add_argument("--refine", type=int, default=1, help="voxels per 15.625 m (cubic): 32r x ny x 16r")
     g.add_argument("--k", type=int, default=5)
     g.add_argument("--tolerance", type=float, default=1e-4)
     g.add_argument("--max-orders", type=int, default=400)
     g.add_argument("--extrapolate-tail", action="store_true")
+    # "linear" is refused by lpm with periodic boundaries (it loses light there); kept to show the error.
     g.add_argument("--spatial", choices=["constant", "linear"])
     g.add_argument("--forward-peak", choices=["auto", "delta-m", "keep"])
     g.add_argument("--storage-k", type=int, help="solver.storage_directions_per_face")
