@@ -22,7 +22,7 @@ use crate::solver::gpu::{budget::MemoryPlan, profile::StreamStats, GpuBackend, G
 use crate::solver::orders::Backend;
 use crate::solver::plan::Plan;
 use crate::solver::{self, SolveError};
-use crate::store::resident::{self, Residency};
+use crate::store::resident::Residency;
 use crate::vk::{Context, ContextOptions};
 use serde::Serialize;
 use std::path::Path;
@@ -91,9 +91,7 @@ fn run_stream(
     let total = store.grid().brick_count();
     let plan = Plan::new(scene, total, total - store.occupied_count());
     let mut fields = StoreFields::create(&store, &plan)?;
-    let residency =
-        Residency::decide(store.file_bytes(), scene.solver.host_memory_budget, resident::available_memory());
-    store.hold_pages(residency.kept_resident);
+    let residency = store.keep_pages_if_they_fit(scene.solver.host_memory_budget);
     let ctx = Context::new(vk).map_err(SolveError::from)?;
     let limits = ctx.limits();
     let options = GpuOptions { budget: scene.solver.device_memory_budget, profile: true, ..GpuOptions::default() };

@@ -35,7 +35,7 @@ pub mod sweep;
 pub mod warm;
 
 use crate::scene::{Scene, VolumeSource};
-use crate::store::resident::{self, Residency};
+use crate::store::resident::Residency;
 use crate::store::{import, BrickStore, StoreError};
 use crate::vk::{Context, ContextOptions, VkError};
 use fields::StoreFields;
@@ -278,10 +278,7 @@ pub fn solve_from(
         }
     };
     // Every field exists now: keep the store's pages resident if it fits the host memory budget.
-    let residency =
-        Residency::decide(store.file_bytes(), scene.solver.host_memory_budget, resident::available_memory());
-    store.hold_pages(residency.kept_resident);
-    tracing::info!("{}", residency.describe());
+    let residency = store.keep_pages_if_they_fit(scene.solver.host_memory_budget);
     phases.push(("plan".to_string(), t.elapsed().as_secs_f64()));
     for reason in &plan.reasons {
         tracing::info!("plan: {reason}");

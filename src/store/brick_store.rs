@@ -3,7 +3,7 @@
 use super::atomic::write_atomic_io;
 use super::field::{Coverage, Field};
 use super::grid::{BrickGrid, BRICK_VOXELS};
-use super::resident::PageHolding;
+use super::resident::{PageHolding, Residency};
 use super::table::{BrickTable, DENSITY_FILE};
 use super::StoreError;
 use memmap2::Mmap;
@@ -183,10 +183,15 @@ impl BrickStore {
         self.release_density(0, self.occupied_count());
     }
 
-    /// Keeps (`true`) or hands back (`false`, the default) the pages of the store and of every
-    /// field mapped from it after each pass; see [`super::resident`]. Values are never affected.
-    pub fn hold_pages(&self, hold: bool) {
-        self.pages.set(hold);
+    /// Decides, once the solve's fields exist, whether the pages of the store and of every field
+    /// mapped from it stay resident between passes (the store's files fit `budget`, else half of
+    /// the available memory) or are handed back after each pass (the default); see
+    /// [`super::resident`]. Values are never affected.
+    pub fn keep_pages_if_they_fit(&self, budget: Option<u64>) -> Residency {
+        let residency = Residency::decide(self.file_bytes(), budget, super::resident::available_memory());
+        self.pages.set(residency.kept_resident);
+        tracing::info!("{}", residency.describe());
+        residency
     }
 
     /// Bytes of the store's files on disk (density, table and every field), as allocated.
