@@ -50,6 +50,7 @@ fn bench_scene() -> Scene {
             spatial: SpatialScheme::default(),
             forward_peak: ForwardPeak::default(),
             diffusion_correction: DiffusionCorrection::default(),
+            acceleration: Acceleration::default(),
             checkpoint: Default::default(),
         },
         camera: None,
@@ -78,13 +79,13 @@ fn order(c: &mut Criterion) {
             .expect("GPU backend");
         gpu.propagate_order(0).expect("order 0");
         let (fields, medium) = gpu.fields();
-        fields.commit_order(&plan, medium);
+        fields.commit_order(&plan, medium).expect("commit");
         group.bench_function(label, |b| b.iter(|| gpu.propagate_order(1).expect("order")));
     }
     let mut twin = CpuTwin::new(&plan, |v| store.density_at(v)).expect("twin");
     twin.propagate_order(0).expect("order 0");
     let (fields, medium) = twin.fields();
-    fields.commit_order(&plan, medium);
+    fields.commit_order(&plan, medium).expect("commit");
     group.bench_function("cpu twin (f64, 1 thread)", |b| b.iter(|| twin.propagate_order(1).expect("order")));
     group.finish();
     let _ = std::fs::remove_dir_all(&dir);

@@ -53,7 +53,8 @@
 //!    memory): commit the order (first taking the lattice's numerical diffusion back out of its
 //!    source when `solver.diffusion_correction = "on"`: [`solver::antidiffusion`], a neighbour
 //!    stencil over either layout; a per-voxel albedo factor multiplies the source first,
-//!    `store::albedo`), the stop rule's remaining error, a checkpoint (store only, at the cadence
+//!    `store::albedo`; then, at high albedo, a diffusion solve estimates the light still to come
+//!    and folds it into the order: [`solver::acceleration`]), the stop rule's remaining error, a checkpoint (store only, at the cadence
 //!    of `solver.checkpoint_every_*`), and at the end the energy balance and the geometric tail.
 //!    The passes run on every core, with every sum taken in a fixed order (bitwise at any thread
 //!    count).

@@ -23,6 +23,9 @@ LPM=target/release/lpm
 cargo build --release --quiet
 mkdir -p "$OUT"
 NICE="nice -n 10"
+# The plain series: the scenes' default (acceleration "auto") would accelerate it at these albedos
+# (tools/acceleration_table.sh measures that).
+PLAIN='s/^extrapolate_tail = false/extrapolate_tail = false\nacceleration = "off"/'
 
 # l2 A B MASK: relative L2 of A's fluence against B's over the voxels where MASK's source is > 0;
 # with B's standard error when B has one ("l2 noise": noise = the L2 B's own noise alone gives).
@@ -55,13 +58,13 @@ for a in $ALBEDOS; do
   scene=tools/scenes/thick_cloud_a$a.toml
   sed 's/^extrapolate_tail = false/extrapolate_tail = true/' "$scene" > "$OUT/tail_a$a.toml"
   solve "$OUT/tail_a$a.toml" "$OUT/tail-$a"
-  sed 's/^tolerance = 1e-3/tolerance = 1e-8/' "$scene" > "$OUT/converged_a$a.toml"
+  sed "s/^tolerance = 1e-3/tolerance = 1e-8/; $PLAIN" "$scene" > "$OUT/converged_a$a.toml"
   solve "$OUT/converged_a$a.toml" "$OUT/converged-$a"
   conv="$OUT/converged-$a"
   tail_err=$(l2 "$OUT/tail-$a" "$conv" "$conv")
   plain_row="" n_far=0 err_far=1
   for t in 1e-3 1e-4 1e-5 1e-6; do
-    sed "s/^tolerance = 1e-3/tolerance = $t/" "$scene" > "$OUT/plain_a${a}_$t.toml"
+    sed "s/^tolerance = 1e-3/tolerance = $t/; $PLAIN" "$scene" > "$OUT/plain_a${a}_$t.toml"
     solve "$OUT/plain_a${a}_$t.toml" "$OUT/plain-$a-$t"
     err=$(l2 "$OUT/plain-$a-$t" "$conv" "$conv")
     n=$(orders "$OUT/plain-$a-$t")
@@ -75,7 +78,7 @@ for a in $ALBEDOS; do
     "$n_far" "$err_far" "$n" "$err" "$tail_err")
   step=$(( (n - n_far) / 20 + 1 ))
   capped() {
-    sed "s/^max_orders = .*/max_orders = $1/; s/^tolerance = 1e-3/tolerance = 1e-12/" "$scene" > "$OUT/plain_a${a}_cap.toml"
+    sed "s/^max_orders = .*/max_orders = $1/; s/^tolerance = 1e-3/tolerance = 1e-12/; $PLAIN" "$scene" > "$OUT/plain_a${a}_cap.toml"
     solve "$OUT/plain_a${a}_cap.toml" "$OUT/plain-$a-cap$1"
     l2 "$OUT/plain-$a-cap$1" "$conv" "$conv"
   }

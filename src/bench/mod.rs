@@ -104,7 +104,7 @@ fn run_stream(
         let t = Instant::now();
         gpu.propagate_order(order)?;
         let (fields, medium) = gpu.fields();
-        fields.commit_order(&plan, medium);
+        fields.commit_order(&plan, medium)?;
         let wall = t.elapsed().as_secs_f64();
         let now = gpu.stream_stats().unwrap_or_default();
         let upload = now.upload_seconds - before.upload_seconds;

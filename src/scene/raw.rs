@@ -108,6 +108,7 @@ pub(crate) struct RawSolver {
     pub spatial: Option<String>,
     pub forward_peak: Option<String>,
     pub diffusion_correction: Option<String>,
+    pub acceleration: Option<String>,
     pub checkpoint_every_orders: Option<i64>,
     pub checkpoint_every_seconds: Option<f64>,
 }

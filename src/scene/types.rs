@@ -257,8 +257,24 @@ pub struct SolverSettings {
     /// Whether the lattice's numerical diffusion is taken back out of each order's scattered
     /// source (`solver.diffusion_correction`, see `solver::antidiffusion`).
     pub diffusion_correction: DiffusionCorrection,
+    /// Whether the order series is accelerated by a diffusion correction (`solver.acceleration`,
+    /// see `solver::acceleration`).
+    pub acceleration: Acceleration,
     /// When the GPU backend checkpoints (`solver.checkpoint_every_orders`, `…_seconds`).
     pub checkpoint: CheckpointCadence,
+}
+
+/// `solver.acceleration`: at high albedo in a thick medium the orders shrink slowly (by about the
+/// albedo each), because light diffuses through many mean free paths. `diffusion` estimates that
+/// slow part from a diffusion equation after every order and adds it at once (diffusion synthetic
+/// acceleration); the converged answer is the transport one either way. `auto` (the default) lets
+/// the plan turn it on where it pays (see `solver::plan`), `off` never.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Acceleration {
+    #[default]
+    Auto,
+    Diffusion,
+    Off,
 }
 
 /// When the GPU driver writes a checkpoint: after an order when `every_orders` orders have passed

@@ -6,7 +6,7 @@
 
 use super::raw::{ByteSize, Channels, RawBoundary, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
 use super::{
-    Boundary, CheckpointCadence, DiffusionCorrection, EnvironmentLight, ForwardPeak, Light, MapUp, Medium, PlanMode,
+    Acceleration, Boundary, CheckpointCadence, DiffusionCorrection, EnvironmentLight, ForwardPeak, Light, MapUp, Medium, PlanMode,
     Scene, SceneError, Shape, SolverSettings, SpatialScheme, StoragePrecision, Volume, VolumeSource,
 };
 use albedo::AlbedoKeys;
@@ -66,6 +66,7 @@ const PLAN_MODES: &str = "\"auto\", \"full\"";
 const SPATIAL_SCHEMES: &str = "\"constant\", \"linear\"";
 const FORWARD_PEAKS: &str = "\"auto\", \"delta-m\", \"keep\"";
 const DIFFUSION_CORRECTIONS: &str = "\"on\", \"off\"";
+const ACCELERATIONS: &str = "\"auto\", \"diffusion\", \"off\"";
 /// The fewest voxels a periodic axis may have (shorter periods lose light; see `Validator::scene`).
 const MIN_PERIODIC_VOXELS: u32 = 4;
 
@@ -128,6 +129,13 @@ impl Validator<'_> {
                     "solver.spatial",
                     "\"linear\" does not support periodic boundaries yet (it loses light at the periodic \
                      faces); use \"constant\" (the default) with [boundary]",
+                ));
+            }
+            if solver.acceleration == Acceleration::Diffusion {
+                return Err(self.err(
+                    "solver.acceleration",
+                    "\"diffusion\" does not support periodic boundaries yet (part of each order's light \
+                     travels on in the rays, unseen by the correction); use \"auto\" or \"off\" with [boundary]",
                 ));
             }
             for (axis, name) in ["x", "y", "z"].iter().enumerate() {
@@ -582,6 +590,7 @@ impl Validator<'_> {
                 spatial: SpatialScheme::default(),
                 forward_peak: ForwardPeak::default(),
                 diffusion_correction: DiffusionCorrection::default(),
+                acceleration: Acceleration::default(),
                 checkpoint: CheckpointCadence::default(),
             });
         };
@@ -672,6 +681,30 @@ impl Validator<'_> {
                 ))
             }
         };
+        let acceleration = match s.acceleration.as_deref() {
+            None | Some("auto") => Acceleration::Auto,
+            Some("diffusion") => Acceleration::Diffusion,
+            Some("off") => Acceleration::Off,
+            Some(other) => {
+                return Err(self.err(
+                    "solver.acceleration",
+                    format!("unknown acceleration \"{other}\", expected one of {ACCELERATIONS}"),
+                ))
+            }
+        };
+        if acceleration == Acceleration::Diffusion && spatial == SpatialScheme::Linear {
+            return Err(self.err(
+                "solver.acceleration",
+                "\"diffusion\" does not converge with solver.spatial = \"linear\" (its bilinear lattice spreads \
+                 light unlike diffusion); use spatial = \"constant\" (the default) or acceleration = \"off\"",
+            ));
+        }
+        if acceleration == Acceleration::Diffusion && s.extrapolate_tail == Some(true) {
+            return Err(self.err(
+                "solver.acceleration",
+                "\"diffusion\" and solver.extrapolate_tail = true are two ways to the same end; choose one",
+            ));
+        }
         let every_orders = match s.checkpoint_every_orders {
             None => None,
             Some(n) if (1..=i64::from(u32::MAX)).contains(&n) => Some(n as u32),
@@ -700,6 +733,7 @@ impl Validator<'_> {
             spatial,
             forward_peak,
             diffusion_correction,
+            acceleration,
             checkpoint: CheckpointCadence { every_orders, every_seconds },
         })
     }

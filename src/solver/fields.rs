@@ -32,8 +32,9 @@ use std::path::Path;
 const CHECKPOINT: &str = "checkpoint.json";
 /// 2: fluence covers the occupied bricks only (version 1 stored it for every brick); 3: a third
 /// source file (`source_scratch`, the diffusion correction's output) rotates with the other two; 4:
-/// the boundary tallies are split by the faces of the volume.
-const CHECKPOINT_VERSION: u32 = 4;
+/// the boundary tallies are split by the faces of the volume; 5: an accelerated solve's last
+/// diffusion correction is saved beside it (`correction_<orders>.f64`).
+const CHECKPOINT_VERSION: u32 = 5;
 
 /// The solver's fields as files of f32 in the brick store.
 pub type StoreFields = OrderFieldSet<Field>;
@@ -89,7 +90,16 @@ struct Checkpoint {
     source_spare: String,
     fluence_total: String,
     fluence_spare: String,
+    /// The file holding the last diffusion correction of an accelerated solve
+    /// ([`super::acceleration`]): f64 little-endian, channel after channel.
+    #[serde(default)]
+    correction: Option<String>,
     state: LoopState,
+}
+
+/// The correction file of the checkpoint after `orders` orders.
+fn correction_file(orders: u32) -> String {
+    format!("correction_{orders}.f64")
 }
 
 impl OrderFieldSet<Field> {
@@ -110,6 +120,8 @@ impl OrderFieldSet<Field> {
             initial_guess: false,
             warm_started: false,
             named: Named::default(),
+            acceleration: None,
+            resumed_correction: None,
         })
     }
 
@@ -129,6 +141,19 @@ impl OrderFieldSet<Field> {
         }
         let comps = plan.source_components();
         let c = plan.channels;
+        let resumed_correction = match &cp.correction {
+            None => None,
+            Some(name) => {
+                let path = store.dir().join(name);
+                let bytes = std::fs::read(&path)
+                    .map_err(|source| StoreError::Io { path: path.clone(), action: "read", source })?;
+                if bytes.len() % 8 != 0 {
+                    return Err(SolveError::CheckpointMismatch { path });
+                }
+                let values = bytes.chunks_exact(8).map(|b| f64::from_le_bytes(b.try_into().unwrap_or([0; 8]))).collect();
+                Some((path, values))
+            }
+        };
         let fields = OrderFieldSet {
             source_prev: store.open_field(&cp.source_prev, comps, Coverage::Occupied)?,
             source_next: store.open_field(&cp.source_next, comps, Coverage::Occupied)?,
@@ -142,6 +167,8 @@ impl OrderFieldSet<Field> {
             initial_guess: false,
             warm_started: cp.state.warm_start,
             named: Named::after_checkpoint(),
+            acceleration: None,
+            resumed_correction,
         };
         // A killed order's partial sums are cleared when the next order begins; the order fields
         // still hold the last completed order's (the tail estimate may need its fluence).
@@ -156,6 +183,18 @@ impl OrderFieldSet<Field> {
         }
         let mut state = state.clone();
         state.warm_start = self.warm_started;
+        // The correction first, under a name of its own: the checkpoint that names it is written
+        // after it, and the previous one's file is removed only then.
+        let correction = match &self.acceleration {
+            None => None,
+            Some(acceleration) => {
+                let name = correction_file(state.orders_done);
+                let bytes: Vec<u8> = acceleration.correction_values().iter().flat_map(|v| v.to_le_bytes()).collect();
+                crate::output::write_atomic(&dir.join(&name), |w| std::io::Write::write_all(w, &bytes))
+                    .map_err(SolveError::Checkpoint)?;
+                Some(name)
+            }
+        };
         let cp = Checkpoint {
             version: CHECKPOINT_VERSION,
             digest: digest.to_string(),
@@ -166,10 +205,29 @@ impl OrderFieldSet<Field> {
             source_spare: self.source_spare.name().to_string(),
             fluence_total: self.fluence_total.name().to_string(),
             fluence_spare: self.fluence_spare.name().to_string(),
+            correction: correction.clone(),
             state,
         };
         crate::output::write_json_atomic(&dir.join(CHECKPOINT), &cp).map_err(SolveError::Checkpoint)?;
+        if let Some(name) = correction {
+            remove_older_corrections(dir, &name);
+        }
         self.checkpoint_written();
         Ok(())
+    }
+}
+
+/// Removes the correction files of earlier checkpoints (all but `keep`); a file that cannot be
+/// removed is only a few MB left behind, so failures are logged, not raised.
+fn remove_older_corrections(dir: &Path, keep: &str) {
+    let Ok(entries) = std::fs::read_dir(dir) else { return };
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let Some(name) = name.to_str() else { continue };
+        if name != keep && name.starts_with("correction_") && name.ends_with(".f64") {
+            if let Err(e) = std::fs::remove_file(entry.path()) {
+                tracing::warn!("could not remove the old correction file {}: {e}", entry.path().display());
+            }
+        }
     }
 }

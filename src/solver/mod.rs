@@ -8,6 +8,8 @@
 //!   the tolerance of its converged value; [`energy`] keeps the books (per face of the volume too);
 //! - [`periodic`] closes periodic boundaries (wrapping lattices, carried rays between orders);
 //! - [`passes`] are the host passes between orders, written once over both backends' fields;
+//! - [`acceleration`] follows each order with a diffusion solve of the light still to come
+//!   (diffusion synthetic acceleration: orders nearly independent of the albedo);
 //! - [`fields`] holds the solver's fields in the brick store, and checkpoints;
 //! - [`cancel`] is the request to stop a solve at the next slice, its checkpoint kept;
 //! - [`point`] computes point lights' uncollided light exactly on the host and writes it, with its
@@ -15,6 +17,7 @@
 //! - [`warm`] starts a solve from a guess (the previous frame's solution) and still converges to
 //!   the cold solve's answer.
 
+pub mod acceleration;
 pub mod antidiffusion;
 pub mod cancel;
 pub mod cpu;

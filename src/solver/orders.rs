@@ -21,7 +21,7 @@ use std::time::{Duration, Instant};
 /// once in [`super::passes`] for both kinds of field.
 pub trait Backend {
     /// Where a field lives: files of f32 in the brick store, or f64 in memory.
-    type Field: FieldPlanes + Sync;
+    type Field: FieldPlanes + Sync + Send;
     /// The medium's density over the fields' units, and where those units lie in the volume.
     type Medium: Medium<V = <Self::Field as FieldPlanes>::V> + VoxelUnits<V = <Self::Field as FieldPlanes>::V>;
     /// Propagates one order (the beams first when `order == 0`) and returns its boundary tallies.
@@ -238,7 +238,7 @@ pub fn run_orders<B: Backend + ?Sized>(
         tallies.add(&backend.propagate_order(order)?);
         let scattered = {
             let (fields, medium) = backend.fields();
-            fields.commit_order(plan, medium)
+            fields.commit_order(plan, medium)?
         };
         // What the next order propagates: the new source, and what periodic sweeps carry over.
         let carried = backend.carried_power();

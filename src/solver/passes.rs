@@ -27,6 +27,7 @@
 //! ([`super::warm`]) and its signed last power are passes here too (store only, in practice: the
 //! twin starts cold).
 
+use super::acceleration::Acceleration;
 use super::antidiffusion::{self, VoxelUnits};
 use super::plan::Plan;
 use super::remaining::{RemainingError, RemainingTally};
@@ -270,6 +271,11 @@ pub struct OrderFieldSet<F> {
     /// Which roles hold a field the last checkpoint names, so that orders between checkpoints
     /// never write one (see [`Named`]); all false when no checkpoints are written.
     pub(crate) named: Named,
+    /// The diffusion synthetic acceleration's grid and last correction ([`super::acceleration`]),
+    /// built at the first commit when the plan accelerates.
+    pub(crate) acceleration: Option<Acceleration>,
+    /// A resumed solve's last correction (and the file it came from), until the grid is built.
+    pub(crate) resumed_correction: Option<(std::path::PathBuf, Vec<f64>)>,
 }
 
 /// Per role of [`OrderFieldSet`], whether the field in it is one the last checkpoint named (and
@@ -315,6 +321,8 @@ impl OrderFieldSet<MemField> {
             initial_guess: false,
             warm_started: false,
             named: Named::default(),
+            acceleration: None,
+            resumed_correction: None,
         }
     }
 }
@@ -360,9 +368,13 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
     /// [`super::warm`]). The order's accumulators are cleared by [`OrderFieldSet::begin_order`],
     /// after any checkpoint is written: until then they still hold what the previous checkpoint
     /// names.
-    pub fn commit_order<U: VoxelUnits<V = F::V> + Medium<V = F::V>>(&mut self, plan: &Plan, units: &U) -> [f64; 3]
+    pub fn commit_order<U: VoxelUnits<V = F::V> + Medium<V = F::V>>(
+        &mut self,
+        plan: &Plan,
+        units: &U,
+    ) -> Result<[f64; 3], SolveError>
     where
-        F: Sync,
+        F: Sync + Send,
     {
         if units.has_albedo() {
             scale_by_albedo(&mut self.source_next, units);
@@ -373,6 +385,24 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
             std::mem::swap(&mut self.named.next, &mut self.named.scratch);
             antidiffusion::sharpen(&mut self.source_scratch, &self.source_next, units, plan.diffusion_correction);
             std::mem::swap(&mut self.source_next, &mut self.source_scratch);
+        }
+        // A warm start's first order still holds the guess in its new source: it is accelerated
+        // from the next order on, once the commit has made the source a residual.
+        if plan.acceleration && !self.initial_guess {
+            if self.acceleration.is_none() {
+                let resumed = self.resumed_correction.take();
+                let (path, values) = resumed.map_or((None, None), |(p, v)| (Some(p), Some(v)));
+                let grid =
+                    Acceleration::build(plan, units, self.fluence.units(), self.fluence.unit_voxels(), values)
+                        .map_err(|why| {
+                            tracing::error!("{why}");
+                            SolveError::CheckpointMismatch { path: path.unwrap_or_default() }
+                        })?;
+                self.acceleration = Some(grid);
+            }
+            if let Some(acceleration) = self.acceleration.as_mut() {
+                acceleration.fold(plan, units, &mut self.fluence, &mut self.source_next);
+            }
         }
         let c = plan.channels as usize;
         let comps = plan.source_components() as usize;
@@ -412,7 +442,7 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
         std::mem::swap(&mut self.source_prev, &mut self.source_next);
         std::mem::swap(&mut self.named.prev, &mut self.named.next);
         self.clean = false;
-        power
+        Ok(power)
     }
 
     /// The committed totals and their spares change roles (with their [`Named`] flags).
@@ -427,10 +457,12 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
         self.named = Named::after_checkpoint();
     }
 
-    /// The signed scattered power of the last (unpropagated) source, per channel, for a warm
-    /// start's energy balance (`None` for a cold solve, whose norm is the power).
+    /// The signed power of what no order has propagated yet, per channel, for the energy balance
+    /// of a warm start (whose last source is a residual of either sign) or an accelerated solve
+    /// (the same, less the light the last correction added: see [`super::acceleration`]). `None`
+    /// for a plain cold solve, whose last source's norm is that power.
     pub fn signed_last_power(&self, plan: &Plan) -> Option<[f64; 3]> {
-        if !self.warm_started {
+        if !self.warm_started && self.acceleration.is_none() {
             return None;
         }
         let c = plan.channels as usize;
@@ -443,6 +475,12 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
             power[k % c] += plan.storage.solid_angle[k / c] * h3 * values.iter().map(|&v| v.to_f64()).sum::<f64>();
         }
         self.source_prev.release_all();
+        if let Some(acceleration) = &self.acceleration {
+            let pending = acceleration.pending_power(plan);
+            for (p, q) in power.iter_mut().zip(pending) {
+                *p -= q;
+            }
+        }
         Some(power)
     }
 

@@ -32,6 +32,7 @@ pub fn scene(shape: Shape, dims: [u32; 3], sigma_t: [f64; 3], albedo: [f64; 3], 
             spatial: SpatialScheme::Linear,
             forward_peak: ForwardPeak::Auto,
             diffusion_correction: DiffusionCorrection::Off,
+            acceleration: Acceleration::Auto,
             checkpoint: Default::default(),
         },
         camera: None,
@@ -241,8 +242,10 @@ irradiance = 2.0
 directions_per_face = 3
 max_orders = {max_orders}
 tolerance = 1e-12
-# On so that the kill tests also cover the third source file it rotates through the checkpoints.
+# On so that the kill tests also cover the third source file it rotates through the checkpoints,
+# and the diffusion correction file every checkpoint of an accelerated solve writes.
 diffusion_correction = "on"
+acceleration = "diffusion"
 "#,
         dims[0], dims[1], dims[2]
     )

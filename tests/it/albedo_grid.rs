@@ -498,7 +498,8 @@ fn a_warm_start_with_an_albedo_grid_converges_to_the_cold_answer() {
             "[volume]\nprocedural = \"sphere\"\ndims = [{}, {}, {}]\nalbedo_raw = \"albedo.raw\"\n\
              [medium]\nsigma_t = 0.8\nalbedo = 0.95\n[[lights]]\nkind = \"sky\"\nradiance = {sky}\n\
              [[lights]]\nkind = \"sun\"\ndirection = [0.3, -0.5, 1.0]\nirradiance = 2.0\n\
-             [solver]\ndirections_per_face = 3\nmax_orders = 400\ntolerance = {tolerance}\n",
+             [solver]\ndirections_per_face = 3\nmax_orders = 400\ntolerance = {tolerance}\n\
+             acceleration = \"off\"\n",
             DIMS[0], DIMS[1], DIMS[2]
         )
     };

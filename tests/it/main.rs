@@ -46,6 +46,7 @@ mod spatial_accuracy;
 mod spirv_current;
 mod stop_rule;
 mod store_and_outputs;
+mod synthetic_acceleration;
 mod temperature;
 mod vdb_input;
 mod vdb_nrrd;

@@ -36,6 +36,7 @@ fn scene(dims: [u32; 3], h: f64, sigma_t: f64, albedo: f64, g: f64, emission: f6
             spatial: SpatialScheme::Linear,
             forward_peak: ForwardPeak::Auto,
             diffusion_correction: DiffusionCorrection::Off,
+            acceleration: Acceleration::Auto,
             checkpoint: Default::default(),
         },
         camera: None,

@@ -378,6 +378,32 @@ fn host_memory_and_checkpoint_keys() {
 }
 
 #[test]
+fn acceleration_key() {
+    let s = load(&with("")).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(s.solver.acceleration, lpm::scene::Acceleration::Auto);
+    for (text, value) in [("off", lpm::scene::Acceleration::Off), ("diffusion", lpm::scene::Acceleration::Diffusion)] {
+        let s = load(&with(&format!("[solver]\nacceleration = \"{text}\"\n"))).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(s.solver.acceleration, value);
+    }
+    rejects(&with("[solver]\nacceleration = \"dsa\"\n"), "solver.acceleration", "expected one of");
+    rejects(
+        &with("[solver]\nacceleration = \"diffusion\"\nspatial = \"linear\"\n"),
+        "solver.acceleration",
+        "does not converge with solver.spatial = \"linear\"",
+    );
+    rejects(
+        &with("[solver]\nacceleration = \"diffusion\"\nextrapolate_tail = true\n"),
+        "solver.acceleration",
+        "choose one",
+    );
+    rejects(
+        &with("[solver]\nacceleration = \"diffusion\"\n[boundary]\nx = \"periodic\"\n"),
+        "solver.acceleration",
+        "periodic",
+    );
+}
+
+#[test]
 fn solver_ranges() {
     rejects(&with("[solver]\ndirections_per_face = 33\n"), "solver.directions_per_face", "must be in 1..=32, got 33");
     rejects(
