@@ -320,6 +320,7 @@ impl Acceleration {
             source.release(first, count);
             first += count;
         }
+        medium.release_all();
     }
 
     /// Per channel, the power the last correction added that no transport has carried yet:
