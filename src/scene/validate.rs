@@ -6,8 +6,8 @@
 
 use super::raw::{ByteSize, Channels, RawBoundary, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
 use super::{
-    Acceleration, Boundary, CheckpointCadence, DiffusionCorrection, EnvironmentLight, ForwardPeak, Light, MapUp, Medium, PlanMode,
-    Scene, SceneError, Shape, SolverSettings, SpatialScheme, StoragePrecision, Volume, VolumeSource,
+    Acceleration, Boundary, CheckpointCadence, DiffusionCorrection, EnvironmentLight, ForwardPeak, Light, MapUp,
+    Medium, PlanMode, Scene, SceneError, Shape, SolverSettings, SpatialScheme, StoragePrecision, Volume, VolumeSource,
 };
 use albedo::AlbedoKeys;
 use emission::{BlackbodyKeys, EmissionKeys};

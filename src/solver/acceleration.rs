@@ -363,7 +363,9 @@ fn voxel<U: VoxelUnits + Medium<V = <U as VoxelUnits>::V>>(
     local: usize,
 ) -> Option<MediumVoxel> {
     let rho = medium.density_at(unit, local).to_f64();
-    if !(rho > 0.0) || (0..plan.channels as usize).any(|ch| rho * plan.coefficients(ch).0 * plan.voxel_size > MAX_VOXEL_DEPTH) {
+    if !(rho > 0.0)
+        || (0..plan.channels as usize).any(|ch| rho * plan.coefficients(ch).0 * plan.voxel_size > MAX_VOXEL_DEPTH)
+    {
         return None;
     }
     let a = Medium::albedo(medium, unit).map_or(1.0, |a| a[local].to_f64());

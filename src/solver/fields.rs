@@ -145,12 +145,16 @@ impl OrderFieldSet<Field> {
             None => None,
             Some(name) => {
                 let path = store.dir().join(name);
-                let bytes = std::fs::read(&path)
-                    .map_err(|source| StoreError::Io { path: path.clone(), action: "read", source })?;
+                let bytes = std::fs::read(&path).map_err(|source| StoreError::Io {
+                    path: path.clone(),
+                    action: "read",
+                    source,
+                })?;
                 if bytes.len() % 8 != 0 {
                     return Err(SolveError::CheckpointMismatch { path });
                 }
-                let values = bytes.chunks_exact(8).map(|b| f64::from_le_bytes(b.try_into().unwrap_or([0; 8]))).collect();
+                let values =
+                    bytes.chunks_exact(8).map(|b| f64::from_le_bytes(b.try_into().unwrap_or([0; 8]))).collect();
                 Some((path, values))
             }
         };

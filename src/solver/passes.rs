@@ -392,12 +392,11 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
             if self.acceleration.is_none() {
                 let resumed = self.resumed_correction.take();
                 let (path, values) = resumed.map_or((None, None), |(p, v)| (Some(p), Some(v)));
-                let grid =
-                    Acceleration::build(plan, units, self.fluence.units(), self.fluence.unit_voxels(), values)
-                        .map_err(|why| {
-                            tracing::error!("{why}");
-                            SolveError::CheckpointMismatch { path: path.unwrap_or_default() }
-                        })?;
+                let grid = Acceleration::build(plan, units, self.fluence.units(), self.fluence.unit_voxels(), values)
+                    .map_err(|why| {
+                    tracing::error!("{why}");
+                    SolveError::CheckpointMismatch { path: path.unwrap_or_default() }
+                })?;
                 self.acceleration = Some(grid);
             }
             if let Some(acceleration) = self.acceleration.as_mut() {

@@ -33,7 +33,9 @@ use super::periodic::{periodic_lattice, periodic_slope};
 use super::point::PointLight;
 use super::sweep::{lateral_slope, lattice, plane_path_length, FaceSweep};
 use crate::quadrature::{cube_face_of, phase, PropagationSet, StorageSet, FACES};
-use crate::scene::{Acceleration, DiffusionCorrection, ForwardPeak, Light, Medium, PlanMode, Scene, SpatialScheme, StoragePrecision};
+use crate::scene::{
+    Acceleration, DiffusionCorrection, ForwardPeak, Light, Medium, PlanMode, Scene, SpatialScheme, StoragePrecision,
+};
 use glam::DVec3;
 use serde::Serialize;
 
@@ -561,7 +563,8 @@ pub const ACCELERATION_MIN_ALBEDO: f64 = 0.9;
 /// Whether each order is followed by a diffusion synthetic acceleration step
 /// ([`super::acceleration`]).
 fn choose_acceleration(scene: &Scene, medium: &Medium, reasons: &mut Vec<String>) -> bool {
-    let albedo = medium.albedo.iter().zip(&medium.sigma_t).filter(|(_, &s)| s > 0.0).map(|(&a, _)| a).fold(0.0, f64::max);
+    let albedo =
+        medium.albedo.iter().zip(&medium.sigma_t).filter(|(_, &s)| s > 0.0).map(|(&a, _)| a).fold(0.0, f64::max);
     let (on, why) = match scene.solver.acceleration {
         Acceleration::Off => (false, "off (solver.acceleration = \"off\")".to_string()),
         _ if albedo <= 0.0 => (false, "off: the medium does not scatter".into()),
