@@ -31,7 +31,7 @@
 //! it with the unpropagated source ([`Acceleration::pending_power`]), so the balance stays exact.
 //!
 //! **Grid.** The diffusion unknowns are cells of e³ voxels holding medium, e the smallest power of
-//! two that keeps the cell grid within [`MAX_CELLS`] (e = 1 up to 128³ voxels): their σt, σs are
+//! two that keeps the cell grid within [`MAX_CELLS`] (e = 1 up to 2²⁰ voxels, about 101³): their σt, σs are
 //! the means over the cell, the correction is prolonged piecewise constant onto the cell's medium
 //! voxels. Cells without medium, and the volume's faces, are vacuum to the diffusion (light that
 //! crosses a hole and comes back is left to the transport). The equation is solved per channel
@@ -41,15 +41,15 @@
 //! the fold writes each voxel from its own values; nothing depends on the thread count, and the
 //! twin and the store run the same code over their units.
 
-use super::antidiffusion::VoxelUnits;
+use super::antidiffusion::{face_neighbours, VoxelUnits};
 use super::passes::{FieldPlanes, Medium, Value, RELEASE_UNITS};
 use super::plan::Plan;
 use rayon::prelude::*;
 
 /// No neighbour (a vacuum face).
 const NONE: u32 = u32::MAX;
-/// The most cells the diffusion grid may have (the cells grow until it fits): a few tens of MB of
-/// coefficients, a solve of well under a second per order on two cores.
+/// The most cells the diffusion grid may have (the cells grow until it fits): at most ~100 MB of
+/// coefficients (RGB), and a solve per order that stays small beside a sweep of the same volume.
 pub const MAX_CELLS: usize = 1 << 20;
 /// The conjugate gradients stop at this relative residual: the correction need only be good to a
 /// small fraction of itself; later orders take out what it leaves.
@@ -83,8 +83,6 @@ pub struct Acceleration {
     extinction_sum: Vec<Vec<f64>>,
     /// Per channel and unknown, the correction f the last order added.
     correction: Vec<Vec<f64>>,
-    /// Conjugate-gradient iterations of the last solve (over the channels).
-    pub last_iterations: usize,
 }
 
 /// Where a voxel of a unit sits in the diffusion grid and what it scatters (per channel, per unit
@@ -141,20 +139,8 @@ impl Acceleration {
         let neighbours: Vec<[u32; 6]> = cell_of_unknown
             .iter()
             .map(|&cell| {
-                let at = cell_coords(cells, cell);
-                let mut out = [NONE; 6];
-                for axis in 0..3 {
-                    for (side, step) in [(0usize, -1i64), (1, 1)] {
-                        let p = at[axis] as i64 + step;
-                        if p < 0 || p >= cells[axis] as i64 {
-                            continue;
-                        }
-                        let mut w = at;
-                        w[axis] = p as u32;
-                        out[2 * axis + side] = unknown_of[cell_index(cells, w)];
-                    }
-                }
-                out
+                face_neighbours(cell_coords(cells, cell), cells)
+                    .map(|w| w.map_or(NONE, |w| unknown_of[cell_index(cells, w)]))
             })
             .collect();
         let cell_voxels = f64::from(edge).powi(3);
@@ -195,18 +181,14 @@ impl Acceleration {
         }
         let correction = match resumed {
             None => vec![vec![0.0; n]; c],
+            Some(values) if values.len() == n * c => (0..c).map(|ch| values[ch * n..(ch + 1) * n].to_vec()).collect(),
             Some(values) => {
-                if values.len() != n * c {
-                    return Err(format!(
-                        "the checkpoint's correction has {} values, the medium's diffusion grid {} × {c} channels",
-                        values.len(),
-                        n
-                    ));
-                }
-                values.chunks(n.max(1)).take(c).map(|v| v.to_vec()).collect::<Vec<_>>()
+                return Err(format!(
+                    "the checkpoint's correction has {} values, the medium's diffusion grid {n} × {c} channels",
+                    values.len()
+                ))
             }
         };
-        let correction = if n == 0 { vec![Vec::new(); c] } else { correction };
         Ok(Acceleration {
             edge,
             cells,
@@ -218,13 +200,7 @@ impl Acceleration {
             scatter_sum,
             extinction_sum,
             correction,
-            last_iterations: 0,
         })
-    }
-
-    /// Voxels per cell edge of the diffusion grid.
-    pub fn cell_edge(&self) -> u32 {
-        self.edge
     }
 
     /// Unknowns of the diffusion grid (cells holding medium).
@@ -278,17 +254,18 @@ impl Acceleration {
         }
         let cell_voxels = f64::from(self.edge).powi(3);
         let mut change = Vec::with_capacity(c);
-        self.last_iterations = 0;
+        let mut iterations = 0;
         for ch in 0..c {
             // The source of the remaining error: σs·(c_m − f_prev), as a mean over the cell.
             let rhs: Vec<f64> = (0..n)
                 .map(|u| (moment[ch][u] - self.correction[ch][u] * self.scatter_sum[ch][u]) / cell_voxels)
                 .collect();
-            let (f, iterations) = conjugate_gradients(&self.diag[ch], &self.off[ch], &self.neighbours, &rhs);
-            self.last_iterations += iterations;
+            let (f, taken) = conjugate_gradients(&self.diag[ch], &self.off[ch], &self.neighbours, &rhs);
+            iterations += taken;
             change.push(f.iter().zip(&self.correction[ch]).map(|(new, old)| new - old).collect::<Vec<f64>>());
             self.correction[ch] = f;
         }
+        tracing::debug!(unknowns = n, cell_edge = self.edge, iterations, "diffusion correction solved");
         let four_pi: f64 = solid_angle.iter().sum();
         let fluence_len = fluence.unit_len();
         let this = &*self;

@@ -127,20 +127,8 @@ pub fn sharpen<F: FieldPlanes + Sync, U: VoxelUnits<V = F::V>>(dst: &mut F, src:
         s + change
     };
     let neighbours_of = |unit: usize, local: usize| -> [Option<(usize, usize)>; 6] {
-        let v = units.voxel_of(unit, local);
-        let mut out = [None; 6];
-        for axis in 0..3 {
-            for (side, step) in [(0usize, -1i64), (1, 1)] {
-                let c = v[axis] as i64 + step;
-                if c < 0 || c >= dims[axis] as i64 {
-                    continue;
-                }
-                let mut w = v;
-                w[axis] = c as u32;
-                out[2 * axis + side] = units.unit_of(w).filter(|&(u, l)| units.density_at(u, l).to_f64() > 0.0);
-            }
-        }
-        out
+        face_neighbours(units.voxel_of(unit, local), dims)
+            .map(|w| w.and_then(|w| units.unit_of(w)).filter(|&(u, l)| units.density_at(u, l).to_f64() > 0.0))
     };
     let units_total = src.units();
     let group = RELEASE_UNITS.max(1);
@@ -167,6 +155,23 @@ pub fn sharpen<F: FieldPlanes + Sync, U: VoxelUnits<V = F::V>>(dst: &mut F, src:
         src.release(first, count);
         first += count;
     }
+}
+
+/// The six face neighbours of `at` in a grid of `dims`, in the order −x, +x, −y, +y, −z, +z;
+/// `None` beyond the grid's faces.
+pub(super) fn face_neighbours(at: [u32; 3], dims: [u32; 3]) -> [Option<[u32; 3]>; 6] {
+    let mut out = [None; 6];
+    for axis in 0..3 {
+        for (side, step) in [(0usize, -1i64), (1, 1)] {
+            let c = at[axis] as i64 + step;
+            if c >= 0 && c < dims[axis] as i64 {
+                let mut w = at;
+                w[axis] = c as u32;
+                out[2 * axis + side] = Some(w);
+            }
+        }
+    }
+    out
 }
 
 impl VoxelUnits for StoreMedium<'_> {
