@@ -52,6 +52,7 @@ fn bench_scene() -> Scene {
             diffusion_correction: DiffusionCorrection::default(),
             acceleration: Acceleration::default(),
             checkpoint: Default::default(),
+            device_residency: Default::default(),
         },
         camera: None,
         boundary: Default::default(),

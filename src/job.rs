@@ -327,10 +327,9 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
     // A resumed solve continues from its checkpoint: the guess was used by its first order.
     let warm = job.warm_start.as_deref().filter(|_| !reopen);
     let gpu = solver::gpu::GpuOptions {
-        budget: scene.solver.device_memory_budget,
         checkpoints: job.backend == BackendKind::Gpu,
         cancel: job.cancel,
-        ..solver::gpu::GpuOptions::default()
+        ..solver::gpu::GpuOptions::for_scene(scene)
     };
     let (run, fields) = solver::solve_from(scene, &store, job.backend, job.vk.clone(), gpu, reopen, warm, progress)
         .map_err(|e| match e {

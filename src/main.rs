@@ -1245,6 +1245,9 @@ fn info(dir: &std::path::Path, json: bool) -> Result<()> {
             m["directions_per_dispatch"],
             m["planes_per_dispatch"]
         );
+        if let Some(reason) = m["residency_reason"].as_str() {
+            println!("          {reason}");
+        }
     }
     if let Some(peak) = r.get("peak_resident_bytes").and_then(|p| p.as_u64()) {
         println!("host      peak resident {peak} bytes; brick store {} bytes", r["store_bytes"]);

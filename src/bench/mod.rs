@@ -94,7 +94,7 @@ fn run_stream(
     let residency = store.keep_pages_if_they_fit(scene.solver.host_memory_budget);
     let ctx = Context::new(vk).map_err(SolveError::from)?;
     let limits = ctx.limits();
-    let options = GpuOptions { budget: scene.solver.device_memory_budget, profile: true, ..GpuOptions::default() };
+    let options = GpuOptions { profile: true, ..GpuOptions::for_scene(scene) };
     let mut gpu = GpuBackend::new(ctx.clone(), &plan, &store, &mut fields, options)?;
     let [nx, ny, nz] = plan.dims;
     let updates = nx as f64 * ny as f64 * nz as f64 * plan.propagation.len() as f64;

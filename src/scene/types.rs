@@ -262,6 +262,20 @@ pub struct SolverSettings {
     pub acceleration: Acceleration,
     /// When the GPU backend checkpoints (`solver.checkpoint_every_orders`, `…_seconds`).
     pub checkpoint: CheckpointCadence,
+    /// Whether the GPU backend may keep the medium and fields on the device for the whole solve
+    /// (`solver.device_residency`).
+    pub device_residency: DeviceResidency,
+}
+
+/// `solver.device_residency`: `auto` (the default) keeps every occupied brick's medium and fields on
+/// the device when they fit the memory budget, so that only the fields cross the bus, once per
+/// order; `streamed` streams every pass slice by slice (as a volume larger than the budget is).
+/// The result is bitwise the same either way.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum DeviceResidency {
+    #[default]
+    Auto,
+    Streamed,
 }
 
 /// `solver.acceleration`: at high albedo in a thick medium the orders shrink slowly (by about the

@@ -6,7 +6,7 @@
 
 use super::raw::{ByteSize, Channels, RawBoundary, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
 use super::{
-    Acceleration, Boundary, CheckpointCadence, DiffusionCorrection, EnvironmentLight, ForwardPeak, Light, MapUp,
+    Acceleration, Boundary, CheckpointCadence, DeviceResidency, DiffusionCorrection, EnvironmentLight, ForwardPeak, Light, MapUp,
     Medium, PlanMode, Scene, SceneError, Shape, SolverSettings, SpatialScheme, StoragePrecision, Volume, VolumeSource,
 };
 use albedo::AlbedoKeys;
@@ -67,6 +67,7 @@ const SPATIAL_SCHEMES: &str = "\"constant\", \"linear\"";
 const FORWARD_PEAKS: &str = "\"auto\", \"delta-m\", \"keep\"";
 const DIFFUSION_CORRECTIONS: &str = "\"on\", \"off\"";
 const ACCELERATIONS: &str = "\"auto\", \"diffusion\", \"off\"";
+const DEVICE_RESIDENCIES: &str = "\"auto\", \"streamed\"";
 /// The fewest voxels a periodic axis may have (shorter periods lose light; see `Validator::scene`).
 const MIN_PERIODIC_VOXELS: u32 = 4;
 
@@ -592,6 +593,7 @@ impl Validator<'_> {
                 diffusion_correction: DiffusionCorrection::default(),
                 acceleration: Acceleration::default(),
                 checkpoint: CheckpointCadence::default(),
+                device_residency: DeviceResidency::default(),
             });
         };
         let k = match s.directions_per_face {
@@ -705,6 +707,16 @@ impl Validator<'_> {
                 "\"diffusion\" and solver.extrapolate_tail = true are two ways to the same end; choose one",
             ));
         }
+        let device_residency = match s.device_residency.as_deref() {
+            None | Some("auto") => DeviceResidency::Auto,
+            Some("streamed") => DeviceResidency::Streamed,
+            Some(other) => {
+                return Err(self.err(
+                    "solver.device_residency",
+                    format!("unknown device residency \"{other}\", expected one of {DEVICE_RESIDENCIES}"),
+                ))
+            }
+        };
         let every_orders = match s.checkpoint_every_orders {
             None => None,
             Some(n) if (1..=i64::from(u32::MAX)).contains(&n) => Some(n as u32),
@@ -735,6 +747,7 @@ impl Validator<'_> {
             diffusion_correction,
             acceleration,
             checkpoint: CheckpointCadence { every_orders, every_seconds },
+            device_residency,
         })
     }
 

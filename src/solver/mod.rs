@@ -196,19 +196,20 @@ pub fn solve(
     vk_options: ContextOptions,
     progress: impl FnMut(u32, f64),
 ) -> Result<(SolveRun, StoreFields), SolveError> {
-    let gpu = gpu::GpuOptions { budget: scene.solver.device_memory_budget, ..gpu::GpuOptions::default() };
+    let gpu = gpu::GpuOptions::for_scene(scene);
     solve_with(scene, store, backend, vk_options, gpu, false, progress)
 }
 
 /// Identifies a scene for checkpoints: a resumed solve must be the same job.
 pub fn scene_digest(scene: &Scene) -> String {
     // FNV-1a over the validated scene and the crate version: stable across runs and platforms.
-    // Only what affects the solve is digested: the memory budgets and the checkpoint cadence are
+    // Only what affects the solve is digested: the memory budgets, the device residency and the checkpoint cadence are
     // left out (any gives bitwise the same result, so a solve may resume under another), and so is the camera
     // (it only affects the image, rendered after the solve).
     let mut scene = scene.clone();
     scene.solver.device_memory_budget = None;
     scene.solver.host_memory_budget = None;
+    scene.solver.device_residency = crate::scene::DeviceResidency::default();
     scene.solver.checkpoint = crate::scene::CheckpointCadence::default();
     scene.camera = None;
     let text = format!("{}|{:?}", env!("CARGO_PKG_VERSION"), scene);

@@ -297,6 +297,18 @@ impl Recorder {
         unsafe { self.ctx.device().cmd_fill_buffer(self.cb, dst.raw(), offset, size, value) };
     }
 
+    /// Writes `data` into `dst` from `offset` through the command buffer itself
+    /// (`vkCmdUpdateBuffer`: offset and length multiples of 4; longer data goes in pieces of at
+    /// most 65536 bytes, the command's limit). Counts as a transfer write.
+    pub fn update_buffer(&mut self, dst: &Buffer, offset: u64, data: &[u8]) {
+        const MAX_UPDATE: usize = 65536;
+        for (i, piece) in data.chunks(MAX_UPDATE).enumerate() {
+            let at = offset + (i * MAX_UPDATE) as u64;
+            // SAFETY: recording; the data is copied into the command buffer by the call.
+            unsafe { self.ctx.device().cmd_update_buffer(self.cb, dst.raw(), at, piece) };
+        }
+    }
+
     /// A global memory barrier between the given stages and accesses.
     pub fn barrier(
         &mut self,

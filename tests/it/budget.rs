@@ -1,6 +1,6 @@
 //! The device memory budget: any cut of the sweeps (slices in flight, directions per pass, sub-slices
 //! of fewer planes, directions and planes per dispatch) gives bitwise the same fluence and source,
-//! and a budget below the smallest unit is a clear error.
+//! and a budget below the smallest unit is a clear error. (Resident against streamed: `resident.rs`.)
 use crate::common::*;
 use lpm::scene::{Scene, Shape};
 use lpm::solver::BackendKind::Gpu;
@@ -42,9 +42,15 @@ fn bits(solved: &Solved) -> (Vec<u32>, Vec<u32>) {
 
 #[test]
 fn any_budget_gives_bitwise_the_same_fluence_and_source() {
-    let base = cloud();
+    let mut base = cloud();
+    let resident = solve("budget-resident", &base, Gpu);
+    assert!(resident.run.memory.expect("memory plan").is_resident());
+    // The cuts below are the streamed mode's.
+    base.solver.device_residency = lpm::scene::DeviceResidency::Streamed;
     let reference = solve("budget-large", &base, Gpu);
+    assert!(bits(&reference) == bits(&resident), "resident and streamed differ");
     let full = reference.run.memory.expect("memory plan");
+    assert!(!full.is_resident());
     assert_eq!(full.directions_per_pass, 9, "{full:?}");
     assert_eq!(full.planes_per_dispatch, 16, "{full:?}");
     assert_eq!(full.planes_per_slice, 16, "{full:?}");

@@ -36,6 +36,7 @@ mod property_solve;
 mod reference_closed_forms;
 mod reference_job;
 mod reliability;
+mod resident;
 mod render;
 mod resume;
 mod scene_files;

@@ -15,13 +15,21 @@
 //! The previous source (the one the rays gain) counts at its storage precision: half the bytes of
 //! the new source when the plan stores it in f16, in the slot and in its upload staging.
 //!
+//! **Resident or streamed.** Before cutting anything, the planner tries the resident mode: every
+//! occupied brick's density and fields stay on the device for the whole solve ([`ResidentSizes`]),
+//! with whole slices and the slots reduced to their staging (through which the medium is loaded
+//! once, the previous source once per order, and the order's new source and fluence come home
+//! once per order). It is chosen when that fits the budget and every resident buffer fits one
+//! storage-buffer binding; else the sweeps stream slice by slice through the slots, and the plan
+//! says why ([`Residency`]).
+//!
 //! None of them changes the result: rays carry their radiance from plane to plane whatever the
 //! cut, and every voxel receives each direction's contribution as its own addition, in direction
 //! order (see `glsl/collect.comp`), so fluence and source are bitwise identical at any budget. The
 //! smallest unit is a one-plane sub-slice with one direction: when even that does not fit, the
 //! error says how much is needed.
 
-use super::sizes::{self, SharedSizes, SlotSizes};
+use super::sizes::{self, ResidentSizes, SharedSizes, SlotSizes};
 use crate::solver::plan::Plan;
 use crate::solver::sweep::FaceSweep;
 use crate::solver::SolveError;
@@ -34,12 +42,46 @@ const SLAB_PLANES: [u32; 5] = [BRICK_EDGE, 8, 4, 2, 1];
 /// Fraction of the device-local heap used when no budget is given.
 pub const DEFAULT_HEAP_FRACTION: f64 = 0.5;
 
-/// The largest slice of any face: bricks in all, and occupied (only occupied bricks travel).
+/// The largest slice of any face: bricks in all, and occupied (only occupied bricks travel); and
+/// the occupied bricks of the whole volume (what the resident mode keeps on the device).
 #[derive(Clone, Copy, Debug, Serialize)]
 pub struct SliceExtent {
     pub bricks: u64,
     pub occupied: u64,
     pub rays: u64,
+    pub occupied_total: u64,
+}
+
+/// Whether the medium and fields stay on the device for the whole solve, and why (or why not).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Residency {
+    /// Resident: everything fits the budget; the bus carries a field once per order.
+    Resident,
+    /// Streamed because the caller asked for it (`--streamed`, or the options).
+    StreamedOnRequest,
+    /// Streamed: the resident working set is larger than the budget.
+    StreamedOverBudget,
+    /// Streamed: one resident field is larger than one storage-buffer binding may be.
+    StreamedOverBindingLimit,
+}
+
+impl Residency {
+    /// In words, for the report's reader.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Residency::Resident => {
+                "resident: the medium and fields of every occupied brick stay on the device (fields cross the bus once per order)"
+            }
+            Residency::StreamedOnRequest => "streamed slice by slice, as asked",
+            Residency::StreamedOverBudget => {
+                "streamed slice by slice: the resident working set is larger than the device memory budget"
+            }
+            Residency::StreamedOverBindingLimit => {
+                "streamed slice by slice: a resident field would be larger than the device's largest storage-buffer binding"
+            }
+        }
+    }
 }
 
 #[derive(Clone, Copy, Debug, Serialize)]
@@ -54,6 +96,14 @@ pub struct MemoryPlan {
     pub planes_per_slice: u32,
     pub planes_per_dispatch: u32,
     pub slice: SliceExtent,
+    /// Resident or streamed, and why (also in words, for the report's reader).
+    pub residency: Residency,
+    pub residency_reason: &'static str,
+    /// The resident mode's smallest working set (whether chosen or not): resident fields, tables,
+    /// staging and ray state with one direction per pass.
+    pub resident_bytes: u64,
+    /// The resident field buffers (0 when streamed).
+    pub resident_field_bytes: u64,
     /// The three ray buffers and the 16-byte stand-in bound for vacuum slices.
     pub ray_state_bytes: u64,
     pub deposit_bytes: u64,
@@ -65,7 +115,7 @@ pub struct MemoryPlan {
 /// The largest slice over the six faces.
 pub fn slice_extent(plan: &Plan, store: &BrickStore) -> SliceExtent {
     let grid = *store.grid();
-    let mut extent = SliceExtent { bricks: 0, occupied: 0, rays: 0 };
+    let mut extent = SliceExtent { bricks: 0, occupied: 0, rays: 0, occupied_total: store.occupied_count() as u64 };
     for face in 0..6 {
         let sweep = FaceSweep::new(face, plan.dims);
         let f = sweep.geometry();
@@ -94,57 +144,88 @@ pub fn default_budget(limits: &Limits) -> u64 {
     (limits.device_local_heap_bytes as f64 * DEFAULT_HEAP_FRACTION) as u64
 }
 
-/// Chooses the cut of the sweeps for `budget` bytes.
-/// `max_slots` caps the slices in flight (1 forces the serial schedule).
+/// Chooses resident or streamed, and the cut of the sweeps, for `budget` bytes.
+/// `max_slots` caps the slices in flight (1 forces the serial schedule); `resident` allows the
+/// resident mode.
 pub fn plan_memory(
     plan: &Plan,
     extent: SliceExtent,
     limits: &Limits,
     budget: u64,
     max_slots: u32,
+    resident: bool,
 ) -> Result<MemoryPlan, SolveError> {
     let per_face = plan.propagation.per_face() as u32;
     let max_range = limits.max_storage_buffer_range;
     let rays = extent.rays;
     // Every figure below is a buffer size from `sizes`, the ones the allocations use.
     let table_bytes = sizes::table_bytes(plan);
-    let cost = |slots: u32, pass: u32, slab: u32, group: u32, planes: u32| -> (u64, u64, u64, u64, u64) {
-        let slot = SlotSizes::new(plan, &extent, slab);
+    let fields = ResidentSizes::new(plan, &extent);
+    // (slot device buffers, ray state, deposit, staging, resident fields, total)
+    let cost = |mode: Residency, slots: u32, pass: u32, slab: u32, group: u32, planes: u32| {
+        let (slot, resident) = match mode {
+            Residency::Resident => (SlotSizes::resident(plan, &extent), fields.device()),
+            _ => (SlotSizes::new(plan, &extent, slab), 0),
+        };
         let shared = SharedSizes::new(plan, rays, pass, group, planes);
         // Per slot: the device slice buffers and their upload and download staging; plus the
         // staging the rays' tallies come home through.
         let staging = slots as u64 * slot.staging() + shared.tallies;
-        let total = table_bytes + slots as u64 * slot.device() + shared.ray_state() + shared.deposit + staging;
-        (slot.device(), shared.ray_state(), shared.deposit, staging, total)
+        let total =
+            table_bytes + resident + slots as u64 * slot.device() + shared.ray_state() + shared.deposit + staging;
+        (slot.device(), shared.ray_state(), shared.deposit, staging, resident, total)
     };
-    let fits_range = |pass: u32, slab: u32, group: u32, planes: u32| {
+    let shared_fits = |pass: u32, group: u32, planes: u32| {
         let shared = SharedSizes::new(plan, rays, pass, group, planes);
-        shared.ray_buffer <= max_range
-            && shared.deposit <= max_range
-            && SlotSizes::new(plan, &extent, slab).bound().iter().all(|&(_, b)| b <= max_range)
+        shared.ray_buffer <= max_range && shared.deposit <= max_range
     };
-    for slots in [2, 1].into_iter().filter(|&s| s <= max_slots.max(1)) {
-        for pass in (1..=per_face).rev() {
-            for slab in SLAB_PLANES {
-                for group in (1..=pass).rev() {
-                    for planes in SLAB_PLANES.into_iter().filter(|&p| p <= slab) {
-                        let (slice_bytes, ray_state, deposit, staging, total) = cost(slots, pass, slab, group, planes);
-                        if total <= budget && fits_range(pass, slab, group, planes) {
-                            return Ok(MemoryPlan {
-                                budget_bytes: budget,
-                                planned_bytes: total,
-                                slices_in_flight: slots,
-                                directions_per_pass: pass,
-                                directions_per_dispatch: group,
-                                planes_per_slice: slab,
-                                planes_per_dispatch: planes,
-                                slice: extent,
-                                ray_state_bytes: ray_state,
-                                deposit_bytes: deposit,
-                                slice_bytes: slots as u64 * slice_bytes,
-                                staging_bytes: staging,
-                                table_bytes,
-                            });
+    let fits_range = |mode: Residency, pass: u32, slab: u32, group: u32, planes: u32| {
+        shared_fits(pass, group, planes)
+            && match mode {
+                Residency::Resident => fields.bound().iter().all(|&(_, b)| b <= max_range),
+                _ => SlotSizes::new(plan, &extent, slab).bound().iter().all(|&(_, b)| b <= max_range),
+            }
+    };
+    let resident_bytes = cost(Residency::Resident, 1, 1, BRICK_EDGE, 1, 1).5;
+    let streamed = if !resident {
+        Residency::StreamedOnRequest
+    } else if fields.bound().iter().any(|&(_, b)| b > max_range) {
+        Residency::StreamedOverBindingLimit
+    } else {
+        Residency::StreamedOverBudget
+    };
+    // Resident first (whole slices only), then streamed, each with the largest knobs that fit.
+    let modes: &[(Residency, &[u32])] =
+        if resident { &[(Residency::Resident, &[BRICK_EDGE]), (streamed, &SLAB_PLANES)] } else { &[(streamed, &SLAB_PLANES)] };
+    for &(mode, slabs) in modes {
+        for slots in [2, 1].into_iter().filter(|&s| s <= max_slots.max(1)) {
+            for pass in (1..=per_face).rev() {
+                for &slab in slabs {
+                    for group in (1..=pass).rev() {
+                        for planes in SLAB_PLANES.into_iter().filter(|&p| p <= slab) {
+                            let (slice_bytes, ray_state, deposit, staging, resident_field_bytes, total) =
+                                cost(mode, slots, pass, slab, group, planes);
+                            if total <= budget && fits_range(mode, pass, slab, group, planes) {
+                                return Ok(MemoryPlan {
+                                    budget_bytes: budget,
+                                    planned_bytes: total,
+                                    slices_in_flight: slots,
+                                    directions_per_pass: pass,
+                                    directions_per_dispatch: group,
+                                    planes_per_slice: slab,
+                                    planes_per_dispatch: planes,
+                                    slice: extent,
+                                    residency: mode,
+                                    residency_reason: mode.describe(),
+                                    resident_bytes,
+                                    resident_field_bytes,
+                                    ray_state_bytes: ray_state,
+                                    deposit_bytes: deposit,
+                                    slice_bytes: slots as u64 * slice_bytes,
+                                    staging_bytes: staging,
+                                    table_bytes,
+                                });
+                            }
                         }
                     }
                 }
@@ -157,6 +238,16 @@ pub fn plan_memory(
             return Err(SolveError::DeviceLimit { what: what.to_string(), bytes, limit: max_range });
         }
     }
-    let (_, _, _, _, needed) = cost(1, 1, 1, 1, 1);
+    let mut needed = cost(streamed, 1, 1, 1, 1, 1).5;
+    if resident && fits_range(Residency::Resident, 1, BRICK_EDGE, 1, 1) {
+        needed = needed.min(resident_bytes);
+    }
     Err(SolveError::BudgetTooSmall { budget, needed })
+}
+
+impl MemoryPlan {
+    /// Whether the medium and fields stay on the device for the whole solve.
+    pub fn is_resident(&self) -> bool {
+        self.residency == Residency::Resident
+    }
 }

@@ -48,6 +48,9 @@ pub struct ComputeStep<'s> {
     pub half_exponent: Option<i32>,
     /// The first slice of the pass (the ray state starts from zero).
     pub first: bool,
+    /// The resident mode: the slice's slot table (store slots of its bricks), written into the
+    /// resident slot table before the kernels run. `None`: streamed (the upload brought it).
+    pub resident_table: Option<&'s [i32]>,
 }
 
 /// The workgroups of one `propagate.comp` dispatch over `sweep`'s rays (n + 1 per lateral axis:
@@ -153,6 +156,12 @@ pub fn record_compute(
     };
     // Earlier compute submissions wrote the ray state and the deposit this one uses.
     rec.compute_to_compute();
+    if let (Some(table), Some(resident)) = (step.resident_table, &res.resident) {
+        // The previous step's kernels read the table this write replaces.
+        rec.compute_to_transfer();
+        rec.update_buffer(&resident.slot_table, 0, bytemuck::cast_slice(table));
+        rec.transfer_to_compute();
+    }
     if step.first {
         if step.flags & FLAG_CARRY != 0 {
             // The rays start with what the host put in the staging buffer (solver::periodic): the

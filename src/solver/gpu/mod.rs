@@ -85,11 +85,32 @@ pub struct GpuOptions {
     pub profile: bool,
     /// Stop at the next slice when raised ([`crate::solver::cancel`]).
     pub cancel: Option<crate::solver::cancel::CancelFlag>,
+    /// Allow the resident mode (the medium and fields stay on the device when they fit the
+    /// budget; see [`budget::Residency`]); `false` streams every pass.
+    pub resident: bool,
 }
 
 impl Default for GpuOptions {
     fn default() -> Self {
-        GpuOptions { budget: None, max_slices_in_flight: 2, checkpoints: false, profile: false, cancel: None }
+        GpuOptions {
+            budget: None,
+            max_slices_in_flight: 2,
+            checkpoints: false,
+            profile: false,
+            cancel: None,
+            resident: true,
+        }
+    }
+}
+
+impl GpuOptions {
+    /// The defaults, with the scene's device memory budget and residency.
+    pub fn for_scene(scene: &crate::scene::Scene) -> Self {
+        GpuOptions {
+            budget: scene.solver.device_memory_budget,
+            resident: scene.solver.device_residency == crate::scene::DeviceResidency::Auto,
+            ..GpuOptions::default()
+        }
     }
 }
 
@@ -124,6 +145,8 @@ pub struct GpuBackend<'a> {
     progress: Option<progress::PassProgress>,
     /// What the rays of periodic-axis sweeps carried out last order ([`super::periodic`]).
     carry: PeriodicCarry,
+    /// The resident mode: whether the medium is on the device yet.
+    density_loaded: bool,
 }
 
 impl<'a> GpuBackend<'a> {
@@ -146,6 +169,7 @@ impl<'a> GpuBackend<'a> {
             &limits,
             budget,
             options.max_slices_in_flight,
+            options.resident,
         )?;
         // The kill test's hook (tests/it/resume.rs): compiled only into builds with the
         // `test-hooks` cargo feature (tools/test.sh turns it on), never into a plain or release
@@ -162,6 +186,7 @@ impl<'a> GpuBackend<'a> {
             transfer_queue = ctx.transfer_queue().is_some(),
             budget = memory.budget_bytes,
             planned = memory.planned_bytes,
+            residency = memory.residency.describe(),
             slices_in_flight = memory.slices_in_flight,
             directions_per_pass = memory.directions_per_pass,
             directions_per_dispatch = memory.directions_per_dispatch,
@@ -185,6 +210,7 @@ impl<'a> GpuBackend<'a> {
             half_exponent: None,
             progress: None,
             carry: PeriodicCarry::new(plan),
+            density_loaded: false,
         })
     }
 
@@ -446,6 +472,11 @@ impl GpuBackend<'_> {
         let beams: Vec<usize> = (0..plan.beams.len()).filter(|&b| plan.beam_swept_in(b, order)).collect();
         let passes = progress::passes_per_order(&face_dirs, beams.len(), self.memory.directions_per_pass);
         self.progress = Some(progress::PassProgress::new(order, passes));
+        if self.memory.is_resident() {
+            let mut io = Stream { plan, store: self.store, fields: &mut *self.fields, res: &self.resources };
+            self.streamer.load_resident(&mut io, self.half_exponent, !self.density_loaded)?;
+            self.density_loaded = true;
+        }
         let mut tallies = Tallies::default();
         // Beams in order 0; those along a periodic axis again in every order, carrying what they
         // carried out (super::periodic).
@@ -461,6 +492,10 @@ impl GpuBackend<'_> {
         }
         for face in 0..plan.faces.len() {
             tallies.add(&self.sweep(SweepOf::Face(face), flags)?);
+        }
+        if self.memory.is_resident() {
+            let mut io = Stream { plan, store: self.store, fields: &mut *self.fields, res: &self.resources };
+            self.streamer.unload_resident(&mut io)?;
         }
         Ok(tallies)
     }

@@ -1,7 +1,8 @@
 //! The device resources of a solve, built all-or-nothing: the two kernels' pipelines on one shared
 //! pipeline layout, the slots' buffers and staging, the buffers shared by the slots, every sweep's
 //! tables, and one descriptor set per sweep and slot that serves both kernels (written once: the
-//! buffers never change), so a compute step binds its set once.
+//! buffers never change), so a compute step binds its set once. In the resident mode the slots
+//! are staging only and each sweep has one set for the [`ResidentBuffers`] instead.
 //!
 //! Every object is an `Owned` value, so a constructor that fails half-way frees what it made by
 //! dropping it, and a finished [`DeviceResources`] frees everything when dropped. Whoever submits
@@ -12,7 +13,7 @@ use super::budget::MemoryPlan;
 use super::encoder;
 use super::layout::SweepPush;
 use super::owned::Owned;
-use super::sizes::{SharedSizes, SlotSizes};
+use super::sizes::{ResidentSizes, SharedSizes, SlotSizes};
 use super::streamer::SliceStreamer;
 use super::tables::SweepTables;
 use crate::solver::plan::Plan;
@@ -50,8 +51,24 @@ pub struct SharedBuffers {
     pub vacuum: Owned<Buffer>,
 }
 
-/// One sweep's descriptor sets of the shared layout, written once: `slots[s]` binds slot s, and
-/// the last one (`slots[slot count]`) the vacuum stand-in.
+/// The resident mode's device buffers ([`ResidentSizes`]): every occupied brick's fields for the
+/// whole solve, and the slot table of the slice being computed.
+pub struct ResidentBuffers {
+    pub slot_table: Owned<Buffer>,
+    pub density: Owned<Buffer>,
+    pub source_prev: Owned<Buffer>,
+    pub source_next: Owned<Buffer>,
+    pub fluence: Owned<Buffer>,
+}
+
+impl ResidentBuffers {
+    fn all(&self) -> [&Buffer; 5] {
+        [&self.slot_table, &self.density, &self.source_prev, &self.source_next, &self.fluence]
+    }
+}
+
+/// One sweep's descriptor sets of the shared layout, written once: `slots[s]` binds slot s (in the
+/// resident mode `slots[0]` binds the resident buffers), and the last one the vacuum stand-in.
 pub struct SweepSets {
     pub slots: Vec<Owned<DescriptorSet>>,
 }
@@ -66,6 +83,8 @@ pub struct DeviceResources {
     pub layout: Owned<PipelineLayout>,
     pub slots: Vec<SlotBuffers>,
     pub shared: SharedBuffers,
+    /// The resident mode's buffers (`None`: streamed).
+    pub resident: Option<ResidentBuffers>,
     pub face_tables: Vec<SweepTables>,
     pub beam_tables: Vec<SweepTables>,
 }
@@ -124,7 +143,23 @@ impl DeviceResources {
             )?,
             vacuum: buffer(ctx, "vacuum", s.vacuum, storage, gpu)?,
         };
-        let z = SlotSizes::new(plan, &memory.slice, memory.planes_per_slice);
+        let z = if memory.is_resident() {
+            SlotSizes::resident(plan, &memory.slice)
+        } else {
+            SlotSizes::new(plan, &memory.slice, memory.planes_per_slice)
+        };
+        let resident = if memory.is_resident() {
+            let r = ResidentSizes::new(plan, &memory.slice);
+            Some(ResidentBuffers {
+                slot_table: buffer(ctx, "resident slot table", r.slot_table, storage, gpu)?,
+                density: buffer(ctx, "resident density", r.density, storage, gpu)?,
+                source_prev: buffer(ctx, "resident source prev", r.source_prev, storage, gpu)?,
+                source_next: buffer(ctx, "resident source next", r.source_next, storage, gpu)?,
+                fluence: buffer(ctx, "resident fluence", r.fluence, storage, gpu)?,
+            })
+        } else {
+            None
+        };
         let mut slots = Vec::with_capacity(memory.slices_in_flight as usize);
         for i in 0..memory.slices_in_flight {
             let name = |what: &str| format!("slot {i} {what}");
@@ -168,12 +203,18 @@ impl DeviceResources {
             let mut all = Vec::with_capacity(tables.len());
             for (i, t) in tables.iter().enumerate() {
                 let mut sets = Vec::with_capacity(slots.len() + 1);
-                for (s, slot) in slots.iter().enumerate() {
-                    let buffers =
-                        [&slot.slot_table, &slot.density, &slot.source_prev, &slot.source_next, &slot.fluence];
-                    let bindings = encoder::sweep_bindings(t, buffers.map(|b| &**b), &shared);
-                    let name = format!("{what} {i} slot {s}");
+                if let Some(r) = &resident {
+                    let bindings = encoder::sweep_bindings(t, r.all(), &shared);
+                    let name = format!("{what} {i} resident");
                     sets.push(Owned::new(ctx, ctx.create_descriptor_set_in(&name, &layout, &bindings)?));
+                } else {
+                    for (s, slot) in slots.iter().enumerate() {
+                        let buffers =
+                            [&slot.slot_table, &slot.density, &slot.source_prev, &slot.source_next, &slot.fluence];
+                        let bindings = encoder::sweep_bindings(t, buffers.map(|b| &**b), &shared);
+                        let name = format!("{what} {i} slot {s}");
+                        sets.push(Owned::new(ctx, ctx.create_descriptor_set_in(&name, &layout, &bindings)?));
+                    }
                 }
                 let v = &*shared.vacuum;
                 let bindings = encoder::sweep_bindings(t, [v; 5], &shared);
@@ -193,6 +234,7 @@ impl DeviceResources {
             layout,
             slots,
             shared,
+            resident,
             face_tables,
             beam_tables,
         })
@@ -213,8 +255,9 @@ impl DeviceResources {
             })
             .map(|b| b.size())
             .sum();
+        let resident: u64 = self.resident.iter().flat_map(ResidentBuffers::all).map(|b| b.size()).sum();
         let tables = self.face_tables.iter().chain(&self.beam_tables);
         let staging = tables.clone().map(|t| t.staging_bytes).max().unwrap_or(0);
-        shared + slots + tables.map(SweepTables::device_bytes).sum::<u64>() + staging
+        shared + slots + resident + tables.map(SweepTables::device_bytes).sum::<u64>() + staging
     }
 }

@@ -64,6 +64,27 @@ impl SlotSizes {
         }
     }
 
+    /// A slot of the resident mode ([`ResidentSizes`]): staging only, for whole slices. The
+    /// device buffers are the smallest Vulkan allows (the kernels bind the resident ones); the
+    /// upload carries the density and the previous source (the order's accumulators start as
+    /// zeros filled on the device), the download the new source and the fluence.
+    pub fn resident(plan: &Plan, extent: &SliceExtent) -> SlotSizes {
+        let whole = SlotSizes::new(plan, extent, BRICK_EDGE);
+        let none = buffer_bytes(0);
+        let table = slot_table_bytes(extent.bricks);
+        let per_component = extent.occupied * slab_bytes(BRICK_EDGE);
+        let prev = per_component * plan.source_components() as u64 / 4 * plan.source_precision.bytes();
+        SlotSizes {
+            slot_table: none,
+            density: none,
+            source_prev: none,
+            source_next: none,
+            fluence: none,
+            upload: buffer_bytes(table + per_component + prev),
+            download: whole.download,
+        }
+    }
+
     /// The slot's device buffers.
     pub fn device(&self) -> u64 {
         self.slot_table + self.density + self.source_prev + self.source_next + self.fluence
@@ -81,6 +102,48 @@ impl SlotSizes {
             ("one plane of the slice's source", self.source_next),
             ("one plane of the slice's fluence", self.fluence),
             ("one plane of the slice's density", self.density),
+        ]
+    }
+}
+
+/// The device buffers of the resident mode: every occupied brick's density, previous source, new
+/// source and fluence for the whole solve (in the store's slot order, each brick laid out as in
+/// the store), and the slot table of the slice being computed (written before each step).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ResidentSizes {
+    pub slot_table: u64,
+    pub density: u64,
+    /// The previous source at its storage precision.
+    pub source_prev: u64,
+    pub source_next: u64,
+    pub fluence: u64,
+}
+
+impl ResidentSizes {
+    pub fn new(plan: &Plan, extent: &SliceExtent) -> ResidentSizes {
+        let per_component = extent.occupied_total * BRICK_BYTES;
+        let source = per_component * plan.source_components() as u64;
+        ResidentSizes {
+            slot_table: buffer_bytes(slot_table_bytes(extent.bricks)),
+            density: buffer_bytes(per_component),
+            source_prev: buffer_bytes(source / 4 * plan.source_precision.bytes()),
+            source_next: buffer_bytes(source),
+            fluence: buffer_bytes(per_component * plan.channels as u64),
+        }
+    }
+
+    pub fn device(&self) -> u64 {
+        self.slot_table + self.density + self.source_prev + self.source_next + self.fluence
+    }
+
+    /// The buffers bound whole to a kernel, named for the reason the plan gives when one is larger
+    /// than a binding may be.
+    pub fn bound(&self) -> [(&'static str, u64); 4] {
+        [
+            ("the source of all occupied bricks", self.source_next),
+            ("the previous source of all occupied bricks", self.source_prev),
+            ("the fluence of all occupied bricks", self.fluence),
+            ("the density of all occupied bricks", self.density),
         ]
     }
 }

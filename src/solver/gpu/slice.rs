@@ -8,7 +8,9 @@
 //!
 //! Upload staging: `[slot table, padded to 16 B][density][previous source, only when rays gain it]
 //! [new source][fluence]`, each block over the occupied bricks in slice order; the device slot
-//! buffers hold the same blocks, each at offset 0 of its own buffer. Download staging:
+//! buffers hold the same blocks, each at offset 0 of its own buffer. The resident mode's load
+//! ([`SliceLayout::resident_load`]) leaves out the accumulators, and the density after the first
+//! load; its copies put each brick at its store slot in the resident buffers ([`Self::resident_slots`]). Download staging:
 //! `[new source][fluence]`. The previous source is f32 like the rest, or f16 when the plan says so
 //! (the same slab layout at 2 bytes a value, rounded by the copy workers during the gather; a slab
 //! holds a multiple of 256 voxels, so its f16 values pair up into whole 32-bit words).
@@ -36,6 +38,9 @@ pub struct SliceLayout {
     pub axis: usize,
     /// `Some(scale)`: the previous source travels as f16, times `scale` (a power of two).
     pub prev_half_scale: Option<f32>,
+    /// Whether the upload carries the density, and the order's accumulators (new source, fluence).
+    pub density_up: bool,
+    pub accumulators_up: bool,
 }
 
 impl SliceLayout {
@@ -85,7 +90,24 @@ impl SliceLayout {
             comps,
             axis: face.axis,
             prev_half_scale,
+            density_up: true,
+            accumulators_up: true,
         }
+    }
+
+    /// The upload of the resident mode's load: the previous source, and the density only when
+    /// `with_density` (it stays on the device from the first load on). Whole slices only.
+    pub fn resident_load(mut self, with_density: bool) -> Self {
+        debug_assert_eq!(self.range.slab_planes, BRICK_EDGE, "the resident mode moves whole bricks");
+        self.density_up = with_density;
+        self.accumulators_up = false;
+        self
+    }
+
+    /// Per brick of the slice: its store slot (its place in the resident buffers), or −1 when
+    /// empty. The resident mode's slot table.
+    pub fn resident_slots(&self, store: &BrickStore) -> Vec<i32> {
+        self.bricks.iter().map(|&b| store.slot(b).map_or(-1, |k| k as i32)).collect()
     }
 
     /// No occupied brick: the rays cross vacuum, nothing travels and nothing is collected.
@@ -135,7 +157,7 @@ impl SliceLayout {
     }
 
     pub fn prev_offset(&self) -> u64 {
-        self.density_offset() + self.density_bytes()
+        self.density_offset() + if self.density_up { self.density_bytes() } else { 0 }
     }
 
     pub fn next_offset(&self) -> u64 {
@@ -143,11 +165,11 @@ impl SliceLayout {
     }
 
     pub fn fluence_offset(&self) -> u64 {
-        self.next_offset() + self.source_bytes()
+        self.next_offset() + if self.accumulators_up { self.source_bytes() } else { 0 }
     }
 
     pub fn upload_bytes(&self) -> u64 {
-        self.fluence_offset() + self.fluence_bytes()
+        self.fluence_offset() + if self.accumulators_up { self.fluence_bytes() } else { 0 }
     }
 
     /// Regions that fill the upload staging (at `staging`) from the store, all but the slot table
@@ -161,7 +183,7 @@ impl SliceLayout {
         let at = |offset: u64| -> *mut u8 { staging.wrapping_add(offset as usize) };
         let (prev, next, fluence) = (self.prev_offset(), self.next_offset(), self.fluence_offset());
         for (i, &b) in self.occupied.iter().enumerate() {
-            if let Some(density) = store.density_brick(b) {
+            if let Some(density) = store.density_brick(b).filter(|_| self.density_up) {
                 let dst = at(self.density_offset() + (i * slab) as u64);
                 self.slab_regions(density.as_ptr() as *mut u8, dst, 1, true, None, &mut regions);
             }
@@ -179,10 +201,12 @@ impl SliceLayout {
                         &mut regions,
                     );
                 }
-                let dst = at(next + (i * comps * slab) as u64);
-                self.slab_regions(next_base.wrapping_add(k * block), dst, comps, true, None, &mut regions);
+                if self.accumulators_up {
+                    let dst = at(next + (i * comps * slab) as u64);
+                    self.slab_regions(next_base.wrapping_add(k * block), dst, comps, true, None, &mut regions);
+                }
             }
-            if let Some(k) = fields.fluence.stored_index(b) {
+            if let Some(k) = fields.fluence.stored_index(b).filter(|_| self.accumulators_up) {
                 let dst = at(fluence + (i * c * slab) as u64);
                 self.slab_regions(
                     fluence_base.wrapping_add(k * c * BRICK_BYTES as usize),

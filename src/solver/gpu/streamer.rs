@@ -3,6 +3,12 @@
 //! two slots the transfers of one slice overlap the compute of another (see the module docs of
 //! [`super`] for the five steps).
 //!
+//! In the resident mode ([`super::budget::Residency`]) a pass only computes: the order's fields
+//! live in the resident buffers, loaded through the slots' staging at the start of the order
+//! ([`SliceStreamer::load_resident`]: the previous source, and the medium the first time) and
+//! brought home at its end ([`SliceStreamer::unload_resident`]: the new source and the fluence),
+//! slice by slice with the same gather and scatter as a streamed pass.
+//!
 //! It owns the synchronisation state: the timelines and the last value submitted on each, the
 //! slots' pending downloads and scatters, the copy workers, and the profiler's timestamps. Dropping
 //! it waits for the last submission and the last copy, so it must be dropped before the
@@ -23,6 +29,7 @@ use crate::solver::plan::{power_of_two, Plan};
 use crate::solver::sweep::FaceSweep;
 use crate::solver::SolveError;
 use crate::store::{BrickStore, BRICK_EDGE};
+use super::sizes::BRICK_BYTES;
 use crate::vk::{Context, Recorder, TimelineSemaphore};
 use ash::vk;
 use std::ops::Range;
@@ -71,10 +78,15 @@ pub struct SliceStreamer {
     timelines: Timelines,
     /// The last value handed out on the timelines.
     value: u64,
-    /// The last values submitted to signal the upload and the download timelines (vacuum slices
-    /// skip both).
+    /// The last values submitted to signal the upload, compute and download timelines (vacuum
+    /// slices skip the transfers; the resident mode's loads and unloads skip compute).
     upload_value: u64,
+    compute_value: u64,
     download_value: u64,
+    /// The resident mode: the upload value of the order's last load, which every compute step
+    /// waits for; and per slot the last load upload that read its staging, with its slice.
+    resident_ready: u64,
+    slot_uploads: Vec<Option<(u64, SliceLayout)>>,
     slots: Vec<SlotState>,
     copier: Copier,
     profiler: Option<Profiler>,
@@ -113,7 +125,10 @@ impl SliceStreamer {
             timelines,
             value: 0,
             upload_value: 0,
+            compute_value: 0,
             download_value: 0,
+            resident_ready: 0,
+            slot_uploads: (0..memory.slices_in_flight).map(|_| None).collect(),
             slots: (0..memory.slices_in_flight).map(|_| SlotState::default()).collect(),
             copier: Copier::new(std::thread::available_parallelism().map_or(2, |n| n.get()).min(8)),
             profiler,
@@ -143,14 +158,27 @@ impl SliceStreamer {
         t.compute.wait(&self.ctx, v, WAIT_FOREVER)?;
         t.upload.signal(&self.ctx, v)?;
         t.download.signal(&self.ctx, v)?;
-        (self.upload_value, self.download_value) = (v, v);
+        (self.upload_value, self.compute_value, self.download_value) = (v, v, v);
         self.ctx.collect_garbage()?;
         Ok(())
     }
 
+    /// The next value on the timelines for a slice's work (the kill test's hook counts these).
+    fn next_slice_value(&mut self) -> u64 {
+        self.value += 1;
+        if self.abort_at_slice == Some(self.value) {
+            tracing::error!("LPM_TEST_ABORT_AT_SLICE={}: aborting as a kill would", self.value);
+            std::process::abort();
+        }
+        self.value
+    }
+
     /// Streams every slice of the face through the slots for the pass's directions; returns when
-    /// every slice is back in the store.
+    /// every slice is back in the store. In the resident mode the slices only compute.
     pub fn stream_pass(&mut self, io: &mut Stream, pass: &Pass) -> Result<(), SolveError> {
+        if self.memory.is_resident() {
+            return self.compute_resident_pass(io, pass);
+        }
         let plan = io.plan;
         let slices = pass.sweep.slices(BRICK_EDGE, self.memory.planes_per_slice);
         let n_slots = self.slots.len();
@@ -178,6 +206,7 @@ impl SliceStreamer {
                 flags: pass.flags,
                 half_exponent: pass.half_exponent,
                 first,
+                resident_table: None,
             };
             if layout.is_vacuum() {
                 self.value += 1;
@@ -189,12 +218,7 @@ impl SliceStreamer {
             filled += 1;
             self.retire_slot(io, s)?;
             self.gather(io, s, &layout)?;
-            self.value += 1;
-            let v = self.value;
-            if self.abort_at_slice == Some(v) {
-                tracing::error!("LPM_TEST_ABORT_AT_SLICE={v}: aborting as a kill would");
-                std::process::abort();
-            }
+            let v = self.next_slice_value();
             self.submit_upload(io.res, s, &layout, v)?;
             self.submit_compute(io, &step(Some(s), &layout), v)?;
             self.slots[s].pending = Some((v, layout));
@@ -223,6 +247,193 @@ impl SliceStreamer {
         Ok(())
     }
 
+    /// A pass of the resident mode: every slice computes on the resident buffers (after the
+    /// order's load), nothing moves.
+    fn compute_resident_pass(&mut self, io: &mut Stream, pass: &Pass) -> Result<(), SolveError> {
+        let plan = io.plan;
+        let gain = pass.flags & FLAG_GAIN != 0;
+        let (c, comps) = (plan.channels as u64, plan.source_components() as u64);
+        let half = if gain { pass.half_exponent.map(power_of_two) } else { None };
+        for (i, range) in pass.sweep.slices(BRICK_EDGE, BRICK_EDGE).iter().enumerate() {
+            if self.cancel.is_some_and(|c| c.is_raised()) {
+                return Err(SolveError::Cancelled);
+            }
+            let layout = SliceLayout::new(io.store, pass.sweep, *range, gain, c, comps, half);
+            let vacuum = layout.is_vacuum();
+            let table = if vacuum { Vec::new() } else { layout.resident_slots(io.store) };
+            let v = if vacuum { self.value + 1 } else { self.next_slice_value() };
+            self.value = v;
+            let step = ComputeStep {
+                slot: (!vacuum).then_some(0),
+                layout: &layout,
+                tables: pass.tables,
+                sets: pass.sets,
+                sweep: pass.sweep,
+                pass_dirs: pass.dirs.clone(),
+                flags: pass.flags,
+                half_exponent: pass.half_exponent,
+                first: i == 0,
+                resident_table: (!vacuum).then_some(&table[..]),
+            };
+            self.submit_compute(io, &step, v)?;
+        }
+        if let Some(p) = self.profiler.as_mut() {
+            p.collect(&self.ctx)?;
+        }
+        self.ctx.collect_garbage()?;
+        Ok(())
+    }
+
+    /// The resident mode's start of an order: the previous source (at the order's precision:
+    /// `half_exponent`) of every occupied brick, and the density when `with_density` (the first
+    /// load of the solve), go from the store to the resident buffers through the slots' staging,
+    /// slice by slice; the order's accumulators are filled with zeros on the device (what the
+    /// store's cleared accumulators hold, bit for bit). Compute steps wait for the last upload.
+    pub fn load_resident(
+        &mut self,
+        io: &mut Stream,
+        half_exponent: Option<i32>,
+        with_density: bool,
+    ) -> Result<(), SolveError> {
+        let plan = io.plan;
+        let Some(resident) = io.res.resident.as_ref() else {
+            return Err(SolveError::Internal("resident load without resident buffers"));
+        };
+        let (c, comps) = (plan.channels as u64, plan.source_components() as u64);
+        let half = half_exponent.map(power_of_two);
+        let prev_brick = comps * BRICK_BYTES / 4 * plan.source_precision.bytes();
+        let ctx = Arc::clone(&self.ctx);
+        let queue = ctx.transfer_queue().unwrap_or(ctx.compute_queue());
+        // The previous order's kernels read and wrote the buffers the load overwrites, and its
+        // unload read the accumulators the fill clears.
+        let (computed, downloaded) = (self.compute_value, self.download_value);
+        let submit = |rec: Recorder, t: &Timelines, v: u64| {
+            let after = [
+                (&*t.compute, computed, vk::PipelineStageFlags2::ALL_TRANSFER),
+                (&*t.download, downloaded, vk::PipelineStageFlags2::ALL_TRANSFER),
+            ];
+            rec.submit(queue, &after, (&t.upload, v))
+        };
+        let v = self.next_slice_value();
+        let mut rec = Recorder::begin(&ctx, queue.family(), "resident clear")?;
+        rec.fill_buffer(&resident.source_next, 0, vk::WHOLE_SIZE, 0);
+        rec.fill_buffer(&resident.fluence, 0, vk::WHOLE_SIZE, 0);
+        submit(rec, &self.timelines, v)?;
+        self.upload_value = v;
+        let sweep = FaceSweep::for_plan(0, plan);
+        let n_slots = self.slots.len();
+        let mut filled = 0;
+        for range in sweep.slices(BRICK_EDGE, BRICK_EDGE) {
+            let layout = SliceLayout::new(io.store, &sweep, range, true, c, comps, half).resident_load(with_density);
+            if layout.is_vacuum() {
+                continue;
+            }
+            let s = filled % n_slots;
+            filled += 1;
+            // The slot's staging is free once its last upload has read it.
+            self.finish_load(io, s)?;
+            self.gather(io, s, &layout)?;
+            let v = self.next_slice_value();
+            let slot = &io.res.slots[s];
+            let mut rec = Recorder::begin(&ctx, queue.family(), "resident load")?;
+            let mark = self.profiler.as_mut().and_then(|p| p.begin(&mut rec, profile::Work::Upload, layout.upload_bytes()));
+            let place = |staging: u64, each: u64, brick_bytes: u64| -> Vec<vk::BufferCopy> {
+                (layout.occupied.iter().enumerate())
+                    .filter_map(|(i, &b)| io.store.slot(b).map(|k| (i as u64, k as u64)))
+                    .map(|(i, k)| vk::BufferCopy { src_offset: staging + i * each, dst_offset: k * brick_bytes, size: each })
+                    .collect()
+            };
+            if with_density {
+                rec.copy_buffer(&slot.upload, &resident.density, &place(layout.density_offset(), BRICK_BYTES, BRICK_BYTES));
+            }
+            rec.copy_buffer(&slot.upload, &resident.source_prev, &place(layout.prev_offset(), prev_brick, prev_brick));
+            if let Some(p) = self.profiler.as_mut() {
+                p.end(&mut rec, mark);
+            }
+            submit(rec, &self.timelines, v)?;
+            self.upload_value = v;
+            self.slot_uploads[s] = Some((v, layout));
+        }
+        self.resident_ready = self.upload_value;
+        for s in 0..n_slots {
+            self.finish_load(io, s)?;
+        }
+        if let Some(p) = self.profiler.as_mut() {
+            p.collect(&self.ctx)?;
+        }
+        Ok(())
+    }
+
+    /// The resident mode's end of an order: the new source and the fluence of every occupied
+    /// brick come home through the slots' download staging, slice by slice (pipelined like a
+    /// streamed pass's downloads); returns when all are in the store.
+    pub fn unload_resident(&mut self, io: &mut Stream) -> Result<(), SolveError> {
+        let plan = io.plan;
+        let Some(resident) = io.res.resident.as_ref() else {
+            return Err(SolveError::Internal("resident unload without resident buffers"));
+        };
+        let (c, comps) = (plan.channels as u64, plan.source_components() as u64);
+        let ctx = Arc::clone(&self.ctx);
+        let queue = ctx.transfer_queue().unwrap_or(ctx.compute_queue());
+        let sweep = FaceSweep::for_plan(0, plan);
+        let n_slots = self.slots.len();
+        let mut filled = 0;
+        for range in sweep.slices(BRICK_EDGE, BRICK_EDGE) {
+            let layout = SliceLayout::new(io.store, &sweep, range, false, c, comps, None);
+            if layout.is_vacuum() {
+                continue;
+            }
+            let s = filled % n_slots;
+            filled += 1;
+            // The slot's download staging is free once its last slice is scattered.
+            self.retire_slot(io, s)?;
+            self.finish_scatter(io, s)?;
+            let v = self.next_slice_value();
+            let slot = &io.res.slots[s];
+            let mut rec = Recorder::begin(&ctx, queue.family(), "resident unload")?;
+            let (next, fluence) = (layout.source_bytes(), layout.fluence_bytes());
+            let mark = self.profiler.as_mut().and_then(|p| p.begin(&mut rec, profile::Work::Download, next + fluence));
+            let gather = |staging: u64, each: u64| -> Vec<vk::BufferCopy> {
+                (layout.occupied.iter().enumerate())
+                    .filter_map(|(i, &b)| io.store.slot(b).map(|k| (i as u64, k as u64)))
+                    .map(|(i, k)| vk::BufferCopy { src_offset: k * each, dst_offset: staging + i * each, size: each })
+                    .collect()
+            };
+            rec.copy_buffer(&resident.source_next, &slot.download, &gather(0, comps * BRICK_BYTES));
+            rec.copy_buffer(&resident.fluence, &slot.download, &gather(next, c * BRICK_BYTES));
+            rec.transfer_to_host();
+            if let Some(p) = self.profiler.as_mut() {
+                p.end(&mut rec, mark);
+            }
+            let t = &self.timelines;
+            rec.submit(queue, &[(&*t.compute, self.compute_value, vk::PipelineStageFlags2::ALL_TRANSFER)], (&t.download, v))?;
+            self.download_value = v;
+            self.slots[s].pending = Some((v, layout));
+        }
+        let mut order: Vec<usize> = (0..n_slots).collect();
+        order.sort_by_key(|&s| self.slots[s].pending.as_ref().map_or(0, |p| p.0));
+        for s in order {
+            self.retire_slot(io, s)?;
+        }
+        for s in 0..n_slots {
+            self.finish_scatter(io, s)?;
+        }
+        if let Some(p) = self.profiler.as_mut() {
+            p.collect(&self.ctx)?;
+        }
+        self.ctx.collect_garbage()?;
+        Ok(())
+    }
+
+    /// Waits for the load upload that last read slot `s`'s staging, then hands the store's pages
+    /// of its slice back (done with until the unload).
+    fn finish_load(&mut self, io: &mut Stream, s: usize) -> Result<(), SolveError> {
+        let Some((v, layout)) = self.slot_uploads[s].take() else { return Ok(()) };
+        self.timelines.upload.wait(&self.ctx, v, WAIT_FOREVER)?;
+        release_pages(io, &layout.occupied, &[&io.fields.source_prev]);
+        Ok(())
+    }
+
     /// Makes slot `s` free: waits for its last slice's download and scatters it back to the store.
     fn retire_slot(&mut self, io: &mut Stream, s: usize) -> Result<(), SolveError> {
         self.finish_scatter(io, s)?;
@@ -245,19 +456,7 @@ impl SliceStreamer {
         let Some((ticket, layout)) = self.slots[s].scattering.take() else { return Ok(()) };
         ticket.wait()?;
         let fields = &*io.fields;
-        let mut slots = layout.occupied.iter().filter_map(|&b| io.store.slot(b)).map(|k| k as usize).peekable();
-        // Runs of consecutive slots, one release each.
-        while let Some(first) = slots.next() {
-            let mut count = 1;
-            while slots.peek() == Some(&(first + count)) {
-                slots.next();
-                count += 1;
-            }
-            io.store.release_density(first, count);
-            for field in [&fields.source_prev, &fields.source_next, &fields.fluence] {
-                field.release_stored(first, count);
-            }
-        }
+        release_pages(io, &layout.occupied, &[&fields.source_prev, &fields.source_next, &fields.fluence]);
         Ok(())
     }
 
@@ -316,9 +515,12 @@ impl SliceStreamer {
             p.end(&mut rec, mark);
         }
         let t = &self.timelines;
-        let waits = [(&*t.upload, v, vk::PipelineStageFlags2::COMPUTE_SHADER)];
+        // Streamed: the slice's own upload; resident: the order's load.
+        let ready = if step.resident_table.is_some() { self.resident_ready } else { v };
+        let waits = [(&*t.upload, ready, vk::PipelineStageFlags2::COMPUTE_SHADER)];
         // A vacuum slice waits for no upload: the compute queue's own order is enough.
         rec.submit(queue, if step.slot.is_some() { &waits } else { &[] }, (&t.compute, v))?;
+        self.compute_value = v;
         Ok(())
     }
 
@@ -356,12 +558,31 @@ impl SliceStreamer {
     }
 }
 
+/// Hands the store's pages of the `occupied` bricks back: their density and `fields` (a no-op
+/// while the store keeps its pages resident).
+fn release_pages(io: &Stream, occupied: &[usize], fields: &[&crate::store::Field]) {
+    let mut slots = occupied.iter().filter_map(|&b| io.store.slot(b)).map(|k| k as usize).peekable();
+    // Runs of consecutive slots, one release each.
+    while let Some(first) = slots.next() {
+        let mut count = 1;
+        while slots.peek() == Some(&(first + count)) {
+            slots.next();
+            count += 1;
+        }
+        io.store.release_density(first, count);
+        for field in fields {
+            field.release_stored(first, count);
+        }
+    }
+}
+
 impl Drop for SliceStreamer {
     /// Waits for the last submission on each timeline and for the copies still running, so that
     /// nothing the device or a copy worker uses is freed under it.
     fn drop(&mut self) {
         let t = &self.timelines;
-        let last = [(&t.upload, self.upload_value), (&t.compute, self.value), (&t.download, self.download_value)];
+        let last =
+            [(&t.upload, self.upload_value), (&t.compute, self.compute_value), (&t.download, self.download_value)];
         for (timeline, value) in last {
             if let Err(e) = timeline.wait(&self.ctx, value, WAIT_FOREVER) {
                 tracing::warn!("waiting for the last submission failed: {e}");

@@ -1,0 +1,103 @@
+//! The device-resident mode (`solver::gpu::budget::Residency`): when every occupied brick's medium
+//! and fields fit the budget they stay on the device, and the result is bitwise what streaming
+//! every pass gives, for every kind of sweep (sun beams, f16 sources, anisotropic storage, periodic
+//! carries, the diffusion acceleration's corrected sources); the plan says which mode and why.
+use crate::common::*;
+use lpm::scene::{Acceleration, Boundary, DeviceResidency, Scene, Shape, SpatialScheme, StoragePrecision};
+use lpm::solver::gpu::budget::Residency;
+use lpm::solver::BackendKind::Gpu;
+
+fn bits(solved: &Solved) -> Vec<u32> {
+    let f = &solved.fields;
+    f.fluence_total.as_slice().iter().chain(f.source_total.as_slice()).map(|v| v.to_bits()).collect()
+}
+
+/// Solves `scene` resident and streamed; asserts the modes and equal bits, orders and books.
+fn resident_equals_streamed(name: &str, scene: &Scene) {
+    let resident = solve(&format!("{name}-resident"), scene, Gpu);
+    let mut s = scene.clone();
+    s.solver.device_residency = DeviceResidency::Streamed;
+    let streamed = solve(&format!("{name}-streamed"), &s, Gpu);
+    let (r, st) = (resident.run.memory.expect("plan"), streamed.run.memory.expect("plan"));
+    assert_eq!(r.residency, Residency::Resident, "{name}: {r:?}");
+    assert_eq!(st.residency, Residency::StreamedOnRequest, "{name}: {st:?}");
+    assert!(bits(&resident) == bits(&streamed), "{name}: resident and streamed differ");
+    let (a, b) = (&resident.run.outcome, &streamed.run.outcome);
+    assert_eq!(a.orders, b.orders, "{name}");
+    for (fa, fb) in a.energy.faces.iter().zip(&b.energy.faces) {
+        assert_eq!(fa.power_in, fb.power_in, "{name}: {}", fa.face);
+        assert_eq!(fa.power_out, fb.power_out, "{name}: {}", fa.face);
+    }
+}
+
+#[test]
+fn resident_and_streamed_give_the_same_bits() {
+    // RGB, sun and sky, anisotropic (2×2 storage directions), the source stored in f16.
+    let mut cloud = scene(
+        Shape::Cloud,
+        [34, 30, 38],
+        [0.9, 0.7, 0.5],
+        [0.9, 0.8, 0.7],
+        vec![sky(0.5), sun([0.4, -0.3, 1.0], [2.0; 3])],
+    );
+    cloud.medium.g = 0.5;
+    cloud.solver.directions_per_face = 3;
+    cloud.solver.storage_directions_per_face = Some(2);
+    cloud.solver.max_orders = 4;
+    cloud.solver.storage_precision = StoragePrecision::F16;
+    resident_equals_streamed("cloud-f16", &cloud);
+
+    // High albedo with the diffusion acceleration (the host corrects every order's source).
+    let mut thick = scene(Shape::Cloud, [32, 32, 32], [2.0; 3], [0.99; 3], vec![sky(1.0)]);
+    thick.solver.spatial = SpatialScheme::Constant;
+    thick.solver.acceleration = Acceleration::Diffusion;
+    thick.solver.max_orders = 5;
+    resident_equals_streamed("thick-accelerated", &thick);
+
+    // Periodic sides: the rays carry what left one side into the next order.
+    let mut slab = scene(Shape::Cloud, [24, 20, 28], [0.8; 3], [0.9; 3], vec![sun([0.5, 0.3, 1.0], [1.0; 3])]);
+    slab.solver.spatial = SpatialScheme::Constant;
+    slab.boundary = Boundary { periodic: [true, true, false] };
+    slab.solver.max_orders = 4;
+    resident_equals_streamed("periodic", &slab);
+}
+
+#[test]
+fn the_plan_says_resident_or_streamed_and_why() {
+    let mut s = scene(Shape::Cloud, [34, 30, 38], [0.9; 3], [0.9; 3], vec![sky(1.0)]);
+    s.solver.max_orders = 1;
+    let resident = solve("plan-resident", &s, Gpu).run.memory.expect("plan");
+    assert!(resident.is_resident() && resident.resident_field_bytes > 0, "{resident:?}");
+    assert!(resident.residency_reason.starts_with("resident"), "{resident:?}");
+    assert!(resident.planned_bytes <= resident.budget_bytes);
+    // A budget under the resident working set streams, and says so.
+    s.solver.device_memory_budget = Some(resident.resident_bytes - 1);
+    let over = solve("plan-over", &s, Gpu).run.memory.expect("plan");
+    assert_eq!(over.residency, Residency::StreamedOverBudget, "{over:?}");
+    assert_eq!(over.resident_field_bytes, 0);
+    assert!(over.residency_reason.contains("larger than the device memory budget"), "{over:?}");
+}
+
+/// `lpm solve` reports the mode in report.json and `lpm info` says it in words; the scene key
+/// `solver.device_residency = "streamed"` turns the resident mode off.
+#[test]
+fn report_and_info_name_the_mode() {
+    let dir = temp_dir("resident-cli");
+    for (mode, key) in [("resident", ""), ("streamed_on_request", "device_residency = \"streamed\"\n")] {
+        let text = killable_cloud_scene([20, 18, 22], 1).replacen("[solver]\n", &format!("[solver]\n{key}"), 1);
+        let scene = dir.join(format!("{mode}.toml"));
+        std::fs::write(&scene, text).unwrap();
+        let out = dir.join(mode);
+        let o = lpm_command(&["solve", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--no-image"])
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let report: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+        assert_eq!(report["device_memory"]["residency"], mode, "{}", report["device_memory"]);
+        let o = lpm_command(&["info", out.to_str().unwrap()]).output().unwrap();
+        let text = String::from_utf8_lossy(&o.stdout);
+        let words = if mode == "resident" { "resident: the medium and fields" } else { "streamed slice by slice, as asked" };
+        assert!(text.contains(words), "{text}");
+    }
+}
