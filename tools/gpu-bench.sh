@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # GPU figures in one command (issue 14): the test suite under validation on the device, then the
 # order benchmark and `lpm bench stream` at 128³, 256³ and 512³ (the default budget, half the
-# device heap, which holds the whole working set on a data-centre GPU; and streamed with 1/8 of the
-# bytes that plan used), then the CPU backend at 1 thread and every core; prints one table
+# device heap, which holds the whole working set on a data-centre GPU: the solve runs
+# device-resident; and streamed with 1/8 of the bytes that plan used), then the CPU backend at 1 thread and every core; prints one table
 # (Markdown, ready for benches/RESULTS.md) with the date, device, driver and exact commands.
 #
 #   bash tools/gpu-bench.sh prepare    # on the build machine: binaries + Vulkan loader into .gl/
@@ -145,7 +145,8 @@ irradiance = [3.2, 3.0, 2.7]
 [solver]
 directions_per_face = 4
 EOF
-        # No budget: the default (half the device heap) holds the whole working set on a GPU.
+        # No budget: the default (half the device heap) holds the whole working set on a GPU, so
+        # the solve runs device-resident; 1/8 of that plan streams every pass.
         local cmd="$lpm bench stream $scene --orders $orders --json $out/stream_${n}_full.json"
         echo "+ $cmd"
         $cmd >/dev/null 2>"$out/stream_${n}_full.log" || { echo "stream $n failed: see $out/stream_${n}_full.log"; continue; }
@@ -162,6 +163,7 @@ r = json.load(open(sys.argv[1]))
 o = r["orders"][-1]
 m = r["memory"]
 label = "default (half the heap)" if sys.argv[3] == "full" else "1/8 of that plan"
+label += ", " + m.get("residency", "streamed").replace("_", " ")
 kind = "CPU figure (lavapipe)" if r["device_is_cpu"] else "GPU"
 print(f"| {sys.argv[2]}³ | {label} ({m['planned_bytes'] / 2**20:.0f} MiB planned) | {o['wall_seconds']:.3f} s | "
       f"{o['updates_per_second'] / 1e9:.3f} G/s | {o['compute_seconds']:.3f} s | {o['upload_seconds']:.3f} / {o['download_seconds']:.3f} s | "

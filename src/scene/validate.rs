@@ -6,8 +6,9 @@
 
 use super::raw::{ByteSize, Channels, RawBoundary, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
 use super::{
-    Acceleration, Boundary, CheckpointCadence, DeviceResidency, DiffusionCorrection, EnvironmentLight, ForwardPeak, Light, MapUp,
-    Medium, PlanMode, Scene, SceneError, Shape, SolverSettings, SpatialScheme, StoragePrecision, Volume, VolumeSource,
+    Acceleration, Boundary, CheckpointCadence, DeviceResidency, DiffusionCorrection, EnvironmentLight, ForwardPeak,
+    Light, MapUp, Medium, PlanMode, Scene, SceneError, Shape, SolverSettings, SpatialScheme, StoragePrecision, Volume,
+    VolumeSource,
 };
 use albedo::AlbedoKeys;
 use emission::{BlackbodyKeys, EmissionKeys};

@@ -278,6 +278,7 @@ pub fn solve_from(
             // accumulators (still zero), as a sun's beam sweep deposits them: only here, so a
             // resumed solve never adds them twice; their power travels in the loop state.
             let point_light_power = point::write_order0(store, &plan, &mut fields.fluence, &mut fields.source_next)?;
+            fields.seeded = point_light_power.iter().any(|&p| p != 0.0);
             (fields, fields::LoopState { point_light_power, ..fields::LoopState::default() })
         }
     };

@@ -263,6 +263,9 @@ pub struct OrderFieldSet<F> {
     pub(crate) fluence_spare: F,
     /// The order's accumulators are known to be zero (fresh fields, or just cleared).
     pub(crate) clean: bool,
+    /// The order's accumulators hold what was written before its sweeps (the point lights' order
+    /// 0, [`super::point`]): a device-resident order loads them instead of starting from zeros.
+    pub seeded: bool,
     /// `source_prev` holds a warm start's guess x0 that order 0's commit takes back off (see
     /// [`super::warm`]).
     pub(crate) initial_guess: bool,
@@ -318,6 +321,7 @@ impl OrderFieldSet<MemField> {
             source_spare: MemField::zeros(comps, voxels),
             fluence_spare: MemField::zeros(c, voxels),
             clean: true,
+            seeded: false,
             initial_guess: false,
             warm_started: false,
             named: Named::default(),
@@ -343,6 +347,7 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
             self.source_next.clear()?;
             self.fluence.clear()?;
             self.clean = true;
+            self.seeded = false;
         }
         Ok(())
     }
@@ -441,6 +446,7 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
         std::mem::swap(&mut self.source_prev, &mut self.source_next);
         std::mem::swap(&mut self.named.prev, &mut self.named.next);
         self.clean = false;
+        self.seeded = false;
         Ok(power)
     }
 

@@ -28,8 +28,12 @@ fn bits(s: &Solved) -> Vec<u32> {
 
 #[test]
 fn f16_on_the_gpu_matches_the_f16_twin_at_any_budget() {
-    let scene = anisotropic_cloud();
+    let mut scene = anisotropic_cloud();
+    let resident = solve("f16-aniso-gpu-resident", &scene, Gpu);
+    // The cuts below are the streamed mode's; resident is the same bits.
+    scene.solver.device_residency = lpm::scene::DeviceResidency::Streamed;
     let gpu = solve("f16-aniso-gpu", &scene, Gpu);
+    assert!(bits(&resident) == bits(&gpu), "resident and streamed f16 differ");
     assert_eq!(gpu.run.plan.source_precision, Precision::F16);
     let full = gpu.run.memory.expect("memory plan");
     assert_eq!(full.planes_per_slice, 16, "{full:?}");
@@ -108,13 +112,21 @@ fn f16_and_f32_differ_by_less_than_the_tolerance_and_f16_saves_bytes() {
     assert!(diff > 0.0, "f16 should round something");
     assert_eq!(f16.run.outcome.orders, f32.run.outcome.orders);
 
-    // Bytes: the previous source is halved in each slot and in its upload staging; nothing else
-    // changes, and the plan stays exact.
+    // Bytes: the previous source is halved in each slot's upload staging, and in each slot's
+    // device buffer when streamed or in the resident buffer when resident; nothing else changes,
+    // and the plan stays exact.
     let (m16, m32) = (f16.run.memory.expect("plan"), f32.run.memory.expect("plan"));
     assert_eq!((m16.slices_in_flight, m16.planes_per_slice), (m32.slices_in_flight, m32.planes_per_slice));
+    assert!(m16.is_resident() && m32.is_resident(), "{m16:?}");
     let comps = f16.run.plan.source_components() as u64;
-    let source_bytes = m16.slice.occupied * 16 * 16 * 16 * 4 * comps;
-    assert_eq!(m32.planned_bytes - m16.planned_bytes, m16.slices_in_flight as u64 * source_bytes, "{m16:?} vs {m32:?}");
+    // f32 → f16 saves 2 bytes a value, over `bricks` bricks of `comps` components.
+    let saved = |bricks: u64| bricks * 16 * 16 * 16 * 2 * comps;
+    let slots = m16.slices_in_flight as u64;
+    assert_eq!(
+        m32.planned_bytes - m16.planned_bytes,
+        saved(m16.slice.occupied_total) + slots * saved(m16.slice.occupied),
+        "{m16:?} vs {m32:?}"
+    );
     assert!(f16.run.peak_device_bytes < f32.run.peak_device_bytes);
     assert!(f16.run.peak_device_bytes <= m16.planned_bytes);
 }

@@ -1,7 +1,8 @@
 //! The device-resident mode (`solver::gpu::budget::Residency`): when every occupied brick's medium
 //! and fields fit the budget they stay on the device, and the result is bitwise what streaming
 //! every pass gives, for every kind of sweep (sun beams, f16 sources, anisotropic storage, periodic
-//! carries, the diffusion acceleration's corrected sources); the plan says which mode and why.
+//! carries, the diffusion acceleration's corrected sources, a point light's order 0 written by the
+//! host); the plan says which mode and why.
 use crate::common::*;
 use lpm::scene::{Acceleration, Boundary, DeviceResidency, Scene, Shape, SpatialScheme, StoragePrecision};
 use lpm::solver::gpu::budget::Residency;
@@ -60,6 +61,13 @@ fn resident_and_streamed_give_the_same_bits() {
     slab.boundary = Boundary { periodic: [true, true, false] };
     slab.solver.max_orders = 4;
     resident_equals_streamed("periodic", &slab);
+
+    // A point light: the host writes its order 0 into the accumulators before the sweeps, so
+    // the resident load carries them instead of clearing.
+    let point = lpm::scene::Light::Point { position: glam::DVec3::new(10.0, 12.0, 9.0), intensity: [40.0; 3] };
+    let mut lit = scene(Shape::Cloud, [26, 22, 20], [0.6; 3], [0.8; 3], vec![point]);
+    lit.solver.max_orders = 3;
+    resident_equals_streamed("point-light", &lit);
 }
 
 #[test]
@@ -97,7 +105,8 @@ fn report_and_info_name_the_mode() {
         assert_eq!(report["device_memory"]["residency"], mode, "{}", report["device_memory"]);
         let o = lpm_command(&["info", out.to_str().unwrap()]).output().unwrap();
         let text = String::from_utf8_lossy(&o.stdout);
-        let words = if mode == "resident" { "resident: the medium and fields" } else { "streamed slice by slice, as asked" };
+        let words =
+            if mode == "resident" { "resident: the medium and fields" } else { "streamed slice by slice, as asked" };
         assert!(text.contains(words), "{text}");
     }
 }

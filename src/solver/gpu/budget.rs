@@ -195,8 +195,11 @@ pub fn plan_memory(
         Residency::StreamedOverBudget
     };
     // Resident first (whole slices only), then streamed, each with the largest knobs that fit.
-    let modes: &[(Residency, &[u32])] =
-        if resident { &[(Residency::Resident, &[BRICK_EDGE]), (streamed, &SLAB_PLANES)] } else { &[(streamed, &SLAB_PLANES)] };
+    let modes: &[(Residency, &[u32])] = if resident {
+        &[(Residency::Resident, &[BRICK_EDGE]), (streamed, &SLAB_PLANES)]
+    } else {
+        &[(streamed, &SLAB_PLANES)]
+    };
     for &(mode, slabs) in modes {
         for slots in [2, 1].into_iter().filter(|&s| s <= max_slots.max(1)) {
             for pass in (1..=per_face).rev() {

@@ -28,6 +28,17 @@
 //! values, never by idling the device. A long order logs its progress in passes now and then
 //! (`progress`).
 //!
+//! **Device-resident mode.** When every occupied brick's density and fields fit the budget (the
+//! planner decides, [`budget::Residency`]; `solver.device_residency = "streamed"` declines), they
+//! live in resident buffers for the whole solve and a pass only computes: each slice's step writes
+//! its slot table (store slots of its bricks) and runs the same kernels on the resident buffers.
+//! The medium is loaded once; at the start of an order the previous source is loaded and the
+//! accumulators are cleared on the device; at its end the new source and fluence come home, both
+//! slice by slice through the slots' staging with the gather and scatter above. So the bus carries
+//! each field once per order instead of once per pass, and the result is bitwise the streamed one
+//! (the kernels read the same values). The end-of-order passes (commit, stop rule, acceleration)
+//! still run on the host, which is why the fields come home every order.
+//!
 //! ## The pieces
 //!
 //! - [`resources`]: everything made on the device for a solve (pipelines, slot buffers and
@@ -474,7 +485,8 @@ impl GpuBackend<'_> {
         self.progress = Some(progress::PassProgress::new(order, passes));
         if self.memory.is_resident() {
             let mut io = Stream { plan, store: self.store, fields: &mut *self.fields, res: &self.resources };
-            self.streamer.load_resident(&mut io, self.half_exponent, !self.density_loaded)?;
+            let seeded = io.fields.seeded;
+            self.streamer.load_resident(&mut io, self.half_exponent, !self.density_loaded, seeded)?;
             self.density_loaded = true;
         }
         let mut tallies = Tallies::default();

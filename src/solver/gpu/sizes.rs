@@ -66,22 +66,17 @@ impl SlotSizes {
 
     /// A slot of the resident mode ([`ResidentSizes`]): staging only, for whole slices. The
     /// device buffers are the smallest Vulkan allows (the kernels bind the resident ones); the
-    /// upload carries the density and the previous source (the order's accumulators start as
-    /// zeros filled on the device), the download the new source and the fluence.
+    /// staging is a streamed whole slice's (a load may carry every field: the accumulators when
+    /// the host seeded them).
     pub fn resident(plan: &Plan, extent: &SliceExtent) -> SlotSizes {
-        let whole = SlotSizes::new(plan, extent, BRICK_EDGE);
         let none = buffer_bytes(0);
-        let table = slot_table_bytes(extent.bricks);
-        let per_component = extent.occupied * slab_bytes(BRICK_EDGE);
-        let prev = per_component * plan.source_components() as u64 / 4 * plan.source_precision.bytes();
         SlotSizes {
             slot_table: none,
             density: none,
             source_prev: none,
             source_next: none,
             fluence: none,
-            upload: buffer_bytes(table + per_component + prev),
-            download: whole.download,
+            ..SlotSizes::new(plan, extent, BRICK_EDGE)
         }
     }
 

@@ -95,12 +95,13 @@ impl SliceLayout {
         }
     }
 
-    /// The upload of the resident mode's load: the previous source, and the density only when
-    /// `with_density` (it stays on the device from the first load on). Whole slices only.
-    pub fn resident_load(mut self, with_density: bool) -> Self {
+    /// The upload of the resident mode's load: the previous source; the density only when
+    /// `with_density` (it stays on the device from the first load on); the accumulators only when
+    /// `accumulators` (the host seeded them). Whole slices only.
+    pub fn resident_load(mut self, with_density: bool, accumulators: bool) -> Self {
         debug_assert_eq!(self.range.slab_planes, BRICK_EDGE, "the resident mode moves whole bricks");
         self.density_up = with_density;
-        self.accumulators_up = false;
+        self.accumulators_up = accumulators;
         self
     }
 

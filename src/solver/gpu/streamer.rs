@@ -21,6 +21,7 @@ use super::layout::FLAG_GAIN;
 use super::owned::Owned;
 use super::profile::{self, Profiler};
 use super::resources::{DeviceResources, SweepSets};
+use super::sizes::BRICK_BYTES;
 use super::slice::SliceLayout;
 use super::tables::SweepTables;
 use crate::solver::cancel::CancelFlag;
@@ -29,7 +30,6 @@ use crate::solver::plan::{power_of_two, Plan};
 use crate::solver::sweep::FaceSweep;
 use crate::solver::SolveError;
 use crate::store::{BrickStore, BRICK_EDGE};
-use super::sizes::BRICK_BYTES;
 use crate::vk::{Context, Recorder, TimelineSemaphore};
 use ash::vk;
 use std::ops::Range;
@@ -288,12 +288,14 @@ impl SliceStreamer {
     /// `half_exponent`) of every occupied brick, and the density when `with_density` (the first
     /// load of the solve), go from the store to the resident buffers through the slots' staging,
     /// slice by slice; the order's accumulators are filled with zeros on the device (what the
-    /// store's cleared accumulators hold, bit for bit). Compute steps wait for the last upload.
+    /// store's cleared accumulators hold, bit for bit), or loaded too when `seeded` (the host
+    /// wrote into them before the sweeps). Compute steps wait for the last upload.
     pub fn load_resident(
         &mut self,
         io: &mut Stream,
         half_exponent: Option<i32>,
         with_density: bool,
+        seeded: bool,
     ) -> Result<(), SolveError> {
         let plan = io.plan;
         let Some(resident) = io.res.resident.as_ref() else {
@@ -314,17 +316,20 @@ impl SliceStreamer {
             ];
             rec.submit(queue, &after, (&t.upload, v))
         };
-        let v = self.next_slice_value();
-        let mut rec = Recorder::begin(&ctx, queue.family(), "resident clear")?;
-        rec.fill_buffer(&resident.source_next, 0, vk::WHOLE_SIZE, 0);
-        rec.fill_buffer(&resident.fluence, 0, vk::WHOLE_SIZE, 0);
-        submit(rec, &self.timelines, v)?;
-        self.upload_value = v;
+        if !seeded {
+            let v = self.next_slice_value();
+            let mut rec = Recorder::begin(&ctx, queue.family(), "resident clear")?;
+            rec.fill_buffer(&resident.source_next, 0, vk::WHOLE_SIZE, 0);
+            rec.fill_buffer(&resident.fluence, 0, vk::WHOLE_SIZE, 0);
+            submit(rec, &self.timelines, v)?;
+            self.upload_value = v;
+        }
         let sweep = FaceSweep::for_plan(0, plan);
         let n_slots = self.slots.len();
         let mut filled = 0;
         for range in sweep.slices(BRICK_EDGE, BRICK_EDGE) {
-            let layout = SliceLayout::new(io.store, &sweep, range, true, c, comps, half).resident_load(with_density);
+            let layout =
+                SliceLayout::new(io.store, &sweep, range, true, c, comps, half).resident_load(with_density, seeded);
             if layout.is_vacuum() {
                 continue;
             }
@@ -336,17 +341,31 @@ impl SliceStreamer {
             let v = self.next_slice_value();
             let slot = &io.res.slots[s];
             let mut rec = Recorder::begin(&ctx, queue.family(), "resident load")?;
-            let mark = self.profiler.as_mut().and_then(|p| p.begin(&mut rec, profile::Work::Upload, layout.upload_bytes()));
+            let mark =
+                self.profiler.as_mut().and_then(|p| p.begin(&mut rec, profile::Work::Upload, layout.upload_bytes()));
             let place = |staging: u64, each: u64, brick_bytes: u64| -> Vec<vk::BufferCopy> {
                 (layout.occupied.iter().enumerate())
                     .filter_map(|(i, &b)| io.store.slot(b).map(|k| (i as u64, k as u64)))
-                    .map(|(i, k)| vk::BufferCopy { src_offset: staging + i * each, dst_offset: k * brick_bytes, size: each })
+                    .map(|(i, k)| vk::BufferCopy {
+                        src_offset: staging + i * each,
+                        dst_offset: k * brick_bytes,
+                        size: each,
+                    })
                     .collect()
             };
             if with_density {
-                rec.copy_buffer(&slot.upload, &resident.density, &place(layout.density_offset(), BRICK_BYTES, BRICK_BYTES));
+                rec.copy_buffer(
+                    &slot.upload,
+                    &resident.density,
+                    &place(layout.density_offset(), BRICK_BYTES, BRICK_BYTES),
+                );
             }
             rec.copy_buffer(&slot.upload, &resident.source_prev, &place(layout.prev_offset(), prev_brick, prev_brick));
+            if seeded {
+                let (next, fluence) = (comps * BRICK_BYTES, c * BRICK_BYTES);
+                rec.copy_buffer(&slot.upload, &resident.source_next, &place(layout.next_offset(), next, next));
+                rec.copy_buffer(&slot.upload, &resident.fluence, &place(layout.fluence_offset(), fluence, fluence));
+            }
             if let Some(p) = self.profiler.as_mut() {
                 p.end(&mut rec, mark);
             }
@@ -406,7 +425,11 @@ impl SliceStreamer {
                 p.end(&mut rec, mark);
             }
             let t = &self.timelines;
-            rec.submit(queue, &[(&*t.compute, self.compute_value, vk::PipelineStageFlags2::ALL_TRANSFER)], (&t.download, v))?;
+            rec.submit(
+                queue,
+                &[(&*t.compute, self.compute_value, vk::PipelineStageFlags2::ALL_TRANSFER)],
+                (&t.download, v),
+            )?;
             self.download_value = v;
             self.slots[s].pending = Some((v, layout));
         }
