@@ -43,6 +43,9 @@ pub struct StreamOrder {
     pub hidden_transfer_fraction: f64,
     pub upload_bytes_per_second: f64,
     pub download_bytes_per_second: f64,
+    /// Bytes moved to and from the device in the order (the resident mode moves each field once).
+    pub upload_bytes: u64,
+    pub download_bytes: u64,
     /// Voxel·direction updates per wall-clock second (every channel counted once).
     pub updates_per_second: f64,
 }
@@ -121,6 +124,8 @@ fn run_stream(
             hidden_transfer_fraction: if upload + download > 0.0 { hidden / (upload + download) } else { 0.0 },
             upload_bytes_per_second: per_second(now.upload_bytes - before.upload_bytes, upload),
             download_bytes_per_second: per_second(now.download_bytes - before.download_bytes, download),
+            upload_bytes: now.upload_bytes - before.upload_bytes,
+            download_bytes: now.download_bytes - before.download_bytes,
             updates_per_second: updates / wall,
         });
         before = now;
