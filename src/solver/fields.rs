@@ -8,7 +8,7 @@
 //! Each order accumulates into fields of its own: `source_next` (the next order's source) and
 //! `fluence` (this order's fluence), both zero when the order starts. The committed results —
 //! `source_total` and `fluence_total` — have a spare copy each: the pass at the end of an order
-//! writes `committed + this order` into the spares, flushes them, and only then writes
+//! writes `committed + this order` into the spares; a checkpoint flushes them, and only then writes
 //! `checkpoint.json` (atomically) naming the spares as committed. Nothing a checkpoint names is
 //! written afterwards until the next checkpoint replaces it, so a solve killed at any moment
 //! resumes from its last checkpoint and ends bitwise identical to an uninterrupted one (which
@@ -19,6 +19,13 @@
 //! writes them to disk, which on a large store costs more than a GPU's order. Between two
 //! checkpoints the passes keep off what the last one names ([`Named`]); the last order of a solve
 //! is always checkpointed.
+//!
+//! A checkpoint is written in the background ([`OrderFieldSet::start_checkpoint`]): a thread syncs
+//! the named fields' files and then writes `checkpoint.json`, while the next order's sweeps run
+//! (they write only the order's own accumulators). Until it is on disk, the fields of the
+//! checkpoint before it stay protected too (`named_previous`: a crash in that window resumes from
+//! that one), and the next commit, the first pass that could write them, waits for it. The last
+//! checkpoint of a solve is waited for at once.
 
 use super::energy::Tallies;
 use super::orders::OrderRecord;
@@ -27,7 +34,7 @@ use super::plan::Plan;
 use super::SolveError;
 use crate::store::{BrickStore, Coverage, Field, StoreError};
 use serde::{Deserialize, Serialize};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 const CHECKPOINT: &str = "checkpoint.json";
 /// 2: fluence covers the occupied bricks only (version 1 stored it for every brick); 3: a third
@@ -121,6 +128,7 @@ impl OrderFieldSet<Field> {
             initial_guess: false,
             warm_started: false,
             named: Named::default(),
+            named_previous: Named::default(),
             acceleration: None,
             resumed_correction: None,
         })
@@ -173,6 +181,7 @@ impl OrderFieldSet<Field> {
             initial_guess: false,
             warm_started: cp.state.warm_start,
             named: Named::after_checkpoint(),
+            named_previous: Named::default(),
             acceleration: None,
             resumed_correction,
         };
@@ -181,26 +190,35 @@ impl OrderFieldSet<Field> {
         Ok(Some((fields, cp.state)))
     }
 
-    /// Flushes the committed state and records it in `checkpoint.json` (atomically); until the
-    /// next checkpoint, no order writes what this one names (see [`Named`]).
+    /// Flushes the committed state and records it in `checkpoint.json` (atomically), waiting for
+    /// both; until the next checkpoint, no order writes what this one names (see [`Named`]).
     pub fn write_checkpoint(&mut self, dir: &Path, digest: &str, state: &LoopState) -> Result<(), SolveError> {
-        for f in [&self.source_prev, &self.source_total, &self.fluence_total, &self.fluence] {
-            f.flush()?;
-        }
+        self.start_checkpoint(dir, digest, state)?.finish()?;
+        self.checkpoint_on_disk();
+        Ok(())
+    }
+
+    /// Starts writing a checkpoint of the state in a background thread: the files of the fields
+    /// it names are synced to disk, then the correction (when accelerated) and `checkpoint.json`
+    /// are written (atomically). The caller goes on with the next order's sweeps, which write no
+    /// field this checkpoint or the one before it names ([`Named`]); before the next commit (the
+    /// first pass that could write one of the older checkpoint's fields) it waits for
+    /// [`PendingCheckpoint::finish`] and calls [`OrderFieldSet::checkpoint_on_disk`].
+    pub fn start_checkpoint(
+        &mut self,
+        dir: &Path,
+        digest: &str,
+        state: &LoopState,
+    ) -> Result<PendingCheckpoint, SolveError> {
         let mut state = state.clone();
         state.warm_start = self.warm_started;
-        // The correction first, under a name of its own: the checkpoint that names it is written
-        // after it, and the previous one's file is removed only then.
-        let correction = match &self.acceleration {
-            None => None,
-            Some(acceleration) => {
-                let name = correction_file(state.orders_done);
-                let bytes: Vec<u8> = acceleration.correction_values().iter().flat_map(|v| v.to_le_bytes()).collect();
-                crate::output::write_atomic(&dir.join(&name), |w| std::io::Write::write_all(w, &bytes))
-                    .map_err(SolveError::Checkpoint)?;
-                Some(name)
-            }
-        };
+        // The correction under a name of its own: the checkpoint that names it is written after
+        // it, and the previous one's file is removed only then.
+        let correction = self.acceleration.as_ref().map(|acceleration| {
+            let name = correction_file(state.orders_done);
+            let bytes: Vec<u8> = acceleration.correction_values().iter().flat_map(|v| v.to_le_bytes()).collect();
+            (name, bytes)
+        });
         let cp = Checkpoint {
             version: CHECKPOINT_VERSION,
             digest: digest.to_string(),
@@ -211,15 +229,64 @@ impl OrderFieldSet<Field> {
             source_spare: self.source_spare.name().to_string(),
             fluence_total: self.fluence_total.name().to_string(),
             fluence_spare: self.fluence_spare.name().to_string(),
-            correction: correction.clone(),
+            correction: correction.as_ref().map(|(name, _)| name.clone()),
             state,
         };
-        crate::output::write_json_atomic(&dir.join(CHECKPOINT), &cp).map_err(SolveError::Checkpoint)?;
-        if let Some(name) = correction {
-            remove_older_corrections(dir, &name);
-        }
-        self.checkpoint_written();
-        Ok(())
+        // The named fields, and the order's fluence (a resumed tail estimate reads the last one).
+        let files: Vec<PathBuf> = [&self.source_prev, &self.source_total, &self.fluence_total, &self.fluence]
+            .iter()
+            .map(|f| f.path().to_path_buf())
+            .collect();
+        let json_path = dir.join(CHECKPOINT);
+        let dir = dir.to_path_buf();
+        let spawn_error = |source| {
+            SolveError::Checkpoint(crate::output::OutputError::Io {
+                path: json_path,
+                action: "start the thread that writes",
+                source,
+            })
+        };
+        #[cfg(feature = "test-hooks")]
+        let delay = std::env::var("LPM_TEST_CHECKPOINT_DELAY_MS").ok().and_then(|v| v.parse::<u64>().ok());
+        #[cfg(not(feature = "test-hooks"))]
+        let delay: Option<u64> = None;
+        let write = move || -> Result<(), SolveError> {
+            // The maps are shared: syncing each file writes back what the solve wrote through
+            // them (as an msync of the map would), from a descriptor of this thread's own.
+            for path in &files {
+                let file = std::fs::File::open(path).map_err(StoreError::io(path, "open for sync"))?;
+                file.sync_data().map_err(StoreError::io(path, "sync"))?;
+            }
+            if let Some((name, bytes)) = &correction {
+                crate::output::write_atomic(&dir.join(name), |w| std::io::Write::write_all(w, bytes))
+                    .map_err(SolveError::Checkpoint)?;
+            }
+            // The kill tests' hook: a checkpoint still being written when the process dies.
+            if let Some(ms) = delay {
+                std::thread::sleep(std::time::Duration::from_millis(ms));
+            }
+            crate::output::write_json_atomic(&dir.join(CHECKPOINT), &cp).map_err(SolveError::Checkpoint)?;
+            if let Some((name, _)) = &correction {
+                remove_older_corrections(&dir, name);
+            }
+            Ok(())
+        };
+        let handle =
+            std::thread::Builder::new().name("lpm-checkpoint".to_string()).spawn(write).map_err(spawn_error)?;
+        self.checkpoint_started();
+        Ok(PendingCheckpoint { handle })
+    }
+}
+
+/// A checkpoint being written in the background ([`OrderFieldSet::start_checkpoint`]).
+pub struct PendingCheckpoint {
+    handle: std::thread::JoinHandle<Result<(), SolveError>>,
+}
+
+impl PendingCheckpoint {
+    /// Waits until the checkpoint is on disk (or its writing failed).
+    pub fn finish(self) -> Result<(), SolveError> {
+        self.handle.join().unwrap_or(Err(SolveError::Internal("the checkpoint writer panicked")))
     }
 }
 

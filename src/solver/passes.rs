@@ -274,6 +274,11 @@ pub struct OrderFieldSet<F> {
     /// Which roles hold a field the last checkpoint names, so that orders between checkpoints
     /// never write one (see [`Named`]); all false when no checkpoints are written.
     pub(crate) named: Named,
+    /// While the last checkpoint is still being written in the background
+    /// ([`super::fields::PendingCheckpoint`]), the roles of the fields the one before it names:
+    /// that is the checkpoint a crash would resume from, so nothing writes them either until the
+    /// new one is on disk ([`Self::checkpoint_on_disk`]). All false otherwise.
+    pub(crate) named_previous: Named,
     /// The diffusion synthetic acceleration's grid and last correction ([`super::acceleration`]),
     /// built at the first commit when the plan accelerates.
     pub(crate) acceleration: Option<Acceleration>,
@@ -325,6 +330,7 @@ impl OrderFieldSet<MemField> {
             initial_guess: false,
             warm_started: false,
             named: Named::default(),
+            named_previous: Named::default(),
             acceleration: None,
             resumed_correction: None,
         }
@@ -335,14 +341,15 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
     /// Clears the order's accumulators before an order starts (after any checkpoint is written:
     /// until then they hold what the previous checkpoint names).
     pub fn begin_order(&mut self) -> Result<(), SolveError> {
-        if self.named.next {
+        if self.named.next || self.named_previous.next {
             // The checkpoint's previous source came round to this role (no checkpoint after the
-            // last order): accumulate into the scratch field instead (see [`Named`]).
+            // last order, or the last one is still being written): accumulate into the scratch
+            // field instead (see [`Named`]).
             std::mem::swap(&mut self.source_next, &mut self.source_scratch);
-            std::mem::swap(&mut self.named.next, &mut self.named.scratch);
+            self.swap_named(|n| std::mem::swap(&mut n.next, &mut n.scratch));
             self.clean = false;
         }
-        debug_assert!(!self.named.next, "an order would write a field the last checkpoint names");
+        debug_assert!(!self.named.next && !self.named_previous.next, "an order would write a field a checkpoint names");
         if !self.clean {
             self.source_next.clear()?;
             self.fluence.clear()?;
@@ -381,13 +388,17 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
     where
         F: Sync + Send,
     {
+        debug_assert!(
+            self.named_previous == Named::default(),
+            "the commit would run before the pending checkpoint is on disk"
+        );
         if units.has_albedo() {
             scale_by_albedo(&mut self.source_next, units);
         }
         if plan.diffusion_correction.iter().any(|&k| k > 0.0) {
             // The cadence checkpoints after every order with the correction on (see [`Named`]).
             debug_assert!(!self.named.scratch, "the correction would write a field the last checkpoint names");
-            std::mem::swap(&mut self.named.next, &mut self.named.scratch);
+            self.swap_named(|n| std::mem::swap(&mut n.next, &mut n.scratch));
             antidiffusion::sharpen(&mut self.source_scratch, &self.source_next, units, plan.diffusion_correction);
             std::mem::swap(&mut self.source_next, &mut self.source_scratch);
         }
@@ -444,7 +455,7 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
             self.swap_totals();
         }
         std::mem::swap(&mut self.source_prev, &mut self.source_next);
-        std::mem::swap(&mut self.named.prev, &mut self.named.next);
+        self.swap_named(|n| std::mem::swap(&mut n.prev, &mut n.next));
         self.clean = false;
         self.seeded = false;
         Ok(power)
@@ -454,12 +465,26 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
     fn swap_totals(&mut self) {
         std::mem::swap(&mut self.source_total, &mut self.source_spare);
         std::mem::swap(&mut self.fluence_total, &mut self.fluence_spare);
-        std::mem::swap(&mut self.named.total, &mut self.named.spare);
+        self.swap_named(|n| std::mem::swap(&mut n.total, &mut n.spare));
     }
 
-    /// Records that a checkpoint now names the fields in their current roles (see [`Named`]).
-    pub fn checkpoint_written(&mut self) {
+    /// Applies a swap of roles to the flags of both checkpoints (the last and, while it is being
+    /// written, the one before it).
+    fn swap_named(&mut self, swap: impl Fn(&mut Named)) {
+        swap(&mut self.named);
+        swap(&mut self.named_previous);
+    }
+
+    /// Records that a checkpoint now names the fields in their current roles (see [`Named`]); the
+    /// one before it stays protected until [`Self::checkpoint_on_disk`].
+    pub fn checkpoint_started(&mut self) {
+        self.named_previous = self.named;
         self.named = Named::after_checkpoint();
+    }
+
+    /// The checkpoint last started is on disk: the one before it is free to be overwritten.
+    pub fn checkpoint_on_disk(&mut self) {
+        self.named_previous = Named::default();
     }
 
     /// The signed power of what no order has propagated yet, per channel, for the energy balance

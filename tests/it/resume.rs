@@ -168,3 +168,47 @@ fn killed_between_checkpoints_resumes_to_the_same_bits() {
     }
     assert!(skipped, "no kill landed after an order without a checkpoint: move the abort points");
 }
+
+/// Checkpoints are written in the background while the next order's sweeps run: a solve killed
+/// while one is still being written (the test hook holds it back just before `checkpoint.json`)
+/// resumes from the one before it, whose fields that order's sweeps left alone, to the same bits.
+#[test]
+fn killed_while_a_checkpoint_is_written_resumes_from_the_one_before() {
+    if !cfg!(feature = "test-hooks") {
+        panic!("this kill test needs lpm's test hooks: run it with `cargo test --features test-hooks`");
+    }
+    let dir = temp_dir("resume-writing");
+    let scene = dir.join("scene.toml");
+    // The diffusion correction checkpoints every order; the acceleration writes a correction file
+    // before each checkpoint.json, which shows which checkpoint was in flight.
+    std::fs::write(&scene, killable_cloud_scene([34, 30, 38], 6)).unwrap();
+    let s = scene.to_str().unwrap();
+    let (whole, cut) = (dir.join("whole"), dir.join("cut"));
+    let o = lpm(&["solve", s, "--out", whole.to_str().unwrap(), "--no-image"], None);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+
+    let o = crate::common::lpm_command(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image"])
+        .env("LPM_TEST_ABORT_AT_SLICE", "70")
+        .env("LPM_TEST_CHECKPOINT_DELAY_MS", "1500")
+        .output()
+        .unwrap();
+    assert!(!o.status.success(), "the solve should have been killed");
+    let json = |p: std::path::PathBuf| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()))).unwrap()
+    };
+    let checkpoint = json(cut.join(".lpm-work/checkpoint.json"));
+    let done = checkpoint["state"]["orders_done"].as_u64().unwrap();
+    let completed = json(cut.join("progress.json"))["order"].as_u64().unwrap() + 1;
+    assert_eq!(completed, done + 1, "the checkpoint of the last completed order should have been in flight");
+    assert_eq!(checkpoint["correction"], format!("correction_{done}.f64"));
+    assert!(
+        cut.join(format!(".lpm-work/correction_{completed}.f64")).exists(),
+        "the in-flight checkpoint's correction file should be there"
+    );
+    let o = lpm(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image", "--resume"], None);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for f in ["fluence.raw", "source.raw"] {
+        assert!(std::fs::read(whole.join(f)).unwrap() == std::fs::read(cut.join(f)).unwrap(), "{f} differs");
+    }
+    assert!(!cut.join(".lpm-work").exists(), "the work store is removed after success");
+}

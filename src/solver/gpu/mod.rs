@@ -64,7 +64,7 @@ mod streamer;
 mod tables;
 
 use super::energy::Tallies;
-use super::fields::{LoopState, StoreFields};
+use super::fields::{LoopState, PendingCheckpoint, StoreFields};
 use super::orders::Backend;
 use super::passes::{OrderFieldSet, StoreMedium};
 use super::periodic::{CarryOf, PeriodicCarry, RayRadiance};
@@ -149,6 +149,8 @@ pub struct GpuBackend<'a> {
     since_checkpoint: (u32, Instant),
     /// The state after the last completed order when the cadence skipped its checkpoint.
     pending: Option<LoopState>,
+    /// The checkpoint being written in the background while the next order's sweeps run.
+    writing: Option<PendingCheckpoint>,
     memory: MemoryPlan,
     /// The f16 previous source's scale exponent for the order being propagated (`None`: f32).
     half_exponent: Option<i32>,
@@ -217,6 +219,7 @@ impl<'a> GpuBackend<'a> {
             checkpoints: None,
             since_checkpoint: (0, Instant::now()),
             pending: None,
+            writing: None,
             memory,
             half_exponent: None,
             progress: None,
@@ -416,13 +419,17 @@ fn read_tallies(
 
 impl<'a> Backend for GpuBackend<'a> {
     fn propagate_order(&mut self, order: u32) -> Result<Tallies, SolveError> {
-        match self.propagate(order) {
+        let result = self.propagate(order);
+        // The commit that follows may write what the checkpoint before the last one names: the
+        // last one must be on disk first.
+        self.settle_checkpoint()?;
+        match result {
             // A cancelled solve keeps the checkpoint of its last completed order: the committed
             // fields and the previous source are intact (this order only wrote its own
             // accumulators), so a state the cadence skipped is checkpointed now.
             Err(SolveError::Cancelled) => {
                 if let Some(state) = self.pending.take() {
-                    self.write_checkpoint(&state)?;
+                    self.write_checkpoint(&state, false)?;
                 }
                 Err(SolveError::Cancelled)
             }
@@ -454,7 +461,8 @@ impl<'a> Backend for GpuBackend<'a> {
         let (orders, since) = self.since_checkpoint;
         let correction = self.plan.diffusion_correction.iter().any(|&k| k > 0.0);
         if cadence.due(orders, since.elapsed().as_secs_f64(), last, correction) {
-            self.write_checkpoint(state)
+            // Written while the next order's sweeps run; the last one before the solve ends.
+            self.write_checkpoint(state, !last)
         } else {
             self.pending = Some(state.clone());
             Ok(())
@@ -462,13 +470,40 @@ impl<'a> Backend for GpuBackend<'a> {
     }
 }
 
+impl Drop for GpuBackend<'_> {
+    /// A solve that ends in an error may leave a checkpoint being written: it completes (a resume
+    /// wants it), and a failure is logged (the solve's own error is the one reported).
+    fn drop(&mut self) {
+        if let Some(writing) = self.writing.take() {
+            if let Err(e) = writing.finish() {
+                tracing::warn!("writing the last checkpoint failed: {e}");
+            }
+        }
+    }
+}
+
 impl GpuBackend<'_> {
-    /// Writes `state` as the checkpoint now (when checkpoints are on).
-    fn write_checkpoint(&mut self, state: &LoopState) -> Result<(), SolveError> {
+    /// Writes `state` as the checkpoint now (when checkpoints are on): in the `background`
+    /// ([`OrderFieldSet::start_checkpoint`]), or waiting until it is on disk.
+    fn write_checkpoint(&mut self, state: &LoopState, background: bool) -> Result<(), SolveError> {
+        self.settle_checkpoint()?;
         let Some((digest, _)) = &self.checkpoints else { return Ok(()) };
-        self.fields.write_checkpoint(self.store.dir(), digest, state)?;
+        let writing = self.fields.start_checkpoint(self.store.dir(), digest, state)?;
+        self.writing = Some(writing);
+        if !background {
+            self.settle_checkpoint()?;
+        }
         self.since_checkpoint = (0, Instant::now());
         self.pending = None;
+        Ok(())
+    }
+
+    /// Waits for the checkpoint being written, if any: then the one before it may be overwritten.
+    fn settle_checkpoint(&mut self) -> Result<(), SolveError> {
+        if let Some(writing) = self.writing.take() {
+            writing.finish()?;
+            self.fields.checkpoint_on_disk();
+        }
         Ok(())
     }
 
