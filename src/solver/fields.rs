@@ -250,7 +250,9 @@ impl OrderFieldSet<Field> {
         let delay = std::env::var("LPM_TEST_CHECKPOINT_DELAY_MS").ok().and_then(|v| v.parse::<u64>().ok());
         #[cfg(not(feature = "test-hooks"))]
         let delay: Option<u64> = None;
+        let orders = cp.state.orders_done;
         let write = move || -> Result<(), SolveError> {
+            let t = std::time::Instant::now();
             // The maps are shared: syncing each file writes back what the solve wrote through
             // them (as an msync of the map would), from a descriptor of this thread's own.
             for path in &files {
@@ -269,6 +271,7 @@ impl OrderFieldSet<Field> {
             if let Some((name, _)) = &correction {
                 remove_older_corrections(&dir, name);
             }
+            tracing::debug!(orders, seconds = t.elapsed().as_secs_f64(), "checkpoint on disk");
             Ok(())
         };
         let handle =

@@ -501,8 +501,10 @@ impl GpuBackend<'_> {
     /// Waits for the checkpoint being written, if any: then the one before it may be overwritten.
     fn settle_checkpoint(&mut self) -> Result<(), SolveError> {
         if let Some(writing) = self.writing.take() {
+            let t = Instant::now();
             writing.finish()?;
             self.fields.checkpoint_on_disk();
+            tracing::debug!(seconds = t.elapsed().as_secs_f64(), "waited for the checkpoint being written");
         }
         Ok(())
     }
