@@ -24,6 +24,9 @@ layout(std430, binding = 11) buffer Fluence { float fluence[]; };               
 // The voxel's share of what direction `di` of the dispatch deposited in channel `ch`: lattice
 // column c + 1 meets voxel column c with weight 1 − w, column c with weight w (per axis). Terms of
 // weight 0 are left out (adding 0 would change nothing), in a fixed order.
+// Directions whose pulled shares are held at once (registers or local memory).
+const uint PULL_CHUNK = 16u;
+
 float pulled(uint di, uint ch, uint tt, uint vb, uint vc, vec2 w, uint planes, uint rays) {
     uint lb_n = pc.nb + (periodic_b() ? 0u : 1u);
     uint lc_n = pc.nc + (periodic_c() ? 0u : 1u);
@@ -65,28 +68,49 @@ void main() {
 
     // Each direction's contribution is added on its own, in direction order: whatever grouping of
     // directions or planes the memory budget chooses, every voxel sees the same sequence of f32
-    // additions, so results are bitwise identical at any budget.
+    // additions, so results are bitwise identical at any budget. Each direction's share is pulled
+    // from the deposit once (for a chunk of directions at a time) and serves the fluence and every
+    // storage direction's source: an anisotropic medium's 6·k_s² storage directions would
+    // otherwise read the deposit that many times over.
     for (uint ch = 0u; ch < C; ++ch) {
         uint fi = (uint(slot) * C + ch) * sv + local;
         float phi = fluence[fi];
-        for (uint di = 0u; di < pc.dir_count; ++di) {
-            vec2 w = intBitsToFloat(offsets[(pc.dir_base + di) * pc.na + pc.t0 + tt].zw);
-            phi += dirs[pc.dir_base + di].fluence_weight * pulled(di, ch, tt, vb, vc, w, planes, rays);
-        }
-        fluence[fi] = phi;
-
         float sigma_s = rho * pc.sigma_s[ch];
-        if (sigma_s > 0.0) {
-            uint comps = pc.storage * C;
-            for (uint d = 0u; d < pc.storage; ++d) {
-                uint ji = (uint(slot) * comps + d * C + ch) * sv + local;
-                float j = j_next[ji];
-                for (uint di = 0u; di < pc.dir_count; ++di) {
-                    vec2 w = intBitsToFloat(offsets[(pc.dir_base + di) * pc.na + pc.t0 + tt].zw);
-                    j += sigma_s * (rows[(pc.dir_base + di) * pc.storage + d] * pulled(di, ch, tt, vb, vc, w, planes, rays));
+        uint comps = pc.storage * C;
+        if (pc.storage == 1u) {
+            // One storage direction (an isotropic medium): both sums in one pass, no chunks.
+            uint ji = (uint(slot) * comps + ch) * sv + local;
+            float j = sigma_s > 0.0 ? j_next[ji] : 0.0;
+            for (uint di = 0u; di < pc.dir_count; ++di) {
+                vec2 w = intBitsToFloat(offsets[(pc.dir_base + di) * pc.na + pc.t0 + tt].zw);
+                float share = pulled(di, ch, tt, vb, vc, w, planes, rays);
+                phi += dirs[pc.dir_base + di].fluence_weight * share;
+                if (sigma_s > 0.0) j += sigma_s * (rows[pc.dir_base + di] * share);
+            }
+            fluence[fi] = phi;
+            if (sigma_s > 0.0) j_next[ji] = j;
+            continue;
+        }
+        for (uint d0 = 0u; d0 < pc.dir_count; d0 += PULL_CHUNK) {
+            uint n = min(PULL_CHUNK, pc.dir_count - d0);
+            float share[PULL_CHUNK];
+            for (uint i = 0u; i < n; ++i) {
+                uint di = d0 + i;
+                vec2 w = intBitsToFloat(offsets[(pc.dir_base + di) * pc.na + pc.t0 + tt].zw);
+                share[i] = pulled(di, ch, tt, vb, vc, w, planes, rays);
+                phi += dirs[pc.dir_base + di].fluence_weight * share[i];
+            }
+            if (sigma_s > 0.0) {
+                for (uint d = 0u; d < pc.storage; ++d) {
+                    uint ji = (uint(slot) * comps + d * C + ch) * sv + local;
+                    float j = j_next[ji];
+                    for (uint i = 0u; i < n; ++i) {
+                        j += sigma_s * (rows[(pc.dir_base + d0 + i) * pc.storage + d] * share[i]);
+                    }
+                    j_next[ji] = j;
                 }
-                j_next[ji] = j;
             }
         }
+        fluence[fi] = phi;
     }
 }

@@ -54,12 +54,12 @@ void main() {
     bool boundary = (pc.flags & FLAG_BOUNDARY) != 0u;
     vec3 birth = boundary ? dir.boundary.rgb : vec3(0.0);
 
+    // What left through the sides is read and written only by rays that wrap in this dispatch
+    // (few do): loaded at the first wrap, added to in the same order as ever, stored at the end.
     vec3 l = vec3(0.0), out_b = vec3(0.0), out_c = vec3(0.0);
+    bool touched_b = false, touched_c = false;
     for (uint ch = 0u; ch < C; ++ch) {
-        uint r = (ri * C + ch) * rays + ray;
-        l[ch] = ray_l[r];
-        out_b[ch] = ray_out_b[r];
-        out_c[ch] = ray_out_c[r];
+        l[ch] = ray_l[(ri * C + ch) * rays + ray];
     }
 
     uint planes = pc.t1 - pc.t0;
@@ -98,6 +98,14 @@ void main() {
                 // The ray left through a side (half through each across an edge): a new one
                 // enters from the opposite side.
                 float share = (wrapped_b && wrapped_c) ? 0.5 : 1.0;
+                if (wrapped_b && !touched_b) {
+                    for (uint ch = 0u; ch < C; ++ch) out_b[ch] = ray_out_b[(ri * C + ch) * rays + ray];
+                    touched_b = true;
+                }
+                if (wrapped_c && !touched_c) {
+                    for (uint ch = 0u; ch < C; ++ch) out_c[ch] = ray_out_c[(ri * C + ch) * rays + ray];
+                    touched_c = true;
+                }
                 if (wrapped_b) out_b += share * l;
                 if (wrapped_c) out_c += share * l;
                 born = true;
@@ -152,7 +160,7 @@ void main() {
     for (uint ch = 0u; ch < C; ++ch) {
         uint r = (ri * C + ch) * rays + ray;
         ray_l[r] = l[ch];
-        ray_out_b[r] = out_b[ch];
-        ray_out_c[r] = out_c[ch];
+        if (touched_b) ray_out_b[r] = out_b[ch];
+        if (touched_c) ray_out_c[r] = out_c[ch];
     }
 }
