@@ -76,6 +76,10 @@ pub struct LoopState {
     /// its orders) closes its energy books the same way.
     #[serde(default)]
     pub point_light_power: [f64; 3],
+    /// Per face and channel, the power the last order's rays carried out (the tail's split over
+    /// the faces, [`super::orders::TailEstimate::face_out`]).
+    #[serde(default)]
+    pub last_face_out: [[f64; 3]; 6],
 }
 
 impl LoopState {

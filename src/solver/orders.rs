@@ -91,6 +91,11 @@ pub struct TailEstimate {
     /// Times each voxel's last-order fluence over its fluence with the tail, it is the remaining
     /// error the report gives after the tail ([`OrderOutcome::remaining`]).
     pub uncertainty_factor: [f64; 3],
+    /// Per face ([`super::energy::VOLUME_FACES`] order) and channel, the power the tail's orders
+    /// carry out: the last order's times the tail factor (its shape stands for theirs). The
+    /// energy balance's faces cover the propagated orders; add this for the totals with the tail
+    /// (e.g. the reflectance and transmittance of a converged high-albedo slab).
+    pub face_out: [[f64; 3]; 6],
 }
 
 /// Below this a step of the ratio counts as settled (the ratios are f64 quotients of sums over the
@@ -124,6 +129,7 @@ pub fn tail_estimate(plan: &Plan, state: &LoopState) -> Option<TailEstimate> {
         power: 0.0,
         uncertainty: 0.0,
         uncertainty_factor: [0.0; 3],
+        face_out: [[0.0; 3]; 6],
     };
     let tail = |rho: f64| rho / (1.0 - rho);
     for ch in 0..c {
@@ -147,6 +153,9 @@ pub fn tail_estimate(plan: &Plan, state: &LoopState) -> Option<TailEstimate> {
         t.factor[ch] = tail(mid);
         t.power += new * t.factor[ch];
         t.uncertainty_factor[ch] = 0.5 * (tail(far) - tail(rho)).abs();
+        for (out, last) in t.face_out.iter_mut().zip(&state.last_face_out) {
+            out[ch] = last[ch] * t.factor[ch];
+        }
         t.uncertainty += new * t.uncertainty_factor[ch];
     }
     Some(t)
@@ -243,7 +252,8 @@ pub fn run_orders<B: Backend + ?Sized>(
         let order = state.orders_done;
         let t = Instant::now();
         let mut tallies = state.tallies();
-        tallies.add(&backend.propagate_order(order)?);
+        let this_order = backend.propagate_order(order)?;
+        tallies.add(&this_order);
         let scattered = {
             let (fields, medium) = backend.fields();
             fields.commit_order(plan, medium)?
@@ -252,6 +262,7 @@ pub fn run_orders<B: Backend + ?Sized>(
         let carried = backend.carried_power();
         let new: [f64; 3] = std::array::from_fn(|c| scattered[c] + carried[c]);
         state.last_carried_power = carried;
+        state.last_face_out = this_order.face_out;
         for c in 0..3 {
             state.total_power[c] += new[c];
             let last = state.last_new_power[c];

@@ -22,6 +22,9 @@ struct Run {
     /// estimate before it (the last order's record).
     remaining: Option<lpm::solver::remaining::RemainingError>,
     remaining_before_tail: Option<f64>,
+    /// Power out through the faces (channel 0): propagated, and what the tail adds.
+    out: f64,
+    tail_out: f64,
 }
 
 fn run(name: &str, scene: &Scene) -> Run {
@@ -35,6 +38,8 @@ fn run(name: &str, scene: &Scene) -> Run {
         uncertainty: o.tail.as_ref().map_or(f64::NAN, |t| t.uncertainty),
         remaining: o.remaining,
         remaining_before_tail: o.history.last().and_then(|h| h.remaining_max),
+        out: o.energy.boundary_out[0],
+        tail_out: o.tail.as_ref().map_or(0.0, |t| t.face_out.iter().map(|f| f[0]).sum()),
     }
 }
 
@@ -102,6 +107,12 @@ fn the_tail_estimate_reaches_the_converged_answer_in_few_orders() {
         // last order's shape stands for every later one's), which the report's docs say.
         assert!(reported.max < before, "{reported:?} vs {before:e}");
         assert!(worst <= 10.0 * reported.max, "measured {worst:e} against reported {reported:?}");
+        // The tail's split over the faces brings the power out to the converged solve's.
+        let (without, with) = ((tail.out - truth.out) / truth.out, (tail.out + tail.tail_out - truth.out) / truth.out);
+        eprintln!(
+            "albedo {albedo}: power out against the converged: {without:.2e} without the tail, {with:.2e} with it"
+        );
+        assert!(with.abs() <= 10.0 * tol && with.abs() < without.abs() / 10.0, "{without:e} → {with:e}");
     }
 }
 
