@@ -12,7 +12,9 @@
 //! sub-slices of fewer planes; and a store larger than the host memory budget has every pass over
 //! its memory-mapped files hand the pages back, so neither device nor host memory grows with the
 //! volume (see [`solver::gpu`], [`store::Field`] and [`store::resident`]: a store that fits keeps its
-//! pages, so no pass faults the volume in again).
+//! pages, so no pass faults the volume in again). When the occupied bricks' medium and fields fit
+//! the device budget instead, they stay on the device for the whole solve (the resident mode of
+//! [`solver::gpu`]): the passes only compute, and the fields cross the bus once per order.
 //!
 //! ## Layout (each layer only uses the ones above it)
 //!
@@ -55,14 +57,16 @@
 //!    stencil over either layout; a per-voxel albedo factor multiplies the source first,
 //!    `store::albedo`; then, at high albedo, a diffusion solve estimates the light still to come
 //!    and folds it into the order: [`solver::acceleration`]), the stop rule's remaining error, a checkpoint (store only, at the cadence
-//!    of `solver.checkpoint_every_*`), and at the end the energy balance and the geometric tail.
+//!    of `solver.checkpoint_every_*`, written in the background while the next order's sweeps run),
+//!    and at the end the energy balance and the geometric tail.
 //!    The passes run on every core, with every sum taken in a fixed order (bitwise at any thread
 //!    count).
 //! 5. **Backend** — either the CPU twin ([`solver::cpu`], f64, in memory, its sweeps plane by plane
 //!    on every core: `solver/cpu_sweep.rs`, bitwise the same at any thread count) or the GPU driver
 //!    ([`solver::gpu`]): `sizes` → `budget` (the memory plan) → `resources` (everything on the
 //!    device, all-or-nothing) → `streamer` (slices through the slots: gather on the copy workers,
-//!    upload, compute, download, scatter, against timeline semaphores) → `encoder` (push constants,
+//!    upload, compute, download, scatter, against timeline semaphores; resident: compute only,
+//!    with a load and an unload per order) → `encoder` (push constants,
 //!    one descriptor set per step bound once for both kernels, which share a pipeline layout, and
 //!    the dispatches of `glsl/propagate.comp` and `glsl/collect.comp`) → [`vk`].
 //! 6. **Outputs** — [`job`] exports the committed fluence and source ([`output`], atomically: raw +

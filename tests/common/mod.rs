@@ -77,6 +77,12 @@ pub struct Solved {
 }
 
 impl Solved {
+    /// The bits of the committed fluence, then of the committed source (for bitwise comparisons).
+    pub fn field_bits(&self) -> Vec<u32> {
+        let f = &self.fields;
+        f.fluence_total.as_slice().iter().chain(f.source_total.as_slice()).map(|v| v.to_bits()).collect()
+    }
+
     pub fn fluence(&self, v: [u32; 3], ch: u32) -> f64 {
         self.fields.fluence_total.value(v, ch) as f64
     }

@@ -22,10 +22,6 @@ fn anisotropic_cloud() -> Scene {
     with_precision(s, StoragePrecision::F16)
 }
 
-fn bits(s: &Solved) -> Vec<u32> {
-    s.fields.fluence_total.as_slice().iter().chain(s.fields.source_total.as_slice()).map(|v| v.to_bits()).collect()
-}
-
 #[test]
 fn f16_on_the_gpu_matches_the_f16_twin_at_any_budget() {
     let mut scene = anisotropic_cloud();
@@ -33,7 +29,7 @@ fn f16_on_the_gpu_matches_the_f16_twin_at_any_budget() {
     // The cuts below are the streamed mode's; resident is the same bits.
     scene.solver.device_residency = lpm::scene::DeviceResidency::Streamed;
     let gpu = solve("f16-aniso-gpu", &scene, Gpu);
-    assert!(bits(&resident) == bits(&gpu), "resident and streamed f16 differ");
+    assert!(resident.field_bits() == gpu.field_bits(), "resident and streamed f16 differ");
     assert_eq!(gpu.run.plan.source_precision, Precision::F16);
     let full = gpu.run.memory.expect("memory plan");
     assert_eq!(full.planes_per_slice, 16, "{full:?}");
@@ -50,7 +46,7 @@ fn f16_on_the_gpu_matches_the_f16_twin_at_any_budget() {
         "{m:?}, peak {}",
         sub.run.peak_device_bytes
     );
-    assert!(bits(&sub) == bits(&gpu), "sub-slices changed the f16 result");
+    assert!(sub.field_bits() == gpu.field_bits(), "sub-slices changed the f16 result");
 
     let twin16 = solve("f16-aniso-cpu", &scene, Cpu);
     let twin32 = solve("f32-aniso-cpu", &with_precision(scene.clone(), StoragePrecision::F32), Cpu);

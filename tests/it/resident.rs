@@ -8,11 +8,6 @@ use lpm::scene::{Acceleration, Boundary, DeviceResidency, Scene, Shape, SpatialS
 use lpm::solver::gpu::budget::Residency;
 use lpm::solver::BackendKind::Gpu;
 
-fn bits(solved: &Solved) -> Vec<u32> {
-    let f = &solved.fields;
-    f.fluence_total.as_slice().iter().chain(f.source_total.as_slice()).map(|v| v.to_bits()).collect()
-}
-
 /// Solves `scene` resident and streamed; asserts the modes and equal bits, orders and books.
 fn resident_equals_streamed(name: &str, scene: &Scene) {
     let resident = solve(&format!("{name}-resident"), scene, Gpu);
@@ -22,7 +17,7 @@ fn resident_equals_streamed(name: &str, scene: &Scene) {
     let (r, st) = (resident.run.memory.expect("plan"), streamed.run.memory.expect("plan"));
     assert_eq!(r.residency, Residency::Resident, "{name}: {r:?}");
     assert_eq!(st.residency, Residency::StreamedOnRequest, "{name}: {st:?}");
-    assert!(bits(&resident) == bits(&streamed), "{name}: resident and streamed differ");
+    assert!(resident.field_bits() == streamed.field_bits(), "{name}: resident and streamed differ");
     let (a, b) = (&resident.run.outcome, &streamed.run.outcome);
     assert_eq!(a.orders, b.orders, "{name}");
     for (fa, fb) in a.energy.faces.iter().zip(&b.energy.faces) {

@@ -126,6 +126,19 @@ fn sweep_expands_reruns_and_locks() {
     assert!(st.contains("4 tasks: 2 pending, 2 done"), "{st}");
 }
 
+/// A port p with p + 1 free too (slurmctld's and slurmd's), as the kernel hands out free ports:
+/// a fixed or pid-derived choice can collide with a port some other process holds.
+fn free_port_pair() -> u16 {
+    for _ in 0..100 {
+        let first = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let port = first.local_addr().unwrap().port();
+        if port < u16::MAX && std::net::TcpListener::bind(("127.0.0.1", port + 1)).is_ok() {
+            return port;
+        }
+    }
+    panic!("no two consecutive free ports on 127.0.0.1");
+}
+
 /// A single-node Slurm cluster on localhost, stopped when dropped.
 struct Slurm {
     conf: PathBuf,
@@ -145,7 +158,7 @@ impl Slurm {
         }
         let host = String::from_utf8(run(&mut Command::new("hostname")).stdout).unwrap().trim().to_string();
         let cpus = std::thread::available_parallelism().map_or(1, |n| n.get());
-        let port = 20000 + (std::process::id() % 20000) as u16;
+        let port = free_port_pair();
         std::fs::create_dir_all(dir.join("state")).unwrap();
         std::fs::create_dir_all(dir.join("spool")).unwrap();
         let d = dir.display();

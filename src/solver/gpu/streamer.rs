@@ -231,7 +231,13 @@ impl SliceStreamer {
         if let Some(prev) = to_download {
             self.submit_download(io, prev)?;
         }
-        // Drain: every slice back in the store before the next pass reads it.
+        self.drain(io)
+    }
+
+    /// Waits for every slot's pending download and scatters it: every slice is back in the store
+    /// (before the next pass, or the next order's passes, read it).
+    fn drain(&mut self, io: &mut Stream) -> Result<(), SolveError> {
+        let n_slots = self.slots.len();
         let mut order: Vec<usize> = (0..n_slots).collect();
         order.sort_by_key(|&s| self.slots[s].pending.as_ref().map_or(0, |p| p.0));
         for s in order {
@@ -433,19 +439,7 @@ impl SliceStreamer {
             self.download_value = v;
             self.slots[s].pending = Some((v, layout));
         }
-        let mut order: Vec<usize> = (0..n_slots).collect();
-        order.sort_by_key(|&s| self.slots[s].pending.as_ref().map_or(0, |p| p.0));
-        for s in order {
-            self.retire_slot(io, s)?;
-        }
-        for s in 0..n_slots {
-            self.finish_scatter(io, s)?;
-        }
-        if let Some(p) = self.profiler.as_mut() {
-            p.collect(&self.ctx)?;
-        }
-        self.ctx.collect_garbage()?;
-        Ok(())
+        self.drain(io)
     }
 
     /// Waits for the load upload that last read slot `s`'s staging, then hands the store's pages
