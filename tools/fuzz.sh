@@ -9,7 +9,8 @@
 # downloads). RUSTC_BOOTSTRAP=1 lets the stable compiler accept them; it is set for the fuzz
 # builds only, never for lpm itself. LPM_FUZZ_SANITIZER picks the sanitizer (default: address;
 # "none" builds faster: the code under test is safe Rust, the sanitizer mostly guards the few
-# unsafe calls).
+# unsafe calls). LPM_FUZZ_DEV=1 builds the targets unoptimised, with debug assertions and overflow
+# checks (a minute faster to build, slower to run: what a short smoke run in the test suite wants).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 SECONDS_PER_TARGET="${1:-600}"
@@ -19,6 +20,8 @@ TARGETS=("$@")
 command -v cargo-fuzz >/dev/null || cargo install cargo-fuzz --locked
 export RUSTC_BOOTSTRAP=1
 SAN="${LPM_FUZZ_SANITIZER:-address}"
+PROFILE=()
+[ "${LPM_FUZZ_DEV:-0}" = 1 ] && PROFILE=(--dev)
 for t in "${TARGETS[@]}"; do
   mkdir -p "tools/fuzz/corpus/$t"
   seeds=()
@@ -26,7 +29,7 @@ for t in "${TARGETS[@]}"; do
   echo "== fuzzing $t for ${SECONDS_PER_TARGET}s (sanitizer $SAN)"
   log="tools/fuzz/fuzz-$t.log"
   rc=0
-  cargo fuzz run "$t" --fuzz-dir tools/fuzz --sanitizer "$SAN" "tools/fuzz/corpus/$t" "${seeds[@]}" -- \
+  cargo fuzz run "$t" "${PROFILE[@]}" --fuzz-dir tools/fuzz --sanitizer "$SAN" "tools/fuzz/corpus/$t" "${seeds[@]}" -- \
     -max_total_time="$SECONDS_PER_TARGET" -rss_limit_mb=4096 -max_len=65536 -print_final_stats=1 >"$log" 2>&1 || rc=$?
   grep -a -E "^(stat::number_of_executed_units|stat::peak_rss_mb|#[0-9]+ +DONE|SUMMARY|.*Test unit written)" "$log" || true
   if [ "$rc" -ne 0 ]; then
