@@ -59,10 +59,32 @@ use lpm::vk::ContextOptions;
 
 /// A fresh directory under cargo's per-test temporary area.
 pub fn temp_dir(name: &str) -> PathBuf {
+    static SWEEP: std::sync::Once = std::sync::Once::new();
+    SWEEP.call_once(remove_dead_runs_dirs);
     let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).expect("temp dir");
     dir
+}
+
+/// Removes the temporary directories of earlier test runs (named `…-PID` by [`temp_dir`]) whose
+/// process is gone: each run leaves a gigabyte or so behind, which filled a disk once.
+fn remove_dead_runs_dirs() {
+    // Whether a process lives is read from /proc.
+    if !cfg!(target_os = "linux") {
+        return;
+    }
+    let Ok(entries) = std::fs::read_dir(env!("CARGO_TARGET_TMPDIR")) else { return };
+    let me = std::process::id();
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let Some(pid) = name.to_str().and_then(|n| n.rsplit_once('-')).and_then(|(_, p)| p.parse::<u32>().ok()) else {
+            continue;
+        };
+        if pid != me && !std::path::Path::new(&format!("/proc/{pid}")).exists() && entry.path().is_dir() {
+            let _ = std::fs::remove_dir_all(entry.path());
+        }
+    }
 }
 
 /// Vulkan options for tests: validation (and synchronization validation) always on.
