@@ -421,8 +421,14 @@ impl<'a> Backend for GpuBackend<'a> {
     fn propagate_order(&mut self, order: u32) -> Result<Tallies, SolveError> {
         let result = self.propagate(order);
         // The commit that follows may write what the checkpoint before the last one names: the
-        // last one must be on disk first.
-        self.settle_checkpoint()?;
+        // last one must be on disk first. (When the order itself failed, its error is the one
+        // to report; a failed checkpoint is then only logged.)
+        let settled = self.settle_checkpoint();
+        match (&result, settled) {
+            (_, Ok(())) => {}
+            (Ok(_) | Err(SolveError::Cancelled), Err(e)) => return Err(e),
+            (Err(_), Err(e)) => tracing::warn!("writing the last checkpoint failed: {e}"),
+        }
         match result {
             // A cancelled solve keeps the checkpoint of its last completed order: the committed
             // fields and the previous source are intact (this order only wrote its own
