@@ -172,7 +172,7 @@ impl Backend for CpuTwin<'_> {
     fn propagate_order(&mut self, order: u32) -> Result<Tallies, SolveError> {
         let plan = self.plan;
         let mut tallies = Tallies::default();
-        self.fields.begin_order()?;
+        self.fields.begin_order(true)?;
         if plan.source_precision == Precision::F16 {
             // What the GPU's copy workers do to the source during the gather.
             let prev = &self.fields.source_prev.values;

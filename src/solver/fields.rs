@@ -254,6 +254,9 @@ impl OrderFieldSet<Field> {
         let delay = std::env::var("LPM_TEST_CHECKPOINT_DELAY_MS").ok().and_then(|v| v.parse::<u64>().ok());
         #[cfg(not(feature = "test-hooks"))]
         let delay: Option<u64> = None;
+        // With the hook, the caller goes on only once the fields and the correction are on disk,
+        // so that a kill during the delay always finds this checkpoint in flight, all but its json.
+        let (written, wait_written) = std::sync::mpsc::channel::<()>();
         let orders = cp.state.orders_done;
         let write = move || -> Result<(), SolveError> {
             let t = std::time::Instant::now();
@@ -269,6 +272,7 @@ impl OrderFieldSet<Field> {
             }
             // The kill tests' hook: a checkpoint still being written when the process dies.
             if let Some(ms) = delay {
+                let _ = written.send(());
                 std::thread::sleep(std::time::Duration::from_millis(ms));
             }
             crate::output::write_json_atomic(&dir.join(CHECKPOINT), &cp).map_err(SolveError::Checkpoint)?;
@@ -280,6 +284,10 @@ impl OrderFieldSet<Field> {
         };
         let handle =
             std::thread::Builder::new().name("lpm-checkpoint".to_string()).spawn(write).map_err(spawn_error)?;
+        if delay.is_some() {
+            // An error before the send drops the sender: the wait ends and `finish` reports it.
+            let _ = wait_written.recv();
+        }
         self.checkpoint_started();
         Ok(PendingCheckpoint { handle })
     }

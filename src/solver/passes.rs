@@ -339,8 +339,10 @@ impl OrderFieldSet<MemField> {
 
 impl<F: FieldPlanes> OrderFieldSet<F> {
     /// Clears the order's accumulators before an order starts (after any checkpoint is written:
-    /// until then they hold what the previous checkpoint names).
-    pub fn begin_order(&mut self) -> Result<(), SolveError> {
+    /// until then they hold what the previous checkpoint names). With `clear_on_host` false the
+    /// backend starts them from zeros itself and overwrites them whole at the end of the order
+    /// (the GPU's resident mode), so the host copies are left as they are.
+    pub fn begin_order(&mut self, clear_on_host: bool) -> Result<(), SolveError> {
         if self.named.next || self.named_previous.next {
             // The checkpoint's previous source came round to this role (no checkpoint after the
             // last order, or the last one is still being written): accumulate into the scratch
@@ -350,7 +352,7 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
             self.clean = false;
         }
         debug_assert!(!self.named.next && !self.named_previous.next, "an order would write a field a checkpoint names");
-        if !self.clean {
+        if !self.clean && clear_on_host {
             self.source_next.clear()?;
             self.fluence.clear()?;
             self.clean = true;

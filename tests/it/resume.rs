@@ -189,7 +189,7 @@ fn killed_while_a_checkpoint_is_written_resumes_from_the_one_before() {
 
     let o = crate::common::lpm_command(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image"])
         .env("LPM_TEST_ABORT_AT_SLICE", "70")
-        .env("LPM_TEST_CHECKPOINT_DELAY_MS", "1500")
+        .env("LPM_TEST_CHECKPOINT_DELAY_MS", "3000")
         .output()
         .unwrap();
     assert!(!o.status.success(), "the solve should have been killed");

@@ -58,7 +58,8 @@ pub struct SliceExtent {
 pub enum Residency {
     /// Resident: everything fits the budget; the bus carries a field once per order.
     Resident,
-    /// Streamed because the caller asked for it (`--streamed`, or the options).
+    /// Streamed because the caller asked for it (`solver.device_residency = "streamed"`, or
+    /// `GpuOptions::resident`).
     StreamedOnRequest,
     /// Streamed: the resident working set is larger than the budget.
     StreamedOverBudget,

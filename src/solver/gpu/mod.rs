@@ -518,7 +518,8 @@ impl GpuBackend<'_> {
     /// One order's sweeps (see [`Backend::propagate_order`]).
     fn propagate(&mut self, order: u32) -> Result<Tallies, SolveError> {
         let plan = self.plan;
-        self.fields.begin_order()?;
+        // Resident: the load clears the device's accumulators and the unload overwrites the host's.
+        self.fields.begin_order(!self.memory.is_resident())?;
         // The scale of this order's f16 source, from its largest value (exact: a power of two).
         self.half_exponent =
             (plan.source_precision == Precision::F16).then(|| half_scale_exponent(self.fields.source_prev.max_abs()));

@@ -47,6 +47,8 @@ struct Timelines {
 /// What a slot is waiting for.
 #[derive(Default)]
 struct SlotState {
+    /// The resident mode's load: the upload that last read this slot's staging, and its slice.
+    loading: Option<(u64, SliceLayout)>,
     /// The slice whose download into this slot's staging is not yet scattered back.
     pending: Option<(u64, SliceLayout)>,
     /// The scatter of this slot's download staging still being copied, and its slice.
@@ -84,9 +86,8 @@ pub struct SliceStreamer {
     compute_value: u64,
     download_value: u64,
     /// The resident mode: the upload value of the order's last load, which every compute step
-    /// waits for; and per slot the last load upload that read its staging, with its slice.
+    /// waits for.
     resident_ready: u64,
-    slot_uploads: Vec<Option<(u64, SliceLayout)>>,
     slots: Vec<SlotState>,
     copier: Copier,
     profiler: Option<Profiler>,
@@ -128,7 +129,6 @@ impl SliceStreamer {
             compute_value: 0,
             download_value: 0,
             resident_ready: 0,
-            slot_uploads: (0..memory.slices_in_flight).map(|_| None).collect(),
             slots: (0..memory.slices_in_flight).map(|_| SlotState::default()).collect(),
             copier: Copier::new(std::thread::available_parallelism().map_or(2, |n| n.get()).min(8)),
             profiler,
@@ -377,7 +377,7 @@ impl SliceStreamer {
             }
             submit(rec, &self.timelines, v)?;
             self.upload_value = v;
-            self.slot_uploads[s] = Some((v, layout));
+            self.slots[s].loading = Some((v, layout));
         }
         self.resident_ready = self.upload_value;
         for s in 0..n_slots {
@@ -445,7 +445,7 @@ impl SliceStreamer {
     /// Waits for the load upload that last read slot `s`'s staging, then hands the store's pages
     /// of its slice back (done with until the unload).
     fn finish_load(&mut self, io: &mut Stream, s: usize) -> Result<(), SolveError> {
-        let Some((v, layout)) = self.slot_uploads[s].take() else { return Ok(()) };
+        let Some((v, layout)) = self.slots[s].loading.take() else { return Ok(()) };
         self.timelines.upload.wait(&self.ctx, v, WAIT_FOREVER)?;
         release_pages(io, &layout.occupied, &[&io.fields.source_prev]);
         Ok(())
