@@ -69,8 +69,6 @@ const FORWARD_PEAKS: &str = "\"auto\", \"delta-m\", \"keep\"";
 const DIFFUSION_CORRECTIONS: &str = "\"on\", \"off\"";
 const ACCELERATIONS: &str = "\"auto\", \"diffusion\", \"off\"";
 const DEVICE_RESIDENCIES: &str = "\"auto\", \"streamed\"";
-/// The fewest voxels a periodic axis may have (shorter periods lose light; see `Validator::scene`).
-const MIN_PERIODIC_VOXELS: u32 = 4;
 
 pub(crate) struct Validator<'a> {
     pub path: &'a Path,
@@ -123,34 +121,12 @@ impl Validator<'_> {
                      sky, sun and environment light only",
                 ));
             }
-            // Known losses, refused rather than solved wrongly (benches/RESULTS.md, "Standard
-            // benchmarks"): the linear scheme's lattice loses light at periodic faces (R + T = 0.95
-            // on the conservative I3RC cloud), and so does a period of one voxel (0.91).
-            if solver.spatial == SpatialScheme::Linear {
-                return Err(self.err(
-                    "solver.spatial",
-                    "\"linear\" does not support periodic boundaries yet (it loses light at the periodic \
-                     faces); use \"constant\" (the default) with [boundary]",
-                ));
-            }
             if solver.acceleration == Acceleration::Diffusion {
                 return Err(self.err(
                     "solver.acceleration",
                     "\"diffusion\" does not support periodic boundaries yet (part of each order's light \
                      travels on in the rays, unseen by the correction); use \"auto\" or \"off\" with [boundary]",
                 ));
-            }
-            for (axis, name) in ["x", "y", "z"].iter().enumerate() {
-                if boundary.periodic[axis] && volume.dims[axis] < MIN_PERIODIC_VOXELS {
-                    return Err(self.err(
-                        format!("boundary.{name}"),
-                        format!(
-                            "a periodic axis needs at least {MIN_PERIODIC_VOXELS} voxels (the volume has {}): \
-                             shorter periods lose light; repeat the volume's voxels along it",
-                            volume.dims[axis]
-                        ),
-                    ));
-                }
             }
         }
         Ok(Scene { path: self.path.to_path_buf(), volume, medium, lights, solver, camera, boundary })

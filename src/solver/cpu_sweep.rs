@@ -24,6 +24,7 @@
 //! (crossing vacuum changes no radiance, so this is exact).
 
 use super::energy::{opposite_face, volume_face, Tallies};
+use super::periodic::{split_by_sides, PeriodStep};
 use super::plan::{Plan, SweepDirection};
 use super::segment::segment;
 use super::sweep::FaceSweep;
@@ -87,11 +88,18 @@ pub(super) fn sweep_direction(
     let f = sweep.geometry();
     let (near, far) = (volume_face(f.axis, f.sign < 0.0), volume_face(f.axis, f.sign > 0.0));
     let mut rows = vec![RowTally::default(); lc_us];
-    for (row, l_row) in rows.iter_mut().zip(radiance.chunks(lb_us)) {
-        for ch in 0..c {
-            let born: f64 = l_row.iter().map(|l| l[ch]).sum();
-            row.born[ch] = born;
-            row.face_in[near][ch] = born;
+    // On a periodic sweep axis the slots that left through a side in the step from the last
+    // period came in there as new rays ([`PeriodStep`]), the others through the near face.
+    let period = sweep.periodic[0].then(|| PeriodStep::new(&sweep, dir));
+    for (q, (row, l_row)) in rows.iter_mut().zip(radiance.chunks(lb_us)).enumerate() {
+        for (p, l) in l_row.iter().enumerate() {
+            for ch in 0..c {
+                row.born[ch] += l[ch];
+                match &period {
+                    Some(s) => split_by_sides(&mut row.face_in, near, l[ch], ch, s.entry_shares(p, q), s.entry_faces()),
+                    None => row.face_in[near][ch] += l[ch],
+                }
+            }
         }
     }
     // Lattice column and wrap count of every slot column (b) and row (c), at the previous plane
@@ -132,12 +140,18 @@ pub(super) fn sweep_direction(
             collect_plane(plan, dir, &sweep, &geometry, t, &average, inputs, outputs);
         }
     }
-    // Rays still inside leave through the far face.
+    // Rays still inside leave through the far face (on a periodic sweep axis, those that leave
+    // through a side in the step into the next period count there: [`PeriodStep`]).
     for (q, row) in radiance.chunks(lb_us).enumerate() {
-        for l in row {
+        for (p, l) in row.iter().enumerate() {
             for ch in 0..c {
                 rows[q].left[ch] += l[ch];
-                rows[q].face_out[far][ch] += l[ch];
+                match &period {
+                    Some(s) => {
+                        split_by_sides(&mut rows[q].face_out, far, l[ch], ch, s.exit_shares(p, q), s.exit_faces())
+                    }
+                    None => rows[q].face_out[far][ch] += l[ch],
+                }
             }
         }
     }

@@ -15,20 +15,27 @@
 //! axis: lateral slope δ' = round(δ·N)/N (a change of at most 1/(2N) per plane), so the offsets
 //! repeat with period N up to M and the weights repeat exactly. The ray leaving slot s then
 //! re-enters in slot s + M (modulo the lattice), at its own lateral position ([`entry_radiance`]).
-//! On an open lateral axis a ray whose column would wrap in that step has reached the side: it is
-//! not carried, and its slot is a ray born at the side (with the boundary radiance, as any ray born
-//! there). Sun beams along a periodic axis are swept again in every order, carrying what they
+//! On an open lateral axis a ray whose column would wrap in that step (from plane N − 1 to plane
+//! N ≡ plane 0 one period on) has reached the side: it is not carried, and its slot is a ray born
+//! at the side (with the boundary radiance, as any ray born there) ([`PeriodStep`]). Sun beams along a periodic axis are swept again in every order, carrying what they
 //! carried out the order before (and gaining nothing else).
 //!
 //! Energy books: what leaves through a face of a periodic axis counts as out through that face,
 //! and what the next order carries in counts as in through the opposite face; a converged solve's
 //! net power through a periodic face is therefore ≈ 0, and the balance closes exactly as for open
-//! faces. The carried radiance of the last order is in the books as out (the solve stops there).
+//! faces. A ray that leaves through an open side in the step between periods counts as out through
+//! that side, and the ray born in its slot as in through the opposite side, not through the
+//! periodic faces (counted there, its light left through a periodic face and never came back in
+//! through the opposite one: 4–16 % of the light, so R + T fell short of 1, with the linear
+//! scheme, whose lattice shifts in that step for most directions, and with periods of one voxel,
+//! where every step is that step). The carried radiance of the last order is in the books as out
+//! (the solve stops there).
 //!
 //! The carried radiance is ray state between orders (per direction and slot, f64), held by the
 //! backend: [`PeriodicCarry`]. It is not in checkpoints: a resumed periodic solve starts it from
 //! zero again and converges to the same answer, but not bitwise to the uninterrupted run.
 
+use super::energy::volume_face;
 use super::plan::{Plan, SweepDirection};
 use super::sweep::FaceSweep;
 use crate::scene::SpatialScheme;
@@ -88,9 +95,15 @@ impl PeriodicCarry {
         let mut power = [0.0; 3];
         let faces = self.faces.iter().zip(&plan.faces).flat_map(|(c, d)| c.iter().zip(d));
         for (exits, dir) in faces.chain(self.beams.iter().zip(&plan.beams)) {
-            for l in exits.iter().flatten() {
+            let Some(exits) = exits else { continue };
+            let sweep = FaceSweep::for_plan(dir.face, plan);
+            let step = PeriodStep::new(&sweep, dir);
+            let lb = sweep.lattice()[0] as usize;
+            for (i, l) in exits.iter().enumerate() {
+                // What left through a side in the step into the next period is not carried.
+                let [sb, sc] = step.exit_shares(i % lb, i / lb);
                 for (p, v) in power.iter_mut().zip(l) {
-                    *p += v * dir.power_per_radiance;
+                    *p += v * (1.0 - sb - sc) * dir.power_per_radiance;
                 }
             }
         }
@@ -105,43 +118,126 @@ impl PeriodicCarry {
     }
 }
 
+/// The step from one period into the next of a direction swept along a periodic axis (plane
+/// N − 1 to plane N, which is plane 0 of the next order with every slot moved by M): per open
+/// lateral axis, the slots whose column leaves the lattice in that step have left through that
+/// side, as in any other step of the sweep. They are not carried over: the books count what they
+/// carried out through the side, not through the far face (it would otherwise leave through a
+/// periodic face and never come back in through the opposite one), and the slots that continue
+/// them next time are rays born at the opposite side.
+pub struct PeriodStep {
+    lattice: [u32; 2],
+    shift: [i64; 2],
+    /// Per lateral axis, for each slot along it: whether its ray leaves through the side.
+    leaves: [Vec<bool>; 2],
+    /// Per lateral axis: the volume faces a leaving ray exits through and the ray born in its
+    /// place enters by (`None`: no slot leaves along that axis).
+    sides: [Option<(usize, usize)>; 2],
+}
+
+impl PeriodStep {
+    pub fn new(sweep: &FaceSweep, dir: &SweepDirection) -> Self {
+        let lattice = sweep.lattice();
+        let (last, first) = (dir.offsets[dir.offsets.len() - 1], dir.offsets[0]);
+        let lateral = sweep.geometry().lateral;
+        let mut leaves = [Vec::new(), Vec::new()];
+        let mut sides = [None; 2];
+        for k in 0..2 {
+            let period = lattice[k] as i64;
+            // Columns moved from plane N − 1 to plane N (≡ plane 0 + M).
+            let step = first[k] as i64 + dir.period_shift[k] as i64 - last[k] as i64;
+            let open = !sweep.periodic[1 + k];
+            leaves[k] = (0..period)
+                .map(|s| {
+                    // Unwrapped columns at the last plane and one step on (as `FaceSweep::column`).
+                    let before = s + last[k] as i64 + 1;
+                    open && before.div_euclid(period) != (before + step).div_euclid(period)
+                })
+                .collect();
+            if open && step != 0 {
+                sides[k] = Some((volume_face(lateral[k], step > 0), volume_face(lateral[k], step < 0)));
+            }
+        }
+        PeriodStep { lattice, shift: dir.period_shift.map(i64::from), leaves, sides }
+    }
+
+    /// Per lateral axis, the face a ray leaving through its side exits by.
+    pub fn exit_faces(&self) -> [Option<usize>; 2] {
+        self.sides.map(|s| s.map(|(exit, _)| exit))
+    }
+
+    /// Per lateral axis, the face a ray born at its side enters by.
+    pub fn entry_faces(&self) -> [Option<usize>; 2] {
+        self.sides.map(|s| s.map(|(_, entry)| entry))
+    }
+
+    /// Of what slot (p, q) carried out of the far face, the shares (b, c) that left through the
+    /// sides in the step into the next period: 1 along the axis it leaves by, ½ each across an
+    /// edge (the kernels' rule for a ray that wraps along both axes at once).
+    pub fn exit_shares(&self, p: usize, q: usize) -> [f64; 2] {
+        match (self.leaves[0][p], self.leaves[1][q]) {
+            (true, true) => [0.5, 0.5],
+            (b, c) => [b as u8 as f64, c as u8 as f64],
+        }
+    }
+
+    /// The exit slot (p, q) that entry slot (p', q') continues: s = s' − M per axis, modulo the
+    /// lattice.
+    fn source(&self, p: usize, q: usize) -> (usize, usize) {
+        let back = |k: usize, e: usize| (e as i64 - self.shift[k]).rem_euclid(self.lattice[k] as i64) as usize;
+        (back(0, p), back(1, q))
+    }
+
+    /// The shares (b, c) of entry slot (p', q') that are a ray born at a side (those of the slot
+    /// it would continue: [`PeriodStep::exit_shares`]); zero where it continues a carried ray.
+    pub fn entry_shares(&self, p: usize, q: usize) -> [f64; 2] {
+        let (sp, sq) = self.source(p, q);
+        self.exit_shares(sp, sq)
+    }
+}
+
+/// Adds `value` (channel `ch`) to `faces[main]`, except the `shares` (b, c) of it that crossed
+/// the sides `sides` instead ([`PeriodStep`]): those go to the sides' faces. Both backends' books.
+pub fn split_by_sides(
+    faces: &mut [[f64; 3]; 6],
+    main: usize,
+    value: f64,
+    ch: usize,
+    shares: [f64; 2],
+    sides: [Option<usize>; 2],
+) {
+    let mut rest = value;
+    for (share, side) in shares.into_iter().zip(sides) {
+        if let (true, Some(face)) = (share > 0.0, side) {
+            faces[face][ch] += share * value;
+            rest -= share * value;
+        }
+    }
+    faces[main][ch] += rest;
+}
+
 /// The radiance each slot of `dir` enters plane 0 with, from `exits` (per slot: what it carried
 /// out after the last plane; `None`: nothing yet, as before the first order): slot s' takes what
 /// slot s = s' − M left with (per lateral axis, modulo the lattice), unless on an open lateral axis
-/// the ray of slot s wrapped in that step (it reached the side: slot s' is born there, `birth`).
+/// the ray of slot s left through the side in that step ([`PeriodStep`]): slot s' is born there,
+/// `birth`.
 pub fn entry_radiance(
     sweep: &FaceSweep,
     dir: &SweepDirection,
     exits: Option<&[[f64; 3]]>,
     birth: [f64; 3],
 ) -> RayRadiance {
-    let [lb, lc] = sweep.lattice();
-    let (last, first) = (dir.offsets[dir.offsets.len() - 1], dir.offsets[0]);
-    // Per lateral axis, for each entry slot: the exit slot it continues, or None (born at a side).
-    let source = |k: usize, period: u32| -> Vec<Option<u32>> {
-        let m = dir.period_shift[k] as i64;
-        let period = period as i64;
-        (0..period)
-            .map(|entry| {
-                let s = (entry - m).rem_euclid(period);
-                if sweep.periodic[1 + k] {
-                    return Some(s as u32);
-                }
-                // Unwrapped columns at the last plane and one period on (plane N ≡ plane 0 + M).
-                let before = s + last[k] as i64 + 1;
-                let after = s + first[k] as i64 + m + 1;
-                (before.div_euclid(period) == after.div_euclid(period)).then_some(s as u32)
-            })
-            .collect()
-    };
-    let (from_b, from_c) = (source(0, lb), source(1, lc));
-    let mut entry = Vec::with_capacity((lb * lc) as usize);
-    for q in &from_c {
-        for p in &from_b {
-            entry.push(match (p, q, exits) {
-                (Some(p), Some(q), Some(exits)) => exits[(*q * lb + *p) as usize],
-                (Some(_), Some(_), None) => [0.0; 3],
-                _ => birth,
+    let step = PeriodStep::new(sweep, dir);
+    let [lb, lc] = sweep.lattice().map(|l| l as usize);
+    let mut entry = Vec::with_capacity(lb * lc);
+    for q in 0..lc {
+        for p in 0..lb {
+            let (sp, sq) = step.source(p, q);
+            let born = step.leaves[0][sp] || step.leaves[1][sq];
+            entry.push(match exits {
+                _ if born => birth,
+                Some(exits) => exits[sq * lb + sp],
+                None => [0.0; 3],
             });
         }
     }

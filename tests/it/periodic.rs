@@ -9,12 +9,9 @@ use lpm::scene::{Boundary, Scene, Shape};
 use lpm::solver::BackendKind::{Cpu, Gpu};
 use std::path::Path;
 
-/// `scene` made periodic along `axes`. These tests build their scenes in code with the common
-/// default `spatial = "linear"`, which scene files may no longer pair with periodic boundaries (it
-/// loses a few per cent of the light at periodic faces in thick media, see
-/// `boundary_keys_are_checked` and benches/RESULTS.md): they keep checking that path's symmetry and
-/// books until it is fixed. Under "constant" the lattice's birth-plane pattern is about twice as
-/// large (layers vary by 1.1 %, the moved cloud by 2.5 %), above the bounds below.
+/// `scene` made periodic along `axes` (with the common default `spatial = "linear"`: under
+/// "constant" the lattice's birth-plane pattern is about twice as large — layers vary by 1.1 %,
+/// the moved cloud by 2.5 % — above the bounds below).
 fn periodic(mut scene: Scene, axes: [bool; 3]) -> Scene {
     scene.boundary = Boundary { periodic: axes };
     scene
@@ -200,17 +197,54 @@ fn boundary_keys_are_checked() {
             "[boundary]\nx = \"periodic\"\n[[lights]]\nkind = \"point\"\nposition = [1, 1, 1]\nintensity = 1.0\n",
             "lights[0].kind",
         ),
-        // Known losses refused (benches/RESULTS.md, "Standard benchmarks").
-        ("[boundary]\nx = \"periodic\"\n[solver]\nspatial = \"linear\"\n", "solver.spatial"),
     ] {
         let err = lpm::scene::Scene::from_toml_str(&format!("{base}{text}"), Path::new("t.toml"))
             .expect_err(text)
             .to_string();
         assert!(err.contains(words), "{err}");
     }
-    let short = base.replace("dims = [4, 4, 4]", "dims = [4, 3, 4]");
-    let err = lpm::scene::Scene::from_toml_str(&format!("{short}[boundary]\ny = \"periodic\"\n"), Path::new("t.toml"))
-        .expect_err("a 3-voxel period")
-        .to_string();
-    assert!(err.contains("boundary.y") && err.contains("at least 4 voxels"), "{err}");
+    // Once refused (they lost light at the periodic faces, see
+    // `a_conservative_periodic_slab_sends_all_its_light_out_of_its_top_and_bottom`): the linear
+    // scheme and a period of one voxel.
+    let thin = base.replace("dims = [4, 4, 4]", "dims = [4, 1, 4]");
+    let ok = lpm::scene::Scene::from_toml_str(
+        &format!("{thin}[boundary]\ny = \"periodic\"\n[solver]\nspatial = \"linear\"\n"),
+        Path::new("t.toml"),
+    )
+    .expect("linear, a one-voxel period");
+    assert_eq!(ok.boundary.periodic, [false, true, false]);
+}
+
+/// A conservative slab, periodic across (x and y) and lit by an overhead sun, sends all its light
+/// out of its top and bottom (R + T = 1), and what leaves through a periodic face comes back in
+/// through the opposite one, with either spatial scheme and periods down to one voxel. The rays
+/// that cross the top or the bottom in the step from one period into the next used to be counted
+/// as leaving through the periodic face (and were never carried back in): R + T was 0.89 with the
+/// linear scheme at k = 2 here, and a one-voxel period lost 9 % of an I3RC cloud's light
+/// (`lpm::solver::periodic::PeriodStep`).
+#[test]
+fn a_conservative_periodic_slab_sends_all_its_light_out_of_its_top_and_bottom() {
+    use lpm::scene::SpatialScheme::{Constant, Linear};
+    for (scheme, k, ny, backend) in
+        [(Linear, 2, 8, Cpu), (Constant, 3, 1, Cpu), (Linear, 3, 1, Cpu), (Linear, 2, 2, Gpu)]
+    {
+        let mut sc = scene(Shape::Box, [8, ny, 6], [1.0 / 3.0; 3], [1.0; 3], vec![sun([0.0, 0.0, 1.0], [1.0; 3])]);
+        sc.solver.directions_per_face = k;
+        sc.solver.spatial = scheme;
+        sc.solver.tolerance = 1e-7;
+        sc.solver.max_orders = 400;
+        let sc = periodic(sc, [true, true, false]);
+        let name = format!("periodic-slab-{}-{k}-{ny}-{backend:?}", scheme.name());
+        let s = solve(&name, &sc, backend);
+        assert!(s.run.outcome.converged, "{name}");
+        let e = &s.run.outcome.energy;
+        let sun = e.faces[5].power_in[0];
+        assert!((sun - 8.0 * ny as f64).abs() < 1e-9, "{name}: the sun brings E × the top's area: {sun}");
+        let (r, t) = (e.faces[5].power_out[0] / sun, e.faces[4].power_out[0] / sun);
+        assert!((r + t - 1.0).abs() < 1e-5, "{name}: R {r} + T {t}");
+        for f in 0..4 {
+            let (came, left) = (e.faces[f].power_in[0], e.faces[f ^ 1].power_out[0]);
+            assert!((came - left).abs() < 1e-5 * sun, "{name}: face {f}: in {came} vs out of the opposite {left}");
+        }
+    }
 }

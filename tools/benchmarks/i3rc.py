@@ -48,8 +48,8 @@ CONSENSUS = {"R": mean(R), "T": mean(T), "R_thin": mean(R[:16]), "R_thick": mean
 
 
 def generate(args):
-    if args.ny < 4 or args.refine < 1:
-        raise SystemExit("--ny must be at least 4 (lpm refuses shorter periodic axes) and --refine at least 1")
+    if args.ny < 1 or args.refine < 1:
+        raise SystemExit("--ny and --refine must be at least 1")
     os.makedirs(args.out, exist_ok=True)
     ny, r = args.ny, args.refine
     nx, nz, h = NX * r, NZ * r, H_KM / r
@@ -125,7 +125,7 @@ def main():
     g = sub.add_parser("generate")
     g.add_argument("--out", required=True)
     g.add_argument("--ny", type=int, default=4,
-                   help="voxels along y (uniform, periodic); at least 4 (lpm refuses shorter periods: they lose light)")
+                   help="voxels along y (uniform, periodic; 1 is enough, the cloud is uniform along y)")
     g.add_argument("--refine", type=int, default=1, help="voxels per 15.625 m (cubic): 32r x ny x 16r")
     g.add_argument("--k", type=int, default=5)
     g.add_argument("--tolerance", type=float, default=1e-4)

@@ -67,7 +67,7 @@ use super::energy::Tallies;
 use super::fields::{LoopState, PendingCheckpoint, StoreFields};
 use super::orders::Backend;
 use super::passes::{OrderFieldSet, StoreMedium};
-use super::periodic::{CarryOf, PeriodicCarry, RayRadiance};
+use super::periodic::{split_by_sides, CarryOf, PeriodStep, PeriodicCarry, RayRadiance};
 use super::plan::{half_scale_exponent, Plan, Precision, SweepDirection};
 use super::sweep::{side_births, FaceSweep};
 use super::SolveError;
@@ -372,6 +372,7 @@ fn read_tallies(
     let mut tallies = Tallies::default();
     for (d, dir) in dirs.iter().enumerate() {
         let roles = sweep.face_roles(&dir.offsets);
+        let period = sweep.periodic[0].then(|| PeriodStep::new(sweep, dir));
         let births = side_births(&dir.offsets, sweep.lattice(), [sweep.periodic[1], sweep.periodic[2]]);
         let power = dir.power_per_radiance;
         for ch in 0..c {
@@ -380,15 +381,47 @@ fn read_tallies(
                 values[buffer * per_buffer..][range.clone()].iter().map(|&v| v as f64).sum::<f64>() * power
             };
             let far = sum(0);
-            tallies.face_out[roles.far][ch] += far;
             tallies.boundary_out[ch] += far;
             let birth = if boundary { dir.boundary[ch] * power } else { 0.0 };
             let near = match births_at.entries {
                 Some(entries) => entries[d].iter().map(|l| l[ch]).sum::<f64>() * power,
                 None => birth * rays as f64,
             };
-            tallies.face_in[roles.near][ch] += near;
             tallies.boundary_in[ch] += near;
+            match &period {
+                // A periodic sweep axis: the slots that cross a side in the step between periods
+                // count there ([`PeriodStep`]), the rest through the far and near faces.
+                Some(step) => {
+                    let lb = sweep.lattice()[0] as usize;
+                    let exits = &values[range.clone()];
+                    let entries = births_at.entries.map(|e| &e[d]);
+                    for i in 0..rays {
+                        let (p, q) = (i % lb, i / lb);
+                        let out = exits[i] as f64 * power;
+                        split_by_sides(
+                            &mut tallies.face_out,
+                            roles.far,
+                            out,
+                            ch,
+                            step.exit_shares(p, q),
+                            step.exit_faces(),
+                        );
+                        let came = entries.map_or(birth, |e| e[i][ch] * power);
+                        split_by_sides(
+                            &mut tallies.face_in,
+                            roles.near,
+                            came,
+                            ch,
+                            step.entry_shares(p, q),
+                            step.entry_faces(),
+                        );
+                    }
+                }
+                None => {
+                    tallies.face_out[roles.far][ch] += far;
+                    tallies.face_in[roles.near][ch] += near;
+                }
+            }
             for (k, side) in roles.sides.iter().enumerate() {
                 let Some((exit, entry)) = *side else { continue };
                 let out = sum(1 + k);
