@@ -22,7 +22,7 @@ fn cloud(n: usize, cx: f32) -> Vec<u8> {
     d
 }
 
-const N: usize = 24;
+const N: usize = 18;
 const TOLERANCE: f64 = 1e-3;
 
 fn base_scene(sky: f64) -> String {
@@ -80,7 +80,7 @@ fn max_relative_difference(a: &Path, b: &Path) -> f64 {
 fn a_warm_started_frame_converges_to_the_cold_answer_in_fewer_orders() {
     let dir = temp_dir("warm-start");
     for frame in 1..=2 {
-        std::fs::write(dir.join(format!("cloud_{frame}.raw")), cloud(N, 9.0 + frame as f32)).unwrap();
+        std::fs::write(dir.join(format!("cloud_{frame}.raw")), cloud(N, N as f32 / 2.0 - 2.5 + frame as f32)).unwrap();
     }
     std::fs::write(dir.join("base.toml"), base_scene(0.5)).unwrap();
     let manifest = dir.join("anim.toml");
@@ -115,13 +115,15 @@ fn a_warm_started_frame_converges_to_the_cold_answer_in_fewer_orders() {
     ok(lpm_command(&["solve", tight.to_str().unwrap(), "--out", answer.to_str().unwrap(), "--no-image"])
         .output()
         .unwrap());
-    assert!(report(&answer)["orders"].as_u64().unwrap() > 200, "the reference is not converged further");
+    let answer_orders = report(&answer)["orders"].as_u64().unwrap();
 
     let (warm_orders, cold_orders) = (warm_report["orders"].as_u64().unwrap(), cold_report["orders"].as_u64().unwrap());
+    // Four decades further along the geometric series: about twice the orders (measured 189 against 91).
+    assert!(2 * answer_orders > 3 * cold_orders, "the reference is not converged further: {answer_orders} orders");
     let difference = max_relative_difference(&warm, &cold);
     let (warm_error, cold_error) = (max_relative_difference(&warm, &answer), max_relative_difference(&cold, &answer));
     eprintln!(
-        "frame 2: warm {warm_orders} orders, cold {cold_orders}; per voxel: warm vs cold {difference:.3e}, \
+        "frame 2: warm {warm_orders} orders, cold {cold_orders}, reference {answer_orders}; per voxel: warm vs cold {difference:.3e}, \
          warm error {warm_error:.3e}, cold error {cold_error:.3e}"
     );
     assert!(warm_report["converged"].as_bool().unwrap() && cold_report["converged"].as_bool().unwrap());
@@ -148,7 +150,7 @@ fn a_warm_started_frame_converges_to_the_cold_answer_in_fewer_orders() {
 #[test]
 fn a_far_guess_still_converges_to_the_cold_answer() {
     let dir = temp_dir("warm-start-far");
-    std::fs::write(dir.join("cloud_1.raw"), cloud(N, 12.0)).unwrap();
+    std::fs::write(dir.join("cloud_1.raw"), cloud(N, N as f32 / 2.0 + 0.5)).unwrap();
     let scene = |sky: f64, sun: f64| {
         let text = base_scene(sky)
             .replace("cloud_{frame}.raw", "cloud_1.raw")
