@@ -30,6 +30,7 @@
 use super::energy::Tallies;
 use super::orders::OrderRecord;
 use super::passes::{Named, OrderFieldSet};
+use super::periodic::PeriodicCarry;
 use super::plan::Plan;
 use super::SolveError;
 use crate::store::{BrickStore, Coverage, Field, StoreError};
@@ -40,7 +41,8 @@ const CHECKPOINT: &str = "checkpoint.json";
 /// 2: fluence covers the occupied bricks only (version 1 stored it for every brick); 3: a third
 /// source file (`source_scratch`, the diffusion correction's output) rotates with the other two; 4:
 /// the boundary tallies are split by the faces of the volume; 5: an accelerated solve's last
-/// diffusion correction is saved beside it (`correction_<orders>.f64`).
+/// diffusion correction is saved beside it (`correction_<orders>.f64`); what periodic sweeps
+/// carry over is saved too (`carry_<orders>.f64`, optional: an older version-5 checkpoint has none).
 const CHECKPOINT_VERSION: u32 = 5;
 
 /// The solver's fields as files of f32 in the brick store.
@@ -105,12 +107,21 @@ struct Checkpoint {
     /// ([`super::acceleration`]): f64 little-endian, channel after channel.
     #[serde(default)]
     correction: Option<String>,
+    /// The file holding what periodic sweeps carry into the next order
+    /// ([`super::periodic::PeriodicCarry::to_bytes`]); none when nothing is carried.
+    #[serde(default)]
+    carry: Option<String>,
     state: LoopState,
 }
 
 /// The correction file of the checkpoint after `orders` orders.
 fn correction_file(orders: u32) -> String {
     format!("correction_{orders}.f64")
+}
+
+/// The carried-ray-state file of the checkpoint after `orders` orders.
+fn carry_file(orders: u32) -> String {
+    format!("carry_{orders}.f64")
 }
 
 impl OrderFieldSet<Field> {
@@ -135,6 +146,7 @@ impl OrderFieldSet<Field> {
             named_previous: Named::default(),
             acceleration: None,
             resumed_correction: None,
+            resumed_carry: None,
         })
     }
 
@@ -154,15 +166,22 @@ impl OrderFieldSet<Field> {
         }
         let comps = plan.source_components();
         let c = plan.channels;
+        let read = |name: &str| -> Result<(PathBuf, Vec<u8>), SolveError> {
+            let path = store.dir().join(name);
+            let bytes = std::fs::read(&path).map_err(StoreError::io(&path, "read"))?;
+            Ok((path, bytes))
+        };
+        let resumed_carry = match &cp.carry {
+            None => None,
+            Some(name) => {
+                let (path, bytes) = read(name)?;
+                Some(PeriodicCarry::from_bytes(plan, &bytes).ok_or(SolveError::CheckpointMismatch { path })?)
+            }
+        };
         let resumed_correction = match &cp.correction {
             None => None,
             Some(name) => {
-                let path = store.dir().join(name);
-                let bytes = std::fs::read(&path).map_err(|source| StoreError::Io {
-                    path: path.clone(),
-                    action: "read",
-                    source,
-                })?;
+                let (path, bytes) = read(name)?;
                 if bytes.len() % 8 != 0 {
                     return Err(SolveError::CheckpointMismatch { path });
                 }
@@ -188,6 +207,7 @@ impl OrderFieldSet<Field> {
             named_previous: Named::default(),
             acceleration: None,
             resumed_correction,
+            resumed_carry,
         };
         // A killed order's partial sums are cleared when the next order begins; the order fields
         // still hold the last completed order's (the tail estimate may need its fluence).
@@ -197,14 +217,15 @@ impl OrderFieldSet<Field> {
     /// Flushes the committed state and records it in `checkpoint.json` (atomically), waiting for
     /// both; until the next checkpoint, no order writes what this one names (see [`Named`]).
     pub fn write_checkpoint(&mut self, dir: &Path, digest: &str, state: &LoopState) -> Result<(), SolveError> {
-        self.start_checkpoint(dir, digest, state)?.finish()?;
+        self.start_checkpoint(dir, digest, state, None)?.finish()?;
         self.checkpoint_on_disk();
         Ok(())
     }
 
     /// Starts writing a checkpoint of the state in a background thread: the files of the fields
-    /// it names are synced to disk, then the correction (when accelerated) and `checkpoint.json`
-    /// are written (atomically). The caller goes on with the next order's sweeps, which write no
+    /// it names are synced to disk, then the correction (when accelerated), what periodic sweeps
+    /// carry into the next order (`carry`, when anything) and `checkpoint.json` are written
+    /// (atomically). The caller goes on with the next order's sweeps, which write no
     /// field this checkpoint or the one before it names ([`Named`]); before the next commit (the
     /// first pass that could write one of the older checkpoint's fields) it waits for
     /// [`PendingCheckpoint::finish`] and calls [`OrderFieldSet::checkpoint_on_disk`].
@@ -213,6 +234,7 @@ impl OrderFieldSet<Field> {
         dir: &Path,
         digest: &str,
         state: &LoopState,
+        carry: Option<&PeriodicCarry>,
     ) -> Result<PendingCheckpoint, SolveError> {
         let mut state = state.clone();
         state.warm_start = self.warm_started;
@@ -223,6 +245,7 @@ impl OrderFieldSet<Field> {
             let bytes: Vec<u8> = acceleration.correction_values().iter().flat_map(|v| v.to_le_bytes()).collect();
             (name, bytes)
         });
+        let carry = carry.filter(|c| !c.is_empty()).map(|c| (carry_file(state.orders_done), c.to_bytes()));
         let cp = Checkpoint {
             version: CHECKPOINT_VERSION,
             digest: digest.to_string(),
@@ -234,6 +257,7 @@ impl OrderFieldSet<Field> {
             fluence_total: self.fluence_total.name().to_string(),
             fluence_spare: self.fluence_spare.name().to_string(),
             correction: correction.as_ref().map(|(name, _)| name.clone()),
+            carry: carry.as_ref().map(|(name, _)| name.clone()),
             state,
         };
         // The named fields, and the order's fluence (a resumed tail estimate reads the last one).
@@ -266,7 +290,7 @@ impl OrderFieldSet<Field> {
                 let file = std::fs::File::open(path).map_err(StoreError::io(path, "open for sync"))?;
                 file.sync_data().map_err(StoreError::io(path, "sync"))?;
             }
-            if let Some((name, bytes)) = &correction {
+            for (name, bytes) in correction.iter().chain(&carry) {
                 crate::output::write_atomic(&dir.join(name), |w| std::io::Write::write_all(w, bytes))
                     .map_err(SolveError::Checkpoint)?;
             }
@@ -277,7 +301,10 @@ impl OrderFieldSet<Field> {
             }
             crate::output::write_json_atomic(&dir.join(CHECKPOINT), &cp).map_err(SolveError::Checkpoint)?;
             if let Some((name, _)) = &correction {
-                remove_older_corrections(&dir, name);
+                remove_older(&dir, "correction_", name);
+            }
+            if let Some((name, _)) = &carry {
+                remove_older(&dir, "carry_", name);
             }
             tracing::debug!(orders, seconds = t.elapsed().as_secs_f64(), "checkpoint on disk");
             Ok(())
@@ -305,16 +332,17 @@ impl PendingCheckpoint {
     }
 }
 
-/// Removes the correction files of earlier checkpoints (all but `keep`); a file that cannot be
-/// removed is only a few MB left behind, so failures are logged, not raised.
-fn remove_older_corrections(dir: &Path, keep: &str) {
+/// Removes the side files (`prefix….f64`: corrections, carried ray state) of earlier checkpoints,
+/// all but `keep`; a file that cannot be removed is only left behind, so failures are logged, not
+/// raised.
+fn remove_older(dir: &Path, prefix: &str, keep: &str) {
     let Ok(entries) = std::fs::read_dir(dir) else { return };
     for entry in entries.flatten() {
         let name = entry.file_name();
         let Some(name) = name.to_str() else { continue };
-        if name != keep && name.starts_with("correction_") && name.ends_with(".f64") {
+        if name != keep && name.starts_with(prefix) && name.ends_with(".f64") {
             if let Err(e) = std::fs::remove_file(entry.path()) {
-                tracing::warn!("could not remove the old correction file {}: {e}", entry.path().display());
+                tracing::warn!("could not remove the old checkpoint file {}: {e}", entry.path().display());
             }
         }
     }

@@ -284,6 +284,8 @@ pub struct OrderFieldSet<F> {
     pub(crate) acceleration: Option<Acceleration>,
     /// A resumed solve's last correction (and the file it came from), until the grid is built.
     pub(crate) resumed_correction: Option<(std::path::PathBuf, Vec<f64>)>,
+    /// A resumed solve's carried ray state on periodic sweep axes, until the backend takes it.
+    pub(crate) resumed_carry: Option<super::periodic::PeriodicCarry>,
 }
 
 /// Per role of [`OrderFieldSet`], whether the field in it is one the last checkpoint named (and
@@ -333,6 +335,7 @@ impl OrderFieldSet<MemField> {
             named_previous: Named::default(),
             acceleration: None,
             resumed_correction: None,
+            resumed_carry: None,
         }
     }
 }

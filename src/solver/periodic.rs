@@ -32,8 +32,9 @@
 //! (the solve stops there).
 //!
 //! The carried radiance is ray state between orders (per direction and slot, f64), held by the
-//! backend: [`PeriodicCarry`]. It is not in checkpoints: a resumed periodic solve starts it from
-//! zero again and converges to the same answer, but not bitwise to the uninterrupted run.
+//! backend: [`PeriodicCarry`]. Checkpoints save it beside the fields (`carry_<orders>.f64`,
+//! [`PeriodicCarry::to_bytes`]), so a resumed periodic solve ends bitwise identical to an
+//! uninterrupted one.
 
 use super::energy::volume_face;
 use super::plan::{Plan, SweepDirection};
@@ -69,6 +70,53 @@ impl PeriodicCarry {
             faces: plan.faces.iter().map(|f| vec![None; f.len()]).collect(),
             beams: vec![None; plan.beams.len()],
         }
+    }
+
+    /// Whether nothing is carried (no periodic sweep axis, or nothing swept yet).
+    pub fn is_empty(&self) -> bool {
+        self.faces.iter().flatten().chain(&self.beams).all(Option::is_none)
+    }
+
+    /// The carried radiance as bytes for a checkpoint: per sweep direction in plan order (the
+    /// faces' directions, then the beams), its slot count as a little-endian u64 (0: nothing
+    /// carried) and then each slot's three channels as little-endian f64 (exact: the values came
+    /// from f32 ray state or were born f64 on the twin).
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let mut bytes = Vec::new();
+        for carried in self.faces.iter().flatten().chain(&self.beams) {
+            let slots = carried.as_ref().map_or(&[][..], Vec::as_slice);
+            bytes.extend_from_slice(&(slots.len() as u64).to_le_bytes());
+            for l in slots {
+                l.iter().for_each(|v| bytes.extend_from_slice(&v.to_le_bytes()));
+            }
+        }
+        bytes
+    }
+
+    /// Reads [`PeriodicCarry::to_bytes`] back for `plan`; `None` when the bytes do not fit it
+    /// (another plan's, or a damaged file).
+    pub fn from_bytes(plan: &Plan, bytes: &[u8]) -> Option<Self> {
+        let mut carry = PeriodicCarry::new(plan);
+        let mut rest = bytes;
+        let mut take = |n: usize| -> Option<&[u8]> {
+            let (head, tail) = (rest.get(..n)?, rest.get(n..)?);
+            rest = tail;
+            Some(head)
+        };
+        let sweeps: Vec<&SweepDirection> = plan.faces.iter().flatten().chain(&plan.beams).collect();
+        for (slot, dir) in carry.faces.iter_mut().flatten().chain(carry.beams.iter_mut()).zip(sweeps) {
+            let n = u64::from_le_bytes(take(8)?.try_into().ok()?) as usize;
+            if n == 0 {
+                continue;
+            }
+            if n != FaceSweep::for_plan(dir.face, plan).rays() {
+                return None;
+            }
+            let values = take(n.checked_mul(24)?)?;
+            let f = |b: &[u8]| f64::from_le_bytes(b.try_into().unwrap_or([0; 8]));
+            *slot = Some(values.chunks_exact(24).map(|l| [f(&l[..8]), f(&l[8..16]), f(&l[16..])]).collect());
+        }
+        rest.is_empty().then_some(carry)
     }
 
     fn slot(&mut self, of: CarryOf) -> &mut Option<RayRadiance> {

@@ -212,3 +212,41 @@ fn killed_while_a_checkpoint_is_written_resumes_from_the_one_before() {
     }
     assert!(!cut.join(".lpm-work").exists(), "the work store is removed after success");
 }
+
+/// A periodic solve carries ray state from one order into the next (what its sweeps along the
+/// periodic axis carried out of the far face): the checkpoint saves it (`carry_<orders>.f64`), so a
+/// killed periodic solve also resumes to the same bits.
+#[test]
+fn a_killed_periodic_solve_resumes_to_the_same_bits() {
+    let dir = temp_dir("resume-periodic");
+    let scene = dir.join("scene.toml");
+    // The diffusion acceleration does not take periodic axes; the correction and its third
+    // source file still rotate through the checkpoints.
+    let text = killable_cloud_scene([34, 30, 38], 5).replace("acceleration = \"diffusion\"", "acceleration = \"off\"")
+        + "[boundary]\nx = \"periodic\"\ny = \"periodic\"\n";
+    std::fs::write(&scene, text).unwrap();
+    let (whole, cut) = (dir.join("whole"), dir.join("cut"));
+    let s = scene.to_str().unwrap();
+    let o = lpm(&["solve", s, "--out", whole.to_str().unwrap(), "--no-image"], None);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+
+    let o = lpm(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image"], Some(70));
+    assert!(!o.status.success(), "the solve should have been killed");
+    let work = cut.join(".lpm-work");
+    let checkpoint: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(work.join("checkpoint.json")).expect("checkpoint")).unwrap();
+    let done = checkpoint["state"]["orders_done"].as_u64().unwrap();
+    assert!((1..5).contains(&done), "killed after {done} orders");
+    let carry = checkpoint["carry"].as_str().expect("the checkpoint names the carried ray state");
+    assert_eq!(carry, format!("carry_{done}.f64"));
+    assert!(work.join(carry).exists());
+
+    let o = lpm(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image", "--resume"], None);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for f in ["fluence.raw", "source.raw"] {
+        assert!(
+            std::fs::read(whole.join(f)).unwrap() == std::fs::read(cut.join(f)).unwrap(),
+            "{f} differs after resume"
+        );
+    }
+}

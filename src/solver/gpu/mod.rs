@@ -208,6 +208,8 @@ impl<'a> GpuBackend<'a> {
             "GPU backend ready"
         );
         let medium = StoreMedium::new(store, plan)?;
+        // A resumed solve goes on with what its checkpoint's periodic sweeps carried over.
+        let carry = fields.resumed_carry.take().unwrap_or_else(|| PeriodicCarry::new(plan));
         Ok(GpuBackend {
             streamer,
             resources,
@@ -223,7 +225,7 @@ impl<'a> GpuBackend<'a> {
             memory,
             half_exponent: None,
             progress: None,
-            carry: PeriodicCarry::new(plan),
+            carry,
             density_loaded: false,
         })
     }
@@ -467,7 +469,9 @@ impl<'a> Backend for GpuBackend<'a> {
             // fields and the previous source are intact (this order only wrote its own
             // accumulators), so a state the cadence skipped is checkpointed now.
             Err(SolveError::Cancelled) => {
-                if let Some(state) = self.pending.take() {
+                // Unless periodic sweeps carry ray state over: the cancelled order has already
+                // taken some of it, so the checkpoint before stands.
+                if let Some(state) = self.pending.take().filter(|_| self.carry.is_empty()) {
                     self.write_checkpoint(&state, false)?;
                 }
                 Err(SolveError::Cancelled)
@@ -527,7 +531,7 @@ impl GpuBackend<'_> {
     fn write_checkpoint(&mut self, state: &LoopState, background: bool) -> Result<(), SolveError> {
         self.settle_checkpoint()?;
         let Some((digest, _)) = &self.checkpoints else { return Ok(()) };
-        let writing = self.fields.start_checkpoint(self.store.dir(), digest, state)?;
+        let writing = self.fields.start_checkpoint(self.store.dir(), digest, state, Some(&self.carry))?;
         self.writing = Some(writing);
         if !background {
             self.settle_checkpoint()?;
