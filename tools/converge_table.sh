@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Time to a converged answer, with its error against Monte Carlo beside it (issue 14, item 6).
 #
-# For the RGB cloud of tools/gpu-bench.sh (σt = [0.9, 0.8, 0.7], albedo [0.9, 0.85, 0.8], sky + sun,
+# For the RGB cloud of tools/bench_cloud_scene.sh (σt = [0.9, 0.8, 0.7], albedo [0.9, 0.85, 0.8], sky + sun,
 # k = 4) at each size N³ (the same cloud: voxel size 64/N), solved to tolerance 1e-3 with the plan's
 # defaults, it runs
 #   - the Vulkan path (lavapipe on a machine without a GPU: CPU figures; the GPU where there is one),
@@ -15,7 +15,8 @@
 #
 #   tools/converge_table.sh [OUT_DIR]        default out/converge
 #   SIZES="64 128 256"  RUNS="vulkan cpu1 cpuN"  MC_PHOTONS_64=64000000 (photons per channel at 64³;
-#   other sizes scale it by N/64, capped by MC_PHOTONS_MAX=400000000)  SKIP_MC=1  NICE=-10
+#   other sizes scale it by N/64, capped by MC_PHOTONS_MAX=400000000; MC_PHOTONS_<N> overrides a
+#   size's)  SKIP_MC=1  NICE=-10  TABLE_ONLY=1 (no solves: the table from what OUT_DIR holds)
 #
 # Timed solves run first, at a raised priority (NICE, as root) so that other work on the machine
 # disturbs them as little as possible; the references run after them. The machine's load average
@@ -35,26 +36,8 @@ prio=()
 [ "$(id -u)" = 0 ] && prio=(nice -n "$NICE")
 
 scene() { # N
-    cat <<EOF
-[volume]
-procedural = "cloud"
-dims = [$1, $1, $1]
-voxel_size = $(python3 -c "print(64 / $1)")
-seed = 1
-[medium]
-sigma_t = [0.9, 0.8, 0.7]
-albedo = [0.9, 0.85, 0.8]
-[[lights]]
-kind = "sky"
-radiance = [0.30, 0.45, 0.75]
-[[lights]]
-kind = "sun"
-direction = [-0.55, -0.35, 0.75]
-irradiance = [3.2, 3.0, 2.7]
-[solver]
-directions_per_face = 4
-tolerance = 1e-3
-EOF
+    bash tools/bench_cloud_scene.sh "$1"
+    echo "tolerance = 1e-3"
 }
 
 run_args() { # run → backend arguments
@@ -67,7 +50,7 @@ run_args() { # run → backend arguments
 }
 
 # 1. The timed solves.
-for n in $SIZES; do
+[ "${TABLE_ONLY:-0}" = 1 ] || for n in $SIZES; do
     scene "$n" >"$OUT/cloud_$n.toml"
     for run in $RUNS; do
         dir="$OUT/solve_${n}_$run"
@@ -84,7 +67,9 @@ done
 for n in $SIZES; do
     ref="$OUT/mc_$n"
     photons=$(python3 -c "print(min($MC64 * $n // 64, $MCMAX))")
-    if [ "${SKIP_MC:-0}" != 1 ] && [ ! -f "$ref/report.json" ]; then
+    override="MC_PHOTONS_$n"
+    photons=${!override:-$photons}
+    if [ "${SKIP_MC:-0}" != 1 ] && [ "${TABLE_ONLY:-0}" != 1 ] && [ ! -f "$ref/report.json" ]; then
         echo "+ $LPM reference $OUT/cloud_$n.toml --out $ref --samples $photons --seed 7" >&2
         "$LPM" reference "$OUT/cloud_$n.toml" --out "$ref" --samples "$photons" --seed 7 --log warn >/dev/null
     fi

@@ -126,25 +126,7 @@ run() {
     : >"$rows"
     for n in $sizes; do
         local scene="$out/cloud_$n.toml"
-        cat >"$scene" <<EOF
-[volume]
-procedural = "cloud"
-dims = [$n, $n, $n]
-voxel_size = $(python3 -c "print(64 / $n)")
-seed = 1
-[medium]
-sigma_t = [0.9, 0.8, 0.7]
-albedo = [0.9, 0.85, 0.8]
-[[lights]]
-kind = "sky"
-radiance = [0.30, 0.45, 0.75]
-[[lights]]
-kind = "sun"
-direction = [-0.55, -0.35, 0.75]
-irradiance = [3.2, 3.0, 2.7]
-[solver]
-directions_per_face = 4
-EOF
+        bash tools/bench_cloud_scene.sh "$n" >"$scene"
         # No budget: the default (half the device heap) holds the whole working set on a GPU, so
         # the solve runs device-resident; 1/8 of that plan streams every pass.
         local cmd="$lpm bench stream $scene --orders $orders --json $out/stream_${n}_full.json"
