@@ -24,7 +24,7 @@
 //! (crossing vacuum changes no radiance, so this is exact).
 
 use super::energy::{opposite_face, volume_face, Tallies};
-use super::periodic::{split_by_sides, PeriodStep};
+use super::periodic::PeriodStep;
 use super::plan::{Plan, SweepDirection};
 use super::segment::segment;
 use super::sweep::FaceSweep;
@@ -96,7 +96,7 @@ pub(super) fn sweep_direction(
             for ch in 0..c {
                 row.born[ch] += l[ch];
                 match &period {
-                    Some(s) => split_by_sides(&mut row.face_in, near, l[ch], ch, s.entry_shares(p, q), s.entry_faces()),
+                    Some(s) => s.count_entry(&mut row.face_in, near, p, q, ch, l[ch]),
                     None => row.face_in[near][ch] += l[ch],
                 }
             }
@@ -147,9 +147,7 @@ pub(super) fn sweep_direction(
             for ch in 0..c {
                 rows[q].left[ch] += l[ch];
                 match &period {
-                    Some(s) => {
-                        split_by_sides(&mut rows[q].face_out, far, l[ch], ch, s.exit_shares(p, q), s.exit_faces())
-                    }
+                    Some(s) => s.count_exit(&mut rows[q].face_out, far, p, q, ch, l[ch]),
                     None => rows[q].face_out[far][ch] += l[ch],
                 }
             }

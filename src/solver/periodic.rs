@@ -209,20 +209,25 @@ impl PeriodStep {
         PeriodStep { lattice, shift: dir.period_shift.map(i64::from), leaves, sides }
     }
 
-    /// Per lateral axis, the face a ray leaving through its side exits by.
-    pub fn exit_faces(&self) -> [Option<usize>; 2] {
-        self.sides.map(|s| s.map(|(exit, _)| exit))
+    /// Books `value` (channel `ch`) of what slot (p, q) carried out of the far face: in
+    /// `faces[far]`, except the shares that left through a side in the step into the next period.
+    pub fn count_exit(&self, faces: &mut [[f64; 3]; 6], far: usize, p: usize, q: usize, ch: usize, value: f64) {
+        let sides = self.sides.map(|s| s.map(|(exit, _)| exit));
+        split_by_sides(faces, far, value, ch, self.exit_shares(p, q), sides);
     }
 
-    /// Per lateral axis, the face a ray born at its side enters by.
-    pub fn entry_faces(&self) -> [Option<usize>; 2] {
-        self.sides.map(|s| s.map(|(_, entry)| entry))
+    /// Books `value` (channel `ch`) that slot (p', q') entered plane 0 with: in `faces[near]`,
+    /// except the shares of a ray born at a side in the step from the last period.
+    pub fn count_entry(&self, faces: &mut [[f64; 3]; 6], near: usize, p: usize, q: usize, ch: usize, value: f64) {
+        let sides = self.sides.map(|s| s.map(|(_, entry)| entry));
+        let (sp, sq) = self.source(p, q);
+        split_by_sides(faces, near, value, ch, self.exit_shares(sp, sq), sides);
     }
 
     /// Of what slot (p, q) carried out of the far face, the shares (b, c) that left through the
     /// sides in the step into the next period: 1 along the axis it leaves by, ½ each across an
     /// edge (the kernels' rule for a ray that wraps along both axes at once).
-    pub fn exit_shares(&self, p: usize, q: usize) -> [f64; 2] {
+    fn exit_shares(&self, p: usize, q: usize) -> [f64; 2] {
         match (self.leaves[0][p], self.leaves[1][q]) {
             (true, true) => [0.5, 0.5],
             (b, c) => [b as u8 as f64, c as u8 as f64],
@@ -235,18 +240,11 @@ impl PeriodStep {
         let back = |k: usize, e: usize| (e as i64 - self.shift[k]).rem_euclid(self.lattice[k] as i64) as usize;
         (back(0, p), back(1, q))
     }
-
-    /// The shares (b, c) of entry slot (p', q') that are a ray born at a side (those of the slot
-    /// it would continue: [`PeriodStep::exit_shares`]); zero where it continues a carried ray.
-    pub fn entry_shares(&self, p: usize, q: usize) -> [f64; 2] {
-        let (sp, sq) = self.source(p, q);
-        self.exit_shares(sp, sq)
-    }
 }
 
 /// Adds `value` (channel `ch`) to `faces[main]`, except the `shares` (b, c) of it that crossed
-/// the sides `sides` instead ([`PeriodStep`]): those go to the sides' faces. Both backends' books.
-pub fn split_by_sides(
+/// the sides `sides` instead: those go to the sides' faces.
+fn split_by_sides(
     faces: &mut [[f64; 3]; 6],
     main: usize,
     value: f64,

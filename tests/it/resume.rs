@@ -17,6 +17,19 @@ fn lpm(args: &[&str], abort_at: Option<u32>) -> std::process::Output {
     cmd.output().expect("run lpm")
 }
 
+/// Runs lpm to completion (no kill) and fails the test with its stderr if it did not succeed.
+fn lpm_ok(args: &[&str]) {
+    let o = lpm(args, None);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+/// The exported fields of a resumed solve are byte for byte those of the uninterrupted one.
+fn assert_same_fields(whole: &std::path::Path, cut: &std::path::Path, context: &str) {
+    for f in ["fluence.raw", "source.raw"] {
+        assert!(std::fs::read(whole.join(f)).unwrap() == std::fs::read(cut.join(f)).unwrap(), "{f} differs {context}");
+    }
+}
+
 #[test]
 fn killed_solve_resumes_to_the_same_bits() {
     let dir = temp_dir("resume");
@@ -25,8 +38,7 @@ fn killed_solve_resumes_to_the_same_bits() {
     let (whole, cut) = (dir.join("whole"), dir.join("cut"));
     let s = scene.to_str().unwrap();
 
-    let o = lpm(&["solve", s, "--out", whole.to_str().unwrap(), "--no-image"], None);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    lpm_ok(&["solve", s, "--out", whole.to_str().unwrap(), "--no-image"]);
 
     // Killed in the middle of a later order (the slice counter also counts setup and tally steps).
     let o = lpm(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image"], Some(70));
@@ -40,14 +52,8 @@ fn killed_solve_resumes_to_the_same_bits() {
         assert!(!cut.join(f).exists(), "{f} written before the solve finished");
     }
 
-    let o = lpm(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image", "--resume"], None);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    for f in ["fluence.raw", "source.raw"] {
-        assert!(
-            std::fs::read(whole.join(f)).unwrap() == std::fs::read(cut.join(f)).unwrap(),
-            "{f} differs after resume"
-        );
-    }
+    lpm_ok(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image", "--resume"]);
+    assert_same_fields(&whole, &cut, "after resume");
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(cut.join("report.json")).unwrap()).unwrap();
     assert_eq!(report["orders"], 5);
@@ -140,8 +146,7 @@ fn killed_between_checkpoints_resumes_to_the_same_bits() {
     std::fs::write(&scene, text).unwrap();
     let s = scene.to_str().unwrap();
     let whole = dir.join("whole");
-    let o = lpm(&["solve", s, "--out", whole.to_str().unwrap(), "--no-image"], None);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    lpm_ok(&["solve", s, "--out", whole.to_str().unwrap(), "--no-image"]);
 
     let mut skipped = false;
     for abort_at in [70, 90] {
@@ -157,14 +162,8 @@ fn killed_between_checkpoints_resumes_to_the_same_bits() {
         // progress.json counts every completed order, checkpointed or not.
         let completed = json(cut.join("progress.json"))["order"].as_u64().unwrap() + 1;
         skipped |= completed > done;
-        let o = lpm(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image", "--resume"], None);
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        for f in ["fluence.raw", "source.raw"] {
-            assert!(
-                std::fs::read(whole.join(f)).unwrap() == std::fs::read(cut.join(f)).unwrap(),
-                "{f} differs after resume (killed at slice {abort_at})"
-            );
-        }
+        lpm_ok(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image", "--resume"]);
+        assert_same_fields(&whole, &cut, &format!("after resume (killed at slice {abort_at})"));
     }
     assert!(skipped, "no kill landed after an order without a checkpoint: move the abort points");
 }
@@ -227,8 +226,7 @@ fn a_killed_periodic_solve_resumes_to_the_same_bits() {
     std::fs::write(&scene, text).unwrap();
     let (whole, cut) = (dir.join("whole"), dir.join("cut"));
     let s = scene.to_str().unwrap();
-    let o = lpm(&["solve", s, "--out", whole.to_str().unwrap(), "--no-image"], None);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    lpm_ok(&["solve", s, "--out", whole.to_str().unwrap(), "--no-image"]);
 
     let o = lpm(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image"], Some(70));
     assert!(!o.status.success(), "the solve should have been killed");
@@ -241,12 +239,6 @@ fn a_killed_periodic_solve_resumes_to_the_same_bits() {
     assert_eq!(carry, format!("carry_{done}.f64"));
     assert!(work.join(carry).exists());
 
-    let o = lpm(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image", "--resume"], None);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    for f in ["fluence.raw", "source.raw"] {
-        assert!(
-            std::fs::read(whole.join(f)).unwrap() == std::fs::read(cut.join(f)).unwrap(),
-            "{f} differs after resume"
-        );
-    }
+    lpm_ok(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image", "--resume"]);
+    assert_same_fields(&whole, &cut, "after resume");
 }

@@ -67,7 +67,7 @@ use super::energy::Tallies;
 use super::fields::{LoopState, PendingCheckpoint, StoreFields};
 use super::orders::Backend;
 use super::passes::{OrderFieldSet, StoreMedium};
-use super::periodic::{split_by_sides, CarryOf, PeriodStep, PeriodicCarry, RayRadiance};
+use super::periodic::{CarryOf, PeriodStep, PeriodicCarry, RayRadiance};
 use super::plan::{half_scale_exponent, Plan, Precision, SweepDirection};
 use super::sweep::{side_births, FaceSweep};
 use super::SolveError;
@@ -399,24 +399,9 @@ fn read_tallies(
                     let entries = births_at.entries.map(|e| &e[d]);
                     for i in 0..rays {
                         let (p, q) = (i % lb, i / lb);
-                        let out = exits[i] as f64 * power;
-                        split_by_sides(
-                            &mut tallies.face_out,
-                            roles.far,
-                            out,
-                            ch,
-                            step.exit_shares(p, q),
-                            step.exit_faces(),
-                        );
+                        step.count_exit(&mut tallies.face_out, roles.far, p, q, ch, exits[i] as f64 * power);
                         let came = entries.map_or(birth, |e| e[i][ch] * power);
-                        split_by_sides(
-                            &mut tallies.face_in,
-                            roles.near,
-                            came,
-                            ch,
-                            step.entry_shares(p, q),
-                            step.entry_faces(),
-                        );
+                        step.count_entry(&mut tallies.face_in, roles.near, p, q, ch, came);
                     }
                 }
                 None => {
