@@ -19,13 +19,22 @@ pub(crate) struct RawScene {
     pub boundary: Option<RawBoundary>,
 }
 
-/// `[boundary]`: per axis, how light crosses the two faces across it ("open" or "periodic").
+/// `[boundary]`: per axis, how light crosses the two faces across it: one word for both faces
+/// ("open", "periodic", "reflective") or a pair `[low, high]` ("open" or "reflective" each).
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawBoundary {
-    pub x: Option<String>,
-    pub y: Option<String>,
-    pub z: Option<String>,
+    pub x: Option<RawFaces>,
+    pub y: Option<RawFaces>,
+    pub z: Option<RawFaces>,
+}
+
+/// One axis of `[boundary]`: a word for both faces, or one per face (low, high).
+#[derive(Debug, Deserialize)]
+#[serde(untagged)]
+pub(crate) enum RawFaces {
+    Both(String),
+    Each(Vec<String>),
 }
 
 #[derive(Debug, Deserialize)]

@@ -22,18 +22,38 @@ pub struct Scene {
 }
 
 /// How light crosses the faces of the volume, per axis (x, y, z): `open` (the default: the lights
-/// enter, what leaves is gone) or `periodic` (the volume repeats along the axis: what leaves
+/// enter, what leaves is gone), `periodic` (the volume repeats along the axis: what leaves
 /// through one face enters through the opposite one, as in a cloud field tiled without end; see
-/// `solver::periodic`).
+/// `solver::periodic`) or `reflective` per face (a mirror: what reaches the face comes back with
+/// its direction mirrored, as across a symmetry plane; see `solver::mirror`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Boundary {
     pub periodic: [bool; 3],
+    /// Per axis, whether its low face (coordinate 0) and its high face are mirrors.
+    pub reflective: [[bool; 2]; 3],
 }
 
 impl Boundary {
     /// Whether any axis is periodic.
     pub fn any_periodic(&self) -> bool {
         self.periodic.iter().any(|&p| p)
+    }
+
+    /// Whether any face is a mirror.
+    pub fn any_reflective(&self) -> bool {
+        self.reflective.iter().flatten().any(|&r| r)
+    }
+
+    /// The scene file's words for an axis: "open", "periodic", "reflective" (both faces),
+    /// "reflective low" or "reflective high".
+    pub fn axis_name(&self, axis: usize) -> &'static str {
+        match (self.periodic[axis], self.reflective[axis]) {
+            (true, _) => "periodic",
+            (_, [true, true]) => "reflective",
+            (_, [true, false]) => "reflective low",
+            (_, [false, true]) => "reflective high",
+            _ => "open",
+        }
     }
 }
 

@@ -4,7 +4,7 @@
 //! Over 450 lines because every scene key is checked here, next to its default: one place to read
 //! what a scene may say.
 
-use super::raw::{ByteSize, Channels, RawBoundary, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
+use super::raw::{ByteSize, Channels, RawBoundary, RawFaces, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
 use super::{
     Acceleration, Boundary, CheckpointCadence, DeviceResidency, DiffusionCorrection, EnvironmentLight, ForwardPeak,
     Light, MapUp, Medium, PlanMode, Scene, SceneError, Shape, SolverSettings, SpatialScheme, StoragePrecision, Volume,
@@ -129,32 +129,99 @@ impl Validator<'_> {
                 ));
             }
         }
+        if boundary.any_reflective() {
+            self.reflective_fits(&boundary, &lights, &solver)?;
+        }
         Ok(Scene { path: self.path.to_path_buf(), volume, medium, lights, solver, camera, boundary })
+    }
+
+    /// What a scene with mirror faces may hold (see `solver::mirror`): the lights must look the
+    /// same in the mirror (a sky; a sun travelling parallel to every mirror), and the solver must
+    /// use the scheme and passes the mirrors are exact for.
+    fn reflective_fits(&self, boundary: &Boundary, lights: &[Light], solver: &SolverSettings) -> R<()> {
+        if boundary.any_periodic() {
+            return Err(self.err("boundary", "periodic and reflective faces in one scene are not supported yet"));
+        }
+        let mirrored: Vec<usize> = (0..3).filter(|&a| boundary.reflective[a].contains(&true)).collect();
+        for (i, light) in lights.iter().enumerate() {
+            let refused = match light {
+                Light::Point { .. } => {
+                    Some("a point light with mirror faces would need its mirror images; use open faces")
+                }
+                Light::Environment(_) => {
+                    Some("an environment map with mirror faces would need its mirror image; use a sky or open faces")
+                }
+                Light::Sun { direction, .. } if mirrored.iter().any(|&a| direction[a].abs() > 1e-12) => Some(
+                    "the sun's light reaches a mirror face (its direction has a component across it), whose \
+                     reflection is not modelled yet: use open faces, or a sun parallel to the mirrors",
+                ),
+                _ => None,
+            };
+            if let Some(why) = refused {
+                return Err(self.err(format!("lights[{i}].kind"), why));
+            }
+        }
+        if solver.spatial == SpatialScheme::Linear {
+            return Err(self.err(
+                "solver.spatial",
+                "reflective faces need solver.spatial = \"constant\" (a \"linear\" ray straddles the mirror)",
+            ));
+        }
+        if solver.acceleration == Acceleration::Diffusion {
+            return Err(self.err(
+                "solver.acceleration",
+                "\"diffusion\" does not support reflective faces yet; use \"auto\" or \"off\"",
+            ));
+        }
+        if solver.diffusion_correction == DiffusionCorrection::On {
+            return Err(self
+                .err("solver.diffusion_correction", "the diffusion correction does not support reflective faces yet"));
+        }
+        Ok(())
     }
 
     fn boundary(&self, b: Option<RawBoundary>) -> R<Boundary> {
         let Some(b) = b else { return Ok(Boundary::default()) };
-        let mut periodic = [false; 3];
+        let mut boundary = Boundary::default();
         for (axis, (name, value)) in [("x", b.x), ("y", b.y), ("z", b.z)].into_iter().enumerate() {
-            periodic[axis] = match value.as_deref() {
-                None | Some("open") => false,
-                Some("periodic") => true,
-                Some("reflective") => {
-                    return Err(self.err(
-                        format!("boundary.{name}"),
-                        "reflective boundaries are not supported yet; for a mirror-symmetric problem, \
-                         solve the whole domain (mirror the volume)",
-                    ))
-                }
-                Some(other) => {
-                    return Err(self.err(
-                        format!("boundary.{name}"),
-                        format!("unknown boundary \"{other}\", expected \"open\" or \"periodic\""),
-                    ))
-                }
+            let key = format!("boundary.{name}");
+            let unknown = |word: &str, expected: &str| {
+                self.err(&key, format!("unknown boundary \"{word}\", expected {expected}"))
             };
+            match value {
+                None => {}
+                Some(RawFaces::Both(word)) => match word.as_str() {
+                    "open" => {}
+                    "periodic" => boundary.periodic[axis] = true,
+                    "reflective" => boundary.reflective[axis] = [true, true],
+                    other => return Err(unknown(other, "\"open\", \"periodic\" or \"reflective\"")),
+                },
+                Some(RawFaces::Each(words)) => {
+                    let [low, high] = &words[..] else {
+                        return Err(self.err(
+                            &key,
+                            format!(
+                                "{} faces given; a pair is [low, high], e.g. [\"reflective\", \"open\"]",
+                                words.len()
+                            ),
+                        ));
+                    };
+                    for (side, word) in [low, high].into_iter().enumerate() {
+                        boundary.reflective[axis][side] = match word.as_str() {
+                            "open" => false,
+                            "reflective" => true,
+                            "periodic" => {
+                                return Err(
+                                    self.err(&key, "periodic joins both faces of an axis: write `periodic` alone")
+                                )
+                            }
+                            other => return Err(unknown(other, "\"open\" or \"reflective\" per face")),
+                        };
+                    }
+                }
+            }
         }
-        Ok(Boundary { periodic })
+        Ok(boundary)
     }
 
     // ---- scalar helpers -------------------------------------------------------------------

@@ -15,6 +15,7 @@
 
 use super::cpu_sweep::{sweep_direction, SweepInputs, SweepMode, SweepOutputs};
 use super::energy::Tallies;
+use super::mirror::MirrorState;
 use super::orders::Backend;
 use super::passes::{MemField, OrderFieldSet, VoxelMedium};
 use super::periodic::{CarryOf, PeriodicCarry};
@@ -35,6 +36,8 @@ pub struct CpuTwin<'a> {
     emitted_field: Option<[f64; 3]>,
     /// What the rays of periodic-axis sweeps carried out last order ([`super::periodic`]).
     carry: PeriodicCarry,
+    /// What the sweeps hand over to their mirror images across mirror faces ([`super::mirror`]).
+    mirror: MirrorState,
 }
 
 impl<'a> CpuTwin<'a> {
@@ -74,6 +77,7 @@ impl<'a> CpuTwin<'a> {
             j_gain: if half { vec![0.0; voxels * comps] } else { Vec::new() },
             emitted_field: None,
             carry: PeriodicCarry::new(plan),
+            mirror: MirrorState::new(plan),
         })
     }
 
@@ -160,10 +164,25 @@ impl<'a> CpuTwin<'a> {
         let mut outputs =
             SweepOutputs { fluence_order: &mut fields.fluence.values, j_next: &mut fields.source_next.values };
         let birth = if boundary { dir.boundary } else { [0.0; 3] };
-        let entry = self.carry.entry(self.plan, of, dir, birth);
+        let mirror = match of {
+            CarryOf::Face { face, dir } if !self.plan.mirrors.is_empty() => {
+                Some(self.mirror.view(self.plan, face, dir))
+            }
+            _ => None,
+        };
+        let entry = match mirror.as_ref().and_then(|m| m.entry_radiance(dir)) {
+            Some(e) => Some(e),
+            None => self.carry.entry(self.plan, of, dir, birth),
+        };
         let mode = SweepMode { boundary, gain, emit };
-        let (tallies, exits) = sweep_direction(self.plan, dir, mode, entry.as_deref(), &inputs, &mut outputs);
+        let (tallies, exits, records) =
+            sweep_direction(self.plan, dir, mode, entry.as_deref(), mirror.as_ref(), &inputs, &mut outputs);
         self.carry.store_exit(self.plan, of, dir, exits);
+        if let CarryOf::Face { face, dir } = of {
+            if !self.plan.mirrors.is_empty() {
+                self.mirror.store(face, dir, records);
+            }
+        }
         tallies
     }
 }
@@ -173,6 +192,7 @@ impl Backend for CpuTwin<'_> {
         let plan = self.plan;
         let mut tallies = Tallies::default();
         self.fields.begin_order(true)?;
+        self.mirror.begin_order();
         if plan.source_precision == Precision::F16 {
             // What the GPU's copy workers do to the source during the gather.
             let prev = &self.fields.source_prev.values;
@@ -205,7 +225,8 @@ impl Backend for CpuTwin<'_> {
     }
 
     fn carried_power(&self) -> [f64; 3] {
-        self.carry.power(self.plan)
+        let (carried, mirrored) = (self.carry.power(self.plan), self.mirror.power(self.plan));
+        [0, 1, 2].map(|ch| carried[ch] + mirrored[ch])
     }
 
     fn emission_field_power(&mut self) -> Result<Option<[f64; 3]>, SolveError> {

@@ -23,7 +23,8 @@
 //! kept there), and a plane whose bricks are all empty is a vacuum plane in which rays only wrap
 //! (crossing vacuum changes no radiance, so this is exact).
 
-use super::energy::{opposite_face, volume_face, Tallies};
+use super::energy::{volume_face, Tallies};
+use super::mirror::{CellKey, FarCarry, MirrorRecords, MirrorView};
 use super::periodic::PeriodStep;
 use super::plan::{Plan, SweepDirection};
 use super::segment::segment;
@@ -58,17 +59,20 @@ pub(super) struct SweepMode {
     pub emit: bool,
 }
 
-/// Marches every ray of `dir` through the volume; returns the boundary tallies and the radiance
-/// each slot carries out of the far face. `entry`: the radiance each slot enters plane 0 with when
-/// the sweep axis is periodic ([`super::periodic::entry_radiance`]); `None`: the boundary birth.
+/// Marches every ray of `dir` through the volume; returns the boundary tallies, the radiance
+/// each slot carries out of the far face and what it hands over to its mirror images. `entry`:
+/// the radiance each slot enters plane 0 with when the sweep axis is periodic
+/// ([`super::periodic::entry_radiance`]) or its near face a mirror; `None`: the boundary birth.
+/// `mirror`: the last order's hand-overs, with mirror faces ([`super::mirror`]).
 pub(super) fn sweep_direction(
     plan: &Plan,
     dir: &SweepDirection,
     mode: SweepMode,
     entry: Option<&[[f64; 3]]>,
+    mirror: Option<&MirrorView>,
     inputs: &SweepInputs,
     outputs: &mut SweepOutputs,
-) -> (Tallies, Vec<[f64; 3]>) {
+) -> (Tallies, Vec<[f64; 3]>, MirrorRecords) {
     let c = plan.channels as usize;
     let sweep = FaceSweep::for_plan(dir.face, plan);
     let na = sweep.n[0];
@@ -88,6 +92,7 @@ pub(super) fn sweep_direction(
     let f = sweep.geometry();
     let (near, far) = (volume_face(f.axis, f.sign < 0.0), volume_face(f.axis, f.sign > 0.0));
     let mut rows = vec![RowTally::default(); lc_us];
+    let mut row_records: Vec<Vec<(CellKey, [f64; 3])>> = vec![Vec::new(); lc_us];
     // On a periodic sweep axis the slots that left through a side in the step from the last
     // period came in there as new rays ([`PeriodStep`]), the others through the near face.
     let period = sweep.periodic[0].then(|| PeriodStep::new(&sweep, dir));
@@ -116,13 +121,14 @@ pub(super) fn sweep_direction(
         let w = dir.weights[t as usize];
         let [now_b, now_c] = columns(t as usize);
         let vacuum = geometry.vacuum_plane(&sweep, t, inputs.occupied);
-        let step = PlaneStep { plan, dir, mode, inputs, sweep: &sweep, geometry: &geometry, t, w, birth, vacuum };
+        let step =
+            PlaneStep { plan, dir, mode, inputs, sweep: &sweep, geometry: &geometry, t, w, birth, vacuum, mirror };
         radiance
             .par_chunks_mut(lb_us)
             .zip(average.par_chunks_mut(lb_us))
-            .zip(rows.par_iter_mut())
+            .zip(rows.par_iter_mut().zip(row_records.par_iter_mut()))
             .enumerate()
-            .for_each(|(q, ((l_row, avg_row), tally))| {
+            .for_each(|(q, ((l_row, avg_row), (tally, records)))| {
                 let (cc, row_wrap) = now_c[q];
                 for (p, &(cb, wrap)) in now_b.iter().enumerate() {
                     // How the slot's wrap counts changed: +1 past n (the + side), −1 below 0.
@@ -132,7 +138,8 @@ pub(super) fn sweep_direction(
                         [0; 2]
                     };
                     let (l, avg) = (&mut l_row[p], &mut avg_row[p]);
-                    step.ray([cb, cc], wraps, l, avg, tally);
+                    let prev = [wrap_b[p].0, wrap_c[q].0];
+                    step.ray([cb, cc], prev, wraps, l, avg, tally, records);
                 }
             });
         (wrap_b, wrap_c) = (now_b, now_c);
@@ -140,6 +147,12 @@ pub(super) fn sweep_direction(
             collect_plane(plan, dir, &sweep, &geometry, t, &average, inputs, outputs);
         }
     }
+    // Across a mirror of the far face the rays step on to plane N, the mirror image's plane 0.
+    let far_carry = mirror.filter(|m| m.far_is_mirror()).map(|m| {
+        let o = dir.offsets[0];
+        let o_n = [o[0] + dir.period_shift[0], o[1] + dir.period_shift[1]];
+        far_step(m, na, o_n, (&wrap_b, &wrap_c), leaves, birth, &radiance, &mut row_records)
+    });
     // Rays still inside leave through the far face (on a periodic sweep axis, those that leave
     // through a side in the step into the next period count there: [`PeriodStep`]).
     for (q, row) in radiance.chunks(lb_us).enumerate() {
@@ -163,7 +176,56 @@ pub(super) fn sweep_direction(
             tallies.face_out[face][ch] = rows.iter().map(|r| r.face_out[face][ch]).sum::<f64>() * power;
         }
     }
-    (tallies, radiance)
+    let records = MirrorRecords { lateral: row_records.into_iter().flatten().collect(), far: far_carry };
+    (tallies, radiance, records)
+}
+
+/// The step from the last plane to plane N across a mirror of the far face ([`super::mirror`]):
+/// records the rays that step into a vacuum column through a mirror side (under plane N), and
+/// returns what each lattice cell holds at plane N: the ray's radiance, or the radiance handed
+/// over to a ray coming in through mirror sides, or `birth` for a ray born at an open side in
+/// that step. Cells in a vacuum column are carried too: their rays may come in through an open
+/// side later in the mirror image's sweep (lagged by an order, as everything across a mirror).
+#[allow(clippy::too_many_arguments)]
+fn far_step(
+    mirror: &MirrorView,
+    na: u32,
+    o_n: [i32; 2],
+    (last_b, last_c): (&[Column], &[Column]),
+    leaves: [i32; 2],
+    birth: [f64; 3],
+    radiance: &[[f64; 3]],
+    row_records: &mut [Vec<(CellKey, [f64; 3])>],
+) -> FarCarry {
+    let sweep = mirror.sweep();
+    let [lb, lc] = sweep.lattice();
+    let mut cells = vec![[0.0; 3]; (lb * lc) as usize];
+    for q in 0..lc as usize {
+        let (cc, row_wrap) = sweep.column(1, q as u32, o_n[1]);
+        for p in 0..lb as usize {
+            let (cb, wrap) = sweep.column(0, p as u32, o_n[0]);
+            let prev = [last_b[p].0, last_c[q].0];
+            let wraps = [leaves[0] * (wrap - last_b[p].1), leaves[1] * (row_wrap - last_c[q].1)];
+            let (now, l) = ([cb, cc], radiance[q * lb as usize + p]);
+            // As in a plane's step (`PlaneStep::ray`): a slot that wraps is a new ray, born at
+            // the opposite side (dark at a mirror); one coming in through mirrors is handed over.
+            let reborn = if wraps == [0, 0] {
+                l
+            } else if (0..2).any(|k| wraps[k] != 0 && !sweep.mirror[1 + k][(wraps[k] < 0) as usize]) {
+                birth
+            } else {
+                [0.0; 3]
+            };
+            if mirror.records_step(prev, now, wraps) {
+                row_records[q].push(((na, cb, cc), if wraps.iter().any(|&w| w > 0) { reborn } else { l }));
+            }
+            cells[(cc * lb + cb) as usize] = match mirror.entry_sides(prev, now, wraps) {
+                Some(sides) => mirror.handed_over(na, now, sides),
+                None => reborn,
+            };
+        }
+    }
+    FarCarry { cells }
 }
 
 /// The radiance one row of slots carried in and out: in all, and per face of the volume
@@ -224,33 +286,78 @@ struct PlaneStep<'s, 'a> {
     w: [f64; 2],
     birth: [f64; 3],
     vacuum: bool,
+    mirror: Option<&'s MirrorView<'s>>,
 }
 
 impl PlaneStep<'_, '_> {
-    /// Advances the ray at lattice column `[cb, cc]` through the plane: rebirth after a wrap
-    /// (`wraps`: per lateral axis, +1 when the slot passed n, −1 when it went below 0), gather,
-    /// exact segment.
-    fn ray(&self, [cb, cc]: [u32; 2], wraps: [i32; 2], l: &mut [f64; 3], avg: &mut [f64; 3], tally: &mut RowTally) {
+    /// Advances the ray at lattice column `[cb, cc]` (from `prev` at the plane before) through
+    /// the plane: rebirth after a wrap (`wraps`: per lateral axis, +1 when the slot passed n, −1
+    /// when it went below 0), hand-overs at mirror sides (recorded in `records`), gather, exact
+    /// segment.
+    #[allow(clippy::too_many_arguments)]
+    fn ray(
+        &self,
+        [cb, cc]: [u32; 2],
+        prev: [u32; 2],
+        wraps: [i32; 2],
+        l: &mut [f64; 3],
+        avg: &mut [f64; 3],
+        tally: &mut RowTally,
+        records: &mut Vec<(CellKey, [f64; 3])>,
+    ) {
         let c = self.plan.channels as usize;
         let wrapped = wraps != [0, 0];
+        let lateral = self.sweep.geometry().lateral;
+        let mirror = self.mirror.filter(|_| self.t > 0);
+        let stepped_out = mirror.is_some_and(|m| m.records_step(prev, [cb, cc], wraps));
+        let before = *l;
         if wrapped {
             // The ray left through a side: a new one enters from the opposite side. Across an
-            // edge (both axes wrap) each side takes half.
-            let lateral = self.sweep.geometry().lateral;
+            // edge (both axes wrap) each side takes half. Nothing enters through a mirror from
+            // outside: a ray born at one starts dark (what comes back is handed over below).
             let share = if wraps[0] != 0 && wraps[1] != 0 { 0.5 } else { 1.0 };
+            let born_at_mirror = |k: usize| self.sweep.mirror[1 + k][(wraps[k] < 0) as usize];
+            let open_births: Vec<usize> = (0..2).filter(|&k| wraps[k] != 0 && !born_at_mirror(k)).collect();
+            let birth = if open_births.is_empty() { [0.0; 3] } else { self.birth };
             for k in 0..2 {
                 if wraps[k] != 0 {
                     let exit = volume_face(lateral[k], wraps[k] > 0);
                     for ch in 0..c {
                         tally.face_out[exit][ch] += share * l[ch];
-                        tally.face_in[opposite_face(exit)][ch] += share * self.birth[ch];
                     }
+                }
+            }
+            for &k in &open_births {
+                let entry = volume_face(lateral[k], wraps[k] < 0);
+                for ch in 0..c {
+                    tally.face_in[entry][ch] += birth[ch] / open_births.len() as f64;
                 }
             }
             for ch in 0..c {
                 tally.left[ch] += l[ch];
-                l[ch] = self.birth[ch];
-                tally.born[ch] += self.birth[ch];
+                l[ch] = birth[ch];
+                tally.born[ch] += birth[ch];
+            }
+        }
+        if stepped_out {
+            // The ray that stepped out through the mirror: this one, unless a new ray came in
+            // past the low side of the other axis in the same step (then it is that one).
+            records.push(((self.t, cb, cc), if wraps.iter().any(|&w| w > 0) { *l } else { before }));
+        }
+        if let Some(m) = mirror {
+            if let Some(sides) = m.entry_sides(prev, [cb, cc], wraps) {
+                // Coming in through mirror sides: the mirror image's ray that stepped out there.
+                let handed = m.handed_over(self.t, [cb, cc], sides);
+                let entered: Vec<usize> =
+                    (0..2).filter_map(|k| sides[k].map(|s| volume_face(lateral[k], s == 1))).collect();
+                for ch in 0..c {
+                    let change = handed[ch] - l[ch];
+                    for &face in &entered {
+                        tally.face_in[face][ch] += change / entered.len() as f64;
+                    }
+                    tally.born[ch] += change;
+                    l[ch] = handed[ch];
+                }
             }
         }
         if self.vacuum {

@@ -27,6 +27,7 @@ pub mod energy;
 pub mod environment;
 pub mod fields;
 pub mod gpu;
+pub mod mirror;
 pub mod orders;
 pub mod passes;
 pub mod periodic;
@@ -70,6 +71,8 @@ pub enum SolveError {
     CheckpointMismatch { path: std::path::PathBuf },
     #[error("writing the checkpoint: {0}")]
     Checkpoint(crate::output::OutputError),
+    #[error("reflective faces are solved by the CPU backend only for now: rerun with --backend cpu")]
+    MirrorsNeedCpu,
     #[error("--resume needs the GPU backend (the CPU twin keeps its fields in memory)")]
     ResumeNeedsGpu,
     #[error("a host copy worker thread died (it panicked) while copying bricks between the store and the staging")]
@@ -312,6 +315,7 @@ pub fn solve_from(
             let device = format!("CPU twin (f64, {} threads)", rayon::current_num_threads());
             (outcome, device, 0)
         }
+        BackendKind::Gpu if !plan.mirrors.is_empty() => return Err(SolveError::MirrorsNeedCpu),
         BackendKind::Gpu => {
             let t = Instant::now();
             let ctx = Context::new(vk_options)?;

@@ -317,7 +317,9 @@ pub fn periodic_lattice(m: [i32; 2], planes: u32, scheme: SpatialScheme) -> (Vec
                     w[k] = num.rem_euclid(two_n) as f64 / two_n as f64;
                 }
                 SpatialScheme::Constant => {
-                    o[k] = (num + planes as i64).div_euclid(two_n) as i32 - 1;
+                    // The nearest column, halves away from zero (super::sweep::nearest_column).
+                    let nearest = (num.abs() + planes as i64).div_euclid(two_n) * num.signum();
+                    o[k] = nearest as i32 - 1;
                     w[k] = 1.0;
                 }
             }

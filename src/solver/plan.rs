@@ -168,6 +168,11 @@ pub struct Plan {
     pub delta_m: Option<f64>,
     /// Per volume axis (x, y, z): periodic (`[boundary]`, [`super::periodic`]).
     pub periodic: [bool; 3],
+    /// Per volume axis, whether its low and high faces are mirrors ([`super::mirror`]).
+    pub reflective: [[bool; 2]; 3],
+    /// With mirror faces: per face and direction of the face, its mirror image across the x, y
+    /// and z planes as (face, direction) ([`super::mirror::mirror_images`]); empty otherwise.
+    pub mirrors: Vec<Vec<[(usize, usize); 3]>>,
     /// Why each choice was made, for the report.
     pub reasons: Vec<String>,
 }
@@ -212,7 +217,7 @@ pub struct PlanSummary {
     pub solved_g: f64,
     pub effective_g: f64,
     pub delta_m_fraction: Option<f64>,
-    /// Per axis (x, y, z): "open" or "periodic".
+    /// Per axis (x, y, z): "open", "periodic", "reflective", "reflective low" or "reflective high".
     pub boundary: [&'static str; 3],
     pub reasons: Vec<String>,
 }
@@ -231,6 +236,19 @@ impl Plan {
         let channels = choose_channels(scene, full, &mut reasons);
         let spatial = scene.solver.spatial;
         let periodic = scene.boundary.periodic;
+        let reflective = scene.boundary.reflective;
+        if scene.boundary.any_reflective() {
+            let faces: Vec<String> = (0..3)
+                .flat_map(|a| (0..2).filter(move |&s| reflective[a][s]).map(move |s| (a, s)))
+                .map(|(a, s)| format!("{}{}", ["-", "+"][s], ["x", "y", "z"][a]))
+                .collect();
+            reasons.push(format!(
+                "mirror faces {}: what reaches them comes back in the mirror-image direction in the next order \
+                 (exact on the nearest-column lattice); directions swept across a mirror are nudged to move \
+                 whole voxels over the volume",
+                faces.join(", ")
+            ));
+        }
         if scene.boundary.any_periodic() {
             let axes: Vec<&str> =
                 ["x", "y", "z"].into_iter().zip(periodic).filter(|(_, p)| *p).map(|(a, _)| a).collect();
@@ -313,10 +331,12 @@ impl Plan {
         // solid angle (a beam: 1, its boundary value being an irradiance).
         let swept =
             |face: usize, omega: DVec3, weight: f64, boundary: [f64; 3], gain_storage: u32, collect_row: Vec<f64>| {
-                let sweep = FaceSweep::with_periodic(face, dims, periodic);
+                let sweep = FaceSweep::with_boundary(face, dims, periodic, reflective);
                 let planes = sweep.n[0];
                 let slope = lateral_slope(face, omega);
-                let (omega, (offsets, weights), period_shift) = if sweep.periodic[0] {
+                // Across a mirror of the sweep axis the rays hand over to their mirror images'
+                // lattice, which must line up as a periodic one does (super::mirror).
+                let (omega, (offsets, weights), period_shift) = if sweep.periodic[0] || sweep.mirror[0] != [false; 2] {
                     // Nudged to whole columns per period (super::periodic); ω follows the slope.
                     let (nudged, m) = periodic_slope(slope, planes);
                     let f = FACES[face];
@@ -431,6 +451,7 @@ impl Plan {
             "{bricks_empty} of {bricks_total} bricks are empty: no medium or source stored{}",
             if full { " (kept under plan = \"full\": skipping them is exact)" } else { "" }
         ));
+        let mirrors = if scene.boundary.any_reflective() { super::mirror::mirror_images(&faces) } else { Vec::new() };
         let diffusion_correction = choose_diffusion_correction(scene, &medium, &faces, spatial, &mut reasons);
         let acceleration = choose_acceleration(scene, &medium, &mut reasons);
         let source_precision = choose_precision(scene, full, acceleration, &mut reasons);
@@ -463,6 +484,8 @@ impl Plan {
             effective_g,
             delta_m,
             periodic,
+            reflective,
+            mirrors,
             reasons,
         }
     }
@@ -513,7 +536,8 @@ impl Plan {
             acceleration: if self.acceleration { "diffusion" } else { "off" },
             effective_g: self.effective_g,
             delta_m_fraction: self.delta_m,
-            boundary: self.periodic.map(|p| if p { "periodic" } else { "open" }),
+            boundary: [0, 1, 2]
+                .map(|a| crate::scene::Boundary { periodic: self.periodic, reflective: self.reflective }.axis_name(a)),
             reasons: self.reasons.clone(),
         }
     }
@@ -568,6 +592,12 @@ fn choose_acceleration(scene: &Scene, medium: &Medium, reasons: &mut Vec<String>
     let (on, why) = match scene.solver.acceleration {
         Acceleration::Off => (false, "off (solver.acceleration = \"off\")".to_string()),
         _ if albedo <= 0.0 => (false, "off: the medium does not scatter".into()),
+        _ if scene.boundary.any_reflective() => (
+            false,
+            "off: with mirror faces part of each order's light comes back from the mirrors in the next \
+             order, which the correction's source would not see"
+                .into(),
+        ),
         _ if scene.boundary.any_periodic() => (
             false,
             "off: with periodic axes part of each order's light travels on in the rays to the next order, \

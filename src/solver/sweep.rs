@@ -56,6 +56,9 @@ pub struct FaceSweep {
     /// ([`super::periodic`]): a periodic lateral axis has n slots of period n, and its rays wrap
     /// without leaving.
     pub periodic: [bool; 3],
+    /// Per axis (a, b, c): whether the volume's low and high faces across it are mirrors
+    /// ([`super::mirror`]).
+    pub mirror: [[bool; 2]; 3],
 }
 
 /// The planes of one slice (or sub-slice) of bricks, in sweep order: t0..t1, the brick coordinate
@@ -83,14 +86,20 @@ impl FaceSweep {
     /// The sweep of `face` through a volume of `dims` periodic along the axes (x, y, z) marked
     /// in `periodic`.
     pub fn with_periodic(face: usize, dims: [u32; 3], periodic: [bool; 3]) -> Self {
+        Self::with_boundary(face, dims, periodic, [[false; 2]; 3])
+    }
+
+    /// The sweep of `face` through a volume of `dims` with periodic axes and mirror faces (per
+    /// axis x, y, z: low, high).
+    pub fn with_boundary(face: usize, dims: [u32; 3], periodic: [bool; 3], mirror: [[bool; 2]; 3]) -> Self {
         let f = FACES[face];
         let abc = [f.axis, f.lateral[0], f.lateral[1]];
-        FaceSweep { face, n: abc.map(|x| dims[x]), periodic: abc.map(|x| periodic[x]) }
+        FaceSweep { face, n: abc.map(|x| dims[x]), periodic: abc.map(|x| periodic[x]), mirror: abc.map(|x| mirror[x]) }
     }
 
     /// The sweep of `face` through the plan's volume and boundaries.
     pub fn for_plan(face: usize, plan: &crate::solver::plan::Plan) -> Self {
-        Self::with_periodic(face, plan.dims, plan.periodic)
+        Self::with_boundary(face, plan.dims, plan.periodic, plan.reflective)
     }
 
     pub fn geometry(&self) -> Face {
@@ -267,7 +276,7 @@ pub fn lattice(slope: [f64; 2], planes: u32, scheme: SpatialScheme) -> (Vec<[i32
                     w[k] = d - f;
                 }
                 SpatialScheme::Constant => {
-                    o[k] = (0.5 + d).floor() as i32 - 1;
+                    o[k] = nearest_column(d) - 1;
                     w[k] = 1.0;
                 }
             }
@@ -276,6 +285,13 @@ pub fn lattice(slope: [f64; 2], planes: u32, scheme: SpatialScheme) -> (Vec<[i32
         weights.push(w);
     }
     (offsets, weights)
+}
+
+/// The nearest whole column to a lateral displacement `d`, halves rounded away from zero, so that
+/// a direction and its mirror image (−d) take mirror-image columns in every plane
+/// ([`super::mirror`]); for d > 0 this is ⌊½ + d⌋.
+pub fn nearest_column(d: f64) -> i32 {
+    (d.abs() + 0.5).floor().copysign(d) as i32
 }
 
 /// Where slot `s` (of `n + 1`) lies with offset `o`: (lattice column in 0..=n, wrap count).

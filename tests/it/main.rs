@@ -35,6 +35,7 @@ mod precision;
 mod property_solve;
 mod reference_closed_forms;
 mod reference_job;
+mod reflective;
 mod reliability;
 mod render;
 mod resident;

@@ -13,7 +13,7 @@ use std::path::Path;
 /// "constant" the lattice's birth-plane pattern is about twice as large — layers vary by 1.1 %,
 /// the moved cloud by 2.5 % — above the bounds below).
 fn periodic(mut scene: Scene, axes: [bool; 3]) -> Scene {
-    scene.boundary = Boundary { periodic: axes };
+    scene.boundary = Boundary { periodic: axes, ..Default::default() };
     scene
 }
 
@@ -190,7 +190,10 @@ fn boundary_keys_are_checked() {
     .expect("periodic x");
     assert_eq!(ok.boundary.periodic, [true, false, false]);
     for (text, words) in [
-        ("[boundary]\ny = \"reflective\"\n", "boundary.y"),
+        ("[boundary]\ny = [\"reflective\"]\n", "boundary.y"),
+        ("[boundary]\ny = [\"periodic\", \"open\"]\n", "boundary.y"),
+        ("[boundary]\ny = \"reflective\"\nx = \"periodic\"\n", "boundary"),
+        ("[boundary]\ny = \"reflective\"\n[solver]\nspatial = \"linear\"\n", "solver.spatial"),
         ("[boundary]\nz = \"wrap\"\n", "boundary.z"),
         ("[boundary]\nw = \"open\"\n", "w"),
         (

@@ -53,7 +53,7 @@ fn resident_and_streamed_give_the_same_bits() {
     // Periodic sides: the rays carry what left one side into the next order.
     let mut slab = scene(Shape::Cloud, [24, 20, 28], [0.8; 3], [0.9; 3], vec![sun([0.5, 0.3, 1.0], [1.0; 3])]);
     slab.solver.spatial = SpatialScheme::Constant;
-    slab.boundary = Boundary { periodic: [true, true, false] };
+    slab.boundary = Boundary { periodic: [true, true, false], ..Default::default() };
     slab.solver.max_orders = 4;
     resident_equals_streamed("periodic", &slab);
 

@@ -1,0 +1,120 @@
+//! Reflective faces (`[boundary] x = "reflective"`, `solver::mirror`): a volume with mirror faces
+//! solves to the restriction of the volume doubled by its mirror images across those faces (the
+//! method of images), which the solver never stores or sweeps; the energy books close.
+use crate::common::*;
+use lpm::scene::{Boundary, Scene, SpatialScheme};
+use lpm::solver::BackendKind::Cpu;
+
+/// A lumpy medium over `dims`, the same function of the voxel everywhere, so that a volume and
+/// its mirror images can be written from one function.
+fn lumpy(v: [u32; 3]) -> f32 {
+    let [x, y, z] = v.map(|c| c as f32);
+    0.45 + 0.25 * (0.9 * x + 0.4).sin() * (0.7 * y + 1.1).cos() + 0.15 * (0.5 * z + 0.3).sin()
+}
+
+/// The voxel of the half volume `half` that voxel `v` of the doubled volume images, for mirrors
+/// at the faces marked in `mirror` (per axis: low, high).
+fn imaged(v: [u32; 3], half: [u32; 3], mirror: [[bool; 2]; 3]) -> [u32; 3] {
+    let mut h = v;
+    for a in 0..3 {
+        let n = half[a];
+        if mirror[a][0] {
+            // The image lies below: doubled coordinate 0..n is the image, n..2n the volume.
+            h[a] = if v[a] < n { n - 1 - v[a] } else { v[a] - n };
+        } else if mirror[a][1] && v[a] >= n {
+            h[a] = 2 * n - 1 - v[a];
+        }
+    }
+    h
+}
+
+/// Where voxel `v` of the half volume lies in the doubled one.
+fn in_doubled(v: [u32; 3], half: [u32; 3], mirror: [[bool; 2]; 3]) -> [u32; 3] {
+    let mut d = v;
+    for a in 0..3 {
+        if mirror[a][0] {
+            d[a] += half[a];
+        }
+    }
+    d
+}
+
+fn mirrored_scene(
+    name: &str,
+    dims: [u32; 3],
+    k: u32,
+    mirror: [[bool; 2]; 3],
+    density: impl Fn([u32; 3]) -> f32,
+) -> Scene {
+    let mut s = raw_scene(name, dims, 1.0, 0.8, vec![sky(1.0)], density);
+    s.solver.directions_per_face = k;
+    s.solver.spatial = SpatialScheme::Constant;
+    s.solver.tolerance = 1e-9;
+    s.boundary = Boundary { reflective: mirror, ..Default::default() };
+    s
+}
+
+/// Solves `half` with mirrors at `mirror` and the doubled volume with open faces, and returns the
+/// largest relative difference over the half volume's voxels, and the mirrored solve.
+fn against_images(name: &str, half: [u32; 3], k: u32, mirror: [[bool; 2]; 3]) -> (f64, Solved) {
+    let doubled_dims = [0, 1, 2].map(|a| half[a] * if mirror[a].contains(&true) { 2 } else { 1 });
+    let with_mirrors = mirrored_scene(&format!("{name}-half"), half, k, mirror, lumpy);
+    let doubled = mirrored_scene(&format!("{name}-doubled"), doubled_dims, k, [[false; 2]; 3], |v| {
+        lumpy(imaged(v, half, mirror))
+    });
+    let a = solve(&format!("{name}-half-solve"), &with_mirrors, Cpu);
+    let b = solve(&format!("{name}-doubled-solve"), &doubled, Cpu);
+    let mut worst = 0.0f64;
+    for z in 0..half[2] {
+        for y in 0..half[1] {
+            for x in 0..half[0] {
+                let v = [x, y, z];
+                let (fa, fb) = (a.fluence(v, 0), b.fluence(in_doubled(v, half, mirror), 0));
+                worst = worst.max((fa - fb).abs() / fb);
+            }
+        }
+    }
+    (worst, a)
+}
+
+// Directions swept across a mirror are nudged to move whole columns over the volume; the doubled
+// volume's are not. The sizes across the mirrors below make the nudge zero (the lateral slopes of
+// k = 3 are 0 and ±2/3, of k = 4 ±1/4 and ±3/4), so both solve the same directions.
+
+#[test]
+fn a_mirror_face_solves_to_the_doubled_volume() {
+    for (k, nx) in [(3, 6), (4, 8)] {
+        let mirror = [[false, true], [false; 2], [false; 2]];
+        let (worst, s) = against_images(&format!("mirror-x-{k}"), [nx, 5, 4], k, mirror);
+        assert!(worst < 1e-5, "k = {k}: the half volume is {worst} from the doubled one");
+        let balance = s.run.outcome.energy.relative_imbalance;
+        assert!(balance < 1e-6, "k = {k}: energy balance {balance}");
+    }
+}
+
+#[test]
+fn three_mirrors_meeting_at_a_corner_solve_to_the_volume_doubled_three_times() {
+    // As Kobayashi's problems are stated: mirrors at x = 0, y = 0, z = 0, open faces opposite.
+    // Rays cross the mirrors' edges and their corner, where two or three hand-overs meet.
+    // KNOWN DEFECT (see solver::mirror): at k = 4 a mirror at a *low* face is not yet exact (its
+    // worst voxel 1.5–1.8 % from the doubled volume with one low mirror, 3.3 % with three);
+    // mirrors at high faces are exact at k = 3 and 4 (the test above), low ones at k = 3.
+    let (k, n) = (3, 6);
+    let mirror = [[true, false]; 3];
+    let (worst, s) = against_images("mirror-corner", [n, n, n], k, mirror);
+    assert!(worst < 1e-5, "k = {k}: the mirrored volume is {worst} from the doubled one");
+    let balance = s.run.outcome.energy.relative_imbalance;
+    assert!(balance < 1e-6, "k = {k}: energy balance {balance}");
+}
+
+#[test]
+fn the_gpu_backend_refuses_mirrors_for_now() {
+    let s = mirrored_scene("mirror-gpu", [6, 5, 4], 3, [[false, true], [false; 2], [false; 2]], lumpy);
+    let dir = temp_dir("mirror-gpu-solve");
+    let store = lpm::solver::build_store(&s, &dir.join("store")).expect("store");
+    let err = lpm::solver::solve(&s, &store, lpm::solver::BackendKind::Gpu, validated(), |_, _| {})
+        .err()
+        .expect("the GPU backend solved mirror faces")
+        .to_string();
+    assert!(err.contains("--backend cpu"), "{err}");
+}
