@@ -380,7 +380,9 @@ mod tests {
         for slope in [0.0, 0.3, -0.45, 0.999, -1.0, 0.5] {
             let (offs, weights) = lattice([slope, -slope], 40, SpatialScheme::Constant);
             for (t, (o, w)) in offs.iter().zip(&weights).enumerate() {
-                let nearest = (0.5 + slope * (t as f64 + 0.5)).floor() as i32;
+                // Halves away from zero (mirror-symmetric), else ⌊½ + d⌋.
+                let d = slope * (t as f64 + 0.5);
+                let nearest = if d < 0.0 { -(0.5 - d).floor() as i32 } else { (0.5 + d).floor() as i32 };
                 // Slot s meets voxel column (s + o + 1) mod (n + 1) = s + nearest, weight 1.
                 assert_eq!(o[0] + 1, nearest);
                 assert_eq!(w[0], 1.0);
