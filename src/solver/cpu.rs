@@ -170,10 +170,8 @@ impl<'a> CpuTwin<'a> {
             }
             _ => None,
         };
-        let entry = match mirror.as_ref().and_then(|m| m.entry_radiance(dir)) {
-            Some(e) => Some(e),
-            None => self.carry.entry(self.plan, of, dir, birth),
-        };
+        let entry =
+            mirror.as_ref().and_then(|m| m.entry_radiance(dir)).or_else(|| self.carry.entry(self.plan, of, dir, birth));
         let mode = SweepMode { boundary, gain, emit };
         let (tallies, exits, records) =
             sweep_direction(self.plan, dir, mode, entry.as_deref(), mirror.as_ref(), &inputs, &mut outputs);

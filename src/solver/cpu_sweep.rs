@@ -24,7 +24,7 @@
 //! (crossing vacuum changes no radiance, so this is exact).
 
 use super::energy::{volume_face, Tallies};
-use super::mirror::{CellKey, FarCarry, MirrorRecords, MirrorView};
+use super::mirror::{rebirth, stepped_out_radiance, CellKey, FarCarry, MirrorRecords, MirrorView};
 use super::periodic::PeriodStep;
 use super::plan::{Plan, SweepDirection};
 use super::segment::segment;
@@ -209,15 +209,9 @@ fn far_step(
             let (now, l) = ([cb, cc], radiance[q * lb as usize + p]);
             // As in a plane's step (`PlaneStep::ray`): a slot that wraps is a new ray, born at
             // the opposite side (dark at a mirror); one coming in through mirrors is handed over.
-            let reborn = if wraps == [0, 0] {
-                l
-            } else if (0..2).any(|k| wraps[k] != 0 && !sweep.mirror[1 + k][(wraps[k] < 0) as usize]) {
-                birth
-            } else {
-                [0.0; 3]
-            };
+            let (_, reborn) = rebirth(sweep, wraps, l, birth);
             if mirror.records_step(prev, now, wraps) {
-                row_records[q].push(((na, cb, cc), if wraps.iter().any(|&w| w > 0) { reborn } else { l }));
+                row_records[q].push(((na, cb, cc), stepped_out_radiance(wraps, l, reborn)));
             }
             cells[(cc * lb + cb) as usize] = match mirror.entry_sides(prev, now, wraps) {
                 Some(sides) => mirror.handed_over(na, now, sides),
@@ -316,9 +310,8 @@ impl PlaneStep<'_, '_> {
             // edge (both axes wrap) each side takes half. Nothing enters through a mirror from
             // outside: a ray born at one starts dark (what comes back is handed over below).
             let share = if wraps[0] != 0 && wraps[1] != 0 { 0.5 } else { 1.0 };
-            let born_at_mirror = |k: usize| self.sweep.mirror[1 + k][(wraps[k] < 0) as usize];
-            let open_births: Vec<usize> = (0..2).filter(|&k| wraps[k] != 0 && !born_at_mirror(k)).collect();
-            let birth = if open_births.is_empty() { [0.0; 3] } else { self.birth };
+            let (open, birth) = rebirth(self.sweep, wraps, *l, self.birth);
+            let births = open.iter().filter(|&&o| o).count() as f64;
             for k in 0..2 {
                 if wraps[k] != 0 {
                     let exit = volume_face(lateral[k], wraps[k] > 0);
@@ -326,11 +319,11 @@ impl PlaneStep<'_, '_> {
                         tally.face_out[exit][ch] += share * l[ch];
                     }
                 }
-            }
-            for &k in &open_births {
-                let entry = volume_face(lateral[k], wraps[k] < 0);
-                for ch in 0..c {
-                    tally.face_in[entry][ch] += birth[ch] / open_births.len() as f64;
+                if open[k] {
+                    let entry = volume_face(lateral[k], wraps[k] < 0);
+                    for ch in 0..c {
+                        tally.face_in[entry][ch] += birth[ch] / births;
+                    }
                 }
             }
             for ch in 0..c {
@@ -342,18 +335,18 @@ impl PlaneStep<'_, '_> {
         if stepped_out {
             // The ray that stepped out through the mirror: this one, unless a new ray came in
             // past the low side of the other axis in the same step (then it is that one).
-            records.push(((self.t, cb, cc), if wraps.iter().any(|&w| w > 0) { *l } else { before }));
+            records.push(((self.t, cb, cc), stepped_out_radiance(wraps, before, *l)));
         }
         if let Some(m) = mirror {
             if let Some(sides) = m.entry_sides(prev, [cb, cc], wraps) {
                 // Coming in through mirror sides: the mirror image's ray that stepped out there.
                 let handed = m.handed_over(self.t, [cb, cc], sides);
-                let entered: Vec<usize> =
-                    (0..2).filter_map(|k| sides[k].map(|s| volume_face(lateral[k], s == 1))).collect();
+                let faces = [0, 1].map(|k| sides[k].map(|s| volume_face(lateral[k], s == 1)));
+                let entered = faces.iter().flatten().count() as f64;
                 for ch in 0..c {
                     let change = handed[ch] - l[ch];
-                    for &face in &entered {
-                        tally.face_in[face][ch] += change / entered.len() as f64;
+                    for &face in faces.iter().flatten() {
+                        tally.face_in[face][ch] += change / entered;
                     }
                     tally.born[ch] += change;
                     l[ch] = handed[ch];

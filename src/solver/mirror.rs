@@ -187,6 +187,31 @@ pub struct MirrorView<'a> {
     entry: Option<&'a FarCarry>,
 }
 
+/// The ray a slot holds after a step that wrapped it along the axes where `wraps` ≠ 0 (a new ray,
+/// born at the side opposite the one the old ray left by): per lateral axis whether it was born at
+/// an open side, and its radiance: `birth` if any of those sides is open, else dark (nothing
+/// enters through a mirror from outside; what comes back is handed over). No wrap: `l` itself.
+pub fn rebirth(sweep: &FaceSweep, wraps: [i32; 2], l: [f64; 3], birth: [f64; 3]) -> ([bool; 2], [f64; 3]) {
+    let open = [0, 1].map(|k| wraps[k] != 0 && !sweep.mirror[1 + k][(wraps[k] < 0) as usize]);
+    let radiance = match (wraps, open) {
+        ([0, 0], _) => l,
+        (_, [false, false]) => [0.0; 3],
+        _ => birth,
+    };
+    (open, radiance)
+}
+
+/// What a ray that stepped out through a mirror in a step with lateral `wraps` carried: the ray
+/// of the slot before the step (`before`), unless the slot wrapped past the low side of an axis in
+/// that step, so that a new ray came in there (`reborn`, see [`rebirth`]).
+pub fn stepped_out_radiance(wraps: [i32; 2], before: [f64; 3], reborn: [f64; 3]) -> [f64; 3] {
+    if wraps.iter().any(|&w| w > 0) {
+        reborn
+    } else {
+        before
+    }
+}
+
 /// Whether lateral column `col` of axis k (0: b, 1: c) is the vacuum column.
 fn vacuum(sweep: &FaceSweep, k: usize, col: u32) -> bool {
     !sweep.periodic[1 + k] && col == sweep.n[1 + k]
