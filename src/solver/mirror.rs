@@ -229,11 +229,6 @@ impl MirrorView<'_> {
         &self.sweep
     }
 
-    /// Whether lateral column `col` of axis k (0: b, 1: c) is the vacuum column.
-    pub fn is_vacuum(&self, k: usize, col: u32) -> bool {
-        vacuum(&self.sweep, k, col)
-    }
-
     /// Whether a ray stepping from cell `prev` to cell `now` (lateral wrap counts changed by
     /// `wraps`) steps into the vacuum column through a mirror side: then its radiance is recorded.
     pub fn records_step(&self, prev: [u32; 2], now: [u32; 2], wraps: [i32; 2]) -> bool {
