@@ -39,12 +39,12 @@
 //! order will take is the pending power of the stop rule ([`MirrorState::power`]), like a periodic
 //! axis's carried rays.
 //!
-//! **Known defect**: with k = 4 directions per face a mirror at a *low* face (coordinate 0) is
-//! not yet exact: the worst voxel is 1.5–1.8 % from the doubled volume (3.3 % with three low
-//! mirrors meeting at a corner), while mirrors at high faces match the doubled volume to 1e-5 at
-//! k = 3 and 4, and low ones at k = 3 (`tests/it/reflective.rs`). Energy balance closes in all
-//! cases. Something in the wrap-based hand-over (a low side is crossed by wrapping the lattice)
-//! differs from its mirror image for slopes of ±1/4, ±3/4; not found yet.
+//! A ray may cross a mirror while it is still outside the volume along the other lateral axis
+//! (it has not come in through that axis's side yet): it is handed over all the same, because its
+//! mirror image, outside as well, recorded what it carried; only a slot that wraps into a vacuum
+//! column in the same step holds a new ray, born at that axis's far side, and takes no hand-over.
+//! The half volume matches the doubled one to 1e-5 at k = 3 and 4, with low and high mirrors and
+//! three meeting at a corner (`tests/it/reflective.rs`).
 //!
 //! Limits (refused when the scene is read): the linear scheme (its rays straddle the mirror),
 //! lights that are not their own mirror image (point lights, environment maps, a sun with a
@@ -239,19 +239,22 @@ impl MirrorView<'_> {
         })
     }
 
-    /// The mirror sides a ray stepping from `prev` to `now` comes in through, when it ends inside
-    /// the volume: per axis (b, c), the side, or `None` when it does not come in through a mirror
-    /// along that axis. A ray coming in through a mirror and an open side at once is handed over
-    /// too: its mirror image stepped out through the mirror having just come in through the same
-    /// open side, and recorded what it carried. `None` overall: not a hand-over.
+    /// The mirror sides a ray stepping from `prev` to `now` comes in through (out of the vacuum
+    /// column of an axis, into the volume along it): per axis (b, c), the side, or `None` when it
+    /// does not come in through a mirror along that axis. A ray coming in through a mirror and an
+    /// open side at once, or still outside along the other axis, is handed over too: its mirror
+    /// image stepped out through the mirror on the same path and recorded what it carried. `None`
+    /// overall: not a hand-over (also when the slot wraps into a vacuum column: a new ray).
     pub fn entry_sides(&self, prev: [u32; 2], now: [u32; 2], wraps: [i32; 2]) -> Option<[Option<usize>; 2]> {
-        if (0..2).any(|k| vacuum(&self.sweep, k, now[k])) {
+        // A slot that wrapped into the vacuum column of an axis holds a new ray born outside
+        // that axis's high side: whatever it crossed on the other axis, it comes from there.
+        if (0..2).any(|k| wraps[k] < 0 && vacuum(&self.sweep, k, now[k])) {
             return None;
         }
         let mut sides = [None; 2];
         for k in 0..2 {
             let s = side(wraps[k]);
-            if vacuum(&self.sweep, k, prev[k]) && self.sweep.mirror[1 + k][s] {
+            if vacuum(&self.sweep, k, prev[k]) && !vacuum(&self.sweep, k, now[k]) && self.sweep.mirror[1 + k][s] {
                 sides[k] = Some(s);
             }
         }
@@ -326,7 +329,11 @@ mod tests {
         assert_eq!(view.entry_sides([n, 2], [0, 2], [1, 0]), None);
         // Through the mirror and an open side at once: handed over (the image came in there too).
         assert_eq!(view.entry_sides([n, m], [n - 1, m - 1], [0, 0]), Some([Some(1), None]));
-        // Still outside along c: nothing yet.
-        assert_eq!(view.entry_sides([n, m], [n - 1, m], [0, 0]), None);
+        // Through the mirror while still outside along c: handed over too (the image, outside
+        // along c as well, recorded what it carried past the mirror).
+        assert_eq!(view.entry_sides([n, m], [n - 1, m], [0, 0]), Some([Some(1), None]));
+        // Through the mirror while wrapping into the vacuum column of c: a new ray, born at the
+        // high side of c, not the one that crossed the mirror.
+        assert_eq!(view.entry_sides([n, 0], [n - 1, m], [0, -1]), None);
     }
 }
