@@ -40,9 +40,30 @@ pub struct ChannelSetup {
     pub power: f64,
     /// Voxel edge in world units.
     pub h: f64,
-    /// Per axis (x, y, z): periodic (`[boundary]`): a photon leaving through such a face comes
-    /// back through the opposite one, and no outside light enters through it.
+    /// The faces no outside light enters by, and what happens to a photon that reaches them
+    /// (`[boundary]`).
+    pub faces: Faces,
+}
+
+/// The boundary conditions the photons see: per axis (x, y, z), periodic (a photon leaving
+/// through such a face comes back through the opposite one), and per face (low, high) a mirror
+/// (a photon reaching it is reflected specularly: the component of its direction across the face
+/// changes sign). No outside light enters through either.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Faces {
     pub periodic: [bool; 3],
+    pub mirror: [[bool; 2]; 3],
+}
+
+impl Faces {
+    fn closed(&self, axis: usize, high: bool) -> bool {
+        self.periodic[axis] || self.mirror[axis][high as usize]
+    }
+
+    /// Whether every face is open (then light sources may use the box's whole outline).
+    fn all_open(&self) -> bool {
+        (0..6).all(|f| !self.closed(f / 2, f % 2 == 1))
+    }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -93,10 +114,10 @@ impl ChannelSetup {
             }
         }
         let e = grid.extent();
-        let periodic = scene.boundary.periodic;
+        let faces = Faces { periodic: scene.boundary.periodic, mirror: scene.boundary.reflective };
         let mut sources = Vec::new();
         if sky > 0.0 {
-            let area: f64 = open_face_areas(e, periodic).iter().sum::<f64>() * h * h;
+            let area: f64 = open_face_areas(e, faces).iter().sum::<f64>() * h * h;
             sources.push((Source::Sky, PI * sky * area));
         }
         if let Some(env) = environment.as_ref().filter(|env| env.power > 0.0) {
@@ -105,9 +126,9 @@ impl ChannelSetup {
             sources.push((Source::Environment, env.power * PI * r * r * h * h));
         }
         for (i, &(dir, irr)) in suns.iter().enumerate() {
-            let area = if periodic.contains(&true) {
+            let area = if !faces.all_open() {
                 // Through the open faces it lights, each with its projected area.
-                projected_open_areas(e, periodic, -dir).iter().sum::<f64>()
+                projected_open_areas(e, faces, -dir).iter().sum::<f64>()
             } else {
                 let (_, _, eu, ev) = sun_rectangle(e, -dir);
                 4.0 * eu * ev
@@ -130,7 +151,7 @@ impl ChannelSetup {
             sources.push((Source::Emission, emitted));
         }
         let power = sources.iter().map(|s| s.1).sum();
-        ChannelSetup { ch, sigma, albedo, g: m.g, le, sky, environment, suns, points, sources, power, h, periodic }
+        ChannelSetup { ch, sigma, albedo, g: m.g, le, sky, environment, suns, points, sources, power, h, faces }
     }
 
     /// Radiance arriving from outside the box along the direction `toward` (unit): the sky plus
@@ -177,7 +198,7 @@ fn emit(grid: &Grid, setup: &ChannelSetup, cdf: &[f64], rng: &mut Rng) -> Option
     match source {
         Source::Sky => {
             // Open face ∝ area, uniform point on it, cosine-weighted inward direction.
-            let areas = open_face_areas(e, setup.periodic);
+            let areas = open_face_areas(e, setup.faces);
             let total: f64 = areas.iter().sum();
             let mut y = rng.uniform() * total;
             let mut face = 5;
@@ -204,11 +225,11 @@ fn emit(grid: &Grid, setup: &ChannelSetup, cdf: &[f64], rng: &mut Rng) -> Option
             // A direction toward the sky ∝ L, then a point uniform on the disk of radius R facing
             // it (outside the box), travelling away from the sky; misses count in N.
             let d = -setup.environment.as_ref()?.sample(rng)?;
-            if setup.periodic.contains(&true) {
+            if !setup.faces.all_open() {
                 // Through the open faces only: accepted with probability (their projected area)
                 // / (the disk's), the power being the disk's; then a point on them ∝ that area.
                 let r = 0.5 * e.length();
-                let areas = projected_open_areas(e, setup.periodic, d);
+                let areas = projected_open_areas(e, setup.faces, d);
                 if rng.uniform() * PI * r * r >= areas.iter().sum::<f64>() {
                     return None;
                 }
@@ -224,8 +245,8 @@ fn emit(grid: &Grid, setup: &ChannelSetup, cdf: &[f64], rng: &mut Rng) -> Option
         }
         Source::Sun(i) => {
             let d = -setup.suns.get(i)?.0;
-            if setup.periodic.contains(&true) {
-                return Some((point_on_faces(e, &projected_open_areas(e, setup.periodic, d), rng), d));
+            if !setup.faces.all_open() {
+                return Some((point_on_faces(e, &projected_open_areas(e, setup.faces, d), rng), d));
             }
             let (u, v, eu, ev) = sun_rectangle(e, d);
             let c = 0.5 * e;
@@ -254,16 +275,16 @@ fn emit(grid: &Grid, setup: &ChannelSetup, cdf: &[f64], rng: &mut Rng) -> Option
     }
 }
 
-/// Most times one photon crosses periodic faces before it is dropped (only a photon that meets
-/// no medium along a periodic axis gets near it).
+/// Most times one photon crosses periodic faces or is reflected by mirrors before it is dropped
+/// (only a photon that meets no medium between them gets near it).
 const MAX_WRAPS: u32 = 10_000;
 
 /// Areas of the six faces (−x, +x, −y, +y, −z, +z, grid units) of a box of extent `e`, zero for
-/// the faces of periodic axes (no outside light enters there).
-fn open_face_areas(e: DVec3, periodic: [bool; 3]) -> [f64; 6] {
+/// periodic and mirror faces (no outside light enters there).
+fn open_face_areas(e: DVec3, faces: Faces) -> [f64; 6] {
     std::array::from_fn(|f| {
         let axis = f / 2;
-        if periodic[axis] {
+        if faces.closed(axis, f % 2 == 1) {
             0.0
         } else {
             e[(axis + 1) % 3] * e[(axis + 2) % 3]
@@ -273,8 +294,8 @@ fn open_face_areas(e: DVec3, periodic: [bool; 3]) -> [f64; 6] {
 
 /// The open faces' areas projected across the travel direction `d`, for the faces `d` enters by
 /// (zero for the others).
-fn projected_open_areas(e: DVec3, periodic: [bool; 3], d: DVec3) -> [f64; 6] {
-    let areas = open_face_areas(e, periodic);
+fn projected_open_areas(e: DVec3, faces: Faces, d: DVec3) -> [f64; 6] {
+    let areas = open_face_areas(e, faces);
     std::array::from_fn(|f| {
         let (axis, high) = (f / 2, f % 2 == 1);
         // The −axis face is entered travelling +axis, the +axis face travelling −axis.
@@ -302,25 +323,30 @@ fn point_on_faces(e: DVec3, weights: &[f64; 6], rng: &mut Rng) -> DVec3 {
     p
 }
 
-/// Where a photon leaving the box at `q` along `d` comes back in: the coordinate of every axis it
-/// leaves by moved to the opposite face, when all of them are periodic; `None` when it leaves for
-/// good through an open face.
-fn wrap_periodic(e: DVec3, periodic: [bool; 3], q: DVec3, d: DVec3) -> Option<DVec3> {
-    let mut p = q.clamp(DVec3::ZERO, e);
-    let mut wrapped = false;
+/// Where and how a photon reaching the box's surface at `q` along `d` goes on: through a
+/// periodic face, in through the opposite one; at a mirror, reflected where it is (its direction
+/// across the face reversed); across an edge or corner, each face it reaches does its part.
+/// `None` when it leaves for good through an open face.
+fn cross_boundary(e: DVec3, faces: Faces, q: DVec3, d: DVec3) -> Option<(DVec3, DVec3)> {
+    let (mut p, mut d_next) = (q.clamp(DVec3::ZERO, e), d);
+    let mut crossed = false;
     for axis in 0..3 {
         let tol = 1e-9 * e[axis].max(1.0);
         let out_high = d[axis] > 0.0 && p[axis] >= e[axis] - tol;
         let out_low = d[axis] < 0.0 && p[axis] <= tol;
         if out_high || out_low {
-            if !periodic[axis] {
+            if faces.mirror[axis][out_high as usize] {
+                p[axis] = if out_high { e[axis] } else { 0.0 };
+                d_next[axis] = -d[axis];
+            } else if faces.periodic[axis] {
+                p[axis] = if out_high { 0.0 } else { e[axis] };
+            } else {
                 return None;
             }
-            p[axis] = if out_high { 0.0 } else { e[axis] };
-            wrapped = true;
+            crossed = true;
         }
     }
-    wrapped.then_some(p)
+    crossed.then_some((p, d_next))
 }
 
 /// Trace `n` photons and return the batch's fluence estimate per voxel (world units, W/m²) in
@@ -347,11 +373,12 @@ pub fn trace_batch(grid: &Grid, setup: &ChannelSetup, cdf: &[f64], n: u64, rng: 
             // null collisions included.
             tally_segment(grid, p, d, hit.unwrap_or(t_exit), w, out);
             let Some(t) = hit else {
-                // Out through a periodic face: back in through the opposite one. (A photon that
-                // meets no medium along a periodic axis would circle for ever: cut it off.)
-                match wrap_periodic(grid.extent(), setup.periodic, p + d * t_exit, d) {
-                    Some(q) if wraps < MAX_WRAPS => {
-                        p = q;
+                // Out through a periodic face: back in through the opposite one; at a mirror,
+                // reflected. (A photon that meets no medium between such faces would go on for
+                // ever: cut it off.)
+                match cross_boundary(grid.extent(), setup.faces, p + d * t_exit, d) {
+                    Some((q, reflected)) if wraps < MAX_WRAPS => {
+                        (p, d) = (q, reflected);
                         wraps += 1;
                         continue;
                     }

@@ -51,8 +51,6 @@ pub enum ReferenceJobError {
     OutputDir { path: PathBuf, source: std::io::Error },
     #[error("the number of photons must be at least 1")]
     NoPhotons,
-    #[error("{}: the Monte-Carlo reference does not model reflective faces yet; solve the volume mirrored across them with open faces instead", path.display())]
-    Reflective { path: PathBuf },
 }
 
 /// `report.json` of a reference job.
@@ -84,9 +82,6 @@ pub fn run(job: &ReferenceJob) -> Result<ReferenceReport, ReferenceJobError> {
         return Err(ReferenceJobError::NoPhotons);
     }
     let scene = Scene::load(&job.scene)?;
-    if scene.boundary.any_reflective() {
-        return Err(ReferenceJobError::Reflective { path: job.scene.clone() });
-    }
     let created_out = !job.out.exists();
     std::fs::create_dir_all(&job.out)
         .map_err(|source| ReferenceJobError::OutputDir { path: job.out.clone(), source })?;

@@ -46,6 +46,13 @@
 //! collided in, which also sets that voxel's σa for the emission), Russian roulette applies below relative weight 0.1 (unbiased: survivors are
 //! re-weighted), and the new direction is sampled from HG.
 //!
+//! **Boundaries** (`[boundary]`): a photon leaving through a periodic face comes back in through
+//! the opposite one at the same lateral position; one reaching a mirror face is reflected
+//! specularly there (the direction's component across the face changes sign) and goes on; no
+//! outside light enters through either kind, so the sky and suns emit through the open faces only
+//! (their power through those faces' areas). A photon that meets no medium between such faces is
+//! cut off after 10 000 crossings.
+//!
 //! Photons run in batches; batch b of channel c uses its own random stream keyed by (seed, b, c);
 //! threads take whole batches and the batch estimates are combined (Welford) in batch order, so the
 //! result is bitwise identical for any thread count. The reported standard error is that of the mean

@@ -2,6 +2,7 @@
 //! solves to the restriction of the volume doubled by its mirror images across those faces (the
 //! method of images), which the solver never stores or sweeps; the energy books close.
 use crate::common::*;
+use lpm::reference::{self, ReferenceOptions};
 use lpm::scene::{Boundary, Scene, SpatialScheme};
 use lpm::solver::BackendKind::Cpu;
 
@@ -104,6 +105,42 @@ fn three_mirrors_meeting_at_a_corner_solve_to_the_volume_doubled_three_times() {
         let balance = s.run.outcome.energy.relative_imbalance;
         assert!(balance < 1e-6, "k = {k}: energy balance {balance}");
     }
+}
+
+#[test]
+fn the_monte_carlo_reference_reflects_photons_at_mirrors() {
+    // Mirrors at x = y = z = 0: the corner octant of a cloud. The reference reflects its photons
+    // there, and must agree with its own answer for the volume doubled three times with open
+    // faces (within its noise: means over the corner's 4³ voxels). The same half volume with open
+    // faces (sky coming in where the mirrors are) reads far brighter near the corner, so the
+    // comparison tells mirrors apart from open faces.
+    let (half, k) = ([8, 8, 8], 4);
+    let mirror = [[true, false]; 3];
+    let scene = mirrored_scene("mirror-mc", half, k, mirror, lumpy);
+    let photons = |n| ReferenceOptions { photons: n, seed: 5, ..ReferenceOptions::default() };
+    let mc = reference::run(&scene, &lumpy, 1, &photons(400_000));
+    let open = Scene { boundary: Boundary::default(), ..scene.clone() };
+    let mc_open = reference::run(&open, &lumpy, 1, &photons(400_000));
+    let density = move |v| lumpy(imaged(v, half, mirror));
+    let doubled = mirrored_scene("mirror-mc-doubled", [16; 3], k, [[false; 2]; 3], density);
+    let mc_doubled = reference::run(&doubled, &density, 1, &photons(3_200_000));
+    let corner = |r: &reference::ReferenceResult, shift: u32| -> f64 {
+        let n = r.dims[0];
+        let mut sum = 0.0;
+        for z in 0..4 {
+            for y in 0..4 {
+                for x in 0..4 {
+                    let [x, y, z] = [x, y, z].map(|c| c + shift);
+                    sum += r.fluence[(x + n * (y + n * z)) as usize] as f64;
+                }
+            }
+        }
+        sum / 64.0
+    };
+    let (a, b, c) = (corner(&mc, 0), corner(&mc_doubled, 8), corner(&mc_open, 0));
+    let rel = (a - b).abs() / b;
+    assert!(rel < 0.02, "corner mean fluence: mirrored {a} vs doubled {b} ({rel})");
+    assert!((c - a) / a > 0.1, "open faces {c} vs mirrors {a}: the mirrors made no difference");
 }
 
 #[test]
