@@ -5,11 +5,16 @@ Source: K. Kobayashi, N. Sugimura, Y. Nagaya, "3D radiation transport benchmark 
 for simple geometries with void region", Progress in Nuclear Energy 39(2), 119-144 (2001),
 doi:10.1016/S0149-1970(01)00007-5 (the OECD/NEA benchmark). One speed, isotropic scattering, cm.
 
-The published problems give one octant with mirror (reflective) planes x = 0, y = 0, z = 0. lpm has
-no reflective boundary, so the generator states the FULL problem: the octant mirrored about the
-three planes. By the method of images that is exact: the mirrored problem is symmetric, so no net
-current crosses the planes, which is what a mirror imposes; its flux in the octant is the octant
-problem's. Problem 1 spans [-100, 100]^3, problem 3 [-60, 60] x [-100, 100] x [-60, 60].
+The published problems give one octant with mirror (reflective) planes x = 0, y = 0, z = 0. By
+default the generator states the FULL problem: the octant mirrored about the three planes. By the
+method of images that is exact: the mirrored problem is symmetric, so no net current crosses the
+planes, which is what a mirror imposes; its flux in the octant is the octant problem's. Problem 1
+spans [-100, 100]^3, problem 3 [-60, 60] x [-100, 100] x [-60, 60]. With --octant it writes the
+octant as published, [0, 100]^3 or [0, 60] x [0, 100] x [0, 60], with reflective faces at x, y,
+z = 0 (`[boundary] x = ["reflective", "open"]`; lpm's CPU backend, solver.spatial = "constant"):
+an eighth of the voxels, the same answer (exactly where the plan does not nudge directions swept
+across a mirror: their slopes times the octant's planes are whole numbers, e.g. k = 5 at 10 or
+2 cm voxels).
 
 Regions (octant coordinates, |x|, |y|, |z| of the full domain):
   source: 0-10 in x, y, z; isotropic source S = 1 /cm^3/s; sigma_t = 0.1 /cm
@@ -25,7 +30,7 @@ e(v) = 1 and emission = S / (4 pi sigma_t (1 - albedo)): 1/(0.4 pi) in case i, 1
 lpm's fluence is then the benchmark's scalar flux (particles/cm^2/s).
 
 Usage:
-  kobayashi.py generate --problem 1 --case i --voxel-size 10 --out DIR [--k 5] [--tolerance 1e-4]
+  kobayashi.py generate --problem 1 --case i --voxel-size 10 --out DIR [--k 5] [--tolerance 1e-4] [--octant]
       writes DIR/density.raw, DIR/emission.raw, DIR/scene.toml and DIR/detectors.json
   kobayashi.py compare SOLVE_DIR [--scene-dir DIR] [--markdown] [--json FILE]
       reads SOLVE_DIR/fluence.raw and prints lpm against the published values (C/E) per point
@@ -123,11 +128,12 @@ PUBLISHED = {
 }
 
 
-def grid(problem, h):
-    """Dims of the full mirrored domain at voxel size h; an error unless the detectors are voxel centres."""
+def grid(problem, h, octant=False):
+    """Dims of the full mirrored domain (or the octant) at voxel size h; an error unless the detectors
+    are voxel centres."""
     dims = []
     for half in HALF[problem]:
-        n = 2 * half / h
+        n = (1 if octant else 2) * half / h
         # Detector coordinate 5 must be a voxel centre: (5 + half) / h - 0.5 an integer.
         c = (5.0 + half) / h - 0.5
         if abs(n - round(n)) > 1e-9 or abs(c - round(c)) > 1e-9:
@@ -139,18 +145,24 @@ def grid(problem, h):
     return dims
 
 
-def centre(problem, dims, h, axis, i):
-    return -HALF[problem][axis] + (i + 0.5) * h
+def low_corner(problem, octant):
+    """The domain's low corner (cm): the origin for the octant, minus the half-widths for the full domain."""
+    return [0.0 if octant else -HALF[problem][a] for a in range(3)]
 
 
-def voxel_of(problem, dims, h, p):
+def centre(problem, h, axis, i, octant=False):
+    return low_corner(problem, octant)[axis] + (i + 0.5) * h
+
+
+def voxel_of(problem, h, p, octant=False):
     """Index of the voxel whose centre is octant point p (in the +x, +y, +z octant of the full domain)."""
-    return [int(round((p[a] + HALF[problem][a]) / h - 0.5)) for a in range(3)]
+    return [int(round((p[a] - low_corner(problem, octant)[a]) / h - 0.5)) for a in range(3)]
 
 
 def generate(args):
     problem, case, h = args.problem, args.case, args.voxel_size
-    dims = grid(problem, h)
+    octant = args.octant
+    dims = grid(problem, h, octant)
     os.makedirs(args.out, exist_ok=True)
     nx, ny, nz = dims
     dens = bytearray()
@@ -159,11 +171,11 @@ def generate(args):
     pack = struct.Struct("<f")
     one, void, zero = pack.pack(1.0), pack.pack(VOID_DENSITY), pack.pack(0.0)
     for k in range(nz):
-        z = abs(centre(problem, dims, h, 2, k))
+        z = abs(centre(problem, h, 2, k, octant))
         for j in range(ny):
-            y = abs(centre(problem, dims, h, 1, j))
+            y = abs(centre(problem, h, 1, j, octant))
             for i in range(nx):
-                x = abs(centre(problem, dims, h, 0, i))
+                x = abs(centre(problem, h, 0, i, octant))
                 r = region(problem, (x, y, z))
                 counts[r] += 1
                 dens += void if r == "void" else one
@@ -175,10 +187,11 @@ def generate(args):
         os.replace(tmp, os.path.join(args.out, name))
     albedo = ALBEDO[case]
     le = SOURCE / (4.0 * math.pi * SIGMA_T * (1.0 - albedo))
-    lo = [-HALF[problem][a] for a in range(3)]
+    lo = low_corner(problem, octant)
+    stated = ("the octant as published, with mirrors at x = 0, y = 0, z = 0" if octant else
+              "the octant problem mirrored about x = 0, y = 0, z = 0 (exact by the method of\n# images)")
     scene = f"""# Kobayashi et al. 2001, problem {problem} case {case} (generated by tools/benchmarks/kobayashi.py;
-# see its docstring): the octant problem mirrored about x = 0, y = 0, z = 0 (exact by the method of
-# images), voxel size {h} cm. Fluence = the benchmark's scalar flux (particles/cm^2/s).
+# see its docstring): {stated}, voxel size {h} cm. Fluence = the benchmark's scalar flux (particles/cm^2/s).
 [volume]
 raw = "density.raw"            # 1 in source and shield, {VOID_DENSITY} in the void
 emission_raw = "emission.raw"  # 1 in the source cube, 0 elsewhere
@@ -199,17 +212,24 @@ max_orders = {args.max_orders}
 """
     if args.spatial:
         scene += f'spatial = "{args.spatial}"\n'
+    if octant:
+        scene += """
+[boundary]                     # the published reflective planes; the far faces are vacuum
+x = ["reflective", "open"]
+y = ["reflective", "open"]
+z = ["reflective", "open"]
+"""
     with open(os.path.join(args.out, "scene.toml"), "w") as f:
         f.write(scene)
     detectors = []
     for label, points, values, errors in PUBLISHED[(problem, case)]:
         for n, (p, v) in enumerate(zip(points, values)):
             detectors.append({
-                "set": label, "point": list(p), "voxel": voxel_of(problem, dims, h, p), "published": v,
+                "set": label, "point": list(p), "voxel": voxel_of(problem, h, p, octant), "published": v,
                 "published_rel_err": None if errors is None else errors[n],
             })
     meta = {
-        "problem": problem, "case": case, "voxel_size": h, "dims": dims, "regions": counts,
+        "problem": problem, "case": case, "voxel_size": h, "octant": octant, "dims": dims, "regions": counts,
         "source_power": SOURCE * counts["source"] * h ** 3, "detectors": detectors,
     }
     with open(os.path.join(args.out, "detectors.json"), "w") as f:
@@ -265,6 +285,8 @@ def main():
     g.add_argument("--tolerance", type=float, default=1e-4)
     g.add_argument("--max-orders", type=int, default=200)
     g.add_argument("--spatial", choices=["constant", "linear"])
+    g.add_argument("--octant", action="store_true",
+                   help="the published octant with reflective faces at x, y, z = 0 (else the mirrored full domain)")
     c = sub.add_parser("compare")
     c.add_argument("solve_dir")
     c.add_argument("--scene-dir")
