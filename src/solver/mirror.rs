@@ -63,7 +63,7 @@ pub type CellKey = (u32, u32, u32);
 /// as (face, index within the face): across the face's own axis the opposite face's direction
 /// with the same lateral slope, across a lateral axis the same face's direction with that slope
 /// negated. Directions are matched by their ω (the cube-face sets and the nudged slopes are
-/// mirror-symmetric); a direction without an image (never the case for lpm's sets) maps to itself.
+/// mirror-symmetric, ties of the nudge included: [`super::periodic::periodic_slope`]).
 pub fn mirror_images(faces: &[Vec<SweepDirection>]) -> Vec<Vec<[(usize, usize); 3]>> {
     faces
         .iter()
@@ -80,7 +80,13 @@ pub fn mirror_images(faces: &[Vec<SweepDirection>]) -> Vec<Vec<[(usize, usize); 
                         faces
                             .get(target_face)
                             .and_then(|t| t.iter().position(|d| (d.omega - image).length() < 1e-9))
-                            .map_or((face, i), |j| (target_face, j))
+                            .map(|j| (target_face, j))
+                            // The sets are mirror-symmetric by construction (tested for k ≤ 16
+                            // and up to 64 planes: `periodic::tests`); an unmatched direction
+                            // would silently hand light to the wrong one.
+                            .unwrap_or_else(|| {
+                                panic!("internal error: direction {i} of face {face} has no mirror image across axis {axis}")
+                            })
                     })
                 })
                 .collect()

@@ -292,10 +292,12 @@ pub fn entry_radiance(
 
 /// The lateral slope a direction with slope `slope` is swept with when its sweep axis (of
 /// `planes` planes) is periodic, and the whole columns M it moves per period: δ' = M/N with
-/// M = round(δ·N) (module docs).
+/// M = round(δ·N) (module docs). Ties (δ·N a half, as 3/12 over 10 planes) go away from zero
+/// whatever the last bit of δ says, so that δ and −δ (a direction and its mirror image, whose
+/// slopes come from different float sums) always get M and −M (`super::mirror`).
 pub fn periodic_slope(slope: [f64; 2], planes: u32) -> ([f64; 2], [i32; 2]) {
     let n = planes as f64;
-    let m = slope.map(|d| (d * n).round());
+    let m = slope.map(|d| (d.abs() * n + 0.5 + 1e-9).floor().copysign(d));
     ([m[0] / n, m[1] / n], m.map(|v| v as i32))
 }
 
@@ -334,6 +336,40 @@ pub fn periodic_lattice(m: [i32; 2], planes: u32, scheme: SpatialScheme) -> (Vec
 mod tests {
     use super::*;
     use crate::solver::sweep::lattice;
+
+    #[test]
+    fn mirror_image_directions_are_nudged_to_mirror_image_slopes() {
+        // A direction's mirror image has the negated slope, computed from other float sums; at a
+        // tie of the nudge (δ·N a half) both must still round away from zero (else the mirror
+        // hand-over finds no image: solver::mirror).
+        use crate::quadrature::PropagationSet;
+        use crate::solver::sweep::lateral_slope;
+        for k in 1..=16 {
+            let set = PropagationSet::new(k);
+            for face in 0..6 {
+                let dirs = set.face(face);
+                for d in dirs {
+                    let slope = lateral_slope(face, d.omega);
+                    for axis in 0..2 {
+                        let mirrored = dirs
+                            .iter()
+                            .map(|e| lateral_slope(face, e.omega))
+                            .find(|s| {
+                                (s[axis] + slope[axis]).abs() < 1e-12 && (s[1 - axis] - slope[1 - axis]).abs() < 1e-12
+                            })
+                            .expect("the cube-face set is mirror-symmetric");
+                        for planes in 1..=64 {
+                            let (a, m) = periodic_slope(slope, planes);
+                            let (b, n) = periodic_slope(mirrored, planes);
+                            assert_eq!(m[axis], -n[axis], "k {k} face {face} slope {slope:?} planes {planes}");
+                            assert_eq!(a[axis], -b[axis]);
+                            assert_eq!(m[1 - axis], n[1 - axis]);
+                        }
+                    }
+                }
+            }
+        }
+    }
 
     #[test]
     fn a_periodic_lattice_repeats_after_one_period_and_matches_the_float_one() {
