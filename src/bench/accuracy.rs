@@ -329,11 +329,13 @@ pub fn precision_name(p: StoragePrecision) -> &'static str {
     }
 }
 
-/// A copy of the scene with its solver settings replaced, written next to the run. A raw volume's
-/// path is rewritten to the absolute path the loader resolved, so the copy reads the same data.
+/// A copy of the scene with its solver settings replaced, written next to the run. Every file the
+/// scene names (the volume, its emission, temperature and albedo grids, an environment map) is
+/// rewritten to the absolute path the loader resolved, so the copy reads the same data.
 fn with_solver_settings(scene: &Path, dir: &Path, run: &SolverRun) -> Result<PathBuf, AccuracyError> {
     let (k, tolerance, precision) = (run.k, run.tolerance, run.precision);
-    let loaded = crate::scene::Scene::load(scene).map_err(job::JobError::from)?;
+    // Loaded first so that a bad scene is reported as such, not as a failed run.
+    crate::scene::Scene::load(scene).map_err(job::JobError::from)?;
     let text =
         std::fs::read_to_string(scene).map_err(|source| AccuracyError::Write { path: scene.to_path_buf(), source })?;
     let mut value: toml::Value = text
@@ -363,11 +365,8 @@ fn with_solver_settings(scene: &Path, dir: &Path, run: &SolverRun) -> Result<Pat
                 solver.insert("storage_directions_per_face".into(), toml::Value::Integer(k as i64));
             }
         }
-        if let (crate::scene::VolumeSource::Raw { path }, Some(volume)) =
-            (&loaded.volume.source, table.get_mut("volume").and_then(|v| v.as_table_mut()))
-        {
-            volume.insert("raw".into(), toml::Value::String(path.display().to_string()));
-        }
+        let base = scene.parent().unwrap_or_else(|| Path::new(""));
+        crate::scene::make_file_paths_absolute(table, base, &[]);
     }
     std::fs::create_dir_all(dir).map_err(|source| AccuracyError::Write { path: dir.to_path_buf(), source })?;
     let copy = dir.join("scene.toml");

@@ -133,16 +133,10 @@ pub fn write_refined_scene(
     if let Some(AlbedoGrid::Raw { path }) = &v.albedo {
         volume.insert("albedo_raw".into(), raw_grid("albedo", path)?);
     }
-    // An environment map named relative to the scene file: absolute, as the loader resolved it.
+    // An environment map named relative to the scene file: absolute, as the loader resolved it
+    // (the volume's files were all rewritten above).
     let base = scene_path.parent().unwrap_or_else(|| Path::new(""));
-    if let Some(lights) = table.get_mut("lights").and_then(Value::as_array_mut) {
-        for light in lights.iter_mut().filter_map(Value::as_table_mut) {
-            if let Some(Value::String(map)) = light.get_mut("map") {
-                let joined = base.join(&*map);
-                *map = std::path::absolute(&joined).unwrap_or(joined).display().to_string();
-            }
-        }
-    }
+    crate::scene::make_file_paths_absolute(table, base, &crate::scene::VOLUME_FILE_KEYS);
     let solver = table.entry("solver").or_insert_with(|| Value::Table(Default::default()));
     if let Some(solver) = solver.as_table_mut() {
         solver.insert("tolerance".into(), Value::Float(keys.tolerance));

@@ -44,6 +44,31 @@ pub use types::*;
 /// (`serve/prepare.rs`), a sweep task makes each absolute (`sweep`). A new key that names a file
 /// goes here.
 pub const VOLUME_FILE_KEYS: [&str; 7] = ["raw", "vdb", "nvdb", "nrrd", "emission_raw", "temperature_raw", "albedo_raw"];
+
+/// Makes every file a scene table names — the volume's [`VOLUME_FILE_KEYS`] (all but those in
+/// `except`) and an environment light's `map` — absolute, resolved against `base` (the scene
+/// file's directory) as the loader would, so that a copy of the scene written elsewhere reads the
+/// same files.
+pub fn make_file_paths_absolute(scene: &mut toml::Table, base: &Path, except: &[&str]) {
+    let absolute = |named: &str| {
+        let joined = base.join(named);
+        std::path::absolute(&joined).unwrap_or(joined).to_string_lossy().into_owned()
+    };
+    if let Some(toml::Value::Array(lights)) = scene.get_mut("lights") {
+        for light in lights.iter_mut().filter_map(toml::Value::as_table_mut) {
+            if let Some(toml::Value::String(map)) = light.get_mut("map") {
+                *map = absolute(map);
+            }
+        }
+    }
+    if let Some(toml::Value::Table(volume)) = scene.get_mut("volume") {
+        for key in VOLUME_FILE_KEYS.into_iter().filter(|k| !except.contains(k)) {
+            if let Some(toml::Value::String(named)) = volume.get_mut(key) {
+                *named = absolute(named);
+            }
+        }
+    }
+}
 pub use validate::{camera_from_keys, default_camera, fitted_default_camera, CameraKeys, VolumeFrame};
 
 use std::path::Path;

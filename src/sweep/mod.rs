@@ -262,24 +262,10 @@ pub fn task_dir(dir: &Path, index: usize) -> PathBuf {
 /// environment light's `map` absolute (relative to the base scene's directory, as for any scene),
 /// so the task's scene can live anywhere.
 fn resolve_volume(scene: &mut toml::Table, base: &Path, frame: Option<i64>) -> Result<(), String> {
-    // An environment light's map, like the volume, is named relative to the base scene.
-    if let Some(toml::Value::Array(lights)) = scene.get_mut("lights") {
-        for light in lights.iter_mut() {
-            if let Some(toml::Value::String(map)) = light.get("map") {
-                let absolute = base.join(map).to_string_lossy().into_owned();
-                if let toml::Value::Table(t) = light {
-                    t.insert("map".into(), toml::Value::String(absolute));
-                }
-            }
-        }
-    }
+    // An environment light's map and the volume's other files, like the volume, are named
+    // relative to the base scene.
+    crate::scene::make_file_paths_absolute(scene, base, &["raw"]);
     let Some(toml::Value::Table(volume)) = scene.get_mut("volume") else { return Ok(()) };
-    for key in crate::scene::VOLUME_FILE_KEYS.into_iter().filter(|&k| k != "raw") {
-        if let Some(toml::Value::String(named)) = volume.get(key) {
-            let absolute = base.join(named).to_string_lossy().into_owned();
-            volume.insert(key.into(), toml::Value::String(absolute));
-        }
-    }
     let Some(toml::Value::String(raw)) = volume.get("raw") else {
         return match frame {
             Some(_) => Err("frames: the scene's volume.raw must name the frame's file with {frame}".into()),
