@@ -403,3 +403,31 @@ pub fn trace_batch(grid: &Grid, setup: &ChannelSetup, cdf: &[f64], n: u64, rng: 
         *v *= scale;
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn photons_are_reflected_wrapped_or_let_out_face_by_face() {
+        let e = DVec3::new(4.0, 5.0, 6.0);
+        let faces = Faces { periodic: [false, true, false], mirror: [[true, false], [false; 2], [false, true]] };
+        let d = DVec3::new(-0.6, 0.0, 0.8);
+        // At the low x mirror: reflected where it is.
+        let (p, r) = cross_boundary(e, faces, DVec3::new(0.0, 2.0, 3.0), d).expect("reflected");
+        assert_eq!((p, r), (DVec3::new(0.0, 2.0, 3.0), DVec3::new(0.6, 0.0, 0.8)));
+        // Through the high x face, which is open: gone.
+        assert_eq!(cross_boundary(e, faces, DVec3::new(4.0, 2.0, 3.0), DVec3::new(0.6, 0.0, 0.8)), None);
+        // Through the periodic y faces: back in through the opposite one, direction kept.
+        let up = DVec3::new(0.0, 1.0, 0.0);
+        assert_eq!(cross_boundary(e, faces, DVec3::new(1.0, 5.0, 2.0), up), Some((DVec3::new(1.0, 0.0, 2.0), up)));
+        // At the edge of the low x mirror and the high z mirror: reflected by both.
+        let (p, r) = cross_boundary(e, faces, DVec3::new(0.0, 2.0, 6.0), d).expect("reflected twice");
+        assert_eq!((p, r), (DVec3::new(0.0, 2.0, 6.0), DVec3::new(0.6, 0.0, -0.8)));
+        // At the edge of a mirror and an open face: out through the open one.
+        let low_z = DVec3::new(-0.6, 0.0, -0.8);
+        assert_eq!(cross_boundary(e, faces, DVec3::new(0.0, 2.0, 0.0), low_z), None);
+        // Mirror and periodic faces take no outside light; the open ones keep their areas.
+        assert_eq!(open_face_areas(e, faces), [0.0, 30.0, 0.0, 0.0, 20.0, 0.0]);
+    }
+}
