@@ -40,30 +40,10 @@ pub struct ChannelSetup {
     pub power: f64,
     /// Voxel edge in world units.
     pub h: f64,
-    /// The faces no outside light enters by, and what happens to a photon that reaches them
-    /// (`[boundary]`).
-    pub faces: Faces,
-}
-
-/// The boundary conditions the photons see: per axis (x, y, z), periodic (a photon leaving
-/// through such a face comes back through the opposite one), and per face (low, high) a mirror
-/// (a photon reaching it is reflected specularly: the component of its direction across the face
-/// changes sign). No outside light enters through either.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Faces {
-    pub periodic: [bool; 3],
-    pub mirror: [[bool; 2]; 3],
-}
-
-impl Faces {
-    fn closed(&self, axis: usize, high: bool) -> bool {
-        self.periodic[axis] || self.mirror[axis][high as usize]
-    }
-
-    /// Whether every face is open (then light sources may use the box's whole outline).
-    fn all_open(&self) -> bool {
-        (0..6).all(|f| !self.closed(f / 2, f % 2 == 1))
-    }
+    /// The scene's boundary: which faces no outside light enters by, and what happens to a photon
+    /// that reaches them (a periodic face: it comes back through the opposite one; a mirror: it is
+    /// reflected specularly, the component of its direction across the face changing sign).
+    pub boundary: lpm_scene::Boundary,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -114,10 +94,10 @@ impl ChannelSetup {
             }
         }
         let e = grid.extent();
-        let faces = Faces { periodic: scene.boundary.periodic, mirror: scene.boundary.reflective };
+        let boundary = scene.boundary;
         let mut sources = Vec::new();
         if sky > 0.0 {
-            let area: f64 = open_face_areas(e, faces).iter().sum::<f64>() * h * h;
+            let area: f64 = open_face_areas(e, boundary).iter().sum::<f64>() * h * h;
             sources.push((Source::Sky, PI * sky * area));
         }
         if let Some(env) = environment.as_ref().filter(|env| env.power > 0.0) {
@@ -126,9 +106,9 @@ impl ChannelSetup {
             sources.push((Source::Environment, env.power * PI * r * r * h * h));
         }
         for (i, &(dir, irr)) in suns.iter().enumerate() {
-            let area = if !faces.all_open() {
+            let area = if !boundary.all_open() {
                 // Through the open faces it lights, each with its projected area.
-                projected_open_areas(e, faces, -dir).iter().sum::<f64>()
+                projected_open_areas(e, boundary, -dir).iter().sum::<f64>()
             } else {
                 let (_, _, eu, ev) = sun_rectangle(e, -dir);
                 4.0 * eu * ev
@@ -151,7 +131,7 @@ impl ChannelSetup {
             sources.push((Source::Emission, emitted));
         }
         let power = sources.iter().map(|s| s.1).sum();
-        ChannelSetup { ch, sigma, albedo, g: m.g, le, sky, environment, suns, points, sources, power, h, faces }
+        ChannelSetup { ch, sigma, albedo, g: m.g, le, sky, environment, suns, points, sources, power, h, boundary }
     }
 
     /// Radiance arriving from outside the box along the direction `toward` (unit): the sky plus
@@ -198,7 +178,7 @@ fn emit(grid: &Grid, setup: &ChannelSetup, cdf: &[f64], rng: &mut Rng) -> Option
     match source {
         Source::Sky => {
             // Open face ∝ area, uniform point on it, cosine-weighted inward direction.
-            let areas = open_face_areas(e, setup.faces);
+            let areas = open_face_areas(e, setup.boundary);
             let total: f64 = areas.iter().sum();
             let mut y = rng.uniform() * total;
             let mut face = 5;
@@ -225,11 +205,11 @@ fn emit(grid: &Grid, setup: &ChannelSetup, cdf: &[f64], rng: &mut Rng) -> Option
             // A direction toward the sky ∝ L, then a point uniform on the disk of radius R facing
             // it (outside the box), travelling away from the sky; misses count in N.
             let d = -setup.environment.as_ref()?.sample(rng)?;
-            if !setup.faces.all_open() {
+            if !setup.boundary.all_open() {
                 // Through the open faces only: accepted with probability (their projected area)
                 // / (the disk's), the power being the disk's; then a point on them ∝ that area.
                 let r = 0.5 * e.length();
-                let areas = projected_open_areas(e, setup.faces, d);
+                let areas = projected_open_areas(e, setup.boundary, d);
                 if rng.uniform() * PI * r * r >= areas.iter().sum::<f64>() {
                     return None;
                 }
@@ -245,8 +225,8 @@ fn emit(grid: &Grid, setup: &ChannelSetup, cdf: &[f64], rng: &mut Rng) -> Option
         }
         Source::Sun(i) => {
             let d = -setup.suns.get(i)?.0;
-            if !setup.faces.all_open() {
-                return Some((point_on_faces(e, &projected_open_areas(e, setup.faces, d), rng), d));
+            if !setup.boundary.all_open() {
+                return Some((point_on_faces(e, &projected_open_areas(e, setup.boundary, d), rng), d));
             }
             let (u, v, eu, ev) = sun_rectangle(e, d);
             let c = 0.5 * e;
@@ -281,21 +261,21 @@ const MAX_WRAPS: u32 = 10_000;
 
 /// Areas of the six faces (−x, +x, −y, +y, −z, +z, grid units) of a box of extent `e`, zero for
 /// periodic and mirror faces (no outside light enters there).
-fn open_face_areas(e: DVec3, faces: Faces) -> [f64; 6] {
+fn open_face_areas(e: DVec3, boundary: lpm_scene::Boundary) -> [f64; 6] {
     std::array::from_fn(|f| {
         let axis = f / 2;
-        if faces.closed(axis, f % 2 == 1) {
-            0.0
-        } else {
+        if boundary.is_open(axis, f % 2 == 1) {
             e[(axis + 1) % 3] * e[(axis + 2) % 3]
+        } else {
+            0.0
         }
     })
 }
 
 /// The open faces' areas projected across the travel direction `d`, for the faces `d` enters by
 /// (zero for the others).
-fn projected_open_areas(e: DVec3, faces: Faces, d: DVec3) -> [f64; 6] {
-    let areas = open_face_areas(e, faces);
+fn projected_open_areas(e: DVec3, boundary: lpm_scene::Boundary, d: DVec3) -> [f64; 6] {
+    let areas = open_face_areas(e, boundary);
     std::array::from_fn(|f| {
         let (axis, high) = (f / 2, f % 2 == 1);
         // The −axis face is entered travelling +axis, the +axis face travelling −axis.
@@ -327,7 +307,7 @@ fn point_on_faces(e: DVec3, weights: &[f64; 6], rng: &mut Rng) -> DVec3 {
 /// periodic face, in through the opposite one; at a mirror, reflected where it is (its direction
 /// across the face reversed); across an edge or corner, each face it reaches does its part.
 /// `None` when it leaves for good through an open face.
-fn cross_boundary(e: DVec3, faces: Faces, q: DVec3, d: DVec3) -> Option<(DVec3, DVec3)> {
+fn cross_boundary(e: DVec3, boundary: lpm_scene::Boundary, q: DVec3, d: DVec3) -> Option<(DVec3, DVec3)> {
     let (mut p, mut d_next) = (q.clamp(DVec3::ZERO, e), d);
     let mut crossed = false;
     for axis in 0..3 {
@@ -335,10 +315,10 @@ fn cross_boundary(e: DVec3, faces: Faces, q: DVec3, d: DVec3) -> Option<(DVec3, 
         let out_high = d[axis] > 0.0 && p[axis] >= e[axis] - tol;
         let out_low = d[axis] < 0.0 && p[axis] <= tol;
         if out_high || out_low {
-            if faces.mirror[axis][out_high as usize] {
+            if boundary.reflective[axis][out_high as usize] {
                 p[axis] = if out_high { e[axis] } else { 0.0 };
                 d_next[axis] = -d[axis];
-            } else if faces.periodic[axis] {
+            } else if boundary.periodic[axis] {
                 p[axis] = if out_high { 0.0 } else { e[axis] };
             } else {
                 return None;
@@ -376,7 +356,7 @@ pub fn trace_batch(grid: &Grid, setup: &ChannelSetup, cdf: &[f64], n: u64, rng: 
                 // Out through a periodic face: back in through the opposite one; at a mirror,
                 // reflected. (A photon that meets no medium between such faces would go on for
                 // ever: cut it off.)
-                match cross_boundary(grid.extent(), setup.faces, p + d * t_exit, d) {
+                match cross_boundary(grid.extent(), setup.boundary, p + d * t_exit, d) {
                     Some((q, reflected)) if wraps < MAX_WRAPS => {
                         (p, d) = (q, reflected);
                         wraps += 1;
@@ -411,7 +391,10 @@ mod tests {
     #[test]
     fn photons_are_reflected_wrapped_or_let_out_face_by_face() {
         let e = DVec3::new(4.0, 5.0, 6.0);
-        let faces = Faces { periodic: [false, true, false], mirror: [[true, false], [false; 2], [false, true]] };
+        let faces = lpm_scene::Boundary {
+            periodic: [false, true, false],
+            reflective: [[true, false], [false; 2], [false, true]],
+        };
         let d = DVec3::new(-0.6, 0.0, 0.8);
         // At the low x mirror: reflected where it is.
         let (p, r) = cross_boundary(e, faces, DVec3::new(0.0, 2.0, 3.0), d).expect("reflected");

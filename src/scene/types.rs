@@ -44,6 +44,17 @@ impl Boundary {
         self.reflective.iter().flatten().any(|&r| r)
     }
 
+    /// Whether outside light enters through the face of `axis` (0 x, 1 y, 2 z) at its low or
+    /// `high` side: the face is neither periodic nor a mirror.
+    pub fn is_open(&self, axis: usize, high: bool) -> bool {
+        !self.periodic[axis] && !self.reflective[axis][high as usize]
+    }
+
+    /// Whether every face is open.
+    pub fn all_open(&self) -> bool {
+        !self.any_periodic() && !self.any_reflective()
+    }
+
     /// The scene file's words for an axis: "open", "periodic", "reflective" (both faces),
     /// "reflective low" or "reflective high".
     pub fn axis_name(&self, axis: usize) -> &'static str {

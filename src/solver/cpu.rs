@@ -164,22 +164,20 @@ impl<'a> CpuTwin<'a> {
         let mut outputs =
             SweepOutputs { fluence_order: &mut fields.fluence.values, j_next: &mut fields.source_next.values };
         let birth = if boundary { dir.boundary } else { [0.0; 3] };
-        let mirror = match of {
-            CarryOf::Face { face, dir } if !self.plan.mirrors.is_empty() => {
-                Some(self.mirror.view(self.plan, face, dir))
-            }
+        // With mirror faces, a face's direction hands over to and from its mirror images.
+        let mirrored = match of {
+            CarryOf::Face { face, dir } if !self.plan.mirrors.is_empty() => Some((face, dir)),
             _ => None,
         };
+        let mirror = mirrored.map(|(face, dir)| self.mirror.view(self.plan, face, dir));
         let entry =
             mirror.as_ref().and_then(|m| m.entry_radiance(dir)).or_else(|| self.carry.entry(self.plan, of, dir, birth));
         let mode = SweepMode { boundary, gain, emit };
         let (tallies, exits, records) =
             sweep_direction(self.plan, dir, mode, entry.as_deref(), mirror.as_ref(), &inputs, &mut outputs);
         self.carry.store_exit(self.plan, of, dir, exits);
-        if let CarryOf::Face { face, dir } = of {
-            if !self.plan.mirrors.is_empty() {
-                self.mirror.store(face, dir, records);
-            }
+        if let Some((face, dir)) = mirrored {
+            self.mirror.store(face, dir, records);
         }
         tallies
     }

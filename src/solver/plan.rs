@@ -536,8 +536,10 @@ impl Plan {
             acceleration: if self.acceleration { "diffusion" } else { "off" },
             effective_g: self.effective_g,
             delta_m_fraction: self.delta_m,
-            boundary: [0, 1, 2]
-                .map(|a| crate::scene::Boundary { periodic: self.periodic, reflective: self.reflective }.axis_name(a)),
+            boundary: {
+                let b = crate::scene::Boundary { periodic: self.periodic, reflective: self.reflective };
+                [0, 1, 2].map(|a| b.axis_name(a))
+            },
             reasons: self.reasons.clone(),
         }
     }
