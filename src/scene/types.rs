@@ -323,8 +323,7 @@ pub enum Acceleration {
 }
 
 /// When the GPU driver writes a checkpoint: after an order when `every_orders` orders have passed
-/// since the last one, or `every_seconds`, whichever comes first; always after the last order; and
-/// after every order with the diffusion correction on (it writes the scratch field, see `solver::passes::Named`).
+/// since the last one, or `every_seconds`, whichever comes first; and always after the last order.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CheckpointCadence {
     pub every_orders: Option<u32>,
@@ -342,22 +341,23 @@ impl Default for CheckpointCadence {
 impl CheckpointCadence {
     /// Whether to checkpoint now, `orders` orders and `seconds` after the last checkpoint (or the
     /// start), `last` when the solve ends with this order.
-    pub fn due(&self, orders: u32, seconds: f64, last: bool, diffusion_correction: bool) -> bool {
-        last || diffusion_correction || self.every_orders.is_some_and(|n| orders >= n) || seconds >= self.every_seconds
+    pub fn due(&self, orders: u32, seconds: f64, last: bool) -> bool {
+        last || self.every_orders.is_some_and(|n| orders >= n) || seconds >= self.every_seconds
     }
 }
 
-/// `solver.diffusion_correction`: the rays meet the voxels at a lateral offset from their true
-/// positions, which spreads the scattered light sideways a little every order (numerical
-/// diffusion; thick, high-albedo media read bright inside). `on` takes the spread the lattice is
-/// known to add back out of each order's scattered source with conservative anti-diffusive
-/// fluxes (when the medium scatters). Off by default: it halves the excess in homogeneous thick
-/// boxes but did not yet improve a heterogeneous cloud's core (benches/RESULTS.md, "Diffusion
-/// correction").
+/// `solver.diffusion_correction`: every order, the discretisation spreads the scattered light a
+/// little: the rays meet the voxels at a lateral offset from their true positions, and each ray
+/// segment takes its voxel's source as one constant and deposits its average. In thick,
+/// high-albedo media these spreads add up like a diffusion and light reaches dense cores too
+/// easily (+6 % in a cloud's core at 0.8 mean free paths per voxel). `on` (the default) takes the
+/// spread the direction set is known to add back out of each order's scattered source with
+/// conservative, positivity-capped anti-diffusive fluxes between neighbouring voxels (when the
+/// medium scatters); `off` solves without (benches/RESULTS.md, "Diffusion correction").
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum DiffusionCorrection {
-    On,
     #[default]
+    On,
     Off,
 }
 

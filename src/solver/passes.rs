@@ -294,8 +294,8 @@ pub struct OrderFieldSet<F> {
 /// (`solver.checkpoint_every_*`): between two, the commit adds an order into the committed totals
 /// in place when their spares are named, and an order's new source goes into the scratch field
 /// when the named previous source has come round to the `source_next` role. The values are the
-/// same either way (`t + f·l`), so results are bitwise independent of the checkpoint cadence. The
-/// diffusion correction writes the scratch field, so with it a checkpoint follows every order.
+/// same either way (`t + f·l`), so results are bitwise independent of the checkpoint cadence (the
+/// diffusion correction too: see [`OrderFieldSet::correct_diffusion`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Named {
     pub prev: bool,
@@ -401,11 +401,7 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
             scale_by_albedo(&mut self.source_next, units);
         }
         if plan.diffusion_correction.iter().any(|&k| k > 0.0) {
-            // The cadence checkpoints after every order with the correction on (see [`Named`]).
-            debug_assert!(!self.named.scratch, "the correction would write a field the last checkpoint names");
-            self.swap_named(|n| std::mem::swap(&mut n.next, &mut n.scratch));
-            antidiffusion::sharpen(&mut self.source_scratch, &self.source_next, units, plan.diffusion_correction);
-            std::mem::swap(&mut self.source_next, &mut self.source_scratch);
+            self.correct_diffusion(plan, units)?;
         }
         // A warm start's first order still holds the guess in its new source: it is accelerated
         // from the next order on, once the commit has made the source a residual.
@@ -464,6 +460,33 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
         self.clean = false;
         self.seeded = false;
         Ok(power)
+    }
+
+    /// The diffusion correction ([`antidiffusion::sharpen`]): the corrected new source is written
+    /// into a field that neither this order nor the last checkpoint needs any more, which then
+    /// becomes the new source. The order's own previous source is free once its sweeps are done
+    /// (unless a checkpoint names it, right after one, or a warm start's first commit still
+    /// subtracts it); otherwise the scratch field is, since a checkpoint names one source field
+    /// at most. So the correction never forces a checkpoint.
+    fn correct_diffusion<U: VoxelUnits<V = F::V>>(&mut self, plan: &Plan, units: &U) -> Result<(), SolveError>
+    where
+        F: Sync,
+    {
+        let (kappa, periodic) = (plan.diffusion_correction, plan.periodic);
+        if !self.named.prev && !self.initial_guess {
+            antidiffusion::sharpen(&mut self.source_prev, &self.source_next, units, kappa, periodic);
+            std::mem::swap(&mut self.source_next, &mut self.source_prev);
+            self.swap_named(|n| std::mem::swap(&mut n.next, &mut n.prev));
+        } else if !self.named.scratch {
+            antidiffusion::sharpen(&mut self.source_scratch, &self.source_next, units, kappa, periodic);
+            std::mem::swap(&mut self.source_next, &mut self.source_scratch);
+            self.swap_named(|n| std::mem::swap(&mut n.next, &mut n.scratch));
+        } else {
+            return Err(SolveError::Internal(
+                "the diffusion correction found no source field free to write (a checkpoint names two)",
+            ));
+        }
+        Ok(())
     }
 
     /// The committed totals and their spares change roles (with their [`Named`] flags).

@@ -551,8 +551,9 @@ pub const FULL_PLAN_REASON: &str = "plan = \"full\": the plan's reductions are o
      storage_precision names f16), whatever the scene needs; kept: empty bricks are skipped and \
      the emission term is left out when nothing emits (both exact: they add nothing)";
 
-/// κ per axis of the anti-diffusive fluxes (`solver.diffusion_correction = "on"`): half the
-/// lateral spread the lattice adds per order, when the medium scatters.
+/// κ per axis of the anti-diffusive fluxes (`solver.diffusion_correction`, on by default): half
+/// the spread the discretisation adds per order ([`super::antidiffusion::lattice_spread`]), when
+/// the medium scatters.
 fn choose_diffusion_correction(
     scene: &Scene,
     medium: &Medium,
@@ -565,13 +566,20 @@ fn choose_diffusion_correction(
         return [0.0; 3];
     }
     match scene.solver.diffusion_correction {
-        DiffusionCorrection::Off => [0.0; 3],
+        DiffusionCorrection::Off => {
+            reasons.push(
+                "diffusion correction off (solver.diffusion_correction): the discretisation's spread of the \
+                 scattered light is left in; thick media at ~1 mean free path per voxel read bright inside"
+                    .to_string(),
+            );
+            [0.0; 3]
+        }
         DiffusionCorrection::On => {
             let kappa = super::antidiffusion::coefficients(faces, spatial);
             reasons.push(format!(
-                "diffusion correction: the lattice spreads each order's scattered light sideways by a \
-                 variance of {:.3}/{:.3}/{:.3} voxels² along x/y/z; anti-diffusive fluxes between \
-                 neighbouring voxels take it back (κ = half of it, conservative and positive)",
+                "diffusion correction: the rays' lattice and segments spread each order's scattered light by \
+                 a variance of {:.3}/{:.3}/{:.3} voxels² along x/y/z; anti-diffusive fluxes between \
+                 neighbouring voxels take it back (κ = half of it; conservative and positive)",
                 2.0 * kappa[0],
                 2.0 * kappa[1],
                 2.0 * kappa[2]

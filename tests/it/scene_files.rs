@@ -368,10 +368,10 @@ fn host_memory_and_checkpoint_keys() {
     let s = load(&with("")).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(s.solver.host_memory_budget, None);
     assert_eq!(s.solver.checkpoint, lpm::scene::CheckpointCadence { every_orders: None, every_seconds: 300.0 });
-    // The cadence: the first of N orders or T seconds; always the last order and with the correction.
+    // The cadence: the first of N orders or T seconds; always the last order.
     let c = lpm::scene::CheckpointCadence { every_orders: Some(3), every_seconds: 60.0 };
-    assert!(!c.due(1, 1.0, false, false) && c.due(3, 1.0, false, false) && c.due(1, 60.0, false, false));
-    assert!(c.due(1, 0.0, true, false) && c.due(1, 0.0, false, true));
+    assert!(!c.due(1, 1.0, false) && c.due(3, 1.0, false) && c.due(1, 60.0, false));
+    assert!(c.due(1, 0.0, true));
     rejects(&with("[solver]\ncheckpoint_every_orders = 0\n"), "solver.checkpoint_every_orders", "at least 1");
     rejects(&with("[solver]\ncheckpoint_every_seconds = -1\n"), "solver.checkpoint_every_seconds", "≥ 0");
     rejects(&with("[solver]\ncheckpoint_every_seconds = nan\n"), "solver.checkpoint_every_seconds", "finite");

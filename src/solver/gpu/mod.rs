@@ -487,8 +487,7 @@ impl<'a> Backend for GpuBackend<'a> {
         let Some((_, cadence)) = &self.checkpoints else { return Ok(()) };
         self.since_checkpoint.0 += 1;
         let (orders, since) = self.since_checkpoint;
-        let correction = self.plan.diffusion_correction.iter().any(|&k| k > 0.0);
-        if cadence.due(orders, since.elapsed().as_secs_f64(), last, correction) {
+        if cadence.due(orders, since.elapsed().as_secs_f64(), last) {
             // Written while the next order's sweeps run; the last one before the solve ends.
             self.write_checkpoint(state, !last)
         } else {
