@@ -350,14 +350,17 @@ impl CheckpointCadence {
 /// little: the rays meet the voxels at a lateral offset from their true positions, and each ray
 /// segment takes its voxel's source as one constant and deposits its average. In thick,
 /// high-albedo media these spreads add up like a diffusion and light reaches dense cores too
-/// easily (+6 % in a cloud's core at 0.8 mean free paths per voxel). `on` (the default) takes the
+/// easily (+6 % in a cloud's core at 0.8 mean free paths per voxel, +10 % at 1). `on` takes the
 /// spread the direction set is known to add back out of each order's scattered source with
 /// conservative, positivity-capped anti-diffusive fluxes between neighbouring voxels (when the
-/// medium scatters); `off` solves without (benches/RESULTS.md, "Diffusion correction").
+/// medium scatters): the core comes within 0.3 % of Monte Carlo. Off by default for now: the cap
+/// acts on each order's own source, so where it binds (next to a point light, at sharp edges) a
+/// warm start or a solve whose light arrives an order late across a mirror ends slightly
+/// elsewhere than a cold solve (benches/RESULTS.md, "Diffusion correction").
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum DiffusionCorrection {
-    #[default]
     On,
+    #[default]
     Off,
 }
 

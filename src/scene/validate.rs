@@ -173,6 +173,10 @@ impl Validator<'_> {
                 "\"diffusion\" does not support reflective faces yet; use \"auto\" or \"off\"",
             ));
         }
+        if solver.diffusion_correction == DiffusionCorrection::On {
+            return Err(self
+                .err("solver.diffusion_correction", "the diffusion correction does not support reflective faces yet"));
+        }
         Ok(())
     }
 
@@ -714,8 +718,8 @@ impl Validator<'_> {
             }
         };
         let diffusion_correction = match s.diffusion_correction.as_deref() {
-            None | Some("on") => DiffusionCorrection::On,
-            Some("off") => DiffusionCorrection::Off,
+            Some("on") => DiffusionCorrection::On,
+            None | Some("off") => DiffusionCorrection::Off,
             Some(other) => {
                 return Err(self.err(
                     "solver.diffusion_correction",

@@ -1,5 +1,5 @@
 //! Taking the discretisation's numerical diffusion back out of the scattered source
-//! (`solver.diffusion_correction`, on by default).
+//! (`solver.diffusion_correction = "on"`).
 //!
 //! **Why.** Every order spreads the scattered light a little further than the physics does. In
 //! every plane a ray meets the voxels at a lateral offset from where it really is: the nearest
@@ -44,8 +44,8 @@
 //!   computed from the old field only (read from `src`, written to `dst`): bitwise the same at any
 //!   thread count, and written once for both backends (the store's bricks and the twin's voxels
 //!   are both [`VoxelUnits`]).
-//! - *Boundaries*: no flux crosses an open or mirror face (a mirror's image voxel holds the same
-//!   value: no exchange either); across a periodic axis the neighbours wrap.
+//! - *Boundaries*: no flux crosses an open face; across a periodic axis the neighbours wrap.
+//!   (Mirror faces are refused for now: see `solver.diffusion_correction` in the README.)
 //! - *Second order*: the correction is κ·Δ with κ ∝ (spread in voxels), i.e. O(h²) against a
 //!   smooth field, so it changes the constant of the scheme's h² error, not its order.
 
@@ -153,12 +153,21 @@ pub fn sharpen<F: FieldPlanes + Sync, U: VoxelUnits<V = F::V>>(
             // mean of their weights: from the smaller value to the larger, capped at a sixth of
             // the smaller magnitude (positivity; see the module docs). In a uniform medium this is
             // κ·(other − s).
-            let conductance = 2.0 * m * mn / (m + mn);
+            // μ·(other/mn − s/m) with μ = 2·m·mn/(m + mn), written without the quotients (which
+            // overflow where a weight is tiny).
+            let exchange = 2.0 * (m * other - mn * s) / (m + mn);
             let cap = s.abs().min(other.abs()) / 6.0;
-            let flux = (kappa[n / 2] * conductance * (other / mn - s / m)).clamp(-cap, cap);
+            let flux = (kappa[n / 2] * exchange).clamp(-cap, cap);
             change -= flux;
         }
-        s + change
+        // Six capped fluxes can take all of a value but not more; keep rounding from flipping its
+        // sign.
+        let v = s + change;
+        if s >= 0.0 {
+            v.max(0.0)
+        } else {
+            v.min(0.0)
+        }
     };
     let neighbours_of = |unit: usize, local: usize| -> [Option<Neighbour>; 6] {
         neighbour_voxels(units.voxel_of(unit, local), dims, periodic).map(|w| {

@@ -551,7 +551,7 @@ pub const FULL_PLAN_REASON: &str = "plan = \"full\": the plan's reductions are o
      storage_precision names f16), whatever the scene needs; kept: empty bricks are skipped and \
      the emission term is left out when nothing emits (both exact: they add nothing)";
 
-/// κ per axis of the anti-diffusive fluxes (`solver.diffusion_correction`, on by default): half
+/// κ per axis of the anti-diffusive fluxes (`solver.diffusion_correction = "on"`): half
 /// the spread the discretisation adds per order ([`super::antidiffusion::lattice_spread`]), when
 /// the medium scatters.
 fn choose_diffusion_correction(
@@ -566,14 +566,7 @@ fn choose_diffusion_correction(
         return [0.0; 3];
     }
     match scene.solver.diffusion_correction {
-        DiffusionCorrection::Off => {
-            reasons.push(
-                "diffusion correction off (solver.diffusion_correction): the discretisation's spread of the \
-                 scattered light is left in; thick media at ~1 mean free path per voxel read bright inside"
-                    .to_string(),
-            );
-            [0.0; 3]
-        }
+        DiffusionCorrection::Off => [0.0; 3],
         DiffusionCorrection::On => {
             let kappa = super::antidiffusion::coefficients(faces, spatial);
             reasons.push(format!(

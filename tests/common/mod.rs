@@ -271,8 +271,10 @@ irradiance = 2.0
 directions_per_face = 3
 max_orders = {max_orders}
 tolerance = 1e-12
-# On so that the kill tests also cover the third source file it rotates through the checkpoints,
-# and the diffusion correction file every checkpoint of an accelerated solve writes.
+# A checkpoint after every order, so that a kill lands between two.
+checkpoint_every_orders = 1
+# On so that the kill tests also cover the third source file the correction writes into, and the
+# diffusion correction file every checkpoint of an accelerated solve writes.
 diffusion_correction = "on"
 acceleration = "diffusion"
 "#,
