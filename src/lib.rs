@@ -52,7 +52,7 @@
 //! 4. **Order loop** — [`solver::orders::run_orders`] has a [`solver::orders::Backend`] propagate
 //!    one scattering order at a time into its fields, then runs the host passes itself, written
 //!    once in [`solver::passes`] for both kinds of field (the store's f32 files, the twin's f64
-//!    memory): commit the order (first taking the lattice's numerical diffusion back out of its
+//!    memory): commit the order (first taking the discretisation's numerical diffusion back out of its
 //!    source when `solver.diffusion_correction = "on"`: [`solver::antidiffusion`], a neighbour
 //!    stencil over either layout; a per-voxel albedo factor multiplies the source first,
 //!    `store::albedo`; then, at high albedo, a diffusion solve estimates the light still to come

@@ -251,8 +251,9 @@ pub struct OrderFieldSet<F> {
     pub source_prev: F,
     /// The source this order scatters (the next order's), accumulated over the order's sweeps.
     pub source_next: F,
-    /// Where the end-of-order pass writes the corrected `source_next` before the two swap
-    /// ([`super::antidiffusion`]); its contents mean nothing between orders.
+    /// A spare source field: where the diffusion correction writes the corrected `source_next`
+    /// when the previous source is not free ([`OrderFieldSet::correct_diffusion`]); its contents
+    /// mean nothing between orders.
     pub(crate) source_scratch: F,
     /// This order's fluence, accumulated over its sweeps.
     pub fluence: F,
