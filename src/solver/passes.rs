@@ -296,7 +296,7 @@ pub struct OrderFieldSet<F> {
 /// in place when their spares are named, and an order's new source goes into the scratch field
 /// when the named previous source has come round to the `source_next` role. The values are the
 /// same either way (`t + f·l`), so results are bitwise independent of the checkpoint cadence (the
-/// diffusion correction too: see [`OrderFieldSet::correct_diffusion`]).
+/// diffusion correction too: see `OrderFieldSet::correct_diffusion`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Named {
     pub prev: bool,
