@@ -149,12 +149,10 @@ pub fn sharpen<F: FieldPlanes + Sync, U: VoxelUnits<V = F::V>>(
         for (n, neighbour) in neighbours.iter().enumerate() {
             let Some((nu, nl, mn)) = *neighbour else { continue };
             let other = value(nu, k, nl);
-            // Anti-diffusion of the radiance-like s/m between the two voxels, through the harmonic
-            // mean of their weights: from the smaller value to the larger, capped at a sixth of
-            // the smaller magnitude (positivity; see the module docs). In a uniform medium this is
-            // κ·(other − s).
+            // Anti-diffusion of the radiance-like s/m through the harmonic mean of the weights,
             // μ·(other/mn − s/m) with μ = 2·m·mn/(m + mn), written without the quotients (which
-            // overflow where a weight is tiny).
+            // overflow where a weight is tiny); κ·(other − s) in a uniform medium. Capped at a
+            // sixth of the smaller magnitude (positivity; see the module docs).
             let exchange = 2.0 * (m * other - mn * s) / (m + mn);
             let cap = s.abs().min(other.abs()) / 6.0;
             let flux = (kappa[n / 2] * exchange).clamp(-cap, cap);
