@@ -53,8 +53,8 @@
 //!    one scattering order at a time into its fields, then runs the host passes itself, written
 //!    once in [`solver::passes`] for both kinds of field (the store's f32 files, the twin's f64
 //!    memory): commit the order (first taking the discretisation's numerical diffusion back out of its
-//!    source when `solver.diffusion_correction = "on"`: [`solver::antidiffusion`], a neighbour
-//!    stencil over either layout; a per-voxel albedo factor multiplies the source first,
+//!    source it propagates next when `solver.diffusion_correction = "on"`:
+//!    [`solver::antidiffusion`], a linear neighbour stencil over either layout; a per-voxel albedo factor multiplies the source first,
 //!    `store::albedo`; then, at high albedo, a diffusion solve estimates the light still to come
 //!    and folds it into the order: [`solver::acceleration`]), the stop rule's remaining error, a checkpoint (store only, at the cadence
 //!    of `solver.checkpoint_every_*`, written in the background while the next order's sweeps run),

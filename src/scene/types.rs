@@ -352,11 +352,12 @@ impl CheckpointCadence {
 /// high-albedo media these spreads add up like a diffusion and light reaches dense cores too
 /// easily (+6 % in a cloud's core at 0.8 mean free paths per voxel, +10 % at 1). `on` takes the
 /// spread the direction set is known to add back out of each order's scattered source with
-/// conservative, positivity-capped anti-diffusive fluxes between neighbouring voxels (when the
-/// medium scatters): the core comes within 0.3 % of Monte Carlo. Off by default for now: the cap
-/// acts on each order's own source, so where it binds (next to a point light, at sharp edges) a
-/// warm start or a solve whose light arrives an order late across a mirror ends slightly
-/// elsewhere than a cold solve (benches/RESULTS.md, "Diffusion correction").
+/// conservative, linear anti-diffusive fluxes between neighbouring voxels (when the medium
+/// scatters; thinned out in optically thick voxels, where they would destabilise the series):
+/// the core comes within 0.5 % of Monte Carlo. Off by default for now: being linear, it can make
+/// a voxel much darker than its neighbours negative (a fluence of −2·10⁻⁵ of the peak next to a
+/// sunlit layer of 1000 mean free paths per voxel), which a default must not (benches/RESULTS.md,
+/// "Diffusion correction").
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum DiffusionCorrection {
     On,

@@ -173,10 +173,6 @@ impl Validator<'_> {
                 "\"diffusion\" does not support reflective faces yet; use \"auto\" or \"off\"",
             ));
         }
-        if solver.diffusion_correction == DiffusionCorrection::On {
-            return Err(self
-                .err("solver.diffusion_correction", "the diffusion correction does not support reflective faces yet"));
-        }
         Ok(())
     }
 

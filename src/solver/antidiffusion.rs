@@ -32,24 +32,52 @@
 //! of a core's edge into the dense side every order (up to the positivity cap) and left the core
 //! of a 64³ cloud +6 % bright; with u the core is within 0.5 % of Monte Carlo (RESULTS).
 //!
+//! **Linear, so the answer does not depend on the path.** The pass is one fixed linear operator L
+//! (its coefficients depend on the medium only), applied to the source each order propagates;
+//! the order's raw source goes into the committed total. The series then converges to the one
+//! fixed point of Y = b + K·L(Y) (K: an order's transport and scattering, b: the lights' first
+//! scattering), whatever it starts from: a warm start's guess, a resumed checkpoint, an octant
+//! whose light comes back across its mirrors an order late, all end where a cold solve of the
+//! whole domain ends. (An earlier version capped each flux at a sixth of the smaller of its two
+//! values, per order, to keep every order's source positive; where the cap bound, next to a point
+//! light or a shadow's edge, the answer then depended on how the orders split the light: warm
+//! starts ended up to 5 % away from cold solves. Capping against the committed total instead
+//! keeps the caps binding for ever wherever the total is sharp, and their derivative, 1/6 rather
+//! than κ, drained dense cores order after order: −45 % at τ ≈ 3.) The committed source is the
+//! raw Y (the estimate of the true in-scattered source; L(Y) is its pre-sharpened copy that the
+//! next transport blurs back).
+//!
+//! **Stable in thick voxels.** A voxel of optical thickness τ keeps much of the light it scatters
+//! (a share of about 1 − (1 − e^{−x})/x, x = 2τ/3, returns within an order), so a pattern that
+//! alternates from voxel to voxel is hardly smoothed there by the transport, while the sharpening
+//! multiplies it by up to 1 + 4·Σκ per order: at τ ≈ 3 and albedo 0.95 it grew order after order.
+//! Each voxel's κ is scaled down just enough to keep that loop's gain at or below
+//! [`LARGEST_CHECKERBOARD_GROWTH`] ([`Sharpening::stable_share`]): nothing changes up to τ ≈ 1 to
+//! 1.3 (by the albedo and the direction set's κ); beyond that the correction thins out (and the thick part keeps some of the
+//! excess the correction would remove: a small cloud at τ = 2.5–3 per voxel, +33 % → +13 %
+//! against Monte Carlo, RESULTS).
+//!
 //! **Properties.**
 //! - *Conservative*: every flux leaves one voxel and enters another (and no flux crosses into a
 //!   voxel that does not scatter), so the order's total scattered power is unchanged and the
 //!   energy books ([`super::energy`]) are untouched.
-//! - *Positive*: a flux is at most a sixth of the smaller of its two voxels' values, so a voxel
-//!   that gives to all six neighbours still keeps a value of its sign. The cap is met only across
-//!   jumps of several times (a shadow's border), where sharpening further would ring; it is what
-//!   keeps the pass from creating negative light.
+//! - *Not positive by construction*: a voxel much darker than its neighbours (a ratio beyond about
+//!   1 + 1/(6κ), 3 to 4) gives more than it has and the order's propagated source goes negative
+//!   there. Usually the light of neighbouring voxels fills such a dent in the next transport, but
+//!   not always: next to a sunlit layer of 1000 mean free paths per voxel the fluence went
+//!   negative (−2·10⁻⁵ of the peak), which is why the correction is not the default yet.
 //! - *Deterministic*: each voxel's new value is its old one plus its six fluxes in a fixed order,
 //!   computed from the old field only (read from `src`, written to `dst`): bitwise the same at any
 //!   thread count, and written once for both backends (the store's bricks and the twin's voxels
 //!   are both [`VoxelUnits`]).
-//! - *Boundaries*: no flux crosses an open face; across a periodic axis the neighbours wrap.
-//!   (Mirror faces are refused for now: see `solver.diffusion_correction` in the README.)
+//! - *Boundaries*: no flux crosses an open face or a mirror (across a mirror the neighbour is the
+//!   voxel's own image, with its own value: no exchange); across a periodic axis the neighbours
+//!   wrap.
 //! - *Second order*: the correction is κ·Δ with κ ∝ (spread in voxels), i.e. O(h²) against a
 //!   smooth field, so it changes the constant of the scheme's h² error, not its order.
 
 use super::passes::{FieldPlanes, Medium, StoreMedium, Value, VoxelMedium, RELEASE_UNITS};
+use super::plan::Plan;
 use super::plan::SweepDirection;
 use crate::quadrature::FACES;
 use crate::scene::SpatialScheme;
@@ -124,54 +152,105 @@ pub fn coefficients(faces: &[Vec<SweepDirection>], spatial: SpatialScheme) -> [f
     lattice_spread(faces, spatial).map(|v| 0.5 * v)
 }
 
-/// Writes into `dst` the field `src` with the anti-diffusive fluxes of coefficients `kappa`
-/// between face-neighbouring voxels of the medium (see the module docs). `dst` and `src` have
-/// the same layout (the twin's or the store's); every value of `dst` is written.
-pub fn sharpen<F: FieldPlanes + Sync, U: VoxelUnits<V = F::V>>(
-    dst: &mut F,
-    src: &F,
-    units: &U,
-    kappa: [f64; 3],
-    periodic: [bool; 3],
-) {
+/// The plan's side of [`sharpen`]: the coefficients, the axes that wrap, and what the stability
+/// limit reads of the medium.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sharpening {
+    /// κ per volume axis (voxels²).
+    pub kappa: [f64; 3],
+    /// The axes whose faces are periodic: neighbours wrap across them.
+    pub periodic: [bool; 3],
+    /// Per channel, the optical thickness σt·h of a voxel at density 1.
+    pub thickness: [f64; 3],
+    /// Per channel, the medium's albedo (a voxel's is this times its albedo factor).
+    pub albedo: [f64; 3],
+    /// Channels: component k of a field is channel k mod `channels`.
+    pub channels: usize,
+}
+
+/// The largest growth per order the stability limit lets the sharpening give the pattern that
+/// alternates from voxel to voxel (see [`Sharpening::stable_share`]).
+pub const LARGEST_CHECKERBOARD_GROWTH: f64 = 0.6;
+
+impl Sharpening {
+    /// The plan's coefficients, periodic axes and medium.
+    pub fn of(plan: &Plan) -> Sharpening {
+        Sharpening {
+            kappa: plan.diffusion_correction,
+            periodic: plan.periodic,
+            thickness: plan.medium.sigma_t.map(|s| s * plan.voxel_size),
+            albedo: plan.medium.albedo,
+            channels: (plan.channels as usize).max(1),
+        }
+    }
+
+    /// The share of κ a voxel of `density` and albedo factor `factor` keeps in `channel`: 1 unless
+    /// the voxel is optically thick. There a share P of the light a voxel scatters comes back to
+    /// it within the next order (P = 1 − (1 − e^{−x})/x, x = 2τ/3: the collision probability of a
+    /// cube of optical side τ with its mean chord 2h/3), so a pattern that alternates from voxel to
+    /// voxel, which the transport hardly smooths there, returns each order with a factor of about
+    /// a·P, and the sharpening multiplies it by 1 + 4·Σκ. Where their product would pass
+    /// [`LARGEST_CHECKERBOARD_GROWTH`] κ is scaled down to meet it (to zero in the limit of an
+    /// opaque, white voxel): otherwise that pattern grows order after order (seen at τ ≈ 3,
+    /// albedo 0.95, with the bound at 0.8). The lattice's spread, which κ undoes, is carried by
+    /// light crossing voxels, which a thick voxel mostly keeps.
+    pub fn stable_share(&self, density: f64, factor: f64, channel: usize) -> f64 {
+        let x = 2.0 / 3.0 * self.thickness[channel] * density;
+        let returned = if x < 1e-6 { 0.5 * x } else { 1.0 + (-x).exp_m1() / x };
+        let loop_gain = self.albedo[channel] * factor * returned;
+        let boost = 4.0 * self.kappa.iter().sum::<f64>();
+        if loop_gain * (1.0 + boost) <= LARGEST_CHECKERBOARD_GROWTH || boost <= 0.0 {
+            1.0
+        } else {
+            ((LARGEST_CHECKERBOARD_GROWTH / loop_gain - 1.0) / boost).clamp(0.0, 1.0)
+        }
+    }
+
+    /// The share of κ per channel of a voxel (see [`Self::stable_share`]).
+    fn shares<U: VoxelUnits>(&self, units: &U, unit: usize, local: usize, m: f64) -> [f64; 3] {
+        let density = units.density_at(unit, local).to_f64();
+        let factor = if density > 0.0 { m / density } else { 0.0 };
+        std::array::from_fn(|ch| if ch < self.channels { self.stable_share(density, factor, ch) } else { 1.0 })
+    }
+}
+
+/// Writes into `dst` the field `src` with the anti-diffusive fluxes of [`Sharpening`] between
+/// face-neighbouring voxels of the medium (see the module docs): L(src). With a `base` field T,
+/// writes the increment this order makes to the sharpened total instead, L(T + src) − L(T) (see
+/// "Path independence" in the module docs). `dst`, `src` and `base` have the same layout (the
+/// twin's or the store's); every value of `dst` is written.
+pub fn sharpen<F: FieldPlanes + Sync, U: VoxelUnits<V = F::V>>(dst: &mut F, src: &F, units: &U, how: &Sharpening) {
     let unit_len = src.unit_len();
     let unit_voxels = src.unit_voxels();
     let comps = src.components();
     let dims = units.dims();
     let old = src.values();
-    let value = |unit: usize, k: usize, local: usize| old[unit * unit_len + k * unit_voxels + local].to_f64();
-    // The new value of component k of voxel `local` of `unit` (scattering weight m): the old one
-    // less its fluxes to the face neighbours that scatter, summed in the fixed order −x, +x, −y,
-    // +y, −z, +z.
-    let new_value = |unit: usize, local: usize, m: f64, k: usize, neighbours: &[Option<Neighbour>; 6]| -> f64 {
-        let s = value(unit, k, local);
+    let at = |unit: usize, k: usize, local: usize| unit * unit_len + k * unit_voxels + local;
+    // Component k of L(src) at `voxel` (its unit, voxel in the unit, scattering weight and κ
+    // shares): the old value less its fluxes to the face neighbours that scatter, summed in the
+    // fixed order −x, +x, −y, +y, −z, +z.
+    let new_value = |voxel: &Neighbour, k: usize, neighbours: &[Option<Neighbour>; 6]| -> f64 {
+        let &(unit, local, m, share) = voxel;
+        let ch = k % how.channels;
+        let s = old[at(unit, k, local)].to_f64();
         let mut change = 0.0;
         for (n, neighbour) in neighbours.iter().enumerate() {
-            let Some((nu, nl, mn)) = *neighbour else { continue };
-            let other = value(nu, k, nl);
+            let Some((nu, nl, mn, other_share)) = *neighbour else { continue };
+            let other = old[at(nu, k, nl)].to_f64();
             // Anti-diffusion of the radiance-like s/m through the harmonic mean of the weights,
             // μ·(other/mn − s/m) with μ = 2·m·mn/(m + mn), written without the quotients (which
-            // overflow where a weight is tiny); κ·(other − s) in a uniform medium. Capped at a
-            // sixth of the smaller magnitude (positivity; see the module docs).
+            // overflow where a weight is tiny); κ·(other − s) in a uniform medium. The smaller of
+            // the two voxels' stable shares keeps the flux antisymmetric.
             let exchange = 2.0 * (m * other - mn * s) / (m + mn);
-            let cap = s.abs().min(other.abs()) / 6.0;
-            let flux = (kappa[n / 2] * exchange).clamp(-cap, cap);
-            change -= flux;
+            change -= how.kappa[n / 2] * share[ch].min(other_share[ch]) * exchange;
         }
-        // Six capped fluxes can take all of a value but not more; keep rounding from flipping its
-        // sign.
-        let v = s + change;
-        if s >= 0.0 {
-            v.max(0.0)
-        } else {
-            v.min(0.0)
-        }
+        s + change
     };
     let neighbours_of = |unit: usize, local: usize| -> [Option<Neighbour>; 6] {
-        neighbour_voxels(units.voxel_of(unit, local), dims, periodic).map(|w| {
+        neighbour_voxels(units.voxel_of(unit, local), dims, how.periodic).map(|w| {
             let (u, l) = units.unit_of(w?)?;
             let m = units.scattering_at(u, l);
-            (m > 0.0).then_some((u, l, m))
+            (m > 0.0).then(|| (u, l, m, how.shares(units, u, l, m)))
         })
     };
     let units_total = src.units();
@@ -184,14 +263,13 @@ pub fn sharpen<F: FieldPlanes + Sync, U: VoxelUnits<V = F::V>>(
             let unit = first + i;
             for local in 0..unit_voxels {
                 let m = units.scattering_at(unit, local);
-                let scatters = m > 0.0;
-                let neighbours = if scatters { neighbours_of(unit, local) } else { [None; 6] };
+                let voxel = (m > 0.0).then(|| (unit, local, m, how.shares(units, unit, local, m)));
+                let neighbours = if voxel.is_some() { neighbours_of(unit, local) } else { [None; 6] };
                 for k in 0..comps {
                     let at = k * unit_voxels + local;
-                    block[at] = if scatters {
-                        F::V::from_f64(new_value(unit, local, m, k, &neighbours))
-                    } else {
-                        old[unit * unit_len + at]
+                    block[at] = match &voxel {
+                        Some(voxel) => F::V::from_f64(new_value(voxel, k, &neighbours)),
+                        None => old[unit * unit_len + at],
                     };
                 }
             }
@@ -202,8 +280,9 @@ pub fn sharpen<F: FieldPlanes + Sync, U: VoxelUnits<V = F::V>>(
     }
 }
 
-/// A neighbour that scatters: its unit, its voxel in the unit and its scattering weight.
-type Neighbour = (usize, usize, f64);
+/// A voxel that scatters: its unit, its voxel in the unit, its scattering weight and its share of
+/// κ per channel ([`Sharpening::stable_share`]).
+type Neighbour = (usize, usize, f64, [f64; 3]);
 
 /// [`face_neighbours`], wrapping across the faces of the `periodic` axes (where the volume goes on
 /// into its next period).
@@ -300,13 +379,18 @@ mod tests {
         m
     }
 
+    /// κ and the periodic axes alone: a medium too thin for the stability limit to act.
+    fn uniform_sharpening(kappa: [f64; 3], periodic: [bool; 3]) -> Sharpening {
+        Sharpening { kappa, periodic, thickness: [0.0; 3], albedo: [1.0; 3], channels: 1 }
+    }
+
     fn medium(dims: [u32; 3], density: impl Fn([u32; 3]) -> f64) -> VoxelMedium {
         let f = field(dims, 1, |v, _| density(v));
         VoxelMedium { density: f.values, albedo: vec![], dims }
     }
 
     #[test]
-    fn conserves_the_total_keeps_signs_and_leaves_uniform_fields_alone() {
+    fn conserves_the_total_is_linear_and_leaves_uniform_fields_alone() {
         let dims = [9, 7, 5];
         // A medium with a hole (no exchange across it) and a source with sharp jumps and zeros.
         let med = medium(dims, |v| if v == [4, 3, 2] { 0.0 } else { 1.0 });
@@ -320,21 +404,57 @@ mod tests {
             }
         });
         let mut dst = MemField::zeros(2, src.values.len() / 2);
-        sharpen(&mut dst, &src, &med, [0.06, 0.05, 0.08], [false; 3]);
+        sharpen(&mut dst, &src, &med, &uniform_sharpening([0.06, 0.05, 0.08], [false; 3]));
         for k in 0..2 {
             let before: f64 = src.values.iter().skip(k).step_by(2).sum();
             let after: f64 = dst.values.iter().skip(k).step_by(2).sum();
             assert!((before - after).abs() < 1e-12 * before, "component {k}: {before} → {after}");
         }
-        assert!(dst.values.iter().all(|&v| v >= 0.0), "a value went negative");
         assert_ne!(dst.values, src.values, "nothing was sharpened");
+        // Linear: L(a + 2b) = L(a) + 2·L(b), so how the orders split the light does not matter.
+        let other = field(dims, 2, |v, k| f64::from(v[0] + 2 * v[1] + 3 * v[2]) - 4.0 * k as f64);
+        let mut both = MemField::zeros(2, src.values.len() / 2);
+        both.values = src.values.iter().zip(&other.values).map(|(a, b)| a + 2.0 * b).collect();
+        let (mut l_other, mut l_both) =
+            (MemField::zeros(2, both.values.len() / 2), MemField::zeros(2, both.values.len() / 2));
+        let how = uniform_sharpening([0.06, 0.05, 0.08], [false; 3]);
+        sharpen(&mut l_other, &other, &med, &how);
+        sharpen(&mut l_both, &both, &med, &how);
+        for ((&ab, &a), &b) in l_both.values.iter().zip(&dst.values).zip(&l_other.values) {
+            assert!((ab - (a + 2.0 * b)).abs() < 1e-12 * (1.0 + ab.abs()), "{ab} vs {a} + 2·{b}");
+        }
         // Nothing flowed into the voxel without medium.
         assert_eq!(dst.values[hole.expect("inside") * 2], 0.0);
 
         let uniform = field(dims, 1, |_, _| 3.5);
         let mut out = MemField::zeros(1, uniform.values.len());
-        sharpen(&mut out, &uniform, &med, [0.1; 3], [false; 3]);
+        sharpen(&mut out, &uniform, &med, &uniform_sharpening([0.1; 3], [false; 3]));
         assert_eq!(out.values, uniform.values);
+    }
+
+    /// κ is kept whole in thin voxels and thinned out in thick, white ones, down to nothing in an
+    /// opaque one, so that a voxel-to-voxel pattern cannot grow from order to order.
+    #[test]
+    fn thick_white_voxels_keep_a_stable_share_of_kappa() {
+        let how = Sharpening {
+            kappa: [0.07; 3],
+            periodic: [false; 3],
+            thickness: [1.0, 1.0, 1.0],
+            albedo: [0.95, 0.5, 1.0],
+            channels: 3,
+        };
+        assert_eq!(how.stable_share(0.5, 1.0, 0), 1.0, "τ = 0.5");
+        assert_eq!(how.stable_share(1.0, 1.0, 0), 1.0, "τ = 1");
+        let thick = how.stable_share(3.0, 1.0, 0);
+        assert!(thick > 0.0 && thick < 1.0, "τ = 3: {thick}");
+        // The loop gain a·P·(1 + 4Σκ·share) is held at the bound.
+        let x: f64 = 2.0;
+        let p = 1.0 - (1.0 - (-x).exp()) / x;
+        let gain = 0.95 * p * (1.0 + 4.0 * 0.21 * thick);
+        assert!((gain - LARGEST_CHECKERBOARD_GROWTH).abs() < 1e-12, "{gain}");
+        assert!(how.stable_share(3.0, 1.0, 1) == 1.0, "albedo 0.5 keeps κ");
+        assert!(how.stable_share(3.0, 0.5, 0) > thick, "an albedo factor of ½ keeps more");
+        assert_eq!(how.stable_share(1e6, 1.0, 2), 0.0, "an opaque white voxel keeps none");
     }
 
     /// The fluxes exchange the radiance-like S/m, not S: a source that jumps only because the
@@ -347,15 +467,15 @@ mod tests {
         let med = medium(dims, dense);
         let src = field(dims, 1, |v, _| 0.3 * dense(v));
         let mut out = MemField::zeros(1, src.values.len());
-        sharpen(&mut out, &src, &med, [0.08; 3], [true, false, true]);
+        sharpen(&mut out, &src, &med, &uniform_sharpening([0.08; 3], [true, false, true]));
         assert_eq!(out.values, src.values, "a uniform radiance over a density jump changed");
 
         let uniform = medium(dims, |_| 1.0);
-        sharpen(&mut out, &src, &uniform, [0.08; 3], [false; 3]);
+        sharpen(&mut out, &src, &uniform, &uniform_sharpening([0.08; 3], [false; 3]));
         assert!(out.values[3] < src.values[3] && out.values[4] > src.values[4], "the jump was not sharpened");
         // Periodic along x: the ends x = 0 and x = 7 exchange too.
         let mut wrapped = MemField::zeros(1, src.values.len());
-        sharpen(&mut wrapped, &src, &uniform, [0.08; 3], [true, false, false]);
+        sharpen(&mut wrapped, &src, &uniform, &uniform_sharpening([0.08; 3], [true, false, false]));
         assert!(wrapped.values[0] < out.values[0] && wrapped.values[7] > out.values[7]);
         let total = |m: &MemField| m.values.iter().sum::<f64>();
         assert!((total(&wrapped) - total(&src)).abs() < 1e-12 * total(&src));
@@ -378,7 +498,7 @@ mod tests {
             smoothed.values[i] = exact.values[i] + kappa * (left - 2.0 * exact.values[i] + right);
         }
         let mut back = MemField::zeros(1, n);
-        sharpen(&mut back, &smoothed, &med, [kappa, 0.0, 0.0], [false; 3]);
+        sharpen(&mut back, &smoothed, &med, &uniform_sharpening([kappa, 0.0, 0.0], [false; 3]));
         let err = |a: &MemField| a.values.iter().zip(&exact.values).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
         assert!(err(&back) < 0.05 * err(&smoothed), "{} vs {}", err(&back), err(&smoothed));
     }

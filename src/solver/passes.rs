@@ -315,6 +315,14 @@ impl Named {
     }
 }
 
+/// Where [`OrderFieldSet::correct_diffusion`] left an order's raw (unsharpened) source, which
+/// the commit adds to the total.
+#[derive(Clone, Copy, Debug)]
+enum RawSource {
+    Prev,
+    Scratch,
+}
+
 impl OrderFieldSet<MemField> {
     /// Fresh, zero fields in memory over `voxels` voxels.
     pub fn in_memory(plan: &Plan, voxels: usize) -> Self {
@@ -374,9 +382,10 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
 
     /// The end-of-order pass: with a per-voxel albedo, first multiplies the new source by each
     /// voxel's albedo factor a(v) (the sweeps scattered with `medium.albedo`; see
-    /// `scale_by_albedo`). With the diffusion correction on, then writes the corrected new
-    /// source into the scratch field and makes it the new source (the order's own accumulator is
-    /// named by no checkpoint, so nothing a resume needs is touched). Then commits the order's
+    /// `scale_by_albedo`), and at high albedo folds in the acceleration. With the diffusion
+    /// correction on, then writes the corrected copy of the new source into a free field: that copy
+    /// is what the next order propagates, while the raw source is what the total takes (so the
+    /// series converges to one answer whatever its path; see [`antidiffusion`]). Then commits the order's
     /// fluence and source into the spare copies, makes
     /// them the committed ones and the new source the next order's previous one, and returns the
     /// new source's scattered power per channel: Σ|J|·Ω·h³, the norm the ratio and the tail are
@@ -401,9 +410,6 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
         if units.has_albedo() {
             scale_by_albedo(&mut self.source_next, units);
         }
-        if plan.diffusion_correction.iter().any(|&k| k > 0.0) {
-            self.correct_diffusion(plan, units)?;
-        }
         // A warm start's first order still holds the guess in its new source: it is accelerated
         // from the next order on, once the commit has made the source a residual.
         if plan.acceleration && !self.initial_guess {
@@ -421,6 +427,14 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
                 acceleration.fold(plan, units, &mut self.fluence, &mut self.source_next);
             }
         }
+        // With the diffusion correction the next order propagates the increment of the sharpened
+        // total, while the total itself takes the order's raw source (see
+        // [`antidiffusion`]'s "Path independence"): `raw` is where the correction left it.
+        let raw = if plan.diffusion_correction.iter().any(|&k| k > 0.0) {
+            Some(self.correct_diffusion(plan, units)?)
+        } else {
+            None
+        };
         let c = plan.channels as usize;
         let comps = plan.source_components() as usize;
         let h3 = plan.voxel_size.powi(3);
@@ -428,10 +442,15 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
         let weight = |k: usize| plan.storage.solid_angle[k / c] * h3;
         // Into the spares, unless they are what the last checkpoint names: then in place.
         let in_place = self.named.spare;
+        let committed = match raw {
+            None => &self.source_next,
+            Some(RawSource::Prev) => &self.source_prev,
+            Some(RawSource::Scratch) => &self.source_scratch,
+        };
         combine(
             (!in_place).then_some(&mut self.source_spare),
             &mut self.source_total,
-            &self.source_next,
+            committed,
             |_| F::V::ONE,
             |block, sum| {
                 let k = block % comps;
@@ -463,31 +482,35 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
         Ok(power)
     }
 
-    /// The diffusion correction ([`antidiffusion::sharpen`]): the corrected new source is written
-    /// into a field that neither this order nor the last checkpoint needs any more, which then
-    /// becomes the new source. The order's own previous source is free once its sweeps are done
-    /// (unless a checkpoint names it, right after one, or a warm start's first commit still
-    /// subtracts it); otherwise the scratch field is, since a checkpoint names one source field
-    /// at most. So the correction never forces a checkpoint.
-    fn correct_diffusion<U: VoxelUnits<V = F::V>>(&mut self, plan: &Plan, units: &U) -> Result<(), SolveError>
+    /// The diffusion correction ([`antidiffusion::sharpen`]): the increment of the sharpened
+    /// total, L(T + S) − L(T) (T the committed total, S this order's raw source; after a warm
+    /// start's first order, L(S), from which the commit takes the guess off), is written into a
+    /// field that neither this order nor the last checkpoint needs any more and becomes the new
+    /// source; the raw source moves to that field's role, which is returned, for the commit to add
+    /// to the total. The order's own previous source is free once its sweeps are done (unless a
+    /// checkpoint names it, right after one, or a warm start's first commit still subtracts it);
+    /// otherwise the scratch field is, since a checkpoint names one source field at most. So the
+    /// correction never forces a checkpoint.
+    fn correct_diffusion<U: VoxelUnits<V = F::V>>(&mut self, plan: &Plan, units: &U) -> Result<RawSource, SolveError>
     where
         F: Sync,
     {
-        let (kappa, periodic) = (plan.diffusion_correction, plan.periodic);
+        let how = antidiffusion::Sharpening::of(plan);
         if !self.named.prev && !self.initial_guess {
-            antidiffusion::sharpen(&mut self.source_prev, &self.source_next, units, kappa, periodic);
+            antidiffusion::sharpen(&mut self.source_prev, &self.source_next, units, &how);
             std::mem::swap(&mut self.source_next, &mut self.source_prev);
             self.swap_named(|n| std::mem::swap(&mut n.next, &mut n.prev));
+            Ok(RawSource::Prev)
         } else if !self.named.scratch {
-            antidiffusion::sharpen(&mut self.source_scratch, &self.source_next, units, kappa, periodic);
+            antidiffusion::sharpen(&mut self.source_scratch, &self.source_next, units, &how);
             std::mem::swap(&mut self.source_next, &mut self.source_scratch);
             self.swap_named(|n| std::mem::swap(&mut n.next, &mut n.scratch));
+            Ok(RawSource::Scratch)
         } else {
-            return Err(SolveError::Internal(
+            Err(SolveError::Internal(
                 "the diffusion correction found no source field free to write (a checkpoint names two)",
-            ));
+            ))
         }
-        Ok(())
     }
 
     /// The committed totals and their spares change roles (with their [`Named`] flags).
