@@ -41,9 +41,9 @@
 //! whole domain ends. (An earlier version capped each flux at a sixth of the smaller of its two
 //! values, per order, to keep every order's source positive; where the cap bound, next to a point
 //! light or a shadow's edge, the answer then depended on how the orders split the light: warm
-//! starts ended up to 5 % away from cold solves. Capping against the committed total instead
-//! keeps the caps binding for ever wherever the total is sharp, and their derivative, 1/6 rather
-//! than κ, drained dense cores order after order: −45 % at τ ≈ 3.) The committed source is the
+//! starts ended up to 5 % away from cold solves. Capping against the committed total instead,
+//! propagating L(T + S) − L(T), is path independent too; it was tried, costs a second stencil per
+//! order, and was set aside once the linear form passed the same tests.) The committed source is the
 //! raw Y (the estimate of the true in-scattered source; L(Y) is its pre-sharpened copy that the
 //! next transport blurs back).
 //!
