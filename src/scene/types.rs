@@ -354,7 +354,7 @@ impl CheckpointCadence {
 /// spread the direction set is known to add back out of each order's scattered source with
 /// conservative, linear anti-diffusive fluxes between neighbouring voxels (when the medium
 /// scatters; thinned out in optically thick voxels, where they would destabilise the series):
-/// the core comes within 0.5 % of Monte Carlo. Off by default for now: being linear, it can make
+/// the core comes within 0.7 % of Monte Carlo. Off by default for now: being linear, it can make
 /// a voxel much darker than its neighbours negative (a fluence of −2·10⁻⁵ of the peak next to a
 /// sunlit layer of 1000 mean free paths per voxel), which a default must not (benches/RESULTS.md,
 /// "Diffusion correction").
