@@ -427,9 +427,9 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
                 acceleration.fold(plan, units, &mut self.fluence, &mut self.source_next);
             }
         }
-        // With the diffusion correction the next order propagates the increment of the sharpened
-        // total, while the total itself takes the order's raw source (see
-        // [`antidiffusion`]'s "Path independence"): `raw` is where the correction left it.
+        // With the diffusion correction the next order propagates the corrected copy L(S) while
+        // the total takes the order's raw source S (see [`antidiffusion`], "Linear, so the answer
+        // does not depend on the path"): `raw` is where the correction left S.
         let raw = if plan.diffusion_correction.iter().any(|&k| k > 0.0) {
             Some(self.correct_diffusion(plan, units)?)
         } else {
@@ -482,12 +482,11 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
         Ok(power)
     }
 
-    /// The diffusion correction ([`antidiffusion::sharpen`]): the increment of the sharpened
-    /// total, L(T + S) − L(T) (T the committed total, S this order's raw source; after a warm
-    /// start's first order, L(S), from which the commit takes the guess off), is written into a
-    /// field that neither this order nor the last checkpoint needs any more and becomes the new
-    /// source; the raw source moves to that field's role, which is returned, for the commit to add
-    /// to the total. The order's own previous source is free once its sweeps are done (unless a
+    /// The diffusion correction ([`antidiffusion::sharpen`]): the corrected copy L(S) of this
+    /// order's raw source S (after a warm start's first order the commit then takes the guess off
+    /// it) is written into a field that neither this order nor the last checkpoint needs any more
+    /// and becomes the new source; the raw source moves to that field's role, which is returned,
+    /// for the commit to add to the total. The order's own previous source is free once its sweeps are done (unless a
     /// checkpoint names it, right after one, or a warm start's first commit still subtracts it);
     /// otherwise the scratch field is, since a checkpoint names one source field at most. So the
     /// correction never forces a checkpoint.
