@@ -32,20 +32,23 @@
 //! of a core's edge into the dense side every order (up to the positivity cap it then had) and left the core
 //! of a 64³ cloud +6 % bright; with u the core is within 0.5 % of Monte Carlo (RESULTS).
 //!
-//! **Linear, so the answer does not depend on the path.** The pass is one fixed linear operator L
-//! (its coefficients depend on the medium only), applied to the source each order propagates;
-//! the order's raw source goes into the committed total. The series then converges to the one
-//! fixed point of Y = b + K·L(Y) (K: an order's transport and scattering, b: the lights' first
-//! scattering), whatever it starts from: a warm start's guess, a resumed checkpoint, an octant
-//! whose light comes back across its mirrors an order late, all end where a cold solve of the
-//! whole domain ends. (An earlier version capped each flux at a sixth of the smaller of its two
-//! values, per order, to keep every order's source positive; where the cap bound, next to a point
-//! light or a shadow's edge, the answer then depended on how the orders split the light: warm
-//! starts ended up to 5 % away from cold solves. Capping against the committed total instead,
-//! propagating L(T + S) − L(T), is path independent too; it was tried, costs a second stencil per
-//! order, and was set aside once the linear form passed the same tests.) The committed source is the
-//! raw Y (the estimate of the true in-scattered source; L(Y) is its pre-sharpened copy that the
-//! next transport blurs back).
+//! **Positive, and independent of the path.** The pass sharpens the *committed total* of the
+//! scattered source, not each order on its own: C(T) is the total T with the fluxes, each capped
+//! at a sixth of the smaller of its two values (a voxel has six neighbours, so it gives at most
+//! what it has and C(T) ≥ 0 wherever T ≥ 0), and what the next order propagates is the change this
+//! order's raw source S makes to it, C(T + S) − C(T) ([`sharpen_increment`]); the total itself
+//! takes the raw S. The propagated increments add up to C of the total, whatever the orders were:
+//! the series converges to the one fixed point of Y = b + K·C(Y) (K: an order's transport and
+//! scattering, b: the lights' first scattering), and a warm start's guess, a resumed checkpoint or
+//! an octant whose light comes back across its mirrors an order late all end where a cold solve
+//! of the whole domain ends. The fluence, the transport of C(Y), is never negative. (Two earlier
+//! forms: capping each order's own source made the answer depend on how the orders split the light
+//! — warm starts ended up to 5 % from cold solves next to a point light; no cap at all (one
+//! linear operator) made a voxel far darker than its neighbours negative: −2·10⁻⁵ of the peak
+//! next to a sunlit layer of 1000 mean free paths per voxel.) Where the cap does not bind — a
+//! neighbour at most 1 + 1/(6κ), 3 to 4 times the other — C is linear, and the pass is the plain
+//! anti-diffusion described above. The committed source is the raw Y (the estimate of the true
+//! in-scattered source; C(Y) is its pre-sharpened copy that the transport blurs back).
 //!
 //! **Stable in thick voxels.** A voxel of optical thickness τ keeps much of the light it scatters
 //! (a share of about 1 − (1 − e^{−x})/x, x = 2τ/3, returns within an order), so a pattern that
@@ -61,15 +64,13 @@
 //! - *Conservative*: every flux leaves one voxel and enters another (and no flux crosses into a
 //!   voxel that does not scatter), so the order's total scattered power is unchanged and the
 //!   energy books ([`super::energy`]) are untouched.
-//! - *Not positive by construction*: a voxel much darker than its neighbours (a ratio beyond about
-//!   1 + 1/(6κ), 3 to 4) gives more than it has and the order's propagated source goes negative
-//!   there. Usually the light of neighbouring voxels fills such a dent in the next transport, but
-//!   not always: next to a sunlit layer of 1000 mean free paths per voxel the fluence went
-//!   negative (−2·10⁻⁵ of the peak), which is why the correction is not the default yet.
+//! - *Positive*: C of a non-negative total is non-negative (above), so the propagated light
+//!   summed over the orders, and the fluence, are too; a single order's increment may be of
+//!   either sign, as a warm start's residuals are.
 //! - *Deterministic*: each voxel's new value is its old one plus its six fluxes in a fixed order,
-//!   computed from the old field only (read from `src`, written to `dst`): bitwise the same at any
-//!   thread count, and written once for both backends (the store's bricks and the twin's voxels
-//!   are both [`VoxelUnits`]).
+//!   computed from the total and the order's source only (read from them, written to `dst`):
+//!   bitwise the same at any thread count, and written once for both backends (the store's
+//!   bricks and the twin's voxels are both [`VoxelUnits`]).
 //! - *Boundaries*: no flux crosses an open face or a mirror (across a mirror the neighbour is the
 //!   voxel's own image, with its own value: no exchange); across a periodic axis the neighbours
 //!   wrap.
@@ -217,35 +218,60 @@ impl Sharpening {
     }
 }
 
-/// Writes into `dst` the field `src` with the anti-diffusive fluxes of [`Sharpening`] between
-/// face-neighbouring voxels of the medium (see the module docs): L(src). `dst` and `src` have the
-/// same layout (the twin's or the store's); every value of `dst` is written.
-pub fn sharpen<F: FieldPlanes + Sync, U: VoxelUnits<V = F::V>>(dst: &mut F, src: &F, units: &U, how: &Sharpening) {
-    let unit_len = src.unit_len();
-    let unit_voxels = src.unit_voxels();
-    let comps = src.components();
+/// The largest share of a voxel's value one flux may carry: with six neighbours a voxel gives at
+/// most all it has, so a sharpened field of non-negative values stays non-negative.
+const LARGEST_FLUX_SHARE: f64 = 1.0 / 6.0;
+
+/// Writes into `dst` the change of the sharpened committed total that this order's raw source
+/// makes, C(`total` + `raw`) − C(`total`) (see the module docs, "Positive and path
+/// independent"): what the next order propagates. C is the anti-diffusive fluxes of
+/// [`Sharpening`] between face-neighbouring voxels of the medium, each capped at
+/// [`LARGEST_FLUX_SHARE`] of the smaller of its two values. `total + raw` is rounded to the
+/// fields' precision first, as the commit stores it, so that the increments of successive orders
+/// add up to C of the stored total exactly (up to the rounding of each increment). The three
+/// fields have the same layout (the twin's or the store's); every value of `dst` is written.
+pub fn sharpen_increment<F: FieldPlanes + Sync, U: VoxelUnits<V = F::V>>(
+    dst: &mut F,
+    total: &F,
+    raw: &F,
+    units: &U,
+    how: &Sharpening,
+) {
+    let unit_len = raw.unit_len();
+    let unit_voxels = raw.unit_voxels();
+    let comps = raw.components();
     let dims = units.dims();
-    let old = src.values();
+    let (before, added) = (total.values(), raw.values());
     let at = |unit: usize, k: usize, local: usize| unit * unit_len + k * unit_voxels + local;
-    // Component k of L(src) at `voxel` (its unit, voxel in the unit, scattering weight and κ
-    // shares): the old value less its fluxes to the face neighbours that scatter, summed in the
-    // fixed order −x, +x, −y, +y, −z, +z.
+    // The committed total before and after this order at one place, as the commit stores them.
+    let values_at = |i: usize| -> (f64, f64) {
+        let t = before[i];
+        (t.to_f64(), (t + added[i]).to_f64())
+    };
+    // Component k at `voxel` (its unit, voxel in the unit, scattering weight and κ shares) of
+    // C(after) − C(before): each value plus its capped fluxes to the face neighbours that
+    // scatter, summed in the fixed order −x, +x, −y, +y, −z, +z.
     let new_value = |voxel: &ScatteringVoxel, k: usize, neighbours: &[Option<ScatteringVoxel>; 6]| -> f64 {
         let &(unit, local, m, share) = voxel;
         let ch = k % how.channels;
-        let s = old[at(unit, k, local)].to_f64();
-        let mut change = 0.0;
+        let (t, x) = values_at(at(unit, k, local));
+        let (mut change_before, mut change_after) = (0.0, 0.0);
         for (n, neighbour) in neighbours.iter().enumerate() {
             let Some((nu, nl, mn, other_share)) = *neighbour else { continue };
-            let other = old[at(nu, k, nl)].to_f64();
+            let (t_other, x_other) = values_at(at(nu, k, nl));
             // Anti-diffusion of the radiance-like s/m through the harmonic mean of the weights,
             // μ·(other/mn − s/m) with μ = 2·m·mn/(m + mn), written without the quotients (which
             // overflow where a weight is tiny); κ·(other − s) in a uniform medium. The smaller of
-            // the two voxels' stable shares keeps the flux antisymmetric.
-            let exchange = 2.0 * (m * other - mn * s) / (m + mn);
-            change -= how.kappa[n / 2] * share[ch].min(other_share[ch]) * exchange;
+            // the two voxels' stable shares keeps the flux antisymmetric, as does the cap.
+            let kappa = how.kappa[n / 2] * share[ch].min(other_share[ch]);
+            let flux = |s: f64, other: f64| -> f64 {
+                let limit = LARGEST_FLUX_SHARE * s.min(other).max(0.0);
+                (kappa * 2.0 * (m * other - mn * s) / (m + mn)).clamp(-limit, limit)
+            };
+            change_before -= flux(t, t_other);
+            change_after -= flux(x, x_other);
         }
-        s + change
+        (x - t) + (change_after - change_before)
     };
     let neighbours_of = |unit: usize, local: usize| -> [Option<ScatteringVoxel>; 6] {
         neighbour_voxels(units.voxel_of(unit, local), dims, how.periodic).map(|w| {
@@ -254,7 +280,7 @@ pub fn sharpen<F: FieldPlanes + Sync, U: VoxelUnits<V = F::V>>(dst: &mut F, src:
             (m > 0.0).then(|| (u, l, m, how.shares(units, u, l, m)))
         })
     };
-    let units_total = src.units();
+    let units_total = raw.units();
     let group = RELEASE_UNITS.max(1);
     let mut first = 0;
     while first < units_total {
@@ -270,13 +296,14 @@ pub fn sharpen<F: FieldPlanes + Sync, U: VoxelUnits<V = F::V>>(dst: &mut F, src:
                     let at = k * unit_voxels + local;
                     block[at] = match &voxel {
                         Some(voxel) => F::V::from_f64(new_value(voxel, k, &neighbours)),
-                        None => old[unit * unit_len + at],
+                        None => added[unit * unit_len + at],
                     };
                 }
             }
         });
         dst.release(first, count);
-        src.release(first, count);
+        raw.release(first, count);
+        total.release(first, count);
         first += count;
     }
 }
@@ -390,8 +417,15 @@ mod tests {
         VoxelMedium { density: f.values, albedo: vec![], dims }
     }
 
+    /// C(`src`): the sharpened field itself, the increment over a total of zero.
+    fn sharpen(dst: &mut MemField, src: &MemField, med: &VoxelMedium, how: &Sharpening) {
+        let comps = src.components();
+        let zero = MemField::zeros(comps, src.values.len() / comps);
+        sharpen_increment(dst, &zero, src, med, how);
+    }
+
     #[test]
-    fn conserves_the_total_is_linear_and_leaves_uniform_fields_alone() {
+    fn conserves_the_total_and_leaves_uniform_fields_alone() {
         let dims = [9, 7, 5];
         // A medium with a hole (no exchange across it) and a source with sharp jumps and zeros.
         let med = medium(dims, |v| if v == [4, 3, 2] { 0.0 } else { 1.0 });
@@ -412,18 +446,6 @@ mod tests {
             assert!((before - after).abs() < 1e-12 * before, "component {k}: {before} → {after}");
         }
         assert_ne!(dst.values, src.values, "nothing was sharpened");
-        // Linear: L(a + 2b) = L(a) + 2·L(b), so how the orders split the light does not matter.
-        let other = field(dims, 2, |v, k| f64::from(v[0] + 2 * v[1] + 3 * v[2]) - 4.0 * k as f64);
-        let mut both = MemField::zeros(2, src.values.len() / 2);
-        both.values = src.values.iter().zip(&other.values).map(|(a, b)| a + 2.0 * b).collect();
-        let (mut l_other, mut l_both) =
-            (MemField::zeros(2, both.values.len() / 2), MemField::zeros(2, both.values.len() / 2));
-        let how = uniform_sharpening([0.06, 0.05, 0.08], [false; 3]);
-        sharpen(&mut l_other, &other, &med, &how);
-        sharpen(&mut l_both, &both, &med, &how);
-        for ((&ab, &a), &b) in l_both.values.iter().zip(&dst.values).zip(&l_other.values) {
-            assert!((ab - (a + 2.0 * b)).abs() < 1e-12 * (1.0 + ab.abs()), "{ab} vs {a} + 2·{b}");
-        }
         // Nothing flowed into the voxel without medium.
         assert_eq!(dst.values[hole.expect("inside") * 2], 0.0);
 
@@ -431,6 +453,47 @@ mod tests {
         let mut out = MemField::zeros(1, uniform.values.len());
         sharpen(&mut out, &uniform, &med, &uniform_sharpening([0.1; 3], [false; 3]));
         assert_eq!(out.values, uniform.values);
+    }
+
+    /// However the orders split the light, their increments add up to the sharpened total: the
+    /// answer does not depend on the path. And a voxel far darker than its neighbours (a sunlit
+    /// layer next to a shadowed one) gives at most what it has: C of a non-negative field is
+    /// non-negative, where the uncapped fluxes would take the dark voxels below zero.
+    #[test]
+    fn increments_add_up_to_the_sharpened_total_which_stays_non_negative() {
+        let dims = [6, 5, 4];
+        let med = medium(dims, |v| 1.0 + f64::from(v[1]));
+        // A lit layer x = 0 a trillion times brighter than the rest, which has some zeros.
+        let lit = field(dims, 1, |v, _| if v[0] == 0 { 1e12 } else { f64::from((v[1] + v[2]) % 3) });
+        let how = uniform_sharpening([0.07, 0.09, 0.05], [false, true, false]);
+        let mut whole = MemField::zeros(1, lit.values.len());
+        sharpen(&mut whole, &lit, &med, &how);
+        assert!(whole.values.iter().all(|&v| v >= 0.0), "C went negative: {:?}", whole.values);
+        assert_ne!(whole.values, lit.values, "nothing was sharpened");
+        let total_of = |m: &MemField| m.values.iter().sum::<f64>();
+        assert!((total_of(&whole) - total_of(&lit)).abs() < 1e-12 * total_of(&lit));
+
+        // The same light in three orders of either sign: the propagated increments sum to C(lit).
+        let first: Vec<f64> = lit.values.iter().map(|l| 0.7 * l).collect();
+        let second: Vec<f64> = lit.values.iter().map(|l| 0.5 * l).collect();
+        let third: Vec<f64> = lit.values.iter().zip(&first).zip(&second).map(|((l, a), b)| l - a - b).collect();
+        let mut total = MemField::zeros(1, lit.values.len());
+        let mut propagated = vec![0.0; lit.values.len()];
+        for order in [first, second, third] {
+            let mut raw = MemField::zeros(1, order.len());
+            raw.values = order;
+            let mut step = MemField::zeros(1, lit.values.len());
+            sharpen_increment(&mut step, &total, &raw, &med, &how);
+            for ((p, s), (t, r)) in
+                propagated.iter_mut().zip(&step.values).zip(total.values.iter_mut().zip(&raw.values))
+            {
+                *p += s;
+                *t += r;
+            }
+        }
+        for (p, w) in propagated.iter().zip(&whole.values) {
+            assert!((p - w).abs() <= 1e-3 + 1e-12 * w.abs(), "{p} vs {w}");
+        }
     }
 
     /// κ is kept whole in thin voxels and thinned out in thick, white ones, down to nothing in an

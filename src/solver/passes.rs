@@ -427,9 +427,10 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
                 acceleration.fold(plan, units, &mut self.fluence, &mut self.source_next);
             }
         }
-        // With the diffusion correction the next order propagates the corrected copy L(S) while
-        // the total takes the order's raw source S (see [`antidiffusion`], "Linear, so the answer
-        // does not depend on the path"): `raw` is where the correction left S.
+        // With the diffusion correction the next order propagates C(T + S) − C(T), the change S
+        // makes to the sharpened total, while the total takes the order's raw source S (see
+        // [`antidiffusion`], "Positive, and independent of the path"): `raw` is where the
+        // correction left S.
         let raw = if plan.diffusion_correction.iter().any(|&k| k > 0.0) {
             Some(self.correct_diffusion(plan, units)?)
         } else {
@@ -482,10 +483,10 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
         Ok(power)
     }
 
-    /// The diffusion correction ([`antidiffusion::sharpen`]): the corrected copy L(S) of this
-    /// order's raw source S (after a warm start's first order the commit then takes the guess off
-    /// it) is written into a field that neither this order nor the last checkpoint needs any more
-    /// and becomes the new source; the raw source moves to that field's role, which is returned,
+    /// The diffusion correction ([`antidiffusion::sharpen_increment`]): the change C(T + S) − C(T)
+    /// that this order's raw source S makes to the sharpened committed total T (after a warm
+    /// start's first order the commit then takes the guess off it) is written into a field that
+    /// neither this order nor the last checkpoint needs any more and becomes the new source; the raw source moves to that field's role, which is returned,
     /// for the commit to add to the total. The order's own previous source is free once its sweeps are done (unless a
     /// checkpoint names it, right after one, or a warm start's first commit still subtracts it);
     /// otherwise the scratch field is, since a checkpoint names one source field at most. So the
@@ -496,12 +497,18 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
     {
         let how = antidiffusion::Sharpening::of(plan);
         if !self.named.prev && !self.initial_guess {
-            antidiffusion::sharpen(&mut self.source_prev, &self.source_next, units, &how);
+            antidiffusion::sharpen_increment(&mut self.source_prev, &self.source_total, &self.source_next, units, &how);
             std::mem::swap(&mut self.source_next, &mut self.source_prev);
             self.swap_named(|n| std::mem::swap(&mut n.next, &mut n.prev));
             Ok(RawSource::Prev)
         } else if !self.named.scratch {
-            antidiffusion::sharpen(&mut self.source_scratch, &self.source_next, units, &how);
+            antidiffusion::sharpen_increment(
+                &mut self.source_scratch,
+                &self.source_total,
+                &self.source_next,
+                units,
+                &how,
+            );
             std::mem::swap(&mut self.source_next, &mut self.source_scratch);
             self.swap_named(|n| std::mem::swap(&mut n.next, &mut n.scratch));
             Ok(RawSource::Scratch)
