@@ -52,11 +52,12 @@
 //! 4. **Order loop** — [`solver::orders::run_orders`] has a [`solver::orders::Backend`] propagate
 //!    one scattering order at a time into its fields, then runs the host passes itself, written
 //!    once in [`solver::passes`] for both kinds of field (the store's f32 files, the twin's f64
-//!    memory): commit the order (first taking the discretisation's numerical diffusion back out of its
-//!    source it propagates next when `solver.diffusion_correction = "on"`:
-//!    [`solver::antidiffusion`], a linear neighbour stencil over either layout; a per-voxel albedo factor multiplies the source first,
-//!    `store::albedo`; then, at high albedo, a diffusion solve estimates the light still to come
-//!    and folds it into the order: [`solver::acceleration`]), the stop rule's remaining error, a checkpoint (store only, at the cadence
+//!    memory): commit the order (a per-voxel albedo factor multiplies the source first,
+//!    `store::albedo`; at high albedo a diffusion solve estimates the light still to come and
+//!    folds it into the order, [`solver::acceleration`]; then, with `solver.diffusion_correction =
+//!    "on"`, the default, the next order is given the change the order makes to the sharpened
+//!    total, which takes the discretisation's numerical diffusion back out: [`solver::antidiffusion`],
+//!    a capped stencil over partners two voxels apart, on either layout), the stop rule's remaining error, a checkpoint (store only, at the cadence
 //!    of `solver.checkpoint_every_*`, written in the background while the next order's sweeps run),
 //!    and at the end the energy balance and the geometric tail.
 //!    The passes run on every core, with every sum taken in a fixed order (bitwise at any thread

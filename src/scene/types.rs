@@ -350,18 +350,16 @@ impl CheckpointCadence {
 /// little: the rays meet the voxels at a lateral offset from their true positions, and each ray
 /// segment takes its voxel's source as one constant and deposits its average. In thick,
 /// high-albedo media these spreads add up like a diffusion and light reaches dense cores too
-/// easily (+6 % in a cloud's core at 0.8 mean free paths per voxel, +10 % at 1). `on` takes the
-/// spread the direction set is known to add back out of each order's scattered source with
-/// conservative, linear anti-diffusive fluxes between neighbouring voxels (when the medium
-/// scatters; thinned out in optically thick voxels, where they would destabilise the series):
-/// the core comes within 0.7 % of Monte Carlo. Off by default for now: being linear, it can make
-/// a voxel much darker than its neighbours negative (a fluence of −2·10⁻⁵ of the peak next to a
-/// sunlit layer of 1000 mean free paths per voxel), which a default must not (benches/RESULTS.md,
-/// "Diffusion correction").
+/// easily (+6 % in a cloud's core at 0.8 mean free paths per voxel, +10 % at 1). `on` (the
+/// default) takes the spread the direction set is known to add back out of the scattered source
+/// with conservative anti-diffusive fluxes between voxels two apart (when the medium scatters;
+/// each capped so that no voxel gives more than it has, and thinned out in optically thick
+/// voxels, where they would destabilise the series): the core comes within 0.6 % of Monte Carlo
+/// (benches/RESULTS.md, "Diffusion correction"). `off` solves the plain scheme.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum DiffusionCorrection {
-    On,
     #[default]
+    On,
     Off,
 }
 

@@ -714,8 +714,9 @@ impl Validator<'_> {
             }
         };
         let diffusion_correction = match s.diffusion_correction.as_deref() {
+            None => DiffusionCorrection::default(),
             Some("on") => DiffusionCorrection::On,
-            None | Some("off") => DiffusionCorrection::Off,
+            Some("off") => DiffusionCorrection::Off,
             Some(other) => {
                 return Err(self.err(
                     "solver.diffusion_correction",

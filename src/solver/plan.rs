@@ -572,7 +572,7 @@ fn choose_diffusion_correction(
             reasons.push(format!(
                 "diffusion correction: the rays' lattice and segments spread each order's scattered light by \
                  a variance of {:.3}/{:.3}/{:.3} voxels² along x/y/z; anti-diffusive fluxes between \
-                 neighbouring voxels take it back (κ = half of it, less in optically thick voxels for stability; conservative and linear)",
+                 voxels two apart take it back (κ = half of it, less in optically thick voxels for stability; conservative, each exchange capped so no voxel goes negative)",
                 2.0 * kappa[0],
                 2.0 * kappa[1],
                 2.0 * kappa[2]

@@ -107,3 +107,24 @@ fn a_sunlit_layer_of_a_thousand_mean_free_paths_leaves_no_voxel_negative() {
         }
     }
 }
+
+/// On unless the scene turns it off: a scene file that does not mention it gets the correction.
+#[test]
+fn the_correction_is_on_unless_the_scene_turns_it_off() {
+    let text = |extra: &str| {
+        format!(
+            "[volume]\nprocedural = \"sphere\"\ndims = [8, 8, 8]\n[medium]\nsigma_t = 0.5\nalbedo = 0.9\n\
+             [[lights]]\nkind = \"sky\"\nradiance = 1.0\n[solver]\n{extra}"
+        )
+    };
+    let read =
+        |extra: &str| Scene::from_toml_str(&text(extra), std::path::Path::new("default.toml")).expect("a valid scene");
+    assert_eq!(read("").solver.diffusion_correction, DiffusionCorrection::On);
+    assert_eq!(read("diffusion_correction = \"off\"\n").solver.diffusion_correction, DiffusionCorrection::Off);
+    let solved = solve("dc-default", &read(""), Cpu);
+    assert!(
+        solved.run.plan.diffusion_correction.iter().all(|&k| k > 0.0),
+        "{:?}",
+        solved.run.plan.diffusion_correction
+    );
+}
