@@ -41,8 +41,9 @@
 //! exchange u = S/m: voxel i hands ¼·κ_i·μ_ij·(u_j − u_i) of source to its partner j along axis i,
 //! μ_ij = 2·m_i·m_j/(m_i + m_j) (the harmonic mean, as for conductances in series). In a uniform
 //! medium this is ¼·κ_i·(S_j − S_i). Sharpening S itself instead pushed source from the thin side
-//! of a core's edge into the dense side every order (up to the positivity cap it then had) and left the core
-//! of a 64³ cloud +6 % bright; with u the core is within 0.5 % of Monte Carlo (RESULTS).
+//! of a core's edge into the dense side every order (up to the per-order positivity cap it then
+//! had) and left the core of a 64³ cloud +6 % bright; with u the core is within 0.6 % of Monte
+//! Carlo (RESULTS).
 //!
 //! **Positive, and independent of the path.** The pass sharpens the *committed total* of the
 //! scattered source, not each order on its own: C(T) is the total T with the fluxes, each capped
@@ -204,8 +205,8 @@ impl Sharpening {
     /// a·P, and the sharpening multiplies it by up to 1 + Σκ. Where their product would pass
     /// [`LARGEST_VOXEL_PATTERN_GROWTH`] κ is scaled down to meet it (to zero in the limit of an
     /// opaque, white voxel): otherwise such a pattern can grow order after order (seen at τ ≈ 3,
-    /// albedo 0.95, with the face-neighbour stencil and the bound at 0.8). The lattice's spread, which κ undoes, is carried by
-    /// light crossing voxels, which a thick voxel mostly keeps.
+    /// albedo 0.95, with the face-neighbour stencil and the bound at 0.8). The lattice's spread,
+    /// which κ undoes, is carried by light crossing voxels, which a thick voxel mostly keeps.
     pub fn stable_share(&self, density: f64, factor: f64, channel: usize) -> f64 {
         let x = 2.0 / 3.0 * self.thickness[channel] * density;
         let boost = self.kappa.iter().sum::<f64>();
@@ -235,8 +236,8 @@ impl Sharpening {
 const LARGEST_FLUX_SHARE: f64 = 1.0 / 6.0;
 
 /// Writes into `dst` the change of the sharpened committed total that this order's raw source
-/// makes, C(`total` + `raw`) − C(`total`) (see the module docs, "Positive and path
-/// independent"): what the next order propagates. C is the anti-diffusive fluxes of
+/// makes, C(`total` + `raw`) − C(`total`) (see the module docs, "Positive, and independent of
+/// the path"): what the next order propagates. C is the anti-diffusive fluxes of
 /// [`Sharpening`] between partner voxels of the medium (two apart), each capped at
 /// [`LARGEST_FLUX_SHARE`] of the smaller of its two values. The increments of successive orders
 /// add up to C of the total up to the rounding of the stored total and of each increment. The three
@@ -330,8 +331,8 @@ pub fn sharpen_increment<F: FieldPlanes + Sync, U: VoxelUnits<V = F::V>>(
     }
 }
 
-/// A voxel that scatters (the one sharpened, or a partner): its unit, its voxel in the unit, its scattering weight and its share of
-/// κ per channel ([`Sharpening::stable_share`]).
+/// A voxel that scatters (the one sharpened, or a partner): its unit, its voxel in the unit, its
+/// scattering weight and its share of κ per channel ([`Sharpening::stable_share`]).
 type ScatteringVoxel = (usize, usize, f64, [f64; 3]);
 
 /// The weight of a flux between partners two voxels apart: the stencil u(i − 2) − 2u(i) + u(i + 2)
