@@ -165,7 +165,7 @@ pub fn coefficients(faces: &[Vec<SweepDirection>], spatial: SpatialScheme) -> [f
     lattice_spread(faces, spatial).map(|v| 0.5 * v)
 }
 
-/// The plan's side of [`sharpen`]: the coefficients, the axes that wrap, and what the stability
+/// The plan's side of [`sharpen_increment`]: the coefficients, the axes that wrap, and what the stability
 /// limit reads of the medium.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Sharpening {
@@ -233,7 +233,7 @@ impl Sharpening {
 
 /// The largest share of a voxel's value one flux may carry: with six partners a voxel gives at
 /// most all it has, so a sharpened field of non-negative values stays non-negative.
-const LARGEST_FLUX_SHARE: f64 = 1.0 / 6.0;
+pub const LARGEST_FLUX_SHARE: f64 = 1.0 / 6.0;
 
 /// Writes into `dst` the change of the sharpened committed total that this order's raw source
 /// makes, C(`total` + `raw`) − C(`total`) (see the module docs, "Positive, and independent of
@@ -337,7 +337,7 @@ type ScatteringVoxel = (usize, usize, f64, [f64; 3]);
 
 /// The weight of a flux between partners two voxels apart: the stencil u(i − 2) − 2u(i) + u(i + 2)
 /// is four second differences.
-const PARTNER_WEIGHT: f64 = 0.25;
+pub const PARTNER_WEIGHT: f64 = 0.25;
 
 /// The partners of `at` two voxels away along each axis, in the order −x, +x, −y, +y, −z, +z,
 /// each with the voxel between them; `None` where the partner lies beyond a face, unless the
