@@ -85,8 +85,9 @@
 //!   computed from the total and the order's source only (read from them, written to `dst`):
 //!   bitwise the same at any thread count, and written once for both backends (the store's
 //!   bricks and the twin's voxels are both [`VoxelUnits`]).
-//! - *Boundaries*: no flux crosses an open face or a mirror (across a mirror the partner would be
-//!   a voxel's own image: no exchange); across a periodic axis the partners wrap.
+//! - *Boundaries*: no flux crosses an open face; across a mirror a partner is a voxel's image
+//!   (voxel 0's partner below the face is voxel 1, as in the mirrored domain); across a periodic
+//!   axis the partners wrap.
 //! - *Second order*: the correction is κ·Δ with κ ∝ (spread in voxels), i.e. O(h²) against a
 //!   smooth field, so it changes the constant of the scheme's h² error, not its order.
 
@@ -173,6 +174,8 @@ pub struct Sharpening {
     pub kappa: [f64; 3],
     /// The axes whose faces are periodic: partners wrap across them.
     pub periodic: [bool; 3],
+    /// Per axis, whether its low and high faces are mirrors: a partner beyond one is a voxel's image.
+    pub reflective: [[bool; 2]; 3],
     /// Per channel, the optical thickness σt·h of a voxel at density 1.
     pub thickness: [f64; 3],
     /// Per channel, the medium's albedo (a voxel's is this times its albedo factor).
@@ -191,6 +194,7 @@ impl Sharpening {
         Sharpening {
             kappa: plan.diffusion_correction,
             periodic: plan.periodic,
+            reflective: plan.reflective,
             thickness: plan.medium.sigma_t.map(|s| s * plan.voxel_size),
             albedo: plan.medium.albedo,
             channels: (plan.channels as usize).max(1),
@@ -296,7 +300,7 @@ pub fn sharpen_increment<F: FieldPlanes + Sync, U: VoxelUnits<V = F::V>>(
         (m > 0.0).then_some((u, l, m))
     };
     let partners_of = |unit: usize, local: usize| -> [Option<ScatteringVoxel>; 6] {
-        partner_voxels(units.voxel_of(unit, local), dims, how.periodic).map(|pair| {
+        partner_voxels(units.voxel_of(unit, local), dims, how.periodic, how.reflective).map(|pair| {
             let (partner, between) = pair?;
             scatters(between)?;
             let (u, l, m) = scatters(partner)?;
@@ -342,17 +346,33 @@ pub const PARTNER_WEIGHT: f64 = 0.25;
 /// The partners of `at` two voxels away along each axis, in the order −x, +x, −y, +y, −z, +z,
 /// each with the voxel between them; `None` where the partner lies beyond a face, unless the
 /// axis is periodic (then the volume goes on into its next period and the coordinates wrap).
-fn partner_voxels(at: [u32; 3], dims: [u32; 3], periodic: [bool; 3]) -> [Option<([u32; 3], [u32; 3])>; 6] {
+fn partner_voxels(
+    at: [u32; 3],
+    dims: [u32; 3],
+    periodic: [bool; 3],
+    reflective: [[bool; 2]; 3],
+) -> [Option<([u32; 3], [u32; 3])>; 6] {
     let mut out = [None; 6];
     for axis in 0..3 {
         let d = i64::from(dims[axis]);
         for (side, step) in [(0usize, -1i64), (1, 1)] {
             let (mid, far) = (i64::from(at[axis]) + step, i64::from(at[axis]) + 2 * step);
             let inside = |c: i64| (0..d).contains(&c);
-            let (mid, far) = match (inside(mid) && inside(far), periodic[axis]) {
-                (true, _) => (mid, far),
-                (false, true) => (mid.rem_euclid(d), far.rem_euclid(d)),
-                (false, false) => continue,
+            // Across a mirror the volume goes on as its image: c ↦ −1 − c below, 2d − 1 − c above.
+            let image = |c: i64| {
+                if c < 0 {
+                    -1 - c
+                } else if c >= d {
+                    2 * d - 1 - c
+                } else {
+                    c
+                }
+            };
+            let (mid, far) = match (inside(mid) && inside(far), periodic[axis], reflective[axis][side]) {
+                (true, _, _) => (mid, far),
+                (false, true, _) => (mid.rem_euclid(d), far.rem_euclid(d)),
+                (false, false, true) if inside(image(far)) => (image(mid), image(far)),
+                (false, false, _) => continue,
             };
             let (mut partner, mut between) = (at, at);
             partner[axis] = far as u32;
@@ -445,7 +465,7 @@ mod tests {
 
     /// κ and the periodic axes alone: a medium too thin for the stability limit to act.
     fn uniform_sharpening(kappa: [f64; 3], periodic: [bool; 3]) -> Sharpening {
-        Sharpening { kappa, periodic, thickness: [0.0; 3], albedo: [1.0; 3], channels: 1 }
+        Sharpening { kappa, periodic, reflective: [[false; 2]; 3], thickness: [0.0; 3], albedo: [1.0; 3], channels: 1 }
     }
 
     fn medium(dims: [u32; 3], density: impl Fn([u32; 3]) -> f64) -> VoxelMedium {
@@ -539,6 +559,7 @@ mod tests {
         let how = Sharpening {
             kappa: [0.07; 3],
             periodic: [false; 3],
+            reflective: [[false; 2]; 3],
             thickness: [1.0, 1.0, 1.0],
             albedo: [0.95, 0.5, 1.0],
             channels: 3,
