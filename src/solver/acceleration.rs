@@ -41,7 +41,7 @@
 //! the fold writes each voxel from its own values; nothing depends on the thread count, and the
 //! twin and the store run the same code over their units.
 
-use super::antidiffusion::{face_neighbours, VoxelUnits};
+use super::antidiffusion::VoxelUnits;
 use super::passes::{FieldPlanes, Medium, Value, RELEASE_UNITS};
 use super::plan::Plan;
 use rayon::prelude::*;
@@ -420,6 +420,23 @@ fn conjugate_gradients(diag: &[f64], off: &[[f64; 6]], neighbours: &[[u32; 6]], 
         p.par_iter_mut().zip(&z).with_min_len(CHUNK).for_each(|(p, z)| *p = z + beta * *p);
     }
     (x, CG_MAX_ITERATIONS)
+}
+
+/// The six face neighbours of `at` in a grid of `dims`, in the order −x, +x, −y, +y, −z, +z;
+/// `None` beyond the grid's faces.
+fn face_neighbours(at: [u32; 3], dims: [u32; 3]) -> [Option<[u32; 3]>; 6] {
+    let mut out = [None; 6];
+    for axis in 0..3 {
+        for (side, step) in [(0usize, -1i64), (1, 1)] {
+            let c = at[axis] as i64 + step;
+            if c >= 0 && c < dims[axis] as i64 {
+                let mut w = at;
+                w[axis] = c as u32;
+                out[2 * axis + side] = Some(w);
+            }
+        }
+    }
+    out
 }
 
 #[cfg(test)]

@@ -339,8 +339,8 @@ pub fn sharpen_increment<F: FieldPlanes + Sync, U: VoxelUnits<V = F::V>>(
 /// scattering weight and its share of κ per channel ([`Sharpening::stable_share`]).
 type ScatteringVoxel = (usize, usize, f64, [f64; 3]);
 
-/// The weight of a flux between partners two voxels apart: the stencil u(i − 2) − 2u(i) + u(i + 2)
-/// is four second differences.
+/// The weight of a flux between partners two voxels apart: u(i − 2) − 2u(i) + u(i + 2) is four
+/// times the second difference u(i − 1) − 2u(i) + u(i + 1) of a smooth field.
 pub const PARTNER_WEIGHT: f64 = 0.25;
 
 /// The partners of `at` two voxels away along each axis, in the order −x, +x, −y, +y, −z, +z,
@@ -378,23 +378,6 @@ fn partner_voxels(
             partner[axis] = far as u32;
             between[axis] = mid as u32;
             out[2 * axis + side] = Some((partner, between));
-        }
-    }
-    out
-}
-
-/// The six face neighbours of `at` in a grid of `dims`, in the order −x, +x, −y, +y, −z, +z;
-/// `None` beyond the grid's faces.
-pub(super) fn face_neighbours(at: [u32; 3], dims: [u32; 3]) -> [Option<[u32; 3]>; 6] {
-    let mut out = [None; 6];
-    for axis in 0..3 {
-        for (side, step) in [(0usize, -1i64), (1, 1)] {
-            let c = at[axis] as i64 + step;
-            if c >= 0 && c < dims[axis] as i64 {
-                let mut w = at;
-                w[axis] = c as u32;
-                out[2 * axis + side] = Some(w);
-            }
         }
     }
     out

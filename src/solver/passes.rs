@@ -383,10 +383,10 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
     /// The end-of-order pass: with a per-voxel albedo, first multiplies the new source by each
     /// voxel's albedo factor a(v) (the sweeps scattered with `medium.albedo`; see
     /// `scale_by_albedo`), and at high albedo folds in the acceleration. With the diffusion
-    /// correction on, then writes the corrected copy of the new source into a free field: that copy
-    /// is what the next order propagates, while the raw source is what the total takes (so the
-    /// series converges to one answer whatever its path; see [`antidiffusion`]). Then commits the order's
-    /// fluence and source into the spare copies, makes
+    /// correction on, then writes into a free field the change the new source makes to the
+    /// sharpened total: that change is what the next order propagates, while the raw source is
+    /// what the total takes (so the series converges to one answer whatever its path; see
+    /// [`antidiffusion`]). Then commits the order's fluence and source into the spare copies, makes
     /// them the committed ones and the new source the next order's previous one, and returns the
     /// new source's scattered power per channel: Σ|J|·Ω·h³, the norm the ratio and the tail are
     /// estimated from (for a cold solve J ≥ 0 and this is the power itself). After the first order
@@ -486,8 +486,9 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
     /// The diffusion correction ([`antidiffusion::sharpen_increment`]): the change C(T + S) − C(T)
     /// that this order's raw source S makes to the sharpened committed total T (after a warm
     /// start's first order the commit then takes the guess off it) is written into a field that
-    /// neither this order nor the last checkpoint needs any more and becomes the new source; the raw source moves to that field's role, which is returned,
-    /// for the commit to add to the total. The order's own previous source is free once its sweeps are done (unless a
+    /// neither this order nor the last checkpoint needs any more and becomes the new source; the
+    /// raw source moves to that field's role, which is returned, for the commit to add to the
+    /// total. The order's own previous source is free once its sweeps are done (unless a
     /// checkpoint names it, right after one, or a warm start's first commit still subtracts it);
     /// otherwise the scratch field is, since a checkpoint names one source field at most. So the
     /// correction never forces a checkpoint.
@@ -495,28 +496,27 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
     where
         F: Sync,
     {
-        let how = antidiffusion::Sharpening::of(plan);
-        if !self.named.prev && !self.initial_guess {
-            antidiffusion::sharpen_increment(&mut self.source_prev, &self.source_total, &self.source_next, units, &how);
-            std::mem::swap(&mut self.source_next, &mut self.source_prev);
-            self.swap_named(|n| std::mem::swap(&mut n.next, &mut n.prev));
-            Ok(RawSource::Prev)
+        let free = if !self.named.prev && !self.initial_guess {
+            RawSource::Prev
         } else if !self.named.scratch {
-            antidiffusion::sharpen_increment(
-                &mut self.source_scratch,
-                &self.source_total,
-                &self.source_next,
-                units,
-                &how,
-            );
-            std::mem::swap(&mut self.source_next, &mut self.source_scratch);
-            self.swap_named(|n| std::mem::swap(&mut n.next, &mut n.scratch));
-            Ok(RawSource::Scratch)
+            RawSource::Scratch
         } else {
-            Err(SolveError::Internal(
+            return Err(SolveError::Internal(
                 "the diffusion correction found no source field free to write (a checkpoint names two)",
-            ))
-        }
+            ));
+        };
+        let dst = match free {
+            RawSource::Prev => &mut self.source_prev,
+            RawSource::Scratch => &mut self.source_scratch,
+        };
+        let how = antidiffusion::Sharpening::of(plan);
+        antidiffusion::sharpen_increment(dst, &self.source_total, &self.source_next, units, &how);
+        std::mem::swap(&mut self.source_next, dst);
+        self.swap_named(|n| match free {
+            RawSource::Prev => std::mem::swap(&mut n.next, &mut n.prev),
+            RawSource::Scratch => std::mem::swap(&mut n.next, &mut n.scratch),
+        });
+        Ok(free)
     }
 
     /// The committed totals and their spares change roles (with their [`Named`] flags).
