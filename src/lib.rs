@@ -56,8 +56,9 @@
 //!    `store::albedo`; at high albedo a diffusion solve estimates the light still to come and
 //!    folds it into the order, [`solver::acceleration`]; then, with `solver.diffusion_correction =
 //!    "on"`, the default, the next order is given the change the order makes to the sharpened
-//!    total, which takes the discretisation's numerical diffusion back out: [`solver::antidiffusion`],
-//!    a capped stencil over partners two voxels apart, on either layout), the stop rule's remaining error, a checkpoint (store only, at the cadence
+//!    total, which takes the discretisation's numerical diffusion back out:
+//!    [`solver::antidiffusion`], a capped stencil over partners two voxels apart, on either
+//!    layout), the stop rule's remaining error, a checkpoint (store only, at the cadence
 //!    of `solver.checkpoint_every_*`, written in the background while the next order's sweeps run),
 //!    and at the end the energy balance and the geometric tail.
 //!    The passes run on every core, with every sum taken in a fixed order (bitwise at any thread

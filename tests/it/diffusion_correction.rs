@@ -87,8 +87,9 @@ fn the_thick_box_centre_comes_down_to_its_refined_value() {
 /// The case the property test (tests/it/property_solve.rs) found against the uncapped, linear
 /// form: a 3³ box of 1000 mean free paths per voxel, albedo 0.39, under a sun of 10¹². The sunlit
 /// layer is brighter than the one below it by many orders of magnitude, so uncapped
-/// anti-diffusive fluxes took more light out of the dark voxels than they had (fluence −2.5·10⁷,
-/// −2·10⁻⁵ of the peak). Capped against the committed total, every value stays ≥ 0.
+/// anti-diffusive fluxes took more light out of the dark voxels than they had (the property test
+/// saw a fluence of −2.5·10⁷, −2·10⁻⁵ of the peak; this box, uncapped, −5.7·10⁶). Capped against
+/// the committed total, every value stays ≥ 0.
 #[test]
 fn a_sunlit_layer_of_a_thousand_mean_free_paths_leaves_no_voxel_negative() {
     for (k, sun_direction) in [(1, [0.0, 0.0, -1.0]), (2, [0.3, -0.2, -0.9])] {
