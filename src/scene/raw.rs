@@ -107,6 +107,7 @@ pub(crate) struct RawLight {
 pub(crate) struct RawSolver {
     pub directions_per_face: Option<i64>,
     pub storage_directions_per_face: Option<i64>,
+    pub sky_directions_per_face: Option<i64>,
     pub max_orders: Option<i64>,
     pub tolerance: Option<f64>,
     pub device_memory_budget: Option<ByteSize>,

@@ -265,6 +265,11 @@ pub struct SolverSettings {
     /// Storage directions per face for anisotropic media (k_s×k_s per face, k_s ≤ k). `None`: the
     /// plan chooses (1 storage direction in all when the medium is isotropic).
     pub storage_directions_per_face: Option<u32>,
+    /// k_sky ≥ k: the sky's light is swept into the medium along k_sky×k_sky directions per face
+    /// in order 0 (its uncollided light and first scattering), the scattered light along the k×k
+    /// (`solver.sky_directions_per_face`; see `solver::plan`, "The sky's own directions"). `None`:
+    /// k, the sky travels with the other light.
+    pub sky_directions_per_face: Option<u32>,
     /// Cap on the number of scattering orders propagated (≥ 1).
     pub max_orders: u32,
     /// Stop when the newest order's scattered power is below this fraction of the total (in (0, 1)).

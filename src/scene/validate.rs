@@ -132,6 +132,18 @@ impl Validator<'_> {
         if boundary.any_reflective() {
             self.reflective_fits(&boundary, &lights, &solver)?;
         }
+        if solver.sky_directions_per_face.is_some_and(|n| n > solver.directions_per_face) {
+            let why = if boundary.any_periodic() || boundary.any_reflective() {
+                Some("periodic or reflective faces hand the sky's rays on to the next order, which its own directions do not have")
+            } else if lights.iter().any(|l| matches!(l, Light::Environment(_))) {
+                Some("an environment map's light travels with the other directions; use a sky, or leave the option out")
+            } else {
+                None
+            };
+            if let Some(why) = why {
+                return Err(self.err("solver.sky_directions_per_face", format!("is not supported here: {why}")));
+            }
+        }
         Ok(Scene { path: self.path.to_path_buf(), volume, medium, lights, solver, camera, boundary })
     }
 
@@ -621,6 +633,7 @@ impl Validator<'_> {
             return Ok(SolverSettings {
                 directions_per_face: DEFAULT_DIRECTIONS_PER_FACE,
                 storage_directions_per_face: None,
+                sky_directions_per_face: None,
                 max_orders: DEFAULT_MAX_ORDERS,
                 tolerance: DEFAULT_TOLERANCE,
                 device_memory_budget: None,
@@ -652,6 +665,17 @@ impl Validator<'_> {
                 Some(self.int_range("solver.storage_directions_per_face", ks, 1, k)?)
             }
         };
+        let sky_k =
+            match s.sky_directions_per_face {
+                None => None,
+                Some(n) if n < i64::from(k) => return Err(self.err(
+                    "solver.sky_directions_per_face",
+                    format!(
+                        "must be ≥ solver.directions_per_face = {k} (the sky's directions refine the others), got {n}"
+                    ),
+                )),
+                Some(n) => Some(self.int_range("solver.sky_directions_per_face", n, 1, MAX_DIRECTIONS_PER_FACE)?),
+            };
         let max_orders = match s.max_orders {
             None => DEFAULT_MAX_ORDERS,
             Some(n) => self.int_range("solver.max_orders", n, 1, MAX_MAX_ORDERS)?,
@@ -738,7 +762,7 @@ impl Validator<'_> {
         if acceleration == Acceleration::Diffusion && spatial == SpatialScheme::Linear {
             return Err(self.err(
                 "solver.acceleration",
-                "\"diffusion\" does not converge with solver.spatial = \"linear\" (its bilinear lattice spreads \
+                "\"diffusion\" can diverge with solver.spatial = \"linear\" (its bilinear lattice spreads \
                  light unlike diffusion); use spatial = \"constant\" (the default) or acceleration = \"off\"",
             ));
         }
@@ -776,6 +800,7 @@ impl Validator<'_> {
         Ok(SolverSettings {
             directions_per_face: k,
             storage_directions_per_face: ks,
+            sky_directions_per_face: sky_k,
             max_orders,
             tolerance,
             device_memory_budget,

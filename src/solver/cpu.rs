@@ -181,6 +181,19 @@ impl<'a> CpuTwin<'a> {
         }
         tallies
     }
+
+    /// Marches the rays of one of the sky's own directions ([`Plan::sky_faces`]): born with the
+    /// sky's radiance, gaining no source. The scene has no periodic or mirror faces then, so
+    /// nothing is carried or handed over.
+    fn sweep_sky(&mut self, dir: &SweepDirection) -> Tallies {
+        let fields = &mut self.fields;
+        let inputs =
+            SweepInputs { density: &self.medium.density, gained: &fields.source_prev.values, occupied: &self.occupied };
+        let mut outputs =
+            SweepOutputs { fluence_order: &mut fields.fluence.values, j_next: &mut fields.source_next.values };
+        let mode = SweepMode { boundary: true, gain: false, emit: false };
+        sweep_direction(self.plan, dir, mode, None, None, &inputs, &mut outputs).0
+    }
 }
 
 impl Backend for CpuTwin<'_> {
@@ -203,6 +216,10 @@ impl Backend for CpuTwin<'_> {
             if plan.beam_swept_in(b, order) {
                 tallies.add(&self.sweep(beam, CarryOf::Beam(b), order == 0, false, false));
             }
+        }
+        // The sky's own directions (plan docs): order 0 only, boundary light only.
+        for dir in plan.sky_faces.iter().flatten().filter(|_| order == 0) {
+            tallies.add(&self.sweep_sky(dir));
         }
         for (face, dirs) in plan.faces.iter().enumerate() {
             for (d, dir) in dirs.iter().enumerate() {

@@ -81,6 +81,13 @@ pub enum SolveError {
     Cancelled,
     #[error(transparent)]
     WarmStart(#[from] warm::WarmStartError),
+    #[error(
+        "the order series diverged at order {order}: {why}. Its fields are not a solution, so no output \
+         was written. The accelerations are the only parts of the solver that can amplify light; rerun \
+         with solver.acceleration = \"off\" and solver.diffusion_correction = \"off\", and please report \
+         the scene"
+    )]
+    Diverged { order: u32, why: String },
     #[error("internal error: {0}")]
     Internal(&'static str),
 }

@@ -98,6 +98,42 @@ pub struct TailEstimate {
     pub face_out: [[f64; 3]; 6],
 }
 
+/// Orders in a row whose scattered power grew, and by how much in all, that mark a diverging series
+/// ([`check_divergence`]).
+const GROWING_ORDERS: usize = 8;
+const DIVERGED_GROWTH: f64 = 2.0;
+
+/// Fails with [`SolveError::Diverged`] when this order's scattered power `new` (per channel) is
+/// not finite, or when the power (summed over channels, in magnitude) grew in each of the last
+/// [`GROWING_ORDERS`] orders and by [`DIVERGED_GROWTH`] or more over them. Transport alone cannot
+/// do either: each order scatters at most the albedo times what the one before did. An
+/// acceleration that amplifies a mode can (a thick cloud at albedo 0.999 under spatial = "linear"
+/// with the diffusion acceleration forced on grew ×1.18 per order from order 10 on, benches/
+/// RESULTS.md), and would otherwise run on to max_orders and report fields of 10¹³ as "solved",
+/// or overflow to infinities. A converging accelerated series may grow for an order or two, never
+/// for eight.
+fn check_divergence(order: u32, new: [f64; 3], history: &[OrderRecord]) -> Result<(), SolveError> {
+    if let Some(&power) = new.iter().find(|p| !p.is_finite()) {
+        return Err(SolveError::Diverged { order, why: format!("it scattered a non-finite power ({power})") });
+    }
+    let now = new.iter().sum::<f64>().abs();
+    // The last orders' powers, the newest first.
+    let past: Vec<f64> = history.iter().rev().take(GROWING_ORDERS).map(|r| r.new_source_power.abs()).collect();
+    let Some(&first) = past.get(GROWING_ORDERS - 1) else { return Ok(()) };
+    let grew_every_order =
+        std::iter::once(now).chain(past.iter().copied()).zip(past.iter()).all(|(later, &p)| later > p);
+    if grew_every_order && first > 0.0 && now >= DIVERGED_GROWTH * first {
+        return Err(SolveError::Diverged {
+            order,
+            why: format!(
+                "its scattered power grew in each of the last {GROWING_ORDERS} orders, ×{:.3} in all ({first:.4e} → {now:.4e})",
+                now / first
+            ),
+        });
+    }
+    Ok(())
+}
+
 /// Below this a step of the ratio counts as settled (the ratios are f64 quotients of sums over the
 /// volume: far above rounding).
 const SETTLED_STEP: f64 = 1e-10;
@@ -261,6 +297,9 @@ pub fn run_orders<B: Backend + ?Sized>(
         // What the next order propagates: the new source, and what periodic sweeps carry over.
         let carried = backend.carried_power();
         let new: [f64; 3] = std::array::from_fn(|c| scattered[c] + carried[c]);
+        // Before anything of this order is kept (the totals, a checkpoint): a blown-up order
+        // would otherwise run on to max_orders and write fields of infinities.
+        check_divergence(order, new, &state.history)?;
         state.last_carried_power = carried;
         state.last_face_out = this_order.face_out;
         for c in 0..3 {
@@ -338,4 +377,56 @@ pub fn run_orders<B: Backend + ?Sized>(
         tail,
         elapsed: clock.elapsed(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn history(powers: &[f64]) -> Vec<OrderRecord> {
+        powers
+            .iter()
+            .enumerate()
+            .map(|(i, &p)| OrderRecord {
+                order: i as u32,
+                new_source_power: p,
+                total_source_power: 0.0,
+                remaining_max: None,
+                seconds: 0.0,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn an_order_of_infinite_or_undefined_power_stops_the_solve() {
+        assert!(check_divergence(3, [1.0, 0.0, 2.5e300], &[]).is_ok());
+        for bad in [f64::INFINITY, f64::NAN, f64::NEG_INFINITY] {
+            match check_divergence(7, [1.0, bad, 0.0], &[]) {
+                Err(SolveError::Diverged { order: 7, why }) => assert!(why.contains("non-finite"), "{why}"),
+                other => panic!("expected a divergence error, got {other:?}"),
+            }
+        }
+        let message = SolveError::Diverged { order: 7, why: "x".into() }.to_string();
+        assert!(message.contains("order 7") && message.contains("acceleration"), "{message}");
+    }
+
+    #[test]
+    fn a_series_growing_order_after_order_stops_but_a_converging_one_with_bumps_goes_on() {
+        // ×1.18 per order, as the diverging cloud did: stopped once eight rises double it.
+        let growing: Vec<f64> = (0..12).map(|i| 85.0 * 1.18f64.powi(i)).collect();
+        let stopped =
+            (8..12).find(|&n| check_divergence(n as u32, [growing[n], 0.0, 0.0], &history(&growing[..n])).is_err());
+        assert_eq!(stopped, Some(8));
+        // An accelerated series that rises for an order now and then converges: never stopped.
+        let bumpy = [1.0, 8e-3, 5.5e-3, 4.9e-3, 2.2e-3, 2.7e-3, 9.5e-4, 8.8e-4, 3.4e-4, 4.1e-4, 1.5e-4, 7e-5];
+        for n in 1..bumpy.len() {
+            assert!(check_divergence(n as u32, [bumpy[n], 0.0, 0.0], &history(&bumpy[..n])).is_ok());
+        }
+        // Eight small rises that do not double (a series stalled at its rounding floor): goes on.
+        let creeping: Vec<f64> = (0..10).map(|i| 1e-9 * (1.0 + 0.01 * i as f64)).collect();
+        assert!(check_divergence(9, [creeping[9], 0.0, 0.0], &history(&creeping[..9])).is_ok());
+        // Warm starts' signed residuals shrinking in magnitude are not growth.
+        let signed: Vec<f64> = (0..10).map(|i| -(0.5f64.powi(i))).collect();
+        assert!(check_divergence(9, [signed[9], 0.0, 0.0], &history(&signed[..9])).is_ok());
+    }
 }

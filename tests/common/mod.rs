@@ -22,6 +22,7 @@ pub fn scene(shape: Shape, dims: [u32; 3], sigma_t: [f64; 3], albedo: [f64; 3], 
         solver: SolverSettings {
             directions_per_face: 3,
             storage_directions_per_face: None,
+            sky_directions_per_face: None,
             max_orders: 200,
             tolerance: 1e-6,
             device_memory_budget: None,

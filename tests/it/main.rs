@@ -43,6 +43,7 @@ mod resume;
 mod scene_files;
 mod serve;
 mod shader_interface;
+mod sky_directions;
 mod slurm;
 mod spatial_accuracy;
 mod spirv_current;

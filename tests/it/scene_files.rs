@@ -389,7 +389,7 @@ fn acceleration_key() {
     rejects(
         &with("[solver]\nacceleration = \"diffusion\"\nspatial = \"linear\"\n"),
         "solver.acceleration",
-        "does not converge with solver.spatial = \"linear\"",
+        "can diverge with solver.spatial = \"linear\"",
     );
     rejects(
         &with("[solver]\nacceleration = \"diffusion\"\nextrapolate_tail = true\n"),
@@ -575,4 +575,30 @@ fn box_is_full_and_brick_edges_are_zero() {
             }
         }
     }
+}
+
+#[test]
+fn sky_directions_key() {
+    let s = load(&with("")).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(s.solver.sky_directions_per_face, None);
+    let s = load(&with("[solver]\ndirections_per_face = 4\nsky_directions_per_face = 12\n"))
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(s.solver.sky_directions_per_face, Some(12));
+    let key = "solver.sky_directions_per_face";
+    rejects(
+        &with("[solver]\ndirections_per_face = 4\nsky_directions_per_face = 3\n"),
+        key,
+        "≥ solver.directions_per_face = 4",
+    );
+    rejects(&with("[solver]\nsky_directions_per_face = 33\n"), key, "");
+    rejects(
+        &with("[solver]\nsky_directions_per_face = 8\n[boundary]\nx = \"periodic\"\n"),
+        key,
+        "periodic or reflective",
+    );
+    rejects(
+        &with("[solver]\nsky_directions_per_face = 8\n[boundary]\nz = [\"reflective\", \"open\"]\n"),
+        key,
+        "periodic or reflective",
+    );
 }

@@ -37,12 +37,20 @@ struct Worst {
 /// with k directions per face. By the box's symmetry every voxel's value equals that of a voxel
 /// with x ≤ y ≤ z ≤ 15, so those are the ones compared (the solve is checked to be symmetric).
 fn worst_absorber_errors(scheme: SpatialScheme, k: u32) -> Worst {
+    worst_absorber_errors_with_sky(scheme, k, None)
+}
+
+/// [`worst_absorber_errors`] with the sky swept along `sky_k`×`sky_k` directions per face of its
+/// own (`solver.sky_directions_per_face`); the spatial error is then against those directions.
+fn worst_absorber_errors_with_sky(scheme: SpatialScheme, k: u32, sky_k: Option<u32>) -> Worst {
     let n = 32;
     let sigma = 0.1;
     let mut scene = scene(Shape::Box, [n; 3], [sigma; 3], [0.0; 3], vec![sky(1.0)]);
     scene.solver.directions_per_face = k;
+    scene.solver.sky_directions_per_face = sky_k;
     scene.solver.spatial = scheme;
-    let s = solve(&format!("absorber32-{}-{k}", scheme.name()), &scene, Cpu);
+    let s = solve(&format!("absorber32-{}-{k}-{sky_k:?}", scheme.name()), &scene, Cpu);
+    let k = sky_k.unwrap_or(k);
     let mut worst = Worst { spatial: (0.0, [0; 3]), total: (0.0, [0; 3]) };
     for z in 0..n / 2 {
         for y in 0..=z {
@@ -96,4 +104,32 @@ fn linear_scheme_keeps_the_spatial_error_of_an_absorber_box_below_one_percent_in
         constant.spatial,
         linear.spatial
     );
+}
+
+/// With the sky on directions of its own (16×16 per face, order 0 only, exact ray positions
+/// whatever the scheme) the k = 8 solve of the absorber box comes within 1.1 % of the exact
+/// solid-angle integral in every voxel, faces and corners included, where the shared k = 8
+/// directions leave 1.8 % (linear) and 2.7 % (constant). (The issue asks for 1 %: what is left is
+/// the linear lattice's own error next to the faces, ~1 % at a face centre.)
+#[test]
+fn with_its_own_directions_the_sky_brings_every_voxel_of_an_absorber_box_within_1_1_percent_of_exact() {
+    let linear = worst_absorber_errors_with_sky(SpatialScheme::Linear, 8, Some(16));
+    let constant = worst_absorber_errors_with_sky(SpatialScheme::Constant, 8, Some(16));
+    eprintln!(
+        "absorber 32³, k = 8, sky 16: against the exact integral linear {:.3e} at {:?}, constant {:.3e} at {:?}; \
+         spatial linear {:.3e} at {:?}, constant {:.3e} at {:?}",
+        linear.total.0,
+        linear.total.1,
+        constant.total.0,
+        constant.total.1,
+        linear.spatial.0,
+        linear.spatial.1,
+        constant.spatial.0,
+        constant.spatial.1,
+    );
+    for (name, w) in [("linear", &linear), ("constant", &constant)] {
+        assert!(w.total.0 < 0.011, "{name}: {:?}", w.total);
+    }
+    let shared = worst_absorber_errors(SpatialScheme::Constant, 8);
+    assert!(constant.total.0 < 0.5 * shared.total.0, "{:?} vs shared directions {:?}", constant.total, shared.total);
 }

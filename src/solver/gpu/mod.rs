@@ -125,11 +125,13 @@ impl GpuOptions {
     }
 }
 
-/// Which sweep of an order: a face's directions or one sun beam.
+/// Which sweep of an order: a face's directions, one sun beam, or a face's share of the sky's own
+/// directions (`Plan::sky_faces`, order 0 only).
 #[derive(Clone, Copy)]
 enum SweepOf {
     Face(usize),
     Beam(usize),
+    Sky(usize),
 }
 
 pub struct GpuBackend<'a> {
@@ -263,13 +265,16 @@ impl<'a> GpuBackend<'a> {
         let dirs: &[SweepDirection] = match which {
             SweepOf::Face(i) => &plan.faces[i],
             SweepOf::Beam(i) => std::slice::from_ref(&plan.beams[i]),
+            SweepOf::Sky(i) => &plan.sky_faces[i],
         };
         let sweep = FaceSweep::for_plan(dirs[0].face, plan);
         let pass = self.memory.directions_per_pass as usize;
         let boundary = flags & FLAG_BOUNDARY != 0;
         let carry_of = |d: usize| match which {
-            SweepOf::Face(face) => CarryOf::Face { face, dir: d },
-            SweepOf::Beam(b) => CarryOf::Beam(b),
+            SweepOf::Face(face) => Some(CarryOf::Face { face, dir: d }),
+            SweepOf::Beam(b) => Some(CarryOf::Beam(b)),
+            // The sky has its own directions only in scenes without periodic axes: nothing carried.
+            SweepOf::Sky(_) => None,
         };
         let mut tallies = Tallies::default();
         for first in (0..dirs.len()).step_by(pass) {
@@ -284,7 +289,7 @@ impl<'a> GpuBackend<'a> {
                     .enumerate()
                     .map(|(i, dir)| {
                         let birth = if boundary { dir.boundary } else { [0.0; 3] };
-                        self.carry.entry(plan, carry_of(first + i), dir, birth).unwrap_or_default()
+                        carry_of(first + i).and_then(|of| self.carry.entry(plan, of, dir, birth)).unwrap_or_default()
                     })
                     .collect()
             });
@@ -296,6 +301,7 @@ impl<'a> GpuBackend<'a> {
             let (tables, sets) = match which {
                 SweepOf::Face(i) => (&res.face_tables[i], &res.face_sets[i]),
                 SweepOf::Beam(i) => (&res.beam_tables[i], &res.beam_sets[i]),
+                SweepOf::Sky(i) => (&res.sky_tables[i], &res.sky_sets[i]),
             };
             let mut io = Stream { plan, store: self.store, fields: &mut *self.fields, res };
             let job =
@@ -309,7 +315,9 @@ impl<'a> GpuBackend<'a> {
                 read_tallies(&mut self.streamer, &self.resources, plan, &sweep, pass_directions, births)?;
             tallies.add(&pass_tallies);
             for (i, (dir, exit)) in pass_directions.iter().zip(exits).enumerate() {
-                self.carry.store_exit(plan, carry_of(first + i), dir, exit);
+                if let Some(of) = carry_of(first + i) {
+                    self.carry.store_exit(plan, of, dir, exit);
+                }
             }
         }
         Ok(tallies)
@@ -544,7 +552,9 @@ impl GpuBackend<'_> {
         // The scale of this order's f16 source, from its largest value (exact: a power of two).
         self.half_exponent =
             (plan.source_precision == Precision::F16).then(|| half_scale_exponent(self.fields.source_prev.max_abs()));
-        let face_dirs: Vec<usize> = plan.faces.iter().map(Vec::len).collect();
+        // The sky's own directions sweep in order 0 only, in passes as a face's do.
+        let sky_faces = if order == 0 { plan.sky_faces.len() } else { 0 };
+        let face_dirs: Vec<usize> = plan.faces.iter().chain(&plan.sky_faces[..sky_faces]).map(Vec::len).collect();
         let beams: Vec<usize> = (0..plan.beams.len()).filter(|&b| plan.beam_swept_in(b, order)).collect();
         let passes = progress::passes_per_order(&face_dirs, beams.len(), self.memory.directions_per_pass);
         self.progress = Some(progress::PassProgress::new(order, passes));
@@ -559,6 +569,9 @@ impl GpuBackend<'_> {
         // carried out (super::periodic).
         for beam in beams {
             tallies.add(&self.sweep(SweepOf::Beam(beam), if order == 0 { FLAG_BOUNDARY } else { 0 })?);
+        }
+        for face in 0..sky_faces {
+            tallies.add(&self.sweep(SweepOf::Sky(face), FLAG_BOUNDARY)?);
         }
         let mut flags = FLAG_GAIN;
         if order == 0 {

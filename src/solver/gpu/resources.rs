@@ -77,6 +77,7 @@ pub struct DeviceResources {
     /// Per face, then per beam, parallel to the tables.
     pub face_sets: Vec<SweepSets>,
     pub beam_sets: Vec<SweepSets>,
+    pub sky_sets: Vec<SweepSets>,
     pub propagate: Owned<ComputePipeline>,
     pub collect: Owned<ComputePipeline>,
     /// The layout both pipelines share; declared after them, so freed after them.
@@ -87,6 +88,8 @@ pub struct DeviceResources {
     pub resident: Option<ResidentBuffers>,
     pub face_tables: Vec<SweepTables>,
     pub beam_tables: Vec<SweepTables>,
+    /// Per face, the sky's own directions (`Plan::sky_faces`; empty unless it has them).
+    pub sky_tables: Vec<SweepTables>,
 }
 
 fn host_buffer(
@@ -199,6 +202,11 @@ impl DeviceResources {
             .iter()
             .map(|beam| SweepTables::upload(ctx, streamer, std::slice::from_ref(beam)))
             .collect::<Result<Vec<_>, _>>()?;
+        let sky_tables = plan
+            .sky_faces
+            .iter()
+            .map(|face| SweepTables::upload(ctx, streamer, face))
+            .collect::<Result<Vec<_>, _>>()?;
         let sets = |tables: &[SweepTables], what: &str| -> Result<Vec<SweepSets>, SolveError> {
             let mut all = Vec::with_capacity(tables.len());
             for (i, t) in tables.iter().enumerate() {
@@ -226,9 +234,11 @@ impl DeviceResources {
         };
         let face_sets = sets(&face_tables, "face")?;
         let beam_sets = sets(&beam_tables, "beam")?;
+        let sky_sets = sets(&sky_tables, "sky")?;
         Ok(DeviceResources {
             face_sets,
             beam_sets,
+            sky_sets,
             propagate,
             collect,
             layout,
@@ -237,6 +247,7 @@ impl DeviceResources {
             resident,
             face_tables,
             beam_tables,
+            sky_tables,
         })
     }
 
@@ -256,7 +267,7 @@ impl DeviceResources {
             .map(|b| b.size())
             .sum();
         let resident: u64 = self.resident.iter().flat_map(ResidentBuffers::all).map(|b| b.size()).sum();
-        let tables = self.face_tables.iter().chain(&self.beam_tables);
+        let tables = self.face_tables.iter().chain(&self.beam_tables).chain(&self.sky_tables);
         let staging = tables.clone().map(|t| t.staging_bytes).max().unwrap_or(0);
         shared + slots + resident + tables.map(SweepTables::device_bytes).sum::<u64>() + staging
     }

@@ -210,6 +210,7 @@ pub fn all_tables(plan: &Plan) -> Vec<TableSizes> {
         .iter()
         .map(|f| TableSizes::new(f))
         .chain(plan.beams.iter().map(|b| TableSizes::new(std::slice::from_ref(b))))
+        .chain(plan.sky_faces.iter().map(|f| TableSizes::new(f)))
         .collect()
 }
 
