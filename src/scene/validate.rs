@@ -665,17 +665,18 @@ impl Validator<'_> {
                 Some(self.int_range("solver.storage_directions_per_face", ks, 1, k)?)
             }
         };
-        let sky_k =
-            match s.sky_directions_per_face {
-                None => None,
-                Some(n) if n < i64::from(k) => return Err(self.err(
+        let sky_k = match s.sky_directions_per_face {
+            None => None,
+            Some(n) if n < i64::from(k) => {
+                return Err(self.err(
                     "solver.sky_directions_per_face",
                     format!(
                         "must be ≥ solver.directions_per_face = {k} (the sky's directions refine the others), got {n}"
                     ),
-                )),
-                Some(n) => Some(self.int_range("solver.sky_directions_per_face", n, 1, MAX_DIRECTIONS_PER_FACE)?),
-            };
+                ))
+            }
+            Some(n) => Some(self.int_range("solver.sky_directions_per_face", n, 1, MAX_DIRECTIONS_PER_FACE)?),
+        };
         let max_orders = match s.max_orders {
             None => DEFAULT_MAX_ORDERS,
             Some(n) => self.int_range("solver.max_orders", n, 1, MAX_MAX_ORDERS)?,

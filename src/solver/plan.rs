@@ -35,12 +35,15 @@
 //! off, k = 16 0.38 % (benches/RESULTS.md). The scattered light is smooth in angle and does not
 //! need more directions, so with k_sky > k the sky is swept in order 0 only, along the 6·k_sky²
 //! directions of its own set ([`Plan::sky_faces`]), each with its solid angle as weight and the
-//! collect row of its exact direction (as a beam's, times that solid angle), its rays at their
-//! exact lateral positions whatever `solver.spatial` says (the nearest column's plane-sized error
-//! where light enters through a side grows with the grazing directions a fine set has: 3.3 % in
-//! the absorber box at k_sky = 16 against 1.1 %); the k×k directions then carry no boundary light. Order 0 costs (k_sky/k)² more sweeps; every other order is
-//! unchanged. Not with periodic or mirror faces (the sky's rays would have to be carried on to
-//! later orders) or an environment map (its light keeps to the k×k directions).
+//! collect row of its exact direction (as a beam's, times that solid angle), on the plan's
+//! spatial scheme; the k×k directions then carry no boundary light. Order 0 costs (k_sky/k)²
+//! more sweeps; every other order is unchanged. It pays with `spatial = "linear"` in media that
+//! fill the volume up to its faces (the absorber box at k = 8: worst voxel 1.8 % → 1.06 %); under
+//! `"constant"` the nearest column's plane-sized error where light enters through a side grows
+//! with the grazing directions a fine set has (2.7 % → 3.3 %), and around a cloud in vacuum the
+//! k×k scattered light's own error, which the coarse sky's partly cancelled, shows (RESULTS).
+//! Not with periodic or mirror faces (the sky's rays would have to be carried on to later orders)
+//! or an environment map (its light keeps to the k×k directions).
 //!
 //! Everything both backends need to sweep a face is derived here ([`SweepDirection`]) so that the
 //! CPU twin and the GPU driver consume identical tables.
@@ -360,47 +363,41 @@ impl Plan {
         }
         // Everything about one swept direction that follows from its geometry; `weight` is its
         // solid angle (a beam: 1, its boundary value being an irradiance).
-        // `scheme`: how its rays meet the voxels (the tables carry it; the kernels take any mix).
-        let swept = |face: usize,
-                     omega: DVec3,
-                     weight: f64,
-                     boundary: [f64; 3],
-                     gain_storage: u32,
-                     collect_row: Vec<f64>,
-                     scheme: SpatialScheme| {
-            let sweep = FaceSweep::with_boundary(face, dims, periodic, reflective);
-            let planes = sweep.n[0];
-            let slope = lateral_slope(face, omega);
-            // Across a mirror of the sweep axis the rays hand over to their mirror images'
-            // lattice, which must line up as a periodic one does (super::mirror).
-            let (omega, (offsets, weights), period_shift) = if sweep.periodic[0] || sweep.mirror[0] != [false; 2] {
-                // Nudged to whole columns per period (super::periodic); ω follows the slope.
-                let (nudged, m) = periodic_slope(slope, planes);
-                let f = FACES[face];
-                let mut w = [0.0; 3];
-                w[f.axis] = f.sign;
-                w[f.lateral[0]] = nudged[0];
-                w[f.lateral[1]] = nudged[1];
-                (DVec3::from_array(w).normalize(), periodic_lattice(m, planes, scheme), m)
-            } else {
-                (omega, lattice(slope, planes, scheme), [0; 2])
+        let swept =
+            |face: usize, omega: DVec3, weight: f64, boundary: [f64; 3], gain_storage: u32, collect_row: Vec<f64>| {
+                let sweep = FaceSweep::with_boundary(face, dims, periodic, reflective);
+                let planes = sweep.n[0];
+                let slope = lateral_slope(face, omega);
+                // Across a mirror of the sweep axis the rays hand over to their mirror images'
+                // lattice, which must line up as a periodic one does (super::mirror).
+                let (omega, (offsets, weights), period_shift) = if sweep.periodic[0] || sweep.mirror[0] != [false; 2] {
+                    // Nudged to whole columns per period (super::periodic); ω follows the slope.
+                    let (nudged, m) = periodic_slope(slope, planes);
+                    let f = FACES[face];
+                    let mut w = [0.0; 3];
+                    w[f.axis] = f.sign;
+                    w[f.lateral[0]] = nudged[0];
+                    w[f.lateral[1]] = nudged[1];
+                    (DVec3::from_array(w).normalize(), periodic_lattice(m, planes, spatial), m)
+                } else {
+                    (omega, lattice(slope, planes, spatial), [0; 2])
+                };
+                let path_length = plane_path_length(face, omega, h);
+                SweepDirection {
+                    face,
+                    omega,
+                    path_length,
+                    offsets,
+                    weights,
+                    fluence_weight: weight,
+                    boundary,
+                    gain_storage,
+                    collect_row,
+                    // A ray's tube has cross-section h²·|ω_a| = h³/path_length.
+                    power_per_radiance: h * h * h / path_length * weight,
+                    period_shift,
+                }
             };
-            let path_length = plane_path_length(face, omega, h);
-            SweepDirection {
-                face,
-                omega,
-                path_length,
-                offsets,
-                weights,
-                fluence_weight: weight,
-                boundary,
-                gain_storage,
-                collect_row,
-                // A ray's tube has cross-section h²·|ω_a| = h³/path_length.
-                power_per_radiance: h * h * h / path_length * weight,
-                period_shift,
-            }
-        };
         let faces: Vec<Vec<SweepDirection>> = (0..6)
             .map(|face| {
                 let start = face * propagation.per_face();
@@ -411,7 +408,7 @@ impl Plan {
                     .map(|(j, d)| {
                         let i = start + j;
                         let row = collect[i * s..(i + 1) * s].to_vec();
-                        swept(face, d.omega, d.solid_angle, boundary_of(i), storage.owner[i], row, spatial)
+                        swept(face, d.omega, d.solid_angle, boundary_of(i), storage.owner[i], row)
                     })
                     .collect()
             })
@@ -436,10 +433,7 @@ impl Plan {
                             .iter()
                             .map(|d| {
                                 let row = rows.row(d.omega).iter().map(|p| p * d.solid_angle).collect();
-                                // Exact positions whatever the scheme: the nearest column's
-                                // plane-sized error where light enters through a side grows with
-                                // the grazing directions a fine set has (module docs).
-                                swept(face, d.omega, d.solid_angle, sky, 0, row, SpatialScheme::Linear)
+                                swept(face, d.omega, d.solid_angle, sky, 0, row)
                             })
                             .collect()
                     })
@@ -464,7 +458,7 @@ impl Plan {
             .map(|(direction, irradiance)| {
                 let travel = -direction;
                 let row = phase::beam_row(&propagation, &storage, medium.g, travel);
-                swept(cube_face_of(travel), travel, 1.0, irradiance, 0, row, spatial)
+                swept(cube_face_of(travel), travel, 1.0, irradiance, 0, row)
             })
             .collect();
         if !beams.is_empty() {

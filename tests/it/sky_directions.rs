@@ -55,3 +55,33 @@ fn asking_for_as_many_sky_directions_as_the_others_changes_nothing() {
     assert_eq!(same.run.plan.summary().sky_directions_per_face, sc.solver.directions_per_face);
     assert_eq!(plain.field_bits(), same.field_bits());
 }
+
+/// The sky's own directions go through the same passes as a face's: resident, or streamed at the
+/// smallest budget (one direction per pass, one plane per slice), the bits are the same, and the
+/// budget holds with their tables counted.
+#[test]
+fn resident_or_streamed_at_the_smallest_budget_the_skys_own_directions_give_the_same_bits() {
+    let mut sc = scene(Shape::Sphere, [18, 16, 20], [1.0; 3], [0.8; 3], vec![sky(1.0)]);
+    sc.solver.directions_per_face = 2;
+    sc.solver.sky_directions_per_face = Some(5);
+    sc.solver.max_orders = 3;
+    let resident = solve("sky-resident", &sc, Gpu);
+    assert!(resident.run.memory.expect("memory plan").is_resident());
+    sc.solver.device_residency = lpm::scene::DeviceResidency::Streamed;
+    let needed = {
+        let dir = temp_dir("sky-budget-probe");
+        let store = lpm::solver::build_store(&sc, &dir.join("store")).expect("store");
+        let mut probe = sc.clone();
+        probe.solver.device_memory_budget = Some(1);
+        match lpm::solver::solve(&probe, &store, Gpu, validated(), |_, _| {}) {
+            Err(lpm::solver::SolveError::BudgetTooSmall { needed, .. }) => needed,
+            other => panic!("expected BudgetTooSmall, got {:?}", other.map(|_| ())),
+        }
+    };
+    sc.solver.device_memory_budget = Some(needed);
+    let tight = solve("sky-tight", &sc, Gpu);
+    let m = tight.run.memory.expect("memory plan");
+    assert!(!m.is_resident() && m.directions_per_pass == 1 && m.planes_per_slice == 1, "{m:?}");
+    assert!(tight.run.peak_device_bytes <= needed, "peak {} over budget {needed}", tight.run.peak_device_bytes);
+    assert!(tight.field_bits() == resident.field_bits(), "streamed at the smallest budget changed the result");
+}
