@@ -1,6 +1,6 @@
 //! The plan: what this scene needs, decided once before solving and reported.
 //!
-//! (Just over 450 lines: every choice the plan makes sits beside the reason it reports, so one file
+//! (About 800 lines: every choice the plan makes sits beside the reason it reports, so one file
 //! says what a solve will model.)
 //!
 //! - channels: 1 when the medium, every light and the emission grid are grey (a temperature grid's
@@ -35,13 +35,13 @@
 //! off, k = 16 0.38 % (benches/RESULTS.md). The scattered light is smooth in angle and does not
 //! need more directions, so with k_sky > k the sky is swept in order 0 only, along the 6·k_sky²
 //! directions of its own set ([`Plan::sky_faces`]), each with its solid angle as weight and the
-//! collect row of its exact direction (as a beam's, times that solid angle), on the plan's
-//! spatial scheme; the k×k directions then carry no boundary light. Order 0 costs (k_sky/k)²
-//! more sweeps; every other order is unchanged. It pays with `spatial = "linear"` in media that
-//! fill the volume up to its faces (the absorber box at k = 8: worst voxel 1.8 % → 1.06 %); under
-//! `"constant"` the nearest column's plane-sized error where light enters through a side grows
-//! with the grazing directions a fine set has (2.7 % → 3.3 %), and around a cloud in vacuum the
-//! k×k scattered light's own error, which the coarse sky's partly cancelled, shows (RESULTS).
+//! collect row of its exact direction (as a beam's, times that solid angle), on the plan's spatial
+//! scheme; the k×k directions then carry no boundary light. Order 0 costs (k_sky/k)² more sweeps;
+//! every other order is unchanged. It pays with `spatial = "linear"` in media that fill the volume
+//! up to its faces (the absorber box at k = 8: worst voxel 1.8 % → 1.06 % at k_sky = 16, 0.76 % at
+//! 32); under `"constant"` the nearest column's plane-sized error where light enters through a side
+//! grows with the grazing directions a fine set has (2.7 % → 3.3 %), and around a cloud in vacuum
+//! the k×k scattered light's own error, which the coarse sky's partly cancelled, shows (RESULTS).
 //! Not with periodic or mirror faces (the sky's rays would have to be carried on to later orders)
 //! or an environment map (its light keeps to the k×k directions).
 //!
