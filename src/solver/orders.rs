@@ -107,11 +107,11 @@ const DIVERGED_GROWTH: f64 = 2.0;
 /// not finite, or when the power (summed over channels, in magnitude) grew in each of the last
 /// [`GROWING_ORDERS`] orders and by [`DIVERGED_GROWTH`] or more over them. Transport alone cannot
 /// do either: each order scatters at most the albedo times what the one before did. An
-/// acceleration that amplifies a mode can (a thick cloud at albedo 0.999 under spatial = "linear"
-/// with the diffusion acceleration forced on grew ×1.18 per order from order 10 on, benches/
-/// RESULTS.md), and would otherwise run on to max_orders and report fields of 10¹³ as "solved",
-/// or overflow to infinities. A converging accelerated series may grow for an order or two, never
-/// for eight.
+/// acceleration that amplifies a mode can: a thick cloud at albedo 0.999 under spatial = "linear"
+/// with the diffusion acceleration forced on grew ×1.18 per order from order 10 on (RESULTS.md,
+/// "Linear with the correction") and ran on to max_orders, reporting fields of 10¹³ as "solved";
+/// later it would overflow to infinities. A converging accelerated series may grow for an order or
+/// two, never for eight.
 fn check_divergence(order: u32, new: [f64; 3], history: &[OrderRecord]) -> Result<(), SolveError> {
     if let Some(&power) = new.iter().find(|p| !p.is_finite()) {
         return Err(SolveError::Diverged { order, why: format!("it scattered a non-finite power ({power})") });

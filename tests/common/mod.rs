@@ -136,6 +136,19 @@ pub fn solve(name: &str, scene: &Scene, backend: BackendKind) -> Solved {
     Solved { run, fields, store }
 }
 
+/// The bytes the smallest cut of `scene`'s GPU solve needs, from the error a budget of one byte
+/// gives.
+pub fn smallest_unit(scene: &Scene) -> u64 {
+    let dir = temp_dir("budget-probe");
+    let store = lpm::solver::build_store(scene, &dir.join("store")).expect("store");
+    let mut s = scene.clone();
+    s.solver.device_memory_budget = Some(1);
+    match lpm::solver::solve(&s, &store, BackendKind::Gpu, validated(), |_, _| {}) {
+        Err(lpm::solver::SolveError::BudgetTooSmall { needed, .. }) => needed,
+        other => panic!("expected BudgetTooSmall, got {:?}", other.map(|_| ())),
+    }
+}
+
 /// ‖a − b‖₂ / ‖b‖₂.
 pub fn relative_l2(a: &[f64], b: &[f64]) -> f64 {
     assert_eq!(a.len(), b.len());

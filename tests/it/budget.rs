@@ -21,18 +21,6 @@ fn cloud() -> Scene {
     s
 }
 
-/// The bytes the smallest cut needs, from the error a zero budget gives.
-fn smallest_unit(scene: &Scene) -> u64 {
-    let dir = temp_dir("budget-probe");
-    let store = lpm::solver::build_store(scene, &dir.join("store")).unwrap();
-    let mut s = scene.clone();
-    s.solver.device_memory_budget = Some(1);
-    match lpm::solver::solve(&s, &store, Gpu, validated(), |_, _| {}) {
-        Err(SolveError::BudgetTooSmall { needed, .. }) => needed,
-        other => panic!("expected BudgetTooSmall, got {:?}", other.map(|_| ())),
-    }
-}
-
 fn bits(solved: &Solved) -> (Vec<u32>, Vec<u32>) {
     (
         solved.fields.fluence_total.as_slice().iter().map(|v| v.to_bits()).collect(),

@@ -68,16 +68,7 @@ fn resident_or_streamed_at_the_smallest_budget_the_skys_own_directions_give_the_
     let resident = solve("sky-resident", &sc, Gpu);
     assert!(resident.run.memory.expect("memory plan").is_resident());
     sc.solver.device_residency = lpm::scene::DeviceResidency::Streamed;
-    let needed = {
-        let dir = temp_dir("sky-budget-probe");
-        let store = lpm::solver::build_store(&sc, &dir.join("store")).expect("store");
-        let mut probe = sc.clone();
-        probe.solver.device_memory_budget = Some(1);
-        match lpm::solver::solve(&probe, &store, Gpu, validated(), |_, _| {}) {
-            Err(lpm::solver::SolveError::BudgetTooSmall { needed, .. }) => needed,
-            other => panic!("expected BudgetTooSmall, got {:?}", other.map(|_| ())),
-        }
-    };
+    let needed = smallest_unit(&sc);
     sc.solver.device_memory_budget = Some(needed);
     let tight = solve("sky-tight", &sc, Gpu);
     let m = tight.run.memory.expect("memory plan");
