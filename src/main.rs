@@ -383,6 +383,11 @@ enum BenchCommand {
         /// keep); default: the scene's own.
         #[arg(long, value_delimiter = ',', value_enum)]
         forward_peak: Vec<ForwardPeakArg>,
+        /// Sky directions per face to run each setting with (comma-separated
+        /// `solver.sky_directions_per_face` values; 0, or any value up to the run's k: the sky on
+        /// the k×k directions); default: the scene's own.
+        #[arg(long, value_delimiter = ',')]
+        sky_directions: Vec<u32>,
         /// The density quantile where the dense core starts (0.9: the densest 10 % of the medium),
         /// for the core_* columns.
         #[arg(long, default_value_t = lpm::compare::DEFAULT_CORE_QUANTILE)]
@@ -881,6 +886,7 @@ fn run(cli: Cli) -> Result<()> {
                     plans,
                     spatial,
                     forward_peak,
+                    sky_directions,
                     core_quantile,
                     samples,
                     reference_samples,
@@ -935,6 +941,7 @@ fn run(cli: Cli) -> Result<()> {
                         ForwardPeakArg::Keep => lpm::scene::ForwardPeak::Keep,
                     })
                     .collect(),
+                sky_directions,
                 core_quantile,
                 photons: samples.iter().map(|&s| s.max(1.0) as u64).collect(),
                 reference_photons: reference_samples.max(1.0) as u64,

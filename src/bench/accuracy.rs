@@ -36,6 +36,9 @@ pub struct AccuracyOptions {
     pub spatial: Vec<SpatialScheme>,
     /// `solver.forward_peak` treatments to run each setting with; empty: the scene's own.
     pub forward_peaks: Vec<ForwardPeak>,
+    /// `solver.sky_directions_per_face` values to run each setting with (0, or any value up to
+    /// the run's k: the sky on the k×k directions); empty: the scene's own.
+    pub sky_directions: Vec<u32>,
     /// The density quantile where the dense core starts (the `core_*` columns).
     pub core_quantile: f64,
     pub photons: Vec<u64>,
@@ -135,6 +138,11 @@ pub fn run(
         if opts.spatial.is_empty() { vec![None] } else { opts.spatial.iter().map(|&s| Some(s)).collect() };
     let peaks: Vec<Option<ForwardPeak>> =
         if opts.forward_peaks.is_empty() { vec![None] } else { opts.forward_peaks.iter().map(|&p| Some(p)).collect() };
+    let skies: Vec<Option<u32>> = if opts.sky_directions.is_empty() {
+        vec![None]
+    } else {
+        opts.sky_directions.iter().map(|&n| Some(n)).collect()
+    };
     let mut rows = Vec::new();
 
     // Name the plan in settings and run directories only when it varies from the default, so a
@@ -149,18 +157,21 @@ pub fn run(
                     for &plan in &opts.plans {
                         for &spatial in &spatials {
                             for &forward_peak in &peaks {
-                                let run = SolverRun {
-                                    k,
-                                    tolerance,
-                                    max_orders,
-                                    precision,
-                                    plan,
-                                    name_plan: name_plans,
-                                    spatial,
-                                    forward_peak,
-                                };
-                                log(&format!("lpm {}", run.setting()));
-                                rows.push(solver_row(scene, &runs, &reference_dir, &run, opts, &compare_options)?);
+                                for &sky in &skies {
+                                    let run = SolverRun {
+                                        k,
+                                        tolerance,
+                                        max_orders,
+                                        precision,
+                                        plan,
+                                        name_plan: name_plans,
+                                        spatial,
+                                        forward_peak,
+                                        sky,
+                                    };
+                                    log(&format!("lpm {}", run.setting()));
+                                    rows.push(solver_row(scene, &runs, &reference_dir, &run, opts, &compare_options)?);
+                                }
                             }
                         }
                     }
@@ -210,6 +221,9 @@ struct SolverRun {
     /// `None`: the scene's own.
     spatial: Option<SpatialScheme>,
     forward_peak: Option<ForwardPeak>,
+    /// `solver.sky_directions_per_face`: `None` the scene's own; a value up to k the sky on the
+    /// k×k directions.
+    sky: Option<u32>,
 }
 
 impl SolverRun {
@@ -221,7 +235,7 @@ impl SolverRun {
         format!("k={k} tol={tolerance:e}{cap} {precision}{plan}{}", self.variant(" ", "="))
     }
 
-    /// " spatial=linear peak=delta-m" (with `sep` and `eq`), for what was set explicitly.
+    /// " spatial=linear peak=delta-m sky=16" (with `sep` and `eq`), for what was set explicitly.
     fn variant(&self, sep: &str, eq: &str) -> String {
         let mut s = String::new();
         if let Some(sp) = self.spatial {
@@ -229,6 +243,9 @@ impl SolverRun {
         }
         if let Some(p) = self.forward_peak {
             s += &format!("{sep}peak{eq}{}", p.name());
+        }
+        if let Some(n) = self.sky {
+            s += &format!("{sep}sky{eq}{}", if n > self.k { n } else { self.k });
         }
         s
     }
@@ -344,7 +361,6 @@ fn with_solver_settings(scene: &Path, dir: &Path, run: &SolverRun) -> Result<Pat
     if let Some(table) = value.as_table_mut() {
         let solver = table.entry("solver").or_insert_with(|| toml::Value::Table(Default::default()));
         if let Some(solver) = solver.as_table_mut() {
-            solver.insert("directions_per_face".into(), toml::Value::Integer(k as i64));
             solver.insert("tolerance".into(), toml::Value::Float(tolerance));
             solver.insert("storage_precision".into(), toml::Value::String(precision_name(precision).into()));
             solver.insert("plan".into(), toml::Value::String(run.plan.name().into()));
@@ -357,13 +373,16 @@ fn with_solver_settings(scene: &Path, dir: &Path, run: &SolverRun) -> Result<Pat
             if let Some(p) = run.forward_peak {
                 solver.insert("forward_peak".into(), toml::Value::String(p.name().into()));
             }
-            if solver
-                .get("storage_directions_per_face")
-                .and_then(toml::Value::as_integer)
-                .is_some_and(|ks| ks > k as i64)
-            {
-                solver.insert("storage_directions_per_face".into(), toml::Value::Integer(k as i64));
+            match run.sky {
+                Some(n) if n > k => {
+                    solver.insert("sky_directions_per_face".into(), toml::Value::Integer(n.into()));
+                }
+                Some(_) => {
+                    solver.remove("sky_directions_per_face");
+                }
+                None => {}
             }
+            super::set_directions_per_face(solver, k);
         }
         let base = scene.parent().unwrap_or_else(|| Path::new(""));
         crate::scene::make_file_paths_absolute(table, base, &[]);

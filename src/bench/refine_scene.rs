@@ -141,10 +141,7 @@ pub fn write_refined_scene(
     if let Some(solver) = solver.as_table_mut() {
         solver.insert("tolerance".into(), Value::Float(keys.tolerance));
         if let Some(k) = keys.directions_per_face {
-            solver.insert("directions_per_face".into(), Value::Integer(k.into()));
-            if solver.get("storage_directions_per_face").and_then(Value::as_integer).is_some_and(|ks| ks > k.into()) {
-                solver.insert("storage_directions_per_face".into(), Value::Integer(k.into()));
-            }
+            super::set_directions_per_face(solver, k);
         }
         if let Some(cap) = keys.max_orders {
             solver.insert("max_orders".into(), Value::Integer(cap.into()));

@@ -366,3 +366,44 @@ fn bench_accuracy_order_caps_cut_the_series_short() {
     assert!(e1 > 2.0 * e4, "cap 1: {e1}, cap 4: {e4}");
     assert!(out.join("runs/lpm-k2-tol1e-4-orders1-f32/report.json").exists());
 }
+
+/// `--sky-directions` runs every setting with each `sky_directions_per_face` (0: the sky on the k×k
+/// directions), and a scene's own value below a `--k` is dropped rather than making the run's scene
+/// invalid.
+#[test]
+fn bench_accuracy_sky_directions_run_each_value_and_fit_every_k() {
+    let dir = temp_dir("cli-accuracy-sky");
+    let text = SMALL
+        .replace("dims = [20, 17, 23]", "dims = [8, 8, 8]")
+        .replace("sigma_t = [1.0, 0.8, 0.6]", "sigma_t = 0.8")
+        .replace("directions_per_face = 2\n", "directions_per_face = 2\nsky_directions_per_face = 3\n");
+    let scene = write_scene(&dir, &text);
+    let run = |out: &std::path::Path, extra: &[&str]| {
+        let mut args = vec!["bench", "accuracy", scene.to_str().unwrap(), "--out", out.to_str().unwrap()];
+        args.extend_from_slice(&["--tolerances", "1e-2", "--precisions", "f32", "--samples", "2e4"]);
+        args.extend_from_slice(&["--reference-samples", "2e5", "--max-rel-stderr", "0.3"]);
+        args.extend_from_slice(extra);
+        let o = lpm(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let report: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("accuracy.json")).unwrap()).unwrap();
+        report["rows"].as_array().unwrap().clone()
+    };
+    let rows = run(&dir.join("acc"), &["--k", "2,4", "--sky-directions", "0,6"]);
+    let settings: Vec<&str> = rows.iter().map(|r| r["setting"].as_str().unwrap()).collect();
+    assert_eq!(
+        settings[..4],
+        ["k=2 tol=1e-2 f32 sky=2", "k=2 tol=1e-2 f32 sky=6", "k=4 tol=1e-2 f32 sky=4", "k=4 tol=1e-2 f32 sky=6"]
+    );
+    for (name, sky) in [("lpm-k2-tol1e-2-f32-sky2", 2), ("lpm-k2-tol1e-2-f32-sky6", 6), ("lpm-k4-tol1e-2-f32-sky6", 6)]
+    {
+        let report: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.join("acc/runs").join(name).join("report.json")).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(report["plan"]["sky_directions_per_face"], sky, "{name}");
+    }
+    // The scene's own 3 sky directions per face, with k = 4: dropped, the run goes on.
+    let rows = run(&dir.join("own"), &["--k", "4"]);
+    assert_eq!(rows[0]["setting"], "k=4 tol=1e-2 f32");
+}
