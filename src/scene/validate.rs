@@ -133,15 +133,12 @@ impl Validator<'_> {
             self.reflective_fits(&boundary, &lights, &solver)?;
         }
         if solver.sky_directions_per_face.is_some_and(|n| n > solver.directions_per_face) {
-            let why = if boundary.any_periodic() || boundary.any_reflective() {
-                Some("periodic or reflective faces hand the sky's rays on to the next order, which its own directions do not have")
-            } else if lights.iter().any(|l| matches!(l, Light::Environment(_))) {
-                Some("an environment map's light travels with the other directions; use a sky, or leave the option out")
-            } else {
-                None
-            };
-            if let Some(why) = why {
-                return Err(self.err("solver.sky_directions_per_face", format!("is not supported here: {why}")));
+            if boundary.any_periodic() || boundary.any_reflective() {
+                return Err(self.err(
+                    "solver.sky_directions_per_face",
+                    "is not supported with periodic or reflective faces (they hand the sky's rays on to the next \
+                     order, which its own directions do not have)",
+                ));
             }
         }
         Ok(Scene { path: self.path.to_path_buf(), volume, medium, lights, solver, camera, boundary })

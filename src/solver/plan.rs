@@ -42,8 +42,9 @@
 //! 32); under `"constant"` the nearest column's plane-sized error where light enters through a side
 //! grows with the grazing directions a fine set has (2.7 % → 3.3 %), and around a cloud in vacuum
 //! the k×k scattered light's own error, which the coarse sky's partly cancelled, shows (RESULTS).
-//! Not with periodic or mirror faces (the sky's rays would have to be carried on to later orders)
-//! or an environment map (its light keeps to the k×k directions).
+//! An environment map's light takes the same directions (its means over their cells; its sun-like
+//! peak stays a beam). Not with periodic or mirror faces (the sky's rays would have to be carried
+//! on to later orders).
 //!
 //! Everything both backends need to sweep a face is derived here ([`SweepDirection`]) so that the
 //! CPU twin and the GPU driver consume identical tables.
@@ -325,14 +326,14 @@ impl Plan {
             Light::Environment(env) => Some((env, environment_boundary(env, &propagation))),
             _ => None,
         });
-        // The sky's own directions (module docs), when asked for and there is a sky to sweep.
+        // The sky's own directions (module docs), when asked for and there is a sky or an
+        // environment map to sweep: then the k×k directions carry no boundary light.
         let sky_k = scene.solver.sky_directions_per_face.filter(|&n| n > k);
-        let own_sky = sky_k.filter(|_| sky.iter().any(|&l| l > 0.0));
-        // The sky in the boundary radiance of the k×k directions, unless it has its own.
-        let shared_sky = if own_sky.is_some() { [0.0; 3] } else { sky };
-        let boundary_of = |i: usize| match &environment {
-            Some((_, b)) => [0, 1, 2].map(|c| shared_sky[c] + b.radiance[i][c]),
-            None => shared_sky,
+        let own_sky = sky_k.filter(|_| sky.iter().any(|&l| l > 0.0) || environment.is_some());
+        let boundary_of = |i: usize| match (&environment, own_sky) {
+            (_, Some(_)) => [0.0; 3],
+            (Some((_, b)), None) => [0, 1, 2].map(|c| sky[c] + b.radiance[i][c]),
+            (None, None) => sky,
         };
         if let Some((env, b)) = &environment {
             reasons.push(format!(
@@ -418,6 +419,9 @@ impl Plan {
             Some(n) => {
                 let fine = PropagationSet::new(n);
                 let rows = phase::BeamRows::new(&propagation, &storage, medium.g);
+                // The map's means over the fine cells (its sun-like peak, taken from the map's
+                // pixels whatever the cells, is the same beam as above).
+                let fine_map = environment.as_ref().map(|(env, _)| environment_boundary(env, &fine));
                 reasons.push(format!(
                     "sky: its light enters along {n}×{n} directions per face of its own in order 0 ({} sweeps, \
                      {:.1}× the {} of an order), the scattered light along the {k}×{k}: the sky's uncollided \
@@ -429,11 +433,17 @@ impl Plan {
                 ));
                 (0..6)
                     .map(|face| {
+                        let start = face * fine.per_face();
                         fine.face(face)
                             .iter()
-                            .map(|d| {
+                            .enumerate()
+                            .map(|(j, d)| {
                                 let row = rows.row(d.omega).iter().map(|p| p * d.solid_angle).collect();
-                                swept(face, d.omega, d.solid_angle, sky, 0, row)
+                                let boundary = match &fine_map {
+                                    Some(b) => [0, 1, 2].map(|c| sky[c] + b.radiance[start + j][c]),
+                                    None => sky,
+                                };
+                                swept(face, d.omega, d.solid_angle, boundary, 0, row)
                             })
                             .collect()
                     })
@@ -441,7 +451,9 @@ impl Plan {
             }
             None => {
                 if sky_k.is_some() {
-                    reasons.push("sky_directions_per_face: the scene has no sky, nothing to refine".into());
+                    reasons.push(
+                        "sky_directions_per_face: the scene has no sky or environment map, nothing to refine".into(),
+                    );
                 }
                 Vec::new()
             }

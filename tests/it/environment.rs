@@ -272,3 +272,60 @@ fn the_map_is_the_rendered_background_and_is_kept_for_lpm_render() {
     lpm::render::write_exr(&again, &image).expect("write");
     assert_eq!(std::fs::read(again).expect("read"), solved, "lpm render reproduces the solve's image");
 }
+
+/// With the sky on directions of its own (`solver.sky_directions_per_face`) a map takes them too:
+/// a constant map is still the sky of the same radiance, on both backends, and a map with a sun
+/// keeps its sun as the same beam while the rest of it enters along the sky's directions.
+#[test]
+fn with_the_skys_own_directions_a_map_enters_along_them() {
+    let dir = temp_dir("env-sky-own");
+    let path = dir.join("sky.exr");
+    write_map(&path, 48, 24, |_, _| [0.7; 3]);
+    let value = 0.7f32 as f64;
+    let mut base = scene(Shape::Cloud, [20, 18, 22], [0.8; 3], [0.9; 3], vec![]);
+    base.solver.directions_per_face = 2;
+    base.solver.sky_directions_per_face = Some(5);
+    let mut with_map = base.clone();
+    with_map.lights = vec![environment(&path, [1.0; 3]), sun([0.3, 1.0, 0.2], [2.0; 3])];
+    let mut with_sky = base;
+    with_sky.lights = vec![sky(value), sun([0.3, 1.0, 0.2], [2.0; 3])];
+    let (with_map, with_sky) = (fixed_orders(with_map, 4), fixed_orders(with_sky, 4));
+    let plan = Plan::new(&with_map, 1, 0);
+    assert_eq!(plan.sky_faces.iter().map(Vec::len).sum::<usize>(), 6 * 25);
+    assert!(plan.faces.iter().flatten().all(|d| d.boundary == [0.0; 3]));
+    for d in plan.sky_faces.iter().flatten() {
+        assert!(d.boundary.iter().all(|&b| (b - value).abs() <= 1e-12), "{:?}", d.boundary);
+    }
+    let mut fluence = Vec::new();
+    for backend in [Cpu, Gpu] {
+        let a = solve(&format!("env-own-map-{backend:?}"), &with_map, backend).fluence_all();
+        let b = solve(&format!("env-own-sky-{backend:?}"), &with_sky, backend).fluence_all();
+        for (i, (x, y)) in a.iter().zip(&b).enumerate() {
+            assert!((x - y).abs() <= 1e-6 * y.abs(), "{backend:?} voxel {i}: map {x}, sky {y}");
+        }
+        fluence.push(a);
+    }
+    let err = relative_l2(&fluence[1], &fluence[0]);
+    assert!(err <= 1e-4, "GPU vs twin {err}");
+
+    // A map with a small bright sun: the same beam as without the sky's own directions.
+    let (w, h) = (256, 128);
+    let sunny = dir.join("sunny.exr");
+    write_map(
+        &sunny,
+        w,
+        h,
+        |x, y| if (100..103).contains(&x) && (40..43).contains(&y) { [2000.0; 3] } else { [0.5; 3] },
+    );
+    let mut own = with_map.clone();
+    own.lights = vec![environment(&sunny, [1.0; 3])];
+    let mut shared = own.clone();
+    shared.solver.sky_directions_per_face = None;
+    let (p_own, p_shared) = (Plan::new(&own, 1, 0), Plan::new(&shared, 1, 0));
+    assert_eq!(p_own.beams.len(), 1);
+    assert_eq!(p_own.beams[0].boundary, p_shared.beams[0].boundary);
+    assert_eq!(p_own.beams[0].omega, p_shared.beams[0].omega);
+    for d in p_own.sky_faces.iter().flatten() {
+        assert!((d.boundary[0] - 0.5).abs() < 1e-12, "{:?}", d.boundary);
+    }
+}
