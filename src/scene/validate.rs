@@ -132,14 +132,14 @@ impl Validator<'_> {
         if boundary.any_reflective() {
             self.reflective_fits(&boundary, &lights, &solver)?;
         }
-        if solver.sky_directions_per_face.is_some_and(|n| n > solver.directions_per_face) {
-            if boundary.any_periodic() || boundary.any_reflective() {
-                return Err(self.err(
-                    "solver.sky_directions_per_face",
-                    "is not supported with periodic or reflective faces (they hand the sky's rays on to the next \
-                     order, which its own directions do not have)",
-                ));
-            }
+        if solver.sky_directions_per_face.is_some_and(|n| n > solver.directions_per_face)
+            && (boundary.any_periodic() || boundary.any_reflective())
+        {
+            return Err(self.err(
+                "solver.sky_directions_per_face",
+                "is not supported with periodic or reflective faces (they hand the sky's rays on to the next \
+                 order, which its own directions do not have)",
+            ));
         }
         Ok(Scene { path: self.path.to_path_buf(), volume, medium, lights, solver, camera, boundary })
     }
