@@ -32,18 +32,23 @@ fn fixed_orders(mut scene: Scene, orders: u32) -> Scene {
     scene
 }
 
-#[test]
-fn a_constant_map_is_the_sky_of_the_same_radiance_on_both_backends() {
-    let dir = temp_dir("env-constant");
+/// `base` lit by a constant map of 0.7 (written in `dir`) and a sun, and by a sky of the same
+/// radiance and the same sun, each run `orders` orders; and that radiance.
+fn constant_map_and_sky(dir: &Path, base: &Scene, orders: u32) -> (Scene, Scene, f64) {
     let path = dir.join("sky.exr");
     write_map(&path, 48, 24, |_, _| [0.7; 3]);
     let value = 0.7f32 as f64;
-    let base = scene(Shape::Cloud, [20, 18, 22], [0.8; 3], [0.9; 3], vec![]);
     let mut with_map = base.clone();
     with_map.lights = vec![environment(&path, [1.0; 3]), sun([0.3, 1.0, 0.2], [2.0; 3])];
-    let mut with_sky = base;
+    let mut with_sky = base.clone();
     with_sky.lights = vec![sky(value), sun([0.3, 1.0, 0.2], [2.0; 3])];
-    let (with_map, with_sky) = (fixed_orders(with_map, 5), fixed_orders(with_sky, 5));
+    (fixed_orders(with_map, orders), fixed_orders(with_sky, orders), value)
+}
+
+#[test]
+fn a_constant_map_is_the_sky_of_the_same_radiance_on_both_backends() {
+    let base = scene(Shape::Cloud, [20, 18, 22], [0.8; 3], [0.9; 3], vec![]);
+    let (with_map, with_sky, value) = constant_map_and_sky(&temp_dir("env-constant"), &base, 5);
     // Every direction's boundary radiance is the map's value, and no sun is taken out of it.
     let plan = Plan::new(&with_map, 1, 0);
     assert_eq!(plan.beams.len(), 1);
@@ -279,17 +284,10 @@ fn the_map_is_the_rendered_background_and_is_kept_for_lpm_render() {
 #[test]
 fn with_the_skys_own_directions_a_map_enters_along_them() {
     let dir = temp_dir("env-sky-own");
-    let path = dir.join("sky.exr");
-    write_map(&path, 48, 24, |_, _| [0.7; 3]);
-    let value = 0.7f32 as f64;
     let mut base = scene(Shape::Cloud, [20, 18, 22], [0.8; 3], [0.9; 3], vec![]);
     base.solver.directions_per_face = 2;
     base.solver.sky_directions_per_face = Some(5);
-    let mut with_map = base.clone();
-    with_map.lights = vec![environment(&path, [1.0; 3]), sun([0.3, 1.0, 0.2], [2.0; 3])];
-    let mut with_sky = base;
-    with_sky.lights = vec![sky(value), sun([0.3, 1.0, 0.2], [2.0; 3])];
-    let (with_map, with_sky) = (fixed_orders(with_map, 4), fixed_orders(with_sky, 4));
+    let (with_map, with_sky, value) = constant_map_and_sky(&dir, &base, 4);
     let plan = Plan::new(&with_map, 1, 0);
     assert_eq!(plan.sky_faces.iter().map(Vec::len).sum::<usize>(), 6 * 25);
     assert!(plan.faces.iter().flatten().all(|d| d.boundary == [0.0; 3]));
