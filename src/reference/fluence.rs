@@ -329,11 +329,33 @@ fn cross_boundary(e: DVec3, boundary: lpm_scene::Boundary, q: DVec3, d: DVec3) -
     crossed.then_some((p, d_next))
 }
 
+/// The face (`-x, +x, -y, +y, -z, +z`, the order of `lpm solve`'s report) a photon at `q` on the
+/// box's surface leaves by along `d`: of the faces it lies on (to rounding) and heads out of, the
+/// one it is closest to (an edge or corner, met with probability zero, goes to the first axis).
+fn exit_face(e: DVec3, q: DVec3, d: DVec3) -> usize {
+    let mut best = (f64::INFINITY, 0);
+    for axis in 0..3 {
+        let gap = if d[axis] > 0.0 {
+            e[axis] - q[axis]
+        } else if d[axis] < 0.0 {
+            q[axis]
+        } else {
+            continue;
+        };
+        if gap.abs() < best.0 {
+            best = (gap.abs(), 2 * axis + (d[axis] > 0.0) as usize);
+        }
+    }
+    best.1
+}
+
 /// Trace `n` photons and return the batch's fluence estimate per voxel (world units, W/m²) in
-/// `out` (resized to the voxel count).
+/// `out[..voxels]`, and the power (W) that left through each open face of the volume in the six
+/// entries after them (`-x, +x, -y, +y, -z, +z`): `out` is resized to the voxel count + 6.
 pub fn trace_batch(grid: &Grid, setup: &ChannelSetup, cdf: &[f64], n: u64, rng: &mut Rng, out: &mut Vec<f64>) {
+    let voxels = grid.voxel_count();
     out.clear();
-    out.resize(grid.voxel_count(), 0.0);
+    out.resize(voxels + 6, 0.0);
     if n == 0 || !(setup.power > 0.0) {
         return;
     }
@@ -356,13 +378,24 @@ pub fn trace_batch(grid: &Grid, setup: &ChannelSetup, cdf: &[f64], n: u64, rng: 
                 // Out through a periodic face: back in through the opposite one; at a mirror,
                 // reflected. (A photon that meets no medium between such faces would go on for
                 // ever: cut it off.)
-                match cross_boundary(grid.extent(), setup.boundary, p + d * t_exit, d) {
+                let q = p + d * t_exit;
+                match cross_boundary(grid.extent(), setup.boundary, q, d) {
                     Some((q, reflected)) if wraps < MAX_WRAPS => {
                         (p, d) = (q, reflected);
                         wraps += 1;
                         continue;
                     }
-                    _ => break,
+                    Some(_) => break,
+                    None => {
+                        // Out for good through an open face: its tally. (A point that rounding left
+                        // short of every face also ends here; it is dropped, as it always was.)
+                        let face = exit_face(grid.extent(), q, d);
+                        let (axis, high) = (face / 2, face % 2);
+                        if !setup.boundary.periodic[axis] && !setup.boundary.reflective[axis][high] {
+                            out[voxels + face] += w;
+                        }
+                        break;
+                    }
                 }
             };
             p += d * t;
@@ -379,8 +412,11 @@ pub fn trace_batch(grid: &Grid, setup: &ChannelSetup, cdf: &[f64], n: u64, rng: 
     }
     // Each photon carries power P/N; fluence = Σ w·ℓ / V with ℓ in world units: ℓ_grid·h / h³.
     let scale = setup.power / n as f64 / (setup.h * setup.h);
-    for v in out.iter_mut() {
+    for v in &mut out[..voxels] {
         *v *= scale;
+    }
+    for v in &mut out[voxels..] {
+        *v *= setup.power / n as f64;
     }
 }
 

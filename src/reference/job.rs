@@ -72,7 +72,25 @@ pub struct ReferenceReport {
     pub channels: u32,
     /// Mean of standard error / fluence over the values with fluence > 0; `None` when there are none.
     pub mean_relative_std_error: Option<f64>,
+    /// Per face of the volume, the power (W) the photons carried out through it, per channel, with
+    /// its standard error: what `lpm solve`'s `energy.faces[].power_out` gives (reflectance and
+    /// transmittance of a slab follow from them and the light's power in).
+    pub faces: Vec<FaceOut>,
     pub outputs: Vec<String>,
+}
+
+/// The faces in the order of `lpm solve`'s report (named here: the reference takes nothing from the
+/// solver).
+const FACES: [&str; 6] = ["-x", "+x", "-y", "+y", "-z", "+z"];
+
+/// One face's outgoing power in a reference report.
+#[derive(Clone, Debug, Serialize)]
+pub struct FaceOut {
+    /// "-x", "+x", "-y", "+y", "-z" or "+z".
+    pub face: &'static str,
+    /// Per channel.
+    pub power_out: Vec<f64>,
+    pub std_error: Vec<f64>,
 }
 
 /// Runs the job and returns what it wrote to `report.json`.
@@ -179,6 +197,15 @@ fn run_in(
         seconds: start.elapsed().as_secs_f64(),
         channels: result.channels,
         mean_relative_std_error: mean_relative(&result.fluence, &result.std_error),
+        faces: FACES
+            .iter()
+            .enumerate()
+            .map(|(f, &face)| FaceOut {
+                face,
+                power_out: result.face_out.iter().map(|c| c[f].0).collect(),
+                std_error: result.face_out.iter().map(|c| c[f].1).collect(),
+            })
+            .collect(),
         outputs,
     };
     output::write_json_atomic(&stage.join("report.json"), &report)?;

@@ -51,7 +51,9 @@
 //! specularly there (the direction's component across the face changes sign) and goes on; no
 //! outside light enters through either kind, so the sky and suns emit through the open faces only
 //! (their power through those faces' areas). A photon that meets no medium between such faces is
-//! cut off after 10 000 crossings.
+//! cut off after 10 000 crossings. A photon that leaves through an open face adds its weight to that
+//! face's tally: the power out per face (`report.json` `faces`), which gives a slab's reflectance
+//! and transmittance independently of the solver's books.
 //!
 //! Photons run in batches; batch b of channel c uses its own random stream keyed by (seed, b, c);
 //! threads take whole batches and the batch estimates are combined (Welford) in batch order, so the
@@ -138,6 +140,9 @@ pub struct ReferenceResult {
     pub fluence: Vec<f32>,
     /// Standard error of the mean from the batch estimates, same layout.
     pub std_error: Vec<f32>,
+    /// Per channel, the power (W) that left through each open face of the volume
+    /// (`-x, +x, -y, +y, -z, +z`): the mean over the batches and its standard error.
+    pub face_out: Vec<[(f64, f64); 6]>,
     pub image: Option<RefImage>,
     /// Photons traced per channel (`photons` rounded up to a multiple of the batch count).
     pub photons: u64,
@@ -276,8 +281,9 @@ pub fn run_with_fields(
         next: 0,
         pending: BTreeMap::new(),
         count: vec![0; channels],
-        mean: vec![vec![0.0; nvox]; channels],
-        m2: vec![vec![0.0; nvox]; channels],
+        // The voxels' fluence, then the six faces' outgoing power (`trace_batch`).
+        mean: vec![vec![0.0; nvox + 6]; channels],
+        m2: vec![vec![0.0; nvox + 6]; channels],
     });
     let counter = AtomicUsize::new(0);
     std::thread::scope(|scope| {
@@ -312,6 +318,14 @@ pub fn run_with_fields(
             std_error[v * channels + ch] = (var / bf).sqrt() as f32;
         }
     }
+    let face_out: Vec<[(f64, f64); 6]> = (0..channels)
+        .map(|ch| {
+            std::array::from_fn(|f| {
+                let i = nvox + f;
+                (combined.mean[ch][i], ((combined.m2[ch][i] / (bf - 1.0)).max(0.0) / bf).sqrt())
+            })
+        })
+        .collect();
 
     // Image.
     let image = (opts.image_samples_per_pixel > 0).then(|| {
@@ -366,6 +380,7 @@ pub fn run_with_fields(
         channels: channels as u32,
         fluence: fluence_out,
         std_error,
+        face_out,
         image,
         photons: per_batch * batches as u64,
         seconds: start.elapsed().as_secs_f64(),

@@ -174,3 +174,45 @@ fn a_bad_scene_is_an_error_and_leaves_nothing_behind() {
     assert_eq!(std::fs::read(out.join("fluence.raw")).unwrap(), b"earlier");
     assert_eq!(std::fs::read_dir(&out).unwrap().count(), 1);
 }
+
+/// The report's per-face outgoing power, against closed forms: a slab periodic in x and y under an
+/// overhead sun. Absorbing: only the direct beam leaves, through the bottom, e^{−τ} of what came in
+/// (within four standard errors), and nothing through the top or the periodic sides. Conservative:
+/// every photon leaves through the top or the bottom, so R + T = 1 to rounding.
+#[test]
+fn the_faces_outgoing_power_matches_closed_forms_for_a_slab() {
+    let dir = temp_dir("reference-faces");
+    let slab = |albedo: f64| {
+        format!(
+            "[volume]\nprocedural = \"box\"\ndims = [4, 4, 6]\nvoxel_size = 0.5\n[medium]\nsigma_t = 0.4\nalbedo = {albedo}\n\
+             g = 0.6\n[[lights]]\nkind = \"sun\"\ndirection = [0.0, 0.0, 1.0]\nirradiance = 2.0\n[boundary]\nx = \"periodic\"\n\
+             y = \"periodic\"\n"
+        )
+    };
+    let power_in = 2.0 * (4.0 * 0.5) * (4.0 * 0.5);
+    let faces = |albedo: f64, name: &str| {
+        let scene = write_scene_as(&dir, &format!("{name}.toml"), &slab(albedo));
+        let out = dir.join(name);
+        run(&job(scene, out.clone(), 200_000, 0)).expect("reference");
+        let report = json(&out.join("report.json"));
+        let faces = report["faces"].as_array().unwrap().clone();
+        let names: Vec<&str> = faces.iter().map(|f| f["face"].as_str().unwrap()).collect();
+        assert_eq!(names, ["-x", "+x", "-y", "+y", "-z", "+z"]);
+        faces
+            .iter()
+            .map(|f| (f["power_out"][0].as_f64().unwrap(), f["std_error"][0].as_f64().unwrap()))
+            .collect::<Vec<_>>()
+    };
+    let absorbing = faces(0.0, "absorbing");
+    let tau: f64 = 0.4 * 6.0 * 0.5;
+    let (bottom, se) = absorbing[4];
+    let exact = power_in * (-tau).exp();
+    assert!(se > 0.0 && (bottom - exact).abs() <= 4.0 * se, "{bottom} ± {se}, exact {exact}");
+    assert!(absorbing.iter().enumerate().all(|(f, &(p, _))| f == 4 || p == 0.0), "{absorbing:?}");
+    let conservative = faces(1.0, "conservative");
+    let (top, bottom) = (conservative[5], conservative[4]);
+    assert!(top.0 > 0.05 * power_in && bottom.0 > 0.5 * power_in, "{conservative:?}");
+    assert!(conservative[..4].iter().all(|&(p, _)| p == 0.0), "{conservative:?}");
+    let sum = top.0 + bottom.0;
+    assert!((sum / power_in - 1.0).abs() < 1e-9, "R + T = {}", sum / power_in);
+}
