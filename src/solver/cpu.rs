@@ -155,9 +155,11 @@ impl<'a> CpuTwin<'a> {
 
     /// Marches every ray of one direction through the whole volume, depositing fluence and the next
     /// order's source ([`super::cpu_sweep`]: plane by plane, on the current rayon pool's threads).
-    /// `boundary`: rays are born carrying the direction's boundary radiance (else zero); `gain`:
-    /// rays gain the previous order's source (and the emission when `emit`).
-    fn sweep(&mut self, dir: &SweepDirection, of: CarryOf, boundary: bool, gain: bool, emit: bool) -> Tallies {
+    /// `of`: which sweep's rays periodic axes carry and mirrors hand over (`None`: the sky's own
+    /// directions, which neither touches). `boundary`: rays are born carrying the direction's
+    /// boundary radiance (else zero); `gain`: rays gain the previous order's source (and the
+    /// emission when `emit`).
+    fn sweep(&mut self, dir: &SweepDirection, of: Option<CarryOf>, boundary: bool, gain: bool, emit: bool) -> Tallies {
         let fields = &mut self.fields;
         let gained = if self.j_gain.is_empty() { &fields.source_prev.values } else { &self.j_gain };
         let inputs = SweepInputs { density: &self.medium.density, gained, occupied: &self.occupied };
@@ -166,33 +168,24 @@ impl<'a> CpuTwin<'a> {
         let birth = if boundary { dir.boundary } else { [0.0; 3] };
         // With mirror faces, a face's direction hands over to and from its mirror images.
         let mirrored = match of {
-            CarryOf::Face { face, dir } if !self.plan.mirrors.is_empty() => Some((face, dir)),
+            Some(CarryOf::Face { face, dir }) if !self.plan.mirrors.is_empty() => Some((face, dir)),
             _ => None,
         };
         let mirror = mirrored.map(|(face, dir)| self.mirror.view(self.plan, face, dir));
-        let entry =
-            mirror.as_ref().and_then(|m| m.entry_radiance(dir)).or_else(|| self.carry.entry(self.plan, of, dir, birth));
+        let entry = mirror
+            .as_ref()
+            .and_then(|m| m.entry_radiance(dir))
+            .or_else(|| of.and_then(|of| self.carry.entry(self.plan, of, dir, birth)));
         let mode = SweepMode { boundary, gain, emit };
         let (tallies, exits, records) =
             sweep_direction(self.plan, dir, mode, entry.as_deref(), mirror.as_ref(), &inputs, &mut outputs);
-        self.carry.store_exit(self.plan, of, dir, exits);
+        if let Some(of) = of {
+            self.carry.store_exit(self.plan, of, dir, exits);
+        }
         if let Some((face, dir)) = mirrored {
             self.mirror.store(face, dir, records);
         }
         tallies
-    }
-
-    /// Marches the rays of one of the sky's own directions ([`Plan::sky_faces`]): born with the
-    /// sky's radiance, gaining no source. The scene has no periodic or mirror faces then, so
-    /// nothing is carried or handed over.
-    fn sweep_sky(&mut self, dir: &SweepDirection) -> Tallies {
-        let fields = &mut self.fields;
-        let inputs =
-            SweepInputs { density: &self.medium.density, gained: &fields.source_prev.values, occupied: &self.occupied };
-        let mut outputs =
-            SweepOutputs { fluence_order: &mut fields.fluence.values, j_next: &mut fields.source_next.values };
-        let mode = SweepMode { boundary: true, gain: false, emit: false };
-        sweep_direction(self.plan, dir, mode, None, None, &inputs, &mut outputs).0
     }
 }
 
@@ -214,16 +207,17 @@ impl Backend for CpuTwin<'_> {
         }
         for (b, beam) in plan.beams.iter().enumerate() {
             if plan.beam_swept_in(b, order) {
-                tallies.add(&self.sweep(beam, CarryOf::Beam(b), order == 0, false, false));
+                tallies.add(&self.sweep(beam, Some(CarryOf::Beam(b)), order == 0, false, false));
             }
         }
-        // The sky's own directions (plan docs): order 0 only, boundary light only.
+        // The sky's own directions (plan docs): order 0 only, boundary light only, and nothing
+        // carried or handed over (no periodic or mirror faces then).
         for dir in plan.sky_faces.iter().flatten().filter(|_| order == 0) {
-            tallies.add(&self.sweep_sky(dir));
+            tallies.add(&self.sweep(dir, None, true, false, false));
         }
         for (face, dirs) in plan.faces.iter().enumerate() {
             for (d, dir) in dirs.iter().enumerate() {
-                let of = CarryOf::Face { face, dir: d };
+                let of = Some(CarryOf::Face { face, dir: d });
                 tallies.add(&self.sweep(dir, of, order == 0, true, order == 0 && plan.emission));
             }
         }

@@ -152,8 +152,6 @@ pub struct Plan {
     /// radiance and no gained source; empty unless `solver.sky_directions_per_face` > k (the sky
     /// is then no part of [`Plan::faces`]' boundary radiance). See the module docs.
     pub sky_faces: Vec<Vec<SweepDirection>>,
-    /// k_sky when the sky has its own directions, else k.
-    pub sky_directions_per_face: u32,
     /// The point lights, positions in voxel units (see [`super::point`]).
     pub point_lights: Vec<PointLight>,
     pub medium: Medium,
@@ -399,21 +397,10 @@ impl Plan {
                     period_shift,
                 }
             };
-        let faces: Vec<Vec<SweepDirection>> = (0..6)
-            .map(|face| {
-                let start = face * propagation.per_face();
-                propagation
-                    .face(face)
-                    .iter()
-                    .enumerate()
-                    .map(|(j, d)| {
-                        let i = start + j;
-                        let row = collect[i * s..(i + 1) * s].to_vec();
-                        swept(face, d.omega, d.solid_angle, boundary_of(i), storage.owner[i], row)
-                    })
-                    .collect()
-            })
-            .collect();
+        let faces = per_face(&propagation, |face, i, d| {
+            let row = collect[i * s..(i + 1) * s].to_vec();
+            swept(face, d.omega, d.solid_angle, boundary_of(i), storage.owner[i], row)
+        });
 
         let sky_faces: Vec<Vec<SweepDirection>> = match own_sky {
             Some(n) => {
@@ -431,23 +418,14 @@ impl Plan {
                     propagation.len(),
                     (n * n) as f64 / (k * k) as f64,
                 ));
-                (0..6)
-                    .map(|face| {
-                        let start = face * fine.per_face();
-                        fine.face(face)
-                            .iter()
-                            .enumerate()
-                            .map(|(j, d)| {
-                                let row = rows.row(d.omega).iter().map(|p| p * d.solid_angle).collect();
-                                let boundary = match &fine_map {
-                                    Some(b) => [0, 1, 2].map(|c| sky[c] + b.radiance[start + j][c]),
-                                    None => sky,
-                                };
-                                swept(face, d.omega, d.solid_angle, boundary, 0, row)
-                            })
-                            .collect()
-                    })
-                    .collect()
+                per_face(&fine, |face, i, d| {
+                    let row = rows.row(d.omega).iter().map(|p| p * d.solid_angle).collect();
+                    let boundary = match &fine_map {
+                        Some(b) => [0, 1, 2].map(|c| sky[c] + b.radiance[i][c]),
+                        None => sky,
+                    };
+                    swept(face, d.omega, d.solid_angle, boundary, 0, row)
+                })
             }
             None => {
                 if sky_k.is_some() {
@@ -543,7 +521,6 @@ impl Plan {
             faces,
             beams,
             sky_faces,
-            sky_directions_per_face: own_sky.unwrap_or(k),
             point_lights,
             medium,
             emission,
@@ -597,7 +574,8 @@ impl Plan {
             propagation_directions: self.propagation.len(),
             storage_directions: self.storage.len(),
             storage_directions_per_face: self.storage.per_face,
-            sky_directions_per_face: self.sky_directions_per_face,
+            // k_sky² directions per face (a cube-face set), or none: k.
+            sky_directions_per_face: self.sky_faces.first().map_or(self.propagation.k, |f| f.len().isqrt() as u32),
             suns: self.beams.len(),
             point_lights: self.point_lights.len(),
             emission: self.emission || self.emission_field,
@@ -624,6 +602,20 @@ impl Plan {
             reasons: self.reasons.clone(),
         }
     }
+}
+
+/// The swept directions of `set`, face by face: `make(face, i, direction)` with i the direction's
+/// index in the whole set (where its collect row and boundary radiance are found).
+fn per_face(
+    set: &PropagationSet,
+    mut make: impl FnMut(usize, usize, &crate::quadrature::Direction) -> SweepDirection,
+) -> Vec<Vec<SweepDirection>> {
+    (0..6)
+        .map(|face| {
+            let start = face * set.per_face();
+            set.face(face).iter().enumerate().map(|(j, d)| make(face, start + j, d)).collect()
+        })
+        .collect()
 }
 
 /// The first reason of a `plan = "full"` plan: what it turns off and what it keeps.
