@@ -386,8 +386,9 @@ pub enum ForwardPeak {
     /// δ-M scaling when g ≥ 0.5, else keep.
     #[default]
     Auto,
-    /// δ-M scaling: the fraction f = g² of the scattering that goes (nearly) straight on is treated
-    /// as not scattered at all: σs' = (1 − f)·σs, σt' = σt − f·σs, g' = (g − f)/(1 − f).
+    /// δ-M scaling: a fraction f of the scattering, from the forward peak, is treated as not
+    /// scattered at all (σs' = (1 − f)·σs, σt' = σt − f·σs); the rest keeps HG(g)'s shape outside a
+    /// forward cone ([`crate::quadrature::phase::Truncation`]).
     DeltaM,
     /// Scatter with the Henyey–Greenstein phase function as it is.
     Keep,

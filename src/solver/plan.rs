@@ -53,7 +53,8 @@ use super::environment::environment_boundary;
 use super::periodic::{periodic_lattice, periodic_slope};
 use super::point::PointLight;
 use super::sweep::{lateral_slope, lattice, plane_path_length, FaceSweep};
-use crate::quadrature::{cube_face_of, phase, PropagationSet, StorageSet, FACES};
+use crate::quadrature::phase::{self, Phase, Truncation};
+use crate::quadrature::{cube_face_of, PropagationSet, StorageSet, FACES};
 use crate::scene::{
     Acceleration, DiffusionCorrection, ForwardPeak, Light, Medium, PlanMode, Scene, SpatialScheme, StoragePrecision,
 };
@@ -185,8 +186,11 @@ pub struct Plan {
     /// Each order is followed by a diffusion correction of the light still to come
     /// (`solver.acceleration`, [`super::acceleration`]).
     pub acceleration: bool,
-    /// The scene's Henyey–Greenstein g (the medium above holds the one solved, after δ-M).
+    /// The scene's Henyey–Greenstein g (the medium above holds the mean cosine of the one solved,
+    /// after δ-M).
     pub phase_g: f64,
+    /// The phase function the collect rows discretise: HG(g), or its remainder after δ-M.
+    pub phase: Phase,
     /// The mean cosine of the discrete scattering (see `phase::effective_mean_cosine`).
     pub effective_g: f64,
     /// The forward-peak fraction f truncated by δ-M scaling, when applied.
@@ -260,7 +264,6 @@ impl Plan {
         }
         let dims = scene.volume.dims;
         let h = scene.volume.voxel_size;
-        let (medium, delta_m) = choose_forward_peak(scene, &mut reasons);
         let channels = choose_channels(scene, full, &mut reasons);
         let spatial = scene.solver.spatial;
         let periodic = scene.boundary.periodic;
@@ -299,10 +302,11 @@ impl Plan {
         let k = scene.solver.directions_per_face;
         let propagation = PropagationSet::new(k);
         let storage = choose_storage(scene, &propagation, full, &mut reasons);
+        let (medium, phase, delta_m) = choose_forward_peak(scene, &propagation, &storage, &mut reasons);
         // For g = 0 the matrix is uniform over the storage directions whatever their number, so a
         // full plan's per-face source of an isotropic medium holds the same value in every
         // direction (to rounding) and the rays gain what the single isotropic value would give.
-        let collect = phase::collect_matrix(&propagation, &storage, medium.g);
+        let collect = phase::collect_matrix(&propagation, &storage, &phase);
         let s = storage.len();
         let effective_g = phase::effective_mean_cosine(&propagation, &storage, &collect);
         if medium.g != 0.0 {
@@ -405,7 +409,7 @@ impl Plan {
         let sky_faces: Vec<Vec<SweepDirection>> = match own_sky {
             Some(n) => {
                 let fine = PropagationSet::new(n);
-                let rows = phase::BeamRows::new(&propagation, &storage, medium.g);
+                let rows = phase::BeamRows::new(&propagation, &storage, &phase);
                 // The map's means over the fine cells (its sun-like peak, taken from the map's
                 // pixels whatever the cells, is the same beam as above).
                 let fine_map = environment.as_ref().map(|(env, _)| environment_boundary(env, &fine));
@@ -447,7 +451,7 @@ impl Plan {
             .chain(extracted)
             .map(|(direction, irradiance)| {
                 let travel = -direction;
-                let row = phase::beam_row(&propagation, &storage, medium.g, travel);
+                let row = phase::beam_row(&propagation, &storage, &phase, travel);
                 swept(cube_face_of(travel), travel, 1.0, irradiance, 0, row)
             })
             .collect();
@@ -538,6 +542,7 @@ impl Plan {
             diffusion_correction,
             acceleration,
             phase_g: scene.medium.g,
+            phase,
             effective_g,
             delta_m,
             periodic,
@@ -710,20 +715,28 @@ fn choose_acceleration(scene: &Scene, medium: &Medium, reasons: &mut Vec<String>
 /// g from which `solver.forward_peak = "auto"` applies δ-M scaling.
 pub const DELTA_M_MIN_G: f64 = 0.5;
 
-/// The medium the solver works with: the scene's, or its δ-M scaled form (the forward fraction
-/// f = g² of the scattering counted as not scattered: σt' = σt·(1 − f·a), a' = (1 − f)·a/(1 − f·a),
-/// g' = (g − f)/(1 − f); absorption σt·(1 − a) and the emission term are unchanged). Returns f when
-/// applied.
-fn choose_forward_peak(scene: &Scene, reasons: &mut Vec<String>) -> (Medium, Option<f64>) {
+/// The medium and phase function the solver works with: the scene's, or their δ-M scaled form
+/// ([`phase::Truncation`]: the fraction f of the scattering in HG(g)'s forward peak counted as not
+/// scattered, σt' = σt·(1 − f·a), a' = (1 − f)·a/(1 − f·a); absorption σt·(1 − a) and the emission
+/// term are unchanged; the remainder keeps HG(g)'s shape outside a forward cone of one storage
+/// cell, and f keeps the discrete scattering's transport cross-section the true one). Returns f
+/// when applied.
+fn choose_forward_peak(
+    scene: &Scene,
+    propagation: &PropagationSet,
+    storage: &StorageSet,
+    reasons: &mut Vec<String>,
+) -> (Medium, Phase, Option<f64>) {
     let m = &scene.medium;
     let g = m.g;
+    let kept = Phase::HenyeyGreenstein { g };
     if scene.volume.albedo.is_some() && g > 0.0 {
         // σt' = σt·(1 − f·albedo) would vary with each voxel's albedo; the validator refuses an
         // explicit "delta-m" with an albedo grid.
         reasons.push(format!(
             "phase function kept as it is (g = {g}): δ-M scaling does not combine with a per-voxel albedo"
         ));
-        return (m.clone(), None);
+        return (m.clone(), kept, None);
     }
     let apply = match scene.solver.forward_peak {
         ForwardPeak::Keep => false,
@@ -734,23 +747,29 @@ fn choose_forward_peak(scene: &Scene, reasons: &mut Vec<String>) -> (Medium, Opt
         if g > 0.0 && scene.solver.forward_peak == ForwardPeak::Auto {
             reasons.push(format!("phase function kept as it is: g = {g} is below {DELTA_M_MIN_G}, no δ-M scaling"));
         }
-        return (m.clone(), None);
+        return (m.clone(), kept, None);
     }
-    let f = g * g;
+    let t = Truncation::for_sets(g, propagation, storage);
+    let f = t.fraction;
     let mut scaled = m.clone();
     for ch in 0..3 {
         let a = m.albedo[ch];
         scaled.sigma_t[ch] = m.sigma_t[ch] * (1.0 - f * a);
         scaled.albedo[ch] = if 1.0 - f * a > 0.0 { (1.0 - f) * a / (1.0 - f * a) } else { a };
     }
-    scaled.g = (g - f) / (1.0 - f);
+    scaled.g = t.remainder_g();
     reasons.push(format!(
-        "δ-M scaling of the forward peak (g = {g}): the fraction f = g² = {f:.3} of the scattering is treated \
-         as going straight on, the rest scatters with g' = {:.3} (σt and the albedo scaled to match, \
-         absorption unchanged); a few storage directions cannot hold a peak this narrow",
+        "δ-M scaling of the forward peak (g = {g}): HG(g) is kept outside a forward cone of {:.1}° ({} storage cells' \
+         solid angle); of what it scatters into the cone ({:.3}) f = {f:.3} is treated as going \
+         straight on and the rest spread evenly over the cone, f chosen so that the discrete \
+         scattering keeps the transport cross-section σt·(1 − a·g) (σt and the albedo scaled to match, \
+         absorption unchanged; the remainder's g is {:.3}); a few storage directions cannot hold a peak this narrow",
+        t.cone.acos().to_degrees(),
+        ((1.0 - t.cone) * storage.len() as f64 / 2.0).round(),
+        t.peak,
         scaled.g
     ));
-    (scaled, Some(f))
+    (scaled, Phase::Truncated(t), Some(f))
 }
 
 /// 1 channel when the medium and every light are grey (and the plan may reduce), else 3.

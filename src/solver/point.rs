@@ -337,7 +337,7 @@ pub fn write_order0(
     for ch in 0..c {
         extinction[ch] = coefficients[ch].0 * h;
     }
-    let exact = BeamRows::new(&plan.propagation, &plan.storage, plan.medium.g);
+    let exact = BeamRows::new(&plan.propagation, &plan.storage, &plan.phase);
     let isotropic = exact.isotropic_row();
     let table = (!exact.is_isotropic()).then(|| RowTable::new(&exact));
     let density = |v: [u32; 3]| store.density_at(v);
@@ -470,10 +470,10 @@ mod tests {
 
     #[test]
     fn the_row_table_keeps_the_power_and_follows_the_exact_rows() {
-        use crate::quadrature::{PropagationSet, StorageSet};
+        use crate::quadrature::{phase::Phase, PropagationSet, StorageSet};
         let prop = PropagationSet::new(3);
         let storage = StorageSet::per_face(&prop, 2);
-        let exact = BeamRows::new(&prop, &storage, 0.7);
+        let exact = BeamRows::new(&prop, &storage, &Phase::HenyeyGreenstein { g: 0.7 });
         let table = RowTable::new(&exact);
         let mut row = vec![0.0; storage.len()];
         for (i, travel) in

@@ -58,13 +58,14 @@ fn the_step_cloud_conserves_and_is_near_the_consensus() {
     }
     // Conservative: R + T = 1 up to what the stop rule leaves (tolerance 1e-4; measured 0.999955).
     let (r, t) = reflectance_transmittance(&s);
+    eprintln!("I3RC step cloud, k = 3: R {r:.5} (consensus {CONSENSUS_R}), T {t:.5} (consensus {CONSENSUS_T})");
     assert!((r + t - 1.0).abs() < 2e-4, "R {r} + T {t}");
-    // Near the consensus. Measured: R +7.1 %, T −3.5 %, the same at k = 3, 4, 5 and 8 (so not the
-    // propagation directions): the 2×2 storage directions per face cannot hold g = 0.85 even after
-    // δ-M scaling (3×3 storage: R +4.8 %; without δ-M: R +21 %). These bounds are lpm's measured
-    // error with margin, not a tuning target: see benches/RESULTS.md.
-    assert!((r / CONSENSUS_R - 1.0).abs() < 0.10, "R {r} vs consensus {CONSENSUS_R}");
-    assert!((t / CONSENSUS_T - 1.0).abs() < 0.05, "T {t} vs consensus {CONSENSUS_T}");
+    // Near the consensus. Measured at k = 3: R −2.3 %, T +1.1 % (k = 5: R −0.2 %, T +0.1 %). Before
+    // δ-M kept HG(g)'s shape outside the forward peak (an HG(g') remainder) R was +7 % at every k:
+    // see benches/RESULTS.md, "The forward peak's shape". These bounds are lpm's measured error
+    // with margin, not a tuning target.
+    assert!((r / CONSENSUS_R - 1.0).abs() < 0.04, "R {r} vs consensus {CONSENSUS_R}");
+    assert!((t / CONSENSUS_T - 1.0).abs() < 0.02, "T {t} vs consensus {CONSENSUS_T}");
     // The thick half reflects more than the thin half lets through its top: the fluence near the
     // top of the thick half exceeds that of the thin half (consensus R 0.409 vs 0.246 per half).
     let top = |x0: u32| (x0..x0 + 16).map(|x| s.fluence([x, 0, 15], 0)).sum::<f64>();
