@@ -758,14 +758,15 @@ fn choose_forward_peak(
         scaled.albedo[ch] = if 1.0 - f * a > 0.0 { (1.0 - f) * a / (1.0 - f * a) } else { a };
     }
     scaled.g = t.remainder_g();
+    let cells = ((1.0 - t.cone) * storage.len() as f64 / 2.0).round();
+    let cone = if cells == 1.0 { "one storage cell's".to_string() } else { format!("{cells} storage cells'") };
     reasons.push(format!(
-        "δ-M scaling of the forward peak (g = {g}): HG(g) is kept outside a forward cone of {:.1}° ({} storage cells' \
+        "δ-M scaling of the forward peak (g = {g}): HG(g) is kept outside a forward cone of {:.1}° ({cone} \
          solid angle); of what it scatters into the cone ({:.3}) f = {f:.3} is treated as going \
          straight on and the rest spread evenly over the cone, f chosen so that the discrete \
          scattering keeps the transport cross-section σt·(1 − a·g) (σt and the albedo scaled to match, \
          absorption unchanged; the remainder's g is {:.3}); a few storage directions cannot hold a peak this narrow",
         t.cone.acos().to_degrees(),
-        ((1.0 - t.cone) * storage.len() as f64 / 2.0).round(),
         t.peak,
         scaled.g
     ));
