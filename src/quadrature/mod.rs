@@ -15,7 +15,9 @@
 //!
 //! [`phase`] builds the collect matrix `M[i][d] = Ω_i·P(i→d)/Ω_d`, where P(i→d) is the probability
 //! that light travelling along cell i scatters into cell d (Henyey–Greenstein, integrated over both
-//! cells, rows normalised to sum to 1 so scattering conserves energy exactly in the discrete set).
+//! cells, rows normalised to sum to 1 so scattering conserves energy exactly in the discrete set),
+//! or, under δ-M scaling, what HG is left with once its forward peak joins the unscattered light
+//! ([`phase::Truncation`]).
 
 mod cube_face;
 pub mod phase;
