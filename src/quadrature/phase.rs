@@ -17,8 +17,8 @@
 //! cone of a few storage cells' solid angle; what HG(g) scatters into the cone, C, is split between
 //! the unscattered beam (f) and an even spread over the cone (C − f). f is chosen so that the
 //! *discrete* scattering (after the storage cells' own widening, [`effective_mean_cosine`]) has
-//! the true transport cross-section, (1 − f)·(1 − ḡ) = 1 − g (the cone is the narrowest of a
-//! whole number of cells in which that takes no more than C). Outside the cone every angle
+//! the true transport cross-section, (1 − f)·(1 − ḡ) = 1 − g (the cone is the narrowest of 1, 2,
+//! 4, … cells in which that takes no more than C). Outside the cone every angle
 //! scatters exactly as HG(g) does. (Transported exactly, a slab's reflectance under this
 //! truncation is within the Monte Carlo's noise of HG(g)'s for cones of 10° to 50°.)
 
@@ -89,6 +89,10 @@ impl Part {
     }
 }
 
+/// The cosine of the widest forward cone a truncation takes (60°: transported exactly, a slab's
+/// reflectance is the same with cones of 10° to 50°, benches/RESULTS.md).
+pub const WIDEST_CONE: f64 = 0.5;
+
 /// The forward peak of HG(g) cut at a cone (module docs): HG(g) outside; of what it scatters
 /// into the cone, `peak`, the share `fraction` (f) is treated as not scattered and the rest is
 /// spread evenly over the cone.
@@ -104,15 +108,15 @@ pub struct Truncation {
 }
 
 impl Truncation {
-    /// The truncation of HG(g) (g > 0) for the storage cells of `storage`: the narrowest cone of a
-    /// whole number of storage cells' mean solid angle in which f, chosen so that the discrete
-    /// scattering keeps the transport cross-section, is at most what HG(g) scatters into the cone
-    /// (module docs).
+    /// The truncation of HG(g) (g > 0) for the storage cells of `storage`: the narrowest cone of
+    /// 1, 2, 4, … storage cells' mean solid angle (at most [`WIDEST_CONE`]) in which f, chosen so
+    /// that the discrete scattering keeps the transport cross-section, is at most what HG(g)
+    /// scatters into the cone (module docs).
     pub fn for_sets(g: f64, prop: &PropagationSet, storage: &StorageSet) -> Truncation {
         let cells = storage.len() as f64;
         let mut cells_in_cone = 1.0;
         loop {
-            let cone = (1.0 - 2.0 * cells_in_cone / cells).max(-1.0);
+            let cone = (1.0 - 2.0 * cells_in_cone / cells).max(WIDEST_CONE);
             let (peak, _) = hg_cone_moments(g, cone);
             // ḡ of the part outside the cone and of the even spread over it, as the discrete
             // scattering sees them.
@@ -125,10 +129,10 @@ impl Truncation {
             let fraction = (g - (1.0 - peak) * g_outside - peak * g_cone) / (1.0 - g_cone);
             // The storage cells widen the scattering outside a narrow cone so much that even all
             // of the cone in the beam leaves the transport cross-section too large: a wider cone.
-            if fraction <= peak || cone <= 0.0 {
+            if fraction <= peak || cone <= WIDEST_CONE {
                 return Truncation { g, cone, peak, fraction: fraction.clamp(0.0, peak) };
             }
-            cells_in_cone += 1.0;
+            cells_in_cone *= 2.0;
         }
     }
 
