@@ -222,7 +222,18 @@ pub fn scene_digest(scene: &Scene) -> String {
     scene.solver.device_residency = crate::scene::DeviceResidency::default();
     scene.solver.checkpoint = crate::scene::CheckpointCadence::default();
     scene.camera = None;
-    let text = format!("{}|{:?}", env!("CARGO_PKG_VERSION"), scene);
+    fnv1a(&format!("{}|{:?}", env!("CARGO_PKG_VERSION"), scene))
+}
+
+/// Identifies a solve for checkpoints: the scene ([`scene_digest`]) and the phase function its plan
+/// discretises, so that a build whose forward-peak treatment differs (the same crate version
+/// between releases) refuses to continue another build's orders instead of mixing two.
+fn checkpoint_digest(scene: &Scene, plan: &Plan) -> String {
+    format!("{}-{}", scene_digest(scene), fnv1a(&format!("{:?}", plan.phase)))
+}
+
+/// FNV-1a of `text`, in hex: stable across runs and platforms.
+fn fnv1a(text: &str) -> String {
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
     for b in text.bytes() {
         h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
@@ -260,7 +271,7 @@ pub fn solve_from(
     let t = Instant::now();
     let total = store.grid().brick_count();
     let plan = Plan::new(scene, total, total - store.occupied_count());
-    let digest = scene_digest(scene);
+    let digest = checkpoint_digest(scene, &plan);
     if resume && backend == BackendKind::Cpu {
         return Err(SolveError::ResumeNeedsGpu);
     }
@@ -350,4 +361,26 @@ pub fn solve_from(
     fields.fluence_total.flush()?;
     fields.source_total.flush()?;
     Ok((SolveRun { plan, outcome, device, peak_device_bytes: peak, memory, phases, residency }, fields))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::quadrature::phase::Phase;
+
+    #[test]
+    fn a_checkpoint_names_the_phase_function_its_plan_discretises() {
+        let text = "[volume]\nprocedural = \"sphere\"\ndims = [16, 16, 16]\n[medium]\nsigma_t = 1.0\nalbedo = 0.9\n\
+                    g = 0.85\n[[lights]]\nkind = \"sky\"\nradiance = 1.0\n";
+        let scene = Scene::from_toml_str(text, Path::new("t.toml")).expect("scene");
+        let plan = Plan::new(&scene, 1, 0);
+        assert!(matches!(plan.phase, Phase::Truncated(_)));
+        let same = checkpoint_digest(&scene, &Plan::new(&scene, 1, 0));
+        assert_eq!(checkpoint_digest(&scene, &plan), same);
+        assert!(same.starts_with(&scene_digest(&scene)));
+        // A build that truncates the forward peak otherwise (the same scene and crate version).
+        let mut other = plan.clone();
+        other.phase = Phase::HenyeyGreenstein { g: 0.85 };
+        assert_ne!(checkpoint_digest(&scene, &other), same);
+    }
 }
