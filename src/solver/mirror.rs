@@ -49,7 +49,8 @@
 //! Limits (refused when the scene is read): the linear scheme (its rays straddle the mirror),
 //! lights that are not their own mirror image (point lights, environment maps, a sun with a
 //! component across a mirror), periodic and reflective axes in one scene, the diffusion
-//! acceleration, and (for now) the GPU backend. The diffusion correction works across mirrors (a
+//! acceleration. The GPU backend, whose kernels have no hand-over, solves the doubled volume
+//! itself ([`super::unfold`]). The diffusion correction works across mirrors (a
 //! voxel's partner beyond a mirror is its image, [`super::antidiffusion`]).
 
 use super::plan::{Plan, SweepDirection};

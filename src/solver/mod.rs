@@ -36,6 +36,7 @@ pub mod point;
 pub mod remaining;
 pub mod segment;
 pub mod sweep;
+pub mod unfold;
 pub mod warm;
 
 use crate::scene::{Scene, VolumeSource};
@@ -71,8 +72,8 @@ pub enum SolveError {
     CheckpointMismatch { path: std::path::PathBuf },
     #[error("writing the checkpoint: {0}")]
     Checkpoint(crate::output::OutputError),
-    #[error("reflective faces are solved by the CPU backend only for now: rerun with --backend cpu")]
-    MirrorsNeedCpu,
+    #[error("with reflective faces the GPU backend solves the volume doubled by its mirror images, which --resume and --warm-start cannot continue: rerun without them, or with --backend cpu")]
+    MirrorsCannotResume,
     #[error("--resume needs the GPU backend (the CPU twin keeps its fields in memory)")]
     ResumeNeedsGpu,
     #[error("a host copy worker thread died (it panicked) while copying bricks between the store and the staging")]
@@ -310,6 +311,7 @@ pub fn solve_from(
         tracing::info!("plan: {reason}");
     }
     let mut memory = None;
+    let mut doubled_reason = None;
     let (outcome, device, peak) = match backend {
         BackendKind::Cpu => {
             let t = Instant::now();
@@ -333,34 +335,76 @@ pub fn solve_from(
             let device = format!("CPU twin (f64, {} threads)", rayon::current_num_threads());
             (outcome, device, 0)
         }
-        BackendKind::Gpu if !plan.mirrors.is_empty() => return Err(SolveError::MirrorsNeedCpu),
+        BackendKind::Gpu if !plan.mirrors.is_empty() => {
+            // Mirror faces: the GPU solves the volume doubled by its images (super::unfold).
+            if resume || warm_start.is_some() {
+                return Err(SolveError::MirrorsCannotResume);
+            }
+            let run = unfold::solve_doubled(scene, store, &plan, &mut fields, vk_options, gpu_options, &mut progress)?;
+            phases.extend(run.phases);
+            memory = Some(run.memory);
+            doubled_reason = Some(run.reason);
+            (run.outcome, run.device, run.peak)
+        }
         BackendKind::Gpu => {
-            let t = Instant::now();
-            let ctx = Context::new(vk_options)?;
-            let device = format!("{} ({})", ctx.device_name(), ctx.driver_description());
-            let mut gpu = gpu::GpuBackend::new(ctx.clone(), &plan, store, &mut fields, gpu_options)?;
-            memory = Some(gpu.memory_plan());
-            if gpu_options.checkpoints {
-                gpu.enable_checkpoints(digest.clone(), scene.solver.checkpoint);
-            }
-            phases.push(("setup".to_string(), t.elapsed().as_secs_f64()));
-            let t = Instant::now();
-            let outcome = orders::run_orders(&plan, &mut gpu, start, &mut progress)?;
-            phases.push(("orders".to_string(), t.elapsed().as_secs_f64()));
-            drop(gpu);
-            let peak = ctx.peak_allocated_bytes();
-            // With validation on, any error it reported fails the solve: a clean run is part of
-            // the contract (tests rely on this).
-            let messages = ctx.validation_messages();
-            if !messages.is_empty() {
-                return Err(SolveError::Validation(messages));
-            }
-            (outcome, device, peak)
+            let checkpoints = gpu_options.checkpoints.then(|| (digest.clone(), scene.solver.checkpoint));
+            let run = run_gpu(&plan, store, &mut fields, start, vk_options, gpu_options, checkpoints, &mut progress)?;
+            phases.extend(run.phases);
+            memory = Some(run.memory);
+            (run.outcome, run.device, run.peak)
         }
     };
     fields.fluence_total.flush()?;
     fields.source_total.flush()?;
+    let mut plan = plan;
+    plan.reasons.extend(doubled_reason);
     Ok((SolveRun { plan, outcome, device, peak_device_bytes: peak, memory, phases, residency }, fields))
+}
+
+/// What a GPU solve hands back besides the fields.
+struct GpuRun {
+    outcome: orders::OrderOutcome,
+    device: String,
+    peak: u64,
+    memory: gpu::budget::MemoryPlan,
+    phases: Vec<(String, f64)>,
+}
+
+/// Runs the orders of `plan` on the GPU over `store`'s `fields` from `start`, writing checkpoints
+/// under `checkpoints` (digest, cadence) when given.
+#[allow(clippy::too_many_arguments)]
+fn run_gpu(
+    plan: &Plan,
+    store: &BrickStore,
+    fields: &mut StoreFields,
+    start: fields::LoopState,
+    vk_options: ContextOptions,
+    gpu_options: gpu::GpuOptions,
+    checkpoints: Option<(String, crate::scene::CheckpointCadence)>,
+    progress: &mut impl FnMut(u32, f64),
+) -> Result<GpuRun, SolveError> {
+    let mut phases = Vec::new();
+    let t = Instant::now();
+    let ctx = Context::new(vk_options)?;
+    let device = format!("{} ({})", ctx.device_name(), ctx.driver_description());
+    let mut gpu = gpu::GpuBackend::new(ctx.clone(), plan, store, fields, gpu_options)?;
+    let memory = gpu.memory_plan();
+    if let Some((digest, cadence)) = checkpoints {
+        gpu.enable_checkpoints(digest, cadence);
+    }
+    phases.push(("setup".to_string(), t.elapsed().as_secs_f64()));
+    let t = Instant::now();
+    let outcome = orders::run_orders(plan, &mut gpu, start, progress)?;
+    phases.push(("orders".to_string(), t.elapsed().as_secs_f64()));
+    drop(gpu);
+    let peak = ctx.peak_allocated_bytes();
+    // With validation on, any error it reported fails the solve: a clean run is part of the
+    // contract (tests rely on this).
+    let messages = ctx.validation_messages();
+    if !messages.is_empty() {
+        return Err(SolveError::Validation(messages));
+    }
+    Ok(GpuRun { outcome, device, peak, memory, phases })
 }
 
 #[cfg(test)]

@@ -165,6 +165,21 @@ fn the_octant_with_mirrors_solves_to_the_mirrored_domain() {
     }
 }
 
+/// On the GPU the octant is solved as the volume doubled by its three mirrors (`solver::unfold`),
+/// the per-voxel emission copied across: the twin's octant to the kernels' rounding, with the
+/// octant's own source power in the books.
+#[test]
+fn the_gpu_solves_the_octant_with_mirrors_as_the_twin() {
+    let (mut octant, _) = generate_with(1, "ii", &["--octant"]);
+    octant.solver.tolerance = 1e-6;
+    let (g, c) = (solve("kobayashi-octant-gpu", &octant, Gpu), solve("kobayashi-octant-twin", &octant, Cpu));
+    let err = relative_l2(&g.fluence_all(), &c.fluence_all());
+    assert!(err < 1e-4, "GPU vs twin {err}");
+    let e = &g.run.outcome.energy;
+    assert!((e.emitted[0] / 1000.0 - 1.0).abs() < 1e-5, "emitted {}", e.emitted[0]);
+    assert!(e.relative_imbalance < 1e-5, "{e:?}");
+}
+
 #[test]
 fn bench_accuracy_runs_the_octant_with_both_methods_mirrored() {
     // `lpm bench accuracy` copies the scene for each run: the copies must find the files it names

@@ -1,0 +1,311 @@
+//! Mirror faces on the GPU backend: the method of images, carried out.
+//!
+//! A volume with mirror faces solves to the restriction of the volume doubled by its mirror image
+//! across each mirror ([`super::mirror`]). The CPU twin hands light over at the mirrors without
+//! storing the image; the GPU kernels have no hand-over, so the GPU backend builds the doubled
+//! volume itself: per axis with a mirror the volume and its image side by side (an axis with
+//! mirrors on both faces repeats with period 2n: it is solved periodic), the density and any
+//! emission or albedo grid copied across, the faces that are not mirrors open as they were. It
+//! solves that with the ordinary kernels and copies the original's part of the fluence and the
+//! source back into the scene's fields. The cost is the doubled volume's: 2, 4 or 8 times the
+//! memory and time of the volume with its mirrors.
+//!
+//! **What it gives.** The doubled volume's answer, which the twin converges to as well (its mirror
+//! hand-overs arrive an order late, so it runs more orders). The directions are the same unless the
+//! twin nudges one swept across a mirror to move whole voxels over the volume
+//! ([`super::periodic::periodic_slope`]): the doubled volume has open faces there and sweeps the
+//! direction unnudged, a difference of the nudge's size. **Energy books.** The doubled volume's
+//! powers over its 2^m copies of the volume; each of its faces counts for the open face of the
+//! volume it images (so the faces add up to the totals, and an open face's books are the mean over
+//! its images). Those means can differ from the twin's face by face by a few per cent: the lattice
+//! does not split what leaves between a side and the far face alike for a direction and its mirror
+//! image. The totals are the twin's. No light crosses a mirror face in these books (it crosses an
+//! interior plane of the doubled volume, where nothing is tallied), where the twin counts what
+//! reaches a mirror as out and what comes back as in (net zero once converged).
+//!
+//! Not with `--resume` or a warm start (the checkpoint would be the doubled volume's): refused.
+//! The doubled store lives beside the scene's, in `unfolded/`, and is removed when the solve ends.
+
+use super::energy::{EnergyBalance, Tallies};
+use super::orders::OrderOutcome;
+use super::plan::Plan;
+use super::{emission, SolveError, StoreFields};
+use crate::scene::{Acceleration, Scene};
+use crate::store::{albedo, BrickStore, Coverage, Field, StoreError, BRICK_EDGE};
+use std::path::PathBuf;
+
+/// Where the volume and its images lie in the doubled volume.
+#[derive(Clone, Copy, Debug)]
+pub struct Fold {
+    /// The volume's dims.
+    half: [u32; 3],
+    /// Per axis: whether it is doubled, and whether the image lies below the volume (a mirror on
+    /// the low face only).
+    doubled: [bool; 3],
+    image_below: [bool; 3],
+}
+
+impl Fold {
+    /// The doubling for a volume of `dims` with the mirrors `reflective` (per axis: low, high).
+    pub fn new(dims: [u32; 3], reflective: [[bool; 2]; 3]) -> Fold {
+        Fold { half: dims, doubled: reflective.map(|m| m[0] || m[1]), image_below: reflective.map(|m| m[0] && !m[1]) }
+    }
+
+    /// The doubled volume's dims.
+    pub fn dims(&self) -> [u32; 3] {
+        [0, 1, 2].map(|a| self.half[a] * if self.doubled[a] { 2 } else { 1 })
+    }
+
+    /// Per axis: periodic in the doubled volume (mirrors on both faces).
+    pub fn periodic(&self, reflective: [[bool; 2]; 3]) -> [bool; 3] {
+        reflective.map(|m| m[0] && m[1])
+    }
+
+    /// Copies of the volume in the doubled one (2^m, m the mirrored axes).
+    pub fn copies(&self) -> f64 {
+        self.doubled.iter().filter(|&&d| d).map(|_| 2.0).product()
+    }
+
+    /// The voxel of the volume that voxel `u` of the doubled volume is (or images).
+    pub fn source(&self, u: [u32; 3]) -> [u32; 3] {
+        [0, 1, 2].map(|a| {
+            let n = self.half[a];
+            match (self.doubled[a], self.image_below[a]) {
+                (false, _) => u[a],
+                (true, true) if u[a] < n => n - 1 - u[a],
+                (true, true) => u[a] - n,
+                (true, false) if u[a] < n => u[a],
+                (true, false) => 2 * n - 1 - u[a],
+            }
+        })
+    }
+
+    /// Where voxel `v` of the volume lies in the doubled one.
+    pub fn place(&self, v: [u32; 3]) -> [u32; 3] {
+        [0, 1, 2].map(|a| if self.doubled[a] && self.image_below[a] { v[a] + self.half[a] } else { v[a] })
+    }
+}
+
+/// The scene of the doubled volume: `scene` with the doubled dims, periodic where both faces of an
+/// axis are mirrors, no mirrors, and the plan's choices kept (the acceleration stays off: the
+/// twin's mirrors refuse it).
+fn doubled_scene(scene: &Scene, fold: &Fold) -> Scene {
+    let mut s = scene.clone();
+    let reflective = scene.boundary.reflective;
+    s.volume.dims = fold.dims();
+    s.boundary.periodic = [0, 1, 2].map(|a| scene.boundary.periodic[a] || fold.periodic(reflective)[a]);
+    s.boundary.reflective = [[false; 2]; 3];
+    s.solver.acceleration = Acceleration::Off;
+    s
+}
+
+/// The doubled volume's store in `dir`: the density, and the emission and albedo grids the plan
+/// uses, each voxel the value of the voxel it images.
+fn doubled_store(
+    store: &BrickStore,
+    plan: &Plan,
+    fold: &Fold,
+    dir: &std::path::Path,
+) -> Result<BrickStore, StoreError> {
+    let dims = fold.dims();
+    let edge = BRICK_EDGE as usize;
+    let doubled = BrickStore::create_with(dir, dims, store.voxel_size(), |b, out| {
+        for (i, value) in out.iter_mut().enumerate() {
+            let u = [
+                b[0] * BRICK_EDGE + (i % edge) as u32,
+                b[1] * BRICK_EDGE + (i / edge % edge) as u32,
+                b[2] * BRICK_EDGE + (i / (edge * edge)) as u32,
+            ];
+            if u[0] < dims[0] && u[1] < dims[1] && u[2] < dims[2] {
+                *value = store.density_at(fold.source(u));
+            }
+        }
+        Ok(())
+    })?;
+    if plan.emission_field {
+        let from = crate::store::emission::open_emission(store)?;
+        copy_field(&from, &doubled, crate::store::emission::EMISSION_FIELD, fold)?;
+    }
+    if plan.albedo_field {
+        let from = albedo::open_albedo(store)?;
+        copy_field(&from, &doubled, albedo::ALBEDO_FIELD, fold)?;
+    }
+    Ok(doubled)
+}
+
+/// Writes `name` into the doubled store: every voxel of its occupied bricks takes the value of the
+/// voxel it images in `from`.
+fn copy_field(from: &Field, doubled: &BrickStore, name: &str, fold: &Fold) -> Result<(), StoreError> {
+    let components = from.components();
+    let mut to = doubled.create_field(name, components, Coverage::Occupied)?;
+    let grid = *doubled.grid();
+    let edge = BRICK_EDGE as usize;
+    let voxels = edge * edge * edge;
+    for brick in doubled.occupied_bricks().collect::<Vec<_>>() {
+        let origin = grid.brick_origin(grid.brick_coords(brick));
+        let Some(dst) = to.brick_mut(brick) else { continue };
+        for c in 0..components as usize {
+            for i in 0..voxels {
+                let u = [
+                    origin[0] + (i % edge) as u32,
+                    origin[1] + (i / edge % edge) as u32,
+                    origin[2] + (i / (edge * edge)) as u32,
+                ];
+                if u[0] < grid.dims[0] && u[1] < grid.dims[1] && u[2] < grid.dims[2] {
+                    dst[c * voxels + i] = from.value(fold.source(u), c as u32);
+                }
+            }
+        }
+    }
+    to.flush()
+}
+
+/// A GPU solve of the doubled volume, folded back.
+pub(crate) struct DoubledRun {
+    pub outcome: OrderOutcome,
+    pub device: String,
+    pub peak: u64,
+    pub memory: super::gpu::budget::MemoryPlan,
+    pub phases: Vec<(String, f64)>,
+    /// For the plan's reasons.
+    pub reason: String,
+}
+
+/// Solves `scene` (with mirror faces; `plan` its plan) on the GPU as the volume doubled by its
+/// images, and writes the volume's part of the doubled volume's committed fluence and source
+/// into `fields`.
+pub(crate) fn solve_doubled(
+    scene: &Scene,
+    store: &BrickStore,
+    plan: &Plan,
+    fields: &mut StoreFields,
+    vk_options: crate::vk::ContextOptions,
+    gpu_options: super::gpu::GpuOptions,
+    progress: &mut impl FnMut(u32, f64),
+) -> Result<DoubledRun, SolveError> {
+    let t = std::time::Instant::now();
+    let fold = Fold::new(plan.dims, plan.reflective);
+    let dir = Scratch(store.dir().join("unfolded"));
+    if dir.0.exists() {
+        std::fs::remove_dir_all(&dir.0).map_err(|e| StoreError::Io {
+            path: dir.0.clone(),
+            action: "remove the doubled volume's old store",
+            source: e,
+        })?;
+    }
+    let doubled = doubled_store(store, plan, &fold, &dir.0)?;
+    let scene2 = doubled_scene(scene, &fold);
+    let total = doubled.grid().brick_count();
+    let plan2 = Plan::new(&scene2, total, total - doubled.occupied_count());
+    let mut fields2 = StoreFields::create(&doubled, &plan2)?;
+    if plan2.emission_field {
+        emission::write_initial_source(&doubled, &plan2, &mut fields2.source_prev)?;
+    }
+    let setup = t.elapsed().as_secs_f64();
+    let options = super::gpu::GpuOptions { checkpoints: false, ..gpu_options };
+    let run = super::run_gpu(&plan2, &doubled, &mut fields2, Default::default(), vk_options, options, None, progress)?;
+    let t = std::time::Instant::now();
+    fold_field(&fields2.fluence_total, &mut fields.fluence_total, store, &fold)?;
+    fold_field(&fields2.source_total, &mut fields.source_total, store, &fold)?;
+    let mut phases = run.phases;
+    phases.insert(0, ("doubling".to_string(), setup));
+    phases.push(("folding".to_string(), t.elapsed().as_secs_f64()));
+    let reason = format!(
+        "mirror faces on the GPU: solved as the volume doubled by its mirror images ({} × {} × {} voxels, {} copies \
+         of the volume: that many times the memory and time), the volume's part kept",
+        fold.dims()[0],
+        fold.dims()[1],
+        fold.dims()[2],
+        fold.copies()
+    );
+    Ok(DoubledRun {
+        reason,
+        outcome: fold_outcome(run.outcome, plan, &fold),
+        device: run.device,
+        peak: run.peak,
+        memory: run.memory,
+        phases,
+    })
+}
+
+/// Removes the doubled volume's store when the solve ends, however it ends.
+struct Scratch(PathBuf);
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        if let Err(e) = std::fs::remove_dir_all(&self.0) {
+            if e.kind() != std::io::ErrorKind::NotFound {
+                tracing::warn!("could not remove the doubled volume's store {}: {e}", self.0.display());
+            }
+        }
+    }
+}
+
+/// Copies the volume's part of the doubled volume's field `from` into `to` (the scene's store's
+/// field of the same components), voxel by voxel over the volume's occupied bricks.
+fn fold_field(from: &Field, to: &mut Field, store: &BrickStore, fold: &Fold) -> Result<(), StoreError> {
+    let components = to.components() as usize;
+    let grid = *store.grid();
+    let edge = BRICK_EDGE as usize;
+    let voxels = edge * edge * edge;
+    for brick in store.occupied_bricks().collect::<Vec<_>>() {
+        let origin = grid.brick_origin(grid.brick_coords(brick));
+        let Some(dst) = to.brick_mut(brick) else { continue };
+        for c in 0..components {
+            for i in 0..voxels {
+                let v = [
+                    origin[0] + (i % edge) as u32,
+                    origin[1] + (i / edge % edge) as u32,
+                    origin[2] + (i / (edge * edge)) as u32,
+                ];
+                if v[0] < grid.dims[0] && v[1] < grid.dims[1] && v[2] < grid.dims[2] {
+                    dst[c * voxels + i] = from.value(fold.place(v), c as u32);
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The doubled volume's outcome as the volume's: every power over the copies of the volume, and
+/// each face of the doubled volume counted for the open face of the volume it images (an axis with
+/// one mirror has both its doubled faces image the volume's open face; one with two has none), so
+/// the faces' books add up to the totals (module docs).
+fn fold_outcome(mut outcome: OrderOutcome, plan: &Plan, fold: &Fold) -> OrderOutcome {
+    let copies = fold.copies();
+    let e = &outcome.energy;
+    let mut tallies = Tallies::default();
+    for (f, face) in e.faces.iter().enumerate() {
+        let axis = f / 2;
+        let target = match plan.reflective[axis] {
+            [false, false] => f,
+            [true, true] => continue,
+            // The one open face of the axis.
+            [low, _] => 2 * axis + low as usize,
+        };
+        for ch in 0..3 {
+            let (came, left) = (face.power_in[ch] / copies, face.power_out[ch] / copies);
+            tallies.face_in[target][ch] += came;
+            tallies.face_out[target][ch] += left;
+            tallies.boundary_in[ch] += came;
+            tallies.boundary_out[ch] += left;
+        }
+    }
+    let per_copy = |v: [f64; 3]| v.map(|x| x / copies);
+    outcome.energy = EnergyBalance::new(
+        &tallies,
+        per_copy(e.emitted),
+        per_copy(e.point_lights),
+        per_copy(e.absorbed),
+        per_copy(e.unpropagated),
+        plan.channels as usize,
+    );
+    for record in &mut outcome.history {
+        record.new_source_power /= copies;
+        record.total_source_power /= copies;
+    }
+    if let Some(tail) = &mut outcome.tail {
+        tail.power /= copies;
+    }
+    outcome
+}
