@@ -7,6 +7,8 @@
 //! - [`orders`] runs scattering orders until [`remaining`] says every voxel of the medium is within
 //!   the tolerance of its converged value; [`energy`] keeps the books (per face of the volume too);
 //! - [`periodic`] closes periodic boundaries (wrapping lattices, carried rays between orders);
+//!   [`mirror`] closes reflective ones on the twin (hand-overs to the mirror-image directions),
+//!   [`unfold`] on the GPU (the volume doubled by its images, solved and folded back);
 //! - [`passes`] are the host passes between orders, written once over both backends' fields;
 //! - [`acceleration`] follows each order with a diffusion solve of the light still to come
 //!   (diffusion synthetic acceleration: orders nearly independent of the albedo);
