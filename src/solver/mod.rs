@@ -76,6 +76,8 @@ pub enum SolveError {
     Checkpoint(crate::output::OutputError),
     #[error("with reflective faces the GPU backend solves the volume doubled by its mirror images, which --resume and --warm-start cannot continue: rerun without them, or with --backend cpu")]
     MirrorsCannotResume,
+    #[error("the GPU driver does not hand light over at mirror faces: `lpm solve` solves such a scene on the volume doubled by its mirror images; this command does not (use a scene without reflective faces, or --backend cpu where it has one)")]
+    MirrorsInTheDriver,
     #[error("--resume needs the GPU backend (the CPU twin keeps its fields in memory)")]
     ResumeNeedsGpu,
     #[error("a host copy worker thread died (it panicked) while copying bricks between the store and the staging")]

@@ -236,3 +236,19 @@ fn the_gpu_refuses_to_resume_a_solve_with_mirror_faces() {
         .to_string();
     assert!(err.contains("--resume") && err.contains("--backend cpu"), "{err}");
 }
+
+/// `lpm bench stream` drives the GPU kernels directly, without doubling the volume: a scene with
+/// mirror faces is refused there rather than solved as if the mirrors were open.
+#[test]
+fn bench_stream_refuses_mirror_faces() {
+    let dir = temp_dir("mirror-bench-stream");
+    let scene = write_scene(
+        &dir,
+        "[volume]\nprocedural = \"box\"\ndims = [8, 8, 8]\n[medium]\nsigma_t = 1.0\nalbedo = 0.5\n\
+         [[lights]]\nkind = \"sky\"\nradiance = 1.0\n[boundary]\nx = [\"open\", \"reflective\"]\n",
+    );
+    let o = lpm_command(&["bench", "stream", scene.to_str().unwrap(), "--orders", "1"]).output().expect("run lpm");
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("mirror faces"), "{err}");
+}

@@ -165,7 +165,9 @@ pub struct GpuBackend<'a> {
 }
 
 impl<'a> GpuBackend<'a> {
-    /// Prepares the device for `plan`; the solve accumulates into `fields` (in `store`).
+    /// Prepares the device for `plan`; the solve accumulates into `fields` (in `store`). A plan
+    /// with mirror faces is refused: the kernels hand nothing over at a mirror (a solve doubles
+    /// the volume first, [`crate::solver::unfold`]).
     pub fn new(
         ctx: Arc<Context>,
         plan: &'a Plan,
@@ -173,6 +175,9 @@ impl<'a> GpuBackend<'a> {
         fields: &'a mut StoreFields,
         options: GpuOptions,
     ) -> Result<Self, SolveError> {
+        if !plan.mirrors.is_empty() {
+            return Err(SolveError::MirrorsInTheDriver);
+        }
         let limits = ctx.limits();
         let budget = options.budget.unwrap_or_else(|| budget::default_budget(&limits));
         if budget > limits.device_local_heap_bytes {
