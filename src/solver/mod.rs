@@ -74,8 +74,6 @@ pub enum SolveError {
     CheckpointMismatch { path: std::path::PathBuf },
     #[error("writing the checkpoint: {0}")]
     Checkpoint(crate::output::OutputError),
-    #[error("with reflective faces the GPU backend solves the volume doubled by its mirror images, which --resume and --warm-start cannot continue: rerun without them, or with --backend cpu")]
-    MirrorsCannotResume,
     #[error("the GPU driver does not hand light over at mirror faces: `lpm solve` solves such a scene on the volume doubled by its mirror images; this command does not (use a scene without reflective faces, or --backend cpu where it has one)")]
     MirrorsInTheDriver,
     #[error("--resume needs the GPU backend (the CPU twin keeps its fields in memory)")]
@@ -340,9 +338,12 @@ pub fn solve_from(
             (outcome, device, 0)
         }
         BackendKind::Gpu if !plan.mirrors.is_empty() => {
-            // Mirror faces: the GPU solves the volume doubled by its images (super::unfold).
-            if resume || warm_start.is_some() {
-                return Err(SolveError::MirrorsCannotResume);
+            // Mirror faces: the GPU solves the volume doubled by its images (super::unfold). It
+            // writes no checkpoint, so a resume finds none and starts afresh.
+            if warm_start.is_some() {
+                tracing::warn!(
+                    "mirror faces on the GPU: the doubled volume is solved cold, the warm start's guess unused"
+                );
             }
             let run = unfold::solve_doubled(scene, store, &plan, &mut fields, vk_options, gpu_options, &mut progress)?;
             phases.extend(run.phases);

@@ -23,7 +23,8 @@
 //! interior plane of the doubled volume, where nothing is tallied), where the twin counts what
 //! reaches a mirror as out and what comes back as in (net zero once converged).
 //!
-//! Not with `--resume` or a warm start (the checkpoint would be the doubled volume's): refused.
+//! No checkpoints are written (they would be the doubled volume's), so `--resume` finds none and
+//! starts afresh, and a warm start's guess is not used (the solve is cold; a warning says so).
 //! The doubled store lives beside the scene's, in `unfolded/`, and is removed when the solve ends.
 
 use super::energy::{EnergyBalance, Tallies};
