@@ -109,15 +109,10 @@ fn doubled_store(
     dir: &std::path::Path,
 ) -> Result<BrickStore, StoreError> {
     let dims = fold.dims();
-    let edge = BRICK_EDGE as usize;
     let doubled = BrickStore::create_with(dir, dims, store.voxel_size(), |b, out| {
         for (i, value) in out.iter_mut().enumerate() {
-            let u = [
-                b[0] * BRICK_EDGE + (i % edge) as u32,
-                b[1] * BRICK_EDGE + (i / edge % edge) as u32,
-                b[2] * BRICK_EDGE + (i / (edge * edge)) as u32,
-            ];
-            if u[0] < dims[0] && u[1] < dims[1] && u[2] < dims[2] {
+            let u = brick_voxel(b.map(|c| c * BRICK_EDGE), i);
+            if (0..3).all(|a| u[a] < dims[a]) {
                 *value = store.density_at(fold.source(u));
             }
         }
@@ -137,28 +132,34 @@ fn doubled_store(
 /// Writes `name` into the doubled store: every voxel of its occupied bricks takes the value of the
 /// voxel it images in `from`.
 fn copy_field(from: &Field, doubled: &BrickStore, name: &str, fold: &Fold) -> Result<(), StoreError> {
-    let components = from.components();
-    let mut to = doubled.create_field(name, components, Coverage::Occupied)?;
-    let grid = *doubled.grid();
-    let edge = BRICK_EDGE as usize;
-    let voxels = edge * edge * edge;
-    for brick in doubled.occupied_bricks().collect::<Vec<_>>() {
+    let mut to = doubled.create_field(name, from.components(), Coverage::Occupied)?;
+    fill_field(&mut to, doubled, |u, c| from.value(fold.source(u), c));
+    to.flush()
+}
+
+/// Sets every voxel of `store`'s occupied bricks in `field` (one of `store`'s) to `value(voxel,
+/// component)`.
+fn fill_field(field: &mut Field, store: &BrickStore, value: impl Fn([u32; 3], u32) -> f32) {
+    let grid = *store.grid();
+    let voxels = crate::store::BRICK_VOXELS;
+    for brick in store.occupied_bricks().collect::<Vec<_>>() {
         let origin = grid.brick_origin(grid.brick_coords(brick));
-        let Some(dst) = to.brick_mut(brick) else { continue };
-        for c in 0..components as usize {
-            for i in 0..voxels {
-                let u = [
-                    origin[0] + (i % edge) as u32,
-                    origin[1] + (i / edge % edge) as u32,
-                    origin[2] + (i / (edge * edge)) as u32,
-                ];
-                if u[0] < grid.dims[0] && u[1] < grid.dims[1] && u[2] < grid.dims[2] {
-                    dst[c * voxels + i] = from.value(fold.source(u), c as u32);
+        let Some(dst) = field.brick_mut(brick) else { continue };
+        for (c, block) in dst.chunks_mut(voxels).enumerate() {
+            for (i, slot) in block.iter_mut().enumerate() {
+                let v = brick_voxel(origin, i);
+                if (0..3).all(|a| v[a] < grid.dims[a]) {
+                    *slot = value(v, c as u32);
                 }
             }
         }
     }
-    to.flush()
+}
+
+/// The volume coordinates of voxel `i` (x fastest) of the brick at `origin`.
+fn brick_voxel(origin: [u32; 3], i: usize) -> [u32; 3] {
+    let edge = BRICK_EDGE as usize;
+    [origin[0] + (i % edge) as u32, origin[1] + (i / edge % edge) as u32, origin[2] + (i / (edge * edge)) as u32]
 }
 
 /// A GPU solve of the doubled volume, folded back.
@@ -206,8 +207,8 @@ pub(crate) fn solve_doubled(
     let options = super::gpu::GpuOptions { checkpoints: false, ..gpu_options };
     let run = super::run_gpu(&plan2, &doubled, &mut fields2, Default::default(), vk_options, options, None, progress)?;
     let t = std::time::Instant::now();
-    fold_field(&fields2.fluence_total, &mut fields.fluence_total, store, &fold)?;
-    fold_field(&fields2.source_total, &mut fields.source_total, store, &fold)?;
+    fold_field(&fields2.fluence_total, &mut fields.fluence_total, store, &fold);
+    fold_field(&fields2.source_total, &mut fields.source_total, store, &fold);
     let mut phases = run.phases;
     phases.insert(0, ("doubling".to_string(), setup));
     phases.push(("folding".to_string(), t.elapsed().as_secs_f64()));
@@ -244,28 +245,8 @@ impl Drop for Scratch {
 
 /// Copies the volume's part of the doubled volume's field `from` into `to` (the scene's store's
 /// field of the same components), voxel by voxel over the volume's occupied bricks.
-fn fold_field(from: &Field, to: &mut Field, store: &BrickStore, fold: &Fold) -> Result<(), StoreError> {
-    let components = to.components() as usize;
-    let grid = *store.grid();
-    let edge = BRICK_EDGE as usize;
-    let voxels = edge * edge * edge;
-    for brick in store.occupied_bricks().collect::<Vec<_>>() {
-        let origin = grid.brick_origin(grid.brick_coords(brick));
-        let Some(dst) = to.brick_mut(brick) else { continue };
-        for c in 0..components {
-            for i in 0..voxels {
-                let v = [
-                    origin[0] + (i % edge) as u32,
-                    origin[1] + (i / edge % edge) as u32,
-                    origin[2] + (i / (edge * edge)) as u32,
-                ];
-                if v[0] < grid.dims[0] && v[1] < grid.dims[1] && v[2] < grid.dims[2] {
-                    dst[c * voxels + i] = from.value(fold.place(v), c as u32);
-                }
-            }
-        }
-    }
-    Ok(())
+fn fold_field(from: &Field, to: &mut Field, store: &BrickStore, fold: &Fold) {
+    fill_field(to, store, |v, c| from.value(fold.place(v), c));
 }
 
 /// The doubled volume's outcome as the volume's: every power over the copies of the volume, and
@@ -309,4 +290,37 @@ fn fold_outcome(mut outcome: OrderOutcome, plan: &Plan, fold: &Fold) -> OrderOut
         tail.power /= copies;
     }
     outcome
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_voxel_of_the_doubled_volume_images_the_volume_and_the_volume_lies_in_it_once() {
+        let dims = [5, 4, 3];
+        for reflective in [[[true, false], [false; 2], [false, true]], [[true, true], [true, false], [false; 2]]] {
+            let fold = Fold::new(dims, reflective);
+            let d = fold.dims();
+            let mut hits = vec![0; (dims[0] * dims[1] * dims[2]) as usize];
+            for z in 0..d[2] {
+                for y in 0..d[1] {
+                    for x in 0..d[0] {
+                        let v = fold.source([x, y, z]);
+                        assert!((0..3).all(|a| v[a] < dims[a]), "{v:?}");
+                        hits[(v[0] + dims[0] * (v[1] + dims[1] * v[2])) as usize] += 1;
+                    }
+                }
+            }
+            // Each voxel of the volume appears once per copy.
+            assert!(hits.iter().all(|&h| h as f64 == fold.copies()), "{hits:?}");
+            for v in [[0, 0, 0], [4, 3, 2], [2, 1, 0]] {
+                assert_eq!(fold.source(fold.place(v)), v);
+            }
+        }
+        // A mirror on the low face of x: the image lies below, voxel 0 next to its own image.
+        let fold = Fold::new(dims, [[true, false], [false; 2], [false; 2]]);
+        assert_eq!(fold.place([0, 0, 0]), [5, 0, 0]);
+        assert_eq!(fold.source([4, 0, 0]), [0, 0, 0]);
+    }
 }
