@@ -17,11 +17,14 @@
 //! direction unnudged, a difference of the nudge's size. **Energy books.** The doubled volume's
 //! powers over its 2^m copies of the volume; each of its faces counts for the open face of the
 //! volume it images (so the faces add up to the totals, and an open face's books are the mean over
-//! its images). Those means can differ from the twin's face by face by a few per cent: the lattice
-//! does not split what leaves between a side and the far face alike for a direction and its mirror
-//! image. The totals are the twin's. No light crosses a mirror face in these books (it crosses an
-//! interior plane of the doubled volume, where nothing is tallied), where the twin counts what
-//! reaches a mirror as out and what comes back as in (net zero once converged).
+//! its images). The absorbed power is the twin's. The faces' in and out are the twin's where no
+//! mirror borders the face; next to a mirror the twin also counts the rays its lattice keeps in the
+//! vacuum column beyond the mirror (born beside the face, leaving again without meeting the
+//! medium), n + 1 lattice columns across the mirrored axis against the doubled volume's 2n + 1 (or
+//! 2n when periodic) over two: up to ~12 % of such a face's in and out, the lattice's bookkeeping,
+//! not light. No light crosses a mirror face in these books (it crosses an interior plane of the
+//! doubled volume, where nothing is tallied), where the twin counts what reaches a mirror as out
+//! and what comes back as in (net zero once converged).
 //!
 //! No checkpoints are written (they would be the doubled volume's), so `--resume` finds none and
 //! starts afresh, and a warm start's guess is not used (the solve is cold; a warning says so).
