@@ -11,10 +11,10 @@ method of images that is exact: the mirrored problem is symmetric, so no net cur
 planes, which is what a mirror imposes; its flux in the octant is the octant problem's. Problem 1
 spans [-100, 100]^3, problem 3 [-60, 60] x [-100, 100] x [-60, 60]. With --octant it writes the
 octant as published, [0, 100]^3 or [0, 60] x [0, 100] x [0, 60], with reflective faces at x, y,
-z = 0 (`[boundary] x = ["reflective", "open"]`; lpm's CPU backend, solver.spatial = "constant"):
+z = 0 (`[boundary] x = ["reflective", "open"]`, solver.spatial = "constant"): on the CPU backend
 an eighth of the voxels, the same answer (exactly where the plan does not nudge directions swept
 across a mirror: their slopes times the octant's planes are whole numbers, e.g. k = 5 at 10 or
-2 cm voxels).
+2 cm voxels); the GPU backend solves it as the full problem it images (its mirrors unfolded).
 
 Regions (octant coordinates, |x|, |y|, |z| of the full domain):
   source: 0-10 in x, y, z; isotropic source S = 1 /cm^3/s; sigma_t = 0.1 /cm
