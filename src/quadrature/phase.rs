@@ -48,8 +48,20 @@ impl Phase {
         matches!(self, Phase::HenyeyGreenstein { g } if *g == 0.0)
     }
 
+    /// The weighted sum of `rows(part)` over the phase function's parts (each part's rows
+    /// normalised on their own, so the sum's rows are normalised too).
+    fn mix(&self, rows: impl Fn(Part) -> Vec<f64>) -> Vec<f64> {
+        let mut sum: Vec<f64> = Vec::new();
+        for (weight, part) in self.parts() {
+            let r = rows(part);
+            sum.resize(r.len(), 0.0);
+            sum.iter_mut().zip(r).for_each(|(acc, v)| *acc += weight * v);
+        }
+        sum
+    }
+
     /// The phase function's parts, each normalised over the sphere, with their weights (summing
-    /// to 1): the collect rows are the weighted sum of each part's rows, each normalised on its own.
+    /// to 1).
     fn parts(&self) -> Vec<(f64, Part)> {
         match *self {
             Phase::HenyeyGreenstein { g } => vec![(1.0, Part::HenyeyGreenstein(g))],
@@ -114,16 +126,16 @@ impl Truncation {
     /// scatters into the cone (module docs).
     pub fn for_sets(g: f64, prop: &PropagationSet, storage: &StorageSet) -> Truncation {
         let cells = storage.len() as f64;
+        // ḡ of a part as the discrete scattering sees it.
+        let mean_cosine = |part: Part| {
+            let m = to_collect(prop, storage, part_rows(prop, storage, part));
+            effective_mean_cosine(prop, storage, &m)
+        };
         let mut cells_in_cone = 1.0;
         loop {
             let cone = (1.0 - 2.0 * cells_in_cone / cells).max(WIDEST_CONE);
             let (peak, _) = hg_cone_moments(g, cone);
-            // ḡ of the part outside the cone and of the even spread over it, as the discrete
-            // scattering sees them.
-            let mean_cosine = |part: Part| {
-                let m = to_collect(prop, storage, part_rows(prop, storage, part));
-                effective_mean_cosine(prop, storage, &m)
-            };
+            // ḡ of the part outside the cone and of the even spread over it.
             let (g_outside, g_cone) = (mean_cosine(Part::Outside { g, cone }), mean_cosine(Part::Cone(cone)));
             // (1 − f)(1 − ḡ_f) = 1 − g with (1 − f)·ḡ_f = (1 − C)·ḡ_outside + (C − f)·ḡ_cone.
             let fraction = (g - (1.0 - peak) * g_outside - peak * g_cone) / (1.0 - g_cone);
@@ -208,11 +220,7 @@ pub fn collect_matrix(prop: &PropagationSet, storage: &StorageSet, phase: &Phase
             }
         }
     } else {
-        for (weight, part) in phase.parts() {
-            for (acc, v) in p.iter_mut().zip(part_rows(prop, storage, part)) {
-                *acc += weight * v;
-            }
-        }
+        p = phase.mix(|part| part_rows(prop, storage, part));
     }
     to_collect(prop, storage, p)
 }
@@ -282,14 +290,14 @@ impl BeamRows {
                 }
             }
             Some(sub) => {
-                for (weight, part) in self.phase.parts() {
+                p = self.phase.mix(|part| {
                     let mut q = vec![0.0; s];
                     for &(wb, ob, ib) in &sub.samples {
                         q[self.owner[ib] as usize] += ob * part.value(travel.dot(wb));
                     }
                     normalise_rows(&mut q, s);
-                    p.iter_mut().zip(q).for_each(|(acc, v)| *acc += weight * v);
-                }
+                    q
+                });
             }
         }
         p.iter().zip(&self.solid_angle).map(|(p, w)| p / w).collect()

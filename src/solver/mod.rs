@@ -278,11 +278,22 @@ pub fn solve_from(
     if resume && backend == BackendKind::Cpu {
         return Err(SolveError::ResumeNeedsGpu);
     }
+    // Mirror faces on the GPU: the volume doubled by its images is seeded and solved in a store
+    // of its own (super::unfold), which writes no checkpoint; these fields take its folded totals.
+    let doubled = backend == BackendKind::Gpu && !plan.mirrors.is_empty();
     let resumed = if resume { StoreFields::resume(store, &plan, &digest)? } else { None };
     let (mut fields, start) = match resumed {
         Some((fields, state)) => {
             tracing::info!("resuming after {} completed order(s)", state.orders_done);
             (fields, state)
+        }
+        None if doubled => {
+            if warm_start.is_some() {
+                tracing::warn!(
+                    "mirror faces on the GPU: the doubled volume is solved cold, the warm start's guess unused"
+                );
+            }
+            (StoreFields::create(store, &plan)?, fields::LoopState::default())
         }
         None => {
             let mut fields = StoreFields::create(store, &plan)?;
@@ -337,18 +348,12 @@ pub fn solve_from(
             let device = format!("CPU twin (f64, {} threads)", rayon::current_num_threads());
             (outcome, device, 0)
         }
-        BackendKind::Gpu if !plan.mirrors.is_empty() => {
-            // Mirror faces: the GPU solves the volume doubled by its images (super::unfold). It
-            // writes no checkpoint, so a resume finds none and starts afresh.
-            if warm_start.is_some() {
-                tracing::warn!(
-                    "mirror faces on the GPU: the doubled volume is solved cold, the warm start's guess unused"
-                );
-            }
-            let run = unfold::solve_doubled(scene, store, &plan, &mut fields, vk_options, gpu_options, &mut progress)?;
+        BackendKind::Gpu if doubled => {
+            let (run, reason) =
+                unfold::solve_doubled(scene, store, &plan, &mut fields, vk_options, gpu_options, &mut progress)?;
             phases.extend(run.phases);
             memory = Some(run.memory);
-            doubled_reason = Some(run.reason);
+            doubled_reason = Some(reason);
             (run.outcome, run.device, run.peak)
         }
         BackendKind::Gpu => {

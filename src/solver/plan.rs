@@ -193,8 +193,6 @@ pub struct Plan {
     pub phase: Phase,
     /// The mean cosine of the discrete scattering (see `phase::effective_mean_cosine`).
     pub effective_g: f64,
-    /// The forward-peak fraction f truncated by δ-M scaling, when applied.
-    pub delta_m: Option<f64>,
     /// Per volume axis (x, y, z): periodic (`[boundary]`, [`super::periodic`]).
     pub periodic: [bool; 3],
     /// Per volume axis, whether its low and high faces are mirrors ([`super::mirror`]).
@@ -302,7 +300,7 @@ impl Plan {
         let k = scene.solver.directions_per_face;
         let propagation = PropagationSet::new(k);
         let storage = choose_storage(scene, &propagation, full, &mut reasons);
-        let (medium, phase, delta_m) = choose_forward_peak(scene, &propagation, &storage, &mut reasons);
+        let (medium, phase) = choose_forward_peak(scene, &propagation, &storage, &mut reasons);
         // For g = 0 the matrix is uniform over the storage directions whatever their number, so a
         // full plan's per-face source of an isotropic medium holds the same value in every
         // direction (to rounding) and the rays gain what the single isotropic value would give.
@@ -544,7 +542,6 @@ impl Plan {
             phase_g: scene.medium.g,
             phase,
             effective_g,
-            delta_m,
             periodic,
             reflective,
             mirrors,
@@ -568,6 +565,14 @@ impl Plan {
         let st = self.medium.sigma_t[ch];
         let ss = st * self.medium.albedo[ch];
         (st, ss, st - ss)
+    }
+
+    /// The forward-peak fraction f δ-M scaling counts as not scattered, when applied.
+    pub fn delta_m(&self) -> Option<f64> {
+        match self.phase {
+            Phase::Truncated(t) => Some(t.fraction),
+            Phase::HenyeyGreenstein { .. } => None,
+        }
     }
 
     pub fn summary(&self) -> PlanSummary {
@@ -599,7 +604,7 @@ impl Plan {
             solved_g: self.medium.g,
             acceleration: if self.acceleration { "diffusion" } else { "off" },
             effective_g: self.effective_g,
-            delta_m_fraction: self.delta_m,
+            delta_m_fraction: self.delta_m(),
             boundary: {
                 let b = crate::scene::Boundary { periodic: self.periodic, reflective: self.reflective };
                 [0, 1, 2].map(|a| b.axis_name(a))
@@ -718,15 +723,14 @@ pub const DELTA_M_MIN_G: f64 = 0.5;
 /// The medium and phase function the solver works with: the scene's, or their δ-M scaled form
 /// ([`phase::Truncation`]: the fraction f of the scattering in HG(g)'s forward peak counted as not
 /// scattered, σt' = σt·(1 − f·a), a' = (1 − f)·a/(1 − f·a); absorption σt·(1 − a) and the emission
-/// term are unchanged; the remainder keeps HG(g)'s shape outside a forward cone of one storage
-/// cell, and f keeps the discrete scattering's transport cross-section the true one). Returns f
-/// when applied.
+/// term are unchanged; the remainder keeps HG(g)'s shape outside a forward cone of a few storage
+/// cells, and f keeps the discrete scattering's transport cross-section the true one).
 fn choose_forward_peak(
     scene: &Scene,
     propagation: &PropagationSet,
     storage: &StorageSet,
     reasons: &mut Vec<String>,
-) -> (Medium, Phase, Option<f64>) {
+) -> (Medium, Phase) {
     let m = &scene.medium;
     let g = m.g;
     let kept = Phase::HenyeyGreenstein { g };
@@ -736,7 +740,7 @@ fn choose_forward_peak(
         reasons.push(format!(
             "phase function kept as it is (g = {g}): δ-M scaling does not combine with a per-voxel albedo"
         ));
-        return (m.clone(), kept, None);
+        return (m.clone(), kept);
     }
     let apply = match scene.solver.forward_peak {
         ForwardPeak::Keep => false,
@@ -747,7 +751,7 @@ fn choose_forward_peak(
         if g > 0.0 && scene.solver.forward_peak == ForwardPeak::Auto {
             reasons.push(format!("phase function kept as it is: g = {g} is below {DELTA_M_MIN_G}, no δ-M scaling"));
         }
-        return (m.clone(), kept, None);
+        return (m.clone(), kept);
     }
     let t = Truncation::for_sets(g, propagation, storage);
     let f = t.fraction;
@@ -770,7 +774,7 @@ fn choose_forward_peak(
         t.peak,
         scaled.g
     ));
-    (scaled, Phase::Truncated(t), Some(f))
+    (scaled, Phase::Truncated(t))
 }
 
 /// 1 channel when the medium and every light are grey (and the plan may reduce), else 3.

@@ -33,7 +33,7 @@
 use super::energy::{EnergyBalance, Tallies};
 use super::orders::OrderOutcome;
 use super::plan::Plan;
-use super::{emission, SolveError, StoreFields};
+use super::{emission, GpuRun, SolveError, StoreFields};
 use crate::scene::{Acceleration, Scene};
 use crate::store::{albedo, BrickStore, Coverage, Field, StoreError, BRICK_EDGE};
 use std::path::PathBuf;
@@ -43,38 +43,46 @@ use std::path::PathBuf;
 pub struct Fold {
     /// The volume's dims.
     half: [u32; 3],
-    /// Per axis: whether it is doubled, and whether the image lies below the volume (a mirror on
-    /// the low face only).
-    doubled: [bool; 3],
-    image_below: [bool; 3],
+    /// Per axis: whether its low and high faces are mirrors.
+    mirrors: [[bool; 2]; 3],
 }
 
 impl Fold {
     /// The doubling for a volume of `dims` with the mirrors `reflective` (per axis: low, high).
     pub fn new(dims: [u32; 3], reflective: [[bool; 2]; 3]) -> Fold {
-        Fold { half: dims, doubled: reflective.map(|m| m[0] || m[1]), image_below: reflective.map(|m| m[0] && !m[1]) }
+        Fold { half: dims, mirrors: reflective }
+    }
+
+    /// Whether axis `a` is doubled (a mirror on either face).
+    fn doubled(&self, a: usize) -> bool {
+        self.mirrors[a].contains(&true)
+    }
+
+    /// Whether the image lies below the volume along axis `a` (a mirror on the low face only).
+    fn image_below(&self, a: usize) -> bool {
+        self.mirrors[a] == [true, false]
     }
 
     /// The doubled volume's dims.
     pub fn dims(&self) -> [u32; 3] {
-        [0, 1, 2].map(|a| self.half[a] * if self.doubled[a] { 2 } else { 1 })
+        [0, 1, 2].map(|a| self.half[a] * if self.doubled(a) { 2 } else { 1 })
     }
 
     /// Per axis: periodic in the doubled volume (mirrors on both faces).
-    pub fn periodic(&self, reflective: [[bool; 2]; 3]) -> [bool; 3] {
-        reflective.map(|m| m[0] && m[1])
+    pub fn periodic(&self) -> [bool; 3] {
+        self.mirrors.map(|m| m == [true, true])
     }
 
     /// Copies of the volume in the doubled one (2^m, m the mirrored axes).
     pub fn copies(&self) -> f64 {
-        self.doubled.iter().filter(|&&d| d).map(|_| 2.0).product()
+        (0..3).filter(|&a| self.doubled(a)).map(|_| 2.0).product()
     }
 
     /// The voxel of the volume that voxel `u` of the doubled volume is (or images).
     pub fn source(&self, u: [u32; 3]) -> [u32; 3] {
         [0, 1, 2].map(|a| {
             let n = self.half[a];
-            match (self.doubled[a], self.image_below[a]) {
+            match (self.doubled(a), self.image_below(a)) {
                 (false, _) => u[a],
                 (true, true) if u[a] < n => n - 1 - u[a],
                 (true, true) => u[a] - n,
@@ -86,7 +94,7 @@ impl Fold {
 
     /// Where voxel `v` of the volume lies in the doubled one.
     pub fn place(&self, v: [u32; 3]) -> [u32; 3] {
-        [0, 1, 2].map(|a| if self.doubled[a] && self.image_below[a] { v[a] + self.half[a] } else { v[a] })
+        [0, 1, 2].map(|a| if self.image_below(a) { v[a] + self.half[a] } else { v[a] })
     }
 }
 
@@ -95,9 +103,8 @@ impl Fold {
 /// twin's mirrors refuse it).
 fn doubled_scene(scene: &Scene, fold: &Fold) -> Scene {
     let mut s = scene.clone();
-    let reflective = scene.boundary.reflective;
     s.volume.dims = fold.dims();
-    s.boundary.periodic = [0, 1, 2].map(|a| scene.boundary.periodic[a] || fold.periodic(reflective)[a]);
+    s.boundary.periodic = [0, 1, 2].map(|a| scene.boundary.periodic[a] || fold.periodic()[a]);
     s.boundary.reflective = [[false; 2]; 3];
     s.solver.acceleration = Acceleration::Off;
     s
@@ -165,21 +172,10 @@ fn brick_voxel(origin: [u32; 3], i: usize) -> [u32; 3] {
     [origin[0] + (i % edge) as u32, origin[1] + (i / edge % edge) as u32, origin[2] + (i / (edge * edge)) as u32]
 }
 
-/// A GPU solve of the doubled volume, folded back.
-pub(crate) struct DoubledRun {
-    pub outcome: OrderOutcome,
-    pub device: String,
-    pub peak: u64,
-    pub memory: super::gpu::budget::MemoryPlan,
-    pub phases: Vec<(String, f64)>,
-    /// For the plan's reasons.
-    pub reason: String,
-}
-
 /// Solves `scene` (with mirror faces; `plan` its plan) on the GPU as the volume doubled by its
 /// images, and writes the volume's part of the doubled volume's committed fluence and source
-/// into `fields`.
-pub(crate) fn solve_doubled(
+/// into `fields`. Returns the run, its outcome folded back, and a reason for the plan's report.
+pub(super) fn solve_doubled(
     scene: &Scene,
     store: &BrickStore,
     plan: &Plan,
@@ -187,7 +183,7 @@ pub(crate) fn solve_doubled(
     vk_options: crate::vk::ContextOptions,
     gpu_options: super::gpu::GpuOptions,
     progress: &mut impl FnMut(u32, f64),
-) -> Result<DoubledRun, SolveError> {
+) -> Result<(GpuRun, String), SolveError> {
     let t = std::time::Instant::now();
     let fold = Fold::new(plan.dims, plan.reflective);
     let dir = Scratch(store.dir().join("unfolded"));
@@ -212,9 +208,9 @@ pub(crate) fn solve_doubled(
     let t = std::time::Instant::now();
     fold_field(&fields2.fluence_total, &mut fields.fluence_total, store, &fold);
     fold_field(&fields2.source_total, &mut fields.source_total, store, &fold);
-    let mut phases = run.phases;
-    phases.insert(0, ("doubling".to_string(), setup));
-    phases.push(("folding".to_string(), t.elapsed().as_secs_f64()));
+    let mut run = GpuRun { outcome: fold_outcome(run.outcome, plan.channels, &fold), ..run };
+    run.phases.insert(0, ("doubling".to_string(), setup));
+    run.phases.push(("folding".to_string(), t.elapsed().as_secs_f64()));
     let reason = format!(
         "mirror faces on the GPU: solved as the volume doubled by its mirror images ({} × {} × {} voxels, {} copies \
          of the volume: that many times the memory and time), the volume's part kept",
@@ -223,14 +219,7 @@ pub(crate) fn solve_doubled(
         fold.dims()[2],
         fold.copies()
     );
-    Ok(DoubledRun {
-        reason,
-        outcome: fold_outcome(run.outcome, plan, &fold),
-        device: run.device,
-        peak: run.peak,
-        memory: run.memory,
-        phases,
-    })
+    Ok((run, reason))
 }
 
 /// Removes the doubled volume's store when the solve ends, however it ends.
@@ -256,13 +245,13 @@ fn fold_field(from: &Field, to: &mut Field, store: &BrickStore, fold: &Fold) {
 /// each face of the doubled volume counted for the open face of the volume it images (an axis with
 /// one mirror has both its doubled faces image the volume's open face; one with two has none), so
 /// the faces' books add up to the totals (module docs).
-fn fold_outcome(mut outcome: OrderOutcome, plan: &Plan, fold: &Fold) -> OrderOutcome {
+fn fold_outcome(mut outcome: OrderOutcome, channels: u32, fold: &Fold) -> OrderOutcome {
     let copies = fold.copies();
     let e = &outcome.energy;
     let mut tallies = Tallies::default();
     for (f, face) in e.faces.iter().enumerate() {
         let axis = f / 2;
-        let target = match plan.reflective[axis] {
+        let target = match fold.mirrors[axis] {
             [false, false] => f,
             [true, true] => continue,
             // The one open face of the axis.
@@ -283,7 +272,7 @@ fn fold_outcome(mut outcome: OrderOutcome, plan: &Plan, fold: &Fold) -> OrderOut
         per_copy(e.point_lights),
         per_copy(e.absorbed),
         per_copy(e.unpropagated),
-        plan.channels as usize,
+        channels as usize,
     );
     for record in &mut outcome.history {
         record.new_source_power /= copies;

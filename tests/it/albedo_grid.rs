@@ -251,11 +251,11 @@ fn the_plan_keeps_the_field_only_when_present_and_skips_delta_m_with_it() {
     assert!(plan.albedo_field && plan.summary().albedo_per_voxel);
     assert!(plan.reasons.iter().any(|r| r.starts_with("albedo per voxel")), "{:?}", plan.reasons);
     // δ-M would make σt depend on each voxel's albedo: "auto" keeps the phase function.
-    assert!(plan.delta_m.is_none() && plan.medium.g == 0.8, "{:?}", plan.reasons);
+    assert!(plan.delta_m().is_none() && plan.medium.g == 0.8, "{:?}", plan.reasons);
     assert!(plan.reasons.iter().any(|r| r.contains("δ-M scaling does not combine with a per-voxel albedo")));
     sc.volume.albedo = None;
     let plan = lpm::solver::plan::Plan::new(&sc, 8, 0);
-    assert!(!plan.albedo_field && !plan.summary().albedo_per_voxel && plan.delta_m.is_some());
+    assert!(!plan.albedo_field && !plan.summary().albedo_per_voxel && plan.delta_m().is_some());
     assert!(!plan.reasons.iter().any(|r| r.contains("albedo per voxel")));
 }
 

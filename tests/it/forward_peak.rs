@@ -13,10 +13,10 @@ fn auto_applies_delta_m_from_g_one_half_and_keeps_absorption() {
     for (g, applied) in [(0.0, false), (0.3, false), (0.5, true), (0.8, true), (0.95, true), (-0.8, false)] {
         sc.medium.g = g;
         let plan = Plan::new(&sc, 1, 0);
-        assert_eq!(plan.delta_m.is_some(), applied, "g = {g}");
+        assert_eq!(plan.delta_m().is_some(), applied, "g = {g}");
         let summary = plan.summary();
         assert_eq!(summary.phase_g, g);
-        if let Some(f) = plan.delta_m {
+        if let Some(f) = plan.delta_m() {
             let Phase::Truncated(t) = plan.phase else { panic!("g = {g}: δ-M without a truncated phase function") };
             assert_eq!(t.fraction, f);
             assert!(f > 0.0 && f <= t.peak, "g = {g}: {t:?}");
@@ -38,11 +38,11 @@ fn auto_applies_delta_m_from_g_one_half_and_keeps_absorption() {
     // Forced on or off.
     sc.medium.g = 0.3;
     sc.solver.forward_peak = ForwardPeak::DeltaM;
-    assert!(Plan::new(&sc, 1, 0).delta_m.is_some());
+    assert!(Plan::new(&sc, 1, 0).delta_m().is_some());
     sc.medium.g = 0.9;
     sc.solver.forward_peak = ForwardPeak::Keep;
     let plan = Plan::new(&sc, 1, 0);
-    assert!(plan.delta_m.is_none());
+    assert!(plan.delta_m().is_none());
     // Two storage directions per face cannot hold g = 0.9: the discrete scattering is much wider.
     assert!(plan.effective_g < 0.8, "{}", plan.effective_g);
 }
@@ -55,7 +55,7 @@ fn delta_m_solve_balances_and_gpu_matches_the_twin() {
     sc.medium.g = 0.85;
     sc.solver.max_orders = 8;
     let (g, c) = (solve("deltam-gpu", &sc, Gpu), solve("deltam-cpu", &sc, Cpu));
-    assert!(g.run.plan.delta_m.is_some());
+    assert!(g.run.plan.delta_m().is_some());
     assert!(g.run.outcome.energy.relative_imbalance < 1e-5, "{:?}", g.run.outcome.energy);
     let err = relative_l2(&g.fluence_all(), &c.fluence_all());
     assert!(err <= 1e-4, "GPU vs twin {err}");
@@ -78,7 +78,7 @@ fn slab_reflectance(tau: f64) -> (f64, f64, f64) {
     sc.solver.tolerance = 1e-4;
     sc.solver.max_orders = 800;
     let s = solve(&format!("slab-tau{tau}"), &sc, Cpu);
-    assert!(s.run.plan.delta_m.is_some());
+    assert!(s.run.plan.delta_m().is_some());
     let faces = &s.run.outcome.energy.faces;
     let solved = faces[5].power_out[0] / faces[5].power_in[0];
     let opts = ReferenceOptions { photons: 2_000_000, seed: 5, batches: 16, threads: 0, image_samples_per_pixel: 0 };
