@@ -48,7 +48,7 @@ fn bench_scene() -> Scene {
             extrapolate_tail: false,
             storage_precision: StoragePrecision::Auto,
             plan: PlanMode::Auto,
-            spatial: SpatialScheme::default(),
+            spatial: None,
             forward_peak: ForwardPeak::default(),
             diffusion_correction: DiffusionCorrection::default(),
             acceleration: Acceleration::default(),

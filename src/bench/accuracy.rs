@@ -378,7 +378,7 @@ fn with_solver_settings(scene: &Path, dir: &Path, run: &SolverRun) -> Result<Pat
                     solver.insert("sky_directions_per_face".into(), toml::Value::Integer(n.into()));
                 }
                 Some(_) => {
-                    solver.remove("sky_directions_per_face");
+                    solver.insert("sky_directions_per_face".into(), toml::Value::Integer(k.into()));
                 }
                 None => {}
             }

@@ -29,8 +29,8 @@ use std::path::Path;
 use std::time::Instant;
 
 /// Sets `solver.directions_per_face = k` in a scene's `[solver]` table and keeps the keys bounded
-/// by it valid: storage directions above k come down to k, and sky directions below k are dropped
-/// (the sky then travels on the k×k directions, as without the key).
+/// by it valid: storage directions above k come down to k, and sky directions below k come up to
+/// k (the sky then travels on the k×k directions; dropping the key would let the plan choose).
 fn set_directions_per_face(solver: &mut toml::map::Map<String, toml::Value>, k: u32) {
     let k = i64::from(k);
     solver.insert("directions_per_face".into(), toml::Value::Integer(k));
@@ -38,7 +38,7 @@ fn set_directions_per_face(solver: &mut toml::map::Map<String, toml::Value>, k: 
         solver.insert("storage_directions_per_face".into(), toml::Value::Integer(k));
     }
     if solver.get("sky_directions_per_face").and_then(toml::Value::as_integer).is_some_and(|n| n < k) {
-        solver.remove("sky_directions_per_face");
+        solver.insert("sky_directions_per_face".into(), toml::Value::Integer(k));
     }
 }
 

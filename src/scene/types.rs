@@ -267,8 +267,9 @@ pub struct SolverSettings {
     pub storage_directions_per_face: Option<u32>,
     /// k_sky ≥ k: the sky's light is swept into the medium along k_sky×k_sky directions per face
     /// in order 0 (its uncollided light and first scattering), the scattered light along the k×k
-    /// (`solver.sky_directions_per_face`; see `solver::plan`, "The sky's own directions"). `None`:
-    /// k, the sky travels with the other light.
+    /// (`solver.sky_directions_per_face`; see `solver::plan`, "The sky's own directions"); k
+    /// itself: the sky travels with the other light. `None`: the plan chooses (4k, at most 32, for
+    /// a pure absorber on the linear lattice, else k).
     pub sky_directions_per_face: Option<u32>,
     /// Cap on the number of scattering orders propagated (≥ 1).
     pub max_orders: u32,
@@ -286,8 +287,9 @@ pub struct SolverSettings {
     pub storage_precision: StoragePrecision,
     /// Whether the plan may reduce what it models to what the scene needs (`solver.plan`).
     pub plan: PlanMode,
-    /// How a ray samples the voxels around it (`solver.spatial`).
-    pub spatial: SpatialScheme,
+    /// How a ray samples the voxels around it (`solver.spatial`). `None` ("auto"): the plan
+    /// chooses ("linear" for a pure absorber with open faces, else "constant").
+    pub spatial: Option<SpatialScheme>,
     /// What to do with a strong forward peak of the phase function (`solver.forward_peak`).
     pub forward_peak: ForwardPeak,
     /// Whether the lattice's numerical diffusion is taken back out of each order's scattered
@@ -412,7 +414,10 @@ impl ForwardPeak {
 /// of a thin medium (light entering through a side), but its bilinear gather and deposit smooth
 /// the source sideways twice per order, which in thick, high-albedo media acts as extra diffusion
 /// and brightens dense cores (+9 % against +5 % for "constant" in a 64³ cloud at σt·h = 0.8,
-/// albedo 0.9). So "constant" stays the default until a second-order source representation lands.
+/// albedo 0.9). So "constant" is the plan's choice for scattering media (where the diffusion
+/// correction takes its smoothing back out) and emitting ones, "linear" for a pure absorber (order 0
+/// is the whole answer and the entry through a side is what matters). `SolverSettings::spatial = None` lets the
+/// plan choose; `Default` is what it chooses for a scattering medium.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum SpatialScheme {
     /// The ray sits at its exact lateral position: it gathers the medium and the source bilinearly

@@ -64,7 +64,7 @@ const MAP_UPS: &str = "\"z\", \"y\"";
 const PROJECTIONS: &str = "\"pinhole\", \"orthographic\"";
 const PRECISIONS: &str = "\"auto\", \"f16\", \"f32\"";
 const PLAN_MODES: &str = "\"auto\", \"full\"";
-const SPATIAL_SCHEMES: &str = "\"constant\", \"linear\"";
+const SPATIAL_SCHEMES: &str = "\"auto\", \"constant\", \"linear\"";
 const FORWARD_PEAKS: &str = "\"auto\", \"delta-m\", \"keep\"";
 const DIFFUSION_CORRECTIONS: &str = "\"on\", \"off\"";
 const ACCELERATIONS: &str = "\"auto\", \"diffusion\", \"off\"";
@@ -170,7 +170,7 @@ impl Validator<'_> {
                 return Err(self.err(format!("lights[{i}].kind"), why));
             }
         }
-        if solver.spatial == SpatialScheme::Linear {
+        if solver.spatial == Some(SpatialScheme::Linear) {
             return Err(self.err(
                 "solver.spatial",
                 "reflective faces need solver.spatial = \"constant\" (a \"linear\" ray straddles the mirror)",
@@ -638,7 +638,7 @@ impl Validator<'_> {
                 extrapolate_tail: false,
                 storage_precision: StoragePrecision::Auto,
                 plan: PlanMode::Auto,
-                spatial: SpatialScheme::default(),
+                spatial: None,
                 forward_peak: ForwardPeak::default(),
                 diffusion_correction: DiffusionCorrection::default(),
                 acceleration: Acceleration::default(),
@@ -715,8 +715,9 @@ impl Validator<'_> {
             }
         };
         let spatial = match s.spatial.as_deref() {
-            Some("linear") => SpatialScheme::Linear,
-            None | Some("constant") => SpatialScheme::Constant,
+            None | Some("auto") => None,
+            Some("linear") => Some(SpatialScheme::Linear),
+            Some("constant") => Some(SpatialScheme::Constant),
             Some(other) => {
                 return Err(self.err(
                     "solver.spatial",
@@ -757,11 +758,12 @@ impl Validator<'_> {
                 ))
             }
         };
-        if acceleration == Acceleration::Diffusion && spatial == SpatialScheme::Linear {
+        if acceleration == Acceleration::Diffusion && spatial == Some(SpatialScheme::Linear) {
             return Err(self.err(
                 "solver.acceleration",
                 "\"diffusion\" can diverge with solver.spatial = \"linear\" (its bilinear lattice spreads \
-                 light unlike diffusion); use spatial = \"constant\" (the default) or acceleration = \"off\"",
+                 light unlike diffusion); use spatial = \"constant\" (what \"auto\" takes for a scattering \
+                 medium) or acceleration = \"off\"",
             ));
         }
         if acceleration == Acceleration::Diffusion && s.extrapolate_tail == Some(true) {

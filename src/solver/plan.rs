@@ -9,9 +9,12 @@
 //! - emission: only when some channel emits;
 //! - empty bricks: known from the store; they hold no medium and no source;
 //! - the sun(s): each a collimated beam swept along its own direction;
-//! - the sky: by default its radiance is the boundary value of the k×k directions per face that
-//!   carry all light; with `solver.sky_directions_per_face` = k_sky > k it has directions of its
-//!   own instead ("The sky's own directions" below);
+//! - the spatial scheme (`solver.spatial = "auto"`): "constant" for a medium that scatters or
+//!   emits, "linear" for a pure absorber with open faces (`choose_spatial`);
+//! - the sky: its radiance is the boundary value of the k×k directions per face that carry all
+//!   light; with `solver.sky_directions_per_face` = k_sky > k it has directions of its own instead
+//!   ("The sky's own directions" below), which the plan chooses itself (4k, at most 32) where
+//!   nothing scatters and the scheme is "linear": there order 0 is the whole answer;
 //! - point lights: their uncollided light computed exactly from each point on the host, its first
 //!   scattering order 0's source (see `solver::point`);
 //! - an environment map: its mean over each direction's cell joins the sky's boundary radiance, and
@@ -263,7 +266,8 @@ impl Plan {
         let dims = scene.volume.dims;
         let h = scene.volume.voxel_size;
         let channels = choose_channels(scene, full, &mut reasons);
-        let spatial = scene.solver.spatial;
+        let scatters = medium_scatters(&scene.medium);
+        let (spatial, chosen) = choose_spatial(scene, scatters);
         let periodic = scene.boundary.periodic;
         let reflective = scene.boundary.reflective;
         if scene.boundary.any_reflective() {
@@ -288,13 +292,13 @@ impl Plan {
             ));
         }
         reasons.push(match spatial {
-            SpatialScheme::Linear => "spatial scheme \"linear\": rays at their exact lateral positions gather \
-                 and deposit bilinearly (second-order across the rays, no plane-sized error where light \
-                 enters through a side)"
-                .into(),
-            SpatialScheme::Constant => "spatial scheme \"constant\": each ray meets the one voxel under it \
-                 (first order; kept for comparison)"
-                .into(),
+            SpatialScheme::Linear => format!(
+                "spatial scheme \"linear\"{chosen}: rays at their exact lateral positions gather and deposit \
+                 bilinearly (second-order across the rays, no plane-sized error where light enters through a side)"
+            ),
+            SpatialScheme::Constant => {
+                format!("spatial scheme \"constant\"{chosen}: each ray meets the one voxel under it (first order)")
+            }
         });
 
         let k = scene.solver.directions_per_face;
@@ -328,7 +332,8 @@ impl Plan {
         });
         // The sky's own directions (module docs), when asked for and there is a sky or an
         // environment map to sweep: then the k×k directions carry no boundary light.
-        let sky_k = scene.solver.sky_directions_per_face.filter(|&n| n > k);
+        let sky_k = scene.solver.sky_directions_per_face.or_else(|| auto_sky_directions(k, spatial, scatters));
+        let sky_k = sky_k.filter(|&n| n > k);
         let own_sky = sky_k.filter(|_| sky.iter().any(|&l| l > 0.0) || environment.is_some());
         let boundary_of = |i: usize| match (&environment, own_sky) {
             (_, Some(_)) => [0.0; 3],
@@ -411,10 +416,14 @@ impl Plan {
                 // The map's means over the fine cells (its sun-like peak, taken from the map's
                 // pixels whatever the cells, is the same beam as above).
                 let fine_map = environment.as_ref().map(|(env, _)| environment_boundary(env, &fine));
+                let chosen = match scene.solver.sky_directions_per_face {
+                    Some(_) => "",
+                    None => " (auto: nothing scatters, so order 0 is the whole answer and gets the directions)",
+                };
                 reasons.push(format!(
-                    "sky: its light enters along {n}×{n} directions per face of its own in order 0 ({} sweeps, \
-                     {:.1}× the {} of an order), the scattered light along the {k}×{k}: the sky's uncollided \
-                     light next to a face integrated over {}× finer cells",
+                    "sky: its light enters along {n}×{n} directions per face of its own in order 0{chosen} ({} \
+                     sweeps, {:.1}× the {} of an order), the scattered light along the {k}×{k}: the sky's \
+                     uncollided light next to a face integrated over {}× finer cells",
                     fine.len(),
                     fine.len() as f64 / propagation.len() as f64,
                     propagation.len(),
@@ -511,7 +520,7 @@ impl Plan {
         ));
         let mirrors = if scene.boundary.any_reflective() { super::mirror::mirror_images(&faces) } else { Vec::new() };
         let diffusion_correction = choose_diffusion_correction(scene, &medium, &faces, spatial, &mut reasons);
-        let acceleration = choose_acceleration(scene, &medium, &mut reasons);
+        let acceleration = choose_acceleration(scene, &medium, spatial, &mut reasons);
         let source_precision = choose_precision(scene, full, acceleration, &mut reasons);
 
         Plan {
@@ -575,6 +584,11 @@ impl Plan {
         }
     }
 
+    /// k_sky: the sky's directions per face axis; k when the sky travels with the other light.
+    pub fn sky_directions_per_face(&self) -> u32 {
+        self.sky_faces.first().map_or(self.propagation.k, |f| f.len().isqrt() as u32)
+    }
+
     pub fn summary(&self) -> PlanSummary {
         PlanSummary {
             dims: self.dims,
@@ -585,7 +599,7 @@ impl Plan {
             storage_directions: self.storage.len(),
             storage_directions_per_face: self.storage.per_face,
             // k_sky² directions per face (a cube-face set), or none: k.
-            sky_directions_per_face: self.sky_faces.first().map_or(self.propagation.k, |f| f.len().isqrt() as u32),
+            sky_directions_per_face: self.sky_directions_per_face(),
             suns: self.beams.len(),
             point_lights: self.point_lights.len(),
             emission: self.emission || self.emission_field,
@@ -634,6 +648,59 @@ pub const FULL_PLAN_REASON: &str = "plan = \"full\": the plan's reductions are o
      storage_precision names f16), whatever the scene needs; kept: empty bricks are skipped and \
      the emission term is left out when nothing emits (both exact: they add nothing)";
 
+/// Whether any channel of `medium` scatters (albedo and σt both above 0). A per-voxel albedo
+/// only scales the medium's, so it cannot make a non-scattering medium scatter.
+fn medium_scatters(medium: &Medium) -> bool {
+    medium.albedo.iter().zip(&medium.sigma_t).any(|(&a, &s)| a > 0.0 && s > 0.0)
+}
+
+/// `solver.spatial`, or the plan's choice when it is "auto": "linear" where nothing scatters,
+/// nothing emits and every face is open, else "constant". There the light entering through the
+/// faces in order 0 is the whole answer, and what decides its error is where light entering
+/// through a side really enters, which only the linear lattice places (the 32³ absorber box: worst
+/// voxel 2.7 % → 1.8 % at k = 8, benches/RESULTS.md "Spatial schemes"); the numerical diffusion
+/// that makes "linear" brighten scattering cores has nothing to act on. An emitting medium keeps
+/// "constant": the bilinear gather spreads a small emitter's source over the rays around it
+/// (Kobayashi problem 3 case i at 10 cm, a two-voxel source: C/E at the source 0.91 → 0.74).
+/// Periodic and mirror faces keep "constant": mirrors need it, and the periodic hand-over was
+/// validated on it. The second value is how the plan chose, for its reason ("" when the scene named
+/// the scheme).
+fn choose_spatial(scene: &Scene, scatters: bool) -> (SpatialScheme, &'static str) {
+    let open = !scene.boundary.any_periodic() && !scene.boundary.any_reflective();
+    match scene.solver.spatial {
+        Some(named) => (named, ""),
+        None if scatters => (
+            SpatialScheme::Constant,
+            " (auto: the medium scatters, and the diffusion correction is made for this lattice)",
+        ),
+        None if scene.medium.has_emission() => (
+            SpatialScheme::Constant,
+            " (auto: the medium emits, and this lattice keeps a small emitter's light where it is)",
+        ),
+        None if !open => (SpatialScheme::Constant, " (auto: periodic and mirror faces are solved on this lattice)"),
+        None => (
+            SpatialScheme::Linear,
+            " (auto: nothing scatters or emits, so the light entering through the faces is the whole answer)",
+        ),
+    }
+}
+
+/// The sky's own directions per face axis when `solver.sky_directions_per_face` is not given:
+/// where nothing scatters (and the scheme is "linear", whose entry through a side the fine set's
+/// grazing directions need), 4k, at most [`AUTO_SKY_DIRECTIONS_MAX`]. Order 0 is then the whole
+/// solve, so it may cost what 16 orders would; it cuts the direction set's own error next to a face
+/// (1.75 % at a face centre at k = 8, falling as 1/k²) to below the lattice's (the absorber box at
+/// k = 8: worst voxel 1.8 % → 0.76 %). Where the medium scatters the scattered light's ray effects
+/// partly cancel the coarse sky's (a sphere in vacuum got worse with its own sky directions), so
+/// the sky stays on the k×k directions.
+fn auto_sky_directions(k: u32, spatial: SpatialScheme, scatters: bool) -> Option<u32> {
+    (!scatters && spatial == SpatialScheme::Linear).then(|| (4 * k).min(AUTO_SKY_DIRECTIONS_MAX).max(k))
+}
+
+/// The most sky directions per face axis the plan chooses by itself: beyond 32 the linear
+/// lattice's own error next to a face (~0.7 %) is what is left.
+pub const AUTO_SKY_DIRECTIONS_MAX: u32 = 32;
+
 /// κ per axis of the anti-diffusive fluxes (`solver.diffusion_correction = "on"`): half
 /// the spread the discretisation adds per order ([`super::antidiffusion::lattice_spread`]), when
 /// the medium scatters.
@@ -644,8 +711,7 @@ fn choose_diffusion_correction(
     spatial: SpatialScheme,
     reasons: &mut Vec<String>,
 ) -> [f64; 3] {
-    let scatters = medium.albedo.iter().zip(&medium.sigma_t).any(|(&a, &s)| a > 0.0 && s > 0.0);
-    if !scatters {
+    if !medium_scatters(medium) {
         return [0.0; 3];
     }
     match scene.solver.diffusion_correction {
@@ -672,7 +738,7 @@ pub const ACCELERATION_MIN_ALBEDO: f64 = 0.9;
 
 /// Whether each order is followed by a diffusion synthetic acceleration step
 /// ([`super::acceleration`]).
-fn choose_acceleration(scene: &Scene, medium: &Medium, reasons: &mut Vec<String>) -> bool {
+fn choose_acceleration(scene: &Scene, medium: &Medium, spatial: SpatialScheme, reasons: &mut Vec<String>) -> bool {
     let albedo =
         medium.albedo.iter().zip(&medium.sigma_t).filter(|(_, &s)| s > 0.0).map(|(&a, _)| a).fold(0.0, f64::max);
     let (on, why) = match scene.solver.acceleration {
@@ -690,7 +756,7 @@ fn choose_acceleration(scene: &Scene, medium: &Medium, reasons: &mut Vec<String>
              which the correction's source would not see"
                 .into(),
         ),
-        _ if scene.solver.spatial == SpatialScheme::Linear => (
+        _ if spatial == SpatialScheme::Linear => (
             false,
             "off: under spatial = \"linear\" the rays' bilinear lattice spreads light in a way diffusion \
              does not model, and in thick voxels at high albedo the corrected series diverges (measured: a 48³ cloud at \

@@ -100,9 +100,12 @@ impl Fold {
 
 /// The scene of the doubled volume: `scene` with the doubled dims, periodic where both faces of an
 /// axis are mirrors, no mirrors, and the plan's choices kept (the acceleration stays off: the
-/// twin's mirrors refuse it).
-fn doubled_scene(scene: &Scene, fold: &Fold) -> Scene {
+/// twin's mirrors refuse it; the spatial scheme and the sky's directions are pinned to `plan`'s,
+/// which the doubled volume's open faces would otherwise let the plan choose afresh).
+fn doubled_scene(scene: &Scene, plan: &Plan, fold: &Fold) -> Scene {
     let mut s = scene.clone();
+    s.solver.spatial = Some(plan.spatial);
+    s.solver.sky_directions_per_face = Some(plan.sky_directions_per_face());
     s.volume.dims = fold.dims();
     s.boundary.periodic = [0, 1, 2].map(|a| scene.boundary.periodic[a] || fold.periodic()[a]);
     s.boundary.reflective = [[false; 2]; 3];
@@ -195,7 +198,7 @@ pub(super) fn solve_doubled(
         })?;
     }
     let doubled = doubled_store(store, plan, &fold, &dir.0)?;
-    let scene2 = doubled_scene(scene, &fold);
+    let scene2 = doubled_scene(scene, plan, &fold);
     let total = doubled.grid().brick_count();
     let plan2 = Plan::new(&scene2, total, total - doubled.occupied_count());
     let mut fields2 = StoreFields::create(&doubled, &plan2)?;

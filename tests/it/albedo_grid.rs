@@ -151,7 +151,7 @@ fn a_periodic_slab_over_two_regions_matches_the_twin_and_balances() {
     sc.volume.source = lpm::scene::VolumeSource::Procedural { shape: Shape::Box, seed: 7 };
     sc.boundary = lpm::scene::Boundary { periodic: [true, true, false], ..Default::default() };
     // The scheme a scene file may pair with periodic boundaries (the validator refuses "linear").
-    sc.solver.spatial = lpm::scene::SpatialScheme::Constant;
+    sc.solver.spatial = Some(lpm::scene::SpatialScheme::Constant);
     two_regions_on_both_backends("albedo-periodic", &sc);
 }
 

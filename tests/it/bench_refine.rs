@@ -133,7 +133,7 @@ spatial = "linear"
     assert_eq!(refined.volume.voxel_size, 0.25);
     assert_eq!(refined.volume.source, VolumeSource::Procedural { shape: lpm::scene::Shape::Cloud, seed: 7 });
     assert_eq!(refined.solver.directions_per_face, 2);
-    assert_eq!(refined.solver.spatial, lpm::scene::SpatialScheme::Constant);
+    assert_eq!(refined.solver.spatial, Some(lpm::scene::SpatialScheme::Constant));
     assert_eq!(refined.solver.diffusion_correction, lpm::scene::DiffusionCorrection::On);
     // Replicated instead: the 16³ cloud's voxels in blocks of 2³, as a raw volume.
     let copy = write_refined_scene(&path, &loaded, &dir.join("h2-replicated"), 2, true, &keys).unwrap();

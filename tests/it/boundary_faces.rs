@@ -123,7 +123,7 @@ fn a_slanted_sun_leaves_through_the_side_the_geometry_gives() {
     let (dims, sigma, e) = ([16u32, 6, 8], 0.2, 1.5);
     let travel = glam::DVec3::new(0.5, 0.0, -1.0).normalize();
     let mut scene = absorbing_slab(dims, sigma, (-travel).to_array(), e);
-    scene.solver.spatial = SpatialScheme::Constant;
+    scene.solver.spatial = Some(SpatialScheme::Constant);
     let cos = travel.z.abs();
     let path = 1.0 / cos;
     let (by_hand_in, by_hand_out) = slanted_beam_by_hand(dims, 0.5, sigma * path);
@@ -150,7 +150,7 @@ fn a_ray_crossing_an_edge_counts_half_to_each_side() {
     // A beam slanted equally along x and y over a square slab: x and y are exchangeable, and so
     // must their faces be (rays wrapping in both axes in one plane cross an edge).
     let mut scene = absorbing_slab([10, 10, 7], 0.25, [-0.45, -0.45, 1.0], 1.0);
-    scene.solver.spatial = SpatialScheme::Constant;
+    scene.solver.spatial = Some(SpatialScheme::Constant);
     for backend in [Cpu, Gpu] {
         let e = energy(&format!("edge-{backend:?}"), &scene, backend);
         let scale = e.boundary_in[0];

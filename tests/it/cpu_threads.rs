@@ -46,7 +46,7 @@ fn gapped_cloud(name: &str) -> Scene {
 fn cpu_backend_is_bitwise_identical_at_every_thread_count() {
     for spatial in [SpatialScheme::Constant, SpatialScheme::Linear] {
         let mut sc = gapped_cloud("cpu-threads");
-        sc.solver.spatial = spatial;
+        sc.solver.spatial = Some(spatial);
         let one = solve_on_threads("cpu-threads", &sc, 1);
         assert!(one.run.plan.bricks_empty >= 2, "the scene must have empty bricks: {}", one.run.plan.bricks_empty);
         let reference = field_bits(&one);

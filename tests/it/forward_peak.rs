@@ -73,7 +73,7 @@ fn slab_reflectance(tau: f64) -> (f64, f64, f64) {
     sc.boundary.periodic = [true, true, false];
     sc.solver.directions_per_face = 5;
     // The solver's defaults (the test scenes' are otherwise plain).
-    sc.solver.spatial = lpm::scene::SpatialScheme::Constant;
+    sc.solver.spatial = Some(lpm::scene::SpatialScheme::Constant);
     sc.solver.diffusion_correction = lpm::scene::DiffusionCorrection::On;
     sc.solver.tolerance = 1e-4;
     sc.solver.max_orders = 800;

@@ -148,7 +148,7 @@ fn single_dense_voxel_is_stable_and_matches_the_twin() {
 fn pure_absorber_matches_beer_lambert_over_the_direction_set() {
     let mut scene = scene(Shape::Box, [21, 19, 23], [0.3; 3], [0.0; 3], vec![sky(1.0)]);
     scene.solver.directions_per_face = 3;
-    scene.solver.spatial = SpatialScheme::Constant;
+    scene.solver.spatial = Some(SpatialScheme::Constant);
     let s = solve("absorber", &scene, Gpu);
     for v in [[10, 9, 11], [0, 0, 0], [20, 3, 17], [5, 18, 22]] {
         let expected = beer_lambert_over_the_direction_set(scene.medium.sigma_t[0], &s.run.plan, v);

@@ -102,7 +102,7 @@ fn optical_thickness_from_1e_minus_6_to_1e4_per_voxel() {
         // centre) are physically zero; f32 flushes them, so they get an absolute tolerance.
         let mut ab = sc.clone();
         ab.medium.albedo = [0.0; 3];
-        ab.solver.spatial = SpatialScheme::Constant;
+        ab.solver.spatial = Some(SpatialScheme::Constant);
         let s = solve(&format!("tau{tau:e}-absorber"), &ab, Gpu);
         assert_finite_non_negative(&format!("absorber τ = {tau:e}"), &s);
         assert_balance(&format!("absorber τ = {tau:e}"), &s, 1e-5);
@@ -134,7 +134,7 @@ fn optical_thickness_from_1e_minus_6_to_1e4_per_voxel() {
             let g = gpu.fluence([6, 6, 6], 0);
             assert!(g >= 0.0 && g < 1e-6 * face, "scattering τ = 1e4 centre {g}, face {face}");
             let mut constant = sc.clone();
-            constant.solver.spatial = SpatialScheme::Constant;
+            constant.solver.spatial = Some(SpatialScheme::Constant);
             let c = solve("tau1e4-constant", &constant, Gpu);
             let (g, face) = (c.fluence([6, 6, 6], 0), c.fluence([0, 6, 6], 0));
             assert!(g >= 0.0 && g < 1e-20 * face, "constant scheme: scattering τ = 1e4 centre {g}, face {face}");
@@ -369,7 +369,7 @@ fn single_dense_voxel_casts_a_shadow_along_the_beam() {
         }
     });
     // The shadow is followed along the beam's nearest-column ray (the bilinear default spreads it).
-    sc.solver.spatial = SpatialScheme::Constant;
+    sc.solver.spatial = Some(SpatialScheme::Constant);
     let (gpu, _, err) = gpu_and_cpu("dense1e3", &sc, 6);
     let imb = assert_balance("dense voxel", &gpu, 1e-5);
     assert!(err <= 1e-4, "relative L2 {err}");
@@ -537,7 +537,7 @@ fn sun_at_grazing_axial_and_diagonal_angles_matches_exact_beer_lambert() {
     for (i, (dir, stated)) in cases.into_iter().enumerate() {
         let mut sc = scene(Shape::Box, [n; 3], [sigma; 3], [0.0; 3], vec![sun(dir, [e; 3])]);
         // The unambiguous voxels are those of the nearest-column discretisation.
-        sc.solver.spatial = SpatialScheme::Constant;
+        sc.solver.spatial = Some(SpatialScheme::Constant);
         let (gpu, _, err) = gpu_and_cpu(&format!("sun{i}"), &sc, 2);
         let imb = assert_balance(&format!("sun {dir:?}"), &gpu, 1e-5);
         assert!(err <= 1e-4, "sun {dir:?}: relative L2 {err}");

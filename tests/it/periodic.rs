@@ -233,7 +233,7 @@ fn a_conservative_periodic_slab_sends_all_its_light_out_of_its_top_and_bottom() 
     {
         let mut sc = scene(Shape::Box, [8, ny, 6], [1.0 / 3.0; 3], [1.0; 3], vec![sun([0.0, 0.0, 1.0], [1.0; 3])]);
         sc.solver.directions_per_face = k;
-        sc.solver.spatial = scheme;
+        sc.solver.spatial = Some(scheme);
         sc.solver.tolerance = 1e-7;
         sc.solver.max_orders = 400;
         let sc = periodic(sc, [true, true, false]);

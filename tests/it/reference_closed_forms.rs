@@ -26,7 +26,7 @@ fn scene(dims: [u32; 3], h: f64, sigma_t: f64, albedo: f64, g: f64, emission: f6
         solver: SolverSettings {
             directions_per_face: 4,
             storage_directions_per_face: None,
-            sky_directions_per_face: None,
+            sky_directions_per_face: Some(0), // the sky on the k×k directions, whatever k a test sets
             max_orders: 16,
             tolerance: 1e-3,
             device_memory_budget: None,
@@ -34,7 +34,7 @@ fn scene(dims: [u32; 3], h: f64, sigma_t: f64, albedo: f64, g: f64, emission: f6
             extrapolate_tail: false,
             storage_precision: StoragePrecision::Auto,
             plan: PlanMode::Auto,
-            spatial: SpatialScheme::Linear,
+            spatial: Some(SpatialScheme::Linear),
             forward_peak: ForwardPeak::Auto,
             diffusion_correction: DiffusionCorrection::Off,
             acceleration: Acceleration::Auto,

@@ -61,7 +61,7 @@ fn thin_or_thick_scene(
 ) -> Scene {
     let mut s = raw_scene(name, dims, sigma_t, 0.8, vec![sky(1.0)], density);
     s.solver.directions_per_face = k;
-    s.solver.spatial = SpatialScheme::Constant;
+    s.solver.spatial = Some(SpatialScheme::Constant);
     s.solver.tolerance = 1e-9;
     s.boundary = Boundary { reflective: mirror, ..Default::default() };
     s

@@ -45,14 +45,14 @@ fn resident_and_streamed_give_the_same_bits() {
 
     // High albedo with the diffusion acceleration (the host corrects every order's source).
     let mut thick = scene(Shape::Cloud, [32, 32, 32], [2.0; 3], [0.99; 3], vec![sky(1.0)]);
-    thick.solver.spatial = SpatialScheme::Constant;
+    thick.solver.spatial = Some(SpatialScheme::Constant);
     thick.solver.acceleration = Acceleration::Diffusion;
     thick.solver.max_orders = 5;
     resident_equals_streamed("thick-accelerated", &thick);
 
     // Periodic sides: the rays carry what left one side into the next order.
     let mut slab = scene(Shape::Cloud, [24, 20, 28], [0.8; 3], [0.9; 3], vec![sun([0.5, 0.3, 1.0], [1.0; 3])]);
-    slab.solver.spatial = SpatialScheme::Constant;
+    slab.solver.spatial = Some(SpatialScheme::Constant);
     slab.boundary = Boundary { periodic: [true, true, false], ..Default::default() };
     slab.solver.max_orders = 4;
     resident_equals_streamed("periodic", &slab);

@@ -132,6 +132,37 @@ fn defaults_are_applied() {
     assert_eq!(s.camera, None);
 }
 
+/// `solver.spatial` and `solver.sky_directions_per_face` left out (or "auto"): for a pure absorber
+/// with open faces the plan takes the linear lattice and the sky on 4k×4k directions of its own
+/// (at most 32), since order 0 is the whole answer; a scattering or emitting medium, a periodic or
+/// mirror face, or a key the scene names keeps what it says.
+#[test]
+fn the_plan_chooses_the_spatial_scheme_and_the_skys_directions() {
+    use lpm::scene::SpatialScheme::{Constant, Linear};
+    let chosen = |text: &str| {
+        let scene = load(text).unwrap_or_else(|e| panic!("{e}"));
+        let plan = lpm::solver::plan::Plan::new(&scene, 1, 0);
+        (plan.spatial, plan.sky_directions_per_face())
+    };
+    let sky = "[[lights]]\nkind = \"sky\"\nradiance = 1.0\n";
+    let absorber = |extra: &str| format!("{VOLUME}[medium]\nsigma_t = 0.5\nalbedo = 0.0\n{sky}{extra}");
+    assert_eq!(chosen(&with(sky)), (Constant, 5));
+    assert_eq!(chosen(&absorber("")), (Linear, 20));
+    assert_eq!(chosen(&absorber("[solver]\nspatial = \"auto\"\ndirections_per_face = 8\n")), (Linear, 32));
+    assert_eq!(chosen(&absorber("[solver]\ndirections_per_face = 12\n")), (Linear, 32));
+    assert_eq!(chosen(&absorber("[solver]\nsky_directions_per_face = 5\n")), (Linear, 5));
+    assert_eq!(chosen(&absorber("[solver]\nsky_directions_per_face = 8\n")), (Linear, 8));
+    assert_eq!(chosen(&absorber("[solver]\nspatial = \"constant\"\n")), (Constant, 5));
+    assert_eq!(chosen(&absorber("[boundary]\nx = \"periodic\"\n")), (Constant, 5));
+    assert_eq!(chosen(&absorber("[boundary]\nx = \"reflective\"\n")), (Constant, 5));
+    // An emitter keeps its light where it is on the nearest-column lattice.
+    let emitter = format!("{VOLUME}[medium]\nsigma_t = 0.5\nalbedo = 0.0\nemission = 1.0\n{sky}");
+    assert_eq!(chosen(&emitter), (Constant, 5));
+    // Without a sky there is nothing to refine.
+    let dark = format!("{VOLUME}[medium]\nsigma_t = 0.5\nalbedo = 0.0\n");
+    assert_eq!(chosen(&dark), (Linear, 5));
+}
+
 #[test]
 fn sun_direction_is_normalised_and_channels_expand() {
     let s = load(&with(

@@ -14,7 +14,7 @@ fn thick(albedo: f64, acceleration: Acceleration, tolerance: f64) -> Scene {
     s.solver.tolerance = tolerance;
     s.solver.acceleration = acceleration;
     // The default scheme; the tests' scenes otherwise use "linear", which the correction refuses.
-    s.solver.spatial = SpatialScheme::Constant;
+    s.solver.spatial = Some(SpatialScheme::Constant);
     s
 }
 
@@ -70,7 +70,7 @@ fn cloud() -> Scene {
     s.solver.storage_directions_per_face = Some(2);
     s.solver.max_orders = 60;
     s.solver.tolerance = 1e-4;
-    s.solver.spatial = SpatialScheme::Constant;
+    s.solver.spatial = Some(SpatialScheme::Constant);
     s
 }
 
@@ -122,7 +122,7 @@ fn the_plan_says_when_it_accelerates() {
     assert!(!plan_of(0.999, Acceleration::Off).acceleration);
     assert!(plan_of(0.5, Acceleration::Diffusion).acceleration);
     let mut linear = thick(0.99, Acceleration::Auto, 1e-3);
-    linear.solver.spatial = SpatialScheme::Linear;
+    linear.solver.spatial = Some(SpatialScheme::Linear);
     let plan = lpm::solver::plan::Plan::new(&linear, 1, 0);
     assert!(!plan.acceleration, "{:?}", plan.reasons);
     assert_eq!(plan_of(0.99, Acceleration::Auto).summary().acceleration, "diffusion");
