@@ -565,9 +565,9 @@ fn cancel_on_signals() -> lpm::solver::cancel::CancelFlag {
 fn was_cancelled(e: &anyhow::Error) -> bool {
     use lpm::job::JobError;
     use lpm::solver::SolveError;
-    let cancelled = |j: &JobError| matches!(j, JobError::Solve(SolveError::Cancelled));
+    let cancelled = |j: &JobError| matches!(j, JobError::Solve(SolveError::Cancelled { .. }));
     e.chain().any(|c| {
-        matches!(c.downcast_ref::<SolveError>(), Some(SolveError::Cancelled))
+        matches!(c.downcast_ref::<SolveError>(), Some(SolveError::Cancelled { .. }))
             || c.downcast_ref::<JobError>().is_some_and(cancelled)
             || matches!(c.downcast_ref::<lpm::sweep::SweepError>(), Some(lpm::sweep::SweepError::Job(j)) if cancelled(j))
     })

@@ -80,8 +80,14 @@ pub enum SolveError {
     ResumeNeedsGpu,
     #[error("a host copy worker thread died (it panicked) while copying bricks between the store and the staging")]
     CopyWorkerDied,
-    #[error("the solve was cancelled (stopped at a slice); its last checkpoint is kept: rerun the same command with --resume to continue it")]
-    Cancelled,
+    /// `resumable`: whether the solve keeps checkpoints (a GPU solve of mirror faces, on its
+    /// doubled volume, does not: its rerun starts afresh).
+    #[error("the solve was cancelled (stopped at a slice); {}", if *.resumable {
+        "its last checkpoint is kept: rerun the same command with --resume to continue it"
+    } else {
+        "it keeps no checkpoints (mirror faces on the GPU are solved on a doubled volume): rerun the same command to solve it again"
+    })]
+    Cancelled { resumable: bool },
     #[error(transparent)]
     WarmStart(#[from] warm::WarmStartError),
     #[error(
@@ -228,11 +234,13 @@ pub fn scene_digest(scene: &Scene) -> String {
     fnv1a(&format!("{}|{:?}", env!("CARGO_PKG_VERSION"), scene))
 }
 
-/// Identifies a solve for checkpoints: the scene ([`scene_digest`]) and the phase function its plan
-/// discretises, so that a build whose forward-peak treatment differs (the same crate version
-/// between releases) refuses to continue another build's orders instead of mixing two.
+/// Identifies a solve for checkpoints: the scene ([`scene_digest`]) and what its plan chose for it
+/// (the phase function discretised, the spatial scheme, the sky's directions), so that a build
+/// whose choices differ (the same crate version between releases) refuses to continue another
+/// build's orders instead of mixing two.
 fn checkpoint_digest(scene: &Scene, plan: &Plan) -> String {
-    format!("{}-{}", scene_digest(scene), fnv1a(&format!("{:?}", plan.phase)))
+    let chosen = format!("{:?}|{:?}|{}", plan.phase, plan.spatial, plan.sky_directions_per_face());
+    format!("{}-{}", scene_digest(scene), fnv1a(&chosen))
 }
 
 /// FNV-1a of `text`, in hex: stable across runs and platforms.

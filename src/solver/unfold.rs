@@ -207,7 +207,11 @@ pub(super) fn solve_doubled(
     }
     let setup = t.elapsed().as_secs_f64();
     let options = super::gpu::GpuOptions { checkpoints: false, ..gpu_options };
-    let run = super::run_gpu(&plan2, &doubled, &mut fields2, Default::default(), vk_options, options, None, progress)?;
+    let run = super::run_gpu(&plan2, &doubled, &mut fields2, Default::default(), vk_options, options, None, progress)
+        .map_err(|e| match e {
+        SolveError::Cancelled { .. } => SolveError::Cancelled { resumable: false },
+        e => e,
+    })?;
     let t = std::time::Instant::now();
     fold_field(&fields2.fluence_total, &mut fields.fluence_total, store, &fold);
     fold_field(&fields2.source_total, &mut fields.source_total, store, &fold);

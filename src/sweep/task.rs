@@ -141,7 +141,7 @@ pub fn run(
         }
         // Stopped by SIGTERM (Slurm preempting it or ending its time): interrupted, not failed; the
         // rerun resumes from the checkpoint.
-        Err(e @ job::JobError::Solve(crate::solver::SolveError::Cancelled)) => {
+        Err(e @ job::JobError::Solve(crate::solver::SolveError::Cancelled { .. })) => {
             write_status(
                 &dir,
                 &TaskStatus { state: "cancelled".into(), orders: None, error: Some(e.to_string()), warm_start: None },

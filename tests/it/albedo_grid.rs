@@ -473,7 +473,7 @@ fn a_cancelled_solve_with_an_albedo_grid_resumes_to_the_same_bits() {
     let cut_dir = temp_dir("albedo-resume-cut");
     let cut_store = lpm::solver::build_store(&sc, &cut_dir.join("store")).expect("store");
     let err = run(&cut_store, false, Some(1)).err().expect("the solve is cancelled");
-    assert!(matches!(err, lpm::solver::SolveError::Cancelled), "{err}");
+    assert!(matches!(err, lpm::solver::SolveError::Cancelled { resumable: true }), "{err}");
     let (resumed, cut) = run(&cut_store, true, None).expect("resumed solve");
     assert_eq!(resumed.outcome.orders, 5);
     assert!(resumed.outcome.history.len() == 5);

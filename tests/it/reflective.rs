@@ -241,6 +241,15 @@ fn a_gpu_solve_with_mirror_faces_writes_no_checkpoint_and_resumes_afresh() {
     assert!(!dir.join("store").join("checkpoint.json").exists(), "a checkpoint of the doubled volume");
     assert!(!dir.join("store").join("unfolded").exists(), "the doubled store was left behind");
     assert_eq!(run(true), first);
+    // Cancelled, it says that there is nothing to resume (and leaves no doubled store behind).
+    let cancel = lpm::solver::cancel::CancelFlag::new();
+    let options = lpm::solver::gpu::GpuOptions { cancel: Some(cancel), ..options };
+    let err = lpm::solver::solve_with(&s, &store, Gpu, validated(), options, false, |_, _| cancel.raise())
+        .err()
+        .expect("the solve is cancelled");
+    assert!(matches!(err, lpm::solver::SolveError::Cancelled { resumable: false }), "{err}");
+    assert!(err.to_string().contains("keeps no checkpoints"), "{err}");
+    assert!(!dir.join("store").join("unfolded").exists(), "the doubled store was left behind");
 }
 
 /// `lpm bench stream` drives the GPU kernels directly, without doubling the volume: a scene with

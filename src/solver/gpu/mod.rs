@@ -459,20 +459,20 @@ impl<'a> Backend for GpuBackend<'a> {
         let settled = self.settle_checkpoint();
         match (&result, settled) {
             (_, Ok(())) => {}
-            (Ok(_) | Err(SolveError::Cancelled), Err(e)) => return Err(e),
+            (Ok(_) | Err(SolveError::Cancelled { .. }), Err(e)) => return Err(e),
             (Err(_), Err(e)) => tracing::warn!("writing the last checkpoint failed: {e}"),
         }
         match result {
             // A cancelled solve keeps the checkpoint of its last completed order: the committed
             // fields and the previous source are intact (this order only wrote its own
             // accumulators), so a state the cadence skipped is checkpointed now.
-            Err(SolveError::Cancelled) => {
+            Err(e @ SolveError::Cancelled { .. }) => {
                 // Unless periodic sweeps carry ray state over: the cancelled order has already
                 // taken some of it, so the checkpoint before stands.
                 if let Some(state) = self.pending.take().filter(|_| self.carry.is_empty()) {
                     self.write_checkpoint(&state, false)?;
                 }
-                Err(SolveError::Cancelled)
+                Err(e)
             }
             result => result,
         }

@@ -191,7 +191,7 @@ impl SliceStreamer {
         for (i, range) in slices.iter().enumerate() {
             // A cancelled solve stops here; what is in flight is waited for when the streamer drops.
             if self.cancel.is_some_and(|c| c.is_raised()) {
-                return Err(SolveError::Cancelled);
+                return Err(SolveError::Cancelled { resumable: true });
             }
             let first = i == 0;
             let half = if gain { pass.half_exponent.map(power_of_two) } else { None };
@@ -262,7 +262,7 @@ impl SliceStreamer {
         let half = if gain { pass.half_exponent.map(power_of_two) } else { None };
         for (i, range) in pass.sweep.slices(BRICK_EDGE, BRICK_EDGE).iter().enumerate() {
             if self.cancel.is_some_and(|c| c.is_raised()) {
-                return Err(SolveError::Cancelled);
+                return Err(SolveError::Cancelled { resumable: true });
             }
             let layout = SliceLayout::new(io.store, pass.sweep, *range, gain, c, comps, half);
             let vacuum = layout.is_vacuum();
