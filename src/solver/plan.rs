@@ -418,12 +418,12 @@ impl Plan {
                 let fine_map = environment.as_ref().map(|(env, _)| environment_boundary(env, &fine));
                 let chosen = match scene.solver.sky_directions_per_face {
                     Some(_) => "",
-                    None => " (auto: nothing scatters, so order 0 is the whole answer and gets the directions)",
+                    None => " (auto: nothing scatters, so order 0 is the whole answer)",
                 };
                 reasons.push(format!(
-                    "sky: its light enters along {n}×{n} directions per face of its own in order 0{chosen} ({} \
-                     sweeps, {:.1}× the {} of an order), the scattered light along the {k}×{k}: the sky's \
-                     uncollided light next to a face integrated over {}× finer cells",
+                    "sky: its light enters along {n}×{n} directions per face of its own in order 0 ({} sweeps, \
+                     {:.1}× the {} of an order), the scattered light along the {k}×{k}: the sky's uncollided \
+                     light next to a face integrated over {}× finer cells{chosen}",
                     fine.len(),
                     fine.len() as f64 / propagation.len() as f64,
                     propagation.len(),
