@@ -80,12 +80,12 @@ pub enum SolveError {
     ResumeNeedsGpu,
     #[error("a host copy worker thread died (it panicked) while copying bricks between the store and the staging")]
     CopyWorkerDied,
-    /// `resumable`: whether the solve keeps checkpoints (a GPU solve of mirror faces, on its
-    /// doubled volume, does not: its rerun starts afresh).
+    /// `resumable`: whether the solve wrote checkpoints (one without them, such as a GPU solve of
+    /// mirror faces on its doubled volume, starts afresh when rerun).
     #[error("the solve was cancelled (stopped at a slice); {}", if *.resumable {
         "its last checkpoint is kept: rerun the same command with --resume to continue it"
     } else {
-        "it keeps no checkpoints (mirror faces on the GPU are solved on a doubled volume): rerun the same command to solve it again"
+        "it keeps no checkpoints (checkpoints were off, as they are for mirror faces on the GPU, solved on a doubled volume): rerun the same command to solve it again"
     })]
     Cancelled { resumable: bool },
     #[error(transparent)]
@@ -389,7 +389,8 @@ struct GpuRun {
 }
 
 /// Runs the orders of `plan` on the GPU over `store`'s `fields` from `start`, writing checkpoints
-/// under `checkpoints` (digest, cadence) when given.
+/// under `checkpoints` (digest, cadence) when given; a cancelled run without them says there is
+/// nothing to resume.
 #[allow(clippy::too_many_arguments)]
 fn run_gpu(
     plan: &Plan,
@@ -407,12 +408,16 @@ fn run_gpu(
     let device = format!("{} ({})", ctx.device_name(), ctx.driver_description());
     let mut gpu = gpu::GpuBackend::new(ctx.clone(), plan, store, fields, gpu_options)?;
     let memory = gpu.memory_plan();
+    let resumable = checkpoints.is_some();
     if let Some((digest, cadence)) = checkpoints {
         gpu.enable_checkpoints(digest, cadence);
     }
     phases.push(("setup".to_string(), t.elapsed().as_secs_f64()));
     let t = Instant::now();
-    let outcome = orders::run_orders(plan, &mut gpu, start, progress)?;
+    let outcome = orders::run_orders(plan, &mut gpu, start, progress).map_err(|e| match e {
+        SolveError::Cancelled { .. } => SolveError::Cancelled { resumable },
+        e => e,
+    })?;
     phases.push(("orders".to_string(), t.elapsed().as_secs_f64()));
     drop(gpu);
     let peak = ctx.peak_allocated_bytes();

@@ -35,7 +35,7 @@ use super::orders::OrderOutcome;
 use super::plan::Plan;
 use super::{emission, GpuRun, SolveError, StoreFields};
 use crate::scene::{Acceleration, Scene};
-use crate::store::{albedo, BrickStore, Coverage, Field, StoreError, BRICK_EDGE};
+use crate::store::{albedo, BrickGrid, BrickStore, Coverage, Field, StoreError, BRICK_EDGE};
 use std::path::PathBuf;
 
 /// Where the volume and its images lie in the doubled volume.
@@ -121,11 +121,11 @@ fn doubled_store(
     fold: &Fold,
     dir: &std::path::Path,
 ) -> Result<BrickStore, StoreError> {
-    let dims = fold.dims();
-    let doubled = BrickStore::create_with(dir, dims, store.voxel_size(), |b, out| {
+    let grid = BrickGrid::new(fold.dims());
+    let doubled = BrickStore::create_with(dir, grid.dims, store.voxel_size(), |b, out| {
         for (i, value) in out.iter_mut().enumerate() {
-            let u = brick_voxel(b.map(|c| c * BRICK_EDGE), i);
-            if (0..3).all(|a| u[a] < dims[a]) {
+            let u = brick_voxel(grid.brick_origin(b), i);
+            if grid.contains(u) {
                 *value = store.density_at(fold.source(u));
             }
         }
@@ -161,7 +161,7 @@ fn fill_field(field: &mut Field, store: &BrickStore, value: impl Fn([u32; 3], u3
         for (c, block) in dst.chunks_mut(voxels).enumerate() {
             for (i, slot) in block.iter_mut().enumerate() {
                 let v = brick_voxel(origin, i);
-                if (0..3).all(|a| v[a] < grid.dims[a]) {
+                if grid.contains(v) {
                     *slot = value(v, c as u32);
                 }
             }
@@ -207,11 +207,7 @@ pub(super) fn solve_doubled(
     }
     let setup = t.elapsed().as_secs_f64();
     let options = super::gpu::GpuOptions { checkpoints: false, ..gpu_options };
-    let run = super::run_gpu(&plan2, &doubled, &mut fields2, Default::default(), vk_options, options, None, progress)
-        .map_err(|e| match e {
-        SolveError::Cancelled { .. } => SolveError::Cancelled { resumable: false },
-        e => e,
-    })?;
+    let run = super::run_gpu(&plan2, &doubled, &mut fields2, Default::default(), vk_options, options, None, progress)?;
     let t = std::time::Instant::now();
     fold_field(&fields2.fluence_total, &mut fields.fluence_total, store, &fold);
     fold_field(&fields2.source_total, &mut fields.source_total, store, &fold);
