@@ -34,6 +34,11 @@ const uint FLAG_HALF_SOURCE = 32u;
 // The sweep axis is periodic: rays enter plane 0 with the radiance the ray buffer starts with (what
 // the direction carried out last order, uploaded by the host: src/solver/periodic.rs).
 const uint FLAG_CARRY = 64u;
+// The slot (or resident) buffers hold each brick's slab lateral-major: b fastest, then c, then the
+// sweep axis. The x sweeps' order (src/solver/gpu/slice.rs, src/solver/gpu/transpose.rs): their
+// rays run along y, and in the brick's own x-fastest order neighbouring rays would read words 64
+// bytes apart. Keep in sync with FLAG_LATERAL_MAJOR in src/solver/gpu/layout.rs.
+const uint FLAG_LATERAL_MAJOR = 128u;
 // `lateral` bits 4 and 5: lateral axis b, c is periodic (n rays of period n, not n + 1).
 // Keep in sync with LATERAL_PERIODIC_* in src/solver/gpu/layout.rs.
 bool periodic_b() { return (pc.lateral & 16u) != 0u; }
@@ -71,12 +76,16 @@ uint slice_brick(uint vb, uint vc) { return (vc / 16u) * pc.bricks_b + (vb / 16u
 uint slab_voxels() { return 256u * ((pc.slab >> 8) & 255u); }
 
 // The voxel's index inside its brick's slab: the brick's x-fastest order with the sweep axis cut to
-// the slab's planes (a whole brick when the slab has 16 planes).
+// the slab's planes (a whole brick when the slab has 16 planes); with FLAG_LATERAL_MAJOR, b
+// fastest, then c, then the slab's planes.
 uint slab_index(uvec3 v) {
     uvec3 l = v & 15u;
     uvec3 e = uvec3(16u);
     uint a = pc.axis_sign & 3u;
     l[a] -= pc.slab & 255u;
+    if ((pc.flags & FLAG_LATERAL_MAJOR) != 0u) {
+        return l[pc.lateral & 3u] + 16u * (l[(pc.lateral >> 2) & 3u] + 16u * l[a]);
+    }
     e[a] = (pc.slab >> 8) & 255u;
     return l.x + e.x * (l.y + e.y * l.z);
 }

@@ -243,6 +243,7 @@ fn flag_bits_are_the_rust_ones() {
         ("FLAG_VACUUM".to_string(), layout::FLAG_VACUUM),
         ("FLAG_HALF_SOURCE".to_string(), layout::FLAG_HALF_SOURCE),
         ("FLAG_CARRY".to_string(), layout::FLAG_CARRY),
+        ("FLAG_LATERAL_MAJOR".to_string(), layout::FLAG_LATERAL_MAJOR),
     ]);
     assert_eq!(glsl, rust, "FLAG_* in glsl/common.glsl vs src/solver/gpu/layout.rs");
     // The f16 scale exponent lives above every flag bit.

@@ -50,24 +50,47 @@ impl Region {
     /// Every run must be valid to read at the source and to write at the destination, and no run
     /// may overlap another region being copied at the same time (see the module docs).
     unsafe fn perform(&self) {
+        if self.len == 4 && self.runs > 1 {
+            // One voxel a run (an x sweep's lateral-major slab): a loop over the voxels, not a
+            // memcpy call for each.
+            let (src, dst) = (self.src, self.dst);
+            match self.convert {
+                Convert::Copy => {
+                    for i in 0..self.runs {
+                        // SAFETY: the caller's contract (4 bytes at each run); no alignment needed.
+                        unsafe {
+                            let v = (src.wrapping_add(i * self.src_stride) as *const u32).read_unaligned();
+                            (dst.wrapping_add(i * self.dst_stride) as *mut u32).write_unaligned(v);
+                        }
+                    }
+                }
+                // SAFETY: the caller's contract (4 bytes readable, 2 writable at each run).
+                Convert::F32ToF16 { scale } => unsafe {
+                    to_f16(src, self.src_stride, dst, self.dst_stride, self.runs, scale)
+                },
+            }
+            return;
+        }
         for i in 0..self.runs {
             let (src, dst) = (self.src.wrapping_add(i * self.src_stride), self.dst.wrapping_add(i * self.dst_stride));
             match self.convert {
                 // SAFETY: the caller's contract.
                 Convert::Copy => unsafe { std::ptr::copy_nonoverlapping(src, dst, self.len) },
                 // SAFETY: the caller's contract (`len` bytes readable at src, `len / 2` writable at dst).
-                Convert::F32ToF16 { scale } => unsafe { to_f16(src, dst, self.len / 4, scale) },
+                Convert::F32ToF16 { scale } => unsafe { to_f16(src, 4, dst, 2, self.len / 4, scale) },
             }
         }
     }
 }
 
-/// Rounds `n` f32 values at `src`, times `scale`, to f16 at `dst` (round to nearest even), in
-/// blocks through the stack so that `half` can use the CPU's conversion instructions.
+/// Rounds `n` f32 values, `src_step` bytes apart from `src`, times `scale`, to f16 values
+/// `dst_step` bytes apart from `dst` (round to nearest even), in blocks through the stack so that
+/// `half` can use the CPU's conversion instructions.
 ///
 /// # Safety
-/// `4n` bytes readable at `src`, `2n` bytes writable at `dst`, not overlapping (no alignment needed).
-unsafe fn to_f16(src: *const u8, dst: *mut u8, n: usize, scale: f32) {
+/// 4 bytes readable at each source value, 2 writable at each destination, not overlapping (no
+/// alignment needed).
+unsafe fn to_f16(src: *const u8, src_step: usize, dst: *mut u8, dst_step: usize, n: usize, scale: f32) {
     use half::slice::HalfFloatSliceExt;
     const BLOCK: usize = 256;
     let mut values = [0f32; BLOCK];
@@ -76,12 +99,19 @@ unsafe fn to_f16(src: *const u8, dst: *mut u8, n: usize, scale: f32) {
     while done < n {
         let m = BLOCK.min(n - done);
         for (k, v) in values[..m].iter_mut().enumerate() {
-            // SAFETY: within the 4n bytes at src.
-            *v = unsafe { (src.add(4 * (done + k)) as *const f32).read_unaligned() } * scale;
+            // SAFETY: 4 bytes readable at each source value.
+            *v = unsafe { (src.add(src_step * (done + k)) as *const f32).read_unaligned() } * scale;
         }
         halves[..m].convert_from_f32_slice(&values[..m]);
-        // SAFETY: within the 2n bytes at dst; u8 needs no alignment.
-        unsafe { std::ptr::copy_nonoverlapping(halves.as_ptr() as *const u8, dst.add(2 * done), 2 * m) };
+        if dst_step == 2 {
+            // SAFETY: within the 2n bytes at dst; u8 needs no alignment.
+            unsafe { std::ptr::copy_nonoverlapping(halves.as_ptr() as *const u8, dst.add(2 * done), 2 * m) };
+        } else {
+            for (k, h) in halves[..m].iter().enumerate() {
+                // SAFETY: 2 bytes writable at each destination value.
+                unsafe { (dst.add(dst_step * (done + k)) as *mut half::f16).write_unaligned(*h) };
+            }
+        }
         done += m;
     }
 }
@@ -281,5 +311,43 @@ mod tests {
         }
         // Round to nearest even: 1 + 2^-11 is a tie between 1 and 1 + 2^-10.
         assert_eq!(half::f16::from_f32(1.0 + 2f32.powi(-11)), half::f16::ONE);
+    }
+
+    #[test]
+    fn voxel_runs_transpose_and_convert_as_whole_runs_do() {
+        // A 16×300 row-major f32 matrix: its column 5 gathered one value a run (as an x sweep's
+        // slab plane is), scattered back into another matrix, and rounded to f16 into every third
+        // half of a buffer (the same values as the contiguous conversion gives).
+        let copier = Copier::new(2);
+        let (rows, cols) = (300usize, 16usize);
+        let src: Vec<f32> = (0..rows * cols).map(|i| 0.1 + i as f32 / 3.0).collect();
+        let mut column = vec![0f32; rows];
+        let mut back = vec![0f32; rows * cols];
+        let mut halves = vec![0u16; rows * 3];
+        let voxel = |src: *const u8, dst: *mut u8, src_stride, dst_stride, convert| Region {
+            src,
+            dst,
+            len: 4,
+            runs: rows,
+            src_stride,
+            dst_stride,
+            convert,
+        };
+        let src5 = src[5..].as_ptr() as *const u8;
+        // SAFETY: every run lies inside its buffer; the three regions write different buffers.
+        unsafe {
+            copier.copy(vec![voxel(src5, column.as_mut_ptr() as *mut u8, cols * 4, 4, Convert::Copy)]).wait().unwrap();
+            let scale = Convert::F32ToF16 { scale: 0.5 };
+            copier.copy(vec![voxel(src5, halves.as_mut_ptr() as *mut u8, cols * 4, 6, scale)]).wait().unwrap();
+            let to = back[5..].as_mut_ptr() as *mut u8;
+            copier.copy(vec![voxel(column.as_ptr() as *const u8, to, 4, cols * 4, Convert::Copy)]).wait().unwrap();
+        }
+        for r in 0..rows {
+            let v = src[r * cols + 5];
+            assert_eq!(column[r].to_bits(), v.to_bits(), "row {r}");
+            assert_eq!(back[r * cols + 5].to_bits(), v.to_bits(), "row {r}");
+            assert_eq!(halves[3 * r], half::f16::from_f32(v * 0.5).to_bits(), "row {r}");
+            assert_eq!([halves[3 * r + 1], halves[3 * r + 2]], [0, 0], "row {r}: only every third half");
+        }
     }
 }

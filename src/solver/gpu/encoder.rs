@@ -14,7 +14,8 @@
 
 use super::budget::MemoryPlan;
 use super::layout::{
-    half_source_flags, SweepPush, FLAG_CARRY, FLAG_GAIN, FLAG_VACUUM, LATERAL_PERIODIC_B, LATERAL_PERIODIC_C,
+    half_source_flags, SweepPush, FLAG_CARRY, FLAG_GAIN, FLAG_LATERAL_MAJOR, FLAG_VACUUM, LATERAL_PERIODIC_B,
+    LATERAL_PERIODIC_C,
 };
 use super::resources::{DeviceResources, SharedBuffers, SweepSets, SWEEP_BINDING_COUNT};
 use super::slice::SliceLayout;
@@ -154,6 +155,9 @@ pub fn record_compute(
         Some(e) if step.flags & FLAG_GAIN != 0 => half_source_flags(e),
         _ => 0,
     };
+    // An x sweep's slabs are lateral-major (the resident buffers too: the driver reorders them
+    // before the x sweeps, super::transpose).
+    let order = if step.layout.lateral_major { FLAG_LATERAL_MAJOR } else { 0 };
     // Earlier compute submissions wrote the ray state and the deposit this one uses.
     rec.compute_to_compute();
     if let (Some(table), Some(resident)) = (step.resident_table, &res.resident) {
@@ -204,7 +208,7 @@ pub fn record_compute(
             let t1 = (t0 + chunk).min(range.t1);
             push.t0 = t0;
             push.t1 = t1;
-            push.flags = step.flags | vacuum | half;
+            push.flags = step.flags | vacuum | half | order;
             // Across vacuum, rays that do not move sideways keep everything: the kernel would
             // only read and write back the ray state (a big share of a sparse volume's time).
             // After the last slice the ray buffer holds what leaves through the far face.

@@ -14,6 +14,11 @@ pub const FLAG_HALF_SOURCE: u32 = 32;
 /// The sweep axis is periodic: the rays enter plane 0 with the radiance the ray buffer starts
 /// with (uploaded: what the direction carried out last order, `solver::periodic`), not the birth.
 pub const FLAG_CARRY: u32 = 64;
+/// The slot (or resident) buffers hold each brick's slab lateral-major: lateral axis b fastest,
+/// then c, then the sweep axis (`slab_index` in glsl/common.glsl). The x sweeps run on this order
+/// (`solver::gpu::slice`, `solver::gpu::transpose`): their rays run along y, and in the brick's own
+/// x-fastest order neighbouring rays would read words 64 bytes apart.
+pub const FLAG_LATERAL_MAJOR: u32 = 128;
 /// `lateral` bits 4 and 5: lateral axis b, c is periodic (n slots of period n, `solver::sweep`).
 pub const LATERAL_PERIODIC_B: u32 = 16;
 pub const LATERAL_PERIODIC_C: u32 = 32;

@@ -8,7 +8,9 @@
 //! 1. **gather** (host copy workers): its bricks (medium, previous source, the new source and fluence
 //!    accumulated so far) from the memory-mapped store into the pinned upload staging of a slot;
 //!    the previous source is rounded to f16 on the way when the plan stores it so (scaled by a
-//!    power of two chosen per order from its largest value, undone exactly by the shader);
+//!    power of two chosen per order from its largest value, undone exactly by the shader), and an
+//!    x sweep's slabs are transposed to lateral-major order (y fastest, so that neighbouring rays
+//!    read neighbouring words: `transpose` says why);
 //! 2. **upload** (transfer queue): staging → the slot's device buffers; signals `upload = v`;
 //! 3. **compute** (compute queue, waits `upload ≥ v`): `propagate.comp` marches the rays through the
 //!    slice's planes writing segment averages into the deposit buffer, `collect.comp` folds them into
@@ -36,7 +38,9 @@
 //! accumulators are cleared on the device; at its end the new source and fluence come home, both
 //! slice by slice through the slots' staging with the gather and scatter above. So the bus carries
 //! each field once per order instead of once per pass, and the result is bitwise the streamed one
-//! (the kernels read the same values). The end-of-order passes (commit, stop rule, acceleration)
+//! (the kernels read the same values). Around the x sweeps the resident fields are reordered on
+//! the device to the lateral-major order a streamed x sweep's slabs have (`transpose`). The
+//! end-of-order passes (commit, stop rule, acceleration)
 //! still run on the host, which is why the fields come home every order.
 //!
 //! ## The pieces
@@ -47,6 +51,7 @@
 //! - `streamer`: the schedule of slices through the slots against the timelines, with the copy
 //!   workers (`copier`) gathering and scattering each slice's bricks (`slice`);
 //! - [`encoder`]: one slice's compute step as commands (push constants, bindings, dispatches);
+//! - `transpose`: the resident fields' reorder for the x sweeps;
 //! - this file: the order as sweeps and passes (the [`Backend`] the order loop drives), and the
 //!   tallies read back after each pass (per face of the volume).
 
@@ -62,6 +67,7 @@ pub mod sizes;
 mod slice;
 mod streamer;
 mod tables;
+mod transpose;
 
 use super::energy::Tallies;
 use super::fields::{LoopState, PendingCheckpoint, StoreFields};
@@ -162,6 +168,9 @@ pub struct GpuBackend<'a> {
     carry: PeriodicCarry,
     /// The resident mode: whether the medium is on the device yet.
     density_loaded: bool,
+    /// The resident mode: whether the resident fields are in the x sweeps' lateral-major order
+    /// ([`transpose`]) rather than brick order.
+    resident_lateral: bool,
 }
 
 impl<'a> GpuBackend<'a> {
@@ -234,6 +243,7 @@ impl<'a> GpuBackend<'a> {
             progress: None,
             carry,
             density_loaded: false,
+            resident_lateral: false,
         })
     }
 
@@ -273,6 +283,7 @@ impl<'a> GpuBackend<'a> {
             SweepOf::Sky(i) => &plan.sky_faces[i],
         };
         let sweep = FaceSweep::for_plan(dirs[0].face, plan);
+        self.reorder_resident(sweep.geometry().axis == 0)?;
         let pass = self.memory.directions_per_pass as usize;
         let boundary = flags & FLAG_BOUNDARY != 0;
         let carry_of = |d: usize| match which {
@@ -589,9 +600,27 @@ impl GpuBackend<'_> {
             tallies.add(&self.sweep(SweepOf::Face(face), flags)?);
         }
         if self.memory.is_resident() {
+            // The fields come home (and the next order's load goes in) in brick order.
+            self.reorder_resident(false)?;
             let mut io = Stream { plan, store: self.store, fields: &mut *self.fields, res: &self.resources };
             self.streamer.unload_resident(&mut io)?;
         }
         Ok(tallies)
+    }
+
+    /// The resident mode: puts the resident fields in the order the next sweep reads them,
+    /// lateral-major for an x sweep (`lateral`), else brick order ([`transpose`]). Nothing to do
+    /// when they are in it already, or when streamed (the copy workers order each slab).
+    fn reorder_resident(&mut self, lateral: bool) -> Result<(), SolveError> {
+        let Some(transposer) = self.resources.transposer.as_ref() else { return Ok(()) };
+        if self.resident_lateral == lateral {
+            return Ok(());
+        }
+        let ctx = Arc::clone(self.streamer.context());
+        let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "reorder resident fields")?;
+        transposer.record(&mut rec, lateral)?;
+        self.streamer.submit_and_wait(rec)?;
+        self.resident_lateral = lateral;
+        Ok(())
     }
 }

@@ -2,7 +2,8 @@
 //! pipeline layout, the slots' buffers and staging, the buffers shared by the slots, every sweep's
 //! tables, and one descriptor set per sweep and slot that serves both kernels (written once: the
 //! buffers never change), so a compute step binds its set once. In the resident mode the slots
-//! are staging only and each sweep has one set for the [`ResidentBuffers`] instead.
+//! are staging only and each sweep has one set for the [`ResidentBuffers`] instead, and the
+//! `Transposer` reorders them for the x sweeps.
 //!
 //! Every object is an `Owned` value, so a constructor that fails half-way frees what it made by
 //! dropping it, and a finished [`DeviceResources`] frees everything when dropped. Whoever submits
@@ -16,6 +17,7 @@ use super::owned::Owned;
 use super::sizes::{ResidentSizes, SharedSizes, SlotSizes};
 use super::streamer::SliceStreamer;
 use super::tables::SweepTables;
+use super::transpose::Transposer;
 use crate::solver::plan::Plan;
 use crate::solver::SolveError;
 use crate::vk::{Buffer, ComputePipeline, Context, DescriptorSet, HostBuffer, MemoryLocation, PipelineLayout};
@@ -78,6 +80,8 @@ pub struct DeviceResources {
     pub face_sets: Vec<SweepSets>,
     pub beam_sets: Vec<SweepSets>,
     pub sky_sets: Vec<SweepSets>,
+    /// The resident mode's reorder of its fields for the x sweeps (`None`: streamed).
+    pub transposer: Option<Transposer>,
     pub propagate: Owned<ComputePipeline>,
     pub collect: Owned<ComputePipeline>,
     /// The layout both pipelines share; declared after them, so freed after them.
@@ -163,6 +167,10 @@ impl DeviceResources {
         } else {
             None
         };
+        let transposer = match &resident {
+            Some(r) => Some(Transposer::new(ctx, plan, r, memory.slice.occupied_total)?),
+            None => None,
+        };
         let mut slots = Vec::with_capacity(memory.slices_in_flight as usize);
         for i in 0..memory.slices_in_flight {
             let name = |what: &str| format!("slot {i} {what}");
@@ -239,6 +247,7 @@ impl DeviceResources {
             face_sets,
             beam_sets,
             sky_sets,
+            transposer,
             propagate,
             collect,
             layout,

@@ -4,7 +4,10 @@
 //! Only occupied bricks travel: empty bricks hold no medium, no source and no fluence. Of each
 //! occupied brick the slot holds the slab of local planes the (sub-)slice covers: `planes × 256`
 //! voxels per component, in the brick's own x-fastest order with the sweep axis cut to the slab (a
-//! whole slice's slab is the whole brick, copied as is). See `slab_index` in `glsl/common.glsl`.
+//! whole slice's slab of a y or z sweep is the whole brick, copied as is). The x sweeps' slabs are
+//! lateral-major instead (y fastest, then z, then x: `FLAG_LATERAL_MAJOR`, so that neighbouring
+//! rays read neighbouring words; see [`super::transpose`]): the copy workers transpose them plane
+//! by plane on the way up and back on the way home. See `slab_index` in `glsl/common.glsl`.
 //!
 //! Upload staging: `[slot table, padded to 16 B][density][previous source, only when rays gain it]
 //! [new source][fluence]`, each block over the occupied bricks in slice order; the device slot
@@ -36,6 +39,8 @@ pub struct SliceLayout {
     pub comps: u64,
     /// The sweep axis (0, 1, 2 for x, y, z).
     pub axis: usize,
+    /// The slabs are lateral-major (an x sweep's; `FLAG_LATERAL_MAJOR`), else in brick order.
+    pub lateral_major: bool,
     /// `Some(scale)`: the previous source travels as f16, times `scale` (a power of two).
     pub prev_half_scale: Option<f32>,
     /// Whether the upload carries the density, and the order's accumulators (new source, fluence).
@@ -89,6 +94,7 @@ impl SliceLayout {
             channels,
             comps,
             axis: face.axis,
+            lateral_major: face.axis == 0,
             prev_half_scale,
             density_up: true,
             accumulators_up: true,
@@ -98,10 +104,19 @@ impl SliceLayout {
     /// The upload of the resident mode's load: the previous source; the density only when
     /// `with_density` (it stays on the device from the first load on); the accumulators only when
     /// `accumulators` (the host seeded them). Whole slices only.
+    /// Bricks travel in brick order, as the resident buffers hold them between the x sweeps.
     pub fn resident_load(mut self, with_density: bool, accumulators: bool) -> Self {
         debug_assert_eq!(self.range.slab_planes, BRICK_EDGE, "the resident mode moves whole bricks");
         self.density_up = with_density;
         self.accumulators_up = accumulators;
+        self.lateral_major = false;
+        self
+    }
+
+    /// The resident mode's unload: bricks come home in brick order.
+    pub fn resident_unload(mut self) -> Self {
+        debug_assert_eq!(self.range.slab_planes, BRICK_EDGE, "the resident mode moves whole bricks");
+        self.lateral_major = false;
         self
     }
 
@@ -252,7 +267,8 @@ impl SliceLayout {
     }
 
     /// The copies between `components` brick blocks at `brick` (4096 f32 voxels each, x fastest)
-    /// and their slabs at `slab` (this range's planes, component after component): brick → slab
+    /// and their slabs at `slab` (this range's planes, component after component, lateral-major
+    /// when [`Self::lateral_major`]): brick → slab
     /// when `to_slab`, else back. `half = Some(scale)` (brick → slab only): the slab holds the
     /// values times `scale`, rounded to f16 (2 bytes a voxel, same layout).
     #[allow(clippy::too_many_arguments)]
@@ -280,12 +296,25 @@ impl SliceLayout {
                 Region { src: s, dst: b, len, runs, src_stride: s_stride, dst_stride: b_stride, convert }
             }
         };
+        let slab_voxels = edge * edge * n;
+        if self.lateral_major {
+            // Plane x = lo + p of the brick is its values x + 16·(y + 16z): one voxel every 64
+            // bytes, landing at y + 16z of the slab's plane p.
+            for k in 0..components {
+                let b = brick.wrapping_add(k * BRICK_BYTES as usize);
+                let s = slab.wrapping_add(k * slab_voxels * sb);
+                for p in 0..n {
+                    let plane = s.wrapping_add(p * edge * edge * sb);
+                    out.push(pair(b.wrapping_add((lo + p) * 4), plane, 4, edge * edge, edge * 4, sb));
+                }
+            }
+            return;
+        }
         if n == edge {
             let len = components * BRICK_BYTES as usize;
             out.push(pair(brick, slab, len, 1, 0, 0));
             return;
         }
-        let slab_voxels = edge * edge * n;
         for k in 0..components {
             let b = brick.wrapping_add(k * BRICK_BYTES as usize);
             let s = slab.wrapping_add(k * slab_voxels * sb);

@@ -146,15 +146,17 @@ impl SliceStreamer {
         self.profiler.as_ref().map(|p| p.stats.clone())
     }
 
-    /// Submits a one-off command buffer on the compute queue and waits for it (setup and the
-    /// per-pass tallies, not the slice pipeline).
+    /// Submits a one-off command buffer on the compute queue and waits for it (setup, the
+    /// per-pass tallies and the resident fields' reorder, not the slice pipeline). It runs after
+    /// the last upload (the resident load's, when it reorders what that wrote).
     pub fn submit_and_wait(&mut self, rec: Recorder) -> Result<(), SolveError> {
         self.value += 1;
         let v = self.value;
         let t = &self.timelines;
         // The upload, compute and download timelines all advance to v, so the slice pipeline's
         // values stay one sequence.
-        rec.submit(self.ctx.compute_queue(), &[], (&t.compute, v))?;
+        let after = [(&*t.upload, self.upload_value, vk::PipelineStageFlags2::ALL_COMMANDS)];
+        rec.submit(self.ctx.compute_queue(), &after, (&t.compute, v))?;
         t.compute.wait(&self.ctx, v, WAIT_FOREVER)?;
         t.upload.signal(&self.ctx, v)?;
         t.download.signal(&self.ctx, v)?;
@@ -404,7 +406,7 @@ impl SliceStreamer {
         let n_slots = self.slots.len();
         let mut filled = 0;
         for range in sweep.slices(BRICK_EDGE, BRICK_EDGE) {
-            let layout = SliceLayout::new(io.store, &sweep, range, false, c, comps, None);
+            let layout = SliceLayout::new(io.store, &sweep, range, false, c, comps, None).resident_unload();
             if layout.is_vacuum() {
                 continue;
             }
