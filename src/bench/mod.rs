@@ -62,6 +62,8 @@ pub struct StreamOrder {
     pub download_bytes: u64,
     /// Voxel·direction updates per wall-clock second (every channel counted once).
     pub updates_per_second: f64,
+    /// Slices gathered while the pass before ended (a face's later passes start with an upload).
+    pub pregathered_slices: u64,
 }
 
 #[derive(Debug, Serialize)]
@@ -141,6 +143,7 @@ fn run_stream(
             upload_bytes: now.upload_bytes - before.upload_bytes,
             download_bytes: now.download_bytes - before.download_bytes,
             updates_per_second: updates / wall,
+            pregathered_slices: now.pregathered_slices - before.pregathered_slices,
         });
         before = now;
     }

@@ -163,3 +163,55 @@ fn keeping_the_store_resident_or_not_gives_the_same_bits() {
     assert!(a.run.residency.store_bytes > 0 && a.run.residency.store_bytes == b.run.residency.store_bytes);
     assert!(bits(&a) == bits(&b), "resident and released stores solved differently");
 }
+
+/// A face swept in several passes through two slots: each later pass's first slice is gathered
+/// while the pass before ends (the stream counts them), and the answer is bitwise the one-pass
+/// answer.
+#[test]
+fn later_passes_start_from_a_slice_gathered_while_the_pass_before_ended() {
+    use lpm::solver::fields::StoreFields;
+    use lpm::solver::gpu::{budget, GpuBackend, GpuOptions};
+    use lpm::solver::orders::Backend;
+    use lpm::solver::plan::Plan;
+    let mut scene = cloud();
+    scene.solver.device_residency = lpm::scene::DeviceResidency::Streamed;
+    // Directions enough that the ray state, not the slots, is what a smaller budget cuts first.
+    scene.solver.directions_per_face = 6;
+    scene.solver.max_orders = 2;
+    let dir = temp_dir("pregather");
+    let store = lpm::solver::build_store(&scene, &dir.join("store")).unwrap();
+    let total = store.grid().brick_count();
+    let plan = Plan::new(&scene, total, total - store.occupied_count());
+    let ctx = lpm::vk::Context::new(validated()).unwrap();
+    // The largest budget that keeps two slots but not every direction in a pass.
+    let extent = budget::slice_extent(&plan, &store);
+    let per_face = plan.propagation.per_face() as u32;
+    let full = budget::plan_memory(&plan, extent, &ctx.limits(), u64::MAX / 4, 2, false).unwrap();
+    let mut bytes = full.planned_bytes;
+    let memory = loop {
+        bytes -= bytes / 50;
+        let m = budget::plan_memory(&plan, extent, &ctx.limits(), bytes, 2, false).expect("a plan on the way down");
+        assert!(m.slices_in_flight == 2, "found no two-slot plan with fewer directions per pass: {m:?}");
+        if m.directions_per_pass < per_face {
+            break m;
+        }
+    };
+    let mut fields = StoreFields::create(&store, &plan).unwrap();
+    let options = GpuOptions { budget: Some(bytes), profile: true, resident: false, ..GpuOptions::default() };
+    let mut gpu = GpuBackend::new(ctx.clone(), &plan, &store, &mut fields, options).unwrap();
+    let cut = |m: budget::MemoryPlan| (m.slices_in_flight, m.directions_per_pass, m.planes_per_slice);
+    assert_eq!(cut(gpu.memory_plan()), cut(memory));
+    gpu.propagate_order(0).unwrap();
+    let stats = gpu.stream_stats().unwrap();
+    // Every face's later passes (its first slice is no longer in flight when a pass of three
+    // slices ends).
+    let passes = per_face.div_ceil(memory.directions_per_pass) as u64;
+    assert_eq!(stats.pregathered_slices, 6 * (passes - 1), "{memory:?}");
+    drop(gpu);
+
+    let mut in_passes = scene.clone();
+    in_passes.solver.device_memory_budget = Some(bytes);
+    let (a, b) = (solve("pregather-cut", &in_passes, Gpu), solve("pregather-whole", &scene, Gpu));
+    assert_eq!(cut(a.run.memory.unwrap()), cut(memory));
+    assert!(bits(&a) == bits(&b), "passes that start from a pregathered slice changed the answer");
+}

@@ -320,8 +320,15 @@ impl<'a> GpuBackend<'a> {
                 SweepOf::Sky(i) => (&res.sky_tables[i], &res.sky_sets[i]),
             };
             let mut io = Stream { plan, store: self.store, fields: &mut *self.fields, res };
-            let job =
-                Pass { tables, sets, sweep: &sweep, dirs: pass_dirs.clone(), flags, half_exponent: self.half_exponent };
+            let job = Pass {
+                tables,
+                sets,
+                sweep: &sweep,
+                dirs: pass_dirs.clone(),
+                flags,
+                half_exponent: self.half_exponent,
+                another_follows: pass_dirs.end < dirs.len() as u32,
+            };
             self.streamer.stream_pass(&mut io, &job)?;
             if let Some(p) = self.progress.as_mut() {
                 p.pass_done();

@@ -31,6 +31,8 @@ pub struct StreamStats {
     pub hidden_transfer_seconds: f64,
     /// Wall time from the first to the last timestamp of each pass, summed.
     pub device_seconds: f64,
+    /// Slices gathered while the pass before ended (the first slice of a face's next pass).
+    pub pregathered_slices: u64,
 }
 
 impl StreamStats {

@@ -24,6 +24,7 @@ use crate::solver::fields::StoreFields;
 use crate::solver::sweep::{FaceSweep, SliceRange};
 use crate::store::{BrickStore, BRICK_EDGE};
 
+#[derive(PartialEq)]
 pub struct SliceLayout {
     pub range: SliceRange,
     /// Every brick of the slice, b fastest (the order of the slot table and of the fluence).
@@ -124,6 +125,14 @@ impl SliceLayout {
     /// empty. The resident mode's slot table.
     pub fn resident_slots(&self, store: &BrickStore) -> Vec<i32> {
         self.bricks.iter().map(|&b| store.slot(b).map_or(-1, |k| k as i32)).collect()
+    }
+
+    /// Whether the two slices share an occupied brick (the copies of one may not run while the
+    /// other's do).
+    pub fn shares_bricks(&self, other: &SliceLayout) -> bool {
+        let (small, large) = if self.occupied.len() <= other.occupied.len() { (self, other) } else { (other, self) };
+        let bricks: std::collections::HashSet<usize> = small.occupied.iter().copied().collect();
+        large.occupied.iter().any(|b| bricks.contains(b))
     }
 
     /// No occupied brick: the rays cross vacuum, nothing travels and nothing is collected.

@@ -27,7 +27,7 @@ use super::tables::SweepTables;
 use crate::solver::cancel::CancelFlag;
 use crate::solver::fields::StoreFields;
 use crate::solver::plan::{power_of_two, Plan};
-use crate::solver::sweep::FaceSweep;
+use crate::solver::sweep::{FaceSweep, SliceRange};
 use crate::solver::SolveError;
 use crate::store::{BrickStore, BRICK_EDGE};
 use crate::vk::{Context, Recorder, TimelineSemaphore};
@@ -64,6 +64,9 @@ pub struct Pass<'p> {
     pub flags: u32,
     /// The f16 previous source's scale exponent for this order (`None`: f32).
     pub half_exponent: Option<i32>,
+    /// Another pass of the same sweep follows, in the same order: its first slice may be gathered
+    /// while this pass ends ([`SliceStreamer::stream_pass`]).
+    pub another_follows: bool,
 }
 
 /// What a pass streams between: the plan, the store and its fields, the device resources.
@@ -95,6 +98,9 @@ pub struct SliceStreamer {
     abort_at_slice: Option<u64>,
     /// Looked at before each slice: raised, the pass returns `SolveError::Cancelled`.
     cancel: Option<CancelFlag>,
+    /// The next pass's first slice, already in this slot's upload staging (gathered while the
+    /// pass before ended).
+    pregathered: Option<(usize, SliceLayout)>,
 }
 
 impl SliceStreamer {
@@ -134,6 +140,7 @@ impl SliceStreamer {
             profiler,
             abort_at_slice,
             cancel,
+            pregathered: None,
         })
     }
 
@@ -177,14 +184,24 @@ impl SliceStreamer {
 
     /// Streams every slice of the face through the slots for the pass's directions; returns when
     /// every slice is back in the store. In the resident mode the slices only compute.
+    ///
+    /// When another pass of the sweep follows, its first slice (this pass's first, with this
+    /// pass's sums in it) is gathered into the free slot while the last slices compute and come
+    /// home, so the next pass starts with an upload instead of a gather. Not when that slice is
+    /// one of those still in flight (a sweep of one or two slices): its bytes are not final yet.
     pub fn stream_pass(&mut self, io: &mut Stream, pass: &Pass) -> Result<(), SolveError> {
+        // Taken whatever happens: staging gathered for another pass is never used.
+        let pregathered = self.pregathered.take();
         if self.memory.is_resident() {
             return self.compute_resident_pass(io, pass);
         }
         let plan = io.plan;
         let slices = pass.sweep.slices(BRICK_EDGE, self.memory.planes_per_slice);
         let n_slots = self.slots.len();
-        let mut filled = 0;
+        // The first occupied slice goes to the slot it was gathered into, if it was.
+        let first_slot = pregathered.as_ref().map_or(0, |(s, _)| *s);
+        let mut filled = first_slot;
+        let mut first_occupied: Option<SliceRange> = None;
         let gain = pass.flags & FLAG_GAIN != 0;
         let (c, comps) = (plan.channels as u64, plan.source_components() as u64);
         // The slot of the slice computed in the previous iteration: its download is submitted after
@@ -219,7 +236,11 @@ impl SliceStreamer {
             let s = filled % n_slots;
             filled += 1;
             self.retire_slot(io, s)?;
-            self.gather(io, s, &layout)?;
+            match (first_occupied, &pregathered) {
+                (None, Some((p, ready))) if *p == s && *ready == layout => {}
+                _ => self.gather(io, s, &layout)?,
+            }
+            first_occupied.get_or_insert(*range);
             let v = self.next_slice_value();
             self.submit_upload(io.res, s, &layout, v)?;
             self.submit_compute(io, &step(Some(s), &layout), v)?;
@@ -233,7 +254,33 @@ impl SliceStreamer {
         if let Some(prev) = to_download {
             self.submit_download(io, prev)?;
         }
+        if let (true, Some(range)) = (pass.another_follows && n_slots > 1, first_occupied) {
+            let half = if gain { pass.half_exponent.map(power_of_two) } else { None };
+            let next = SliceLayout::new(io.store, pass.sweep, range, gain, c, comps, half);
+            self.pregather(io, filled % n_slots, next)?;
+        }
         self.drain(io)
+    }
+
+    /// Gathers `layout` (the next pass's first slice) into slot `s`'s upload staging, unless a
+    /// slice still in flight shares a brick with it.
+    fn pregather(&mut self, io: &mut Stream, s: usize, layout: SliceLayout) -> Result<(), SolveError> {
+        let in_flight = self.slots.iter().flat_map(|slot| {
+            let pending = slot.pending.as_ref().map(|(_, l)| l);
+            pending.into_iter().chain(slot.scattering.as_ref().map(|(_, l)| l))
+        });
+        let busy = in_flight.fold(false, |busy, other| busy || other.shares_bricks(&layout));
+        if busy {
+            return Ok(());
+        }
+        // The staging is free once the slot's last upload has read it.
+        self.timelines.upload.wait(&self.ctx, self.upload_value, WAIT_FOREVER)?;
+        self.gather(io, s, &layout)?;
+        if let Some(p) = self.profiler.as_mut() {
+            p.stats.pregathered_slices += 1;
+        }
+        self.pregathered = Some((s, layout));
+        Ok(())
     }
 
     /// Waits for every slot's pending download and scatters it: every slice is back in the store
