@@ -265,12 +265,11 @@ impl SliceStreamer {
     /// Gathers `layout` (the next pass's first slice) into slot `s`'s upload staging, unless a
     /// slice still in flight shares a brick with it.
     fn pregather(&mut self, io: &mut Stream, s: usize, layout: SliceLayout) -> Result<(), SolveError> {
-        let in_flight = self.slots.iter().flat_map(|slot| {
+        let mut in_flight = self.slots.iter().flat_map(|slot| {
             let pending = slot.pending.as_ref().map(|(_, l)| l);
             pending.into_iter().chain(slot.scattering.as_ref().map(|(_, l)| l))
         });
-        let busy = in_flight.fold(false, |busy, other| busy || other.shares_bricks(&layout));
-        if busy {
+        if in_flight.any(|other| other.shares_bricks(&layout)) {
             return Ok(());
         }
         // The staging is free once the slot's last upload has read it.
