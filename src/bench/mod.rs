@@ -72,6 +72,8 @@ pub struct StreamReport {
     pub device: String,
     pub device_is_cpu: bool,
     pub dedicated_transfer_queue: bool,
+    /// Downloads have a queue of their own beside the uploads' (a second copy engine).
+    pub dedicated_download_queue: bool,
     pub note: String,
     pub dims: [u32; 3],
     pub channels: u32,
@@ -155,13 +157,15 @@ fn run_stream(
         "no queue besides the compute queue: transfers are ordered after compute on one queue, so little can overlap"
             .to_string()
     } else {
-        "transfers run on a dedicated queue; hidden_transfer_fraction is the share of transfer time overlapped by compute".to_string()
+        let downloads = if ctx.download_queue().is_some() { "; downloads on a second one" } else { "" };
+        format!("transfers run on a dedicated queue{downloads}; hidden_transfer_fraction is the share of transfer time overlapped by compute")
     };
     Ok(StreamReport {
         scene: scene_path.display().to_string(),
         device: format!("{} ({})", ctx.device_name(), ctx.driver_description()),
         device_is_cpu: limits.is_cpu,
         dedicated_transfer_queue: ctx.transfer_queue().is_some(),
+        dedicated_download_queue: ctx.download_queue().is_some(),
         note,
         dims: plan.dims,
         channels: plan.channels,

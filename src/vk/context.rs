@@ -51,6 +51,7 @@ pub struct Context {
     pub(crate) sync2: Sync2,
     compute: Queue,
     transfer: Option<Queue>,
+    download: Option<Queue>,
     device: ash::Device,
     physical: vk::PhysicalDevice,
     name: String,
@@ -95,6 +96,7 @@ impl Context {
             sync2: parts.sync2,
             compute: parts.compute,
             transfer: parts.transfer,
+            download: parts.download,
             device: parts.device,
             physical: parts.physical,
             name: parts.name,
@@ -144,6 +146,20 @@ impl Context {
     /// A queue distinct from the compute queue, if the device has one (never on lavapipe).
     pub fn transfer_queue(&self) -> Option<&Queue> {
         self.transfer.as_ref()
+    }
+    /// A second queue beside the transfer queue, in its family, for downloads, if the device has
+    /// one (NVIDIA: the second copy engine; never on lavapipe).
+    pub fn download_queue(&self) -> Option<&Queue> {
+        self.download.as_ref()
+    }
+    /// The queue downloads go to: the download queue, else the transfer queue, else the compute
+    /// queue (then transfers are a second submission stream on it, ordered by timelines).
+    pub fn download_queue_or_fallback(&self) -> &Queue {
+        self.download.as_ref().or(self.transfer.as_ref()).unwrap_or(&self.compute)
+    }
+    /// The queue uploads go to: the transfer queue, else the compute queue.
+    pub fn upload_queue_or_fallback(&self) -> &Queue {
+        self.transfer.as_ref().unwrap_or(&self.compute)
     }
     /// The queue families buffers may be used on (one or two distinct indices).
     pub(crate) fn queue_families(&self) -> Vec<u32> {

@@ -125,6 +125,7 @@ pub(crate) struct DeviceParts {
     pub(crate) device: ash::Device,
     pub(crate) compute: Queue,
     pub(crate) transfer: Option<Queue>,
+    pub(crate) download: Option<Queue>,
     pub(crate) sync2: Sync2,
     pub(crate) name: String,
     pub(crate) driver_description: String,
@@ -268,15 +269,24 @@ fn check_support(instance: &Instance, c: &Candidate) -> Result<(), VkError> {
     Ok(())
 }
 
-/// Chooses the compute family and the transfer queue: a dedicated transfer family (copy engines run
-/// beside compute) is best, a second queue of the compute family next, else none.
-fn choose_queues(
-    families: &[vk::QueueFamilyProperties],
-    force_single_queue: bool,
-) -> Option<(u32, Option<(u32, u32)>)> {
+/// The queues a device is opened with, as (family, index) pairs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct QueueChoice {
+    compute: u32,
+    /// A queue beside the compute queue for transfers (uploads, and downloads without `download`).
+    transfer: Option<(u32, u32)>,
+    /// A second transfer queue, for downloads, so that a slice comes home while the next goes up
+    /// (NVIDIA: the second copy engine).
+    download: Option<(u32, u32)>,
+}
+
+/// Chooses the compute family and the transfer queues: a dedicated transfer family (copy engines run
+/// beside compute) is best, a second queue of the compute family next, else none; downloads get the
+/// next queue of the transfer queue's family when it has one more.
+fn choose_queues(families: &[vk::QueueFamilyProperties], force_single_queue: bool) -> Option<QueueChoice> {
     let compute = families.iter().position(|f| f.queue_flags.contains(vk::QueueFlags::COMPUTE))? as u32;
     if force_single_queue {
-        return Some((compute, None));
+        return Some(QueueChoice { compute, transfer: None, download: None });
     }
     let dedicated = families.iter().position(|f| {
         f.queue_count > 0
@@ -288,7 +298,9 @@ fn choose_queues(
         None if families[compute as usize].queue_count >= 2 => Some((compute, 1)),
         None => None,
     };
-    Some((compute, transfer))
+    let download =
+        transfer.and_then(|(fam, index)| (families[fam as usize].queue_count > index + 1).then_some((fam, index + 1)));
+    Some(QueueChoice { compute, transfer, download })
 }
 
 fn open(instance: &Instance, c: &Candidate, force_single_queue: bool) -> Result<DeviceParts, VkError> {
@@ -296,38 +308,25 @@ fn open(instance: &Instance, c: &Candidate, force_single_queue: bool) -> Result<
     let api = effective_api(instance, c);
     // SAFETY: plain query.
     let families = unsafe { inst.get_physical_device_queue_family_properties(c.physical) };
-    let (compute_family, transfer) = choose_queues(&families, force_single_queue)
+    let choice = choose_queues(&families, force_single_queue)
         .ok_or_else(|| VkError::Unsupported { device: c.name.clone(), reason: "it has no compute queue".into() })?;
+    let compute_family = choice.compute;
 
-    // One priority per queue of a family; both arrays outlive vkCreateDevice.
-    let priorities_one = [1.0f32];
-    let priorities_two = [1.0f32, 1.0];
-    let mut queue_infos = Vec::new();
-    match transfer {
-        Some((fam, 1)) if fam == compute_family => {
-            queue_infos.push(
-                vk::DeviceQueueCreateInfo::default()
-                    .queue_family_index(compute_family)
-                    .queue_priorities(&priorities_two),
-            );
-        }
-        Some((fam, _)) => {
-            queue_infos.push(
-                vk::DeviceQueueCreateInfo::default()
-                    .queue_family_index(compute_family)
-                    .queue_priorities(&priorities_one),
-            );
-            queue_infos
-                .push(vk::DeviceQueueCreateInfo::default().queue_family_index(fam).queue_priorities(&priorities_one));
-        }
-        None => {
-            queue_infos.push(
-                vk::DeviceQueueCreateInfo::default()
-                    .queue_family_index(compute_family)
-                    .queue_priorities(&priorities_one),
-            );
+    // Per family, the queues asked for are its first ones (the choice takes them in order): one
+    // priority each. Both vectors outlive vkCreateDevice.
+    let mut counts: Vec<(u32, usize)> = Vec::new();
+    for (family, index) in [Some((compute_family, 0)), choice.transfer, choice.download].into_iter().flatten() {
+        match counts.iter_mut().find(|(f, _)| *f == family) {
+            Some((_, n)) => *n = (*n).max(index as usize + 1),
+            None => counts.push((family, index as usize + 1)),
         }
     }
+    let priorities: Vec<Vec<f32>> = counts.iter().map(|&(_, n)| vec![1.0; n]).collect();
+    let queue_infos: Vec<vk::DeviceQueueCreateInfo> = counts
+        .iter()
+        .zip(&priorities)
+        .map(|(&(family, _), p)| vk::DeviceQueueCreateInfo::default().queue_family_index(family).queue_priorities(p))
+        .collect();
 
     let use_khr_sync2 = api < vk::API_VERSION_1_3;
     let mut extensions: Vec<*const std::ffi::c_char> = Vec::new();
@@ -351,7 +350,8 @@ fn open(instance: &Instance, c: &Candidate, force_single_queue: bool) -> Result<
         Queue { raw, family, index, lock: Mutex::new(()) }
     };
     let compute = get_queue(compute_family, 0);
-    let transfer = transfer.map(|(fam, idx)| get_queue(fam, idx));
+    let transfer = choice.transfer.map(|(fam, idx)| get_queue(fam, idx));
+    let download = choice.download.map(|(fam, idx)| get_queue(fam, idx));
     let sync2 =
         if use_khr_sync2 { Sync2::Khr(ash::khr::synchronization2::Device::new(inst, &device)) } else { Sync2::Core };
 
@@ -393,6 +393,7 @@ fn open(instance: &Instance, c: &Candidate, force_single_queue: bool) -> Result<
     tracing::info!(
         compute_family,
         transfer = ?transfer.as_ref().map(|q| (q.family, q.index)),
+        download = ?download.as_ref().map(|q| (q.family, q.index)),
         ?limits,
         driver = %driver_description,
         "Vulkan device opened"
@@ -402,6 +403,7 @@ fn open(instance: &Instance, c: &Candidate, force_single_queue: bool) -> Result<
         device,
         compute,
         transfer,
+        download,
         sync2,
         name: c.name.clone(),
         driver_description,
@@ -421,18 +423,24 @@ mod tests {
     #[test]
     fn queue_choice() {
         let gct = vk::QueueFlags::GRAPHICS | vk::QueueFlags::COMPUTE | vk::QueueFlags::TRANSFER;
+        let choice = |compute, transfer, download| Some(QueueChoice { compute, transfer, download });
         // lavapipe: one family, one queue.
-        assert_eq!(choose_queues(&[fam(gct, 1)], false), Some((0, None)));
-        // Two queues in the only family: the second one transfers.
-        assert_eq!(choose_queues(&[fam(gct, 2)], false), Some((0, Some((0, 1)))));
-        // NVIDIA-like: dedicated transfer family preferred over a 2nd compute queue.
+        assert_eq!(choose_queues(&[fam(gct, 1)], false), choice(0, None, None));
+        // Two queues in the only family: the second one transfers; a third one downloads.
+        assert_eq!(choose_queues(&[fam(gct, 2)], false), choice(0, Some((0, 1)), None));
+        assert_eq!(choose_queues(&[fam(gct, 3)], false), choice(0, Some((0, 1)), Some((0, 2))));
+        // NVIDIA-like: dedicated transfer family preferred over a 2nd compute queue; its second
+        // queue downloads.
         let fams = [
             fam(gct, 16),
             fam(vk::QueueFlags::TRANSFER, 2),
             fam(vk::QueueFlags::COMPUTE | vk::QueueFlags::TRANSFER, 8),
         ];
-        assert_eq!(choose_queues(&fams, false), Some((0, Some((1, 0)))));
-        assert_eq!(choose_queues(&fams, true), Some((0, None)));
+        assert_eq!(choose_queues(&fams, false), choice(0, Some((1, 0)), Some((1, 1))));
+        assert_eq!(choose_queues(&fams, true), choice(0, None, None));
+        // One copy engine: uploads and downloads share it.
+        let one = [fam(gct, 16), fam(vk::QueueFlags::TRANSFER, 1)];
+        assert_eq!(choose_queues(&one, false), choice(0, Some((1, 0)), None));
         assert_eq!(choose_queues(&[fam(vk::QueueFlags::GRAPHICS, 1)], false), None);
     }
 }

@@ -24,8 +24,11 @@
 //! l computes. When a whole slice does not fit the budget it is streamed as sub-slices of fewer
 //! planes (each slot then holds that slab of each occupied brick). Only occupied bricks travel; a
 //! (sub-)slice without any is vacuum: it takes no slot and no transfer, and its compute step only
-//! moves the rays across it (and is left out for directions that do not move sideways there). Transfer submissions go to a dedicated transfer queue when the device has one, else
-//! to the compute queue as a second submission stream ordered by the same timeline semaphores.
+//! moves the rays across it (and is left out for directions that do not move sideways there).
+//! Transfer submissions go to a dedicated transfer queue when the device has one, else to the
+//! compute queue as a second submission stream ordered by the same timeline semaphores; downloads go
+//! to a second transfer queue when the device has one more (a second copy engine), so that a slice
+//! comes home while the next one goes up.
 //! With one slot each slice completes before the next starts. Slots are reused against timeline
 //! values, never by idling the device. A long order logs its progress in passes now and then
 //! (`progress`).
@@ -213,6 +216,7 @@ impl<'a> GpuBackend<'a> {
         tracing::info!(
             device = ctx.device_name(),
             transfer_queue = ctx.transfer_queue().is_some(),
+            download_queue = ctx.download_queue().is_some(),
             budget = memory.budget_bytes,
             planned = memory.planned_bytes,
             residency = memory.residency.describe(),

@@ -359,7 +359,7 @@ impl SliceStreamer {
         let half = half_exponent.map(power_of_two);
         let prev_brick = comps * BRICK_BYTES / 4 * plan.source_precision.bytes();
         let ctx = Arc::clone(&self.ctx);
-        let queue = ctx.transfer_queue().unwrap_or(ctx.compute_queue());
+        let queue = ctx.upload_queue_or_fallback();
         // The previous order's kernels read and wrote the buffers the load overwrites, and its
         // unload read the accumulators the fill clears.
         let (computed, downloaded) = (self.compute_value, self.download_value);
@@ -447,7 +447,7 @@ impl SliceStreamer {
         };
         let (c, comps) = (plan.channels as u64, plan.source_components() as u64);
         let ctx = Arc::clone(&self.ctx);
-        let queue = ctx.transfer_queue().unwrap_or(ctx.compute_queue());
+        let queue = ctx.download_queue_or_fallback();
         let sweep = FaceSweep::for_plan(0, plan);
         let n_slots = self.slots.len();
         let mut filled = 0;
@@ -551,7 +551,7 @@ impl SliceStreamer {
         layout: &SliceLayout,
         v: u64,
     ) -> Result<(), SolveError> {
-        let queue = self.ctx.transfer_queue().unwrap_or(self.ctx.compute_queue());
+        let queue = self.ctx.upload_queue_or_fallback();
         let slot = &res.slots[s];
         let mut rec = Recorder::begin(&self.ctx, queue.family(), "upload")?;
         let mark = self.profiler.as_mut().and_then(|p| p.begin(&mut rec, profile::Work::Upload, layout.upload_bytes()));
@@ -566,7 +566,15 @@ impl SliceStreamer {
         if let Some(p) = self.profiler.as_mut() {
             p.end(&mut rec, mark);
         }
-        rec.submit(queue, &[], (&self.timelines.upload, v))?;
+        // The slot's last download (on its own queue when the device has one) read the buffers
+        // this upload overwrites: done already (the host waited for it before the gather), and
+        // said here for the device.
+        let t = &self.timelines;
+        rec.submit(
+            queue,
+            &[(&*t.download, self.download_value, vk::PipelineStageFlags2::ALL_TRANSFER)],
+            (&t.upload, v),
+        )?;
         self.upload_value = v;
         Ok(())
     }
@@ -593,7 +601,7 @@ impl SliceStreamer {
     fn submit_download(&mut self, io: &mut Stream, s: usize) -> Result<(), SolveError> {
         // The staging is free once the scatter of its previous contents is done.
         self.finish_scatter(io, s)?;
-        let queue = self.ctx.transfer_queue().unwrap_or(self.ctx.compute_queue());
+        let queue = self.ctx.download_queue_or_fallback();
         let slot = &io.res.slots[s];
         let Some((v, layout)) = self.slots[s].pending.as_ref() else { return Ok(()) };
         let v = *v;
