@@ -170,6 +170,7 @@ fn keeping_the_store_resident_or_not_gives_the_same_bits() {
 #[test]
 fn later_passes_start_from_a_slice_gathered_while_the_pass_before_ended() {
     use lpm::solver::fields::StoreFields;
+    use lpm::solver::gpu::cost::{self, Cut, DeviceFigures};
     use lpm::solver::gpu::{budget, GpuBackend, GpuOptions};
     use lpm::solver::orders::Backend;
     use lpm::solver::plan::Plan;
@@ -183,35 +184,114 @@ fn later_passes_start_from_a_slice_gathered_while_the_pass_before_ended() {
     let total = store.grid().brick_count();
     let plan = Plan::new(&scene, total, total - store.occupied_count());
     let ctx = lpm::vk::Context::new(validated()).unwrap();
-    // The largest budget that keeps two slots but not every direction in a pass.
-    let extent = budget::slice_extent(&plan, &store);
+    // A device whose bus takes half as long as its kernels for one pass of every direction, with
+    // no overheads: a second slot hides the bus, and a second pass hides behind the kernels too.
     let per_face = plan.propagation.per_face() as u32;
-    let full = budget::plan_memory(&plan, extent, &ctx.limits(), u64::MAX / 4, 2, false).unwrap();
-    let mut bytes = full.planned_bytes;
+    let whole = Cut { resident: false, slots: 1, pass: per_face, slab: 16, group: per_face, planes: 16 };
+    let only = |bus, device| DeviceFigures {
+        bus_bytes_per_second: bus,
+        device_bytes_per_second: device,
+        submission_seconds: 0.0,
+        dispatch_seconds: 0.0,
+    };
+    let bus_bytes = cost::order_seconds(&plan, store.occupied_count() as u64, whole, &only(1.0, 1e30));
+    let kernel_bytes = cost::order_seconds(&plan, store.occupied_count() as u64, whole, &only(1e30, 1.0));
+    let figures = only(2e6 * bus_bytes / kernel_bytes, 1e6);
+    // The largest budget whose plan has fewer directions per pass than a face has.
+    let extent = budget::slice_extent(&plan, &store);
+    let plan_for = |bytes| budget::plan_memory(&plan, extent, &ctx.limits(), bytes, 2, false, &figures);
+    let mut bytes = plan_for(u64::MAX / 4).unwrap().planned_bytes;
     let memory = loop {
         bytes -= bytes / 50;
-        let m = budget::plan_memory(&plan, extent, &ctx.limits(), bytes, 2, false).expect("a plan on the way down");
-        assert!(m.slices_in_flight == 2, "found no two-slot plan with fewer directions per pass: {m:?}");
+        let m = plan_for(bytes).expect("a plan on the way down");
         if m.directions_per_pass < per_face {
             break m;
         }
     };
-    let mut fields = StoreFields::create(&store, &plan).unwrap();
-    let options = GpuOptions { budget: Some(bytes), profile: true, resident: false, ..GpuOptions::default() };
-    let mut gpu = GpuBackend::new(ctx.clone(), &plan, &store, &mut fields, options).unwrap();
     let cut = |m: budget::MemoryPlan| (m.slices_in_flight, m.directions_per_pass, m.planes_per_slice);
+    assert_eq!(memory.slices_in_flight, 2, "{memory:?}");
+    let options =
+        GpuOptions { budget: Some(bytes), resident: false, cost_figures: Some(figures), ..GpuOptions::default() };
+    let mut fields = StoreFields::create(&store, &plan).unwrap();
+    let mut gpu =
+        GpuBackend::new(ctx.clone(), &plan, &store, &mut fields, GpuOptions { profile: true, ..options }).unwrap();
     assert_eq!(cut(gpu.memory_plan()), cut(memory));
     gpu.propagate_order(0).unwrap();
     let stats = gpu.stream_stats().unwrap();
-    // Every face's later passes (its first slice is no longer in flight when a pass of three
-    // slices ends).
+    // Every face's later passes (its first slice is no longer in flight when a pass ends).
     let passes = per_face.div_ceil(memory.directions_per_pass) as u64;
     assert_eq!(stats.pregathered_slices, 6 * (passes - 1), "{memory:?}");
     drop(gpu);
 
-    let mut in_passes = scene.clone();
-    in_passes.solver.device_memory_budget = Some(bytes);
-    let (a, b) = (solve("pregather-cut", &in_passes, Gpu), solve("pregather-whole", &scene, Gpu));
-    assert_eq!(cut(a.run.memory.unwrap()), cut(memory));
-    assert!(bits(&a) == bits(&b), "passes that start from a pregathered slice changed the answer");
+    let solve_with = |options| {
+        let (run, fields) =
+            lpm::solver::solve_with(&scene, &store, Gpu, validated(), options, false, |_, _| {}).unwrap();
+        (run.memory.unwrap(), fields.fluence_total.as_slice().to_vec(), fields.source_total.as_slice().to_vec())
+    };
+    let (in_passes, whole) = (solve_with(options), solve_with(GpuOptions { resident: false, ..GpuOptions::default() }));
+    assert_eq!(cut(in_passes.0), cut(memory));
+    assert!(whole.0.directions_per_pass == per_face);
+    let same = |a: &[f32], b: &[f32]| a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits());
+    assert!(same(&in_passes.1, &whole.1) && same(&in_passes.2, &whole.2), "pregathered passes changed the answer");
+}
+
+/// The memory planner keeps, of the cuts that fit, the quickest by the cost model: as the budget
+/// shrinks its estimate never falls (the cuts that fit only get fewer), the plan never exceeds the
+/// budget, and the first cut below the whole plan keeps two slots, every direction in one pass and
+/// whole slices, and takes fewer directions or planes per dispatch instead.
+#[test]
+fn the_planner_keeps_the_quickest_cut_that_fits() {
+    use lpm::solver::gpu::budget;
+    use lpm::solver::gpu::cost::DeviceFigures;
+    use lpm::solver::plan::Plan;
+    let mut scene = cloud();
+    scene.solver.directions_per_face = 5;
+    let dir = temp_dir("planner-cost");
+    let store = lpm::solver::build_store(&scene, &dir.join("store")).unwrap();
+    let total = store.grid().brick_count();
+    let plan = Plan::new(&scene, total, total - store.occupied_count());
+    let ctx = lpm::vk::Context::new(validated()).unwrap();
+    let extent = budget::slice_extent(&plan, &store);
+    let per_face = plan.propagation.per_face() as u32;
+    for cpu in [true, false] {
+        // The typical figures of a CPU device and of a GPU.
+        let mut limits = ctx.limits();
+        limits.is_cpu = cpu;
+        let figures = DeviceFigures::for_device(&limits);
+        let plan_for = |bytes| budget::plan_memory(&plan, extent, &limits, bytes, 2, false, &figures);
+        let whole = plan_for(u64::MAX / 4).unwrap();
+        let full_cut = (2, per_face, 16, per_face, 16);
+        let cut = |m: &budget::MemoryPlan| {
+            (
+                m.slices_in_flight,
+                m.directions_per_pass,
+                m.planes_per_slice,
+                m.directions_per_dispatch,
+                m.planes_per_dispatch,
+            )
+        };
+        assert_eq!(cut(&whole), full_cut);
+        let mut bytes = whole.planned_bytes;
+        let mut last = whole;
+        let mut first_cut = None;
+        let mut cuts = 0;
+        while let Ok(m) = plan_for(bytes) {
+            assert!(m.planned_bytes <= bytes, "{m:?}");
+            assert!(m.estimated_order_seconds >= last.estimated_order_seconds, "{m:?} after {last:?}");
+            if cut(&m) != cut(&last) {
+                cuts += 1;
+                first_cut.get_or_insert(cut(&m));
+            }
+            last = m;
+            bytes -= bytes / 50;
+        }
+        assert_eq!(cut(&last), (1, 1, 1, 1, 1), "the smallest budget's plan");
+        let (slots, pass, slab, group, planes) = first_cut.unwrap();
+        assert!(
+            (slots, pass, slab) == (2, per_face, 16) && (group < per_face || planes < 16),
+            "cpu {cpu}: the first cut below the whole plan: {:?}",
+            first_cut
+        );
+        assert!(cuts >= 10, "cpu {cpu}: {cuts} different cuts");
+    }
 }

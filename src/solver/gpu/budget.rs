@@ -1,7 +1,9 @@
 //! The device memory plan: how the sweeps are cut so that everything the solver allocates on the
 //! device (slice buffers, ray state, deposit, staging, tables) fits a byte budget.
 //!
-//! Five knobs; the plan keeps the first ones as large as it can:
+//! Five knobs; of the cuts that fit, the plan keeps the one the cost model ([`super::cost`]) says
+//! makes an order quickest (two slots over one unless that costs much else, whole slices over
+//! sub-slices, fewer directions per dispatch before thinner slices):
 //! - **slices in flight**: two slices' buffers and staging let the transfers of one slice overlap
 //!   the compute of the other; one means each slice waits for the last (still correct);
 //! - **directions per pass**: the ray state holds that many directions, and a face whose k²
@@ -29,6 +31,7 @@
 //! smallest unit is a one-plane sub-slice with one direction: when even that does not fit, the
 //! error says how much is needed.
 
+use super::cost::{self, Cut, DeviceFigures};
 use super::sizes::{self, ResidentSizes, SharedSizes, SlotSizes};
 use crate::solver::plan::Plan;
 use crate::solver::sweep::FaceSweep;
@@ -100,6 +103,9 @@ pub struct MemoryPlan {
     /// Resident or streamed, and why (also in words, for the report's reader).
     pub residency: Residency,
     pub residency_reason: &'static str,
+    /// The cost model's seconds for one order under this cut ([`super::cost`]: orders of
+    /// magnitude for the kind of device, by which the cut was chosen; not a measurement).
+    pub estimated_order_seconds: f64,
     /// The resident mode's smallest working set (whether chosen or not): resident fields, tables,
     /// staging and ray state with one direction per pass.
     pub resident_bytes: u64,
@@ -145,9 +151,9 @@ pub fn default_budget(limits: &Limits) -> u64 {
     (limits.device_local_heap_bytes as f64 * DEFAULT_HEAP_FRACTION) as u64
 }
 
-/// Chooses resident or streamed, and the cut of the sweeps, for `budget` bytes.
-/// `max_slots` caps the slices in flight (1 forces the serial schedule); `resident` allows the
-/// resident mode.
+/// Chooses resident or streamed, and the cut of the sweeps, for `budget` bytes: of the cuts that
+/// fit, the quickest by the cost model with the device's `figures`. `max_slots` caps the slices in
+/// flight (1 forces the serial schedule); `resident` allows the resident mode.
 pub fn plan_memory(
     plan: &Plan,
     extent: SliceExtent,
@@ -155,6 +161,7 @@ pub fn plan_memory(
     budget: u64,
     max_slots: u32,
     resident: bool,
+    figures: &DeviceFigures,
 ) -> Result<MemoryPlan, SolveError> {
     let per_face = plan.propagation.per_face() as u32;
     let max_range = limits.max_storage_buffer_range;
@@ -201,39 +208,54 @@ pub fn plan_memory(
     } else {
         &[(streamed, &SLAB_PLANES)]
     };
+    // The cheapest cut that fits, by the cost model (ties: the first in the order below, largest
+    // knobs first). Of the pass and group sizes that give the same number of passes (groups),
+    // only the smallest is tried: the others cost the same and take more memory.
     for &(mode, slabs) in modes {
+        let mut best: Option<(f64, MemoryPlan)> = None;
         for slots in [2, 1].into_iter().filter(|&s| s <= max_slots.max(1)) {
-            for pass in (1..=per_face).rev() {
+            for pass in fewest_for_each_count(per_face) {
                 for &slab in slabs {
-                    for group in (1..=pass).rev() {
+                    for group in fewest_for_each_count(pass) {
                         for planes in SLAB_PLANES.into_iter().filter(|&p| p <= slab) {
                             let (slice_bytes, ray_state, deposit, staging, resident_field_bytes, total) =
                                 cost(mode, slots, pass, slab, group, planes);
-                            if total <= budget && fits_range(mode, pass, slab, group, planes) {
-                                return Ok(MemoryPlan {
-                                    budget_bytes: budget,
-                                    planned_bytes: total,
-                                    slices_in_flight: slots,
-                                    directions_per_pass: pass,
-                                    directions_per_dispatch: group,
-                                    planes_per_slice: slab,
-                                    planes_per_dispatch: planes,
-                                    slice: extent,
-                                    residency: mode,
-                                    residency_reason: mode.describe(),
-                                    resident_bytes,
-                                    resident_field_bytes,
-                                    ray_state_bytes: ray_state,
-                                    deposit_bytes: deposit,
-                                    slice_bytes: slots as u64 * slice_bytes,
-                                    staging_bytes: staging,
-                                    table_bytes,
-                                });
+                            if total > budget || !fits_range(mode, pass, slab, group, planes) {
+                                continue;
                             }
+                            let cut = Cut { resident: mode == Residency::Resident, slots, pass, slab, group, planes };
+                            let seconds = cost::order_seconds(plan, extent.occupied_total, cut, figures);
+                            if best.as_ref().is_some_and(|(s, _)| *s <= seconds) {
+                                continue;
+                            }
+                            let memory = MemoryPlan {
+                                budget_bytes: budget,
+                                planned_bytes: total,
+                                slices_in_flight: slots,
+                                directions_per_pass: pass,
+                                directions_per_dispatch: group,
+                                planes_per_slice: slab,
+                                planes_per_dispatch: planes,
+                                slice: extent,
+                                residency: mode,
+                                residency_reason: mode.describe(),
+                                estimated_order_seconds: seconds,
+                                resident_bytes,
+                                resident_field_bytes,
+                                ray_state_bytes: ray_state,
+                                deposit_bytes: deposit,
+                                slice_bytes: slots as u64 * slice_bytes,
+                                staging_bytes: staging,
+                                table_bytes,
+                            };
+                            best = Some((seconds, memory));
                         }
                     }
                 }
             }
+        }
+        if let Some((_, memory)) = best {
+            return Ok(memory);
         }
     }
     // Nothing fits: name the device limit when that is what stands in the way, else the budget.
@@ -247,6 +269,14 @@ pub fn plan_memory(
         needed = needed.min(resident_bytes);
     }
     Err(SolveError::BudgetTooSmall { budget, needed })
+}
+
+/// For each count of parts `n` can be cut into (1, 2, … n), the smallest part size giving that
+/// count, largest first: `⌈n / parts⌉`, without repeats.
+fn fewest_for_each_count(n: u32) -> Vec<u32> {
+    let mut sizes: Vec<u32> = (1..=n.max(1)).map(|parts| n.max(1).div_ceil(parts)).collect();
+    sizes.dedup();
+    sizes
 }
 
 impl MemoryPlan {

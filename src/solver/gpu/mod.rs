@@ -60,6 +60,7 @@
 
 pub mod budget;
 mod copier;
+pub mod cost;
 pub mod encoder;
 pub mod layout;
 mod owned;
@@ -108,6 +109,9 @@ pub struct GpuOptions {
     /// Allow the resident mode (the medium and fields stay on the device when they fit the
     /// budget; see [`budget::Residency`]); `false` streams every pass.
     pub resident: bool,
+    /// The cost model's figures the memory planner chooses a cut with ([`cost`]); `None`: the
+    /// typical ones for the kind of device. Calibrated figures (from `tools/gpu-bench.sh`) go here.
+    pub cost_figures: Option<cost::DeviceFigures>,
 }
 
 impl Default for GpuOptions {
@@ -119,6 +123,7 @@ impl Default for GpuOptions {
             profile: false,
             cancel: None,
             resident: true,
+            cost_figures: None,
         }
     }
 }
@@ -202,6 +207,7 @@ impl<'a> GpuBackend<'a> {
             budget,
             options.max_slices_in_flight,
             options.resident,
+            &options.cost_figures.unwrap_or_else(|| cost::DeviceFigures::for_device(&limits)),
         )?;
         // The kill test's hook (tests/it/resume.rs): compiled only into builds with the
         // `test-hooks` cargo feature (tools/test.sh turns it on), never into a plain or release
