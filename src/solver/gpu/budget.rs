@@ -2,8 +2,11 @@
 //! device (slice buffers, ray state, deposit, staging, tables) fits a byte budget.
 //!
 //! Five knobs; of the cuts that fit, the plan keeps the one the cost model ([`super::cost`]) says
-//! makes an order quickest (two slots over one unless that costs much else, whole slices over
-//! sub-slices, fewer directions per dispatch before thinner slices):
+//! makes an order quickest (ties go to the larger knobs, in the order below). What the model weighs:
+//! a second slot hides the shorter of bus and kernels; another pass moves every byte over the bus
+//! once more; thinner slices and smaller dispatches add submissions, dispatches and round trips of
+//! the rays' state. So a bus-bound device gives up the second slot before it adds passes, and a
+//! kernel-bound one adds passes before it thins slices.
 //! - **slices in flight**: two slices' buffers and staging let the transfers of one slice overlap
 //!   the compute of the other; one means each slice waits for the last (still correct);
 //! - **directions per pass**: the ray state holds that many directions, and a face whose k²
@@ -12,7 +15,8 @@
 //!   8, 4, 2 or 1 planes, each slot holding that slab of every occupied brick; the same bytes move,
 //!   in smaller pieces and with strided host copies;
 //! - **directions per dispatch** and **planes per dispatch**: the deposit buffer holds that many
-//!   directions and planes; free but for smaller dispatches.
+//!   directions and planes; smaller dispatches are more of them, and the rays' state makes a round
+//!   trip through device memory per chunk of planes.
 //!
 //! The previous source (the one the rays gain) counts at its storage precision: half the bytes of
 //! the new source when the plan stores it in f16, in the slot and in its upload staging.
