@@ -193,6 +193,8 @@ fn later_passes_start_from_a_slice_gathered_while_the_pass_before_ended() {
         device_bytes_per_second: device,
         submission_seconds: 0.0,
         dispatch_seconds: 0.0,
+        cache_bytes: 0.0,
+        cache_bytes_per_second: 1.0,
     };
     let bus_bytes = cost::order_seconds(&plan, store.occupied_count() as u64, whole, &only(1.0, 1e30));
     let kernel_bytes = cost::order_seconds(&plan, store.occupied_count() as u64, whole, &only(1e30, 1.0));
@@ -238,11 +240,12 @@ fn later_passes_start_from_a_slice_gathered_while_the_pass_before_ended() {
 /// The memory planner keeps, of the cuts that fit, the quickest by the cost model: as the budget
 /// shrinks its estimate never falls (the cuts that fit only get fewer), the plan never exceeds the
 /// budget, and the first cut below the whole plan keeps two slots, every direction in one pass and
-/// whole slices, and takes fewer directions or planes per dispatch instead.
+/// whole slices, and takes fewer directions or planes per dispatch instead. Where the device's
+/// cache can hold a dispatch's deposit, the dispatches are sized to fit it.
 #[test]
 fn the_planner_keeps_the_quickest_cut_that_fits() {
     use lpm::solver::gpu::budget;
-    use lpm::solver::gpu::cost::DeviceFigures;
+    use lpm::solver::gpu::cost::{self, Cut, DeviceFigures};
     use lpm::solver::plan::Plan;
     let mut scene = cloud();
     scene.solver.directions_per_face = 5;
@@ -294,4 +297,25 @@ fn the_planner_keeps_the_quickest_cut_that_fits() {
         );
         assert!(cuts >= 10, "cpu {cpu}: {cuts} different cuts");
     }
+    // A device whose kernels are the cost, whose cache holds half of a whole face's deposit and
+    // whose dispatches cost nothing of their own: with every byte to spare, the plan sizes its
+    // dispatches so that the deposit stays in the cache between the two kernels.
+    let mut limits = ctx.limits();
+    limits.is_cpu = false;
+    let typical = DeviceFigures::for_device(&limits);
+    let whole = budget::plan_memory(&plan, extent, &limits, u64::MAX / 4, 2, false, &typical).unwrap();
+    let cached = DeviceFigures {
+        cache_bytes: whole.deposit_bytes as f64,
+        device_bytes_per_second: 1e9,
+        cache_bytes_per_second: 1e11,
+        submission_seconds: 0.0,
+        dispatch_seconds: 0.0,
+        ..typical
+    };
+    let m = budget::plan_memory(&plan, extent, &limits, u64::MAX / 4, 2, false, &cached).unwrap();
+    assert!(m.deposit_bytes * 2 <= whole.deposit_bytes, "{m:?}");
+    assert!((m.slices_in_flight, m.directions_per_pass, m.planes_per_slice) == (2, per_face, 16), "{m:?}");
+    let full = Cut { resident: false, slots: 2, pass: per_face, slab: 16, group: per_face, planes: 16 };
+    let occupied = store.occupied_count() as u64;
+    assert!(m.estimated_order_seconds < cost::order_seconds(&plan, occupied, full, &cached), "{m:?}");
 }

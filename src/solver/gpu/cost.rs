@@ -10,6 +10,13 @@
 //!   source, the deposit written once and pulled four times, and the accumulators read and written
 //!   once per dispatch of directions (fewer directions per dispatch: more of those); per ray, its
 //!   state read and written once per dispatch of planes (fewer planes per dispatch: more of those).
+//!   The deposit is the largest share (20 bytes a channel of every voxel and direction): when one
+//!   dispatch's deposit fits half the device's last-level cache, `propagate.comp` writes it and
+//!   `collect.comp` reads it back there, at the cache's speed. This is how the two kernels' round
+//!   trip stays on the chip without fusing them: a fused kernel would have one workgroup own both
+//!   the rays and the voxels they deposit into, but a direction's rays shift sideways plane by
+//!   plane, so the voxels a workgroup's rays reach are not the ones it could collect in direction
+//!   order (every voxel sums its directions in one fixed order, for bitwise results).
 //! - **submissions and dispatches**: three submissions per (sub-)slice (upload, compute, download:
 //!   one when resident) and two dispatches per group of directions and chunk of planes; thin
 //!   sub-slices multiply both.
@@ -39,6 +46,10 @@ pub struct DeviceFigures {
     pub submission_seconds: f64,
     /// One dispatch, seconds.
     pub dispatch_seconds: f64,
+    /// The last-level cache on the device, bytes (0: not modelled), and what the kernels read
+    /// and write there per second.
+    pub cache_bytes: f64,
+    pub cache_bytes_per_second: f64,
 }
 
 impl DeviceFigures {
@@ -53,6 +64,9 @@ impl DeviceFigures {
                 device_bytes_per_second: 2e9,
                 submission_seconds: 50e-6,
                 dispatch_seconds: 20e-6,
+                // llvmpipe's kernels are bound by their arithmetic, not by where the deposit is.
+                cache_bytes: 0.0,
+                cache_bytes_per_second: 2e9,
             }
         } else {
             // PCIe 4 ×16 with pinned staging; HBM or GDDR of a current card, conservatively.
@@ -61,6 +75,9 @@ impl DeviceFigures {
                 device_bytes_per_second: 1e12,
                 submission_seconds: 20e-6,
                 dispatch_seconds: 4e-6,
+                // L2: 40–50 MB on data-centre cards (A100, H100), less on older ones.
+                cache_bytes: 24e6,
+                cache_bytes_per_second: 3e12,
             }
         }
     }
@@ -92,13 +109,15 @@ pub fn order_seconds(plan: &Plan, occupied: u64, cut: Cut, figures: &DeviceFigur
         // accumulators down.
         6.0 * passes * brick * ((1.0 + prev + comps + c) + (comps + c))
     };
-    let voxel_directions = occupied as f64 * (BRICK_BYTES / 4) as f64 * 6.0 * per_face;
-    // Per voxel and direction: four gathers of density and source, the deposit written once and
-    // pulled four times, the accumulators once per dispatch group.
+    // Per voxel and direction: four gathers of density and source, and the accumulators once per
+    // dispatch group, in device memory; the deposit written once and pulled four times, in the
+    // cache when a dispatch's deposit fits half of it (the round trip between the two kernels then
+    // never leaves the chip), else in device memory too.
     let source_value = plan.source_precision.bytes() as f64;
-    let per_voxel_direction =
-        4.0 * (4.0 + c * source_value) + 4.0 * c + 16.0 * c + 8.0 * (c + comps) / cut.group as f64;
-    let mut kernel_bytes = voxel_directions * per_voxel_direction;
+    let fixed = 4.0 * (4.0 + c * source_value) + 8.0 * (c + comps) / cut.group as f64;
+    let deposit_traffic = 20.0 * c;
+    let voxel_directions_per_axis = occupied as f64 * (BRICK_BYTES / 4) as f64 * 2.0 * per_face;
+    let (mut device_bytes, mut cache_bytes) = (0.0, 0.0);
     let (mut submissions, mut dispatches) = (0.0, 0.0);
     for axis in 0..3 {
         let [a, b, cc] = [axis, (axis + 1) % 3, (axis + 2) % 3].map(|k| plan.dims[k] as f64);
@@ -109,12 +128,19 @@ pub fn order_seconds(plan: &Plan, occupied: u64, cut: Cut, figures: &DeviceFigur
         let groups = (cut.pass as f64 / cut.group as f64).ceil();
         let chunks = (cut.slab as f64 / cut.planes as f64).ceil();
         dispatches += steps * groups * chunks * 2.0;
-        // Every ray's state read and written once per chunk of planes, for each direction.
         let rays = (b + 1.0) * (cc + 1.0);
-        kernel_bytes += 2.0 * per_face * rays * c * 8.0 * slices * chunks;
+        device_bytes += voxel_directions_per_axis * fixed;
+        let deposit = cut.group as f64 * c * cut.planes as f64 * rays * 4.0;
+        if deposit <= figures.cache_bytes / 2.0 {
+            cache_bytes += voxel_directions_per_axis * deposit_traffic;
+        } else {
+            device_bytes += voxel_directions_per_axis * deposit_traffic;
+        }
+        // Every ray's state read and written once per chunk of planes, for each direction.
+        device_bytes += 2.0 * per_face * rays * c * 8.0 * slices * chunks;
     }
     let bus = bus_bytes / figures.bus_bytes_per_second;
-    let kernels = kernel_bytes / figures.device_bytes_per_second;
+    let kernels = device_bytes / figures.device_bytes_per_second + cache_bytes / figures.cache_bytes_per_second;
     let moving = if cut.slots >= 2 && !cut.resident { bus.max(kernels) } else { bus + kernels };
     moving + submissions * figures.submission_seconds + dispatches * figures.dispatch_seconds
 }
