@@ -14,7 +14,9 @@
 //! volume (see [`solver::gpu`], [`store::Field`] and [`store::resident`]: a store that fits keeps its
 //! pages, so no pass faults the volume in again). When the occupied bricks' medium and fields fit
 //! the device budget instead, they stay on the device for the whole solve (the resident mode of
-//! [`solver::gpu`]): the passes only compute, and the fields cross the bus once per order.
+//! [`solver::gpu`]): the passes only compute, and the fields cross the bus once per order, or only
+//! at checkpoints and at the end where the passes between orders run on the device too
+//! (`solver::gpu::end_of_order`).
 //!
 //! ## Layout (each layer only uses the ones above it)
 //!
@@ -68,7 +70,8 @@
 //!    ([`solver::gpu`]): `sizes` → `budget` (the memory plan) → `resources` (everything on the
 //!    device, all-or-nothing) → `streamer` (slices through the slots: gather on the copy workers,
 //!    upload, compute, download, scatter, against timeline semaphores; resident: compute only,
-//!    with a load and an unload per order) → `encoder` (push constants,
+//!    with a load and an unload per order, or neither where `end_of_order` commits on the device)
+//!    → `encoder` (push constants,
 //!    one descriptor set per step bound once for both kernels, which share a pipeline layout, and
 //!    the dispatches of `glsl/propagate.comp` and `glsl/collect.comp`) → [`vk`].
 //! 6. **Outputs** — [`job`] exports the committed fluence and source ([`output`], atomically: raw +

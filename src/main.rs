@@ -1255,6 +1255,9 @@ fn info(dir: &std::path::Path, json: bool) -> Result<()> {
         if let Some(reason) = m["residency_reason"].as_str() {
             println!("          {reason}");
         }
+        if let Some(reason) = m["end_of_order_reason"].as_str() {
+            println!("          passes between orders {reason}");
+        }
     }
     if let Some(peak) = r.get("peak_resident_bytes").and_then(|p| p.as_u64()) {
         println!("host      peak resident {peak} bytes; brick store {} bytes", r["store_bytes"]);

@@ -26,8 +26,22 @@ pub trait Backend {
     type Medium: Medium<V = <Self::Field as FieldPlanes>::V> + VoxelUnits<V = <Self::Field as FieldPlanes>::V>;
     /// Propagates one order (the beams first when `order == 0`) and returns its boundary tallies.
     fn propagate_order(&mut self, order: u32) -> Result<Tallies, SolveError>;
-    /// The fields the order loop folds each order into, and the medium they cover.
+    /// The fields the order loop folds each order into, and the medium they cover. Current
+    /// between orders, except while a backend keeps them elsewhere: then from the last order of
+    /// the solve on (after [`Backend::checkpoint`] with `last`).
     fn fields(&mut self) -> (&mut OrderFieldSet<Self::Field>, &Self::Medium);
+    /// Commits the order just propagated and returns the power its new source scatters, per
+    /// channel ([`OrderFieldSet::commit_order`], unless the backend commits elsewhere).
+    fn commit_order(&mut self, plan: &Plan) -> Result<[f64; 3], SolveError> {
+        let (fields, medium) = self.fields();
+        fields.commit_order(plan, medium)
+    }
+    /// The stop rule's remaining error after a commit, for the tail factor per channel
+    /// ([`OrderFieldSet::remaining_error`], unless the backend keeps the fields elsewhere).
+    fn remaining_error(&mut self, plan: &Plan, factor: [f64; 3]) -> Result<RemainingError, SolveError> {
+        let (fields, medium) = self.fields();
+        Ok(fields.remaining_error(medium, plan, factor))
+    }
     /// Power (per channel) the rays of periodic sweeps carried out of the last order and carry
     /// into the next ([`super::periodic`]); zero without periodic axes.
     fn carried_power(&self) -> [f64; 3] {
@@ -290,10 +304,7 @@ pub fn run_orders<B: Backend + ?Sized>(
         let mut tallies = state.tallies();
         let this_order = backend.propagate_order(order)?;
         tallies.add(&this_order);
-        let scattered = {
-            let (fields, medium) = backend.fields();
-            fields.commit_order(plan, medium)?
-        };
+        let scattered = backend.commit_order(plan)?;
         // What the next order propagates: the new source, and what periodic sweeps carry over.
         let carried = backend.carried_power();
         let new: [f64; 3] = std::array::from_fn(|c| scattered[c] + carried[c]);
@@ -314,10 +325,7 @@ pub fn run_orders<B: Backend + ?Sized>(
         state.orders_done += 1;
         let residual = residual_of(&state);
         remaining = match tail_factors(plan, &state) {
-            Some(factor) if !exhausted(&state) => {
-                let (fields, medium) = backend.fields();
-                Some(fields.remaining_error(medium, plan, factor))
-            }
+            Some(factor) if !exhausted(&state) => Some(backend.remaining_error(plan, factor)?),
             _ => None,
         };
         state.history.push(OrderRecord {

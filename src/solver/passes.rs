@@ -29,8 +29,9 @@
 
 use super::acceleration::Acceleration;
 use super::antidiffusion::{self, VoxelUnits};
+use super::gpu::end_of_order::block_power;
 use super::plan::Plan;
-use super::remaining::{RemainingError, RemainingTally};
+use super::remaining::{self, RemainingError, UnitTally};
 use super::SolveError;
 use crate::store::{BrickStore, Field, BRICK_VOXELS};
 use rayon::prelude::*;
@@ -436,11 +437,7 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
         } else {
             None
         };
-        let c = plan.channels as usize;
-        let comps = plan.source_components() as usize;
-        let h3 = plan.voxel_size.powi(3);
         let mut power = [0.0; 3];
-        let weight = |k: usize| plan.storage.solid_angle[k / c] * h3;
         // Into the spares, unless they are what the last checkpoint names: then in place.
         let in_place = self.named.spare;
         let committed = match raw {
@@ -453,17 +450,11 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
             &mut self.source_total,
             committed,
             |_| F::V::ONE,
-            |block, sum| {
-                let k = block % comps;
-                power[k % c] += weight(k) * sum;
-            },
+            |block, sum| block_power(plan, &mut power, block, sum),
         );
         if self.initial_guess {
             power = [0.0; 3];
-            subtract(&mut self.source_next, &self.source_prev, |block, sum| {
-                let k = block % comps;
-                power[k % c] += weight(k) * sum;
-            });
+            subtract(&mut self.source_next, &self.source_prev, |block, sum| block_power(plan, &mut power, block, sum));
             self.initial_guess = false;
         }
         combine(
@@ -517,6 +508,27 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
             RawSource::Scratch => std::mem::swap(&mut n.next, &mut n.scratch),
         });
         Ok(free)
+    }
+
+    /// The GPU's resident mode committed the orders since its fields were last here on the device
+    /// ([`super::gpu::end_of_order`]): `fill` writes its committed source and fluence, its new
+    /// source and its last order's fluence into the host fields it is given (the spares,
+    /// `source_next` and `fluence`: none of them named by the last checkpoint, once the one
+    /// before it is on disk), which then take the roles [`Self::commit_order`] gives them.
+    pub fn take_device_commit(
+        &mut self,
+        fill: impl FnOnce(&mut F, &mut F, &mut F, &mut F) -> Result<(), SolveError>,
+    ) -> Result<(), SolveError> {
+        if self.named.spare || self.named.next || self.named_previous != Named::default() {
+            return Err(SolveError::Internal("the device's fields would overwrite what a checkpoint names"));
+        }
+        fill(&mut self.source_spare, &mut self.fluence_spare, &mut self.source_next, &mut self.fluence)?;
+        self.swap_totals();
+        std::mem::swap(&mut self.source_prev, &mut self.source_next);
+        self.swap_named(|n| std::mem::swap(&mut n.prev, &mut n.next));
+        self.clean = false;
+        self.seeded = false;
+        Ok(())
     }
 
     /// The committed totals and their spares change roles (with their [`Named`] flags).
@@ -601,44 +613,68 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
 
     /// The remaining relative error over the medium's voxels (see [`super::remaining`]): after
     /// [`OrderFieldSet::commit_order`], `fluence_total` holds the sum so far and `fluence` the
-    /// newest order's.
+    /// newest order's. Two passes: the brightest counted fluence (which sets the dark floor),
+    /// then each unit's tally, added up in unit order (as the GPU's resident mode does,
+    /// [`super::gpu::end_of_order`]).
     pub fn remaining_error<M: Medium>(&self, medium: &M, plan: &Plan, factor: [f64; 3]) -> RemainingError {
         let c = plan.channels as usize;
         let n = self.fluence.unit_voxels();
-        let mut tally = RemainingTally::default();
         let (total, newest) = (self.fluence_total.values(), self.fluence.values());
         let per_unit = self.fluence.unit_len();
         let units = self.fluence.units();
+        // Calls `visit(channel, t, k)` for each medium voxel of `unit`, channel by channel.
+        let walk = |unit: usize, visit: &mut dyn FnMut(usize, f64, f64)| {
+            let Some(density) = medium.density(unit) else { return };
+            let (total, newest) = (&total[unit * per_unit..], &newest[unit * per_unit..]);
+            for ch in 0..c {
+                let range = ch * n..(ch + 1) * n;
+                for ((&rho, &t), &k) in density.iter().zip(&total[range.clone()]).zip(&newest[range]) {
+                    if rho > M::V::ZERO {
+                        visit(ch, t.to_f64(), k.to_f64());
+                    }
+                }
+            }
+        };
+        let release = || {
+            medium.release_all();
+            self.fluence_total.release_all();
+            self.fluence.release_all();
+        };
+        let mut brightest = 0.0f64;
+        for first in (0..units).step_by(RELEASE_UNITS) {
+            let part = (first..(first + RELEASE_UNITS).min(units))
+                .into_par_iter()
+                .with_min_len(min_items(per_unit))
+                .map(|unit| {
+                    let mut b = 0.0f64;
+                    walk(unit, &mut |_, t, _| {
+                        if remaining::counts(t) {
+                            b = b.max(t);
+                        }
+                    });
+                    b
+                })
+                .reduce(|| 0.0, f64::max);
+            brightest = brightest.max(part);
+            release();
+        }
+        let floor = remaining::dark_floor(brightest);
+        let mut tallies = Vec::with_capacity(units);
         let mut parts = Vec::new();
         for first in (0..units).step_by(RELEASE_UNITS) {
-            // Each unit's tally on its own, then merged in unit order: the merged tally keeps the
-            // same voxels in the same order as one walk would (see `RemainingTally::merge`).
             (first..(first + RELEASE_UNITS).min(units))
                 .into_par_iter()
                 .with_min_len(min_items(per_unit))
                 .map(|unit| {
-                    let mut part = RemainingTally::default();
-                    let Some(density) = medium.density(unit) else { return part };
-                    let (total, newest) = (&total[unit * per_unit..], &newest[unit * per_unit..]);
-                    for (ch, &f) in factor.iter().enumerate().take(c) {
-                        let range = ch * n..(ch + 1) * n;
-                        for ((&rho, &t), &k) in density.iter().zip(&total[range.clone()]).zip(&newest[range]) {
-                            if rho > M::V::ZERO {
-                                part.add(t.to_f64(), k.to_f64(), f);
-                            }
-                        }
-                    }
-                    part
+                    let mut tally = UnitTally::default();
+                    walk(unit, &mut |ch, t, k| tally.add(t, k, factor[ch], floor));
+                    tally
                 })
                 .collect_into_vec(&mut parts);
-            for part in parts.drain(..) {
-                tally.merge(part);
-            }
-            medium.release_all();
-            self.fluence_total.release_all();
-            self.fluence.release_all();
+            tallies.append(&mut parts);
+            release();
         }
-        tally.finish()
+        remaining::finish(tallies)
     }
 
     /// Power emitted in order 0 and absorbed over all committed orders, per channel.

@@ -35,36 +35,37 @@ pub struct RemainingError {
     pub l2: f64,
 }
 
-/// Accumulates e_v over voxels; the brightest fluence seen sets the dark floor at the end.
-#[derive(Clone, Debug, Default)]
-pub struct RemainingTally {
-    /// (Φ, e) of each counted voxel and channel, kept to apply the dark floor afterwards. Only the
-    /// pairs above a running floor are kept, so memory stays small for large volumes: see `add`.
-    pairs: Vec<(f32, f32)>,
-    brightest: f64,
-    /// Prune when `pairs` reaches this length: at least [`PRUNE_AT`], and twice what the last
-    /// prune kept, so that a volume whose voxels are all bright (nothing to prune) costs one prune
-    /// per doubling, not one per voxel.
-    prune_at: usize,
+/// Whether a committed fluence counts at all (and toward the brightest, which sets the dark floor).
+#[inline]
+pub fn counts(total: f64) -> bool {
+    total > 0.0 && total.is_finite()
 }
 
-/// Pairs kept before the first prune.
-const PRUNE_AT: usize = 1 << 22;
+/// The dark floor under the brightest counted fluence: voxels below it are left out.
+pub fn dark_floor(brightest: f64) -> f64 {
+    DARK * brightest
+}
 
-impl RemainingTally {
-    /// Counts one medium voxel with committed fluence `total` and newest-order fluence `newest`,
-    /// for tail factor `factor` (= ρ/(1 − ρ), or ∞).
+/// One unit's share of the remaining error (a brick of the store, a voxel of the twin), taken
+/// once the dark floor is known: a pass finds the brightest fluence first, then each unit walks
+/// its voxels. The units are added up in unit order ([`finish`]), so the result does not depend
+/// on how they were spread over threads, and the GPU's resident mode, whose kernel tallies a
+/// brick per invocation in the same walk, gives the same bits (`glsl/remaining.comp`).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct UnitTally {
+    /// Σ e_v² over the counted voxels, in walk order (e_v rounded to f32 first).
+    pub sum_sq: f64,
+    /// The largest e_v.
+    pub max: f64,
+    pub count: u64,
+}
+
+impl UnitTally {
+    /// Counts one medium voxel with committed fluence `total` (an f32 value) and newest-order
+    /// fluence `newest`, for tail factor `factor` (= ρ/(1 − ρ), or ∞), above the dark `floor`.
     #[inline]
-    pub fn add(&mut self, total: f64, newest: f64, factor: f64) {
-        if !(total > 0.0) || !total.is_finite() {
-            return;
-        }
-        if total > self.brightest {
-            self.brightest = total;
-        }
-        // Decided on the value as kept (f32), as `finish` decides: a voxel is dropped here only if
-        // it would be dropped there, so tallies merged in any grouping finish alike.
-        if ((total as f32) as f64) < DARK * self.brightest {
+    pub fn add(&mut self, total: f64, newest: f64, factor: f64, floor: f64) {
+        if !counts(total) || total < floor {
             return;
         }
         let e = if factor.is_finite() {
@@ -74,48 +75,22 @@ impl RemainingTally {
         } else {
             f64::INFINITY
         };
-        self.pairs.push((total as f32, e as f32));
-        // Bound the memory: drop pairs that have fallen below the floor since they were kept.
-        if self.pairs.len() >= self.prune_at.max(PRUNE_AT) {
-            self.prune();
-        }
+        let e = e as f32 as f64;
+        self.max = self.max.max(e);
+        self.sum_sq += e * e;
+        self.count += 1;
     }
+}
 
-    /// Drops the kept pairs below the current dark floor (they would be dropped by `finish`).
-    fn prune(&mut self) {
-        let floor = DARK * self.brightest;
-        self.pairs.retain(|&(t, _)| t as f64 >= floor);
-        self.prune_at = 2 * self.pairs.len();
+/// The remaining error over the units' tallies, added up in the order given.
+pub fn finish(units: impl IntoIterator<Item = UnitTally>) -> RemainingError {
+    let (mut max, mut sum, mut n) = (0.0f64, 0.0f64, 0u64);
+    for unit in units {
+        max = max.max(unit.max);
+        sum += unit.sum_sq;
+        n += unit.count;
     }
-
-    /// Appends the voxels `later` counted (voxels that come after this tally's, in the order a
-    /// single walk would meet them). The result finishes to bitwise what one walk over both would
-    /// give: a voxel either drops below the final dark floor in both or is kept in both, and kept
-    /// pairs stay in walk order.
-    pub fn merge(&mut self, later: RemainingTally) {
-        self.brightest = self.brightest.max(later.brightest);
-        let floor = DARK * self.brightest;
-        self.pairs.extend(later.pairs.into_iter().filter(|&(t, _)| t as f64 >= floor));
-        if self.pairs.len() >= self.prune_at.max(PRUNE_AT) {
-            self.prune();
-        }
-    }
-
-    /// The remaining error over the counted voxels.
-    pub fn finish(&self) -> RemainingError {
-        let floor = DARK * self.brightest;
-        let (mut max, mut sum, mut n) = (0.0f64, 0.0f64, 0usize);
-        for &(t, e) in &self.pairs {
-            if (t as f64) < floor {
-                continue;
-            }
-            let e = e as f64;
-            max = max.max(e);
-            sum += e * e;
-            n += 1;
-        }
-        RemainingError { max, l2: if n > 0 { (sum / n as f64).sqrt() } else { 0.0 } }
-    }
+    RemainingError { max, l2: if n > 0 { (sum / n as f64).sqrt() } else { 0.0 } }
 }
 
 /// The tail factor ρ/(1 − ρ) for ratio `rho` (∞ unless 0 ≤ ρ < 1).
@@ -131,6 +106,15 @@ pub fn tail_factor(rho: f64) -> f64 {
 mod tests {
     use super::*;
 
+    fn walk(voxels: &[(f64, f64)], factor: f64) -> UnitTally {
+        let brightest = voxels.iter().map(|v| v.0).filter(|&t| counts(t)).fold(0.0, f64::max);
+        let mut t = UnitTally::default();
+        for &(total, newest) in voxels {
+            t.add(total, newest, factor, dark_floor(brightest));
+        }
+        t
+    }
+
     #[test]
     fn geometric_series_remaining_is_exact() {
         // A voxel whose orders go 1, ρ, ρ², …: after k orders the remaining share is ρ^k.
@@ -138,59 +122,26 @@ mod tests {
         let k = 20;
         let total: f64 = (0..k).map(|i| rho.powi(i)).sum();
         let newest = rho.powi(k - 1);
-        let mut t = RemainingTally::default();
-        t.add(total, newest, tail_factor(rho));
-        let r = t.finish();
+        let r = finish([walk(&[(total, newest)], tail_factor(rho))]);
         assert!((r.max - rho.powi(k)).abs() < 1e-6, "{} vs {}", r.max, rho.powi(k));
     }
 
     #[test]
     fn dark_voxels_and_unsettled_ratios() {
-        let mut t = RemainingTally::default();
-        t.add(1e-20, 1e-20, 1.0); // dark next to the bright one: left out
-        t.add(1.0, 0.01, 1.0);
-        assert!((t.finish().max - 0.01 / 1.01).abs() < 1e-6);
-        t.add(0.5, 0.01, tail_factor(1.0));
-        assert_eq!(t.finish().max, f64::INFINITY);
+        // Dark next to the bright one: left out.
+        let voxels = [(1e-20, 1e-20), (1.0, 0.01)];
+        assert!((finish([walk(&voxels, 1.0)]).max - 0.01 / 1.01).abs() < 1e-6);
+        assert_eq!(finish([walk(&[(0.5, 0.01)], tail_factor(1.0))]).max, f64::INFINITY);
+        // Neither zero, negative nor infinite fluence counts.
+        assert_eq!(finish([walk(&[(0.0, 1.0), (-1.0, 1.0), (f64::INFINITY, 1.0)], 1.0)]).max, 0.0);
     }
 
     #[test]
-    fn merged_tallies_finish_as_one_walk() {
-        // Fluences over many decades (so the dark floor drops some voxels, early in one walk and
-        // late in a grouped one), in any grouping: the same bits.
-        let voxels: Vec<(f64, f64)> = (0..5000u64)
-            .map(|i| {
-                let x = (i.wrapping_mul(2654435761) % 1000) as f64 / 1000.0;
-                (10f64.powf(-16.0 * x) * (1.0 + (i % 7) as f64), 10f64.powf(-3.0 * x) * 0.01)
-            })
-            .collect();
-        let mut one = RemainingTally::default();
-        for &(t, k) in &voxels {
-            one.add(t, k, 0.9);
-        }
-        for group in [1, 3, 64, 999] {
-            let mut merged = RemainingTally::default();
-            for chunk in voxels.chunks(group) {
-                let mut part = RemainingTally::default();
-                for &(t, k) in chunk {
-                    part.add(t, k, 0.9);
-                }
-                merged.merge(part);
-            }
-            let (a, b) = (one.finish(), merged.finish());
-            assert!(a.max.to_bits() == b.max.to_bits() && a.l2.to_bits() == b.l2.to_bits(), "group {group}");
-        }
-    }
-
-    #[test]
-    fn bright_volumes_prune_once_per_doubling() {
-        // Every voxel bright: nothing to prune, so the prune point doubles instead of every add
-        // scanning all pairs again (a 256³ RGB order spent 40 s there).
-        let mut t = RemainingTally::default();
-        for i in 0..(PRUNE_AT + 10) {
-            t.add(1.0 + i as f64 * 1e-9, 0.01, 0.5);
-        }
-        assert_eq!(t.pairs.len(), PRUNE_AT + 10);
-        assert_eq!(t.prune_at, 2 * PRUNE_AT, "pruned again after the first prune");
+    fn units_add_up_in_order() {
+        let a = UnitTally { sum_sq: 0.5, max: 0.25, count: 2 };
+        let b = UnitTally { sum_sq: 1.5, max: 0.75, count: 6 };
+        let r = finish([a, b]);
+        assert_eq!((r.max, r.l2), (0.75, 0.5));
+        assert_eq!(finish([]), RemainingError { max: 0.0, l2: 0.0 });
     }
 }

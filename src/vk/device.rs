@@ -66,6 +66,9 @@ pub struct Limits {
     pub min_storage_buffer_offset_alignment: u64,
     /// Largest push-constant block in bytes.
     pub max_push_constants_size: u32,
+    /// `shaderFloat64` and `shaderInt64` (both enabled when the device has them): the
+    /// device-resident mode's end-of-order passes need them (`solver::gpu::end_of_order`).
+    pub float64: bool,
 }
 
 /// synchronization2 is reached through core 1.3 entry points or the KHR extension's; the rest of the
@@ -335,9 +338,15 @@ fn open(instance: &Instance, c: &Candidate, force_single_queue: bool) -> Result<
     }
     let mut f12 = vk::PhysicalDeviceVulkan12Features::default().timeline_semaphore(true);
     let mut sync2_features = vk::PhysicalDeviceSynchronization2Features::default().synchronization2(true);
+    // f64 and i64 in shaders where the device has both (the exact end-of-order passes use them).
+    // SAFETY: plain query.
+    let supported = unsafe { inst.get_physical_device_features(c.physical) };
+    let float64 = supported.shader_float64 == vk::TRUE && supported.shader_int64 == vk::TRUE;
+    let features = vk::PhysicalDeviceFeatures::default().shader_float64(float64).shader_int64(float64);
     let create_info = vk::DeviceCreateInfo::default()
         .queue_create_infos(&queue_infos)
         .enabled_extension_names(&extensions)
+        .enabled_features(&features)
         .push_next(&mut f12)
         .push_next(&mut sync2_features);
     // SAFETY: all pointers in create_info point to locals alive for the call; support was checked.
@@ -382,6 +391,7 @@ fn open(instance: &Instance, c: &Candidate, force_single_queue: bool) -> Result<
         is_cpu: props.device_type == vk::PhysicalDeviceType::CPU,
         min_storage_buffer_offset_alignment: l.min_storage_buffer_offset_alignment,
         max_push_constants_size: l.max_push_constants_size,
+        float64,
     };
     let driver_name = driver.driver_name_as_c_str().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
     let driver_info = driver.driver_info_as_c_str().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();

@@ -6,10 +6,12 @@
 use crate::common::*;
 use lpm::scene::{Acceleration, Boundary, DeviceResidency, Scene, Shape, SpatialScheme, StoragePrecision};
 use lpm::solver::gpu::budget::Residency;
+use lpm::solver::gpu::end_of_order::EndOfOrder;
 use lpm::solver::BackendKind::Gpu;
 
-/// Solves `scene` resident and streamed; asserts the modes and equal bits, orders and books.
-fn resident_equals_streamed(name: &str, scene: &Scene) {
+/// Solves `scene` resident and streamed; asserts the modes and equal bits, orders and books, and
+/// returns where the resident solve's passes between orders ran.
+fn resident_equals_streamed(name: &str, scene: &Scene) -> EndOfOrder {
     let resident = solve(&format!("{name}-resident"), scene, Gpu);
     let mut s = scene.clone();
     s.solver.device_residency = DeviceResidency::Streamed;
@@ -24,6 +26,69 @@ fn resident_equals_streamed(name: &str, scene: &Scene) {
         assert_eq!(fa.power_in, fb.power_in, "{name}: {}", fa.face);
         assert_eq!(fa.power_out, fb.power_out, "{name}: {}", fa.face);
     }
+    // The stop rule saw the same: every order's power and remaining error, to the bit.
+    for (ra, rb) in a.history.iter().zip(&b.history) {
+        assert_eq!(ra.new_source_power.to_bits(), rb.new_source_power.to_bits(), "{name}: order {}", ra.order);
+        assert_eq!(
+            ra.remaining_max.map(f64::to_bits),
+            rb.remaining_max.map(f64::to_bits),
+            "{name}: order {}",
+            ra.order
+        );
+    }
+    assert_eq!(a.remaining.map(|r| r.l2.to_bits()), b.remaining.map(|r| r.l2.to_bits()), "{name}");
+    assert_eq!(st.end_of_order, EndOfOrder::HostStreamed, "{name}");
+    r.end_of_order
+}
+
+/// The passes between orders run on the device when the plan needs nothing the device lacks: the
+/// fields cross the bus once at the start and once at the end, and the answer, every order's power
+/// and remaining error, and the books are bitwise the streamed mode's (whose host passes commit).
+#[test]
+fn the_device_commits_the_orders_as_the_host_does() {
+    use lpm::scene::ForwardPeak;
+    // RGB, f32, a sky and a sun; dims not a multiple of 16 (the bricks' padding is walked too).
+    let mut grey = scene(
+        Shape::Cloud,
+        [30, 26, 34],
+        [1.2, 0.9, 0.6],
+        [0.7, 0.6, 0.5],
+        vec![sky(0.5), sun([0.4, -0.3, 1.0], [2.0; 3])],
+    );
+    grey.solver.acceleration = Acceleration::Off;
+    grey.solver.max_orders = 6;
+    grey.solver.tolerance = 1e-9;
+    assert_eq!(resident_equals_streamed("device-f32", &grey), EndOfOrder::Device);
+    // f16 storage, anisotropic (2×2 storage directions per face, the phase function kept).
+    let mut aniso = grey.clone();
+    aniso.medium.g = 0.5;
+    aniso.solver.forward_peak = ForwardPeak::Keep;
+    aniso.solver.storage_directions_per_face = Some(2);
+    aniso.solver.storage_precision = StoragePrecision::F16;
+    aniso.solver.max_orders = 4;
+    assert_eq!(resident_equals_streamed("device-f16", &aniso), EndOfOrder::Device);
+    // A huge dynamic range: a dense core (σt·h up to 40) whose far side holds f32 denormals.
+    let mut dark = scene(Shape::Cloud, [20, 20, 20], [40.0; 3], [0.5; 3], vec![sun([0.0, 0.0, 1.0], [1.0; 3])]);
+    dark.solver.acceleration = Acceleration::Off;
+    dark.solver.max_orders = 3;
+    assert_eq!(resident_equals_streamed("device-dark", &dark), EndOfOrder::Device);
+    // Converged by the stop rule (not the cap): the same order stops both.
+    let mut stop = grey.clone();
+    stop.solver.tolerance = 1e-2;
+    stop.solver.max_orders = 40;
+    assert_eq!(resident_equals_streamed("device-stop", &stop), EndOfOrder::Device);
+}
+
+/// An accelerated plan keeps the host's passes (the device has no diffusion solve) and says so.
+#[test]
+fn an_accelerated_plan_commits_on_the_host_and_says_why() {
+    let mut thick = scene(Shape::Cloud, [32, 32, 32], [2.0; 3], [0.99; 3], vec![sky(1.0)]);
+    thick.solver.spatial = Some(SpatialScheme::Constant);
+    thick.solver.acceleration = Acceleration::Diffusion;
+    thick.solver.max_orders = 1;
+    let memory = solve("host-end", &thick, Gpu).run.memory.expect("plan");
+    assert_eq!(memory.end_of_order, EndOfOrder::HostPlan, "{memory:?}");
+    assert!(memory.end_of_order_reason.contains("accelerates"), "{memory:?}");
 }
 
 #[test]
@@ -48,7 +113,7 @@ fn resident_and_streamed_give_the_same_bits() {
     thick.solver.spatial = Some(SpatialScheme::Constant);
     thick.solver.acceleration = Acceleration::Diffusion;
     thick.solver.max_orders = 5;
-    resident_equals_streamed("thick-accelerated", &thick);
+    assert_eq!(resident_equals_streamed("thick-accelerated", &thick), EndOfOrder::HostPlan);
 
     // Periodic sides: the rays carry what left one side into the next order.
     let mut slab = scene(Shape::Cloud, [24, 20, 28], [0.8; 3], [0.9; 3], vec![sun([0.5, 0.3, 1.0], [1.0; 3])]);

@@ -25,7 +25,9 @@
 //! occupied brick's density and fields stay on the device for the whole solve ([`ResidentSizes`]),
 //! with whole slices and the slots reduced to their staging (through which the medium is loaded
 //! once, the previous source once per order, and the order's new source and fluence come home
-//! once per order). It is chosen when that fits the budget and every resident buffer fits one
+//! once per order; or, where the passes between orders run on the device, [`EndOfOrder`], the
+//! committed totals are resident too and the fields come home only at checkpoints and at the
+//! end). It is chosen when that fits the budget and every resident buffer fits one
 //! storage-buffer binding; else the sweeps stream slice by slice through the slots, and the plan
 //! says why ([`Residency`]).
 //!
@@ -36,6 +38,7 @@
 //! error says how much is needed.
 
 use super::cost::{self, Cut, DeviceFigures};
+use super::end_of_order::EndOfOrder;
 use super::sizes::{self, ResidentSizes, SharedSizes, SlotSizes};
 use crate::solver::plan::Plan;
 use crate::solver::sweep::FaceSweep;
@@ -79,7 +82,7 @@ impl Residency {
     pub fn describe(self) -> &'static str {
         match self {
             Residency::Resident => {
-                "resident: the medium and fields of every occupied brick stay on the device (fields cross the bus once per order)"
+                "resident: the medium and fields of every occupied brick stay on the device (fields cross the bus once per order at most)"
             }
             Residency::StreamedOnRequest => "streamed slice by slice, as asked",
             Residency::StreamedOverBudget => {
@@ -107,6 +110,10 @@ pub struct MemoryPlan {
     /// Resident or streamed, and why (also in words, for the report's reader).
     pub residency: Residency,
     pub residency_reason: &'static str,
+    /// Where the passes between orders run (commit, stop rule), and why: on the device only when
+    /// resident ([`super::end_of_order`]).
+    pub end_of_order: EndOfOrder,
+    pub end_of_order_reason: &'static str,
     /// The cost model's seconds for one order under this cut ([`super::cost`]: orders of
     /// magnitude for the kind of device, by which the cut was chosen; not a measurement).
     pub estimated_order_seconds: f64,
@@ -172,7 +179,8 @@ pub fn plan_memory(
     let rays = extent.rays;
     // Every figure below is a buffer size from `sizes`, the ones the allocations use.
     let table_bytes = sizes::table_bytes(plan);
-    let fields = ResidentSizes::new(plan, &extent);
+    let ends = EndOfOrder::choose(plan, limits);
+    let fields = ResidentSizes::new(plan, &extent, ends == EndOfOrder::Device);
     // (slot device buffers, ray state, deposit, staging, resident fields, total)
     let cost = |mode: Residency, slots: u32, pass: u32, slab: u32, group: u32, planes: u32| {
         let (slot, resident) = match mode {
@@ -228,6 +236,8 @@ pub fn plan_memory(
                                 continue;
                             }
                             let cut = Cut { resident: mode == Residency::Resident, slots, pass, slab, group, planes };
+                            let end_of_order =
+                                if mode == Residency::Resident { ends } else { EndOfOrder::HostStreamed };
                             let seconds = cost::order_seconds(plan, extent.occupied_total, cut, figures);
                             if best.as_ref().is_some_and(|(s, _)| *s <= seconds) {
                                 continue;
@@ -243,6 +253,8 @@ pub fn plan_memory(
                                 slice: extent,
                                 residency: mode,
                                 residency_reason: mode.describe(),
+                                end_of_order,
+                                end_of_order_reason: end_of_order.describe(),
                                 estimated_order_seconds: seconds,
                                 resident_bytes,
                                 resident_field_bytes,
@@ -287,5 +299,10 @@ impl MemoryPlan {
     /// Whether the medium and fields stay on the device for the whole solve.
     pub fn is_resident(&self) -> bool {
         self.residency == Residency::Resident
+    }
+
+    /// Whether the passes between orders run on the device (resident, and the plan allows).
+    pub fn ends_on_device(&self) -> bool {
+        self.end_of_order == EndOfOrder::Device
     }
 }

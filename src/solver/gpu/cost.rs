@@ -5,7 +5,8 @@
 //! - **bytes over the bus**: a streamed pass moves every occupied brick's slab of density and
 //!   previous source up, and its new source and fluence up and down; a face in P passes moves it
 //!   all P times. The resident mode moves the previous source up and the accumulators home once an
-//!   order.
+//!   order (nothing, where the passes between orders run on the device: the model keeps the
+//!   upper bound, which decides nothing, since a resident cut is taken whenever one fits).
 //! - **bytes the kernels move on the device**: per voxel and direction, the gathers of medium and
 //!   source, the deposit written once and pulled four times, and the accumulators read and written
 //!   once per dispatch of directions (fewer directions per dispatch: more of those); per ray, its

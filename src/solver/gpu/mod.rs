@@ -42,9 +42,13 @@
 //! slice by slice through the slots' staging with the gather and scatter above. So the bus carries
 //! each field once per order instead of once per pass, and the result is bitwise the streamed one
 //! (the kernels read the same values). Around the x sweeps the resident fields are reordered on
-//! the device to the lateral-major order a streamed x sweep's slabs have (`transpose`). The
-//! end-of-order passes (commit, stop rule, acceleration)
-//! still run on the host, which is why the fields come home every order.
+//! the device to the lateral-major order a streamed x sweep's slabs have (`transpose`). Where the
+//! plan allows, the passes between orders (the commit and the stop rule's tally) run on the device
+//! as well ([`end_of_order`], bitwise the host's), and the fields stay there from the first load to
+//! the last order: the next order's previous source is made from the new one on the device, and
+//! the state comes home only for a checkpoint and at the end. Otherwise (acceleration, diffusion
+//! correction, per-voxel albedo, warm start) the new source and fluence come home every order for
+//! the host's passes.
 //!
 //! ## The pieces
 //!
@@ -55,6 +59,7 @@
 //!   workers (`copier`) gathering and scattering each slice's bricks (`slice`);
 //! - [`encoder`]: one slice's compute step as commands (push constants, bindings, dispatches);
 //! - `transpose`: the resident fields' reorder for the x sweeps;
+//! - [`end_of_order`]: the resident mode's passes between orders on the device;
 //! - this file: the order as sweeps and passes (the [`Backend`] the order loop drives), and the
 //!   tallies read back after each pass (per face of the volume).
 
@@ -62,6 +67,7 @@ pub mod budget;
 mod copier;
 pub mod cost;
 pub mod encoder;
+pub mod end_of_order;
 pub mod layout;
 mod owned;
 pub mod profile;
@@ -79,6 +85,7 @@ use super::orders::Backend;
 use super::passes::{OrderFieldSet, StoreMedium};
 use super::periodic::{CarryOf, PeriodStep, PeriodicCarry, RayRadiance};
 use super::plan::{half_scale_exponent, Plan, Precision, SweepDirection};
+use super::remaining::RemainingError;
 use super::sweep::{side_births, FaceSweep};
 use super::SolveError;
 use crate::scene::CheckpointCadence;
@@ -86,6 +93,7 @@ use crate::store::BrickStore;
 use crate::vk::{Context, Recorder};
 use ash::vk;
 use budget::MemoryPlan;
+use end_of_order::{Direction, EndOfOrder, EndPasses};
 use layout::{FLAG_BOUNDARY, FLAG_CARRY, FLAG_EMIT, FLAG_GAIN};
 use resources::DeviceResources;
 use std::sync::Arc;
@@ -179,6 +187,20 @@ pub struct GpuBackend<'a> {
     /// The resident mode: whether the resident fields are in the x sweeps' lateral-major order
     /// ([`transpose`]) rather than brick order.
     resident_lateral: bool,
+    /// The passes between orders on the device ([`end_of_order`]); `None`: on the host.
+    end_passes: Option<EndPasses>,
+    /// With `end_passes`: where the solve's state is (see [`DeviceState`]).
+    device_state: DeviceState,
+}
+
+/// Where the committed state of a solve whose passes between orders run on the device is.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum DeviceState {
+    /// Only on the host: the next order loads it (the first order of a solve or a resume).
+    OnHost,
+    /// On the device after a commit there, `max_abs` the new source's largest value; also on the
+    /// host when `home` (brought there for a checkpoint or the end).
+    Committed { max_abs: f32, home: bool },
 }
 
 impl<'a> GpuBackend<'a> {
@@ -226,6 +248,7 @@ impl<'a> GpuBackend<'a> {
             budget = memory.budget_bytes,
             planned = memory.planned_bytes,
             residency = memory.residency.describe(),
+            end_of_order = memory.end_of_order_reason,
             slices_in_flight = memory.slices_in_flight,
             directions_per_pass = memory.directions_per_pass,
             directions_per_dispatch = memory.directions_per_dispatch,
@@ -234,6 +257,16 @@ impl<'a> GpuBackend<'a> {
             "GPU backend ready"
         );
         let medium = StoreMedium::new(store, plan)?;
+        let mut memory = memory;
+        if memory.ends_on_device() && fields.warm_started {
+            // The totals' buffers were planned, but a warm start's first commit runs on the host.
+            memory.end_of_order = EndOfOrder::HostWarmStart;
+            memory.end_of_order_reason = EndOfOrder::HostWarmStart.describe();
+        }
+        let end_passes = match resources.resident.as_ref().filter(|_| memory.ends_on_device()) {
+            Some(resident) => Some(EndPasses::new(&ctx, plan, resident, memory.slice.occupied_total)?),
+            None => None,
+        };
         // A resumed solve goes on with what its checkpoint's periodic sweeps carried over.
         let carry = fields.resumed_carry.take().unwrap_or_else(|| PeriodicCarry::new(plan));
         Ok(GpuBackend {
@@ -254,6 +287,8 @@ impl<'a> GpuBackend<'a> {
             carry,
             density_loaded: false,
             resident_lateral: false,
+            end_passes,
+            device_state: DeviceState::OnHost,
         })
     }
 
@@ -371,6 +406,18 @@ fn write_entries(res: &mut DeviceResources, channels: usize, entries: &[RayRadia
             }
         }
     }
+}
+
+/// The passes and resident buffers when the passes between orders run on the device.
+fn device_end<'r>(
+    end: &'r Option<EndPasses>,
+    res: &'r DeviceResources,
+) -> Result<(&'r EndPasses, &'r resources::ResidentBuffers, &'r resources::TotalBuffers), SolveError> {
+    let missing = || SolveError::Internal("the device's end of order without its buffers");
+    let end = end.as_ref().ok_or_else(missing)?;
+    let resident = res.resident.as_ref().ok_or_else(missing)?;
+    let totals = resident.totals.as_ref().ok_or_else(missing)?;
+    Ok((end, resident, totals))
 }
 
 /// What the rays of a pass were born with at plane 0: the direction's boundary radiance
@@ -497,7 +544,10 @@ impl<'a> Backend for GpuBackend<'a> {
             Err(e @ SolveError::Cancelled { .. }) => {
                 // Unless periodic sweeps carry ray state over: the cancelled order has already
                 // taken some of it, so the checkpoint before stands.
-                if let Some(state) = self.pending.take().filter(|_| self.carry.is_empty()) {
+                // And unless the device committed it: its new source is gone from there (this
+                // order's previous source took its place, at f16 perhaps).
+                let on_host = !matches!(self.device_state, DeviceState::Committed { home: false, .. });
+                if let Some(state) = self.pending.take().filter(|_| self.carry.is_empty() && on_host) {
                     self.write_checkpoint(&state, false)?;
                 }
                 Err(e)
@@ -513,6 +563,26 @@ impl<'a> Backend for GpuBackend<'a> {
         (self.fields, &self.medium)
     }
 
+    fn commit_order(&mut self, plan: &Plan) -> Result<[f64; 3], SolveError> {
+        if self.end_passes.is_none() {
+            return self.fields.commit_order(plan, &self.medium);
+        }
+        let (end, _, totals) = device_end(&self.end_passes, &self.resources)?;
+        let committed = end.commit(&mut self.streamer, plan, totals)?;
+        self.device_state = DeviceState::Committed { max_abs: committed.max_abs, home: false };
+        Ok(committed.power)
+    }
+
+    fn remaining_error(&mut self, plan: &Plan, factor: [f64; 3]) -> Result<RemainingError, SolveError> {
+        match self.device_state {
+            DeviceState::Committed { home: false, .. } => {
+                let (end, _, totals) = device_end(&self.end_passes, &self.resources)?;
+                end.remaining(&mut self.streamer, plan, totals, factor)
+            }
+            _ => Ok(self.fields.remaining_error(&self.medium, plan, factor)),
+        }
+    }
+
     fn carried_power(&self) -> [f64; 3] {
         self.carry.power(self.plan)
     }
@@ -525,10 +595,23 @@ impl<'a> Backend for GpuBackend<'a> {
     }
 
     fn checkpoint(&mut self, state: &LoopState, last: bool) -> Result<(), SolveError> {
-        let Some((_, cadence)) = &self.checkpoints else { return Ok(()) };
-        self.since_checkpoint.0 += 1;
-        let (orders, since) = self.since_checkpoint;
-        if cadence.due(orders, since.elapsed().as_secs_f64(), last) {
+        let due = match &self.checkpoints {
+            Some((_, cadence)) => {
+                self.since_checkpoint.0 += 1;
+                let (orders, since) = self.since_checkpoint;
+                cadence.due(orders, since.elapsed().as_secs_f64(), last)
+            }
+            None => false,
+        };
+        // The state the device committed comes home for a checkpoint and for the passes that
+        // end the solve.
+        if due || last {
+            self.bring_home()?;
+        }
+        if self.checkpoints.is_none() {
+            return Ok(());
+        }
+        if due {
             // Written while the next order's sweeps run; the last one before the solve ends.
             self.write_checkpoint(state, !last)
         } else {
@@ -580,22 +663,35 @@ impl GpuBackend<'_> {
     /// One order's sweeps (see [`Backend::propagate_order`]).
     fn propagate(&mut self, order: u32) -> Result<Tallies, SolveError> {
         let plan = self.plan;
-        // Resident: the load clears the device's accumulators and the unload overwrites the host's.
-        self.fields.begin_order(!self.memory.is_resident())?;
+        // The device committed the last order ([`end_of_order`]): its new source is on the device
+        // and becomes this order's there; nothing on the host changes.
+        let committed_on_device = match self.device_state {
+            DeviceState::Committed { max_abs, .. } => Some(max_abs),
+            DeviceState::OnHost => None,
+        };
+        if committed_on_device.is_none() {
+            // Resident: the load clears the device's accumulators and the unload overwrites the host's.
+            self.fields.begin_order(!self.memory.is_resident())?;
+        }
         // The scale of this order's f16 source, from its largest value (exact: a power of two).
-        self.half_exponent =
-            (plan.source_precision == Precision::F16).then(|| half_scale_exponent(self.fields.source_prev.max_abs()));
+        let max_abs = || committed_on_device.unwrap_or_else(|| self.fields.source_prev.max_abs());
+        self.half_exponent = (plan.source_precision == Precision::F16).then(|| half_scale_exponent(max_abs()));
         // The sky's own directions sweep in order 0 only, in passes as a face's do.
         let sky_faces = if order == 0 { plan.sky_faces.len() } else { 0 };
         let face_dirs: Vec<usize> = plan.faces.iter().chain(&plan.sky_faces[..sky_faces]).map(Vec::len).collect();
         let beams: Vec<usize> = (0..plan.beams.len()).filter(|&b| plan.beam_swept_in(b, order)).collect();
         let passes = progress::passes_per_order(&face_dirs, beams.len(), self.memory.directions_per_pass);
         self.progress = Some(progress::PassProgress::new(order, passes));
-        if self.memory.is_resident() {
+        if committed_on_device.is_some() {
+            self.advance_on_device()?;
+        } else if self.memory.is_resident() {
             let mut io = Stream { plan, store: self.store, fields: &mut *self.fields, res: &self.resources };
             let seeded = io.fields.seeded;
             self.streamer.load_resident(&mut io, self.half_exponent, !self.density_loaded, seeded)?;
             self.density_loaded = true;
+            if self.end_passes.is_some() {
+                self.move_totals(Direction::ToDevice)?;
+            }
         }
         let mut tallies = Tallies::default();
         // Beams in order 0; those along a periodic axis again in every order, carrying what they
@@ -617,12 +713,56 @@ impl GpuBackend<'_> {
             tallies.add(&self.sweep(SweepOf::Face(face), flags)?);
         }
         if self.memory.is_resident() {
-            // The fields come home (and the next order's load goes in) in brick order.
+            // The fields come home (and the next order's load goes in) in brick order; so do the
+            // device's passes between orders read them.
             self.reorder_resident(false)?;
-            let mut io = Stream { plan, store: self.store, fields: &mut *self.fields, res: &self.resources };
-            self.streamer.unload_resident(&mut io)?;
+            if self.end_passes.is_none() {
+                let mut io = Stream { plan, store: self.store, fields: &mut *self.fields, res: &self.resources };
+                self.streamer.unload_resident(&mut io)?;
+            }
         }
         Ok(tallies)
+    }
+
+    /// The start of an order after a commit on the device: the new source becomes the previous
+    /// one there (at this order's f16 scale), the accumulators are cleared.
+    fn advance_on_device(&mut self) -> Result<(), SolveError> {
+        let (end, resident, _) = device_end(&self.end_passes, &self.resources)?;
+        let ctx = Arc::clone(self.streamer.context());
+        let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "next order on the device")?;
+        end.record_advance(&mut rec, resident, self.half_exponent)?;
+        self.streamer.submit_and_wait(rec)
+    }
+
+    /// Moves the committed totals between the store and the device: up with the first load of a
+    /// solve, home with the rest of the device's state ([`Self::bring_home`]).
+    fn move_totals(&mut self, direction: Direction) -> Result<(), SolveError> {
+        let (_, _, totals) = device_end(&self.end_passes, &self.resources)?;
+        let (source, fluence) = (&totals.source_total, &totals.fluence_total);
+        let fields = &mut *self.fields;
+        end_of_order::transfer_field(&mut self.streamer, &self.resources, &mut fields.source_total, source, direction)?;
+        end_of_order::transfer_field(&mut self.streamer, &self.resources, &mut fields.fluence_total, fluence, direction)
+    }
+
+    /// Brings the state the device committed home, for a checkpoint or the end of the solve: the
+    /// totals, the last new source and the last order's fluence take the roles the host's own
+    /// commit would have given them ([`OrderFieldSet::take_device_commit`]).
+    fn bring_home(&mut self) -> Result<(), SolveError> {
+        let DeviceState::Committed { max_abs, home: false } = self.device_state else { return Ok(()) };
+        // The checkpoint in flight names fields the roles below move: it must be on disk first.
+        self.settle_checkpoint()?;
+        let (_, resident, totals) = device_end(&self.end_passes, &self.resources)?;
+        let streamer = &mut self.streamer;
+        let res = &self.resources;
+        self.fields.take_device_commit(|source_total, fluence_total, source_next, fluence| {
+            use end_of_order::transfer_field as to_host;
+            to_host(streamer, res, source_total, &totals.source_total, Direction::ToHost)?;
+            to_host(streamer, res, fluence_total, &totals.fluence_total, Direction::ToHost)?;
+            to_host(streamer, res, source_next, &resident.source_next, Direction::ToHost)?;
+            to_host(streamer, res, fluence, &resident.fluence, Direction::ToHost)
+        })?;
+        self.device_state = DeviceState::Committed { max_abs, home: true };
+        Ok(())
     }
 
     /// The resident mode: puts the resident fields in the order the next sweep reads them,

@@ -61,11 +61,33 @@ pub struct ResidentBuffers {
     pub source_prev: Owned<Buffer>,
     pub source_next: Owned<Buffer>,
     pub fluence: Owned<Buffer>,
+    /// The committed totals and the sums the host reads, when the passes between orders run on
+    /// the device ([`super::end_of_order`]).
+    pub totals: Option<TotalBuffers>,
+}
+
+/// The device-side end of an order's buffers ([`ResidentSizes`]).
+pub struct TotalBuffers {
+    pub source_total: Owned<Buffer>,
+    pub fluence_total: Owned<Buffer>,
+    /// Host-readable (`GpuToCpu`): written by the kernels, read after a wait.
+    pub block_sums: Owned<Buffer>,
+    pub unit_tallies: Owned<Buffer>,
 }
 
 impl ResidentBuffers {
+    /// The five buffers a sweep binds.
     fn all(&self) -> [&Buffer; 5] {
         [&self.slot_table, &self.density, &self.source_prev, &self.source_next, &self.fluence]
+    }
+
+    /// Every buffer, for the byte count.
+    fn every(&self) -> Vec<&Buffer> {
+        let mut every = self.all().to_vec();
+        if let Some(t) = &self.totals {
+            every.extend([&*t.source_total, &*t.fluence_total, &*t.block_sums, &*t.unit_tallies]);
+        }
+        every
     }
 }
 
@@ -156,13 +178,24 @@ impl DeviceResources {
             SlotSizes::new(plan, &memory.slice, memory.planes_per_slice)
         };
         let resident = if memory.is_resident() {
-            let r = ResidentSizes::new(plan, &memory.slice);
+            let r = ResidentSizes::new(plan, &memory.slice, memory.ends_on_device());
             Some(ResidentBuffers {
                 slot_table: buffer(ctx, "resident slot table", r.slot_table, storage, gpu)?,
                 density: buffer(ctx, "resident density", r.density, storage, gpu)?,
                 source_prev: buffer(ctx, "resident source prev", r.source_prev, storage, gpu)?,
                 source_next: buffer(ctx, "resident source next", r.source_next, storage, gpu)?,
                 fluence: buffer(ctx, "resident fluence", r.fluence, storage, gpu)?,
+                totals: if memory.ends_on_device() {
+                    let readback = MemoryLocation::GpuToCpu;
+                    Some(TotalBuffers {
+                        source_total: buffer(ctx, "resident source total", r.source_total, storage, gpu)?,
+                        fluence_total: buffer(ctx, "resident fluence total", r.fluence_total, storage, gpu)?,
+                        block_sums: buffer(ctx, "end-of-order block sums", r.block_sums, storage, readback)?,
+                        unit_tallies: buffer(ctx, "end-of-order brick tallies", r.unit_tallies, storage, readback)?,
+                    })
+                } else {
+                    None
+                },
             })
         } else {
             None
@@ -275,7 +308,7 @@ impl DeviceResources {
             })
             .map(|b| b.size())
             .sum();
-        let resident: u64 = self.resident.iter().flat_map(ResidentBuffers::all).map(|b| b.size()).sum();
+        let resident: u64 = self.resident.iter().flat_map(ResidentBuffers::every).map(|b| b.size()).sum();
         let tables = self.face_tables.iter().chain(&self.beam_tables).chain(&self.sky_tables);
         let staging = tables.clone().map(|t| t.staging_bytes).max().unwrap_or(0);
         shared + slots + resident + tables.map(SweepTables::device_bytes).sum::<u64>() + staging

@@ -103,7 +103,9 @@ impl SlotSizes {
 
 /// The device buffers of the resident mode: every occupied brick's density, previous source, new
 /// source and fluence for the whole solve (in the store's slot order, each brick laid out as in
-/// the store), and the slot table of the slice being computed (written before each step).
+/// the store), and the slot table of the slice being computed (written before each step). When the
+/// end-of-order passes run on the device ([`super::end_of_order`]) the committed totals live there
+/// too, with the per-brick sums those passes hand the host.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ResidentSizes {
     pub slot_table: u64,
@@ -112,27 +114,54 @@ pub struct ResidentSizes {
     pub source_prev: u64,
     pub source_next: u64,
     pub fluence: u64,
+    /// The committed totals (0: they stay on the host).
+    pub source_total: u64,
+    pub fluence_total: u64,
+    /// Per brick block, the commit's sums; per brick, the stop rule's tally (read by the host).
+    pub block_sums: u64,
+    pub unit_tallies: u64,
 }
 
+/// Bytes of one block's sums and one brick's tally. Keep in sync with `BlockSum` and `UnitTally`
+/// in glsl/block_sums.comp and glsl/remaining.comp (and in `end_of_order`).
+pub const BLOCK_SUM_BYTES: u64 = 16;
+pub const UNIT_TALLY_BYTES: u64 = 32;
+
 impl ResidentSizes {
-    pub fn new(plan: &Plan, extent: &SliceExtent) -> ResidentSizes {
+    /// With `totals`, the committed totals and the end-of-order sums are on the device too.
+    pub fn new(plan: &Plan, extent: &SliceExtent, totals: bool) -> ResidentSizes {
         let per_component = extent.occupied_total * BRICK_BYTES;
         let source = per_component * plan.source_components() as u64;
+        let fluence = per_component * plan.channels as u64;
+        let blocks = extent.occupied_total * plan.source_components() as u64;
+        let only = |bytes: u64| if totals { buffer_bytes(bytes) } else { 0 };
         ResidentSizes {
             slot_table: buffer_bytes(slot_table_bytes(extent.bricks)),
             density: buffer_bytes(per_component),
             source_prev: buffer_bytes(source / 4 * plan.source_precision.bytes()),
             source_next: buffer_bytes(source),
-            fluence: buffer_bytes(per_component * plan.channels as u64),
+            fluence: buffer_bytes(fluence),
+            source_total: only(source),
+            fluence_total: only(fluence),
+            block_sums: only(blocks.max(1) * BLOCK_SUM_BYTES),
+            unit_tallies: only(extent.occupied_total.max(1) * UNIT_TALLY_BYTES),
         }
     }
 
     pub fn device(&self) -> u64 {
-        self.slot_table + self.density + self.source_prev + self.source_next + self.fluence
+        self.slot_table
+            + self.density
+            + self.source_prev
+            + self.source_next
+            + self.fluence
+            + self.source_total
+            + self.fluence_total
+            + self.block_sums
+            + self.unit_tallies
     }
 
     /// The buffers bound whole to a kernel, named for the reason the plan gives when one is larger
-    /// than a binding may be.
+    /// than a binding may be (the totals are the size of the new source and the fluence).
     pub fn bound(&self) -> [(&'static str, u64); 4] {
         [
             ("the source of all occupied bricks", self.source_next),

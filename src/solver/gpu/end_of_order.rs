@@ -1,0 +1,403 @@
+//! The passes between orders on the device, for the resident mode: the fields stay there from the
+//! first order to the last, and cross the bus only at checkpoints and at the end.
+//!
+//! In the streamed mode (and the CPU twin) the host commits each order ([`OrderFieldSet::commit_order`]
+//! and the stop rule's [`OrderFieldSet::remaining_error`]), so the resident mode used to bring the
+//! new source and the fluence home after every order. Here the committed totals are resident too,
+//! and four kernels do the host's work:
+//!
+//! - `block_sums.comp`: per block (one component of one brick) Σ|J| and the largest |J| of the new
+//!   source; the host turns the sums into the order's scattered power exactly as its commit does
+//!   ([`block_power`]) and the largest value into the next order's f16 scale;
+//! - `commit.comp`: `total += order`, for the source and the fluence;
+//! - `to_half.comp`: the next order's previous source, the new one rounded to f16 (as the copy
+//!   workers round it on the way up); at f32 it is a copy;
+//! - `remaining.comp`: the stop rule's tally, brick by brick ([`super::super::remaining`]).
+//!
+//! Every value is bitwise what the host's passes give in the streamed mode (`glsl/exact.glsl` says
+//! how: f32 values are read from their bits, so a device that flushes denormals does too; each
+//! sum runs in the host's order, one invocation per block or brick), so the answer, the orders and
+//! the stop decisions are the streamed mode's (`tests/it/resident.rs`). The one assumption beyond
+//! what Vulkan promises is that f64 division is correctly rounded (the remaining error's e_v, then
+//! rounded to f32): true of llvmpipe and of NVIDIA's compiler.
+//!
+//! What stays on the host: the passes that build or read more than these sums — the diffusion
+//! acceleration's grid and solve, the diffusion correction's stencil, a per-voxel albedo, a warm
+//! start's first commit — so a plan with any of them keeps the host's passes (and brings the fields
+//! home every order), and says so ([`EndOfOrder`]). A device without `shaderFloat64` and
+//! `shaderInt64` does too. The energy books and the tail run once, after the fields come home at
+//! the end.
+
+use super::owned::Owned;
+use super::resources::{DeviceResources, ResidentBuffers, TotalBuffers};
+use super::sizes::{BLOCK_SUM_BYTES, UNIT_TALLY_BYTES};
+use super::streamer::SliceStreamer;
+use crate::solver::plan::{Plan, Precision};
+use crate::solver::remaining::{self, RemainingError, UnitTally};
+use crate::solver::SolveError;
+use crate::store::Field;
+use crate::vk::{Buffer, BufferRange, ComputePipeline, Context, DescriptorSet, Limits, Recorder};
+use ash::vk;
+use bytemuck::{Pod, Zeroable};
+use serde::Serialize;
+use std::sync::Arc;
+
+const BLOCK_SUMS_SPV: &[u8] = include_bytes!("../../../spirv/block_sums.spv");
+const COMMIT_SPV: &[u8] = include_bytes!("../../../spirv/commit.spv");
+const TO_HALF_SPV: &[u8] = include_bytes!("../../../spirv/to_half.spv");
+const REMAINING_SPV: &[u8] = include_bytes!("../../../spirv/remaining.spv");
+
+/// Invocations per workgroup of the four kernels (`local_size_x`).
+const GROUP: u32 = 64;
+/// Workgroups along x of one dispatch at most; more go along y.
+const MAX_GROUPS_X: u32 = 65535;
+
+/// Where the passes between orders run, and why.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EndOfOrder {
+    /// On the device: the fields cross the bus at checkpoints and at the end only.
+    Device,
+    /// On the host: the sweeps stream, so the fields are on the host anyway.
+    HostStreamed,
+    /// On the host: the plan has a pass the device does not run (acceleration, diffusion
+    /// correction, per-voxel albedo).
+    HostPlan,
+    /// On the host: the device lacks `shaderFloat64` or `shaderInt64`.
+    HostNoFloat64,
+    /// On the host: a warm start's first commit takes its guess back off (decided at solve time).
+    HostWarmStart,
+}
+
+impl EndOfOrder {
+    /// For a resident solve of `plan` on a device with `limits`.
+    pub fn choose(plan: &Plan, limits: &Limits) -> EndOfOrder {
+        if !limits.float64 {
+            EndOfOrder::HostNoFloat64
+        } else if plan.acceleration
+            || plan.diffusion_correction.iter().any(|&k| k > 0.0)
+            || plan.albedo_field
+            || !plan.mirrors.is_empty()
+        {
+            EndOfOrder::HostPlan
+        } else {
+            EndOfOrder::Device
+        }
+    }
+
+    /// In words, for the report's reader.
+    pub fn describe(self) -> &'static str {
+        match self {
+            EndOfOrder::Device => {
+                "on the device: the fields stay there between orders and come home at checkpoints and at the end"
+            }
+            EndOfOrder::HostStreamed => "on the host: the sweeps stream the fields through it",
+            EndOfOrder::HostPlan => {
+                "on the host, with the fields brought home every order: the plan accelerates, corrects diffusion or scales the albedo per voxel, which the device's passes do not"
+            }
+            EndOfOrder::HostNoFloat64 => {
+                "on the host, with the fields brought home every order: the device lacks shaderFloat64 or shaderInt64"
+            }
+            EndOfOrder::HostWarmStart => {
+                "on the host, with the fields brought home every order: a warm start's first commit runs there"
+            }
+        }
+    }
+}
+
+/// One block's sums. Keep in sync with `BlockSum` in glsl/block_sums.comp.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct BlockSum {
+    pub abs_sum: f64,
+    pub max_abs_bits: u32,
+    pub pad: u32,
+}
+const _: () = assert!(std::mem::size_of::<BlockSum>() as u64 == BLOCK_SUM_BYTES);
+
+/// One brick's tally. Keep in sync with `UnitTally` in glsl/remaining.comp.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct GpuUnitTally {
+    pub brightest: f64,
+    pub sum_sq: f64,
+    pub max_e_bits: u32,
+    pub count: u32,
+    pub pad: [u32; 2],
+}
+const _: () = assert!(std::mem::size_of::<GpuUnitTally>() as u64 == UNIT_TALLY_BYTES);
+
+/// Push constants of the four kernels. Keep in sync with `Push` in glsl/block_sums.comp,
+/// commit.comp, to_half.comp and remaining.comp.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct EndPush {
+    pub count: u32,
+    pub groups_x: u32,
+    pub mode: u32,
+    /// to_half: the f16 scale's exponent; remaining: the channels.
+    pub exponent: i32,
+    pub factor: [f64; 3],
+    pub dark_floor: f64,
+}
+const _: () = assert!(std::mem::size_of::<EndPush>() == 48);
+
+/// Adds one block's Σ|J| to the order's scattered power: the commit's accounting, shared by the
+/// host's pass and the device's so that both give the same bits.
+pub fn block_power(plan: &Plan, power: &mut [f64; 3], block: usize, sum: f64) {
+    let c = plan.channels as usize;
+    let k = block % plan.source_components() as usize;
+    power[k % c] += plan.storage.solid_angle[k / c] * plan.voxel_size.powi(3) * sum;
+}
+
+/// The kernels and their descriptor sets over the resident buffers.
+pub struct EndPasses {
+    source_sums: Owned<DescriptorSet>,
+    commit_source: Owned<DescriptorSet>,
+    commit_fluence: Owned<DescriptorSet>,
+    /// `None` when the source is stored at f32 (the next order's previous source is a copy).
+    to_half: Option<Owned<DescriptorSet>>,
+    remaining: Owned<DescriptorSet>,
+    /// Values (source, fluence) and blocks of the source; bricks.
+    source_values: u32,
+    fluence_values: u32,
+    blocks: u32,
+    bricks: u32,
+    /// Declared after the sets, so freed after them.
+    block_sums_pipeline: Owned<ComputePipeline>,
+    commit_pipeline: Owned<ComputePipeline>,
+    to_half_pipeline: Owned<ComputePipeline>,
+    remaining_pipeline: Owned<ComputePipeline>,
+}
+
+/// What a commit on the device found: the order's scattered power per channel, and the largest
+/// |J| of its new source (the next order's f16 scale).
+pub struct Committed {
+    pub power: [f64; 3],
+    pub max_abs: f32,
+}
+
+impl EndPasses {
+    /// The pipelines and the sets over `resident`, which holds `occupied` bricks.
+    pub fn new(ctx: &Arc<Context>, plan: &Plan, resident: &ResidentBuffers, occupied: u64) -> Result<Self, SolveError> {
+        let Some(totals) = resident.totals.as_ref() else {
+            return Err(SolveError::Internal("the device's end of order without resident totals"));
+        };
+        let push = std::mem::size_of::<EndPush>() as u32;
+        let pipeline = |name, spv, bindings| -> Result<Owned<ComputePipeline>, SolveError> {
+            Ok(Owned::new(ctx, ctx.create_compute_pipeline(name, spv, bindings, push)?))
+        };
+        let block_sums_pipeline = pipeline("block sums", BLOCK_SUMS_SPV, 2)?;
+        let commit_pipeline = pipeline("commit", COMMIT_SPV, 2)?;
+        let to_half_pipeline = pipeline("to half", TO_HALF_SPV, 2)?;
+        let remaining_pipeline = pipeline("remaining", REMAINING_SPV, 4)?;
+        let set = |name: &str, p: &ComputePipeline, buffers: &[&Buffer]| -> Result<Owned<DescriptorSet>, SolveError> {
+            let ranges: Vec<BufferRange> = buffers.iter().map(|&b| BufferRange::from(b)).collect();
+            Ok(Owned::new(ctx, ctx.create_descriptor_set(name, p, &ranges)?))
+        };
+        let TotalBuffers { source_total, fluence_total, block_sums, unit_tallies } = totals;
+        let (comps, c) = (plan.source_components() as u64, plan.channels as u64);
+        let count = |n: u64| {
+            u32::try_from(n).map_err(|_| SolveError::Internal("more resident values than a dispatch can reach"))
+        };
+        let voxels = occupied * crate::store::BRICK_VOXELS as u64;
+        Ok(EndPasses {
+            source_sums: set("block sums", &block_sums_pipeline, &[&resident.source_next, block_sums])?,
+            commit_source: set("commit source", &commit_pipeline, &[source_total, &resident.source_next])?,
+            commit_fluence: set("commit fluence", &commit_pipeline, &[fluence_total, &resident.fluence])?,
+            to_half: match plan.source_precision {
+                Precision::F16 => {
+                    Some(set("to half", &to_half_pipeline, &[&resident.source_prev, &resident.source_next])?)
+                }
+                Precision::F32 => None,
+            },
+            remaining: set(
+                "remaining",
+                &remaining_pipeline,
+                &[&resident.density, fluence_total, &resident.fluence, unit_tallies],
+            )?,
+            source_values: count(voxels * comps)?,
+            fluence_values: count(voxels * c)?,
+            blocks: count(occupied * comps)?,
+            bricks: count(occupied)?,
+            block_sums_pipeline,
+            commit_pipeline,
+            to_half_pipeline,
+            remaining_pipeline,
+        })
+    }
+
+    /// Records one dispatch over `count` invocations.
+    fn dispatch(
+        rec: &mut Recorder,
+        pipeline: &ComputePipeline,
+        set: &DescriptorSet,
+        count: u32,
+        mut push: EndPush,
+    ) -> Result<(), SolveError> {
+        let groups = count.div_ceil(GROUP).max(1);
+        let groups_x = groups.min(MAX_GROUPS_X);
+        push.count = count;
+        push.groups_x = groups_x;
+        rec.bind(pipeline, set)?;
+        rec.dispatch_bound(pipeline, bytemuck::bytes_of(&push), [groups_x, groups.div_ceil(groups_x), 1])?;
+        Ok(())
+    }
+
+    /// Commits the order the sweeps just finished: the new source's block sums, then the new
+    /// source and the fluence added into the totals. Waits, and returns the power and the
+    /// largest value.
+    pub fn commit(
+        &self,
+        streamer: &mut SliceStreamer,
+        plan: &Plan,
+        totals: &TotalBuffers,
+    ) -> Result<Committed, SolveError> {
+        let ctx = Arc::clone(streamer.context());
+        let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "commit on the device")?;
+        rec.compute_to_compute();
+        rec.transfer_to_compute();
+        let push = EndPush::default();
+        Self::dispatch(&mut rec, &self.block_sums_pipeline, &self.source_sums, self.blocks, push)?;
+        Self::dispatch(&mut rec, &self.commit_pipeline, &self.commit_source, self.source_values, push)?;
+        Self::dispatch(&mut rec, &self.commit_pipeline, &self.commit_fluence, self.fluence_values, push)?;
+        rec.compute_to_host();
+        streamer.submit_and_wait(rec)?;
+        let sums: &[BlockSum] = readback(&totals.block_sums, self.blocks as usize)?;
+        let mut power = [0.0; 3];
+        let mut max_bits = 0u32;
+        for (block, s) in sums.iter().enumerate() {
+            block_power(plan, &mut power, block, s.abs_sum);
+            max_bits = max_bits.max(s.max_abs_bits);
+        }
+        Ok(Committed { power, max_abs: f32::from_bits(max_bits) })
+    }
+
+    /// Records the start of an order after a commit on the device: the new source becomes the
+    /// previous one (rounded to f16 with 2^`half_exponent` when stored so), and the order's
+    /// accumulators are cleared.
+    pub fn record_advance(
+        &self,
+        rec: &mut Recorder,
+        resident: &ResidentBuffers,
+        half_exponent: Option<i32>,
+    ) -> Result<(), SolveError> {
+        rec.compute_to_compute();
+        rec.compute_to_transfer();
+        match (&self.to_half, half_exponent) {
+            (Some(set), Some(exponent)) => {
+                let push = EndPush { exponent, ..EndPush::default() };
+                Self::dispatch(rec, &self.to_half_pipeline, set, self.source_values / 2, push)?;
+                rec.compute_to_transfer();
+            }
+            (None, None) => {
+                let size = resident.source_next.size();
+                rec.copy_buffer(
+                    &resident.source_next,
+                    &resident.source_prev,
+                    &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size }],
+                );
+                rec.transfer_to_transfer();
+            }
+            _ => return Err(SolveError::Internal("the f16 scale does not match the plan's precision")),
+        }
+        rec.fill_buffer(&resident.source_next, 0, vk::WHOLE_SIZE, 0);
+        rec.fill_buffer(&resident.fluence, 0, vk::WHOLE_SIZE, 0);
+        rec.transfer_to_compute();
+        Ok(())
+    }
+
+    /// The stop rule's remaining error after a commit on the device, for the tail `factor` per
+    /// channel: the brightest fluence brick by brick, then each brick's tally under its dark floor,
+    /// added up in brick order as the host's pass adds its units.
+    pub fn remaining(
+        &self,
+        streamer: &mut SliceStreamer,
+        plan: &Plan,
+        totals: &TotalBuffers,
+        factor: [f64; 3],
+    ) -> Result<RemainingError, SolveError> {
+        let ctx = Arc::clone(streamer.context());
+        let push = EndPush { exponent: plan.channels as i32, factor, ..EndPush::default() };
+        let mut run = |mode: u32, dark_floor: f64| -> Result<Vec<GpuUnitTally>, SolveError> {
+            let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "remaining error on the device")?;
+            rec.compute_to_compute();
+            let push = EndPush { mode, dark_floor, ..push };
+            Self::dispatch(&mut rec, &self.remaining_pipeline, &self.remaining, self.bricks, push)?;
+            rec.compute_to_host();
+            streamer.submit_and_wait(rec)?;
+            Ok(readback::<GpuUnitTally>(&totals.unit_tallies, self.bricks as usize)?.to_vec())
+        };
+        let brightest = run(0, 0.0)?.iter().map(|t| t.brightest).fold(0.0, f64::max);
+        let tallies = run(1, remaining::dark_floor(brightest))?;
+        Ok(remaining::finish(tallies.iter().map(|t| UnitTally {
+            sum_sq: t.sum_sq,
+            max: f32::from_bits(t.max_e_bits) as f64,
+            count: t.count as u64,
+        })))
+    }
+}
+
+/// The first `n` values of a buffer the kernels wrote, as the host sees it (after a wait).
+fn readback<T: Pod>(buffer: &Buffer, n: usize) -> Result<&[T], SolveError> {
+    let bytes = buffer.mapped().ok_or(SolveError::Internal("an end-of-order sum buffer is not host-visible"))?;
+    let bytes = bytes
+        .get(..n * std::mem::size_of::<T>())
+        .ok_or(SolveError::Internal("an end-of-order sum buffer is smaller than its values"))?;
+    Ok(bytemuck::cast_slice(bytes))
+}
+
+/// Which way [`transfer_field`] copies.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub enum Direction {
+    ToDevice,
+    ToHost,
+}
+
+/// Copies a whole field between the store and its resident buffer (both hold the occupied
+/// bricks in slot order, laid out alike), through slot 0's staging, a chunk at a time. For the
+/// rare moves of the committed totals: on the first load, at checkpoints and at the end.
+pub fn transfer_field(
+    streamer: &mut SliceStreamer,
+    res: &DeviceResources,
+    field: &mut Field,
+    device: &Buffer,
+    direction: Direction,
+) -> Result<(), SolveError> {
+    let bytes: &mut [u8] = bytemuck::cast_slice_mut(field.as_mut_slice());
+    if bytes.len() as u64 > device.size() {
+        return Err(SolveError::Internal("a field is larger than its resident buffer"));
+    }
+    let slot = res.slots.first().ok_or(SolveError::Internal("no slot staging for a field's transfer"))?;
+    let staging = match direction {
+        Direction::ToDevice => &slot.upload,
+        Direction::ToHost => &slot.download,
+    };
+    let chunk = staging.size() as usize;
+    let ctx = Arc::clone(streamer.context());
+    for (i, part) in bytes.chunks_mut(chunk).enumerate() {
+        let offset = (i * chunk) as u64;
+        let size = part.len() as u64;
+        let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "resident field transfer")?;
+        rec.compute_to_transfer();
+        match direction {
+            Direction::ToDevice => {
+                // SAFETY: the staging is mapped for `chunk` bytes, and no submission uses it now:
+                // the streamer is idle between orders (every earlier use was waited for).
+                unsafe { std::ptr::copy_nonoverlapping(part.as_ptr(), staging.as_mut_ptr(), part.len()) };
+                rec.copy_buffer(staging, device, &[vk::BufferCopy { src_offset: 0, dst_offset: offset, size }]);
+                rec.transfer_to_compute();
+            }
+            Direction::ToHost => {
+                rec.copy_buffer(device, staging, &[vk::BufferCopy { src_offset: offset, dst_offset: 0, size }]);
+                rec.transfer_to_host();
+            }
+        }
+        streamer.submit_and_wait(rec)?;
+        if direction == Direction::ToHost {
+            part.copy_from_slice(&staging.bytes()[..part.len()]);
+        }
+    }
+    field.release_all();
+    Ok(())
+}
