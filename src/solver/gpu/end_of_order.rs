@@ -1,8 +1,8 @@
 //! The passes between orders on the device, for the resident mode: the fields stay there from the
 //! first order to the last, and cross the bus only at checkpoints and at the end.
 //!
-//! In the streamed mode (and the CPU twin) the host commits each order ([`OrderFieldSet::commit_order`]
-//! and the stop rule's [`OrderFieldSet::remaining_error`]), so the resident mode used to bring the
+//! In the streamed mode (and the CPU twin) the host commits each order ([`crate::solver::passes::OrderFieldSet::commit_order`]
+//! and the stop rule's [`crate::solver::passes::OrderFieldSet::remaining_error`]), so the resident mode used to bring the
 //! new source and the fluence home after every order. Here the committed totals are resident too,
 //! and four kernels do the host's work:
 //!
