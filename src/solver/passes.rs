@@ -29,7 +29,6 @@
 
 use super::acceleration::Acceleration;
 use super::antidiffusion::{self, VoxelUnits};
-use super::gpu::end_of_order::block_power;
 use super::plan::Plan;
 use super::remaining::{self, RemainingError, UnitTally};
 use super::SolveError;
@@ -659,7 +658,7 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
             release();
         }
         let floor = remaining::dark_floor(brightest);
-        let mut tallies = Vec::with_capacity(units);
+        let mut all = UnitTally::default();
         let mut parts = Vec::new();
         for first in (0..units).step_by(RELEASE_UNITS) {
             (first..(first + RELEASE_UNITS).min(units))
@@ -671,10 +670,12 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
                     tally
                 })
                 .collect_into_vec(&mut parts);
-            tallies.append(&mut parts);
+            for part in parts.drain(..) {
+                all.merge(part);
+            }
             release();
         }
-        remaining::finish(tallies)
+        all.finish()
     }
 
     /// Power emitted in order 0 and absorbed over all committed orders, per channel.
@@ -736,6 +737,14 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
         }
         (emitted, absorbed)
     }
+}
+
+/// Adds one block's Σ|J| to the order's scattered power: the commit's accounting, shared by the
+/// host's pass and the device's so that both give the same bits.
+pub fn block_power(plan: &Plan, power: &mut [f64; 3], block: usize, sum: f64) {
+    let c = plan.channels as usize;
+    let k = block % plan.source_components() as usize;
+    power[k % c] += plan.storage.solid_angle[k / c] * plan.voxel_size.powi(3) * sum;
 }
 
 /// `source[v] ·= a(v)` for every component of every voxel, in the field's precision: the sweeps

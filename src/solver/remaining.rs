@@ -48,8 +48,8 @@ pub fn dark_floor(brightest: f64) -> f64 {
 
 /// One unit's share of the remaining error (a brick of the store, a voxel of the twin), taken
 /// once the dark floor is known: a pass finds the brightest fluence first, then each unit walks
-/// its voxels. The units are added up in unit order ([`finish`]), so the result does not depend
-/// on how they were spread over threads, and the GPU's resident mode, whose kernel tallies a
+/// its voxels. The units are merged in unit order ([`UnitTally::merge`]), so the result does not
+/// depend on how they were spread over threads, and the GPU's resident mode, whose kernel tallies a
 /// brick per invocation in the same walk, gives the same bits (`glsl/remaining.comp`).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct UnitTally {
@@ -82,15 +82,28 @@ impl UnitTally {
     }
 }
 
-/// The remaining error over the units' tallies, added up in the order given.
-pub fn finish(units: impl IntoIterator<Item = UnitTally>) -> RemainingError {
-    let (mut max, mut sum, mut n) = (0.0f64, 0.0f64, 0u64);
-    for unit in units {
-        max = max.max(unit.max);
-        sum += unit.sum_sq;
-        n += unit.count;
+impl UnitTally {
+    /// Adds the tally of the unit after the ones this one holds (units merge in unit order).
+    pub fn merge(&mut self, later: UnitTally) {
+        self.max = self.max.max(later.max);
+        self.sum_sq += later.sum_sq;
+        self.count += later.count;
     }
-    RemainingError { max, l2: if n > 0 { (sum / n as f64).sqrt() } else { 0.0 } }
+
+    /// The remaining error over the units merged into this tally.
+    pub fn finish(&self) -> RemainingError {
+        let l2 = if self.count > 0 { (self.sum_sq / self.count as f64).sqrt() } else { 0.0 };
+        RemainingError { max: self.max, l2 }
+    }
+}
+
+/// The remaining error over the units' tallies, merged in the order given.
+pub fn finish(units: impl IntoIterator<Item = UnitTally>) -> RemainingError {
+    let mut all = UnitTally::default();
+    for unit in units {
+        all.merge(unit);
+    }
+    all.finish()
 }
 
 /// The tail factor ρ/(1 − ρ) for ratio `rho` (∞ unless 0 ≤ ρ < 1).

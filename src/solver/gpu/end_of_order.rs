@@ -32,6 +32,7 @@ use super::owned::Owned;
 use super::resources::{DeviceResources, ResidentBuffers, TotalBuffers};
 use super::sizes::{BLOCK_SUM_BYTES, UNIT_TALLY_BYTES};
 use super::streamer::SliceStreamer;
+use crate::solver::passes::block_power;
 use crate::solver::plan::{Plan, Precision};
 use crate::solver::remaining::{self, RemainingError, UnitTally};
 use crate::solver::SolveError;
@@ -74,11 +75,7 @@ impl EndOfOrder {
     pub fn choose(plan: &Plan, limits: &Limits) -> EndOfOrder {
         if !limits.float64 {
             EndOfOrder::HostNoFloat64
-        } else if plan.acceleration
-            || plan.diffusion_correction.iter().any(|&k| k > 0.0)
-            || plan.albedo_field
-            || !plan.mirrors.is_empty()
-        {
+        } else if plan.acceleration || plan.diffusion_correction.iter().any(|&k| k > 0.0) || plan.albedo_field {
             EndOfOrder::HostPlan
         } else {
             EndOfOrder::Device
@@ -141,14 +138,6 @@ pub struct EndPush {
     pub dark_floor: f64,
 }
 const _: () = assert!(std::mem::size_of::<EndPush>() == 48);
-
-/// Adds one block's Σ|J| to the order's scattered power: the commit's accounting, shared by the
-/// host's pass and the device's so that both give the same bits.
-pub fn block_power(plan: &Plan, power: &mut [f64; 3], block: usize, sum: f64) {
-    let c = plan.channels as usize;
-    let k = block % plan.source_components() as usize;
-    power[k % c] += plan.storage.solid_angle[k / c] * plan.voxel_size.powi(3) * sum;
-}
 
 /// The kernels and their descriptor sets over the resident buffers.
 pub struct EndPasses {
@@ -349,7 +338,7 @@ fn readback<T: Pod>(buffer: &Buffer, n: usize) -> Result<&[T], SolveError> {
 
 /// Which way [`transfer_field`] copies.
 #[derive(Clone, Copy, PartialEq, Eq)]
-pub enum Direction {
+pub enum Transfer {
     ToDevice,
     ToHost,
 }
@@ -362,7 +351,7 @@ pub fn transfer_field(
     res: &DeviceResources,
     field: &mut Field,
     device: &Buffer,
-    direction: Direction,
+    direction: Transfer,
 ) -> Result<(), SolveError> {
     let bytes: &mut [u8] = bytemuck::cast_slice_mut(field.as_mut_slice());
     if bytes.len() as u64 > device.size() {
@@ -370,8 +359,8 @@ pub fn transfer_field(
     }
     let slot = res.slots.first().ok_or(SolveError::Internal("no slot staging for a field's transfer"))?;
     let staging = match direction {
-        Direction::ToDevice => &slot.upload,
-        Direction::ToHost => &slot.download,
+        Transfer::ToDevice => &slot.upload,
+        Transfer::ToHost => &slot.download,
     };
     let chunk = staging.size() as usize;
     let ctx = Arc::clone(streamer.context());
@@ -381,20 +370,20 @@ pub fn transfer_field(
         let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "resident field transfer")?;
         rec.compute_to_transfer();
         match direction {
-            Direction::ToDevice => {
+            Transfer::ToDevice => {
                 // SAFETY: the staging is mapped for `chunk` bytes, and no submission uses it now:
                 // the streamer is idle between orders (every earlier use was waited for).
                 unsafe { std::ptr::copy_nonoverlapping(part.as_ptr(), staging.as_mut_ptr(), part.len()) };
                 rec.copy_buffer(staging, device, &[vk::BufferCopy { src_offset: 0, dst_offset: offset, size }]);
                 rec.transfer_to_compute();
             }
-            Direction::ToHost => {
+            Transfer::ToHost => {
                 rec.copy_buffer(device, staging, &[vk::BufferCopy { src_offset: offset, dst_offset: 0, size }]);
                 rec.transfer_to_host();
             }
         }
         streamer.submit_and_wait(rec)?;
-        if direction == Direction::ToHost {
+        if direction == Transfer::ToHost {
             part.copy_from_slice(&staging.bytes()[..part.len()]);
         }
     }

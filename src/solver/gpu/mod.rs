@@ -93,7 +93,7 @@ use crate::store::BrickStore;
 use crate::vk::{Context, Recorder};
 use ash::vk;
 use budget::MemoryPlan;
-use end_of_order::{Direction, EndOfOrder, EndPasses};
+use end_of_order::{EndOfOrder, EndPasses, Transfer};
 use layout::{FLAG_BOUNDARY, FLAG_CARRY, FLAG_EMIT, FLAG_GAIN};
 use resources::DeviceResources;
 use std::sync::Arc;
@@ -690,7 +690,7 @@ impl GpuBackend<'_> {
             self.streamer.load_resident(&mut io, self.half_exponent, !self.density_loaded, seeded)?;
             self.density_loaded = true;
             if self.end_passes.is_some() {
-                self.move_totals(Direction::ToDevice)?;
+                self.load_totals()?;
             }
         }
         let mut tallies = Tallies::default();
@@ -734,14 +734,17 @@ impl GpuBackend<'_> {
         self.streamer.submit_and_wait(rec)
     }
 
-    /// Moves the committed totals between the store and the device: up with the first load of a
-    /// solve, home with the rest of the device's state ([`Self::bring_home`]).
-    fn move_totals(&mut self, direction: Direction) -> Result<(), SolveError> {
+    /// Puts the committed totals on the device, with the first load of a solve (a resumed one's
+    /// are not zero); they come home with the rest of the device's state ([`Self::bring_home`]).
+    fn load_totals(&mut self) -> Result<(), SolveError> {
         let (_, _, totals) = device_end(&self.end_passes, &self.resources)?;
-        let (source, fluence) = (&totals.source_total, &totals.fluence_total);
         let fields = &mut *self.fields;
-        end_of_order::transfer_field(&mut self.streamer, &self.resources, &mut fields.source_total, source, direction)?;
-        end_of_order::transfer_field(&mut self.streamer, &self.resources, &mut fields.fluence_total, fluence, direction)
+        for (field, buffer) in
+            [(&mut fields.source_total, &totals.source_total), (&mut fields.fluence_total, &totals.fluence_total)]
+        {
+            end_of_order::transfer_field(&mut self.streamer, &self.resources, field, buffer, Transfer::ToDevice)?;
+        }
+        Ok(())
     }
 
     /// Brings the state the device committed home, for a checkpoint or the end of the solve: the
@@ -756,10 +759,10 @@ impl GpuBackend<'_> {
         let res = &self.resources;
         self.fields.take_device_commit(|source_total, fluence_total, source_next, fluence| {
             use end_of_order::transfer_field as to_host;
-            to_host(streamer, res, source_total, &totals.source_total, Direction::ToHost)?;
-            to_host(streamer, res, fluence_total, &totals.fluence_total, Direction::ToHost)?;
-            to_host(streamer, res, source_next, &resident.source_next, Direction::ToHost)?;
-            to_host(streamer, res, fluence, &resident.fluence, Direction::ToHost)
+            to_host(streamer, res, source_total, &totals.source_total, Transfer::ToHost)?;
+            to_host(streamer, res, fluence_total, &totals.fluence_total, Transfer::ToHost)?;
+            to_host(streamer, res, source_next, &resident.source_next, Transfer::ToHost)?;
+            to_host(streamer, res, fluence, &resident.fluence, Transfer::ToHost)
         })?;
         self.device_state = DeviceState::Committed { max_abs, home: true };
         Ok(())
