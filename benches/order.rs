@@ -52,6 +52,7 @@ fn bench_scene() -> Scene {
             forward_peak: ForwardPeak::default(),
             diffusion_correction: DiffusionCorrection::default(),
             acceleration: Acceleration::default(),
+            diffusion_cells: None,
             checkpoint: Default::default(),
             device_residency: Default::default(),
         },

@@ -119,6 +119,7 @@ pub(crate) struct RawSolver {
     pub forward_peak: Option<String>,
     pub diffusion_correction: Option<String>,
     pub acceleration: Option<String>,
+    pub diffusion_cells: Option<i64>,
     pub device_residency: Option<String>,
     pub checkpoint_every_orders: Option<i64>,
     pub checkpoint_every_seconds: Option<f64>,

@@ -298,6 +298,9 @@ pub struct SolverSettings {
     /// Whether the order series is accelerated by a diffusion correction (`solver.acceleration`,
     /// see `solver::acceleration`).
     pub acceleration: Acceleration,
+    /// The most cells the acceleration's diffusion grid may have (`solver.diffusion_cells`; the
+    /// cells grow by powers of two until the grid fits). `None`: `solver::acceleration::MAX_CELLS`.
+    pub diffusion_cells: Option<u32>,
     /// When the GPU backend checkpoints (`solver.checkpoint_every_orders`, `…_seconds`).
     pub checkpoint: CheckpointCadence,
     /// Whether the GPU backend may keep the medium and fields on the device for the whole solve

@@ -68,6 +68,9 @@ const SPATIAL_SCHEMES: &str = "\"auto\", \"constant\", \"linear\"";
 const FORWARD_PEAKS: &str = "\"auto\", \"delta-m\", \"keep\"";
 const DIFFUSION_CORRECTIONS: &str = "\"on\", \"off\"";
 const ACCELERATIONS: &str = "\"auto\", \"diffusion\", \"off\"";
+/// The most `solver.diffusion_cells` may ask for (8 × the default): the grid's operator and the
+/// conjugate gradients' vectors take about 250 bytes a cell and channel on the host.
+const MAX_DIFFUSION_CELLS: u32 = 1 << 23;
 const DEVICE_RESIDENCIES: &str = "\"auto\", \"streamed\"";
 
 pub(crate) struct Validator<'a> {
@@ -642,6 +645,7 @@ impl Validator<'_> {
                 forward_peak: ForwardPeak::default(),
                 diffusion_correction: DiffusionCorrection::default(),
                 acceleration: Acceleration::default(),
+                diffusion_cells: None,
                 checkpoint: CheckpointCadence::default(),
                 device_residency: DeviceResidency::default(),
             });
@@ -772,6 +776,10 @@ impl Validator<'_> {
                 "\"diffusion\" and solver.extrapolate_tail = true are two ways to the same end; choose one",
             ));
         }
+        let diffusion_cells = match s.diffusion_cells {
+            None => None,
+            Some(n) => Some(self.int_range("solver.diffusion_cells", n, 1, MAX_DIFFUSION_CELLS)?),
+        };
         let device_residency = match s.device_residency.as_deref() {
             None | Some("auto") => DeviceResidency::Auto,
             Some("streamed") => DeviceResidency::Streamed,
@@ -812,6 +820,7 @@ impl Validator<'_> {
             forward_peak,
             diffusion_correction,
             acceleration,
+            diffusion_cells,
             checkpoint: CheckpointCadence { every_orders, every_seconds },
             device_residency,
         })

@@ -31,9 +31,9 @@
 //! it with the unpropagated source ([`Acceleration::pending_power`]), so the balance stays exact.
 //!
 //! **Grid.** The diffusion unknowns are cells of e³ voxels holding medium, e the smallest power of
-//! two that keeps the cell grid within [`MAX_CELLS`] (e = 1 up to 2²⁰ voxels, about 101³): their σt, σs are
-//! the means over the cell, the correction is prolonged piecewise constant onto the cell's medium
-//! voxels. Cells without medium, and the volume's faces, are vacuum to the diffusion (light that
+//! two that keeps the cell grid within `solver.diffusion_cells` cells (by default [`MAX_CELLS`]:
+//! e = 1 up to 2²⁰ voxels, about 101³): their σt, σs are the means over the cell, the correction
+//! is prolonged piecewise constant onto the cell's medium voxels. Cells without medium, and the volume's faces, are vacuum to the diffusion (light that
 //! crosses a hole and comes back is left to the transport). The equation is solved per channel
 //! with Jacobi-preconditioned conjugate gradients in f64.
 //!
@@ -48,8 +48,9 @@ use rayon::prelude::*;
 
 /// No neighbour (a vacuum face).
 const NONE: u32 = u32::MAX;
-/// The most cells the diffusion grid may have (the cells grow until it fits): at most ~100 MB of
-/// coefficients (RGB), and a solve per order that stays small beside a sweep of the same volume.
+/// The most cells the diffusion grid may have by default (the cells grow until it fits;
+/// `solver.diffusion_cells` sets another bound): at most ~100 MB of coefficients (RGB), and a
+/// solve per order that stays small beside a sweep of the same volume.
 pub const MAX_CELLS: usize = 1 << 20;
 /// The conjugate gradients stop at this relative residual: the correction need only be good to a
 /// small fraction of itself; later orders take out what it leaves.
@@ -72,6 +73,8 @@ pub struct Acceleration {
     cells: [u32; 3],
     /// Per cell of the grid (x fastest), its unknown, or [`NONE`] (no medium).
     unknown_of: Vec<u32>,
+    /// Per unknown, its cell.
+    cell_of_unknown: Vec<usize>,
     /// Per unknown, the unknowns across its faces −x, +x, −y, +y, −z, +z ([`NONE`]: vacuum).
     neighbours: Vec<[u32; 6]>,
     channels: usize,
@@ -102,13 +105,7 @@ impl Acceleration {
         unit_voxels: usize,
         resumed: Option<Vec<f64>>,
     ) -> Result<Acceleration, String> {
-        let dims = medium.dims();
-        let mut edge = 1u32;
-        let cells_for = |e: u32| dims.map(|d| d.div_ceil(e));
-        while cells_for(edge).iter().map(|&c| c as usize).product::<usize>() > MAX_CELLS {
-            edge *= 2;
-        }
-        let cells = cells_for(edge);
+        let (edge, cells) = grid_of(medium.dims(), plan.diffusion_cells);
         let n_cells = cells.iter().map(|&c| c as usize).product::<usize>();
         let c = plan.channels as usize;
         let mut unknown_of = vec![NONE; n_cells];
@@ -193,6 +190,7 @@ impl Acceleration {
             edge,
             cells,
             unknown_of,
+            cell_of_unknown,
             neighbours,
             channels: c,
             diag,
@@ -215,7 +213,9 @@ impl Acceleration {
 
     /// Folds the correction into an order (see the module docs): from the order's fluence and
     /// scattered source, solves for the new correction f and adds f − f_prev to the fluence and
-    /// σs·(f − f_prev)/4π to every storage direction of the source.
+    /// σs·(f − f_prev)/4π to every storage direction of the source. Three steps, the first and
+    /// the last of which the GPU's resident mode runs as kernels ([`crate::solver::gpu::accelerate`]):
+    /// [`Self::moments`], [`Self::solve`], [`Self::prolong`].
     pub fn fold<F: FieldPlanes + Sync + Send, U: VoxelUnits<V = F::V> + Medium<V = F::V>>(
         &mut self,
         plan: &Plan,
@@ -223,35 +223,52 @@ impl Acceleration {
         fluence: &mut F,
         source: &mut F,
     ) {
-        let c = self.channels;
-        let n = self.unknowns();
-        if n == 0 {
+        if self.unknowns() == 0 {
             return;
         }
+        let moment = self.moments(plan, medium, source);
+        let change = self.solve(&moment);
+        self.prolong(plan, medium, fluence, source, &change);
+    }
+
+    /// Per channel and unknown, the scattered moment Σ_k J_k Ω_k of the order's source summed
+    /// over the cell's medium voxels: unit by unit in unit order, each unit's voxels in their
+    /// order, the components in theirs (a kernel that walks a cell's units in that order gives
+    /// the same bits).
+    pub fn moments<F: FieldPlanes, U: VoxelUnits<V = F::V> + Medium<V = F::V>>(
+        &self,
+        plan: &Plan,
+        medium: &U,
+        source: &F,
+    ) -> Vec<Vec<f64>> {
+        let (c, n) = (self.channels, self.unknowns());
         let comps = source.components();
         let unit_voxels = source.unit_voxels();
         let source_len = source.unit_len();
-        let units = source.units();
         let solid_angle = &plan.storage.solid_angle;
-        // The scattered moment Σ_k J_k Ω_k of the order's source, summed per cell (in unit order).
         let mut moment = vec![vec![0.0; n]; c];
-        {
-            let values = source.values();
-            for unit in 0..units {
-                let block = &values[unit * source_len..(unit + 1) * source_len];
-                for local in 0..unit_voxels {
-                    let Some(u) = self.unknown_at(plan, medium, unit, local).map(|v| v.unknown as usize) else {
-                        continue;
-                    };
-                    for k in 0..comps {
-                        moment[k % c][u] += solid_angle[k / c] * block[k * unit_voxels + local].to_f64();
-                    }
-                }
-                if (unit + 1) % RELEASE_UNITS == 0 {
-                    source.release(unit + 1 - RELEASE_UNITS, RELEASE_UNITS);
+        let values = source.values();
+        for unit in 0..source.units() {
+            let block = &values[unit * source_len..(unit + 1) * source_len];
+            for local in 0..unit_voxels {
+                let Some(u) = self.unknown_at(plan, medium, unit, local).map(|v| v.unknown as usize) else {
+                    continue;
+                };
+                for k in 0..comps {
+                    moment[k % c][u] += solid_angle[k / c] * block[k * unit_voxels + local].to_f64();
                 }
             }
+            if (unit + 1) % RELEASE_UNITS == 0 {
+                source.release(unit + 1 - RELEASE_UNITS, RELEASE_UNITS);
+            }
         }
+        moment
+    }
+
+    /// Solves for the new correction from the order's [`Self::moments`] and keeps it; returns
+    /// per channel and unknown its change f − f_prev, what [`Self::prolong`] adds.
+    pub fn solve(&mut self, moment: &[Vec<f64>]) -> Vec<Vec<f64>> {
+        let (c, n) = (self.channels, self.unknowns());
         let cell_voxels = f64::from(self.edge).powi(3);
         let mut change = Vec::with_capacity(c);
         let mut iterations = 0;
@@ -266,10 +283,26 @@ impl Acceleration {
             self.correction[ch] = f;
         }
         tracing::debug!(unknowns = n, cell_edge = self.edge, iterations, "diffusion correction solved");
-        let four_pi: f64 = solid_angle.iter().sum();
+        change
+    }
+
+    /// Adds `change` (per channel and unknown) to each medium voxel's fluence, and its scattered
+    /// share σs·change/4π to every storage direction of the voxel's source.
+    pub fn prolong<F: FieldPlanes + Sync + Send, U: VoxelUnits<V = F::V> + Medium<V = F::V>>(
+        &self,
+        plan: &Plan,
+        medium: &U,
+        fluence: &mut F,
+        source: &mut F,
+        change: &[Vec<f64>],
+    ) {
+        let c = self.channels;
+        let comps = source.components();
+        let unit_voxels = source.unit_voxels();
+        let source_len = source.unit_len();
+        let units = source.units();
+        let four_pi = four_pi(plan);
         let fluence_len = fluence.unit_len();
-        let this = &*self;
-        let change = &change;
         let mut first = 0;
         while first < units {
             let count = RELEASE_UNITS.min(units - first);
@@ -279,7 +312,7 @@ impl Acceleration {
                 |(i, (phi, src))| {
                     let unit = first + i;
                     for local in 0..unit_voxels {
-                        let Some(v) = this.unknown_at(plan, medium, unit, local) else { continue };
+                        let Some(v) = self.unknown_at(plan, medium, unit, local) else { continue };
                         for ch in 0..c {
                             let g = change[ch][v.unknown as usize];
                             let at = ch * unit_voxels + local;
@@ -298,6 +331,26 @@ impl Acceleration {
             first += count;
         }
         medium.release_all();
+    }
+
+    /// Voxels per cell edge.
+    pub fn edge(&self) -> u32 {
+        self.edge
+    }
+
+    /// Cells of the grid along each axis.
+    pub fn cells(&self) -> [u32; 3] {
+        self.cells
+    }
+
+    /// Per cell of the grid (x fastest), its unknown, or `u32::MAX` (no medium).
+    pub fn unknown_of(&self) -> &[u32] {
+        &self.unknown_of
+    }
+
+    /// Per unknown, its cell (x fastest).
+    pub fn cell_of_unknown(&self) -> &[usize] {
+        &self.cell_of_unknown
     }
 
     /// Per channel, the power the last correction added that no transport has carried yet:
@@ -340,9 +393,7 @@ fn voxel<U: VoxelUnits + Medium<V = <U as VoxelUnits>::V>>(
     local: usize,
 ) -> Option<MediumVoxel> {
     let rho = medium.density_at(unit, local).to_f64();
-    if !(rho > 0.0)
-        || (0..plan.channels as usize).any(|ch| rho * plan.coefficients(ch).0 * plan.voxel_size > MAX_VOXEL_DEPTH)
-    {
+    if !in_grid(plan, rho) {
         return None;
     }
     let a = Medium::albedo(medium, unit).map_or(1.0, |a| a[local].to_f64());
@@ -356,7 +407,32 @@ fn voxel<U: VoxelUnits + Medium<V = <U as VoxelUnits>::V>>(
     Some(MediumVoxel { position: medium.voxel_of(unit, local), extinction, scatter })
 }
 
-fn cell_index(cells: [u32; 3], at: [u32; 3]) -> usize {
+/// The cell edge (voxels, a power of two) and the cells per axis of the diffusion grid of a volume
+/// of `dims` voxels: the smallest edge that keeps the grid within `max_cells` (the plan's
+/// `diffusion_cells`, by default [`MAX_CELLS`]).
+pub fn grid_of(dims: [u32; 3], max_cells: usize) -> (u32, [u32; 3]) {
+    let mut edge = 1u32;
+    let cells_for = |e: u32| dims.map(|d| d.div_ceil(e));
+    while cells_for(edge).iter().map(|&c| c as usize).product::<usize>() > max_cells {
+        edge *= 2;
+    }
+    (edge, cells_for(edge))
+}
+
+/// Σ Ω over the storage directions (4π up to rounding), summed in their order.
+pub fn four_pi(plan: &Plan) -> f64 {
+    plan.storage.solid_angle.iter().sum()
+}
+
+/// Whether a voxel of density `rho` takes part in the diffusion grid: it holds medium and is no
+/// thicker than [`MAX_VOXEL_DEPTH`] in any channel. (`glsl/diffusion_moments.comp` and
+/// `diffusion_prolong.comp` test it alike.)
+pub fn in_grid(plan: &Plan, rho: f64) -> bool {
+    rho > 0.0
+        && !(0..plan.channels as usize).any(|ch| rho * plan.coefficients(ch).0 * plan.voxel_size > MAX_VOXEL_DEPTH)
+}
+
+pub(crate) fn cell_index(cells: [u32; 3], at: [u32; 3]) -> usize {
     let [nx, ny, _] = cells.map(|c| c as usize);
     at[0] as usize + nx * (at[1] as usize + ny * at[2] as usize)
 }

@@ -410,19 +410,7 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
         if units.has_albedo() {
             scale_by_albedo(&mut self.source_next, units);
         }
-        // A warm start's first order still holds the guess in its new source: it is accelerated
-        // from the next order on, once the commit has made the source a residual.
-        if plan.acceleration && !self.initial_guess {
-            if self.acceleration.is_none() {
-                let resumed = self.resumed_correction.take();
-                let (path, values) = resumed.map_or((None, None), |(p, v)| (Some(p), Some(v)));
-                let grid = Acceleration::build(plan, units, self.fluence.units(), self.fluence.unit_voxels(), values)
-                    .map_err(|why| {
-                    tracing::error!("{why}");
-                    SolveError::CheckpointMismatch { path: path.unwrap_or_default() }
-                })?;
-                self.acceleration = Some(grid);
-            }
+        if self.acceleration_due(plan, units)? {
             if let Some(acceleration) = self.acceleration.as_mut() {
                 acceleration.fold(plan, units, &mut self.fluence, &mut self.source_next);
             }
@@ -471,6 +459,32 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
         self.clean = false;
         self.seeded = false;
         Ok(power)
+    }
+
+    /// Whether this order's commit folds in the diffusion acceleration (the plan accelerates,
+    /// and this is not a warm start's first order, whose new source still holds the guess: it is
+    /// accelerated from the next order on, once the commit has made the source a residual). The
+    /// grid, in `self.acceleration`, is built at the first such commit, with a resumed solve's
+    /// last correction.
+    pub fn acceleration_due<U: VoxelUnits<V = F::V> + Medium<V = F::V>>(
+        &mut self,
+        plan: &Plan,
+        units: &U,
+    ) -> Result<bool, SolveError> {
+        if !plan.acceleration || self.initial_guess {
+            return Ok(false);
+        }
+        if self.acceleration.is_none() {
+            let resumed = self.resumed_correction.take();
+            let (path, values) = resumed.map_or((None, None), |(p, v)| (Some(p), Some(v)));
+            let grid = Acceleration::build(plan, units, self.fluence.units(), self.fluence.unit_voxels(), values)
+                .map_err(|why| {
+                    tracing::error!("{why}");
+                    SolveError::CheckpointMismatch { path: path.unwrap_or_default() }
+                })?;
+            self.acceleration = Some(grid);
+        }
+        Ok(true)
     }
 
     /// The diffusion correction ([`antidiffusion::sharpen_increment`]): the change C(T + S) − C(T)

@@ -189,6 +189,8 @@ pub struct Plan {
     /// Each order is followed by a diffusion correction of the light still to come
     /// (`solver.acceleration`, [`super::acceleration`]).
     pub acceleration: bool,
+    /// The most cells the acceleration's diffusion grid may have (`solver.diffusion_cells`).
+    pub diffusion_cells: usize,
     /// The scene's Henyey–Greenstein g (the medium above holds the mean cosine of the one solved,
     /// after δ-M).
     pub phase_g: f64,
@@ -548,6 +550,7 @@ impl Plan {
             spatial,
             diffusion_correction,
             acceleration,
+            diffusion_cells: scene.solver.diffusion_cells.map_or(super::acceleration::MAX_CELLS, |n| n as usize),
             phase_g: scene.medium.g,
             phase,
             effective_g,

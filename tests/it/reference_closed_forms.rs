@@ -38,6 +38,7 @@ fn scene(dims: [u32; 3], h: f64, sigma_t: f64, albedo: f64, g: f64, emission: f6
             forward_peak: ForwardPeak::Auto,
             diffusion_correction: DiffusionCorrection::Off,
             acceleration: Acceleration::Auto,
+            diffusion_cells: None,
             checkpoint: Default::default(),
             device_residency: Default::default(),
         },

@@ -79,16 +79,42 @@ fn the_device_commits_the_orders_as_the_host_does() {
     assert_eq!(resident_equals_streamed("device-stop", &stop), EndOfOrder::Device);
 }
 
-/// An accelerated plan keeps the host's passes (the device has no diffusion solve) and says so.
+/// The diffusion acceleration on the device: its kernels restrict each order's source to the
+/// grid and prolong the correction bitwise as the host does, for cells of one voxel, cells inside
+/// a brick, cells the size of a brick and cells holding several bricks (`solver.diffusion_cells`
+/// makes them coarse), over dims no power of two, RGB, with voxels too thick for the grid.
 #[test]
-fn an_accelerated_plan_commits_on_the_host_and_says_why() {
-    let mut thick = scene(Shape::Cloud, [32, 32, 32], [2.0; 3], [0.99; 3], vec![sky(1.0)]);
+fn the_device_accelerates_the_orders_as_the_host_does() {
+    let mut thick = scene(
+        Shape::Cloud,
+        [40, 36, 44],
+        [2.4, 1.6, 1.0],
+        [0.99, 0.98, 0.995],
+        vec![sky(1.0), sun([0.3, 0.2, 1.0], [1.0; 3])],
+    );
     thick.solver.spatial = Some(SpatialScheme::Constant);
     thick.solver.acceleration = Acceleration::Diffusion;
+    thick.solver.directions_per_face = 3;
+    thick.solver.max_orders = 4;
+    thick.solver.tolerance = 1e-9;
+    // Cells of 1, 4, 16 and 32 voxels a side: (40/e)·(36/e)·(44/e) cells, rounded up.
+    for (edge, cells) in [(1, None), (4, Some(10 * 9 * 11)), (16, Some(27)), (32, Some(8))] {
+        let mut s = thick.clone();
+        s.solver.diffusion_cells = cells;
+        assert_eq!(resident_equals_streamed(&format!("device-accelerated-{edge}"), &s), EndOfOrder::Device);
+    }
+}
+
+/// A plan with a pass the device does not run (here the diffusion correction) keeps the host's
+/// passes and says so.
+#[test]
+fn a_diffusion_corrected_plan_commits_on_the_host_and_says_why() {
+    let mut thick = scene(Shape::Cloud, [32, 32, 32], [2.0; 3], [0.9; 3], vec![sky(1.0)]);
+    thick.solver.diffusion_correction = lpm::scene::DiffusionCorrection::On;
     thick.solver.max_orders = 1;
     let memory = solve("host-end", &thick, Gpu).run.memory.expect("plan");
     assert_eq!(memory.end_of_order, EndOfOrder::HostPlan, "{memory:?}");
-    assert!(memory.end_of_order_reason.contains("accelerates"), "{memory:?}");
+    assert!(memory.end_of_order_reason.contains("corrects diffusion"), "{memory:?}");
 }
 
 #[test]
@@ -108,12 +134,12 @@ fn resident_and_streamed_give_the_same_bits() {
     cloud.solver.storage_precision = StoragePrecision::F16;
     resident_equals_streamed("cloud-f16", &cloud);
 
-    // High albedo with the diffusion acceleration (the host corrects every order's source).
+    // High albedo with the diffusion acceleration (every order's source corrected).
     let mut thick = scene(Shape::Cloud, [32, 32, 32], [2.0; 3], [0.99; 3], vec![sky(1.0)]);
     thick.solver.spatial = Some(SpatialScheme::Constant);
     thick.solver.acceleration = Acceleration::Diffusion;
     thick.solver.max_orders = 5;
-    assert_eq!(resident_equals_streamed("thick-accelerated", &thick), EndOfOrder::HostPlan);
+    assert_eq!(resident_equals_streamed("thick-accelerated", &thick), EndOfOrder::Device);
 
     // Periodic sides: the rays carry what left one side into the next order.
     let mut slab = scene(Shape::Cloud, [24, 20, 28], [0.8; 3], [0.9; 3], vec![sun([0.5, 0.3, 1.0], [1.0; 3])]);

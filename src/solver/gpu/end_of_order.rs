@@ -61,8 +61,8 @@ pub enum EndOfOrder {
     Device,
     /// On the host: the sweeps stream, so the fields are on the host anyway.
     HostStreamed,
-    /// On the host: the plan has a pass the device does not run (acceleration, diffusion
-    /// correction, per-voxel albedo).
+    /// On the host: the plan has a pass the device does not run (diffusion correction,
+    /// per-voxel albedo).
     HostPlan,
     /// On the host: the device lacks `shaderFloat64` or `shaderInt64`.
     HostNoFloat64,
@@ -75,7 +75,7 @@ impl EndOfOrder {
     pub fn choose(plan: &Plan, limits: &Limits) -> EndOfOrder {
         if !limits.float64 {
             EndOfOrder::HostNoFloat64
-        } else if plan.acceleration || plan.diffusion_correction.iter().any(|&k| k > 0.0) || plan.albedo_field {
+        } else if plan.diffusion_correction.iter().any(|&k| k > 0.0) || plan.albedo_field {
             EndOfOrder::HostPlan
         } else {
             EndOfOrder::Device
@@ -90,7 +90,7 @@ impl EndOfOrder {
             }
             EndOfOrder::HostStreamed => "on the host: the sweeps stream the fields through it",
             EndOfOrder::HostPlan => {
-                "on the host, with the fields brought home every order: the plan accelerates, corrects diffusion or scales the albedo per voxel, which the device's passes do not"
+                "on the host, with the fields brought home every order: the plan corrects diffusion or scales the albedo per voxel, which the device's passes do not"
             }
             EndOfOrder::HostNoFloat64 => {
                 "on the host, with the fields brought home every order: the device lacks shaderFloat64 or shaderInt64"
@@ -184,7 +184,7 @@ impl EndPasses {
             let ranges: Vec<BufferRange> = buffers.iter().map(|&b| BufferRange::from(b)).collect();
             Ok(Owned::new(ctx, ctx.create_descriptor_set(name, p, &ranges)?))
         };
-        let TotalBuffers { source_total, fluence_total, block_sums, unit_tallies } = totals;
+        let TotalBuffers { source_total, fluence_total, block_sums, unit_tallies, .. } = totals;
         let (comps, c) = (plan.source_components() as u64, plan.channels as u64);
         let count = |n: u64| {
             u32::try_from(n).map_err(|_| SolveError::Internal("more resident values than a dispatch can reach"))
@@ -224,12 +224,11 @@ impl EndPasses {
         count: u32,
         mut push: EndPush,
     ) -> Result<(), SolveError> {
-        let groups = count.div_ceil(GROUP).max(1);
-        let groups_x = groups.min(MAX_GROUPS_X);
+        let groups = linear_groups(count);
         push.count = count;
-        push.groups_x = groups_x;
+        push.groups_x = groups[0];
         rec.bind(pipeline, set)?;
-        rec.dispatch_bound(pipeline, bytemuck::bytes_of(&push), [groups_x, groups.div_ceil(groups_x), 1])?;
+        rec.dispatch_bound(pipeline, bytemuck::bytes_of(&push), groups)?;
         Ok(())
     }
 
@@ -327,8 +326,16 @@ impl EndPasses {
     }
 }
 
+/// The workgroups of a dispatch of `count` invocations, [`GROUP`] to a workgroup, at most
+/// [`MAX_GROUPS_X`] along x and the rest along y (the kernels index `(y·groups_x + x)·GROUP + i`).
+pub(super) fn linear_groups(count: u32) -> [u32; 3] {
+    let groups = count.div_ceil(GROUP).max(1);
+    let groups_x = groups.min(MAX_GROUPS_X);
+    [groups_x, groups.div_ceil(groups_x), 1]
+}
+
 /// The first `n` values of a buffer the kernels wrote, as the host sees it (after a wait).
-fn readback<T: Pod>(buffer: &Buffer, n: usize) -> Result<&[T], SolveError> {
+pub(super) fn readback<T: Pod>(buffer: &Buffer, n: usize) -> Result<&[T], SolveError> {
     let bytes = buffer.mapped().ok_or(SolveError::Internal("an end-of-order sum buffer is not host-visible"))?;
     let bytes = bytes
         .get(..n * std::mem::size_of::<T>())

@@ -63,6 +63,7 @@
 //! - this file: the order as sweeps and passes (the [`Backend`] the order loop drives), and the
 //!   tallies read back after each pass (per face of the volume).
 
+mod accelerate;
 pub mod budget;
 mod copier;
 pub mod cost;
@@ -79,6 +80,7 @@ mod streamer;
 mod tables;
 mod transpose;
 
+use super::antidiffusion::VoxelUnits;
 use super::energy::Tallies;
 use super::fields::{LoopState, PendingCheckpoint, StoreFields};
 use super::orders::Backend;
@@ -191,6 +193,8 @@ pub struct GpuBackend<'a> {
     end_passes: Option<EndPasses>,
     /// With `end_passes`: where the solve's state is (see [`DeviceState`]).
     device_state: DeviceState,
+    /// With `end_passes`, when the plan accelerates: the acceleration's kernels ([`accelerate`]).
+    diffusion: Option<accelerate::DeviceAcceleration>,
 }
 
 /// Where the committed state of a solve whose passes between orders run on the device is.
@@ -263,9 +267,15 @@ impl<'a> GpuBackend<'a> {
             memory.end_of_order = EndOfOrder::HostWarmStart;
             memory.end_of_order_reason = EndOfOrder::HostWarmStart.describe();
         }
-        let end_passes = match resources.resident.as_ref().filter(|_| memory.ends_on_device()) {
-            Some(resident) => Some(EndPasses::new(&ctx, plan, resident, memory.slice.occupied_total)?),
-            None => None,
+        let (end_passes, diffusion) = match resources.resident.as_ref().filter(|_| memory.ends_on_device()) {
+            Some(resident) => {
+                let occupied = memory.slice.occupied_total;
+                (
+                    Some(EndPasses::new(&ctx, plan, resident, occupied)?),
+                    accelerate::DeviceAcceleration::new(&ctx, resident, occupied)?,
+                )
+            }
+            None => (None, None),
         };
         // A resumed solve goes on with what its checkpoint's periodic sweeps carried over.
         let carry = fields.resumed_carry.take().unwrap_or_else(|| PeriodicCarry::new(plan));
@@ -289,6 +299,7 @@ impl<'a> GpuBackend<'a> {
             resident_lateral: false,
             end_passes,
             device_state: DeviceState::OnHost,
+            diffusion,
         })
     }
 
@@ -567,6 +578,9 @@ impl<'a> Backend for GpuBackend<'a> {
         if self.end_passes.is_none() {
             return self.fields.commit_order(plan, &self.medium);
         }
+        if self.fields.acceleration_due(plan, &self.medium)? {
+            self.accelerate_on_device(plan)?;
+        }
         let (end, _, totals) = device_end(&self.end_passes, &self.resources)?;
         let committed = end.commit(&mut self.streamer, plan, totals)?;
         self.device_state = DeviceState::Committed { max_abs: committed.max_abs, home: false };
@@ -732,6 +746,20 @@ impl GpuBackend<'_> {
         let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "next order on the device")?;
         end.record_advance(&mut rec, resident, self.half_exponent)?;
         self.streamer.submit_and_wait(rec)
+    }
+
+    /// Folds the diffusion acceleration into the order the sweeps just finished, on the device
+    /// ([`accelerate`]); the host keeps the grid and solves on it.
+    fn accelerate_on_device(&mut self, plan: &Plan) -> Result<(), SolveError> {
+        let missing = SolveError::Internal("an accelerated commit on the device without the acceleration's kernels");
+        let grid = self.fields.acceleration.as_mut().ok_or(SolveError::Internal("no diffusion grid"))?;
+        let kernels = self.diffusion.as_mut().ok_or(missing)?;
+        let buffers =
+            self.resources.resident.as_mut().and_then(|r| r.totals.as_mut()).and_then(|t| t.diffusion.as_mut()).ok_or(
+                SolveError::Internal("an accelerated commit on the device without the acceleration's buffers"),
+            )?;
+        let medium = &self.medium;
+        kernels.fold(&mut self.streamer, plan, buffers, grid, |slot| medium.voxel_of(slot, 0))
     }
 
     /// Puts the committed totals on the device, with the first load of a solve (a resumed one's

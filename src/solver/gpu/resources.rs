@@ -73,6 +73,39 @@ pub struct TotalBuffers {
     /// Host-readable (`GpuToCpu`): written by the kernels, read after a wait.
     pub block_sums: Owned<Buffer>,
     pub unit_tallies: Owned<Buffer>,
+    /// The diffusion acceleration's, when the plan accelerates ([`super::accelerate`]).
+    pub diffusion: Option<DiffusionBuffers>,
+}
+
+/// The diffusion acceleration's kernels' buffers ([`super::sizes::DiffusionSizes`]).
+pub struct DiffusionBuffers {
+    pub unknown_of: Owned<Buffer>,
+    pub cell_of_unknown: Owned<Buffer>,
+    pub brick_start: Owned<Buffer>,
+    pub bricks: Owned<Buffer>,
+    pub origins: Owned<Buffer>,
+    pub solid_angles: Owned<Buffer>,
+    /// Host-readable (`GpuToCpu`).
+    pub moments: Owned<Buffer>,
+    pub change: Owned<Buffer>,
+    /// `CpuToGpu`: the change, and the tables once, go up through it.
+    pub staging: Owned<HostBuffer>,
+}
+
+impl DiffusionBuffers {
+    fn every(&self) -> [&Buffer; 9] {
+        [
+            &self.unknown_of,
+            &self.cell_of_unknown,
+            &self.brick_start,
+            &self.bricks,
+            &self.origins,
+            &self.solid_angles,
+            &self.moments,
+            &self.change,
+            &self.staging,
+        ]
+    }
 }
 
 impl ResidentBuffers {
@@ -86,6 +119,7 @@ impl ResidentBuffers {
         let mut every = self.all().to_vec();
         if let Some(t) = &self.totals {
             every.extend([&*t.source_total, &*t.fluence_total, &*t.block_sums, &*t.unit_tallies]);
+            every.extend(t.diffusion.iter().flat_map(DiffusionBuffers::every));
         }
         every
     }
@@ -192,6 +226,32 @@ impl DeviceResources {
                         fluence_total: buffer(ctx, "resident fluence total", r.fluence_total, storage, gpu)?,
                         block_sums: buffer(ctx, "end-of-order block sums", r.block_sums, storage, readback)?,
                         unit_tallies: buffer(ctx, "end-of-order brick tallies", r.unit_tallies, storage, readback)?,
+                        diffusion: match r.diffusion {
+                            Some(d) => Some(DiffusionBuffers {
+                                unknown_of: buffer(ctx, "diffusion unknown of cell", d.unknown_of, storage, gpu)?,
+                                cell_of_unknown: buffer(
+                                    ctx,
+                                    "diffusion cell of unknown",
+                                    d.cell_of_unknown,
+                                    storage,
+                                    gpu,
+                                )?,
+                                brick_start: buffer(ctx, "diffusion brick start", d.brick_start, storage, gpu)?,
+                                bricks: buffer(ctx, "diffusion bricks", d.bricks, storage, gpu)?,
+                                origins: buffer(ctx, "diffusion brick origins", d.origins, storage, gpu)?,
+                                solid_angles: buffer(ctx, "diffusion solid angles", d.solid_angles, storage, gpu)?,
+                                moments: buffer(ctx, "diffusion moments", d.moments, storage, readback)?,
+                                change: buffer(ctx, "diffusion change", d.change, storage, gpu)?,
+                                staging: host_buffer(
+                                    ctx,
+                                    "diffusion staging",
+                                    d.staging,
+                                    vk::BufferUsageFlags::TRANSFER_SRC,
+                                    MemoryLocation::CpuToGpu,
+                                )?,
+                            }),
+                            None => None,
+                        },
                     })
                 } else {
                     None

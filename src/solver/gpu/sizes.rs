@@ -120,6 +120,66 @@ pub struct ResidentSizes {
     /// Per brick block, the commit's sums; per brick, the stop rule's tally (read by the host).
     pub block_sums: u64,
     pub unit_tallies: u64,
+    /// The diffusion acceleration's kernels' buffers, when the plan accelerates and the passes
+    /// between orders run on the device.
+    pub diffusion: Option<DiffusionSizes>,
+}
+
+/// The buffers of the diffusion acceleration's kernels ([`super::accelerate`]), sized for the most
+/// unknowns the grid of the volume can have (every cell holding medium, or every occupied voxel
+/// a cell of its own): the grid is built at the first commit, the buffers with the rest.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DiffusionSizes {
+    /// Per cell of the grid, its unknown.
+    pub unknown_of: u64,
+    /// Per unknown, its cell; where its bricks start in `bricks` (one more).
+    pub cell_of_unknown: u64,
+    pub brick_start: u64,
+    /// The bricks overlapping each unknown's cell, unknown after unknown.
+    pub bricks: u64,
+    /// Per occupied brick, its first voxel (`uvec4`).
+    pub origins: u64,
+    /// Per storage direction, its solid angle (f64).
+    pub solid_angles: u64,
+    /// Per channel and unknown (f64): the moments (read by the host), the change (written by it,
+    /// through the staging, which also carries the tables up).
+    pub moments: u64,
+    pub change: u64,
+    pub staging: u64,
+}
+
+impl DiffusionSizes {
+    pub fn new(plan: &Plan, occupied: u64) -> DiffusionSizes {
+        let (_, cells) = crate::solver::acceleration::grid_of(plan.dims, plan.diffusion_cells);
+        let cells: u64 = cells.iter().map(|&c| c as u64).product();
+        let unknowns = cells.min(occupied * BRICK_VOXELS as u64);
+        let per_unknown = unknowns * plan.channels as u64 * 8;
+        DiffusionSizes {
+            unknown_of: buffer_bytes(cells * 4),
+            cell_of_unknown: buffer_bytes(unknowns * 4),
+            brick_start: buffer_bytes((unknowns + 1) * 4),
+            // A cell lies in one brick when cells are no larger than bricks, else a brick in one cell.
+            bricks: buffer_bytes(unknowns.max(occupied) * 4),
+            origins: buffer_bytes(occupied * 16),
+            solid_angles: buffer_bytes(plan.storage.len() as u64 * 8),
+            moments: buffer_bytes(per_unknown),
+            change: buffer_bytes(per_unknown),
+            // At least 1 MiB, so that the tables go up in few copies.
+            staging: buffer_bytes(per_unknown.max(1 << 20)),
+        }
+    }
+
+    pub fn device(&self) -> u64 {
+        self.unknown_of
+            + self.cell_of_unknown
+            + self.brick_start
+            + self.bricks
+            + self.origins
+            + self.solid_angles
+            + self.moments
+            + self.change
+            + self.staging
+    }
 }
 
 /// Bytes of one block's sums and one brick's tally. Keep in sync with `BlockSum` and `UnitTally`
@@ -145,6 +205,7 @@ impl ResidentSizes {
             fluence_total: only(fluence),
             block_sums: only(blocks.max(1) * BLOCK_SUM_BYTES),
             unit_tallies: only(extent.occupied_total.max(1) * UNIT_TALLY_BYTES),
+            diffusion: (totals && plan.acceleration).then(|| DiffusionSizes::new(plan, extent.occupied_total)),
         }
     }
 
@@ -158,6 +219,7 @@ impl ResidentSizes {
             + self.fluence_total
             + self.block_sums
             + self.unit_tallies
+            + self.diffusion.map_or(0, |d| d.device())
     }
 
     /// The buffers bound whole to a kernel, named for the reason the plan gives when one is larger

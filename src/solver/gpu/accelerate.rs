@@ -1,0 +1,311 @@
+//! The diffusion acceleration of the resident mode's orders on the device ([`crate::solver::acceleration`]),
+//! so an accelerated solve (the default at high albedo) keeps its fields there between orders too.
+//!
+//! The fold of an order has three steps (`Acceleration::fold`): the restriction of the order's
+//! new source to the diffusion grid (per cell, its scattered moment), the diffusion solve, and the
+//! prolongation of the correction's change back onto every medium voxel's fluence and source. The
+//! first and the last touch every voxel, so they run here as kernels over the resident fields
+//! (`glsl/diffusion_moments.comp`, `glsl/diffusion_prolong.comp`); the solve works on the cells
+//! only (at most [`crate::solver::acceleration::MAX_CELLS`] per channel: a few MB), so the host
+//! keeps it, with the grid and the last correction (which checkpoints save). Per order the
+//! moments come home and the change goes up: 8 bytes per cell and channel each way, instead of
+//! the whole source and fluence.
+//!
+//! Bitwise the host's: the moments kernel sums each cell's voxels in the host's order (its bricks
+//! in slot order, given by the tables built here, each brick's voxels of the cell in index order,
+//! the components in theirs), one invocation per cell; the prolongation adds in f64 and rounds to
+//! f32 from the bits as the host's `as f32` does (`glsl/exact.glsl`). So an accelerated resident
+//! solve is the streamed one to the bit (`tests/it/resident.rs`).
+
+use super::end_of_order::{linear_groups, readback};
+use super::owned::Owned;
+use super::resources::{DiffusionBuffers, ResidentBuffers};
+use super::streamer::SliceStreamer;
+use crate::solver::acceleration::{self, Acceleration};
+use crate::solver::plan::Plan;
+use crate::solver::SolveError;
+use crate::store::{BRICK_EDGE, BRICK_VOXELS};
+use crate::vk::{Buffer, BufferRange, ComputePipeline, Context, DescriptorSet, HostBuffer, Recorder};
+use ash::vk;
+use bytemuck::{Pod, Zeroable};
+use std::sync::Arc;
+
+const MOMENTS_SPV: &[u8] = include_bytes!("../../../spirv/diffusion_moments.spv");
+const PROLONG_SPV: &[u8] = include_bytes!("../../../spirv/diffusion_prolong.spv");
+
+/// Push constants of both kernels. Keep in sync with `Push` in glsl/diffusion.glsl.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct DiffusionPush {
+    pub count: u32,
+    pub groups_x: u32,
+    pub unknowns: u32,
+    pub comps: u32,
+    pub channels: u32,
+    pub edge: u32,
+    pub cells: [u32; 3],
+    pub first: u32,
+    pub round_voxels: u32,
+    pub pad: u32,
+    pub extinction: [f64; 3],
+    pub scatter: [f64; 3],
+    pub voxel_size: f64,
+    pub four_pi: f64,
+}
+const _: () = assert!(std::mem::size_of::<DiffusionPush>() == 112);
+
+/// Loop iterations one invocation of the moments kernel may run per round (about): the rounds
+/// keep every invocation's loops far below llvmpipe's 65535 (see glsl/diffusion_moments.comp).
+const ROUND_ITERATIONS: u32 = 16384;
+
+/// The two kernels, their sets over the resident fields and the diffusion buffers, and what the
+/// grid's tables fixed once they went up.
+pub struct DeviceAcceleration {
+    moments_set: Owned<DescriptorSet>,
+    prolong_set: Owned<DescriptorSet>,
+    /// The grid's figures, once its tables are on the device (`None` before the first fold), and
+    /// the moments kernel's rounds.
+    push: Option<(DiffusionPush, u32)>,
+    /// Voxels of the occupied bricks (the prolongation's invocations).
+    voxels: u32,
+    /// Declared after the sets, so freed after them.
+    moments_pipeline: Owned<ComputePipeline>,
+    prolong_pipeline: Owned<ComputePipeline>,
+}
+
+impl DeviceAcceleration {
+    /// The pipelines and sets over `resident` (`occupied` bricks) and its diffusion buffers;
+    /// `None` when the plan does not accelerate (no such buffers).
+    pub fn new(ctx: &Arc<Context>, resident: &ResidentBuffers, occupied: u64) -> Result<Option<Self>, SolveError> {
+        let Some(d) = resident.totals.as_ref().and_then(|t| t.diffusion.as_ref()) else { return Ok(None) };
+        let push = std::mem::size_of::<DiffusionPush>() as u32;
+        let moments_pipeline = Owned::new(ctx, ctx.create_compute_pipeline("diffusion moments", MOMENTS_SPV, 8, push)?);
+        let prolong_pipeline = Owned::new(ctx, ctx.create_compute_pipeline("diffusion prolong", PROLONG_SPV, 6, push)?);
+        let set = |name: &str, p: &ComputePipeline, buffers: &[&Buffer]| -> Result<Owned<DescriptorSet>, SolveError> {
+            let ranges: Vec<BufferRange> = buffers.iter().map(|&b| BufferRange::from(b)).collect();
+            Ok(Owned::new(ctx, ctx.create_descriptor_set(name, p, &ranges)?))
+        };
+        let voxels = u32::try_from(occupied * BRICK_VOXELS as u64)
+            .map_err(|_| SolveError::Internal("more resident voxels than a dispatch can reach"))?;
+        Ok(Some(DeviceAcceleration {
+            moments_set: set(
+                "diffusion moments",
+                &moments_pipeline,
+                &[
+                    &resident.density,
+                    &resident.source_next,
+                    &d.solid_angles,
+                    &d.cell_of_unknown,
+                    &d.brick_start,
+                    &d.bricks,
+                    &d.origins,
+                    &d.moments,
+                ],
+            )?,
+            prolong_set: set(
+                "diffusion prolong",
+                &prolong_pipeline,
+                &[&resident.density, &resident.source_next, &resident.fluence, &d.unknown_of, &d.origins, &d.change],
+            )?,
+            push: None,
+            voxels,
+            moments_pipeline,
+            prolong_pipeline,
+        }))
+    }
+
+    /// Folds the correction into the order the sweeps just finished, on the resident fields
+    /// (see the module docs): moments on the device, the solve on the host (`grid` keeps the new
+    /// correction), the change added on the device. `origin_of(slot)` is the first voxel of the
+    /// occupied brick in that slot. Waits.
+    pub fn fold(
+        &mut self,
+        streamer: &mut SliceStreamer,
+        plan: &Plan,
+        buffers: &mut DiffusionBuffers,
+        grid: &mut Acceleration,
+        origin_of: impl Fn(usize) -> [u32; 3],
+    ) -> Result<(), SolveError> {
+        let n = grid.unknowns();
+        if n == 0 {
+            return Ok(());
+        }
+        let (push, rounds) = match self.push {
+            Some(loaded) => loaded,
+            None => {
+                let loaded = self.load_grid(streamer, plan, buffers, grid, origin_of)?;
+                self.push = Some(loaded);
+                loaded
+            }
+        };
+        let c = plan.channels as usize;
+        let ctx = Arc::clone(streamer.context());
+        let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "diffusion moments")?;
+        // The last order's moments were read on the host after a wait; the sweeps wrote the source.
+        rec.compute_to_transfer();
+        rec.fill_buffer(&buffers.moments, 0, vk::WHOLE_SIZE, 0);
+        rec.transfer_to_compute();
+        rec.compute_to_compute();
+        for round in 0..rounds {
+            let push = DiffusionPush { first: round * push.round_voxels, ..push };
+            dispatch(&mut rec, &self.moments_pipeline, &self.moments_set, push.unknowns, push)?;
+            rec.compute_to_compute();
+        }
+        rec.compute_to_host();
+        streamer.submit_and_wait(rec)?;
+        let moments: Vec<Vec<f64>> = readback::<f64>(&buffers.moments, n * c)?.chunks(n).map(<[f64]>::to_vec).collect();
+        let change: Vec<f64> = grid.solve(&moments).concat();
+        let bytes: &[u8] = bytemuck::cast_slice(&change);
+        let staged = buffers
+            .staging
+            .bytes_mut()
+            .get_mut(..bytes.len())
+            .ok_or(SolveError::Internal("the diffusion change is larger than its staging"))?;
+        staged.copy_from_slice(bytes);
+        let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "diffusion prolong")?;
+        // The last order's prolongation read the change this copy overwrites.
+        rec.compute_to_transfer();
+        let size = bytes.len() as u64;
+        rec.copy_buffer(&buffers.staging, &buffers.change, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size }]);
+        rec.transfer_to_compute();
+        dispatch(&mut rec, &self.prolong_pipeline, &self.prolong_set, self.voxels, push)?;
+        streamer.submit_and_wait(rec)
+    }
+
+    /// Puts the grid's tables on the device (once: the grid does not change during a solve) and
+    /// returns the kernels' push constants and the moments kernel's rounds.
+    fn load_grid(
+        &self,
+        streamer: &mut SliceStreamer,
+        plan: &Plan,
+        buffers: &mut DiffusionBuffers,
+        grid: &Acceleration,
+        origin_of: impl Fn(usize) -> [u32; 3],
+    ) -> Result<(DiffusionPush, u32), SolveError> {
+        let slots = (self.voxels / BRICK_VOXELS as u32) as usize;
+        let origins: Vec<[u32; 4]> = (0..slots).map(origin_of).map(|o| [o[0], o[1], o[2], 0]).collect();
+        let tables = GridTables::new(grid, &origins);
+        let solid_angles = &plan.storage.solid_angle;
+        let staging = &mut buffers.staging;
+        for (bytes, dst) in [
+            (bytemuck::cast_slice::<u32, u8>(grid.unknown_of()), &buffers.unknown_of),
+            (bytemuck::cast_slice(&tables.cell_of_unknown), &buffers.cell_of_unknown),
+            (bytemuck::cast_slice(&tables.brick_start), &buffers.brick_start),
+            (bytemuck::cast_slice(&tables.bricks), &buffers.bricks),
+            (bytemuck::cast_slice(&origins), &buffers.origins),
+            (bytemuck::cast_slice(solid_angles), &buffers.solid_angles),
+        ] {
+            upload(streamer, staging, dst, bytes)?;
+        }
+        let count = |v: usize| u32::try_from(v).map_err(|_| SolveError::Internal("a diffusion grid too large"));
+        // Each cell's voxels: a box of min(e, 16)³ in each of its bricks, walked in rounds.
+        let box_voxels = grid.edge().min(BRICK_EDGE).pow(3);
+        let most_bricks = tables.brick_start.windows(2).map(|w| w[1] - w[0]).max().unwrap_or(0);
+        let round_voxels = (ROUND_ITERATIONS / (1 + plan.channels + plan.source_components())).max(1);
+        let rounds = (box_voxels * most_bricks).div_ceil(round_voxels);
+        let mut push = DiffusionPush {
+            unknowns: count(grid.unknowns())?,
+            comps: plan.source_components(),
+            channels: plan.channels,
+            edge: grid.edge(),
+            cells: grid.cells(),
+            round_voxels,
+            voxel_size: plan.voxel_size,
+            four_pi: acceleration::four_pi(plan),
+            ..DiffusionPush::default()
+        };
+        for ch in 0..plan.channels as usize {
+            let (st, ss, _) = plan.coefficients(ch);
+            push.extinction[ch] = st;
+            push.scatter[ch] = ss;
+        }
+        Ok((push, rounds))
+    }
+}
+
+/// Which bricks each unknown's cell overlaps, in slot order (the order the host's moments visit
+/// them), as offsets into one list.
+struct GridTables {
+    cell_of_unknown: Vec<u32>,
+    /// Unknown u's bricks are `bricks[brick_start[u]..brick_start[u + 1]]`.
+    brick_start: Vec<u32>,
+    bricks: Vec<u32>,
+}
+
+impl GridTables {
+    fn new(grid: &Acceleration, origins: &[[u32; 4]]) -> GridTables {
+        let (edge, cells, unknown_of) = (grid.edge(), grid.cells(), grid.unknown_of());
+        let n = grid.unknowns();
+        // The unknowns a brick overlaps, in any order: each brick is listed once per unknown.
+        let overlapped = |o: &[u32; 4]| {
+            let lo = [o[0] / edge, o[1] / edge, o[2] / edge];
+            let hi = [0, 1, 2].map(|a| ((o[a] + BRICK_EDGE - 1) / edge).min(cells[a] - 1));
+            (lo[2]..=hi[2]).flat_map(move |z| {
+                (lo[1]..=hi[1]).flat_map(move |y| {
+                    (lo[0]..=hi[0]).filter_map(move |x| {
+                        let u = unknown_of[acceleration::cell_index(cells, [x, y, z])];
+                        (u != u32::MAX).then_some(u as usize)
+                    })
+                })
+            })
+        };
+        let mut brick_start = vec![0u32; n + 1];
+        for o in origins {
+            for u in overlapped(o) {
+                brick_start[u + 1] += 1;
+            }
+        }
+        for u in 0..n {
+            brick_start[u + 1] += brick_start[u];
+        }
+        let mut next: Vec<u32> = brick_start[..n].to_vec();
+        let mut bricks = vec![0u32; brick_start[n] as usize];
+        for (slot, o) in origins.iter().enumerate() {
+            for u in overlapped(o) {
+                bricks[next[u] as usize] = slot as u32;
+                next[u] += 1;
+            }
+        }
+        GridTables { cell_of_unknown: grid.cell_of_unknown().iter().map(|&c| c as u32).collect(), brick_start, bricks }
+    }
+}
+
+/// Records one dispatch of `count` invocations.
+fn dispatch(
+    rec: &mut Recorder,
+    pipeline: &ComputePipeline,
+    set: &DescriptorSet,
+    count: u32,
+    mut push: DiffusionPush,
+) -> Result<(), SolveError> {
+    let groups = linear_groups(count);
+    push.count = count;
+    push.groups_x = groups[0];
+    rec.bind(pipeline, set)?;
+    rec.dispatch_bound(pipeline, bytemuck::bytes_of(&push), groups)?;
+    Ok(())
+}
+
+/// Copies `bytes` into the start of `dst` through `staging`, a chunk at a time (waits).
+fn upload(
+    streamer: &mut SliceStreamer,
+    staging: &mut HostBuffer,
+    dst: &Buffer,
+    bytes: &[u8],
+) -> Result<(), SolveError> {
+    if bytes.len() as u64 > dst.size() {
+        return Err(SolveError::Internal("a diffusion table is larger than its buffer"));
+    }
+    let chunk = staging.size() as usize;
+    let ctx = Arc::clone(streamer.context());
+    for (i, part) in bytes.chunks(chunk).enumerate() {
+        staging.bytes_mut()[..part.len()].copy_from_slice(part);
+        let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "diffusion tables")?;
+        rec.compute_to_transfer();
+        let region = vk::BufferCopy { src_offset: 0, dst_offset: (i * chunk) as u64, size: part.len() as u64 };
+        rec.copy_buffer(staging, dst, &[region]);
+        rec.transfer_to_compute();
+        streamer.submit_and_wait(rec)?;
+    }
+    Ok(())
+}
