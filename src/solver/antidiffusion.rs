@@ -218,7 +218,7 @@ impl Sharpening {
         if self.albedo[channel] * factor * 0.5 * x * (1.0 + boost) <= LARGEST_VOXEL_PATTERN_GROWTH {
             return 1.0;
         }
-        let returned = if x < 1e-6 { 0.5 * x } else { 1.0 + (-x).exp_m1() / x };
+        let returned = if x < SMALL_THICKNESS { 0.5 * x } else { 1.0 + (exp_neg(x) - 1.0) / x };
         let loop_gain = self.albedo[channel] * factor * returned;
         if loop_gain * (1.0 + boost) <= LARGEST_VOXEL_PATTERN_GROWTH || boost <= 0.0 {
             1.0
@@ -233,6 +233,35 @@ impl Sharpening {
         let factor = if density > 0.0 { m / density } else { 0.0 };
         std::array::from_fn(|ch| if ch < self.channels { self.stable_share(density, factor, ch) } else { 1.0 })
     }
+}
+
+/// Below this x = 2τ/3 the share of its light a voxel keeps is x/2 to within x²/6.
+pub const SMALL_THICKNESS: f64 = 1e-6;
+
+/// Where [`exp_neg`] gives 0 (e^−700 ≈ 10⁻³⁰⁴, still a normal f64).
+pub const EXP_NEG_LIMIT: f64 = 700.0;
+
+/// ln 2 in two parts (fdlibm's): k·`LN2_HI` is exact for the k [`exp_neg`] meets.
+pub const LN2_HI: f64 = f64::from_bits(0x3fe6_2e42_fee0_0000);
+pub const LN2_LO: f64 = f64::from_bits(0x3dea_39ef_3579_3c76);
+
+/// e^(−x) for x ≥ 0 (0 beyond 700, and for NaN), from additions, multiplications, divisions and
+/// an exponent written as bits only: every step is one IEEE operation, so `glsl/sharpen.comp`
+/// (which has no f64 exponential) computes the same bits. x = k·ln 2 + r with |r| ≤ ln 2 / 2
+/// (ln 2 in two parts, so that r is good to the last bits);
+/// e^(−r) by its Taylor series to r¹³/13! (error below 10⁻¹⁷), in Horner form; then × 2^(−k).
+/// Within a few ulps of `(-x).exp()`.
+pub fn exp_neg(x: f64) -> f64 {
+    if !(x < EXP_NEG_LIMIT) {
+        return 0.0;
+    }
+    let k = (x * std::f64::consts::LOG2_E + 0.5) as i64;
+    let y = ((k as f64) * LN2_HI - x) + (k as f64) * LN2_LO;
+    let mut p = 1.0;
+    for n in (1..=13).rev() {
+        p = 1.0 + y * p / n as f64;
+    }
+    p * f64::from_bits(((1023 - k) as u64) << 52)
 }
 
 /// The largest share of a voxel's value one flux may carry: with six partners a voxel gives at
@@ -431,6 +460,18 @@ impl VoxelUnits for VoxelMedium {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_portable_exponential_is_the_exponential() {
+        for i in 0..7000 {
+            let x = i as f64 * 0.1 + (i % 7) as f64 * 1e-3;
+            let (ours, std) = (exp_neg(x), (-x).exp());
+            assert!((ours - std).abs() <= 4.0 * f64::EPSILON * std, "{x}: {ours:e} vs {std:e}");
+        }
+        assert_eq!(exp_neg(700.0), 0.0);
+        assert_eq!(exp_neg(f64::NAN), 0.0);
+        assert_eq!(exp_neg(0.0), 1.0);
+    }
     use crate::solver::passes::MemField;
 
     fn field(dims: [u32; 3], comps: usize, f: impl Fn([u32; 3], usize) -> f64) -> MemField {

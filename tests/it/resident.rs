@@ -105,16 +105,54 @@ fn the_device_accelerates_the_orders_as_the_host_does() {
     }
 }
 
-/// A plan with a pass the device does not run (here the diffusion correction) keeps the host's
-/// passes and says so.
+/// The diffusion correction on the device: what each order propagates, C(T + S) − C(T), is the
+/// host's to the bit — thin and optically thick voxels (the stability limit's share, with its
+/// exponential), partners across brick edges and empty bricks, periodic sides, f16 storage, with
+/// and without the acceleration.
 #[test]
-fn a_diffusion_corrected_plan_commits_on_the_host_and_says_why() {
-    let mut thick = scene(Shape::Cloud, [32, 32, 32], [2.0; 3], [0.9; 3], vec![sky(1.0)]);
-    thick.solver.diffusion_correction = lpm::scene::DiffusionCorrection::On;
-    thick.solver.max_orders = 1;
-    let memory = solve("host-end", &thick, Gpu).run.memory.expect("plan");
+fn the_device_corrects_diffusion_as_the_host_does() {
+    use lpm::scene::DiffusionCorrection;
+    let mut cloud = scene(
+        Shape::Cloud,
+        [38, 34, 36],
+        [3.5, 2.0, 1.0],
+        [0.95, 0.9, 0.8],
+        vec![sky(1.0), sun([0.3, -0.2, 1.0], [1.0; 3])],
+    );
+    cloud.solver.spatial = Some(SpatialScheme::Constant);
+    cloud.solver.diffusion_correction = DiffusionCorrection::On;
+    cloud.solver.acceleration = Acceleration::Off;
+    cloud.solver.max_orders = 4;
+    cloud.solver.tolerance = 1e-9;
+    assert_eq!(resident_equals_streamed("device-corrected", &cloud), EndOfOrder::Device);
+    let mut accelerated = cloud.clone();
+    accelerated.medium.albedo = [0.99, 0.98, 0.995];
+    accelerated.solver.acceleration = Acceleration::Diffusion;
+    assert_eq!(resident_equals_streamed("device-corrected-accelerated", &accelerated), EndOfOrder::Device);
+    let mut half = cloud.clone();
+    half.solver.storage_precision = StoragePrecision::F16;
+    half.solver.max_orders = 3;
+    assert_eq!(resident_equals_streamed("device-corrected-f16", &half), EndOfOrder::Device);
+    let mut slab = scene(Shape::Cloud, [24, 20, 28], [0.8; 3], [0.9; 3], vec![sun([0.5, 0.3, 1.0], [1.0; 3])]);
+    slab.solver.spatial = Some(SpatialScheme::Constant);
+    slab.solver.diffusion_correction = DiffusionCorrection::On;
+    slab.boundary = Boundary { periodic: [true, true, false], ..Default::default() };
+    slab.solver.max_orders = 4;
+    assert_eq!(resident_equals_streamed("device-corrected-periodic", &slab), EndOfOrder::Device);
+}
+
+/// A plan with a pass the device does not run (a per-voxel albedo) keeps the host's passes and
+/// says so.
+#[test]
+fn a_plan_with_an_albedo_field_commits_on_the_host_and_says_why() {
+    let path = temp_dir("host-end-albedo-input").join("albedo.raw");
+    write_raw_field(&path, [20, 18, 22], |v| if v[0] < 10 { 0.9 } else { 0.5 });
+    let mut s = scene(Shape::Cloud, [20, 18, 22], [1.0; 3], [0.9; 3], vec![sky(1.0)]);
+    s.volume.albedo = Some(lpm::scene::AlbedoGrid::Raw { path });
+    s.solver.max_orders = 1;
+    let memory = solve("host-end", &s, Gpu).run.memory.expect("plan");
     assert_eq!(memory.end_of_order, EndOfOrder::HostPlan, "{memory:?}");
-    assert!(memory.end_of_order_reason.contains("corrects diffusion"), "{memory:?}");
+    assert!(memory.end_of_order_reason.contains("albedo per voxel"), "{memory:?}");
 }
 
 #[test]

@@ -77,7 +77,8 @@ impl DeviceAcceleration {
     /// The pipelines and sets over `resident` (`occupied` bricks) and its diffusion buffers;
     /// `None` when the plan does not accelerate (no such buffers).
     pub fn new(ctx: &Arc<Context>, resident: &ResidentBuffers, occupied: u64) -> Result<Option<Self>, SolveError> {
-        let Some(d) = resident.totals.as_ref().and_then(|t| t.diffusion.as_ref()) else { return Ok(None) };
+        let Some(totals) = resident.totals.as_ref() else { return Ok(None) };
+        let Some(d) = totals.diffusion.as_ref() else { return Ok(None) };
         let push = std::mem::size_of::<DiffusionPush>() as u32;
         let moments_pipeline = Owned::new(ctx, ctx.create_compute_pipeline("diffusion moments", MOMENTS_SPV, 8, push)?);
         let prolong_pipeline = Owned::new(ctx, ctx.create_compute_pipeline("diffusion prolong", PROLONG_SPV, 6, push)?);
@@ -98,14 +99,21 @@ impl DeviceAcceleration {
                     &d.cell_of_unknown,
                     &d.brick_start,
                     &d.bricks,
-                    &d.origins,
+                    &totals.origins,
                     &d.moments,
                 ],
             )?,
             prolong_set: set(
                 "diffusion prolong",
                 &prolong_pipeline,
-                &[&resident.density, &resident.source_next, &resident.fluence, &d.unknown_of, &d.origins, &d.change],
+                &[
+                    &resident.density,
+                    &resident.source_next,
+                    &resident.fluence,
+                    &d.unknown_of,
+                    &totals.origins,
+                    &d.change,
+                ],
             )?,
             push: None,
             voxels,
@@ -192,7 +200,6 @@ impl DeviceAcceleration {
             (bytemuck::cast_slice(&tables.cell_of_unknown), &buffers.cell_of_unknown),
             (bytemuck::cast_slice(&tables.brick_start), &buffers.brick_start),
             (bytemuck::cast_slice(&tables.bricks), &buffers.bricks),
-            (bytemuck::cast_slice(&origins), &buffers.origins),
             (bytemuck::cast_slice(solid_angles), &buffers.solid_angles),
         ] {
             upload(streamer, staging, dst, bytes)?;

@@ -21,15 +21,20 @@
 //! what Vulkan promises is that f64 division is correctly rounded (the remaining error's e_v, then
 //! rounded to f32): true of llvmpipe and of NVIDIA's compiler.
 //!
-//! What stays on the host: the passes that build or read more than these sums — the diffusion
-//! acceleration's grid and solve, the diffusion correction's stencil, a per-voxel albedo, a warm
-//! start's first commit — so a plan with any of them keeps the host's passes (and brings the fields
-//! home every order), and says so ([`EndOfOrder`]). A device without `shaderFloat64` and
-//! `shaderInt64` does too. The energy books and the tail run once, after the fields come home at
-//! the end.
+//! Before the commit, when the plan asks for them: the diffusion acceleration's fold
+//! (`super::accelerate`: its kernels restrict the order to the diffusion grid and prolong the
+//! correction; the host solves on the grid) and the diffusion correction (`super::sharpen`: what
+//! the next order propagates goes into a buffer of its own, which `to_half.comp` then reads; the
+//! commit adds the raw source to the total, as the host's does).
+//!
+//! What stays on the host: a per-voxel albedo and a warm start's first commit — a plan with
+//! either keeps the host's passes (and brings the fields home every order), and says so
+//! ([`EndOfOrder`]). A device without `shaderFloat64` and `shaderInt64` does too. The energy books
+//! and the tail run once, after the fields come home at the end.
 
 use super::owned::Owned;
 use super::resources::{DeviceResources, ResidentBuffers, TotalBuffers};
+use super::sharpen::DeviceSharpening;
 use super::sizes::{BLOCK_SUM_BYTES, UNIT_TALLY_BYTES};
 use super::streamer::SliceStreamer;
 use crate::solver::passes::block_power;
@@ -61,8 +66,7 @@ pub enum EndOfOrder {
     Device,
     /// On the host: the sweeps stream, so the fields are on the host anyway.
     HostStreamed,
-    /// On the host: the plan has a pass the device does not run (diffusion correction,
-    /// per-voxel albedo).
+    /// On the host: the plan has a pass the device does not run (a per-voxel albedo).
     HostPlan,
     /// On the host: the device lacks `shaderFloat64` or `shaderInt64`.
     HostNoFloat64,
@@ -75,7 +79,7 @@ impl EndOfOrder {
     pub fn choose(plan: &Plan, limits: &Limits) -> EndOfOrder {
         if !limits.float64 {
             EndOfOrder::HostNoFloat64
-        } else if plan.diffusion_correction.iter().any(|&k| k > 0.0) || plan.albedo_field {
+        } else if plan.albedo_field {
             EndOfOrder::HostPlan
         } else {
             EndOfOrder::Device
@@ -90,7 +94,7 @@ impl EndOfOrder {
             }
             EndOfOrder::HostStreamed => "on the host: the sweeps stream the fields through it",
             EndOfOrder::HostPlan => {
-                "on the host, with the fields brought home every order: the plan corrects diffusion or scales the albedo per voxel, which the device's passes do not"
+                "on the host, with the fields brought home every order: the plan scales the albedo per voxel, which the device's passes do not"
             }
             EndOfOrder::HostNoFloat64 => {
                 "on the host, with the fields brought home every order: the device lacks shaderFloat64 or shaderInt64"
@@ -142,6 +146,9 @@ const _: () = assert!(std::mem::size_of::<EndPush>() == 48);
 /// The kernels and their descriptor sets over the resident buffers.
 pub struct EndPasses {
     source_sums: Owned<DescriptorSet>,
+    /// With the diffusion correction: the kernel that writes what the next order propagates,
+    /// and the block sums over it (for its largest value).
+    sharpening: Option<(DeviceSharpening, Owned<DescriptorSet>)>,
     commit_source: Owned<DescriptorSet>,
     commit_fluence: Owned<DescriptorSet>,
     /// `None` when the source is stored at f32 (the next order's previous source is a copy).
@@ -167,8 +174,15 @@ pub struct Committed {
 }
 
 impl EndPasses {
-    /// The pipelines and the sets over `resident`, which holds `occupied` bricks.
-    pub fn new(ctx: &Arc<Context>, plan: &Plan, resident: &ResidentBuffers, occupied: u64) -> Result<Self, SolveError> {
+    /// The pipelines and the sets over `resident`, which holds `occupied` bricks of a volume of
+    /// `bricks` bricks per axis.
+    pub fn new(
+        ctx: &Arc<Context>,
+        plan: &Plan,
+        resident: &ResidentBuffers,
+        occupied: u64,
+        bricks: [u32; 3],
+    ) -> Result<Self, SolveError> {
         let Some(totals) = resident.totals.as_ref() else {
             return Err(SolveError::Internal("the device's end of order without resident totals"));
         };
@@ -185,6 +199,12 @@ impl EndPasses {
             Ok(Owned::new(ctx, ctx.create_descriptor_set(name, p, &ranges)?))
         };
         let TotalBuffers { source_total, fluence_total, block_sums, unit_tallies, .. } = totals;
+        // What the next order propagates: the sharpened source with the diffusion correction.
+        let propagated = propagated(resident);
+        let sharpening = match DeviceSharpening::new(ctx, plan, resident, occupied, bricks)? {
+            Some(kernel) => Some((kernel, set("sharpened sums", &block_sums_pipeline, &[propagated, block_sums])?)),
+            None => None,
+        };
         let (comps, c) = (plan.source_components() as u64, plan.channels as u64);
         let count = |n: u64| {
             u32::try_from(n).map_err(|_| SolveError::Internal("more resident values than a dispatch can reach"))
@@ -192,12 +212,11 @@ impl EndPasses {
         let voxels = occupied * crate::store::BRICK_VOXELS as u64;
         Ok(EndPasses {
             source_sums: set("block sums", &block_sums_pipeline, &[&resident.source_next, block_sums])?,
+            sharpening,
             commit_source: set("commit source", &commit_pipeline, &[source_total, &resident.source_next])?,
             commit_fluence: set("commit fluence", &commit_pipeline, &[fluence_total, &resident.fluence])?,
             to_half: match plan.source_precision {
-                Precision::F16 => {
-                    Some(set("to half", &to_half_pipeline, &[&resident.source_prev, &resident.source_next])?)
-                }
+                Precision::F16 => Some(set("to half", &to_half_pipeline, &[&resident.source_prev, propagated])?),
                 Precision::F32 => None,
             },
             remaining: set(
@@ -245,6 +264,11 @@ impl EndPasses {
         let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "commit on the device")?;
         rec.compute_to_compute();
         rec.transfer_to_compute();
+        if let Some((kernel, _)) = &self.sharpening {
+            // From the total before this order's source joins it.
+            kernel.record(&mut rec)?;
+            rec.compute_to_compute();
+        }
         let push = EndPush::default();
         Self::dispatch(&mut rec, &self.block_sums_pipeline, &self.source_sums, self.blocks, push)?;
         Self::dispatch(&mut rec, &self.commit_pipeline, &self.commit_source, self.source_values, push)?;
@@ -257,6 +281,18 @@ impl EndPasses {
         for (block, s) in sums.iter().enumerate() {
             block_power(plan, &mut power, block, s.abs_sum);
             max_bits = max_bits.max(s.max_abs_bits);
+        }
+        if let Some((_, sharpened_sums)) = &self.sharpening {
+            // The power is the raw source's (what the total took), the next order's f16 scale
+            // the sharpened one's (what it propagates).
+            let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "sharpened source's largest value")?;
+            rec.compute_to_compute();
+            Self::dispatch(&mut rec, &self.block_sums_pipeline, sharpened_sums, self.blocks, push)?;
+            rec.compute_to_host();
+            streamer.submit_and_wait(rec)?;
+            max_bits = readback::<BlockSum>(&totals.block_sums, self.blocks as usize)?
+                .iter()
+                .fold(0, |m, s| m.max(s.max_abs_bits));
         }
         Ok(Committed { power, max_abs: f32::from_bits(max_bits) })
     }
@@ -281,7 +317,7 @@ impl EndPasses {
             (None, None) => {
                 let size = resident.source_next.size();
                 rec.copy_buffer(
-                    &resident.source_next,
+                    propagated(resident),
                     &resident.source_prev,
                     &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size }],
                 );
@@ -323,6 +359,15 @@ impl EndPasses {
             max: f32::from_bits(t.max_e_bits) as f64,
             count: t.count as u64,
         })))
+    }
+}
+
+/// The resident buffer that holds what the next order propagates: the sharpened source with the
+/// diffusion correction, else the order's new source.
+pub fn propagated(resident: &ResidentBuffers) -> &Buffer {
+    match resident.totals.as_ref().and_then(|t| t.sharpen.as_ref()) {
+        Some(s) => &s.sharpened,
+        None => &resident.source_next,
     }
 }
 

@@ -46,9 +46,10 @@
 //! plan allows, the passes between orders (the commit and the stop rule's tally) run on the device
 //! as well ([`end_of_order`], bitwise the host's), and the fields stay there from the first load to
 //! the last order: the next order's previous source is made from the new one on the device, and
-//! the state comes home only for a checkpoint and at the end. Otherwise (acceleration, diffusion
-//! correction, per-voxel albedo, warm start) the new source and fluence come home every order for
-//! the host's passes.
+//! the state comes home only for a checkpoint and at the end. The diffusion acceleration
+//! (`accelerate`: restriction and prolongation on the device, the solve on the host's small grid)
+//! and the diffusion correction (`sharpen`) run there too. Otherwise (a per-voxel albedo, a warm
+//! start) the new source and fluence come home every order for the host's passes.
 //!
 //! ## The pieces
 //!
@@ -59,7 +60,8 @@
 //!   workers (`copier`) gathering and scattering each slice's bricks (`slice`);
 //! - [`encoder`]: one slice's compute step as commands (push constants, bindings, dispatches);
 //! - `transpose`: the resident fields' reorder for the x sweeps;
-//! - [`end_of_order`]: the resident mode's passes between orders on the device;
+//! - [`end_of_order`]: the resident mode's passes between orders on the device, with
+//!   `accelerate` (the diffusion acceleration's kernels) and `sharpen` (the diffusion correction's);
 //! - this file: the order as sweeps and passes (the [`Backend`] the order loop drives), and the
 //!   tallies read back after each pass (per face of the volume).
 
@@ -74,6 +76,7 @@ mod owned;
 pub mod profile;
 mod progress;
 pub mod resources;
+mod sharpen;
 pub mod sizes;
 mod slice;
 mod streamer;
@@ -271,7 +274,7 @@ impl<'a> GpuBackend<'a> {
             Some(resident) => {
                 let occupied = memory.slice.occupied_total;
                 (
-                    Some(EndPasses::new(&ctx, plan, resident, occupied)?),
+                    Some(EndPasses::new(&ctx, plan, resident, occupied, store.grid().bricks)?),
                     accelerate::DeviceAcceleration::new(&ctx, resident, occupied)?,
                 )
             }
@@ -766,6 +769,27 @@ impl GpuBackend<'_> {
     /// are not zero); they come home with the rest of the device's state ([`Self::bring_home`]).
     fn load_totals(&mut self) -> Result<(), SolveError> {
         let (_, _, totals) = device_end(&self.end_passes, &self.resources)?;
+        // The tables of where each brick is (for the kernels that look at a voxel's
+        // neighbourhood), and the diffusion correction's constants.
+        let ctx = Arc::clone(self.streamer.context());
+        let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "resident tables")?;
+        rec.compute_to_transfer();
+        let origins: Vec<[u32; 4]> = (0..self.memory.slice.occupied_total as usize)
+            .map(|slot| {
+                let o = self.medium.voxel_of(slot, 0);
+                [o[0], o[1], o[2], 0]
+            })
+            .collect();
+        rec.update_buffer(&totals.origins, 0, bytemuck::cast_slice(&origins));
+        if let Some(s) = &totals.sharpen {
+            let slots: Vec<u32> =
+                (0..self.store.grid().brick_count()).map(|b| self.store.slot(b).unwrap_or(u32::MAX)).collect();
+            rec.update_buffer(&s.brick_slots, 0, bytemuck::cast_slice(&slots));
+            let constants = sharpen::SharpenConstants::of(self.plan);
+            rec.update_buffer(&s.constants, 0, bytemuck::bytes_of(&constants));
+        }
+        rec.transfer_to_compute();
+        self.streamer.submit_and_wait(rec)?;
         let fields = &mut *self.fields;
         for (field, buffer) in
             [(&mut fields.source_total, &totals.source_total), (&mut fields.fluence_total, &totals.fluence_total)]
@@ -789,7 +813,8 @@ impl GpuBackend<'_> {
             use end_of_order::transfer_field as to_host;
             to_host(streamer, res, source_total, &totals.source_total, Transfer::ToHost)?;
             to_host(streamer, res, fluence_total, &totals.fluence_total, Transfer::ToHost)?;
-            to_host(streamer, res, source_next, &resident.source_next, Transfer::ToHost)?;
+            // What the next order propagates (the sharpened source with the diffusion correction).
+            to_host(streamer, res, source_next, end_of_order::propagated(resident), Transfer::ToHost)?;
             to_host(streamer, res, fluence, &resident.fluence, Transfer::ToHost)
         })?;
         self.device_state = DeviceState::Committed { max_abs, home: true };

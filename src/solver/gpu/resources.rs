@@ -73,8 +73,19 @@ pub struct TotalBuffers {
     /// Host-readable (`GpuToCpu`): written by the kernels, read after a wait.
     pub block_sums: Owned<Buffer>,
     pub unit_tallies: Owned<Buffer>,
+    /// Per occupied brick, its first voxel (`uvec4`; written with the first load).
+    pub origins: Owned<Buffer>,
     /// The diffusion acceleration's, when the plan accelerates ([`super::accelerate`]).
     pub diffusion: Option<DiffusionBuffers>,
+    /// The diffusion correction's, when the plan corrects ([`super::sharpen`]).
+    pub sharpen: Option<SharpenBuffers>,
+}
+
+/// The diffusion correction's kernel's buffers ([`super::sizes::SharpenSizes`]).
+pub struct SharpenBuffers {
+    pub sharpened: Owned<Buffer>,
+    pub brick_slots: Owned<Buffer>,
+    pub constants: Owned<Buffer>,
 }
 
 /// The diffusion acceleration's kernels' buffers ([`super::sizes::DiffusionSizes`]).
@@ -83,7 +94,6 @@ pub struct DiffusionBuffers {
     pub cell_of_unknown: Owned<Buffer>,
     pub brick_start: Owned<Buffer>,
     pub bricks: Owned<Buffer>,
-    pub origins: Owned<Buffer>,
     pub solid_angles: Owned<Buffer>,
     /// Host-readable (`GpuToCpu`).
     pub moments: Owned<Buffer>,
@@ -93,13 +103,12 @@ pub struct DiffusionBuffers {
 }
 
 impl DiffusionBuffers {
-    fn every(&self) -> [&Buffer; 9] {
+    fn every(&self) -> [&Buffer; 8] {
         [
             &self.unknown_of,
             &self.cell_of_unknown,
             &self.brick_start,
             &self.bricks,
-            &self.origins,
             &self.solid_angles,
             &self.moments,
             &self.change,
@@ -119,7 +128,9 @@ impl ResidentBuffers {
         let mut every = self.all().to_vec();
         if let Some(t) = &self.totals {
             every.extend([&*t.source_total, &*t.fluence_total, &*t.block_sums, &*t.unit_tallies]);
+            every.push(&t.origins);
             every.extend(t.diffusion.iter().flat_map(DiffusionBuffers::every));
+            every.extend(t.sharpen.iter().flat_map(|s| [&*s.sharpened, &*s.brick_slots, &*s.constants]));
         }
         every
     }
@@ -238,7 +249,6 @@ impl DeviceResources {
                                 )?,
                                 brick_start: buffer(ctx, "diffusion brick start", d.brick_start, storage, gpu)?,
                                 bricks: buffer(ctx, "diffusion bricks", d.bricks, storage, gpu)?,
-                                origins: buffer(ctx, "diffusion brick origins", d.origins, storage, gpu)?,
                                 solid_angles: buffer(ctx, "diffusion solid angles", d.solid_angles, storage, gpu)?,
                                 moments: buffer(ctx, "diffusion moments", d.moments, storage, readback)?,
                                 change: buffer(ctx, "diffusion change", d.change, storage, gpu)?,
@@ -249,6 +259,15 @@ impl DeviceResources {
                                     vk::BufferUsageFlags::TRANSFER_SRC,
                                     MemoryLocation::CpuToGpu,
                                 )?,
+                            }),
+                            None => None,
+                        },
+                        origins: buffer(ctx, "resident brick origins", r.origins, storage, gpu)?,
+                        sharpen: match r.sharpen {
+                            Some(d) => Some(SharpenBuffers {
+                                sharpened: buffer(ctx, "resident sharpened source", d.sharpened, storage, gpu)?,
+                                brick_slots: buffer(ctx, "resident brick slots", d.brick_slots, storage, gpu)?,
+                                constants: buffer(ctx, "diffusion correction constants", d.constants, storage, gpu)?,
                             }),
                             None => None,
                         },

@@ -120,9 +120,41 @@ pub struct ResidentSizes {
     /// Per brick block, the commit's sums; per brick, the stop rule's tally (read by the host).
     pub block_sums: u64,
     pub unit_tallies: u64,
+    /// Per occupied brick, its first voxel (`uvec4`), for the kernels that ask where a voxel is.
+    pub origins: u64,
     /// The diffusion acceleration's kernels' buffers, when the plan accelerates and the passes
     /// between orders run on the device.
     pub diffusion: Option<DiffusionSizes>,
+    /// The diffusion correction's, when the plan corrects.
+    pub sharpen: Option<SharpenSizes>,
+}
+
+/// The buffers of the diffusion correction's kernel ([`super::sharpen`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SharpenSizes {
+    /// What the next order propagates, C(T + S) − C(T): a source's size, in f32.
+    pub sharpened: u64,
+    /// Per brick of the volume, its slot or `u32::MAX` (empty).
+    pub brick_slots: u64,
+    /// The kernel's f64 constants.
+    pub constants: u64,
+}
+
+/// The f64 constants of the diffusion correction's kernel. Keep in sync with glsl/sharpen.comp.
+pub const SHARPEN_CONSTANTS: u64 = 19;
+
+impl SharpenSizes {
+    pub fn new(plan: &Plan, occupied: u64) -> SharpenSizes {
+        SharpenSizes {
+            sharpened: buffer_bytes(occupied * BRICK_BYTES * plan.source_components() as u64),
+            brick_slots: buffer_bytes(plan.bricks_total as u64 * 4),
+            constants: buffer_bytes(SHARPEN_CONSTANTS * 8),
+        }
+    }
+
+    pub fn device(&self) -> u64 {
+        self.sharpened + self.brick_slots + self.constants
+    }
 }
 
 /// The buffers of the diffusion acceleration's kernels ([`super::accelerate`]), sized for the most
@@ -137,8 +169,6 @@ pub struct DiffusionSizes {
     pub brick_start: u64,
     /// The bricks overlapping each unknown's cell, unknown after unknown.
     pub bricks: u64,
-    /// Per occupied brick, its first voxel (`uvec4`).
-    pub origins: u64,
     /// Per storage direction, its solid angle (f64).
     pub solid_angles: u64,
     /// Per channel and unknown (f64): the moments (read by the host), the change (written by it,
@@ -160,7 +190,6 @@ impl DiffusionSizes {
             brick_start: buffer_bytes((unknowns + 1) * 4),
             // A cell lies in one brick when cells are no larger than bricks, else a brick in one cell.
             bricks: buffer_bytes(unknowns.max(occupied) * 4),
-            origins: buffer_bytes(occupied * 16),
             solid_angles: buffer_bytes(plan.storage.len() as u64 * 8),
             moments: buffer_bytes(per_unknown),
             change: buffer_bytes(per_unknown),
@@ -174,7 +203,6 @@ impl DiffusionSizes {
             + self.cell_of_unknown
             + self.brick_start
             + self.bricks
-            + self.origins
             + self.solid_angles
             + self.moments
             + self.change
@@ -205,7 +233,10 @@ impl ResidentSizes {
             fluence_total: only(fluence),
             block_sums: only(blocks.max(1) * BLOCK_SUM_BYTES),
             unit_tallies: only(extent.occupied_total.max(1) * UNIT_TALLY_BYTES),
+            origins: only(extent.occupied_total * 16),
             diffusion: (totals && plan.acceleration).then(|| DiffusionSizes::new(plan, extent.occupied_total)),
+            sharpen: (totals && plan.diffusion_correction.iter().any(|&k| k > 0.0))
+                .then(|| SharpenSizes::new(plan, extent.occupied_total)),
         }
     }
 
@@ -219,7 +250,9 @@ impl ResidentSizes {
             + self.fluence_total
             + self.block_sums
             + self.unit_tallies
+            + self.origins
             + self.diffusion.map_or(0, |d| d.device())
+            + self.sharpen.map_or(0, |d| d.device())
     }
 
     /// The buffers bound whole to a kernel, named for the reason the plan gives when one is larger

@@ -1,0 +1,161 @@
+//! The diffusion correction of the resident mode's orders on the device ([`crate::solver::antidiffusion`]),
+//! so a plan that corrects (the default for a scattering medium) keeps its fields there between
+//! orders.
+//!
+//! After an order's sweeps (and the acceleration's fold), `glsl/sharpen.comp` writes into a
+//! resident buffer of its own what the next order propagates, C(T + S) − C(T), from the committed
+//! total T (before the commit adds S) and the order's raw source S; the commit then adds S to the
+//! total as the host's does, and the next order's previous source is made from the sharpened
+//! buffer instead of S. The kernel walks each voxel's partners two voxels away through a table of
+//! the bricks' slots, across periodic axes and mirrors as the host does, and computes every value
+//! with the host's f64 operations in the host's order — the stability limit's exponential too,
+//! which is why the host uses a portable one ([`crate::solver::antidiffusion::exp_neg`]) — so the
+//! answer is the streamed mode's to the bit (`tests/it/resident.rs`). A per-voxel albedo keeps the
+//! host's passes (the kernel takes every voxel's albedo factor as 1).
+
+use super::end_of_order::linear_groups;
+use super::owned::Owned;
+use super::resources::{ResidentBuffers, SharpenBuffers};
+use super::sizes::SHARPEN_CONSTANTS;
+use crate::solver::antidiffusion::{self, Sharpening};
+use crate::solver::plan::Plan;
+use crate::solver::SolveError;
+use crate::store::BRICK_VOXELS;
+use crate::vk::{BufferRange, ComputePipeline, Context, DescriptorSet, Recorder};
+use bytemuck::{Pod, Zeroable};
+use std::sync::Arc;
+
+const SHARPEN_SPV: &[u8] = include_bytes!("../../../spirv/sharpen.spv");
+
+/// Push constants of glsl/sharpen.comp. Keep in sync with `Push` there.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct SharpenPush {
+    pub count: u32,
+    pub groups_x: u32,
+    pub comps: u32,
+    pub channels: u32,
+    pub dims: [u32; 3],
+    /// Bit a: axis a is periodic; bit 3 + 2a + side: that face of axis a is a mirror.
+    pub flags: u32,
+    /// Bricks of the volume along x and y (a brick's index is x + bx·(y + by·z)).
+    pub bricks: [u32; 2],
+}
+const _: () = assert!(std::mem::size_of::<SharpenPush>() == 40);
+
+/// The kernel's f64 constants, computed here so that the shader parses no f64 literal. Keep in
+/// sync with `Constants` in glsl/sharpen.comp.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct SharpenConstants {
+    pub kappa_w: [f64; 3],
+    pub thickness: [f64; 3],
+    pub albedo: [f64; 3],
+    pub two_thirds: f64,
+    pub boost: f64,
+    pub one_plus_boost: f64,
+    pub growth: f64,
+    pub small: f64,
+    pub flux_share: f64,
+    pub log2_e: f64,
+    pub ln2_hi: f64,
+    pub ln2_lo: f64,
+    pub exp_limit: f64,
+}
+const _: () = assert!(std::mem::size_of::<SharpenConstants>() as u64 == SHARPEN_CONSTANTS * 8);
+
+impl SharpenConstants {
+    /// The plan's, as [`Sharpening::of`] and [`Sharpening::stable_share`] compute them.
+    pub fn of(plan: &Plan) -> SharpenConstants {
+        let how = Sharpening::of(plan);
+        let boost: f64 = how.kappa.iter().sum();
+        SharpenConstants {
+            kappa_w: how.kappa.map(|k| antidiffusion::PARTNER_WEIGHT * k),
+            thickness: how.thickness,
+            albedo: how.albedo,
+            two_thirds: 2.0 / 3.0,
+            boost,
+            one_plus_boost: 1.0 + boost,
+            growth: antidiffusion::LARGEST_VOXEL_PATTERN_GROWTH,
+            small: antidiffusion::SMALL_THICKNESS,
+            flux_share: antidiffusion::LARGEST_FLUX_SHARE,
+            log2_e: std::f64::consts::LOG2_E,
+            ln2_hi: antidiffusion::LN2_HI,
+            ln2_lo: antidiffusion::LN2_LO,
+            exp_limit: antidiffusion::EXP_NEG_LIMIT,
+        }
+    }
+}
+
+/// The kernel and its set over the resident buffers.
+pub struct DeviceSharpening {
+    set: Owned<DescriptorSet>,
+    push: SharpenPush,
+    /// Declared after the set, so freed after it.
+    pipeline: Owned<ComputePipeline>,
+}
+
+impl DeviceSharpening {
+    /// The pipeline and set over `resident` (`occupied` bricks of a volume of `bricks` bricks per
+    /// axis); `None` when the plan does not correct (no buffers for it).
+    pub fn new(
+        ctx: &Arc<Context>,
+        plan: &Plan,
+        resident: &ResidentBuffers,
+        occupied: u64,
+        bricks: [u32; 3],
+    ) -> Result<Option<Self>, SolveError> {
+        let Some(totals) = resident.totals.as_ref() else { return Ok(None) };
+        let Some(SharpenBuffers { sharpened, brick_slots, constants }) = totals.sharpen.as_ref() else {
+            return Ok(None);
+        };
+        let push_bytes = std::mem::size_of::<SharpenPush>() as u32;
+        let pipeline = Owned::new(ctx, ctx.create_compute_pipeline("sharpen", SHARPEN_SPV, 7, push_bytes)?);
+        let ranges: Vec<BufferRange> = [
+            &resident.density,
+            &totals.source_total,
+            &resident.source_next,
+            sharpened,
+            brick_slots,
+            &totals.origins,
+            constants,
+        ]
+        .into_iter()
+        .map(|b| BufferRange::from(&**b))
+        .collect();
+        let set = Owned::new(ctx, ctx.create_descriptor_set("sharpen", &pipeline, &ranges)?);
+        let mut flags = 0u32;
+        for axis in 0..3 {
+            if plan.periodic[axis] {
+                flags |= 1 << axis;
+            }
+            for side in 0..2 {
+                if plan.reflective[axis][side] {
+                    flags |= 1 << (3 + 2 * axis + side);
+                }
+            }
+        }
+        let count = u32::try_from(occupied * BRICK_VOXELS as u64)
+            .map_err(|_| SolveError::Internal("more resident voxels than a dispatch can reach"))?;
+        let push = SharpenPush {
+            count,
+            comps: plan.source_components(),
+            channels: plan.channels,
+            dims: plan.dims,
+            flags,
+            bricks: [bricks[0], bricks[1]],
+            ..SharpenPush::default()
+        };
+        Ok(Some(DeviceSharpening { set, push, pipeline }))
+    }
+
+    /// Records the pass over every voxel: the sharpened buffer takes C(T + S) − C(T) (the
+    /// committed total T not yet holding the order's source S).
+    pub fn record(&self, rec: &mut Recorder) -> Result<(), SolveError> {
+        let groups = linear_groups(self.push.count);
+        let push = SharpenPush { groups_x: groups[0], ..self.push };
+        rec.bind(&self.pipeline, &self.set)?;
+        rec.dispatch_bound(&self.pipeline, bytemuck::bytes_of(&push), groups)?;
+        Ok(())
+    }
+}
