@@ -214,7 +214,7 @@ impl Acceleration {
     /// Folds the correction into an order (see the module docs): from the order's fluence and
     /// scattered source, solves for the new correction f and adds f − f_prev to the fluence and
     /// σs·(f − f_prev)/4π to every storage direction of the source. Three steps, the first and
-    /// the last of which the GPU's resident mode runs as kernels ([`crate::solver::gpu::accelerate`]):
+    /// the last of which the GPU's resident mode runs as kernels (`solver::gpu::accelerate`):
     /// [`Self::moments`], [`Self::solve`], [`Self::prolong`].
     pub fn fold<F: FieldPlanes + Sync + Send, U: VoxelUnits<V = F::V> + Medium<V = F::V>>(
         &mut self,

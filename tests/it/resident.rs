@@ -141,6 +141,40 @@ fn the_device_corrects_diffusion_as_the_host_does() {
     assert_eq!(resident_equals_streamed("device-corrected-periodic", &slab), EndOfOrder::Device);
 }
 
+/// A warm start (here accelerated and diffusion-corrected, as a scattering cloud's plan is by
+/// default): its first commit takes the guess back off on the host, the orders after it are
+/// committed on the device, and the answer is the streamed solve's to the bit.
+#[test]
+fn a_warm_start_commits_on_the_device_after_its_first_order() {
+    let dir = temp_dir("resident-warm");
+    let run = |name: &str, sky: f64, residency: &str, warm: Option<&str>| -> (Vec<u8>, serde_json::Value) {
+        let text = format!(
+            "[volume]\nprocedural = \"cloud\"\ndims = [26, 22, 24]\n[medium]\nsigma_t = 1.5\nalbedo = 0.95\n\
+             [[lights]]\nkind = \"sky\"\nradiance = {sky}\n[solver]\ndirections_per_face = 3\nmax_orders = 5\n\
+             tolerance = 1e-9\ndevice_residency = \"{residency}\"\n"
+        );
+        let scene = write_scene_as(&dir, &format!("{name}.toml"), &text);
+        let job = lpm::job::SolveJob {
+            no_image: true,
+            vk: validated(),
+            warm_start: warm.map(|w| dir.join(w)),
+            ..lpm::job::SolveJob::new(scene, dir.join(name))
+        };
+        lpm::job::run(&job, |_, _| {}).expect("solve");
+        let report = serde_json::from_slice(&std::fs::read(dir.join(name).join("report.json")).expect("report"));
+        (std::fs::read(dir.join(name).join("fluence.raw")).expect("fluence"), report.expect("json"))
+    };
+    run("cold", 1.0, "auto", None);
+    let (resident, r) = run("warm-resident", 1.3, "auto", Some("cold"));
+    let (streamed, s) = run("warm-streamed", 1.3, "streamed", Some("cold"));
+    assert_eq!(r["device_memory"]["end_of_order"], "device", "{}", r["device_memory"]);
+    assert_eq!(s["device_memory"]["end_of_order"], "host_streamed", "{}", s["device_memory"]);
+    assert_eq!(r["plan"]["acceleration"], "diffusion");
+    assert!(r["warm_start"].is_string());
+    assert_eq!(r["orders"], s["orders"]);
+    assert!(resident == streamed, "a warm start resident and streamed differ");
+}
+
 /// A plan with a pass the device does not run (a per-voxel albedo) keeps the host's passes and
 /// says so.
 #[test]

@@ -186,7 +186,10 @@ fn killed_while_a_checkpoint_is_written_resumes_from_the_one_before() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 
     let o = crate::common::lpm_command(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image"])
-        .env("LPM_TEST_ABORT_AT_SLICE", "70")
+        // A slice of the third order (order 2): the device commits the orders, so after the
+        // first (sky, sun and faces) an order is its faces' sweeps only, and the hook counts the
+        // submissions between them too. Order 0's checkpoint is on disk by then, order 1's in flight.
+        .env("LPM_TEST_ABORT_AT_SLICE", "104")
         .env("LPM_TEST_CHECKPOINT_DELAY_MS", "3000")
         .output()
         .unwrap();

@@ -27,9 +27,9 @@
 //! the next order propagates goes into a buffer of its own, which `to_half.comp` then reads; the
 //! commit adds the raw source to the total, as the host's does).
 //!
-//! What stays on the host: a per-voxel albedo and a warm start's first commit — a plan with
-//! either keeps the host's passes (and brings the fields home every order), and says so
-//! ([`EndOfOrder`]). A device without `shaderFloat64` and `shaderInt64` does too. The energy books
+//! What stays on the host: a warm start's first commit (the fields come home for that order, and
+//! stay on the device from the next one), and a per-voxel albedo — a plan with one keeps the
+//! host's passes (and brings the fields home every order), and says so ([`EndOfOrder`]). A device without `shaderFloat64` and `shaderInt64` does too. The energy books
 //! and the tail run once, after the fields come home at the end.
 
 use super::owned::Owned;
@@ -70,8 +70,6 @@ pub enum EndOfOrder {
     HostPlan,
     /// On the host: the device lacks `shaderFloat64` or `shaderInt64`.
     HostNoFloat64,
-    /// On the host: a warm start's first commit takes its guess back off (decided at solve time).
-    HostWarmStart,
 }
 
 impl EndOfOrder {
@@ -90,7 +88,7 @@ impl EndOfOrder {
     pub fn describe(self) -> &'static str {
         match self {
             EndOfOrder::Device => {
-                "on the device: the fields stay there between orders and come home at checkpoints and at the end"
+                "on the device: the fields stay there between orders and come home at checkpoints and at the end (and for a warm start's first commit, which takes the guess back off on the host)"
             }
             EndOfOrder::HostStreamed => "on the host: the sweeps stream the fields through it",
             EndOfOrder::HostPlan => {
@@ -98,9 +96,6 @@ impl EndOfOrder {
             }
             EndOfOrder::HostNoFloat64 => {
                 "on the host, with the fields brought home every order: the device lacks shaderFloat64 or shaderInt64"
-            }
-            EndOfOrder::HostWarmStart => {
-                "on the host, with the fields brought home every order: a warm start's first commit runs there"
             }
         }
     }

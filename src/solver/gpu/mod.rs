@@ -48,8 +48,9 @@
 //! the last order: the next order's previous source is made from the new one on the device, and
 //! the state comes home only for a checkpoint and at the end. The diffusion acceleration
 //! (`accelerate`: restriction and prolongation on the device, the solve on the host's small grid)
-//! and the diffusion correction (`sharpen`) run there too. Otherwise (a per-voxel albedo, a warm
-//! start) the new source and fluence come home every order for the host's passes.
+//! and the diffusion correction (`sharpen`) run there too; a warm start's first commit runs on the
+//! host. Otherwise (a per-voxel albedo) the new source and fluence come home every order for the
+//! host's passes.
 //!
 //! ## The pieces
 //!
@@ -98,7 +99,7 @@ use crate::store::BrickStore;
 use crate::vk::{Context, Recorder};
 use ash::vk;
 use budget::MemoryPlan;
-use end_of_order::{EndOfOrder, EndPasses, Transfer};
+use end_of_order::{EndPasses, Transfer};
 use layout::{FLAG_BOUNDARY, FLAG_CARRY, FLAG_EMIT, FLAG_GAIN};
 use resources::DeviceResources;
 use std::sync::Arc;
@@ -264,12 +265,6 @@ impl<'a> GpuBackend<'a> {
             "GPU backend ready"
         );
         let medium = StoreMedium::new(store, plan)?;
-        let mut memory = memory;
-        if memory.ends_on_device() && fields.warm_started {
-            // The totals' buffers were planned, but a warm start's first commit runs on the host.
-            memory.end_of_order = EndOfOrder::HostWarmStart;
-            memory.end_of_order_reason = EndOfOrder::HostWarmStart.describe();
-        }
         let (end_passes, diffusion) = match resources.resident.as_ref().filter(|_| memory.ends_on_device()) {
             Some(resident) => {
                 let occupied = memory.slice.occupied_total;
@@ -578,7 +573,7 @@ impl<'a> Backend for GpuBackend<'a> {
     }
 
     fn commit_order(&mut self, plan: &Plan) -> Result<[f64; 3], SolveError> {
-        if self.end_passes.is_none() {
+        if !self.commits_on_device() {
             return self.fields.commit_order(plan, &self.medium);
         }
         if self.fields.acceleration_due(plan, &self.medium)? {
@@ -706,7 +701,7 @@ impl GpuBackend<'_> {
             let seeded = io.fields.seeded;
             self.streamer.load_resident(&mut io, self.half_exponent, !self.density_loaded, seeded)?;
             self.density_loaded = true;
-            if self.end_passes.is_some() {
+            if self.commits_on_device() {
                 self.load_totals()?;
             }
         }
@@ -733,12 +728,19 @@ impl GpuBackend<'_> {
             // The fields come home (and the next order's load goes in) in brick order; so do the
             // device's passes between orders read them.
             self.reorder_resident(false)?;
-            if self.end_passes.is_none() {
+            if !self.commits_on_device() {
                 let mut io = Stream { plan, store: self.store, fields: &mut *self.fields, res: &self.resources };
                 self.streamer.unload_resident(&mut io)?;
             }
         }
         Ok(tallies)
+    }
+
+    /// Whether the order being solved is committed on the device ([`end_of_order`]): when the plan
+    /// lets the device end its orders, except a warm start's first order, whose commit takes the
+    /// guess back off on the host (the fields come home for it; from the next order on they stay).
+    fn commits_on_device(&self) -> bool {
+        self.end_passes.is_some() && !self.fields.initial_guess
     }
 
     /// The start of an order after a commit on the device: the new source becomes the previous

@@ -75,9 +75,9 @@ pub struct TotalBuffers {
     pub unit_tallies: Owned<Buffer>,
     /// Per occupied brick, its first voxel (`uvec4`; written with the first load).
     pub origins: Owned<Buffer>,
-    /// The diffusion acceleration's, when the plan accelerates ([`super::accelerate`]).
+    /// The diffusion acceleration's, when the plan accelerates (`accelerate`).
     pub diffusion: Option<DiffusionBuffers>,
-    /// The diffusion correction's, when the plan corrects ([`super::sharpen`]).
+    /// The diffusion correction's, when the plan corrects (`sharpen`).
     pub sharpen: Option<SharpenBuffers>,
 }
 

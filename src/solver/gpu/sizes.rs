@@ -129,7 +129,7 @@ pub struct ResidentSizes {
     pub sharpen: Option<SharpenSizes>,
 }
 
-/// The buffers of the diffusion correction's kernel ([`super::sharpen`]).
+/// The buffers of the diffusion correction's kernel (`sharpen`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct SharpenSizes {
     /// What the next order propagates, C(T + S) − C(T): a source's size, in f32.
@@ -157,7 +157,7 @@ impl SharpenSizes {
     }
 }
 
-/// The buffers of the diffusion acceleration's kernels ([`super::accelerate`]), sized for the most
+/// The buffers of the diffusion acceleration's kernels (`accelerate`), sized for the most
 /// unknowns the grid of the volume can have (every cell holding medium, or every occupied voxel
 /// a cell of its own): the grid is built at the first commit, the buffers with the rest.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
