@@ -16,7 +16,7 @@ layout(push_constant) uniform Push {
     uint cells_z;
     uint first;         // moments: the round's first voxel of each cell's sequence
     uint round_voxels;  // moments: voxels per round
-    uint pad;
+    uint albedo_grid;   // prolong: 1 when the scene has a per-voxel albedo factor
     double extinction[3];  // σt per unit density, per channel
     double scatter[3];     // σs per unit density, per channel
     double voxel_size;

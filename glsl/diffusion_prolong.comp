@@ -1,7 +1,8 @@
 #version 450
 // diffusion_prolong.comp: the prolongation of the diffusion acceleration, on the device-resident
 // fields. Per medium voxel of the grid, the change g of its cell's correction is added to the
-// order's fluence and its scattered share σs·g/4π to every storage direction of the new source,
+// order's fluence and its scattered share σs·a·g/4π (a: the voxel's albedo factor, 1 without an
+// albedo grid) to every storage direction of the new source,
 // in f64 and rounded back to f32 as the host's `Acceleration::prolong` does, bit for bit
 // (exact.glsl). One invocation per voxel of the occupied bricks. Host side:
 // src/solver/gpu/accelerate.rs.
@@ -20,6 +21,8 @@ layout(std430, binding = 3) readonly buffer UnknownOf { uint unknown_of[]; };
 layout(std430, binding = 4) readonly buffer Origins { uvec4 origin[]; };
 // Channel after channel: change[ch * unknowns + u].
 layout(std430, binding = 5) readonly buffer Change { double change[]; };
+// The albedo factor per voxel (bound to the density, unread, without an albedo grid).
+layout(std430, binding = 6) readonly buffer Albedo { uint albedo[]; };
 
 void main() {
     uint i = (gl_WorkGroupID.y * pc.groups_x + gl_WorkGroupID.x) * 64u + gl_LocalInvocationID.x;
@@ -32,12 +35,13 @@ void main() {
     uvec3 at = v / pc.edge;
     uint u = unknown_of[at.x + pc.cells_x * (at.y + pc.cells_y * at.z)];
     if (u == NONE) return;
+    double a = pc.albedo_grid != 0u ? f64_of_f32_bits(albedo[i]) : 1.0;
     for (uint ch = 0u; ch < pc.channels; ch++) {
         double g = change[ch * pc.unknowns + u];
         uint f = (slot * pc.channels + ch) * BRICK_VOXELS + local;
         precise double phi = f64_of_f32_bits(fluence[f]) + g;
         fluence[f] = f32_bits_of(phi);
-        precise double add = rho * pc.scatter[ch] * g / pc.four_pi;
+        precise double add = rho * pc.scatter[ch] * a * g / pc.four_pi;
         for (uint k = ch; k < pc.comps; k += pc.channels) {
             uint s = (slot * pc.comps + k) * BRICK_VOXELS + local;
             precise double j = f64_of_f32_bits(source[s]) + add;

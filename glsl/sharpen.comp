@@ -20,6 +20,8 @@ layout(std430, binding = 3) writeonly buffer Sharpened { uint sharpened[]; };
 // Per brick of the volume (x fastest), its slot, or EMPTY.
 layout(std430, binding = 4) readonly buffer BrickSlots { uint brick_slot[]; };
 layout(std430, binding = 5) readonly buffer Origins { uvec4 origin[]; };
+// The albedo factor per voxel (bound to the density, unread, without an albedo grid: flag bit 9).
+layout(std430, binding = 7) readonly buffer Albedo { uint albedo[]; };
 // Keep in sync with `SharpenConstants` in src/solver/gpu/sharpen.rs (computed on the host, so no
 // f64 literal is parsed here).
 layout(std430, binding = 6) readonly buffer Constants {
@@ -47,7 +49,8 @@ layout(push_constant) uniform Push {
     uint dims_x;
     uint dims_y;
     uint dims_z;
-    uint flags;     // bit a: axis a periodic; bit 3 + 2a + side: that face of axis a a mirror
+    uint flags;     // bit a: axis a periodic; bit 3 + 2a + side: that face of axis a a mirror;
+                    // bit 9: a per-voxel albedo factor
     uint bricks_x;  // bricks of the volume per axis (x, y)
     uint bricks_y;
 } pc;
@@ -99,10 +102,14 @@ uvec2 locate(uvec3 v) {
     return uvec2(slot, l.x + BRICK_EDGE * (l.y + BRICK_EDGE * l.z));
 }
 
-// The scattering weight of a located voxel (density × albedo factor 1: the device commits only
-// plans without a per-voxel albedo); 0 where no brick holds it.
+// The scattering weight of a located voxel, density × albedo factor (`scattering_at`); 0 where
+// no brick holds it.
 double weight(uvec2 at) {
-    return at.x == EMPTY ? 0.0 : f64_of_f32_bits(density[at.x * BRICK_VOXELS + at.y]);
+    if (at.x == EMPTY) return 0.0;
+    uint v = at.x * BRICK_VOXELS + at.y;
+    double a = (pc.flags & (1u << 9)) != 0u ? f64_of_f32_bits(albedo[v]) : 1.0;
+    precise double m = f64_of_f32_bits(density[v]) * a;
+    return m;
 }
 
 // One flux of the host's `flux` closure: s hands over to its partner, capped by the smaller value.
@@ -121,7 +128,7 @@ void main() {
     uint slot = i / BRICK_VOXELS;
     uint local = i % BRICK_VOXELS;
     double rho = f64_of_f32_bits(density[i]);
-    precise double m = rho * 1.0;
+    double m = weight(uvec2(slot, local));
     if (!(m > 0.0)) {
         for (uint k = 0u; k < pc.comps; k++) {
             uint at = (slot * pc.comps + k) * BRICK_VOXELS + local;

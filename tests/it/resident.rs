@@ -175,18 +175,24 @@ fn a_warm_start_commits_on_the_device_after_its_first_order() {
     assert!(resident == streamed, "a warm start resident and streamed differ");
 }
 
-/// A plan with a pass the device does not run (a per-voxel albedo) keeps the host's passes and
-/// says so.
+/// A per-voxel albedo factor on the device: the new source scaled by it, the acceleration's
+/// prolongation and the diffusion correction's weights with it, bitwise the host's.
 #[test]
-fn a_plan_with_an_albedo_field_commits_on_the_host_and_says_why() {
-    let path = temp_dir("host-end-albedo-input").join("albedo.raw");
-    write_raw_field(&path, [20, 18, 22], |v| if v[0] < 10 { 0.9 } else { 0.5 });
-    let mut s = scene(Shape::Cloud, [20, 18, 22], [1.0; 3], [0.9; 3], vec![sky(1.0)]);
+fn the_device_scales_by_an_albedo_grid_as_the_host_does() {
+    use lpm::scene::DiffusionCorrection;
+    let dims = [30, 26, 28];
+    let path = temp_dir("resident-albedo-input").join("albedo.raw");
+    write_raw_field(&path, dims, |v| if v[0] < 15 { 0.999 } else { 0.3 + 0.02 * (v[1] % 7) as f32 });
+    let mut s = scene(Shape::Cloud, dims, [2.0, 1.5, 1.0], [0.99; 3], vec![sky(1.0), sun([0.3, 0.2, 1.0], [1.0; 3])]);
     s.volume.albedo = Some(lpm::scene::AlbedoGrid::Raw { path });
-    s.solver.max_orders = 1;
-    let memory = solve("host-end", &s, Gpu).run.memory.expect("plan");
-    assert_eq!(memory.end_of_order, EndOfOrder::HostPlan, "{memory:?}");
-    assert!(memory.end_of_order_reason.contains("albedo per voxel"), "{memory:?}");
+    s.solver.spatial = Some(SpatialScheme::Constant);
+    s.solver.max_orders = 4;
+    s.solver.tolerance = 1e-9;
+    assert_eq!(resident_equals_streamed("device-albedo", &s), EndOfOrder::Device);
+    let mut corrected = s.clone();
+    corrected.solver.diffusion_correction = DiffusionCorrection::On;
+    corrected.solver.acceleration = Acceleration::Diffusion;
+    assert_eq!(resident_equals_streamed("device-albedo-corrected", &corrected), EndOfOrder::Device);
 }
 
 #[test]

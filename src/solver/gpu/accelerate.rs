@@ -46,7 +46,8 @@ pub struct DiffusionPush {
     pub cells: [u32; 3],
     pub first: u32,
     pub round_voxels: u32,
-    pub pad: u32,
+    /// 1 when the scene has a per-voxel albedo factor (the prolongation scales by it).
+    pub albedo_grid: u32,
     pub extinction: [f64; 3],
     pub scatter: [f64; 3],
     pub voxel_size: f64,
@@ -81,7 +82,7 @@ impl DeviceAcceleration {
         let Some(d) = totals.diffusion.as_ref() else { return Ok(None) };
         let push = std::mem::size_of::<DiffusionPush>() as u32;
         let moments_pipeline = Owned::new(ctx, ctx.create_compute_pipeline("diffusion moments", MOMENTS_SPV, 8, push)?);
-        let prolong_pipeline = Owned::new(ctx, ctx.create_compute_pipeline("diffusion prolong", PROLONG_SPV, 6, push)?);
+        let prolong_pipeline = Owned::new(ctx, ctx.create_compute_pipeline("diffusion prolong", PROLONG_SPV, 7, push)?);
         let set = |name: &str, p: &ComputePipeline, buffers: &[&Buffer]| -> Result<Owned<DescriptorSet>, SolveError> {
             let ranges: Vec<BufferRange> = buffers.iter().map(|&b| BufferRange::from(b)).collect();
             Ok(Owned::new(ctx, ctx.create_descriptor_set(name, p, &ranges)?))
@@ -113,6 +114,8 @@ impl DeviceAcceleration {
                     &d.unknown_of,
                     &totals.origins,
                     &d.change,
+                    // Unread without an albedo grid: any buffer will do.
+                    totals.albedo.as_deref().unwrap_or(&resident.density),
                 ],
             )?,
             push: None,
@@ -217,6 +220,7 @@ impl DeviceAcceleration {
             edge: grid.edge(),
             cells: grid.cells(),
             round_voxels,
+            albedo_grid: u32::from(plan.albedo_field),
             voxel_size: plan.voxel_size,
             four_pi: acceleration::four_pi(plan),
             ..DiffusionPush::default()

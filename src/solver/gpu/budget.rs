@@ -179,7 +179,7 @@ pub fn plan_memory(
     let rays = extent.rays;
     // Every figure below is a buffer size from `sizes`, the ones the allocations use.
     let table_bytes = sizes::table_bytes(plan);
-    let ends = EndOfOrder::choose(plan, limits);
+    let ends = EndOfOrder::choose(limits);
     let fields = ResidentSizes::new(plan, &extent, ends == EndOfOrder::Device);
     // (slot device buffers, ray state, deposit, staging, resident fields, total)
     let cost = |mode: Residency, slots: u32, pass: u32, slab: u32, group: u32, planes: u32| {

@@ -21,16 +21,18 @@
 //! what Vulkan promises is that f64 division is correctly rounded (the remaining error's e_v, then
 //! rounded to f32): true of llvmpipe and of NVIDIA's compiler.
 //!
-//! Before the commit, when the plan asks for them: the diffusion acceleration's fold
+//! Before the commit, when the plan asks for them: with a per-voxel albedo, `albedo_scale.comp`
+//! multiplies the new source by each voxel's factor (resident from the first load); then the
+//! diffusion acceleration's fold
 //! (`super::accelerate`: its kernels restrict the order to the diffusion grid and prolong the
 //! correction; the host solves on the grid) and the diffusion correction (`super::sharpen`: what
 //! the next order propagates goes into a buffer of its own, which `to_half.comp` then reads; the
 //! commit adds the raw source to the total, as the host's does).
 //!
 //! What stays on the host: a warm start's first commit (the fields come home for that order, and
-//! stay on the device from the next one), and a per-voxel albedo — a plan with one keeps the
-//! host's passes (and brings the fields home every order), and says so ([`EndOfOrder`]). A device without `shaderFloat64` and `shaderInt64` does too. The energy books
-//! and the tail run once, after the fields come home at the end.
+//! stay on the device from the next one). A device without `shaderFloat64` and `shaderInt64`
+//! keeps every pass there and brings the fields home every order, and says so ([`EndOfOrder`]).
+//! The energy books and the tail run once, after the fields come home at the end.
 
 use super::owned::Owned;
 use super::resources::{DeviceResources, ResidentBuffers, TotalBuffers};
@@ -52,6 +54,7 @@ const BLOCK_SUMS_SPV: &[u8] = include_bytes!("../../../spirv/block_sums.spv");
 const COMMIT_SPV: &[u8] = include_bytes!("../../../spirv/commit.spv");
 const TO_HALF_SPV: &[u8] = include_bytes!("../../../spirv/to_half.spv");
 const REMAINING_SPV: &[u8] = include_bytes!("../../../spirv/remaining.spv");
+const ALBEDO_SCALE_SPV: &[u8] = include_bytes!("../../../spirv/albedo_scale.spv");
 
 /// Invocations per workgroup of the four kernels (`local_size_x`).
 const GROUP: u32 = 64;
@@ -66,19 +69,15 @@ pub enum EndOfOrder {
     Device,
     /// On the host: the sweeps stream, so the fields are on the host anyway.
     HostStreamed,
-    /// On the host: the plan has a pass the device does not run (a per-voxel albedo).
-    HostPlan,
     /// On the host: the device lacks `shaderFloat64` or `shaderInt64`.
     HostNoFloat64,
 }
 
 impl EndOfOrder {
-    /// For a resident solve of `plan` on a device with `limits`.
-    pub fn choose(plan: &Plan, limits: &Limits) -> EndOfOrder {
+    /// For a resident solve on a device with `limits`: every pass a plan may have runs there.
+    pub fn choose(limits: &Limits) -> EndOfOrder {
         if !limits.float64 {
             EndOfOrder::HostNoFloat64
-        } else if plan.albedo_field {
-            EndOfOrder::HostPlan
         } else {
             EndOfOrder::Device
         }
@@ -91,9 +90,6 @@ impl EndOfOrder {
                 "on the device: the fields stay there between orders and come home at checkpoints and at the end (and for a warm start's first commit, which takes the guess back off on the host)"
             }
             EndOfOrder::HostStreamed => "on the host: the sweeps stream the fields through it",
-            EndOfOrder::HostPlan => {
-                "on the host, with the fields brought home every order: the plan scales the albedo per voxel, which the device's passes do not"
-            }
             EndOfOrder::HostNoFloat64 => {
                 "on the host, with the fields brought home every order: the device lacks shaderFloat64 or shaderInt64"
             }
@@ -149,6 +145,8 @@ pub struct EndPasses {
     /// `None` when the source is stored at f32 (the next order's previous source is a copy).
     to_half: Option<Owned<DescriptorSet>>,
     remaining: Owned<DescriptorSet>,
+    /// With a per-voxel albedo: the new source scaled by it (`None`: uniform albedo).
+    albedo_scale: Option<Owned<DescriptorSet>>,
     /// Values (source, fluence) and blocks of the source; bricks.
     source_values: u32,
     fluence_values: u32,
@@ -159,6 +157,7 @@ pub struct EndPasses {
     commit_pipeline: Owned<ComputePipeline>,
     to_half_pipeline: Owned<ComputePipeline>,
     remaining_pipeline: Owned<ComputePipeline>,
+    albedo_scale_pipeline: Owned<ComputePipeline>,
 }
 
 /// What a commit on the device found: the order's scattered power per channel, and the largest
@@ -189,6 +188,7 @@ impl EndPasses {
         let commit_pipeline = pipeline("commit", COMMIT_SPV, 2)?;
         let to_half_pipeline = pipeline("to half", TO_HALF_SPV, 2)?;
         let remaining_pipeline = pipeline("remaining", REMAINING_SPV, 4)?;
+        let albedo_scale_pipeline = pipeline("albedo scale", ALBEDO_SCALE_SPV, 2)?;
         let set = |name: &str, p: &ComputePipeline, buffers: &[&Buffer]| -> Result<Owned<DescriptorSet>, SolveError> {
             let ranges: Vec<BufferRange> = buffers.iter().map(|&b| BufferRange::from(b)).collect();
             Ok(Owned::new(ctx, ctx.create_descriptor_set(name, p, &ranges)?))
@@ -226,7 +226,12 @@ impl EndPasses {
             block_sums_pipeline,
             commit_pipeline,
             to_half_pipeline,
+            albedo_scale: match &totals.albedo {
+                Some(albedo) => Some(set("albedo scale", &albedo_scale_pipeline, &[&resident.source_next, albedo])?),
+                None => None,
+            },
             remaining_pipeline,
+            albedo_scale_pipeline,
         })
     }
 
@@ -290,6 +295,19 @@ impl EndPasses {
                 .fold(0, |m, s| m.max(s.max_abs_bits));
         }
         Ok(Committed { power, max_abs: f32::from_bits(max_bits) })
+    }
+
+    /// With a per-voxel albedo, multiplies the order's new source by each voxel's factor, as the
+    /// host's commit first does (the sweeps scatter with the medium's albedo). Waits.
+    pub fn scale_by_albedo(&self, streamer: &mut SliceStreamer, plan: &Plan) -> Result<(), SolveError> {
+        let Some(set) = &self.albedo_scale else { return Ok(()) };
+        let ctx = Arc::clone(streamer.context());
+        let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "albedo scale on the device")?;
+        rec.compute_to_compute();
+        rec.transfer_to_compute();
+        let push = EndPush { mode: plan.source_components(), ..EndPush::default() };
+        Self::dispatch(&mut rec, &self.albedo_scale_pipeline, set, self.source_values, push)?;
+        streamer.submit_and_wait(rec)
     }
 
     /// Records the start of an order after a commit on the device: the new source becomes the
@@ -381,6 +399,51 @@ pub(super) fn readback<T: Pod>(buffer: &Buffer, n: usize) -> Result<&[T], SolveE
         .get(..n * std::mem::size_of::<T>())
         .ok_or(SolveError::Internal("an end-of-order sum buffer is smaller than its values"))?;
     Ok(bytemuck::cast_slice(bytes))
+}
+
+/// Copies one value per voxel of every occupied brick (`brick(slot)`, 4096 f32 each; zeros where
+/// it gives none) into `device`, in slot order, through slot 0's upload staging a chunk of whole
+/// bricks at a time. For the per-voxel albedo factor, once per solve.
+pub fn upload_bricks<'a>(
+    streamer: &mut SliceStreamer,
+    res: &DeviceResources,
+    device: &Buffer,
+    brick: impl Fn(usize) -> Option<&'a [f32]>,
+) -> Result<(), SolveError> {
+    let brick_bytes = crate::store::BRICK_VOXELS * 4;
+    let bricks = device.size() as usize / brick_bytes;
+    let slot = res.slots.first().ok_or(SolveError::Internal("no slot staging for a field's transfer"))?;
+    let per_chunk = (slot.upload.size() as usize / brick_bytes).max(1);
+    if per_chunk * brick_bytes > slot.upload.size() as usize {
+        return Err(SolveError::Internal("the upload staging holds no whole brick"));
+    }
+    let ctx = Arc::clone(streamer.context());
+    for first in (0..bricks).step_by(per_chunk) {
+        let count = per_chunk.min(bricks - first);
+        for i in 0..count {
+            let values: Option<&[u8]> = brick(first + i).map(bytemuck::cast_slice).filter(|v| v.len() == brick_bytes);
+            // SAFETY: the staging is mapped for at least `per_chunk` bricks, and no submission
+            // uses it now: the streamer is idle between orders (every earlier use was waited for).
+            unsafe {
+                let at = slot.upload.as_mut_ptr().add(i * brick_bytes);
+                match values {
+                    Some(v) => std::ptr::copy_nonoverlapping(v.as_ptr(), at, brick_bytes),
+                    None => std::ptr::write_bytes(at, 0, brick_bytes),
+                }
+            }
+        }
+        let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "resident brick values")?;
+        rec.compute_to_transfer();
+        let region = vk::BufferCopy {
+            src_offset: 0,
+            dst_offset: (first * brick_bytes) as u64,
+            size: (count * brick_bytes) as u64,
+        };
+        rec.copy_buffer(&slot.upload, device, &[region]);
+        rec.transfer_to_compute();
+        streamer.submit_and_wait(rec)?;
+    }
+    Ok(())
 }
 
 /// Which way [`transfer_field`] copies.

@@ -48,9 +48,9 @@
 //! the last order: the next order's previous source is made from the new one on the device, and
 //! the state comes home only for a checkpoint and at the end. The diffusion acceleration
 //! (`accelerate`: restriction and prolongation on the device, the solve on the host's small grid)
-//! and the diffusion correction (`sharpen`) run there too; a warm start's first commit runs on the
-//! host. Otherwise (a per-voxel albedo) the new source and fluence come home every order for the
-//! host's passes.
+//! and the diffusion correction (`sharpen`) run there too, and so does a per-voxel albedo's scaling;
+//! a warm start's first commit runs on the host. On a device without f64 shaders the new source
+//! and fluence come home every order for the host's passes.
 //!
 //! ## The pieces
 //!
@@ -88,7 +88,7 @@ use super::antidiffusion::VoxelUnits;
 use super::energy::Tallies;
 use super::fields::{LoopState, PendingCheckpoint, StoreFields};
 use super::orders::Backend;
-use super::passes::{OrderFieldSet, StoreMedium};
+use super::passes::{Medium, OrderFieldSet, StoreMedium};
 use super::periodic::{CarryOf, PeriodStep, PeriodicCarry, RayRadiance};
 use super::plan::{half_scale_exponent, Plan, Precision, SweepDirection};
 use super::remaining::RemainingError;
@@ -576,6 +576,10 @@ impl<'a> Backend for GpuBackend<'a> {
         if !self.commits_on_device() {
             return self.fields.commit_order(plan, &self.medium);
         }
+        // In the host's order: the albedo factor, the acceleration, then (in the commit) the
+        // diffusion correction.
+        let (end, _, _) = device_end(&self.end_passes, &self.resources)?;
+        end.scale_by_albedo(&mut self.streamer, plan)?;
         if self.fields.acceleration_due(plan, &self.medium)? {
             self.accelerate_on_device(plan)?;
         }
@@ -792,6 +796,10 @@ impl GpuBackend<'_> {
         }
         rec.transfer_to_compute();
         self.streamer.submit_and_wait(rec)?;
+        if let Some(albedo) = &totals.albedo {
+            let medium = &self.medium;
+            end_of_order::upload_bricks(&mut self.streamer, &self.resources, albedo, |slot| medium.albedo(slot))?;
+        }
         let fields = &mut *self.fields;
         for (field, buffer) in
             [(&mut fields.source_total, &totals.source_total), (&mut fields.fluence_total, &totals.fluence_total)]

@@ -75,6 +75,8 @@ pub struct TotalBuffers {
     pub unit_tallies: Owned<Buffer>,
     /// Per occupied brick, its first voxel (`uvec4`; written with the first load).
     pub origins: Owned<Buffer>,
+    /// The per-voxel albedo factor, when the scene has one (written with the first load).
+    pub albedo: Option<Owned<Buffer>>,
     /// The diffusion acceleration's, when the plan accelerates (`accelerate`).
     pub diffusion: Option<DiffusionBuffers>,
     /// The diffusion correction's, when the plan corrects (`sharpen`).
@@ -129,6 +131,7 @@ impl ResidentBuffers {
         if let Some(t) = &self.totals {
             every.extend([&*t.source_total, &*t.fluence_total, &*t.block_sums, &*t.unit_tallies]);
             every.push(&t.origins);
+            every.extend(t.albedo.as_deref());
             every.extend(t.diffusion.iter().flat_map(DiffusionBuffers::every));
             every.extend(t.sharpen.iter().flat_map(|s| [&*s.sharpened, &*s.brick_slots, &*s.constants]));
         }
@@ -263,6 +266,10 @@ impl DeviceResources {
                             None => None,
                         },
                         origins: buffer(ctx, "resident brick origins", r.origins, storage, gpu)?,
+                        albedo: match r.albedo {
+                            0 => None,
+                            bytes => Some(buffer(ctx, "resident albedo factor", bytes, storage, gpu)?),
+                        },
                         sharpen: match r.sharpen {
                             Some(d) => Some(SharpenBuffers {
                                 sharpened: buffer(ctx, "resident sharpened source", d.sharpened, storage, gpu)?,

@@ -10,8 +10,8 @@
 //! the bricks' slots, across periodic axes and mirrors as the host does, and computes every value
 //! with the host's f64 operations in the host's order — the stability limit's exponential too,
 //! which is why the host uses a portable one ([`crate::solver::antidiffusion::exp_neg`]) — so the
-//! answer is the streamed mode's to the bit (`tests/it/resident.rs`). A per-voxel albedo keeps the
-//! host's passes (the kernel takes every voxel's albedo factor as 1).
+//! answer is the streamed mode's to the bit (`tests/it/resident.rs`). A voxel's scattering weight
+//! is its density times its albedo factor (the resident albedo grid's, 1 without one).
 
 use super::end_of_order::linear_groups;
 use super::owned::Owned;
@@ -36,7 +36,8 @@ pub struct SharpenPush {
     pub comps: u32,
     pub channels: u32,
     pub dims: [u32; 3],
-    /// Bit a: axis a is periodic; bit 3 + 2a + side: that face of axis a is a mirror.
+    /// Bit a: axis a is periodic; bit 3 + 2a + side: that face of axis a is a mirror; bit 9: a
+    /// per-voxel albedo factor.
     pub flags: u32,
     /// Bricks of the volume along x and y (a brick's index is x + bx·(y + by·z)).
     pub bricks: [u32; 2],
@@ -110,7 +111,7 @@ impl DeviceSharpening {
             return Ok(None);
         };
         let push_bytes = std::mem::size_of::<SharpenPush>() as u32;
-        let pipeline = Owned::new(ctx, ctx.create_compute_pipeline("sharpen", SHARPEN_SPV, 7, push_bytes)?);
+        let pipeline = Owned::new(ctx, ctx.create_compute_pipeline("sharpen", SHARPEN_SPV, 8, push_bytes)?);
         let ranges: Vec<BufferRange> = [
             &resident.density,
             &totals.source_total,
@@ -119,12 +120,14 @@ impl DeviceSharpening {
             brick_slots,
             &totals.origins,
             constants,
+            // Unread without an albedo grid: any buffer will do.
+            totals.albedo.as_ref().unwrap_or(&resident.density),
         ]
         .into_iter()
         .map(|b| BufferRange::from(&**b))
         .collect();
         let set = Owned::new(ctx, ctx.create_descriptor_set("sharpen", &pipeline, &ranges)?);
-        let mut flags = 0u32;
+        let mut flags = if plan.albedo_field { 1 << 9 } else { 0 };
         for axis in 0..3 {
             if plan.periodic[axis] {
                 flags |= 1 << axis;

@@ -122,6 +122,8 @@ pub struct ResidentSizes {
     pub unit_tallies: u64,
     /// Per occupied brick, its first voxel (`uvec4`), for the kernels that ask where a voxel is.
     pub origins: u64,
+    /// The per-voxel albedo factor, when the scene has one (0: none).
+    pub albedo: u64,
     /// The diffusion acceleration's kernels' buffers, when the plan accelerates and the passes
     /// between orders run on the device.
     pub diffusion: Option<DiffusionSizes>,
@@ -234,6 +236,7 @@ impl ResidentSizes {
             block_sums: only(blocks.max(1) * BLOCK_SUM_BYTES),
             unit_tallies: only(extent.occupied_total.max(1) * UNIT_TALLY_BYTES),
             origins: only(extent.occupied_total * 16),
+            albedo: if totals && plan.albedo_field { buffer_bytes(per_component) } else { 0 },
             diffusion: (totals && plan.acceleration).then(|| DiffusionSizes::new(plan, extent.occupied_total)),
             sharpen: (totals && plan.diffusion_correction.iter().any(|&k| k > 0.0))
                 .then(|| SharpenSizes::new(plan, extent.occupied_total)),
@@ -251,6 +254,7 @@ impl ResidentSizes {
             + self.block_sums
             + self.unit_tallies
             + self.origins
+            + self.albedo
             + self.diffusion.map_or(0, |d| d.device())
             + self.sharpen.map_or(0, |d| d.device())
     }
