@@ -17,7 +17,7 @@
 //! f32 from the bits as the host's `as f32` does (`glsl/exact.glsl`). So an accelerated resident
 //! solve is the streamed one to the bit (`tests/it/resident.rs`).
 
-use super::end_of_order::{linear_groups, readback};
+use super::end_of_order::{dispatch_linear, readback};
 use super::owned::Owned;
 use super::resources::{DiffusionBuffers, ResidentBuffers};
 use super::streamer::SliceStreamer;
@@ -164,6 +164,7 @@ impl DeviceAcceleration {
         }
         rec.compute_to_host();
         streamer.submit_and_wait(rec)?;
+        streamer.count_transfer(0, (n * c * 8) as u64);
         let moments: Vec<Vec<f64>> = readback::<f64>(&buffers.moments, n * c)?.chunks(n).map(<[f64]>::to_vec).collect();
         let change: Vec<f64> = grid.solve(&moments).concat();
         let bytes: &[u8] = bytemuck::cast_slice(&change);
@@ -180,7 +181,9 @@ impl DeviceAcceleration {
         rec.copy_buffer(&buffers.staging, &buffers.change, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size }]);
         rec.transfer_to_compute();
         dispatch(&mut rec, &self.prolong_pipeline, &self.prolong_set, self.voxels, push)?;
-        streamer.submit_and_wait(rec)
+        streamer.submit_and_wait(rec)?;
+        streamer.count_transfer(size, 0);
+        Ok(())
     }
 
     /// Puts the grid's tables on the device (once: the grid does not change during a solve) and
@@ -287,14 +290,9 @@ fn dispatch(
     pipeline: &ComputePipeline,
     set: &DescriptorSet,
     count: u32,
-    mut push: DiffusionPush,
+    push: DiffusionPush,
 ) -> Result<(), SolveError> {
-    let groups = linear_groups(count);
-    push.count = count;
-    push.groups_x = groups[0];
-    rec.bind(pipeline, set)?;
-    rec.dispatch_bound(pipeline, bytemuck::bytes_of(&push), groups)?;
-    Ok(())
+    dispatch_linear(rec, pipeline, set, count, |count, groups_x| DiffusionPush { count, groups_x, ..push })
 }
 
 /// Copies `bytes` into the start of `dst` through `staging`, a chunk at a time (waits).
@@ -317,6 +315,7 @@ fn upload(
         rec.copy_buffer(staging, dst, &[region]);
         rec.transfer_to_compute();
         streamer.submit_and_wait(rec)?;
+        streamer.count_transfer(region.size, 0);
     }
     Ok(())
 }

@@ -241,14 +241,9 @@ impl EndPasses {
         pipeline: &ComputePipeline,
         set: &DescriptorSet,
         count: u32,
-        mut push: EndPush,
+        push: EndPush,
     ) -> Result<(), SolveError> {
-        let groups = linear_groups(count);
-        push.count = count;
-        push.groups_x = groups[0];
-        rec.bind(pipeline, set)?;
-        rec.dispatch_bound(pipeline, bytemuck::bytes_of(&push), groups)?;
-        Ok(())
+        dispatch_linear(rec, pipeline, set, count, |count, groups_x| EndPush { count, groups_x, ..push })
     }
 
     /// Commits the order the sweeps just finished: the new source's block sums, then the new
@@ -384,9 +379,25 @@ pub fn propagated(resident: &ResidentBuffers) -> &Buffer {
     }
 }
 
+/// Records one dispatch of `count` invocations of a kernel indexed as [`linear_groups`] says, with
+/// the push constants `push(count, groups_x)`.
+pub(super) fn dispatch_linear<P: Pod>(
+    rec: &mut Recorder,
+    pipeline: &ComputePipeline,
+    set: &DescriptorSet,
+    count: u32,
+    push: impl FnOnce(u32, u32) -> P,
+) -> Result<(), SolveError> {
+    let groups = linear_groups(count);
+    let push = push(count, groups[0]);
+    rec.bind(pipeline, set)?;
+    rec.dispatch_bound(pipeline, bytemuck::bytes_of(&push), groups)?;
+    Ok(())
+}
+
 /// The workgroups of a dispatch of `count` invocations, [`GROUP`] to a workgroup, at most
 /// [`MAX_GROUPS_X`] along x and the rest along y (the kernels index `(y·groups_x + x)·GROUP + i`).
-pub(super) fn linear_groups(count: u32) -> [u32; 3] {
+fn linear_groups(count: u32) -> [u32; 3] {
     let groups = count.div_ceil(GROUP).max(1);
     let groups_x = groups.min(MAX_GROUPS_X);
     [groups_x, groups.div_ceil(groups_x), 1]
@@ -442,6 +453,7 @@ pub fn upload_bricks<'a>(
         rec.copy_buffer(&slot.upload, device, &[region]);
         rec.transfer_to_compute();
         streamer.submit_and_wait(rec)?;
+        streamer.count_transfer(region.size, 0);
     }
     Ok(())
 }
@@ -495,6 +507,9 @@ pub fn transfer_field(
         streamer.submit_and_wait(rec)?;
         if direction == Transfer::ToHost {
             part.copy_from_slice(&staging.bytes()[..part.len()]);
+            streamer.count_transfer(0, size);
+        } else {
+            streamer.count_transfer(size, 0);
         }
     }
     field.release_all();

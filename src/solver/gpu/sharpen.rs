@@ -13,7 +13,7 @@
 //! answer is the streamed mode's to the bit (`tests/it/resident.rs`). A voxel's scattering weight
 //! is its density times its albedo factor (the resident albedo grid's, 1 without one).
 
-use super::end_of_order::linear_groups;
+use super::end_of_order::dispatch_linear;
 use super::owned::Owned;
 use super::resources::{ResidentBuffers, SharpenBuffers};
 use super::sizes::SHARPEN_CONSTANTS;
@@ -155,10 +155,10 @@ impl DeviceSharpening {
     /// Records the pass over every voxel: the sharpened buffer takes C(T + S) − C(T) (the
     /// committed total T not yet holding the order's source S).
     pub fn record(&self, rec: &mut Recorder) -> Result<(), SolveError> {
-        let groups = linear_groups(self.push.count);
-        let push = SharpenPush { groups_x: groups[0], ..self.push };
-        rec.bind(&self.pipeline, &self.set)?;
-        rec.dispatch_bound(&self.pipeline, bytemuck::bytes_of(&push), groups)?;
-        Ok(())
+        dispatch_linear(rec, &self.pipeline, &self.set, self.push.count, |count, groups_x| SharpenPush {
+            count,
+            groups_x,
+            ..self.push
+        })
     }
 }

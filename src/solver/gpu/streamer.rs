@@ -153,6 +153,16 @@ impl SliceStreamer {
         self.profiler.as_ref().map(|p| p.stats.clone())
     }
 
+    /// Counts bytes moved outside the slice pipeline (the resident mode's field transfers, the
+    /// diffusion acceleration's moments and change) in the profile's totals, when profiling:
+    /// their time is inside the one-off submissions, not timestamped.
+    pub fn count_transfer(&mut self, uploaded: u64, downloaded: u64) {
+        if let Some(p) = self.profiler.as_mut() {
+            p.stats.upload_bytes += uploaded;
+            p.stats.download_bytes += downloaded;
+        }
+    }
+
     /// Submits a one-off command buffer on the compute queue and waits for it (setup, the
     /// per-pass tallies and the resident fields' reorder, not the slice pipeline). It runs after
     /// the last upload (the resident load's, when it reorders what that wrote).
