@@ -124,8 +124,9 @@ fn run_stream(
     for order in 0..orders.max(1) {
         let t = Instant::now();
         gpu.propagate_order(order)?;
-        let (fields, medium) = gpu.fields();
-        fields.commit_order(&plan, medium)?;
+        // As the order loop commits: on the device where the plan lets the resident mode end its
+        // orders there, else on the host.
+        gpu.commit_order(&plan)?;
         let wall = t.elapsed().as_secs_f64();
         let now = gpu.stream_stats().unwrap_or_default();
         let upload = now.upload_seconds - before.upload_seconds;
