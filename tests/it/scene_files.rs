@@ -444,6 +444,7 @@ fn solver_ranges() {
     );
     rejects(&with("[solver]\nmax_orders = 0\n"), "solver.max_orders", "must be in 1..=100000");
     rejects(&with("[solver]\ntolerance = 1\n"), "solver.tolerance", "must be in (0, 1), got 1");
+    rejects(&with("[solver]\ndiffusion_cells = 0\n"), "solver.diffusion_cells", "must be in 1..=8388608, got 0");
 }
 
 #[test]
