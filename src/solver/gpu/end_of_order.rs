@@ -18,8 +18,10 @@
 //! how: f32 values are read from their bits, so a device that flushes denormals does too; each
 //! sum runs in the host's order, one invocation per block or brick), so the answer, the orders and
 //! the stop decisions are the streamed mode's (`tests/it/resident.rs`). The one assumption beyond
-//! what Vulkan promises is that f64 division is correctly rounded (the remaining error's e_v, then
-//! rounded to f32): true of llvmpipe and of NVIDIA's compiler.
+//! what Vulkan promises is that f64 division is correctly rounded (the remaining error's e_v, the
+//! acceleration's σs·g/4π, the diffusion correction's fluxes and stability share): true of
+//! llvmpipe and of NVIDIA's compiler; a device where it is not would give answers a rounding
+//! apart from the streamed mode's, not wrong ones.
 //!
 //! Before the commit, when the plan asks for them: with a per-voxel albedo, `albedo_scale.comp`
 //! multiplies the new source by each voxel's factor (resident from the first load); then the
