@@ -269,6 +269,7 @@ impl Acceleration {
     /// per channel and unknown its change f − f_prev, what [`Self::prolong`] adds.
     pub fn solve(&mut self, moment: &[Vec<f64>]) -> Vec<Vec<f64>> {
         let (c, n) = (self.channels, self.unknowns());
+        let started = std::time::Instant::now();
         let cell_voxels = f64::from(self.edge).powi(3);
         let mut change = Vec::with_capacity(c);
         let mut iterations = 0;
@@ -282,7 +283,8 @@ impl Acceleration {
             change.push(f.iter().zip(&self.correction[ch]).map(|(new, old)| new - old).collect::<Vec<f64>>());
             self.correction[ch] = f;
         }
-        tracing::debug!(unknowns = n, cell_edge = self.edge, iterations, "diffusion correction solved");
+        let seconds = started.elapsed().as_secs_f64();
+        tracing::debug!(unknowns = n, cell_edge = self.edge, iterations, seconds, "diffusion correction solved");
         change
     }
 

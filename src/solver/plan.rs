@@ -246,6 +246,10 @@ pub struct PlanSummary {
     pub diffusion_correction: [f64; 3],
     /// "diffusion" (each order followed by a diffusion synthetic acceleration step) or "off".
     pub acceleration: &'static str,
+    /// With the acceleration: its diffusion grid's cells per axis and their edge in voxels (at most
+    /// `solver.diffusion_cells` cells; the cells without medium are left out of the solve).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub diffusion_grid: Option<DiffusionGrid>,
     /// The scene's g, the g solved (after δ-M scaling) and the g the discrete scattering behaves
     /// like; the δ-M forward fraction f when applied.
     pub phase_g: f64,
@@ -255,6 +259,13 @@ pub struct PlanSummary {
     /// Per axis (x, y, z): "open", "periodic", "reflective", "reflective low" or "reflective high".
     pub boundary: [&'static str; 3],
     pub reasons: Vec<String>,
+}
+
+/// The acceleration's diffusion grid in the plan's summary.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct DiffusionGrid {
+    pub cells: [u32; 3],
+    pub cell_edge: u32,
 }
 
 impl Plan {
@@ -620,6 +631,10 @@ impl Plan {
             phase_g: self.phase_g,
             solved_g: self.medium.g,
             acceleration: if self.acceleration { "diffusion" } else { "off" },
+            diffusion_grid: self.acceleration.then(|| {
+                let (cell_edge, cells) = super::acceleration::grid_of(self.dims, self.diffusion_cells);
+                DiffusionGrid { cells, cell_edge }
+            }),
             effective_g: self.effective_g,
             delta_m_fraction: self.delta_m(),
             boundary: {

@@ -170,6 +170,7 @@ fn a_warm_start_commits_on_the_device_after_its_first_order() {
     assert_eq!(r["device_memory"]["end_of_order"], "device", "{}", r["device_memory"]);
     assert_eq!(s["device_memory"]["end_of_order"], "host_streamed", "{}", s["device_memory"]);
     assert_eq!(r["plan"]["acceleration"], "diffusion");
+    assert_eq!(r["plan"]["diffusion_grid"], serde_json::json!({"cells": [26, 22, 24], "cell_edge": 1}));
     assert!(r["warm_start"].is_string());
     assert_eq!(r["orders"], s["orders"]);
     assert!(resident == streamed, "a warm start resident and streamed differ");
