@@ -564,8 +564,8 @@ fn a_killed_solve_with_an_albedo_grid_resumes_to_the_same_bits() {
     };
     let o = lpm(&whole, &[], None);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    // A slice of the third order (the hook counts the submissions between slices too).
-    let o = lpm(&cut, &[], Some(104));
+    // A slice of order 2 (order 0 computes slices 1–18, every later order 12).
+    let o = lpm(&cut, &[], Some(36));
     assert!(!o.status.success(), "the solve should have been killed");
     let checkpoint: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(cut.join(".lpm-work/checkpoint.json")).expect("checkpoint"))

@@ -40,8 +40,9 @@ fn killed_solve_resumes_to_the_same_bits() {
 
     lpm_ok(&["solve", s, "--out", whole.to_str().unwrap(), "--no-image"]);
 
-    // Killed in the middle of a later order (the slice counter also counts setup and tally steps).
-    let o = lpm(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image"], Some(70));
+    // Killed in the middle of a later order: order 0 computes slices 1–18 here, every later
+    // order 12 (its faces), so slice 36 lies in order 2.
+    let o = lpm(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image"], Some(36));
     assert!(!o.status.success(), "the solve should have been killed");
     let checkpoint: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(cut.join(".lpm-work/checkpoint.json")).expect("checkpoint"))
@@ -148,7 +149,9 @@ fn killed_between_checkpoints_resumes_to_the_same_bits() {
     lpm_ok(&["solve", s, "--out", whole.to_str().unwrap(), "--no-image"]);
 
     let mut skipped = false;
-    for abort_at in [70, 90] {
+    // Slices of orders 3 and 5 (order 0 computes slices 1–15 here, every later order 12): both
+    // after an order without a checkpoint.
+    for abort_at in [46, 68] {
         let cut = dir.join(format!("cut-{abort_at}"));
         let o = lpm(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image"], Some(abort_at));
         assert!(!o.status.success(), "the solve should have been killed");
@@ -186,10 +189,9 @@ fn killed_while_a_checkpoint_is_written_resumes_from_the_one_before() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 
     let o = crate::common::lpm_command(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image"])
-        // A slice of the third order (order 2): the device commits the orders, so after the
-        // first (sky, sun and faces) an order is its faces' sweeps only, and the hook counts the
-        // submissions between them too. Order 0's checkpoint is on disk by then, order 1's in flight.
-        .env("LPM_TEST_ABORT_AT_SLICE", "104")
+        // A slice of order 2 (order 0 computes slices 1–18, every later order 12): order 0's
+        // checkpoint is on disk by then, order 1's in flight.
+        .env("LPM_TEST_ABORT_AT_SLICE", "36")
         .env("LPM_TEST_CHECKPOINT_DELAY_MS", "3000")
         .output()
         .unwrap();
@@ -230,7 +232,8 @@ fn a_killed_periodic_solve_resumes_to_the_same_bits() {
     let s = scene.to_str().unwrap();
     lpm_ok(&["solve", s, "--out", whole.to_str().unwrap(), "--no-image"]);
 
-    let o = lpm(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image"], Some(70));
+    // A slice of order 2 (as above).
+    let o = lpm(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image"], Some(36));
     assert!(!o.status.success(), "the solve should have been killed");
     let work = cut.join(".lpm-work");
     let checkpoint: serde_json::Value =

@@ -94,8 +94,10 @@ pub struct SliceStreamer {
     slots: Vec<SlotState>,
     copier: Copier,
     profiler: Option<Profiler>,
-    /// Test hook: abort the process when this many slices have been submitted (simulates a kill).
+    /// Test hook: abort the process when this many slices have been computed (simulates a kill).
     abort_at_slice: Option<u64>,
+    /// Slices computed so far (what the kill test's hook counts).
+    slices: u64,
     /// Looked at before each slice: raised, the pass returns `SolveError::Cancelled`.
     cancel: Option<CancelFlag>,
     /// The next pass's first slice, already in this slot's upload staging (gathered while the
@@ -139,6 +141,7 @@ impl SliceStreamer {
             copier: Copier::new(std::thread::available_parallelism().map_or(2, |n| n.get()).min(8)),
             profiler,
             abort_at_slice,
+            slices: 0,
             cancel,
             pregathered: None,
         })
@@ -182,11 +185,14 @@ impl SliceStreamer {
         Ok(())
     }
 
-    /// The next value on the timelines for a slice's work (the kill test's hook counts these).
+    /// The next value on the timelines for a slice's work. The kill test's hook counts the slices
+    /// (not the one-off submissions between them, whose number changes with what the passes
+    /// between orders do).
     fn next_slice_value(&mut self) -> u64 {
         self.value += 1;
-        if self.abort_at_slice == Some(self.value) {
-            tracing::error!("LPM_TEST_ABORT_AT_SLICE={}: aborting as a kill would", self.value);
+        self.slices += 1;
+        if self.abort_at_slice == Some(self.slices) {
+            tracing::error!("LPM_TEST_ABORT_AT_SLICE={}: aborting as a kill would", self.slices);
             std::process::abort();
         }
         self.value
