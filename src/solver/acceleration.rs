@@ -73,8 +73,6 @@ pub struct Acceleration {
     cells: [u32; 3],
     /// Per cell of the grid (x fastest), its unknown, or [`NONE`] (no medium).
     unknown_of: Vec<u32>,
-    /// Per unknown, its cell.
-    cell_of_unknown: Vec<usize>,
     /// Per unknown, the unknowns across its faces −x, +x, −y, +y, −z, +z ([`NONE`]: vacuum).
     neighbours: Vec<[u32; 6]>,
     channels: usize,
@@ -190,7 +188,6 @@ impl Acceleration {
             edge,
             cells,
             unknown_of,
-            cell_of_unknown,
             neighbours,
             channels: c,
             diag,
@@ -348,11 +345,6 @@ impl Acceleration {
     /// Per cell of the grid (x fastest), its unknown, or `u32::MAX` (no medium).
     pub fn unknown_of(&self) -> &[u32] {
         &self.unknown_of
-    }
-
-    /// Per unknown, its cell (x fastest).
-    pub fn cell_of_unknown(&self) -> &[usize] {
-        &self.cell_of_unknown
     }
 
     /// Per channel, the power the last correction added that no transport has carried yet:

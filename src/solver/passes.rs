@@ -198,6 +198,14 @@ impl<'a> StoreMedium<'a> {
     }
 }
 
+impl StoreMedium<'_> {
+    /// The store's albedo factor field (over the occupied bricks in slot order), when the plan
+    /// has one.
+    pub fn albedo_field(&self) -> Option<&Field> {
+        self.albedo.as_ref()
+    }
+}
+
 impl Medium for StoreMedium<'_> {
     type V = f32;
     fn density(&self, unit: usize) -> Option<&[f32]> {

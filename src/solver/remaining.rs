@@ -80,9 +80,7 @@ impl UnitTally {
         self.sum_sq += e * e;
         self.count += 1;
     }
-}
 
-impl UnitTally {
     /// Adds the tally of the unit after the ones this one holds (units merge in unit order).
     pub fn merge(&mut self, later: UnitTally) {
         self.max = self.max.max(later.max);

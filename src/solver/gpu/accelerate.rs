@@ -127,15 +127,15 @@ impl DeviceAcceleration {
 
     /// Folds the correction into the order the sweeps just finished, on the resident fields
     /// (see the module docs): moments on the device, the solve on the host (`grid` keeps the new
-    /// correction), the change added on the device. `origin_of(slot)` is the first voxel of the
-    /// occupied brick in that slot. Waits.
+    /// correction), the change added on the device. `origins()` gives each occupied brick's first
+    /// voxel, in slot order (wanted once, for the grid's tables). Waits.
     pub fn fold(
         &mut self,
         streamer: &mut SliceStreamer,
         plan: &Plan,
         buffers: &mut DiffusionBuffers,
         grid: &mut Acceleration,
-        origin_of: impl Fn(usize) -> [u32; 3],
+        origins: impl FnOnce() -> Vec<[u32; 4]>,
     ) -> Result<(), SolveError> {
         let n = grid.unknowns();
         if n == 0 {
@@ -144,7 +144,7 @@ impl DeviceAcceleration {
         let (push, rounds) = match self.push {
             Some(loaded) => loaded,
             None => {
-                let loaded = self.load_grid(streamer, plan, buffers, grid, origin_of)?;
+                let loaded = self.load_grid(streamer, plan, buffers, grid, &origins())?;
                 self.push = Some(loaded);
                 loaded
             }
@@ -194,11 +194,9 @@ impl DeviceAcceleration {
         plan: &Plan,
         buffers: &mut DiffusionBuffers,
         grid: &Acceleration,
-        origin_of: impl Fn(usize) -> [u32; 3],
+        origins: &[[u32; 4]],
     ) -> Result<(DiffusionPush, u32), SolveError> {
-        let slots = (self.voxels / BRICK_VOXELS as u32) as usize;
-        let origins: Vec<[u32; 4]> = (0..slots).map(origin_of).map(|o| [o[0], o[1], o[2], 0]).collect();
-        let tables = GridTables::new(grid, &origins);
+        let tables = GridTables::new(grid, origins);
         let solid_angles = &plan.storage.solid_angle;
         let staging = &mut buffers.staging;
         for (bytes, dst) in [
@@ -280,7 +278,13 @@ impl GridTables {
                 next[u] += 1;
             }
         }
-        GridTables { cell_of_unknown: grid.cell_of_unknown().iter().map(|&c| c as u32).collect(), brick_start, bricks }
+        let mut cell_of_unknown = vec![0u32; n];
+        for (cell, &u) in unknown_of.iter().enumerate() {
+            if u != u32::MAX {
+                cell_of_unknown[u as usize] = cell as u32;
+            }
+        }
+        GridTables { cell_of_unknown, brick_start, bricks }
     }
 }
 

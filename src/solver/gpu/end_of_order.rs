@@ -198,9 +198,11 @@ impl EndPasses {
         let TotalBuffers { source_total, fluence_total, block_sums, unit_tallies, .. } = totals;
         // What the next order propagates: the sharpened source with the diffusion correction.
         let propagated = propagated(resident);
-        let sharpening = match DeviceSharpening::new(ctx, plan, resident, occupied, bricks)? {
-            Some(kernel) => Some((kernel, set("sharpened sums", &block_sums_pipeline, &[propagated, block_sums])?)),
-            None => None,
+        let sharpening = match (DeviceSharpening::new(ctx, plan, resident, occupied, bricks)?, &totals.sharpen) {
+            (Some(kernel), Some(s)) => {
+                Some((kernel, set("sharpened sums", &block_sums_pipeline, &[propagated, &s.sums])?))
+            }
+            _ => None,
         };
         let (comps, c) = (plan.source_components() as u64, plan.channels as u64);
         let count = |n: u64| {
@@ -248,9 +250,10 @@ impl EndPasses {
         dispatch_linear(rec, pipeline, set, count, |count, groups_x| EndPush { count, groups_x, ..push })
     }
 
-    /// Commits the order the sweeps just finished: the new source's block sums, then the new
-    /// source and the fluence added into the totals. Waits, and returns the power and the
-    /// largest value.
+    /// Commits the order the sweeps just finished: with the diffusion correction first what the
+    /// next order propagates (from the total before this order joins it); the new source's block
+    /// sums (and the sharpened one's); then the new source and the fluence added into the totals.
+    /// One submission; waits, and returns the power and the next order's largest value.
     pub fn commit(
         &self,
         streamer: &mut SliceStreamer,
@@ -268,6 +271,9 @@ impl EndPasses {
         }
         let push = EndPush::default();
         Self::dispatch(&mut rec, &self.block_sums_pipeline, &self.source_sums, self.blocks, push)?;
+        if let Some((_, sharpened_sums)) = &self.sharpening {
+            Self::dispatch(&mut rec, &self.block_sums_pipeline, sharpened_sums, self.blocks, push)?;
+        }
         Self::dispatch(&mut rec, &self.commit_pipeline, &self.commit_source, self.source_values, push)?;
         Self::dispatch(&mut rec, &self.commit_pipeline, &self.commit_fluence, self.fluence_values, push)?;
         rec.compute_to_host();
@@ -279,17 +285,11 @@ impl EndPasses {
             block_power(plan, &mut power, block, s.abs_sum);
             max_bits = max_bits.max(s.max_abs_bits);
         }
-        if let Some((_, sharpened_sums)) = &self.sharpening {
+        if let Some(s) = &totals.sharpen {
             // The power is the raw source's (what the total took), the next order's f16 scale
             // the sharpened one's (what it propagates).
-            let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "sharpened source's largest value")?;
-            rec.compute_to_compute();
-            Self::dispatch(&mut rec, &self.block_sums_pipeline, sharpened_sums, self.blocks, push)?;
-            rec.compute_to_host();
-            streamer.submit_and_wait(rec)?;
-            max_bits = readback::<BlockSum>(&totals.block_sums, self.blocks as usize)?
-                .iter()
-                .fold(0, |m, s| m.max(s.max_abs_bits));
+            max_bits =
+                readback::<BlockSum>(&s.sums, self.blocks as usize)?.iter().fold(0, |m, s| m.max(s.max_abs_bits));
         }
         Ok(Committed { power, max_abs: f32::from_bits(max_bits) })
     }
@@ -414,105 +414,62 @@ pub(super) fn readback<T: Pod>(buffer: &Buffer, n: usize) -> Result<&[T], SolveE
     Ok(bytemuck::cast_slice(bytes))
 }
 
-/// Copies one value per voxel of every occupied brick (`brick(slot)`, 4096 f32 each; zeros where
-/// it gives none) into `device`, in slot order, through slot 0's upload staging a chunk of whole
-/// bricks at a time. For the per-voxel albedo factor, once per solve.
-pub fn upload_bricks<'a>(
+/// Copies a whole field of the store into its resident buffer (both hold the occupied bricks in
+/// slot order, laid out alike), through slot 0's upload staging, a chunk at a time. For the rare
+/// moves: the committed totals and the albedo factor on the first load.
+pub fn upload_field(
     streamer: &mut SliceStreamer,
     res: &DeviceResources,
+    field: &Field,
     device: &Buffer,
-    brick: impl Fn(usize) -> Option<&'a [f32]>,
 ) -> Result<(), SolveError> {
-    let brick_bytes = crate::store::BRICK_VOXELS * 4;
-    let bricks = device.size() as usize / brick_bytes;
-    let slot = res.slots.first().ok_or(SolveError::Internal("no slot staging for a field's transfer"))?;
-    let per_chunk = (slot.upload.size() as usize / brick_bytes).max(1);
-    if per_chunk * brick_bytes > slot.upload.size() as usize {
-        return Err(SolveError::Internal("the upload staging holds no whole brick"));
+    let bytes: &[u8] = bytemuck::cast_slice(field.as_slice());
+    if bytes.len() as u64 > device.size() {
+        return Err(SolveError::Internal("a field is larger than its resident buffer"));
     }
+    let staging = &res.slots.first().ok_or(SolveError::Internal("no slot staging for a field's transfer"))?.upload;
+    let chunk = staging.size() as usize;
     let ctx = Arc::clone(streamer.context());
-    for first in (0..bricks).step_by(per_chunk) {
-        let count = per_chunk.min(bricks - first);
-        for i in 0..count {
-            let values: Option<&[u8]> = brick(first + i).map(bytemuck::cast_slice).filter(|v| v.len() == brick_bytes);
-            // SAFETY: the staging is mapped for at least `per_chunk` bricks, and no submission
-            // uses it now: the streamer is idle between orders (every earlier use was waited for).
-            unsafe {
-                let at = slot.upload.as_mut_ptr().add(i * brick_bytes);
-                match values {
-                    Some(v) => std::ptr::copy_nonoverlapping(v.as_ptr(), at, brick_bytes),
-                    None => std::ptr::write_bytes(at, 0, brick_bytes),
-                }
-            }
-        }
-        let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "resident brick values")?;
+    for (i, part) in bytes.chunks(chunk).enumerate() {
+        let size = part.len() as u64;
+        // SAFETY: the staging is mapped for `chunk` bytes, and no submission uses it now: the
+        // streamer is idle between orders (every earlier use was waited for).
+        unsafe { std::ptr::copy_nonoverlapping(part.as_ptr(), staging.as_mut_ptr(), part.len()) };
+        let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "resident field upload")?;
         rec.compute_to_transfer();
-        let region = vk::BufferCopy {
-            src_offset: 0,
-            dst_offset: (first * brick_bytes) as u64,
-            size: (count * brick_bytes) as u64,
-        };
-        rec.copy_buffer(&slot.upload, device, &[region]);
+        rec.copy_buffer(staging, device, &[vk::BufferCopy { src_offset: 0, dst_offset: (i * chunk) as u64, size }]);
         rec.transfer_to_compute();
         streamer.submit_and_wait(rec)?;
-        streamer.count_transfer(region.size, 0);
+        streamer.count_transfer(size, 0);
     }
+    field.release_all();
     Ok(())
 }
 
-/// Which way [`transfer_field`] copies.
-#[derive(Clone, Copy, PartialEq, Eq)]
-pub enum Transfer {
-    ToDevice,
-    ToHost,
-}
-
-/// Copies a whole field between the store and its resident buffer (both hold the occupied
-/// bricks in slot order, laid out alike), through slot 0's staging, a chunk at a time. For the
-/// rare moves of the committed totals: on the first load, at checkpoints and at the end.
-pub fn transfer_field(
+/// Copies a resident buffer home into its field of the store (the reverse of [`upload_field`]),
+/// through slot 0's download staging: at checkpoints and at the end.
+pub fn download_field(
     streamer: &mut SliceStreamer,
     res: &DeviceResources,
     field: &mut Field,
     device: &Buffer,
-    direction: Transfer,
 ) -> Result<(), SolveError> {
     let bytes: &mut [u8] = bytemuck::cast_slice_mut(field.as_mut_slice());
     if bytes.len() as u64 > device.size() {
         return Err(SolveError::Internal("a field is larger than its resident buffer"));
     }
-    let slot = res.slots.first().ok_or(SolveError::Internal("no slot staging for a field's transfer"))?;
-    let staging = match direction {
-        Transfer::ToDevice => &slot.upload,
-        Transfer::ToHost => &slot.download,
-    };
+    let staging = &res.slots.first().ok_or(SolveError::Internal("no slot staging for a field's transfer"))?.download;
     let chunk = staging.size() as usize;
     let ctx = Arc::clone(streamer.context());
     for (i, part) in bytes.chunks_mut(chunk).enumerate() {
-        let offset = (i * chunk) as u64;
         let size = part.len() as u64;
-        let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "resident field transfer")?;
+        let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "resident field download")?;
         rec.compute_to_transfer();
-        match direction {
-            Transfer::ToDevice => {
-                // SAFETY: the staging is mapped for `chunk` bytes, and no submission uses it now:
-                // the streamer is idle between orders (every earlier use was waited for).
-                unsafe { std::ptr::copy_nonoverlapping(part.as_ptr(), staging.as_mut_ptr(), part.len()) };
-                rec.copy_buffer(staging, device, &[vk::BufferCopy { src_offset: 0, dst_offset: offset, size }]);
-                rec.transfer_to_compute();
-            }
-            Transfer::ToHost => {
-                rec.copy_buffer(device, staging, &[vk::BufferCopy { src_offset: offset, dst_offset: 0, size }]);
-                rec.transfer_to_host();
-            }
-        }
+        rec.copy_buffer(device, staging, &[vk::BufferCopy { src_offset: (i * chunk) as u64, dst_offset: 0, size }]);
+        rec.transfer_to_host();
         streamer.submit_and_wait(rec)?;
-        if direction == Transfer::ToHost {
-            part.copy_from_slice(&staging.bytes()[..part.len()]);
-            streamer.count_transfer(0, size);
-        } else {
-            streamer.count_transfer(size, 0);
-        }
+        part.copy_from_slice(&staging.bytes()[..part.len()]);
+        streamer.count_transfer(0, size);
     }
     field.release_all();
     Ok(())

@@ -88,7 +88,7 @@ use super::antidiffusion::VoxelUnits;
 use super::energy::Tallies;
 use super::fields::{LoopState, PendingCheckpoint, StoreFields};
 use super::orders::Backend;
-use super::passes::{Medium, OrderFieldSet, StoreMedium};
+use super::passes::{OrderFieldSet, StoreMedium};
 use super::periodic::{CarryOf, PeriodStep, PeriodicCarry, RayRadiance};
 use super::plan::{half_scale_exponent, Plan, Precision, SweepDirection};
 use super::remaining::RemainingError;
@@ -99,7 +99,7 @@ use crate::store::BrickStore;
 use crate::vk::{Context, Recorder};
 use ash::vk;
 use budget::MemoryPlan;
-use end_of_order::{EndPasses, Transfer};
+use end_of_order::EndPasses;
 use layout::{FLAG_BOUNDARY, FLAG_CARRY, FLAG_EMIT, FLAG_GAIN};
 use resources::DeviceResources;
 use std::sync::Arc;
@@ -418,6 +418,17 @@ fn write_entries(res: &mut DeviceResources, channels: usize, entries: &[RayRadia
 }
 
 /// The passes and resident buffers when the passes between orders run on the device.
+/// Per occupied brick in slot order, its first voxel (`uvec4`): the resident origins table, and
+/// what the acceleration's tables are built from.
+fn brick_origins(medium: &StoreMedium, occupied: u64) -> Vec<[u32; 4]> {
+    (0..occupied as usize)
+        .map(|slot| {
+            let o = medium.voxel_of(slot, 0);
+            [o[0], o[1], o[2], 0]
+        })
+        .collect()
+}
+
 fn device_end<'r>(
     end: &'r Option<EndPasses>,
     res: &'r DeviceResources,
@@ -767,8 +778,8 @@ impl GpuBackend<'_> {
             self.resources.resident.as_mut().and_then(|r| r.totals.as_mut()).and_then(|t| t.diffusion.as_mut()).ok_or(
                 SolveError::Internal("an accelerated commit on the device without the acceleration's buffers"),
             )?;
-        let medium = &self.medium;
-        kernels.fold(&mut self.streamer, plan, buffers, grid, |slot| medium.voxel_of(slot, 0))
+        let (medium, occupied) = (&self.medium, self.memory.slice.occupied_total);
+        kernels.fold(&mut self.streamer, plan, buffers, grid, || brick_origins(medium, occupied))
     }
 
     /// Puts the committed totals on the device, with the first load of a solve (a resumed one's
@@ -780,12 +791,7 @@ impl GpuBackend<'_> {
         let ctx = Arc::clone(self.streamer.context());
         let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "resident tables")?;
         rec.compute_to_transfer();
-        let origins: Vec<[u32; 4]> = (0..self.memory.slice.occupied_total as usize)
-            .map(|slot| {
-                let o = self.medium.voxel_of(slot, 0);
-                [o[0], o[1], o[2], 0]
-            })
-            .collect();
+        let origins = brick_origins(&self.medium, self.memory.slice.occupied_total);
         rec.update_buffer(&totals.origins, 0, bytemuck::cast_slice(&origins));
         if let Some(s) = &totals.sharpen {
             let slots: Vec<u32> =
@@ -796,15 +802,14 @@ impl GpuBackend<'_> {
         }
         rec.transfer_to_compute();
         self.streamer.submit_and_wait(rec)?;
-        if let Some(albedo) = &totals.albedo {
-            let medium = &self.medium;
-            end_of_order::upload_bricks(&mut self.streamer, &self.resources, albedo, |slot| medium.albedo(slot))?;
-        }
-        let fields = &mut *self.fields;
+        let fields = &*self.fields;
+        let albedo = self.medium.albedo_field().zip(totals.albedo.as_deref());
         for (field, buffer) in
-            [(&mut fields.source_total, &totals.source_total), (&mut fields.fluence_total, &totals.fluence_total)]
+            [(&fields.source_total, &*totals.source_total), (&fields.fluence_total, &*totals.fluence_total)]
+                .into_iter()
+                .chain(albedo)
         {
-            end_of_order::transfer_field(&mut self.streamer, &self.resources, field, buffer, Transfer::ToDevice)?;
+            end_of_order::upload_field(&mut self.streamer, &self.resources, field, buffer)?;
         }
         Ok(())
     }
@@ -820,12 +825,12 @@ impl GpuBackend<'_> {
         let streamer = &mut self.streamer;
         let res = &self.resources;
         self.fields.take_device_commit(|source_total, fluence_total, source_next, fluence| {
-            use end_of_order::transfer_field as to_host;
-            to_host(streamer, res, source_total, &totals.source_total, Transfer::ToHost)?;
-            to_host(streamer, res, fluence_total, &totals.fluence_total, Transfer::ToHost)?;
+            use end_of_order::download_field as to_host;
+            to_host(streamer, res, source_total, &totals.source_total)?;
+            to_host(streamer, res, fluence_total, &totals.fluence_total)?;
             // What the next order propagates (the sharpened source with the diffusion correction).
-            to_host(streamer, res, source_next, end_of_order::propagated(resident), Transfer::ToHost)?;
-            to_host(streamer, res, fluence, &resident.fluence, Transfer::ToHost)
+            to_host(streamer, res, source_next, end_of_order::propagated(resident))?;
+            to_host(streamer, res, fluence, &resident.fluence)
         })?;
         self.device_state = DeviceState::Committed { max_abs, home: true };
         Ok(())

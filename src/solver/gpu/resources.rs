@@ -86,6 +86,8 @@ pub struct TotalBuffers {
 /// The diffusion correction's kernel's buffers ([`super::sizes::SharpenSizes`]).
 pub struct SharpenBuffers {
     pub sharpened: Owned<Buffer>,
+    /// Host-readable (`GpuToCpu`): the block sums of the sharpened source.
+    pub sums: Owned<Buffer>,
     pub brick_slots: Owned<Buffer>,
     pub constants: Owned<Buffer>,
 }
@@ -133,7 +135,7 @@ impl ResidentBuffers {
             every.push(&t.origins);
             every.extend(t.albedo.as_deref());
             every.extend(t.diffusion.iter().flat_map(DiffusionBuffers::every));
-            every.extend(t.sharpen.iter().flat_map(|s| [&*s.sharpened, &*s.brick_slots, &*s.constants]));
+            every.extend(t.sharpen.iter().flat_map(|s| [&*s.sharpened, &*s.brick_slots, &*s.constants, &*s.sums]));
         }
         every
     }
@@ -273,6 +275,7 @@ impl DeviceResources {
                         sharpen: match r.sharpen {
                             Some(d) => Some(SharpenBuffers {
                                 sharpened: buffer(ctx, "resident sharpened source", d.sharpened, storage, gpu)?,
+                                sums: buffer(ctx, "sharpened source sums", d.sums, storage, readback)?,
                                 brick_slots: buffer(ctx, "resident brick slots", d.brick_slots, storage, gpu)?,
                                 constants: buffer(ctx, "diffusion correction constants", d.constants, storage, gpu)?,
                             }),

@@ -107,7 +107,7 @@ impl DeviceSharpening {
         bricks: [u32; 3],
     ) -> Result<Option<Self>, SolveError> {
         let Some(totals) = resident.totals.as_ref() else { return Ok(None) };
-        let Some(SharpenBuffers { sharpened, brick_slots, constants }) = totals.sharpen.as_ref() else {
+        let Some(SharpenBuffers { sharpened, brick_slots, constants, .. }) = totals.sharpen.as_ref() else {
             return Ok(None);
         };
         let push_bytes = std::mem::size_of::<SharpenPush>() as u32;

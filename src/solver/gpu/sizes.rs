@@ -140,6 +140,8 @@ pub struct SharpenSizes {
     pub brick_slots: u64,
     /// The kernel's f64 constants.
     pub constants: u64,
+    /// Per block of the sharpened source, its sums (read by the host for the largest value).
+    pub sums: u64,
 }
 
 /// The f64 constants of the diffusion correction's kernel. Keep in sync with glsl/sharpen.comp.
@@ -151,11 +153,12 @@ impl SharpenSizes {
             sharpened: buffer_bytes(occupied * BRICK_BYTES * plan.source_components() as u64),
             brick_slots: buffer_bytes(plan.bricks_total as u64 * 4),
             constants: buffer_bytes(SHARPEN_CONSTANTS * 8),
+            sums: buffer_bytes((occupied * plan.source_components() as u64).max(1) * BLOCK_SUM_BYTES),
         }
     }
 
     pub fn device(&self) -> u64 {
-        self.sharpened + self.brick_slots + self.constants
+        self.sharpened + self.brick_slots + self.constants + self.sums
     }
 }
 
