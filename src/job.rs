@@ -231,6 +231,13 @@ pub fn run(job: &SolveJob, progress: impl FnMut(u32, f64)) -> Result<Report, Job
     };
     let result = check_space(job, &scene).and_then(|()| run_in(job, &scene, &work, progress));
     let checkpointed = work.join("checkpoint.json").exists();
+    // Cancelled before its first checkpoint: say so, not that a checkpoint is kept.
+    let result = match result {
+        Err(JobError::Solve(SolveError::Cancelled { resumable: true })) if !checkpointed => {
+            Err(JobError::Solve(SolveError::Cancelled { resumable: false }))
+        }
+        r => r,
+    };
     match (&result, job.keep_store) {
         (Ok(_), true) => {
             let keep = job.out.join("store");
@@ -318,7 +325,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
         if job.resume {
             tracing::info!("nothing to resume in {}: starting from the beginning", work.display());
         }
-        solver::build_store(scene, work)?
+        solver::build_store_until(scene, work, job.cancel)?
     };
     if store.occupied_count() == 0 {
         return Err(JobError::NoMedium { scene: job.scene.clone() });

@@ -97,6 +97,10 @@ enum Command {
         /// the solver's store) that `lpm render OUT` renders new views from.
         #[arg(long)]
         no_render_data: bool,
+        /// Read inputs only from under DIR (every symbolic link resolved, checked on each opened
+        /// file): how `lpm serve` starts its solves, confined to its data root.
+        #[arg(long, value_name = "DIR", hide = true)]
+        confine_to: Option<PathBuf>,
     },
     /// Monte-Carlo reference solution of a scene (independent of the LPM solver): writes fluence.*,
     /// fluence_stderr.* (per-voxel standard error), image.* when --image-spp > 0, and report.json.
@@ -311,7 +315,7 @@ impl ServerArgs {
     fn client(&self) -> Result<lpm::serve::client::Client> {
         let token = match &self.token_file {
             Some(f) => Some(
-                std::fs::read_to_string(f)
+                lpm::input::read_text_capped(f, lpm::input::MAX_TOKEN_BYTES, "a token file")
                     .with_context(|| format!("cannot read the token file {}", f.display()))?
                     .trim()
                     .to_string(),
@@ -514,6 +518,11 @@ enum Backend {
 }
 
 fn main() {
+    // Past a file size limit (`ulimit -f`, a batch system's), a write would kill the process with
+    // SIGXFSZ: no message, staging left behind. Ignored, the write fails with EFBIG instead, which
+    // is reported (and cleaned up after) as a full disk is.
+    // SAFETY: setting a signal's disposition to SIG_IGN, before any thread is started.
+    unsafe { libc::signal(libc::SIGXFSZ, libc::SIG_IGN) };
     let cli = Cli::parse();
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(format!("lpm={}", cli.log)));
@@ -659,7 +668,11 @@ fn run(cli: Cli) -> Result<()> {
             vdb_precision,
             background,
             no_render_data,
+            confine_to,
         } => {
+            if let Some(root) = &confine_to {
+                lpm::input::confine_to(root)?;
+            }
             // The CPU backend sweeps on rayon's global pool (0 threads: one per core).
             rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
@@ -763,11 +776,9 @@ fn run(cli: Cli) -> Result<()> {
             opts.max_body_bytes = max_body;
             opts.max_upload_bytes = max_upload;
             opts.device_memory_budget = device_memory_budget;
+            opts.check()?;
             if let Some(h) = retention_hours {
-                if !(h.is_finite() && h > 0.0) {
-                    bail!("--retention-hours must be a positive number of hours, got {h}");
-                }
-                opts.retention = Some(std::time::Duration::from_secs_f64(h * 3600.0));
+                opts.retention = Some(lpm::serve::ServeOptions::retention_of_hours(h)?);
             }
             lpm::serve::serve(opts)?;
             Ok(())
@@ -1187,14 +1198,16 @@ fn parse_budget(text: &str) -> Result<u64, String> {
 
 fn info(dir: &std::path::Path, json: bool) -> Result<()> {
     let path = dir.join("report.json");
-    let text = std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
+    // A report is a few kilobytes; 64 MiB leaves room for very long histories.
+    let text = lpm::input::read_text_capped(&path, 64 << 20, "a report")?;
+    // Checked before it is printed, --json included: a corrupt report is an error, not output.
+    let r: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("{} is not valid JSON", path.display()))?;
+    let Some(plan) = r.get("plan") else { bail!("{}: no plan in the report", path.display()) };
     if json {
         println!("{text}");
         return Ok(());
     }
-    let r: serde_json::Value =
-        serde_json::from_str(&text).with_context(|| format!("{} is not valid JSON", path.display()))?;
-    let Some(plan) = r.get("plan") else { bail!("{}: no plan in the report", path.display()) };
     println!("scene     {}", r["scene"].as_str().unwrap_or("?"));
     println!("backend   {} on {}", r["backend"].as_str().unwrap_or("?"), r["device"].as_str().unwrap_or("?"));
     println!(

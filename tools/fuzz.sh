@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Long fuzzing runs of lpm's input readers (issue 13): the scene parser/validator and the raw
-# density reader, the OpenVDB reader and the NanoVDB reader, with cargo-fuzz (libFuzzer). Usage: tools/fuzz.sh [SECONDS_PER_TARGET] [TARGET...]
+# density reader, the OpenVDB reader, the NanoVDB reader and the NRRD reader (header and samples), with cargo-fuzz (libFuzzer). Usage: tools/fuzz.sh [SECONDS_PER_TARGET] [TARGET...]
 # (default 600 s each, every target). Findings land in tools/fuzz/artifacts/<target>/; record
 # executions and findings in benches/RESULTS.md.
 #
@@ -16,7 +16,7 @@ cd "$(dirname "$0")/.."
 SECONDS_PER_TARGET="${1:-600}"
 shift || true
 TARGETS=("$@")
-[ ${#TARGETS[@]} -gt 0 ] || TARGETS=(scene raw vdb nanovdb)
+[ ${#TARGETS[@]} -gt 0 ] || TARGETS=(scene raw vdb nanovdb nrrd)
 command -v cargo-fuzz >/dev/null || cargo install cargo-fuzz --locked
 export RUSTC_BOOTSTRAP=1
 SAN="${LPM_FUZZ_SANITIZER:-address}"
@@ -26,6 +26,8 @@ for t in "${TARGETS[@]}"; do
   mkdir -p "tools/fuzz/corpus/$t"
   seeds=()
   [ "$t" = scene ] && seeds=(tools/scenes)
+  # Small hand-written attached NRRD files (float raw, uchar with byte skip, ushort gzip).
+  [ "$t" = nrrd ] && seeds=(tools/fuzz/seeds/nrrd)
   echo "== fuzzing $t for ${SECONDS_PER_TARGET}s (sanitizer $SAN)"
   log="tools/fuzz/fuzz-$t.log"
   rc=0

@@ -25,6 +25,6 @@ cargo test --no-fail-fast --features test-hooks "$@" 2>&1 | tee "$log"
 # A short bounded fuzzing run of every fuzz target (issue 13): 15 s each, built unoptimised (faster
 # to build; debug assertions and overflow checks on), after the build.
 # tools/fuzz.sh explains RUSTC_BOOTSTRAP and does long runs; it installs cargo-fuzz if missing.
-LPM_FUZZ_SANITIZER=none LPM_FUZZ_DEV=1 bash tools/fuzz.sh 15 scene raw vdb nanovdb
+LPM_FUZZ_SANITIZER=none LPM_FUZZ_DEV=1 bash tools/fuzz.sh 15 scene raw vdb nanovdb nrrd
 # The suite's totals as the closing line (the fuzz statistics above would otherwise end the output).
 awk '/^test result:/ { p += $4; f += $6 } END { printf "tests: %d passed, %d failed\n", p, f }' "$log"

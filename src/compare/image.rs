@@ -12,17 +12,30 @@ struct Rgb {
 }
 
 fn read_exr(path: &Path) -> Result<Rgb, CompareError> {
-    let image = exr::prelude::read_first_rgba_layer_from_file(
-        path,
-        |res, _| Rgb { width: res.width(), height: res.height(), values: vec![0.0f32; res.width() * res.height() * 3] },
-        |img: &mut Rgb, pos, (r, g, b, _a): (f32, f32, f32, f32)| {
-            let i = 3 * (pos.y() * img.width + pos.x());
-            if let Some(px) = img.values.get_mut(i..i + 3) {
-                px.copy_from_slice(&[r, g, b]);
-            }
-        },
-    )
-    .map_err(|e| CompareError::Image { path: path.to_path_buf(), message: e.to_string() })?;
+    // Through the input checks: a FIFO in place of image.exr would block in open() forever.
+    let file =
+        crate::input::open(path).map_err(|e| CompareError::Image { path: path.to_path_buf(), message: e.words() })?;
+    use exr::prelude::traits::{ReadChannels, ReadLayers};
+    let image = exr::prelude::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .rgba_channels(
+            |res, _| Rgb {
+                width: res.width(),
+                height: res.height(),
+                values: vec![0.0f32; res.width() * res.height() * 3],
+            },
+            |img: &mut Rgb, pos, (r, g, b, _a): (f32, f32, f32, f32)| {
+                let i = 3 * (pos.y() * img.width + pos.x());
+                if let Some(px) = img.values.get_mut(i..i + 3) {
+                    px.copy_from_slice(&[r, g, b]);
+                }
+            },
+        )
+        .first_valid_layer()
+        .all_attributes()
+        .from_buffered(std::io::BufReader::new(file))
+        .map_err(|e| CompareError::Image { path: path.to_path_buf(), message: e.to_string() })?;
     Ok(image.layer_data.channel_data.pixels)
 }
 

@@ -17,6 +17,9 @@ pub enum OutputError {
     #[error(transparent)]
     Store(#[from] StoreError),
 
+    #[error(transparent)]
+    Input(#[from] crate::input::InputError),
+
     #[error("{}: another lpm run is writing to this directory (it holds {}/.lpm-lock); wait for it to finish or choose another --out", dir.display(), dir.display())]
     Locked { dir: PathBuf },
 

@@ -458,7 +458,13 @@ pub fn view_camera(kept: &Kept, file: Option<&Path>, change: &ViewChange) -> Res
 
 /// A camera file: a `[camera]` table, or the same keys at the top level.
 fn read_camera_keys(path: &Path) -> Result<CameraKeys, SceneError> {
-    let text = std::fs::read_to_string(path).map_err(|source| SceneError::Read { path: path.to_path_buf(), source })?;
+    // Capped and through the input checks: `--camera /dev/zero` or a FIFO is refused, not read
+    // until memory runs out or waited on forever.
+    let text =
+        crate::input::read_text_capped(path, crate::input::MAX_TEXT_BYTES, "a camera file").map_err(|e| match e {
+            crate::input::InputError::Io { source, .. } => SceneError::Read { path: path.to_path_buf(), source },
+            e => SceneError::BadFile { path: path.to_path_buf(), problem: e.words() },
+        })?;
     let parse =
         |message: String| SceneError::Parse { path: path.to_path_buf(), line: None, column: None, key: None, message };
     let table: toml::Table = toml::from_str(&text).map_err(|e| parse(e.message().to_string()))?;

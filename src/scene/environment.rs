@@ -160,13 +160,18 @@ impl EnvironmentLight {
 
 /// Why a map file was refused, in words (the caller names the scene, key and file).
 pub fn read_map(path: &Path) -> Result<EnvironmentMap, String> {
-    let meta = std::fs::metadata(path).map_err(|e| io_words(&e))?;
-    if !meta.is_file() {
-        return Err("not a regular file".into());
-    }
+    use std::io::Seek;
+    // One open file for the header and the pixels: what was checked is what is read.
+    let file = crate::input::open(path).map_err(|e| match e {
+        crate::input::InputError::Io { source, .. } => io_words(&source),
+        crate::input::InputError::NotRegular { kind, .. } => format!("is {kind}, not a regular file"),
+        e => e.to_string(),
+    })?;
+    let mut reader = std::io::BufReader::new(file);
     // The header first: its size decides the allocation below, and a lat-long map must be 2:1.
-    let header = exr::meta::MetaData::read_from_file(path, false)
+    let header = exr::meta::MetaData::read_from_buffered(&mut reader, false)
         .map_err(|e| format!("not a readable OpenEXR file ({})", exr_words(&e)))?;
+    reader.rewind().map_err(|e| io_words(&e))?;
     let layer = header.headers.first().ok_or("an OpenEXR file without a layer")?;
     let (w, h) = (layer.layer_size.width(), layer.layer_size.height());
     if w != 2 * h || h == 0 {
@@ -185,16 +190,22 @@ pub fn read_map(path: &Path) -> Result<EnvironmentMap, String> {
         width: usize,
         rgb: Vec<[f32; 3]>,
     }
-    let image = exr::prelude::read_first_rgba_layer_from_file(
-        path,
-        |res, _| Pixels { width: res.width(), rgb: vec![[0.0; 3]; res.width() * res.height()] },
-        |px: &mut Pixels, pos, (r, g, b, _a): (f32, f32, f32, f32)| {
-            if let Some(p) = px.rgb.get_mut(pos.y() * px.width + pos.x()) {
-                *p = [r, g, b];
-            }
-        },
-    )
-    .map_err(|e| format!("cannot read its pixels ({})", exr_words(&e)))?;
+    use exr::prelude::traits::{ReadChannels, ReadLayers};
+    let image = exr::prelude::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .rgba_channels(
+            |res, _| Pixels { width: res.width(), rgb: vec![[0.0; 3]; res.width() * res.height()] },
+            |px: &mut Pixels, pos, (r, g, b, _a): (f32, f32, f32, f32)| {
+                if let Some(p) = px.rgb.get_mut(pos.y() * px.width + pos.x()) {
+                    *p = [r, g, b];
+                }
+            },
+        )
+        .first_valid_layer()
+        .all_attributes()
+        .from_buffered(reader)
+        .map_err(|e| format!("cannot read its pixels ({})", exr_words(&e)))?;
     let pixels = image.layer_data.channel_data.pixels;
     if pixels.width != w || pixels.rgb.len() != w * h {
         return Err(format!("its first layer's pixels are not the {w} × {h} its header declares"));

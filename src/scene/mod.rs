@@ -79,25 +79,13 @@ impl Scene {
     /// Only a regular file of at most [`validate::MAX_SCENE_BYTES`] is read: a FIFO would block
     /// forever and `/dev/zero` would be read until memory ran out.
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
-        use std::io::Read;
-        let read_err = |source| SceneError::Read { path: path.to_path_buf(), source };
         let bad = |problem: String| SceneError::BadFile { path: path.to_path_buf(), problem };
-        // The type is checked before opening: opening a FIFO for reading blocks until a writer comes.
-        let meta = std::fs::metadata(path).map_err(read_err)?;
-        if !meta.is_file() {
-            return Err(bad("not a regular file".to_string()));
-        }
-        let limit = validate::MAX_SCENE_BYTES;
-        if meta.len() > limit {
-            return Err(bad(format!("{} bytes is more than the limit of {limit} for a scene file", meta.len())));
-        }
-        let file = std::fs::File::open(path).map_err(read_err)?;
-        let mut bytes = Vec::new();
-        // `take`: the file may have grown since the check.
-        file.take(limit + 1).read_to_end(&mut bytes).map_err(read_err)?;
-        if bytes.len() as u64 > limit {
-            return Err(bad(format!("more than the limit of {limit} bytes for a scene file")));
-        }
+        // Through the input checks: a FIFO would block in open(), a device never end.
+        let bytes =
+            crate::input::read_capped(path, validate::MAX_SCENE_BYTES, "a scene file").map_err(|e| match e {
+                crate::input::InputError::Io { source, .. } => SceneError::Read { path: path.to_path_buf(), source },
+                e => bad(e.words()),
+            })?;
         let text = String::from_utf8(bytes).map_err(|_| bad("not UTF-8 text".to_string()))?;
         Scene::from_toml_str(&text, path)
     }

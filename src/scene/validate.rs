@@ -34,6 +34,10 @@ pub const MAX_DIM: u32 = 65536;
 pub const MAX_IMAGE_SIZE: u32 = 16384;
 /// Upper bound for σt and voxel_size: anything larger is certainly a unit mistake.
 pub const MAX_MAGNITUDE: f64 = 1e12;
+/// Lower bound for voxel_size, the reciprocal of [`MAX_MAGNITUDE`]: anything smaller is as certainly
+/// a unit mistake, and a subnormal one squares to 0 (a point light's irradiance one voxel away
+/// became infinite and was blamed on the light).
+pub const MIN_VOXEL_SIZE: f64 = 1.0 / MAX_MAGNITUDE;
 /// Upper bound for every light value: sky radiance, sun irradiance and emitted radiance. Far above
 /// any physical scene (sunlight is about 1e3 W/m²), and small enough that every intermediate the
 /// solver forms (fluence up to 4π × the sum of the lights, sources up to σt × that, with σt ≤
@@ -259,7 +263,7 @@ impl Validator<'_> {
     fn positive(&self, key: &str, v: f64, max: f64) -> R<f64> {
         let v = self.finite(key, v)?;
         if v <= 0.0 {
-            return Err(self.err(key, format!("must be > 0, got {v}")));
+            return Err(self.err(key, format!("must be > 0, got {}", short(v))));
         }
         if v > max {
             return Err(self.err(key, format!("must be ≤ {max:e}, got {}", short(v))));
@@ -350,7 +354,15 @@ impl Validator<'_> {
         let dims = self.dims(raw_dims)?;
         let voxels = dims.iter().map(|&d| u64::from(d)).product::<u64>();
         let voxel_size = match v.voxel_size {
-            Some(s) => self.positive("volume.voxel_size", s, MAX_MAGNITUDE)?,
+            Some(s) => {
+                let s = self.positive("volume.voxel_size", s, MAX_MAGNITUDE)?;
+                if s < MIN_VOXEL_SIZE {
+                    return Err(
+                        self.err("volume.voxel_size", format!("must be ≥ {MIN_VOXEL_SIZE:e}, got {}", short(s)))
+                    );
+                }
+                s
+            }
             None => 1.0,
         };
         let source = match (v.procedural, v.raw) {
@@ -525,7 +537,7 @@ impl Validator<'_> {
                             "{:e} W/sr gives {:e} W/m² one voxel ({} world units) away, more than the limit of {MAX_LIGHT:e}",
                             intensity[c],
                             intensity[c] / h2,
-                            volume.voxel_size
+                            short(volume.voxel_size)
                         ),
                     ));
                 }

@@ -5,6 +5,11 @@
 //! absolute path elsewhere, and not through a symbolic link inside the root that points outside.
 //! The check is lexical first (no `..` at all, so the answer never depends on what exists where) and
 //! then on the canonical path (every symlink resolved), which must lie under the canonical root.
+//!
+//! This is the check at submission, which lets the client know at once. It is not the guarantee:
+//! a file can change between submission and solve (a NRRD header replaced by one naming a data
+//! file elsewhere), so the solve a worker starts is itself confined to the root
+//! (`lpm solve --confine-to`, [`crate::input`]) and checks every file it opens.
 
 use std::path::{Component, Path, PathBuf};
 

@@ -63,6 +63,14 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::Duration;
 
+/// The most jobs run at once per device: each is a process with a Vulkan device of its own (and
+/// a thread here watching it), far past what a device can share usefully.
+pub const MAX_WORKERS_PER_DEVICE: usize = 64;
+/// The most devices one server runs jobs on.
+pub const MAX_DEVICES: usize = 64;
+/// The longest retention: about eleven years, in hours (a longer one is as good as none).
+pub const MAX_RETENTION_HOURS: f64 = 100_000.0;
+
 /// How the server runs (`lpm serve` flags).
 #[derive(Clone, Debug)]
 pub struct ServeOptions {
@@ -116,6 +124,42 @@ pub enum ServeError {
     Queue { path: PathBuf, source: rusqlite::Error },
     #[error("cannot listen on {listen}: {reason}")]
     Listen { listen: SocketAddr, reason: String },
+    /// An option out of its bounds (named as the `lpm serve` flag that sets it).
+    #[error("{option}: {problem}")]
+    Option { option: &'static str, problem: String },
+}
+
+impl ServeOptions {
+    /// Checks the counts and durations against the bounds above (a count too large would start
+    /// threads until the process fails).
+    pub fn check(&self) -> Result<(), ServeError> {
+        let bad = |option, problem: String| Err(ServeError::Option { option, problem });
+        if self.workers_per_device > MAX_WORKERS_PER_DEVICE {
+            return bad(
+                "--workers",
+                format!(
+                    "{} jobs at once per device is more than the {MAX_WORKERS_PER_DEVICE} allowed",
+                    self.workers_per_device
+                ),
+            );
+        }
+        if self.devices.len() > MAX_DEVICES {
+            return bad("--devices", format!("{} devices is more than the {MAX_DEVICES} allowed", self.devices.len()));
+        }
+        Ok(())
+    }
+
+    /// A retention of `hours` (`--retention-hours`): positive, finite and at most
+    /// [`MAX_RETENTION_HOURS`].
+    pub fn retention_of_hours(hours: f64) -> Result<Duration, ServeError> {
+        if !(hours.is_finite() && hours > 0.0 && hours <= MAX_RETENTION_HOURS) {
+            return Err(ServeError::Option {
+                option: "--retention-hours",
+                problem: format!("must be a positive number of hours up to {MAX_RETENTION_HOURS}, got {hours}"),
+            });
+        }
+        Ok(Duration::from_secs_f64(hours * 3600.0))
+    }
 }
 
 /// What the handlers and workers share.
@@ -186,9 +230,10 @@ impl Shared {
 /// library reads no environment).
 pub fn load_token(file: Option<&Path>, from_env: Option<String>) -> Result<Option<String>, String> {
     let token = match file {
-        Some(f) => {
-            Some(std::fs::read_to_string(f).map_err(|e| format!("cannot read the token file {}: {e}", f.display()))?)
-        }
+        Some(f) => Some(
+            crate::input::read_text_capped(f, crate::input::MAX_TOKEN_BYTES, "a token file")
+                .map_err(|e| format!("cannot read the token file {}: {}", f.display(), e.words()))?,
+        ),
         None => from_env,
     };
     Ok(token.map(|t| t.trim().to_string()))
@@ -197,6 +242,7 @@ pub fn load_token(file: Option<&Path>, from_env: Option<String>) -> Result<Optio
 /// Opens the queue, requeues jobs a killed server left running, starts the workers and answers
 /// requests until the process ends.
 pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
+    opts.check()?;
     match &opts.token {
         Some(t) if t.is_empty() => return Err(ServeError::EmptyToken),
         None if !opts.listen.ip().is_loopback() => return Err(ServeError::TokenRequired { listen: opts.listen }),

@@ -1,6 +1,8 @@
 //! The workers: each takes the next queued job and runs it as a child `lpm solve` process (the same
 //! executable) into the job's directory, `DATA/jobs/ID/out`, with `--resume` when a checkpoint is
-//! there.
+//! there. The solve is confined to the data root (`--confine-to`): every file it opens is checked
+//! to lie under the root as it is opened ([`crate::input`]), whatever it was when the job was
+//! accepted.
 //!
 //! Why a child process rather than a thread: a solve owns a Vulkan device, memory maps and possibly
 //! gigabytes of host memory; as a process it can be stopped at any moment (cancel) without leaving
@@ -47,7 +49,7 @@ fn stop(id: i64, child: &mut Child) {
     };
     match status.and_then(|s| s.code()) {
         Some(EXIT_CANCELLED) => {
-            tracing::info!("job {id}: cancelled; the solve stopped at a slice and kept its checkpoint")
+            tracing::info!("job {id}: cancelled; the solve stopped (its log says whether it kept a checkpoint)")
         }
         Some(0) => tracing::info!("job {id}: cancelled as its solve was finishing (it completed)"),
         _ => tracing::info!("job {id}: cancelled; the solve was stopped ({status:?})"),
@@ -96,6 +98,10 @@ fn start(shared: &Shared, job: &db::Claimed, device: Option<usize>) -> Result<Ch
     let exe = std::env::current_exe().map_err(|e| format!("cannot find the lpm executable: {e}"))?;
     let mut cmd = Command::new(exe);
     cmd.arg("solve").arg(&scene).arg("--out").arg(&out);
+    // The solve reads only under the data root, checked on every file it opens: the paths were
+    // confined when the job was accepted, but a file (a NRRD header naming its data file) can be
+    // replaced between then and now.
+    cmd.arg("--confine-to").arg(&shared.data);
     let resume = crate::job::work_dir(&out).join("checkpoint.json").exists();
     if resume {
         cmd.arg("--resume");

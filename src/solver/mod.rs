@@ -80,12 +80,13 @@ pub enum SolveError {
     ResumeNeedsGpu,
     #[error("a host copy worker thread died (it panicked) while copying bricks between the store and the staging")]
     CopyWorkerDied,
-    /// `resumable`: whether the solve wrote checkpoints (one without them, such as a GPU solve of
-    /// mirror faces on its doubled volume, starts afresh when rerun).
-    #[error("the solve was cancelled (stopped at a slice); {}", if *.resumable {
-        "its last checkpoint is kept: rerun the same command with --resume to continue it"
+    /// `resumable`: whether a checkpoint is kept to resume from. None is when the solve was
+    /// stopped before its first checkpoint (while its store was built, or in its first orders), or
+    /// writes none (a GPU solve of mirror faces on its doubled volume): it starts afresh when rerun.
+    #[error("{}", if *.resumable {
+        "the solve was cancelled (stopped at a slice); its last checkpoint is kept: rerun the same command with --resume to continue it"
     } else {
-        "it keeps no checkpoints (checkpoints were off, as they are for mirror faces on the GPU, solved on a doubled volume): rerun the same command to solve it again"
+        "the solve was cancelled; no checkpoint is kept (it stopped before its first, or writes none, as for mirror faces on the GPU, solved on a doubled volume): rerun the same command to solve it again"
     })]
     Cancelled { resumable: bool },
     #[error(transparent)]
@@ -127,23 +128,57 @@ pub struct SolveRun {
 
 /// Builds the brick store for the scene's volume in `dir`.
 pub fn build_store(scene: &Scene, dir: &Path) -> Result<BrickStore, SolveError> {
+    build_store_until(scene, dir, None)
+}
+
+/// [`build_store`], stopping between bricks once `cancel` is raised (a sparse volume's box can
+/// hold hundreds of thousands of bricks: a SIGTERM must not wait for all of them). A cancelled
+/// build returns [`SolveError::Cancelled`] with nothing to resume from.
+pub fn build_store_until(
+    scene: &Scene,
+    dir: &Path,
+    cancel: Option<cancel::CancelFlag>,
+) -> Result<BrickStore, SolveError> {
+    let stopped = || cancel.is_some_and(|c| c.is_raised());
+    let store =
+        build_density(scene, dir, &|| if stopped() { Err(crate::store::StoreError::Cancelled) } else { Ok(()) })
+            .map_err(|e| match e {
+                SolveError::Store(crate::store::StoreError::Cancelled) => SolveError::Cancelled { resumable: false },
+                e => e,
+            })?;
+    if let Some(grid) = &scene.volume.emission {
+        crate::store::emission::import_emission(&store, grid, &scene.volume.source, &scene.medium)?;
+    }
+    if let Some(grid) = &scene.volume.albedo {
+        crate::store::albedo::import_albedo(&store, grid, &scene.volume.source)?;
+    }
+    Ok(store)
+}
+
+/// The density bricks of the scene's volume; `check` is asked before each brick whether to go on.
+fn build_density(
+    scene: &Scene,
+    dir: &Path,
+    check: &(dyn Fn() -> Result<(), crate::store::StoreError> + Sync),
+) -> Result<BrickStore, SolveError> {
     let dims = scene.volume.dims;
     let h = scene.volume.voxel_size;
-    let store = match &scene.volume.source {
+    Ok(match &scene.volume.source {
         VolumeSource::Procedural { shape, seed } => {
             let (shape, seed) = (*shape, *seed);
             BrickStore::create_with(dir, dims, h, move |brick, out| {
+                check()?;
                 crate::scene::procedural::fill_brick(shape, seed, dims, brick, out);
                 Ok(())
             })?
         }
         VolumeSource::Raw { path } => {
             let raw = import::raw_density(path, dims)?;
-            BrickStore::create_with(dir, dims, h, |brick, out| raw.fill_brick(brick, out))?
+            BrickStore::create_with(dir, dims, h, |brick, out| check().and_then(|()| raw.fill_brick(brick, out)))?
         }
         VolumeSource::Vdb { path, grid, index_min } => {
             let vdb = crate::store::vdb::vdb_density(path, grid, dims, *index_min)?;
-            BrickStore::create_with(dir, dims, h, |brick, out| vdb.fill_brick(brick, out))?
+            BrickStore::create_with(dir, dims, h, |brick, out| check().and_then(|()| vdb.fill_brick(brick, out)))?
         }
         VolumeSource::Nrrd { path } => {
             // Decoded once into a raw f32 file beside the store, imported like `raw`, then removed.
@@ -164,6 +199,7 @@ pub fn build_store(scene: &Scene, dir: &Path) -> Result<BrickStore, SolveError> 
             let raw = import::raw_density(&decoded, dims)?;
             // A bad density is reported against the NRRD file, not the temporary.
             let store = BrickStore::create_with(dir, dims, h, |brick, out| {
+                check()?;
                 raw.fill_brick(brick, out).map_err(|e| match e {
                     crate::store::StoreError::BadDensity { voxel, value, .. } => {
                         crate::store::StoreError::BadDensity { path: path.clone(), voxel, value }
@@ -175,14 +211,7 @@ pub fn build_store(scene: &Scene, dir: &Path) -> Result<BrickStore, SolveError> 
             let _ = std::fs::remove_file(&decoded);
             store?
         }
-    };
-    if let Some(grid) = &scene.volume.emission {
-        crate::store::emission::import_emission(&store, grid, &scene.volume.source, &scene.medium)?;
-    }
-    if let Some(grid) = &scene.volume.albedo {
-        crate::store::albedo::import_albedo(&store, grid, &scene.volume.source)?;
-    }
-    Ok(store)
+    })
 }
 
 /// The scene's density at every voxel (x fastest), read through a brick store built in `scratch`

@@ -45,6 +45,14 @@ pub enum StoreError {
     #[error("{}: NRRD field `{field}`: {problem}", path.display())]
     Nrrd { path: PathBuf, field: String, problem: String },
 
+    /// Stopped between bricks on request (SIGTERM while the store was built).
+    #[error("the store's build was cancelled")]
+    Cancelled,
+
+    /// An input file refused or unreadable (not a regular file, outside a solve's confinement).
+    #[error(transparent)]
+    Input(#[from] crate::input::InputError),
+
     #[error("{}: {source}", path.display())]
     Vdb { path: PathBuf, source: super::vdb::VdbError },
 

@@ -57,7 +57,7 @@ impl Field {
             .truncate(true)
             .open(&path)
             .map_err(StoreError::io(&path, "create"))?;
-        file.set_len(len).map_err(StoreError::io(&path, "size"))?;
+        file.set_len(len).map_err(|e| size_error(&path, len, e))?;
         allocate(&file, &path, len)?;
         Self::map(path, file, table, pages, name, components, coverage)
     }
@@ -182,7 +182,7 @@ impl Field {
         // The map stays valid across the truncation: nothing touches it until the file has its
         // length back (`&mut self`), and then its pages read as zeros.
         self.file.set_len(0).map_err(StoreError::io(&self.path, "truncate"))?;
-        self.file.set_len(len).map_err(StoreError::io(&self.path, "size"))?;
+        self.file.set_len(len).map_err(|e| size_error(&self.path, len, e))?;
         allocate(&self.file, &self.path, len)
     }
 
@@ -252,6 +252,19 @@ impl Field {
         }
         self.as_mut_slice().copy_from_slice(other.as_slice());
         Ok(())
+    }
+}
+
+/// A failed `set_len` to `len` bytes: past a file size limit (`ulimit -f`: EFBIG, SIGXFSZ being
+/// ignored) or a quota, reported as a full disk is, naming the bytes needed.
+fn size_error(path: &Path, len: u64, e: std::io::Error) -> StoreError {
+    match e.raw_os_error() {
+        Some(libc::ENOSPC | libc::EFBIG | libc::EDQUOT) => StoreError::NoSpace {
+            path: path.to_path_buf(),
+            needed: len,
+            free: path.parent().and_then(super::free_bytes),
+        },
+        _ => StoreError::Io { path: path.to_path_buf(), action: "size", source: e },
     }
 }
 

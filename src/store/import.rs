@@ -22,11 +22,8 @@ pub struct RawDensity {
 
 /// Opens `path`, checking that it is a regular file holding exactly `dims` f32 values.
 pub fn raw_density(path: &Path, dims: [u32; 3]) -> Result<RawDensity, StoreError> {
-    let file = File::open(path).map_err(StoreError::io(path, "open the raw density file"))?;
+    let file = crate::input::open(path)?;
     let meta = file.metadata().map_err(StoreError::io(path, "read the size of"))?;
-    if !meta.is_file() {
-        return Err(StoreError::Corrupt { path: path.to_path_buf(), message: "is not a regular file".to_string() });
-    }
     let actual = meta.len();
     let expected = dims.iter().try_fold(4u64, |acc, &d| acc.checked_mul(d as u64));
     if expected != Some(actual) {

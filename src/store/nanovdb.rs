@@ -52,7 +52,8 @@ const GRID_TYPE_FLOAT: u32 = 1;
 /// True when `path` starts with NanoVDB's magic number.
 pub fn is_nanovdb(path: &Path) -> bool {
     let mut magic = [0u8; 8];
-    std::fs::File::open(path).and_then(|mut f| f.read_exact(&mut magic)).is_ok() && magic == MAGIC
+    // Through the input checks: a FIFO must not block here either (it is refused when read).
+    crate::input::open(path).is_ok_and(|mut f| f.read_exact(&mut magic).is_ok()) && magic == MAGIC
 }
 
 fn version_of(v: u32) -> (u32, u32, u32) {
@@ -179,12 +180,24 @@ pub fn read_nanovdb(bytes_of: &mut impl Read, file_len: u64, name: &str) -> Resu
                 String::from_utf8_lossy(raw_name.split(|&b| b == 0).next().unwrap_or_default()).into_owned();
             pos += name_size;
             if found.is_none() && grid_name == name {
-                let mut buffer = vec![0u8; file_size as usize];
-                bytes_of.read_exact(&mut buffer).map_err(|_| VdbError::Truncated {
-                    what: "a grid",
-                    offset: pos,
-                    len: file_len,
-                })?;
+                // The grid is read whole: a size the file claims (a sparse file can be any length)
+                // is checked against the memory there is before anything is allocated, and the
+                // buffer grows with the bytes really read.
+                if let Some(available) = crate::store::resident::available_memory().filter(|&a| file_size > a) {
+                    return Err(VdbError::Claimed {
+                        what: "a grid",
+                        offset: pos,
+                        claimed: file_size,
+                        limit: format!(
+                            "more than the {available} bytes of memory available (lpm reads a NanoVDB grid whole)"
+                        ),
+                    });
+                }
+                let mut buffer = Vec::new();
+                let read = bytes_of.by_ref().take(file_size).read_to_end(&mut buffer);
+                if read.ok() != Some(file_size as usize) {
+                    return Err(VdbError::Truncated { what: "a grid", offset: pos, len: file_len });
+                }
                 found = Some(read_grid(&Buf { bytes: &buffer, base: pos }, &grid_name)?);
             } else {
                 let skipped = std::io::copy(&mut bytes_of.by_ref().take(file_size), &mut std::io::sink());
@@ -400,4 +413,45 @@ fn read_map(b: &Buf, name: &str) -> Result<Placement, VdbError> {
 /// gives `Ok` or an error, never a panic).
 pub fn read_nanovdb_bytes(bytes: &[u8], name: &str) -> Result<VdbGrid, VdbError> {
     read_nanovdb(&mut std::io::Cursor::new(bytes), bytes.len() as u64, name).map(|(g, _)| g)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A file whose one grid claims `size` bytes, of which only the headers are present: the
+    /// length is claimed too (as a sparse file's would be).
+    fn claiming(size: u64) -> Vec<u8> {
+        let version = (VERSION.0 << 21) | (VERSION.1 << 10);
+        let mut f = Vec::new();
+        f.extend_from_slice(&MAGIC);
+        f.extend_from_slice(&version.to_le_bytes());
+        f.extend_from_slice(&1u16.to_le_bytes());
+        f.extend_from_slice(&0u16.to_le_bytes());
+        let mut meta = vec![0u8; FILE_METADATA];
+        meta[0..8].copy_from_slice(&size.to_le_bytes());
+        meta[8..16].copy_from_slice(&size.to_le_bytes());
+        meta[136..140].copy_from_slice(&7u32.to_le_bytes());
+        meta[172..176].copy_from_slice(&version.to_le_bytes());
+        f.extend_from_slice(&meta);
+        f.extend_from_slice(b"density");
+        f
+    }
+
+    #[test]
+    fn a_grid_size_beyond_memory_is_refused_before_it_is_allocated() {
+        let bytes = claiming(1 << 40);
+        let len = bytes.len() as u64 + (1 << 40);
+        // Before the check, this allocated the terabyte (an abort: "memory allocation failed").
+        let Err(e) = read_nanovdb(&mut std::io::Cursor::new(&bytes), len, "density") else { panic!("read") };
+        assert!(matches!(e, VdbError::Claimed { claimed: 1099511627776, .. }), "{e}");
+        assert!(e.to_string().contains("of memory available"), "{e}");
+        // A claim within memory but beyond the bytes really there (a file that shrank) is a
+        // truncated file.
+        let bytes = claiming(4096);
+        let Err(e) = read_nanovdb(&mut std::io::Cursor::new(&bytes), bytes.len() as u64 + 4096, "density") else {
+            panic!("read")
+        };
+        assert!(matches!(e, VdbError::Truncated { what: "a grid", .. }), "{e}");
+    }
 }

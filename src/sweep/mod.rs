@@ -51,8 +51,6 @@ use std::path::{Path, PathBuf};
 
 #[derive(Debug, thiserror::Error)]
 pub enum SweepError {
-    #[error("cannot read {}: {source}", .path.display())]
-    Read { path: PathBuf, source: std::io::Error },
     #[error("{}: {message}", .path.display())]
     Manifest { path: PathBuf, message: String },
     #[error("task {task}: {source}")]
@@ -68,12 +66,18 @@ pub enum SweepError {
     #[error("{}: {source}", .path.display())]
     Io { path: PathBuf, source: std::io::Error },
     #[error(transparent)]
+    Input(#[from] crate::input::InputError),
+    #[error(transparent)]
     Output(#[from] crate::output::OutputError),
     #[error(transparent)]
     Job(#[from] crate::job::JobError),
     #[error("{0}")]
     Slurm(String),
 }
+
+/// The most tasks one sweep may have (a Slurm array is far smaller; the manifest expands into one
+/// scene file per task).
+pub const MAX_TASKS: usize = 100_000;
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -144,15 +148,14 @@ impl Sweep {
     /// Reads `manifest` and expands it into tasks, each scene validated.
     pub fn load(manifest: &Path) -> Result<Sweep, SweepError> {
         let bad = |message: String| SweepError::Manifest { path: manifest.to_path_buf(), message };
-        let text = std::fs::read_to_string(manifest)
-            .map_err(|source| SweepError::Read { path: manifest.to_path_buf(), source })?;
+        let text = crate::input::read_text_capped(manifest, crate::input::MAX_TEXT_BYTES, "a sweep manifest")?;
         let raw: RawManifest = toml::from_str(&text).map_err(|e| bad(e.message().to_string()))?;
         let base_dir = manifest.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
         let base_dir =
             base_dir.canonicalize().map_err(|source| SweepError::Io { path: base_dir.to_path_buf(), source })?;
         let scene_path = base_dir.join(&raw.scene);
-        let scene_text = std::fs::read_to_string(&scene_path)
-            .map_err(|source| SweepError::Read { path: scene_path.clone(), source })?;
+        let scene_text =
+            crate::input::read_text_capped(&scene_path, crate::scene::validate::MAX_SCENE_BYTES, "a scene file")?;
         // A syntax error is worded by the scene loader, as for `lpm solve`.
         let base: toml::Table =
             toml::from_str(&scene_text).map_err(|e| match Scene::from_toml_str(&scene_text, &scene_path) {
@@ -167,15 +170,6 @@ impl Sweep {
             ))
         }));
 
-        let frames: Vec<Option<i64>> = match &raw.frames {
-            None => vec![None],
-            Some(f) => {
-                if f.step <= 0 || f.last < f.first {
-                    return Err(bad("frames: need first ≤ last and step > 0".into()));
-                }
-                (f.first..=f.last).step_by(f.step as usize).map(Some).collect()
-            }
-        };
         let mut axes: Vec<(String, Vec<toml::Value>)> = Vec::new();
         for (key, values) in &raw.parameters {
             match values {
@@ -183,7 +177,30 @@ impl Sweep {
                 _ => return Err(bad(format!("parameters.\"{key}\": expected a non-empty list of values"))),
             }
         }
-        let combinations: usize = axes.iter().map(|(_, v)| v.len()).product();
+        // Counted before anything is listed: `last = 9223372036854775807` would list frames until
+        // memory ran out.
+        let frame_count = match &raw.frames {
+            None => 1,
+            Some(f) => {
+                if f.step <= 0 || f.last < f.first {
+                    return Err(bad("frames: need first ≤ last and step > 0".into()));
+                }
+                (i128::from(f.last) - i128::from(f.first)) / i128::from(f.step) + 1
+            }
+        };
+        let combinations = axes.iter().try_fold(1i128, |n, (_, v)| n.checked_mul(v.len() as i128)).unwrap_or(i128::MAX);
+        let task_count = frame_count.saturating_mul(combinations);
+        if task_count > MAX_TASKS as i128 {
+            return Err(bad(format!(
+                "{frame_count} frame(s) × {combinations} parameter combination(s) is {task_count} tasks, more than \
+                 the {MAX_TASKS} a sweep may have"
+            )));
+        }
+        let combinations = combinations as usize;
+        let frames: Vec<Option<i64>> = match &raw.frames {
+            None => vec![None],
+            Some(f) => (f.first..=f.last).step_by(f.step as usize).map(Some).collect(),
+        };
         let warm_start = match raw.frames.as_ref().and_then(|f| f.warm_start.as_deref()) {
             None | Some("none") => false,
             Some("previous") => true,

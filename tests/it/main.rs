@@ -22,6 +22,7 @@ mod environment;
 mod forward_peak;
 mod gpu_solver;
 mod hard_cases;
+mod hostile_inputs;
 mod i3rc;
 mod image_views;
 mod kobayashi;

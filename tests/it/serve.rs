@@ -691,3 +691,45 @@ fn progress_is_pushed_as_server_sent_events() {
     assert_eq!(text.matches("event: job").count(), 1, "{text}");
     assert_eq!(call(agent().get(&format!("{url}/v1/jobs/424242/events")).call()).0, 404);
 }
+
+/// Issue 35: a NRRD header checked when its job was accepted is replaced, before the job runs, by
+/// one naming a data file outside the data root. The solve reads inputs only under the root,
+/// checked on each file it opens, so the job fails saying so and the outside file is never solved.
+#[test]
+fn a_nrrd_header_replaced_after_submission_cannot_reach_outside_the_data_root() {
+    let dir = temp_dir("serve-nrrd-swap");
+    let data = dir.join("data");
+    let server = Server::start(&data, &["--workers", "1"]);
+    let url = server.url.clone();
+    let put = |name: &str, body: &[u8]| {
+        let (s, r) = call(agent().put(&format!("{url}/v1/volumes/{name}")).send_bytes(body));
+        assert_eq!(s, 201, "{}", r.into_string().unwrap_or_default());
+    };
+    let density: Vec<u8> = (0..16 * 16 * 16).flat_map(|_| 0.5f32.to_le_bytes()).collect();
+    let outside = dir.join("outside.raw");
+    std::fs::write(&outside, &density).unwrap();
+    let header = |data_file: &str| {
+        format!(
+            "NRRD0004\ntype: float\ndimension: 3\nsizes: 16 16 16\nendian: little\nencoding: raw\ndata file: {data_file}\n"
+        )
+    };
+    put("v16.raw", &density);
+    put("a.nhdr", header("v16.raw").as_bytes());
+    // The one worker is kept busy while the NRRD job waits in the queue.
+    let (_, busy) = submit(&url, &longer(), "?no_image=true&no_fields=true");
+    let busy = busy["id"].as_i64().unwrap();
+    wait_for(&url, busy, Duration::from_secs(300), |j| j["state"] == "running" || ended(j));
+    let scene = TINY.replace("procedural = \"sphere\"\ndims = [16, 16, 16]", "nrrd = \"volumes/a.nhdr\"");
+    let (s, job_b) = submit(&url, &scene, "?no_image=true");
+    assert_eq!(s, 201, "the header is inside the root when the job is accepted: {job_b}");
+    let b = job_b["id"].as_i64().unwrap();
+    put("a.nhdr", header(outside.to_str().unwrap()).as_bytes());
+    let (s, _) = call(agent().delete(&format!("{url}/v1/jobs/{busy}")).call());
+    assert_eq!(s, 200);
+    let j = wait_for(&url, b, Duration::from_secs(300), ended);
+    assert_eq!(j["state"], "failed", "the outside file was solved: {j}");
+    let error = j["error"].as_str().unwrap_or_default();
+    assert!(error.contains("outside the data root this solve is confined to"), "{j}");
+    let (s, _) = call(agent().get(&format!("{url}/v1/jobs/{b}/outputs/fluence.raw")).call());
+    assert_ne!(s, 200, "the outside file's fluence can be fetched");
+}

@@ -167,8 +167,10 @@ pub fn parse(path: &Path, bytes: &[u8]) -> Result<NrrdHeader, (String, String)> 
         Ok(())
     };
     if let Some(v) = get("space directions") {
-        let vecs =
-            parse_vectors(v).ok_or_else(|| ("space directions".to_string(), format!("\"{v}\" is not 3 vectors")))?;
+        // Exactly one vector per axis: more would index past the three edges below.
+        let vecs = parse_vectors(v)
+            .filter(|vecs| vecs.len() == 3)
+            .ok_or_else(|| ("space directions".to_string(), format!("\"{v}\" is not 3 vectors")))?;
         let mut h = [0.0; 3];
         for (a, d) in vecs.iter().enumerate() {
             for (b, c) in d.iter().enumerate() {
@@ -229,4 +231,29 @@ fn parse_vectors(v: &str) -> Option<Vec<[f64; 3]>> {
         out.push([c[0], c[1], c[2]]);
     }
     Some(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn header(directions: &str) -> Vec<u8> {
+        format!(
+            "NRRD0004\ntype: float\ndimension: 3\nsizes: 2 2 2\nendian: little\nencoding: raw\n\
+             data file: v.raw\nspace directions: {directions}\n"
+        )
+        .into_bytes()
+    }
+
+    #[test]
+    fn space_directions_need_one_vector_per_axis() {
+        let ok = parse(Path::new("a.nhdr"), &header("(2,0,0) (0,2,0) (0,0,2)")).unwrap();
+        assert_eq!(ok.voxel_size, Some(2.0));
+        // More vectors than dimensions once indexed past the three edges (a panic).
+        for bad in ["(1,0,0) (0,1,0) (0,0,1) (1,0,0)", "(1,0,0) (0,1,0)", ""] {
+            let (field, problem) = parse(Path::new("a.nhdr"), &header(bad)).unwrap_err();
+            assert_eq!(field, "space directions", "{bad}: {problem}");
+            assert!(problem.contains("is not 3 vectors"), "{bad}: {problem}");
+        }
+    }
 }

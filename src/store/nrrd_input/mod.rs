@@ -8,7 +8,6 @@ pub mod header;
 
 use crate::store::StoreError;
 use header::{DataSource, Encoding, NrrdHeader, SampleType};
-use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom, Write};
 use std::path::Path;
 
@@ -17,7 +16,7 @@ const MAX_HEADER: u64 = 1 << 20;
 
 /// Reads and checks the header of `path`.
 pub fn nrrd_header(path: &Path) -> Result<NrrdHeader, StoreError> {
-    let file = File::open(path).map_err(StoreError::io(path, "open the NRRD file"))?;
+    let file = crate::input::open(path)?;
     let mut bytes = Vec::new();
     file.take(MAX_HEADER).read_to_end(&mut bytes).map_err(StoreError::io(path, "read the NRRD header of"))?;
     header::parse(path, &bytes).map_err(|(field, problem)| StoreError::Nrrd {
@@ -38,7 +37,9 @@ pub fn decode(
         DataSource::Detached(p) => (p.as_path(), 0),
         DataSource::Attached(at) => (path, *at),
     };
-    let mut file = File::open(data_path).map_err(StoreError::io(data_path, "open the NRRD data file"))?;
+    // Opened through the input checks: the header names this file, so it could name a FIFO, or
+    // (in a confined solve) a file outside the data root.
+    let mut file = crate::input::open(data_path)?;
     let skip = if h.encoding == Encoding::Raw { offset + h.byte_skip } else { offset };
     file.seek(SeekFrom::Start(skip)).map_err(StoreError::io(data_path, "seek in"))?;
     let reader = BufReader::with_capacity(1 << 20, file);

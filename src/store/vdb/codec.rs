@@ -9,7 +9,7 @@
 //! split streams, memcpy frames, byte unshuffle), with LZ4 (`lz4_flex`) or zlib (`flate2`) inside;
 //! other inner codecs (BloscLZ, Snappy, Zstd) and bit shuffling are reported as unsupported.
 
-use super::error::R;
+use super::error::{VdbError, R};
 use super::stream::Stream;
 use std::io::{Read, Seek};
 
@@ -34,9 +34,27 @@ pub(crate) fn read_data<S: Read + Seek>(s: &mut Stream<S>, compression: u32, out
         }
         return s.fill(out, what);
     }
+    // A chunk's count is believed only up to what an encoder can write for the bytes it decodes
+    // to (Blosc stores an incompressible chunk as is, plus its 16-byte header; zlib's bound is a
+    // few bytes per 16 KiB): a sparse file may claim any count, and it is allocated below.
+    let limit = max_compressed(out.len() as u64);
+    if count as u64 > limit {
+        return Err(VdbError::Claimed {
+            what,
+            offset: at,
+            claimed: count as u64,
+            limit: format!("more than the {limit} bytes any encoder writes for the {} bytes it holds", out.len()),
+        });
+    }
     let data = s.bytes(count as u64, what)?;
     let result = if blosc { blosc_decompress(&data, out) } else { zlib_decompress(&data, out) };
     result.map_err(|message| s.malformed(what, at, message))
+}
+
+/// The most bytes a compressed chunk of `n` decoded bytes can take, with room to spare: Blosc's
+/// bound is n + 16, zlib's n + n/4096 + n/16384 + 13.
+fn max_compressed(n: u64) -> u64 {
+    n + n / 8 + 1024
 }
 
 /// Inflates a zlib stream into exactly `out.len()` bytes.
@@ -280,6 +298,26 @@ mod tests {
             read(chunk(&z[..z.len() / 2], z.len() as i64), COMPRESS_ZIP, data.len()),
             Err(crate::store::vdb::VdbError::Truncated { .. })
         ));
+    }
+
+    #[test]
+    fn a_chunk_claiming_more_than_an_encoder_writes_is_refused_before_allocating() {
+        // A sparse file of a terabyte whose one chunk claims all of it: before the check the
+        // terabyte was allocated (an abort: "memory allocation failed").
+        let mut file = tempfile::tempfile().unwrap();
+        file.write_all(&chunk(&[], 1 << 40)).unwrap();
+        file.set_len((1 << 40) + 8).unwrap();
+        for compression in [COMPRESS_BLOSC, COMPRESS_ZIP] {
+            let mut s = Stream::new(std::io::BufReader::new(file.try_clone().unwrap())).unwrap();
+            let mut out = vec![0u8; 2048];
+            let e = read_data(&mut s, compression, &mut out).unwrap_err();
+            assert!(matches!(e, VdbError::Claimed { claimed: 1099511627776, offset: 0, .. }), "{e}");
+            assert!(e.to_string().contains("any encoder writes for the 2048 bytes"), "{e}");
+        }
+        // The largest chunk an encoder can write is still read (and here found corrupt).
+        let data = values(512);
+        let e = read(chunk(&vec![0; 2048 + 16], 2048 + 16), COMPRESS_BLOSC, data.len()).unwrap_err();
+        assert!(matches!(e, VdbError::Malformed { .. }), "{e}");
     }
 
     #[test]

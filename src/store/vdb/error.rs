@@ -17,6 +17,11 @@ pub enum VdbError {
     #[error("malformed {what} at byte {offset}: {message}")]
     Malformed { what: &'static str, offset: u64, message: String },
 
+    /// A size the file claims that cannot be believed: more than the format allows, or more memory
+    /// than the host has available for something read whole.
+    #[error("{what} at byte {offset} claims {claimed} bytes, {limit}")]
+    Claimed { what: &'static str, offset: u64, claimed: u64, limit: String },
+
     #[error(
         "OpenVDB file format version {0} is not supported: lpm reads versions 222 to 224 \
          (written by OpenVDB 3.0 and later)"

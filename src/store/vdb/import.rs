@@ -30,7 +30,7 @@ pub struct VdbVolumeInfo {
 }
 
 fn open(path: &Path) -> Result<VdbReader<BufReader<File>>, StoreError> {
-    let file = File::open(path).map_err(StoreError::io(path, "open the VDB file"))?;
+    let file = crate::input::open(path)?;
     VdbReader::new(BufReader::with_capacity(1 << 16, file)).map_err(|e| vdb_error(path, e))
 }
 
@@ -62,7 +62,7 @@ fn info_of(path: &Path, grid: &VdbGrid, grids: Vec<String>) -> Result<VdbVolumeI
 
 /// Grid `grid` of the NanoVDB file `path` (see [`crate::store::nanovdb`]) and the file's grid names.
 fn read_nanovdb(path: &Path, grid: &str) -> Result<(VdbGrid, Vec<String>), StoreError> {
-    let file = File::open(path).map_err(StoreError::io(path, "open the NanoVDB file"))?;
+    let file = crate::input::open(path)?;
     let len = file.metadata().map_err(StoreError::io(path, "read the size of"))?.len();
     crate::store::nanovdb::read_nanovdb(&mut BufReader::with_capacity(1 << 16, file), len, grid)
         .map_err(|e| vdb_error(path, e))

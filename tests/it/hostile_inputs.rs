@@ -1,0 +1,301 @@
+//! Issue 35, "nothing gets in, nothing hangs, nothing lies": hostile files given where lpm reads
+//! its inputs. Each test failed before its fix: a FIFO blocked `open()` forever, `/dev/zero` as a
+//! camera was read until memory ran out, a NRRD header with four space directions panicked, and a
+//! confined solve read a NRRD data file outside its root.
+use crate::common::{lpm_command, temp_dir, write_scene};
+use std::path::{Path, PathBuf};
+use std::process::Output;
+use std::time::{Duration, Instant};
+
+const SMALL: &str = r#"
+[volume]
+procedural = "sphere"
+dims = [16, 16, 16]
+[medium]
+sigma_t = 0.3
+albedo = 0.6
+[[lights]]
+kind = "sky"
+radiance = 1.0
+[solver]
+directions_per_face = 2
+max_orders = 2
+"#;
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// Runs lpm, killing it (and failing) if it has not ended within `limit`: a hang is the defect.
+fn run_within(args: &[&str], limit: Duration) -> Output {
+    let mut child = lpm_command(args)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run lpm");
+    let t = Instant::now();
+    while child.try_wait().expect("wait").is_none() {
+        if t.elapsed() > limit {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("lpm {args:?} still running after {limit:?}: it hangs");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    child.wait_with_output().expect("output")
+}
+
+fn mkfifo(path: &Path) {
+    let c = std::ffi::CString::new(s(path)).unwrap();
+    // SAFETY: mkfifo with a valid NUL-terminated path.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0, "mkfifo {}", path.display());
+}
+
+/// A failed run with a one-line message naming `what` and saying why.
+fn refused(o: &Output, what: &str, why: &str) {
+    let e = stderr(o);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    assert!(e.contains(what) && e.contains(why), "expected {what:?} and {why:?} in: {e}");
+}
+
+/// A solved output directory of SMALL (CPU backend: fast, and enough for render and compare).
+fn solved(dir: &Path, name: &str) -> PathBuf {
+    let scene = write_scene(dir, SMALL);
+    let out = dir.join(name);
+    let o = run_within(&["solve", s(&scene), "--out", s(&out), "--backend", "cpu"], Duration::from_secs(300));
+    assert!(o.status.success(), "{}", stderr(&o));
+    out
+}
+
+fn nrrd_header(data_file: &str, extra: &str) -> String {
+    format!(
+        "NRRD0004\ntype: float\ndimension: 3\nsizes: 16 16 16\nendian: little\nencoding: raw\n{extra}data file: {data_file}\n"
+    )
+}
+
+#[test]
+fn fifos_as_volumes_data_files_cameras_and_fields_are_refused_without_hanging() {
+    let dir = temp_dir("hostile-fifo");
+    let fifo = dir.join("input.fifo");
+    mkfifo(&fifo);
+    let limit = Duration::from_secs(60);
+    let volume = |line: &str| SMALL.replace("procedural = \"sphere\"\ndims = [16, 16, 16]", line);
+    // volume.vdb, volume.nvdb and volume.nrrd naming the FIFO.
+    for key in ["vdb", "nvdb", "nrrd"] {
+        let scene = write_scene(&dir, &volume(&format!("{key} = \"{}\"", s(&fifo))));
+        let o = run_within(&["solve", s(&scene), "--out", s(&dir.join(key)), "--backend", "cpu"], limit);
+        refused(&o, s(&fifo), "not a regular file");
+    }
+    // A NRRD header whose data file is the FIFO.
+    std::fs::write(dir.join("a.nhdr"), nrrd_header(s(&fifo), "")).unwrap();
+    let scene = write_scene(&dir, &volume(&format!("nrrd = \"{}\"", s(&dir.join("a.nhdr")))));
+    let o = run_within(&["solve", s(&scene), "--out", s(&dir.join("nhdr")), "--backend", "cpu"], limit);
+    refused(&o, s(&fifo), "not a regular file");
+
+    let out = solved(&dir, "out");
+    // `lpm render --camera FIFO`.
+    let image = dir.join("view.png");
+    let o = run_within(&["render", s(&out), "--camera", s(&fifo), "--image", s(&image)], limit);
+    refused(&o, s(&fifo), "not a regular file");
+    // `lpm compare` with a FIFO in place of fluence.raw.
+    let other = solved(&dir, "other");
+    std::fs::remove_file(other.join("fluence.raw")).unwrap();
+    mkfifo(&other.join("fluence.raw"));
+    let o = run_within(&["compare", s(&out), s(&other)], limit);
+    refused(&o, "fluence.raw", "not a regular file");
+}
+
+#[test]
+fn a_camera_from_dev_zero_or_a_huge_file_is_refused_not_read_without_limit() {
+    let dir = temp_dir("hostile-camera");
+    let out = solved(&dir, "out");
+    let image = dir.join("view.png");
+    let limit = Duration::from_secs(60);
+    let o = run_within(&["render", s(&out), "--camera", "/dev/zero", "--image", s(&image)], limit);
+    refused(&o, "/dev/zero", "not a regular file");
+    let big = dir.join("big-camera.toml");
+    std::fs::write(&big, format!("[camera]\n#{}\n", "x".repeat(3 << 20))).unwrap();
+    let o = run_within(&["render", s(&out), "--camera", s(&big), "--image", s(&image)], limit);
+    refused(&o, s(&big), "more than the limit of 1048576 bytes for a camera file");
+}
+
+#[test]
+fn a_nrrd_header_with_more_space_directions_than_dimensions_is_an_error_not_a_panic() {
+    let dir = temp_dir("hostile-nrrd-directions");
+    let density: Vec<u8> = (0..16 * 16 * 16).flat_map(|_| 0.5f32.to_le_bytes()).collect();
+    std::fs::write(dir.join("v.raw"), density).unwrap();
+    let directions = "space directions: (1,0,0) (0,1,0) (0,0,1) (1,0,0)\n";
+    std::fs::write(dir.join("a.nhdr"), nrrd_header("v.raw", directions)).unwrap();
+    let scene = write_scene(&dir, &SMALL.replace("procedural = \"sphere\"\ndims = [16, 16, 16]", "nrrd = \"a.nhdr\""));
+    let o =
+        run_within(&["solve", s(&scene), "--out", s(&dir.join("out")), "--backend", "cpu"], Duration::from_secs(60));
+    refused(&o, "space directions", "is not 3 vectors");
+}
+
+#[test]
+fn a_confined_solve_refuses_a_nrrd_data_file_outside_its_root() {
+    let dir = temp_dir("hostile-confine");
+    let data = dir.join("data");
+    std::fs::create_dir_all(data.join("volumes")).unwrap();
+    let density: Vec<u8> = (0..16 * 16 * 16).flat_map(|_| 0.5f32.to_le_bytes()).collect();
+    std::fs::write(data.join("volumes/v.raw"), &density).unwrap();
+    std::fs::write(dir.join("outside.raw"), &density).unwrap();
+    // Also through a symbolic link inside the root.
+    std::os::unix::fs::symlink(dir.join("outside.raw"), data.join("volumes/link.raw")).unwrap();
+    let nrrd = data.join("volumes/a.nhdr");
+    let scene_text = SMALL.replace("procedural = \"sphere\"\ndims = [16, 16, 16]", &format!("nrrd = \"{}\"", s(&nrrd)));
+    let scene = write_scene(&data, &scene_text);
+    let solve = |name: &str| {
+        let out = data.join(name);
+        run_within(
+            &["solve", s(&scene), "--out", s(&out), "--backend", "cpu", "--confine-to", s(&data)],
+            Duration::from_secs(300),
+        )
+    };
+    std::fs::write(&nrrd, nrrd_header("v.raw", "")).unwrap();
+    let o = solve("inside");
+    assert!(o.status.success(), "{}", stderr(&o));
+    for outside in [s(&dir.join("outside.raw")), "link.raw"] {
+        std::fs::write(&nrrd, nrrd_header(outside, "")).unwrap();
+        let o = solve("outside");
+        refused(&o, outside, "outside the data root this solve is confined to");
+    }
+}
+
+#[test]
+fn a_file_size_limit_is_a_clear_error_not_a_silent_sigxfsz() {
+    let dir = temp_dir("hostile-fsize");
+    // RGB over 48³: each exported field (1.3 MB) is past the limit.
+    let scene = write_scene(
+        &dir,
+        &SMALL
+            .replace("procedural = \"sphere\"\ndims = [16, 16, 16]", "procedural = \"box\"\ndims = [48, 48, 48]")
+            .replace("sigma_t = 0.3", "sigma_t = [0.3, 0.2, 0.1]"),
+    );
+    let out = dir.join("out");
+    let mut cmd = lpm_command(&["solve", s(&scene), "--out", s(&out), "--backend", "cpu", "--no-image"]);
+    {
+        use std::os::unix::process::CommandExt;
+        // `ulimit -f 1024` as a shell would set it: SIGXFSZ left at its default (kill), which lpm
+        // itself must ignore so that the write fails with EFBIG.
+        // SAFETY: only async-signal-safe calls between fork and exec.
+        unsafe {
+            cmd.pre_exec(|| {
+                libc::signal(libc::SIGXFSZ, libc::SIG_DFL);
+                let lim = libc::rlimit { rlim_cur: 1 << 20, rlim_max: 1 << 20 };
+                libc::setrlimit(libc::RLIMIT_FSIZE, &lim);
+                Ok(())
+            });
+        }
+    }
+    let o = cmd.output().expect("run lpm");
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "killed by a signal or succeeded: {:?}\n{e}", o.status);
+    assert!(e.contains("not enough disk space"), "{e}");
+    assert!(!out.join(".lpm-work").exists(), "the staging is removed");
+}
+
+#[test]
+fn a_sweep_of_too_many_tasks_is_refused_before_anything_is_listed() {
+    let dir = temp_dir("hostile-sweep");
+    std::fs::write(dir.join("base.toml"), SMALL).unwrap();
+    let manifest = dir.join("anim.toml");
+    // i64::MAX panicked (capacity overflow); a billion tried a 16 GB allocation; 1000 frames × 101
+    // parameter values is just past the cap.
+    for (frames, values) in [("last = 9223372036854775807", 1), ("last = 1000000000", 1), ("last = 1000", 101)] {
+        let albedo: Vec<String> = (0..values).map(|i| format!("{}", 0.5 + i as f64 * 1e-3)).collect();
+        std::fs::write(
+            &manifest,
+            format!(
+                "scene = \"base.toml\"\n[frames]\nfirst = 1\n{frames}\n[parameters]\n\"medium.albedo\" = [{}]\n",
+                albedo.join(", ")
+            ),
+        )
+        .unwrap();
+        let o = run_within(&["sweep", s(&manifest)], Duration::from_secs(60));
+        refused(&o, "anim.toml", "more than the 100000 a sweep may have");
+        assert!(!dir.join("anim.tasks").exists(), "nothing is written");
+    }
+}
+
+#[cfg(feature = "service")]
+#[test]
+fn serve_options_out_of_bounds_are_refused_not_a_panic() {
+    let dir = temp_dir("hostile-serve-options");
+    let data = dir.join("data");
+    for (option, value, why) in [
+        ("--retention-hours", "1e300", "--retention-hours: must be a positive number of hours up to 100000"),
+        ("--retention-hours", "0", "--retention-hours: must be a positive number of hours"),
+        ("--workers", "100000", "--workers: 100000 jobs at once per device is more than the 64 allowed"),
+    ] {
+        let o = run_within(
+            &["serve", "--listen", "127.0.0.1:0", "--data", s(&data), option, value],
+            Duration::from_secs(60),
+        );
+        refused(&o, option, why);
+    }
+}
+
+#[test]
+fn info_json_refuses_a_corrupt_report() {
+    let dir = temp_dir("hostile-info");
+    std::fs::write(dir.join("report.json"), "{\"plan\": {\"dims\": [1, 2").unwrap();
+    let o = run_within(&["info", s(&dir), "--json"], Duration::from_secs(60));
+    refused(&o, "report.json", "is not valid JSON");
+    assert!(o.stdout.is_empty(), "nothing is printed: {}", String::from_utf8_lossy(&o.stdout));
+}
+
+#[test]
+fn a_subnormal_voxel_size_is_blamed_on_voxel_size_in_few_digits() {
+    let text = SMALL
+        .replace("dims = [16, 16, 16]", "dims = [16, 16, 16]\nvoxel_size = 5e-324")
+        .replace("[solver]", "[[lights]]\nkind = \"point\"\nposition = [0, 0, 0]\nintensity = 1.0\n[solver]");
+    let e = lpm::scene::Scene::from_toml_str(&text, Path::new("t.toml")).expect_err("refused").to_string();
+    assert!(e.contains("volume.voxel_size") && e.contains("5e-324"), "{e}");
+    assert!(!e.contains("intensity") && e.len() < 200, "{e}");
+}
+
+#[test]
+fn sigterm_while_the_store_is_built_stops_at_once_and_says_no_checkpoint_is_kept() {
+    let dir = temp_dir("hostile-sigterm-store");
+    // 64 × 64 × 48 bricks of cloud: its store takes many seconds to build.
+    let scene = write_scene(
+        &dir,
+        &SMALL.replace(
+            "procedural = \"sphere\"\ndims = [16, 16, 16]",
+            "procedural = \"cloud\"\ndims = [1024, 1024, 768]",
+        ),
+    );
+    let out = dir.join("out");
+    let mut child = lpm_command(&["solve", s(&scene), "--out", s(&out), "--no-image"])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run lpm");
+    // The store is being built once its work directory exists.
+    let t = Instant::now();
+    while !out.join(".lpm-work").exists() {
+        assert!(child.try_wait().unwrap().is_none(), "the solve ended before its store was built");
+        assert!(t.elapsed() < Duration::from_secs(120), "no store after 120 s");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_millis(500));
+    // SAFETY: kill(2) on our own child, not yet reaped.
+    assert_eq!(unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) }, 0);
+    let signalled = Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if signalled.elapsed() > Duration::from_secs(5) {
+            let _ = child.kill();
+            panic!("still building the store 5 s after SIGTERM");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let o = child.wait_with_output().unwrap();
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(3), "{e}");
+    assert!(e.contains("no checkpoint is kept") && !e.contains("checkpoint is kept:"), "{e}");
+    assert!(!out.join(".lpm-work").exists(), "the unfinished store is removed");
+}
