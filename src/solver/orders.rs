@@ -277,6 +277,7 @@ pub fn run_orders<B: Backend + ?Sized>(
     mut progress: impl FnMut(u32, f64),
 ) -> Result<OrderOutcome, SolveError> {
     let clock = Instant::now();
+    let start_orders = start.orders_done;
     let mut state = start;
     let residual_of = |s: &LoopState| {
         let total: f64 = s.total_power.iter().sum();
@@ -290,6 +291,10 @@ pub fn run_orders<B: Backend + ?Sized>(
     // Nothing scatters any more (a non-scattering medium after order 0): the fluence is complete.
     let exhausted = |s: &LoopState| s.orders_done > 0 && s.last_new_power.iter().all(|&p| p <= 0.0);
     let mut remaining: Option<RemainingError> = None;
+    let remaining_of = |backend: &mut B, s: &LoopState| match tail_factors(plan, s) {
+        Some(factor) if !exhausted(s) => backend.remaining_error(plan, factor).map(Some),
+        _ => Ok(None),
+    };
     let done = |s: &LoopState, remaining: Option<RemainingError>| {
         exhausted(s)
             || if extrapolate { tail_converged(plan, s) } else { remaining.is_some_and(|r| r.max <= plan.tolerance) }
@@ -324,10 +329,7 @@ pub fn run_orders<B: Backend + ?Sized>(
         state.tallies = tallies;
         state.orders_done += 1;
         let residual = residual_of(&state);
-        remaining = match tail_factors(plan, &state) {
-            Some(factor) if !exhausted(&state) => Some(backend.remaining_error(plan, factor)?),
-            _ => None,
-        };
+        remaining = remaining_of(backend, &state)?;
         state.history.push(OrderRecord {
             order,
             new_source_power: new.iter().sum(),
@@ -345,6 +347,16 @@ pub fn run_orders<B: Backend + ?Sized>(
         };
         progress(order, measure);
         tracing::debug!(order, residual, remaining = remaining.map(|r| r.max), "order done");
+    }
+    // Resumed after its last order (killed in the export): no order ran here, so what the orders
+    // set up as they went is set up from the checkpoint, for the report to be the uninterrupted
+    // solve's: the acceleration grid with its last correction (built at an order's commit, and
+    // part of the energy balance), and the last order's remaining error, measured again on the
+    // fields the checkpoint names.
+    if state.orders_done > 0 && state.orders_done == start_orders {
+        let (fields, medium) = backend.fields();
+        fields.acceleration_due(plan, medium)?;
+        remaining = remaining_of(backend, &state)?;
     }
     // The balance covers the propagated orders; the tail is reported on its own.
     let (emitted, absorbed) = {
