@@ -584,8 +584,9 @@ fn was_cancelled(e: &anyhow::Error) -> bool {
 
 /// The error and its causes in one line, each cause once: a library error that already quotes its
 /// source (`… cannot open: No such file or directory`) is not followed by the same reason again.
-/// Control characters other than line breaks (from file names, say: an escape sequence) are
-/// escaped so they cannot garble the terminal.
+/// Control characters (from file names, say: an escape sequence, or a newline, which would split
+/// the one line that scripts and `lpm serve` take as the error) are escaped so they cannot garble
+/// the terminal.
 fn error_text(e: &anyhow::Error) -> String {
     let mut text = String::new();
     for cause in e.chain() {
@@ -606,9 +607,7 @@ fn error_text(e: &anyhow::Error) -> String {
 }
 
 fn escape_controls(text: &str) -> String {
-    text.chars()
-        .map(|c| if c.is_control() && c != '\n' { c.escape_default().to_string() } else { c.to_string() })
-        .collect()
+    text.chars().map(|c| if c.is_control() { c.escape_default().to_string() } else { c.to_string() }).collect()
 }
 
 fn parse_limit(text: &str) -> Result<f64, String> {

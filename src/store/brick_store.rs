@@ -194,11 +194,23 @@ impl BrickStore {
         residency
     }
 
-    /// Bytes of the store's files on disk (density, table and every field), as allocated.
+    /// Bytes of the store's files on disk (density, table and every field), as allocated. Only
+    /// those: what else a solve keeps beside them (its checkpoint, which names the directory, and
+    /// the checkpoint's small files) would make the count depend on the path and on when the
+    /// solve was resumed.
     pub fn file_bytes(&self) -> u64 {
+        let store_file = |name: &std::ffi::OsStr| {
+            name == DENSITY_FILE || name == TABLE_FILE || Path::new(name).extension().is_some_and(|e| e == "field")
+        };
         std::fs::read_dir(&self.dir)
             .map(|entries| {
-                entries.flatten().filter_map(|e| e.metadata().ok()).filter(|m| m.is_file()).map(|m| m.len()).sum()
+                entries
+                    .flatten()
+                    .filter(|e| store_file(&e.file_name()))
+                    .filter_map(|e| e.metadata().ok())
+                    .filter(|m| m.is_file())
+                    .map(|m| m.len())
+                    .sum()
             })
             .unwrap_or(0)
     }

@@ -299,3 +299,39 @@ fn sigterm_while_the_store_is_built_stops_at_once_and_says_no_checkpoint_is_kept
     assert!(e.contains("no checkpoint is kept") && !e.contains("checkpoint is kept:"), "{e}");
     assert!(!out.join(".lpm-work").exists(), "the unfinished store is removed");
 }
+
+#[test]
+fn a_newline_in_a_path_does_not_split_the_one_line_error() {
+    let dir = temp_dir("hostile-newline");
+    let scene = dir.join("a\nb.toml");
+    let o = run_within(&["solve", s(&scene), "--out", s(&dir.join("out"))], Duration::from_secs(60));
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    assert_eq!(e.trim_end().lines().count(), 1, "{e}");
+    assert!(e.starts_with("lpm: ") && e.contains("a\\nb.toml"), "{e}");
+}
+
+#[test]
+fn store_bytes_count_the_store_alone_not_its_checkpoint() {
+    // The checkpoint beside the store (its JSON holds timings, so its length varies from run to
+    // run and after a resume) was counted: store_bytes changed between identical solves.
+    let dir = temp_dir("hostile-store-bytes");
+    let scene = write_scene(&dir, &SMALL.replace("max_orders = 2", "max_orders = 3\ncheckpoint_every_orders = 1"));
+    let out = dir.join("out");
+    let o = run_within(&["solve", s(&scene), "--out", s(&out), "--no-image", "--keep-store"], Duration::from_secs(300));
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let mut own = 0;
+    let mut other = Vec::new();
+    for e in std::fs::read_dir(out.join("store")).unwrap().flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        if name == "density.bricks" || name == "bricks.json" || name.ends_with(".field") {
+            own += e.metadata().unwrap().len();
+        } else {
+            other.push(name);
+        }
+    }
+    assert!(other.contains(&"checkpoint.json".to_string()), "a checkpoint is kept beside the store: {other:?}");
+    assert_eq!(r["store_bytes"].as_u64(), Some(own), "besides the store: {other:?}");
+}
