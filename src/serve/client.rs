@@ -14,6 +14,8 @@ pub enum ClientError {
     Read { path: PathBuf, source: std::io::Error },
     #[error("{0}")]
     Output(#[from] crate::output::OutputError),
+    #[error(transparent)]
+    Input(#[from] crate::input::InputError),
     #[error("the server's answer is not what was expected: {0}")]
     Protocol(String),
 }
@@ -70,8 +72,7 @@ impl Client {
 
     /// Submits the scene file; `query` holds extra parameters (`priority=5`, …). Returns the job.
     pub fn submit(&self, scene: &Path, query: &[(&str, String)]) -> Result<serde_json::Value, ClientError> {
-        let text =
-            std::fs::read_to_string(scene).map_err(|source| ClientError::Read { path: scene.to_path_buf(), source })?;
+        let text = crate::input::read_text_capped(scene, crate::scene::validate::MAX_SCENE_BYTES, "a scene file")?;
         let mut r = self.request("POST", "/v1/jobs").set("Content-Type", "application/toml");
         for (k, v) in query {
             r = r.query(k, v);
@@ -93,7 +94,7 @@ impl Client {
             let path = path.to_path_buf();
             move |source| ClientError::Read { path, source }
         };
-        let text = std::fs::read(scene).map_err(read_err(scene))?;
+        let text = crate::input::read_capped(scene, crate::scene::validate::MAX_SCENE_BYTES, "a scene file")?;
         let boundary = format!("lpm-{:016x}", rand_u64());
         let mut head = format!(
             "--{boundary}\r\nContent-Disposition: form-data; name=\"scene\"; filename=\"scene.toml\"\r\nContent-Type: application/toml\r\n\r\n"
@@ -110,7 +111,8 @@ impl Client {
                         v.display()
                     ))
                 })?;
-            let file = std::fs::File::open(v).map_err(read_err(v))?;
+            // Regular files only: a FIFO would block here, a device never end.
+            let file = crate::input::open(v)?;
             let size = file.metadata().map_err(read_err(v))?.len();
             let part = format!(
                 "\r\n--{boundary}\r\nContent-Disposition: form-data; name=\"volume\"; filename=\"{name}\"\r\nContent-Type: application/octet-stream\r\n\r\n"

@@ -335,3 +335,18 @@ fn store_bytes_count_the_store_alone_not_its_checkpoint() {
     assert!(other.contains(&"checkpoint.json".to_string()), "a checkpoint is kept beside the store: {other:?}");
     assert_eq!(r["store_bytes"].as_u64(), Some(own), "besides the store: {other:?}");
 }
+
+#[cfg(feature = "service")]
+#[test]
+fn lpm_submit_refuses_a_fifo_as_its_scene_or_volume() {
+    let dir = temp_dir("hostile-submit");
+    let fifo = dir.join("scene.fifo");
+    mkfifo(&fifo);
+    let scene = write_scene(&dir, SMALL);
+    // No server is needed: the files are read first (port 9, discard, has no lpm behind it).
+    let server = "http://127.0.0.1:9";
+    let o = run_within(&["submit", s(&fifo), "--server", server], Duration::from_secs(60));
+    refused(&o, s(&fifo), "not a regular file");
+    let o = run_within(&["submit", s(&scene), "--volume", s(&fifo), "--server", server], Duration::from_secs(60));
+    refused(&o, s(&fifo), "not a regular file");
+}
