@@ -28,11 +28,41 @@ for t in "${TARGETS[@]}"; do
   [ "$t" = scene ] && seeds=(tools/scenes)
   # Small hand-written attached NRRD files (float raw, uchar with byte skip, ushort gzip).
   [ "$t" = nrrd ] && seeds=(tools/fuzz/seeds/nrrd)
+  max_len=65536
+  if [ "$t" = nanovdb ]; then
+    # A NanoVDB grid holding even one voxel is about 300 KB (a 32³ node's table alone is 270 KB):
+    # within 64 KiB no seed fits and the fuzzer never gets past the headers (issue 35: 127 edges).
+    # Seeds are written here by OpenVDB's Python module and nanovdb_convert (tools/setup.sh
+    # installs both): a few voxels in one leaf, and a second grid and a tile.
+    max_len=1048576
+    nvdb_seeds="tools/fuzz/seeds-generated/nanovdb"
+    mkdir -p "$nvdb_seeds"
+    if [ ! -s "$nvdb_seeds/two-grids.nvdb" ]; then
+      /usr/bin/python3 - "$nvdb_seeds" <<'PY'
+import sys, pyopenvdb as vdb
+d = sys.argv[1]
+g = vdb.FloatGrid(); g.name = 'density'
+a = g.getAccessor()
+for i in range(5):
+    a.setValueOn((i, 2 * i, i), 0.5 + i)
+vdb.write(d + '/one-leaf.vdb', [g])
+h = vdb.FloatGrid(); h.name = 'temperature'
+h.fill((8, 0, 0), (15, 7, 7), 2.0)
+h.transform = vdb.createLinearTransform(voxelSize=0.25)
+vdb.write(d + '/two-grids.vdb', [g, h])
+PY
+      for v in one-leaf two-grids; do
+        nanovdb_convert -f "$nvdb_seeds/$v.vdb" "$nvdb_seeds/$v.nvdb" >/dev/null
+        rm -f "$nvdb_seeds/$v.vdb"
+      done
+    fi
+    seeds=("$nvdb_seeds")
+  fi
   echo "== fuzzing $t for ${SECONDS_PER_TARGET}s (sanitizer $SAN)"
   log="tools/fuzz/fuzz-$t.log"
   rc=0
   cargo fuzz run "$t" "${PROFILE[@]}" --fuzz-dir tools/fuzz --sanitizer "$SAN" "tools/fuzz/corpus/$t" "${seeds[@]}" -- \
-    -max_total_time="$SECONDS_PER_TARGET" -rss_limit_mb=4096 -max_len=65536 -print_final_stats=1 >"$log" 2>&1 || rc=$?
+    -max_total_time="$SECONDS_PER_TARGET" -rss_limit_mb=4096 -max_len="$max_len" -print_final_stats=1 >"$log" 2>&1 || rc=$?
   grep -a -E "^(stat::number_of_executed_units|stat::peak_rss_mb|#[0-9]+ +DONE|SUMMARY|.*Test unit written)" "$log" || true
   if [ "$rc" -ne 0 ]; then
     tail -40 "$log"
