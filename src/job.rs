@@ -75,8 +75,9 @@ pub struct SolveJob {
     /// Discard a checkpoint in `OUT/.lpm-work` and start over (without it, a checkpoint there makes
     /// a solve without `resume` fail rather than silently lose the work).
     pub fresh: bool,
-    /// Raised, the solve stops at its next slice and keeps its last checkpoint
-    /// (`SolveError::Cancelled`, see [`solver::cancel`]; GPU backend).
+    /// Raised, the solve stops (`SolveError::Cancelled`, see [`solver::cancel`]): on the GPU at its
+    /// next slice, keeping its last checkpoint; while the store is built, at the next brick; on
+    /// the CPU twin, before the next direction's sweep (those two keep nothing to resume from).
     pub cancel: Option<solver::cancel::CancelFlag>,
     /// Start from the solution in this output directory (its `source.raw`, e.g. the previous
     /// frame's) instead of from nothing; see [`solver::warm`].

@@ -2,7 +2,9 @@
 //!
 //! A [`CancelFlag`] is raised from outside the solve (the `lpm` binary raises it on SIGTERM or
 //! SIGINT; `lpm serve` cancels a running job by sending its solve SIGTERM) and looked at by the GPU
-//! streamer before each slice it streams. A raised flag makes the solve return
+//! streamer before each slice it streams, by the store's build before each brick
+//! ([`super::build_store_until`]) and by the CPU twin before each direction's sweep (it keeps no
+//! checkpoint: nothing is kept to resume from). A raised flag makes the solve return
 //! [`super::SolveError::Cancelled`] there: the order in progress is abandoned, and what the last
 //! completed order's checkpoint names is untouched (nothing a checkpoint names is written before
 //! the next checkpoint, see [`super::fields`]), so `--resume` continues from it to bitwise the

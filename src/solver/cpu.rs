@@ -38,6 +38,9 @@ pub struct CpuTwin<'a> {
     carry: PeriodicCarry,
     /// What the sweeps hand over to their mirror images across mirror faces ([`super::mirror`]).
     mirror: MirrorState,
+    /// Looked at before each direction's sweep (SIGTERM): the twin keeps no checkpoint, so a
+    /// cancelled solve stops there with nothing to resume from.
+    cancel: Option<super::cancel::CancelFlag>,
 }
 
 impl<'a> CpuTwin<'a> {
@@ -78,7 +81,20 @@ impl<'a> CpuTwin<'a> {
             emitted_field: None,
             carry: PeriodicCarry::new(plan),
             mirror: MirrorState::new(plan),
+            cancel: None,
         })
+    }
+
+    /// Stops the solve before the next direction's sweep once `cancel` is raised.
+    pub fn set_cancel(&mut self, cancel: Option<super::cancel::CancelFlag>) {
+        self.cancel = cancel;
+    }
+
+    fn check_cancel(&self) -> Result<(), SolveError> {
+        match self.cancel {
+            Some(c) if c.is_raised() => Err(SolveError::Cancelled { resumable: false }),
+            _ => Ok(()),
+        }
     }
 
     /// Starts from the order-0 source in `source` (a store field, as the GPU gains it) instead of
@@ -207,17 +223,20 @@ impl Backend for CpuTwin<'_> {
         }
         for (b, beam) in plan.beams.iter().enumerate() {
             if plan.beam_swept_in(b, order) {
+                self.check_cancel()?;
                 tallies.add(&self.sweep(beam, Some(CarryOf::Beam(b)), order == 0, false, false));
             }
         }
         // The sky's own directions (plan docs): order 0 only, boundary light only, and nothing
         // carried or handed over (no periodic or mirror faces then).
         for dir in plan.sky_faces.iter().flatten().filter(|_| order == 0) {
+            self.check_cancel()?;
             tallies.add(&self.sweep(dir, None, true, false, false));
         }
         for (face, dirs) in plan.faces.iter().enumerate() {
             for (d, dir) in dirs.iter().enumerate() {
                 let of = Some(CarryOf::Face { face, dir: d });
+                self.check_cancel()?;
                 tallies.add(&self.sweep(dir, of, order == 0, true, order == 0 && plan.emission));
             }
         }

@@ -366,6 +366,7 @@ pub fn solve_from(
         BackendKind::Cpu => {
             let t = Instant::now();
             let mut twin = cpu::CpuTwin::new(&plan, |v| store.density_at(v))?;
+            twin.set_cancel(gpu_options.cancel);
             if plan.albedo_field {
                 twin.set_albedo(&crate::store::albedo::open_albedo(store)?);
             }

@@ -350,3 +350,46 @@ fn lpm_submit_refuses_a_fifo_as_its_scene_or_volume() {
     let o = run_within(&["submit", s(&scene), "--volume", s(&fifo), "--server", server], Duration::from_secs(60));
     refused(&o, s(&fifo), "not a regular file");
 }
+
+#[test]
+fn sigterm_stops_the_cpu_twin_between_directions_and_says_no_checkpoint_is_kept() {
+    let dir = temp_dir("hostile-sigterm-cpu");
+    // Many directions over a cloud of 96³ for many orders: a long solve on the CPU twin.
+    let scene = write_scene(
+        &dir,
+        &SMALL
+            .replace("procedural = \"sphere\"\ndims = [16, 16, 16]", "procedural = \"cloud\"\ndims = [96, 96, 96]")
+            .replace("albedo = 0.6", "albedo = 0.99")
+            .replace(
+                "directions_per_face = 2\nmax_orders = 2",
+                "directions_per_face = 4\nmax_orders = 200\ntolerance = 1e-12",
+            ),
+    );
+    let out = dir.join("out");
+    let mut child = lpm_command(&["solve", s(&scene), "--out", s(&out), "--backend", "cpu", "--no-image"])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run lpm");
+    // In the orders once the first one has reported.
+    let t = Instant::now();
+    while !out.join("progress.json").exists() {
+        assert!(child.try_wait().unwrap().is_none(), "the solve ended before its first order");
+        assert!(t.elapsed() < Duration::from_secs(300), "no order after 300 s");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // SAFETY: kill(2) on our own child, not yet reaped.
+    assert_eq!(unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) }, 0);
+    let signalled = Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if signalled.elapsed() > Duration::from_secs(10) {
+            let _ = child.kill();
+            panic!("the CPU twin still solving 10 s after SIGTERM");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let o = child.wait_with_output().unwrap();
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(3), "{e}");
+    assert!(e.contains("no checkpoint is kept"), "{e}");
+    assert!(!out.join("report.json").exists(), "a cancelled solve publishes nothing");
+}
