@@ -41,7 +41,8 @@ void main() {
         uint f = (slot * pc.channels + ch) * BRICK_VOXELS + local;
         precise double phi = f64_of_f32_bits(fluence[f]) + g;
         fluence[f] = f32_bits_of(phi);
-        precise double add = rho * pc.scatter[ch] * a * g / pc.four_pi;
+        precise double numerator = rho * pc.scatter[ch] * a * g;
+        precise double add = div_rn(numerator, pc.four_pi);
         for (uint k = ch; k < pc.comps; k += pc.channels) {
             uint s = (slot * pc.comps + k) * BRICK_VOXELS + local;
             precise double j = f64_of_f32_bits(source[s]) + add;

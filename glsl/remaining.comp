@@ -63,7 +63,7 @@ void main() {
                 e_bits = 0x7f800000u;
             } else {
                 precise double add = f * abs(f64_of_f32_bits(newest[base + v]));
-                precise double e = add / (t + add);
+                precise double e = div_rn(add, t + add);
                 e_bits = f32_bits_of(e);
             }
             precise double e = f64_of_f32_bits(e_bits);

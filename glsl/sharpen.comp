@@ -67,7 +67,8 @@ double exp_neg(double x) {
     precise double y = (double(k) * c.ln2_hi - x) + double(k) * c.ln2_lo;
     precise double p = 1.0;
     for (int n = 13; n >= 1; n--) {
-        p = 1.0 + y * p / double(n);
+        precise double yp = y * p;
+        p = 1.0 + div_rn(yp, double(n));
     }
     precise double out_value = p * uint64BitsToDouble(uint64_t(1023 - k) << 52);
     return out_value;
@@ -82,12 +83,14 @@ double stable_share(double rho, double factor, uint ch) {
     if (x < c.small) {
         returned = 0.5 * x;
     } else {
-        returned = 1.0 + (exp_neg(x) - 1.0) / x;
+        precise double less = exp_neg(x) - 1.0;
+        returned = 1.0 + div_rn(less, x);
     }
     precise double loop_gain = c.albedo[ch] * factor * returned;
     precise double gained = loop_gain * c.one_plus_boost;
     if (gained <= c.growth || c.boost <= 0.0) return 1.0;
-    precise double share = (c.growth / loop_gain - 1.0) / c.boost;
+    precise double over = div_rn(c.growth, loop_gain) - 1.0;
+    precise double share = div_rn(over, c.boost);
     // f64::clamp(0, 1), as the host clamps.
     if (share < 0.0) share = 0.0;
     if (share > 1.0) share = 1.0;
@@ -115,7 +118,8 @@ double weight(uvec2 at) {
 // One flux of the host's `flux` closure: s hands over to its partner, capped by the smaller value.
 double flux(double kappa, double m, double mn, double s, double other) {
     precise double limit = c.flux_share * max(min(s, other), 0.0);
-    precise double f = kappa * 2.0 * (m * other - mn * s) / (m + mn);
+    precise double numerator = kappa * 2.0 * (m * other - mn * s);
+    precise double f = div_rn(numerator, m + mn);
     // f64::clamp(−limit, limit), as the host clamps.
     if (f < -limit) f = -limit;
     if (f > limit) f = limit;
@@ -136,7 +140,7 @@ void main() {
         }
         return;
     }
-    precise double factor = rho > 0.0 ? m / rho : 0.0;
+    precise double factor = rho > 0.0 ? div_rn(m, rho) : 0.0;
     double share[3];
     for (uint ch = 0u; ch < pc.channels; ch++) share[ch] = stable_share(rho, factor, ch);
     // The partners (−x, +x, −y, +y, −z, +z) that scatter, with a voxel between that scatters too.
@@ -181,7 +185,7 @@ void main() {
         partner[n] = at;
         partner_m[n] = mn;
         double rho_n = f64_of_f32_bits(density[at.x * BRICK_VOXELS + at.y]);
-        precise double factor_n = rho_n > 0.0 ? mn / rho_n : 0.0;
+        precise double factor_n = rho_n > 0.0 ? div_rn(mn, rho_n) : 0.0;
         for (uint ch = 0u; ch < pc.channels; ch++) partner_share[n][ch] = stable_share(rho_n, factor_n, ch);
     }
     for (uint k = 0u; k < pc.comps; k++) {

@@ -55,8 +55,9 @@ pub struct DiffusionPush {
 }
 const _: () = assert!(std::mem::size_of::<DiffusionPush>() == 112);
 
-/// Loop iterations one invocation of the moments kernel may run per round (about): the rounds
-/// keep every invocation's loops far below llvmpipe's 65535 (see glsl/diffusion_moments.comp).
+/// Loop iterations one invocation of the moments kernel may run per round (about) on a CPU
+/// implementation: the rounds keep every invocation's loops far below llvmpipe's 65535 (see
+/// glsl/diffusion_moments.comp). A GPU runs one round.
 const ROUND_ITERATIONS: u32 = 16384;
 
 /// The two kernels, their sets over the resident fields and the diffusion buffers, and what the
@@ -212,7 +213,14 @@ impl DeviceAcceleration {
         // Each cell's voxels: a box of min(e, 16)³ in each of its bricks, walked in rounds.
         let box_voxels = grid.edge().min(BRICK_EDGE).pow(3);
         let most_bricks = tables.brick_start.windows(2).map(|w| w[1] - w[0]).max().unwrap_or(0);
-        let round_voxels = (ROUND_ITERATIONS / (1 + plan.channels + plan.source_components())).max(1);
+        // Rounds only where a CPU implementation (llvmpipe) limits an invocation's loops; a GPU
+        // walks every cell's voxels in one dispatch. The same additions in the same order either
+        // way: the same bits.
+        let round_voxels = if streamer.context().limits().is_cpu {
+            (ROUND_ITERATIONS / (1 + plan.channels + plan.source_components())).max(1)
+        } else {
+            (box_voxels * most_bricks).max(1)
+        };
         let rounds = (box_voxels * most_bricks).div_ceil(round_voxels);
         let mut push = DiffusionPush {
             unknowns: count(grid.unknowns())?,

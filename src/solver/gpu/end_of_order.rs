@@ -17,11 +17,13 @@
 //! Every value is bitwise what the host's passes give in the streamed mode (`glsl/exact.glsl` says
 //! how: f32 values are read from their bits, so a device that flushes denormals does too; each
 //! sum runs in the host's order, one invocation per block or brick), so the answer, the orders and
-//! the stop decisions are the streamed mode's (`tests/it/resident.rs`). The one assumption beyond
-//! what Vulkan promises is that f64 division is correctly rounded (the remaining error's e_v, the
-//! acceleration's σs·g/4π, the diffusion correction's fluxes and stability share): true of
-//! llvmpipe and of NVIDIA's compiler; a device where it is not would give answers a rounding
-//! apart from the streamed mode's, not wrong ones.
+//! the stop decisions are the streamed mode's (`tests/it/resident.rs`). Vulkan promises correctly
+//! rounded f64 +, − and ×, but not a correctly rounded f64 division (nor a fused fma), so every f64
+//! division of these kernels (the remaining error's e_v, the acceleration's σs·g/4π, the diffusion
+//! correction's fluxes and stability share) goes through `div_rn` (glsl/exact.glsl): Newton steps
+//! with exact residuals from + − × alone, and the rounding decided between neighbours, so the
+//! quotient is the host's on any conformant device (`tests/it/exact_division.rs`, which starts it
+//! from quotients spoiled on purpose).
 //!
 //! Before the commit, when the plan asks for them: with a per-voxel albedo, `albedo_scale.comp`
 //! multiplies the new source by each voxel's factor (resident from the first load); then the

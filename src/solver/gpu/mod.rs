@@ -82,6 +82,7 @@ pub mod sizes;
 mod slice;
 mod streamer;
 mod tables;
+mod tally_sums;
 mod transpose;
 
 use super::antidiffusion::VoxelUnits;
@@ -448,7 +449,8 @@ struct Births<'e> {
     entries: Option<&'e [RayRadiance]>,
 }
 
-/// Downloads what the rays of the pass just finished carried out, as powers per face: the ray
+/// Reads what the rays of the pass just finished carried out, as powers per face (summed on the
+/// device where it has f64 shaders, [`tally_sums`]; else downloaded and summed here): the ray
 /// buffer holds the radiance leaving through the far face, the two side buffers what left through
 /// the sides of each lateral axis ([`FaceSweep::face_roles`]). What came in needs no download:
 /// every ray is born at plane 0 (with `births`) and wherever its slot wraps, with the direction's
@@ -470,15 +472,38 @@ fn read_tallies(
     let shared = &res.shared;
     let ctx = Arc::clone(streamer.context());
     let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "tallies")?;
-    rec.compute_to_transfer();
     let region = |dst| [vk::BufferCopy { src_offset: 0, dst_offset: dst, size: bytes }];
-    rec.copy_buffer(&shared.rays, &shared.tallies, &region(0));
-    rec.copy_buffer(&shared.rays_out_b, &shared.tallies, &region(bytes));
-    rec.copy_buffer(&shared.rays_out_c, &shared.tallies, &region(2 * bytes));
-    rec.transfer_to_host();
+    // With the sums on the device, only they come home, and the far face's exits where a
+    // periodic sweep axis carries them to the next order; else all three ray buffers.
+    let device_sums = match &shared.tally_sums {
+        Some(kernel) => Some(kernel.record(&mut rec, dirs.len() * c, rays)?),
+        None => None,
+    };
+    let buffers_home = match device_sums {
+        Some(_) => usize::from(sweep.periodic[0]),
+        None => 3,
+    };
+    if buffers_home > 0 {
+        rec.compute_to_transfer();
+        for (i, b) in [&shared.rays, &shared.rays_out_b, &shared.rays_out_c].into_iter().take(buffers_home).enumerate() {
+            rec.copy_buffer(b, &shared.tallies, &region(i as u64 * bytes));
+        }
+        rec.transfer_to_host();
+    }
     streamer.submit_and_wait(rec)?;
-    let values: &[f32] = bytemuck::cast_slice(&shared.tallies.bytes()[..3 * bytes as usize]);
-    let per_buffer = values.len() / 3;
+    let values: &[f32] = bytemuck::cast_slice(&shared.tallies.bytes()[..buffers_home * bytes as usize]);
+    let per_buffer = bytes as usize / 4;
+    let chunk_sums = match (&shared.tally_sums, &device_sums) {
+        (Some(kernel), Some(layout)) => Some((kernel.read(layout)?, layout)),
+        _ => None,
+    };
+    // The sum over the rays of `buffer` (0 far, 1 side b, 2 side c) for segment `d·c + ch`.
+    let ray_sum = |buffer: usize, segment: usize| -> f64 {
+        match &chunk_sums {
+            Some((sums, layout)) => layout.segment(sums, buffer, segment),
+            None => values[buffer * per_buffer..][segment * rays..(segment + 1) * rays].iter().map(|&v| v as f64).sum(),
+        }
+    };
     let mut tallies = Tallies::default();
     for (d, dir) in dirs.iter().enumerate() {
         let roles = sweep.face_roles(&dir.offsets);
@@ -487,9 +512,7 @@ fn read_tallies(
         let power = dir.power_per_radiance;
         for ch in 0..c {
             let range = (d * c + ch) * rays..(d * c + ch + 1) * rays;
-            let sum = |buffer: usize| -> f64 {
-                values[buffer * per_buffer..][range.clone()].iter().map(|&v| v as f64).sum::<f64>() * power
-            };
+            let sum = |buffer: usize| -> f64 { ray_sum(buffer, d * c + ch) * power };
             let far = sum(0);
             tallies.boundary_out[ch] += far;
             let birth = if boundary { dir.boundary[ch] * power } else { 0.0 };

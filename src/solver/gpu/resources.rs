@@ -17,6 +17,7 @@ use super::owned::Owned;
 use super::sizes::{ResidentSizes, SharedSizes, SlotSizes};
 use super::streamer::SliceStreamer;
 use super::tables::SweepTables;
+use super::tally_sums::DeviceTallySums;
 use super::transpose::Transposer;
 use crate::solver::plan::Plan;
 use crate::solver::SolveError;
@@ -47,8 +48,12 @@ pub struct SharedBuffers {
     pub rays_out_b: Owned<Buffer>,
     pub rays_out_c: Owned<Buffer>,
     pub deposit: Owned<Buffer>,
-    /// The staging the rays' tallies come home through.
+    /// The staging the rays' tallies (or, with `tally_sums`, the far face's exits) come home
+    /// through; also where a periodic pass's starting radiance goes up from.
     pub tallies: Owned<HostBuffer>,
+    /// The device's sums of what the rays carried out ([`super::tally_sums`]); `None` on a
+    /// device without f64 shaders, where the host sums the ray buffers.
+    pub tally_sums: Option<DeviceTallySums>,
     /// Bound in place of the slot buffers when a vacuum slice computes (never read).
     pub vacuum: Owned<Buffer>,
 }
@@ -206,8 +211,9 @@ impl DeviceResources {
             memory.directions_per_pass,
             memory.directions_per_dispatch,
             memory.planes_per_dispatch,
+            ctx.limits().float64,
         );
-        let shared = SharedBuffers {
+        let mut shared = SharedBuffers {
             rays: buffer(ctx, "rays", s.ray_buffer, storage, gpu)?,
             rays_out_b: buffer(ctx, "rays out b", s.ray_buffer, storage, gpu)?,
             rays_out_c: buffer(ctx, "rays out c", s.ray_buffer, storage, gpu)?,
@@ -220,8 +226,13 @@ impl DeviceResources {
                 vk::BufferUsageFlags::TRANSFER_DST | vk::BufferUsageFlags::TRANSFER_SRC,
                 MemoryLocation::GpuToCpu,
             )?,
+            tally_sums: None,
             vacuum: buffer(ctx, "vacuum", s.vacuum, storage, gpu)?,
         };
+        if s.tally_sums > 0 {
+            let rays = [&*shared.rays, &*shared.rays_out_b, &*shared.rays_out_c];
+            shared.tally_sums = Some(DeviceTallySums::new(ctx, rays, s.tally_sums)?);
+        }
         let z = if memory.is_resident() {
             SlotSizes::resident(plan, &memory.slice)
         } else {
@@ -388,7 +399,8 @@ impl DeviceResources {
     pub fn buffer_bytes(&self) -> u64 {
         let sh = &self.shared;
         let shared: [&Buffer; 6] = [&sh.rays, &sh.rays_out_b, &sh.rays_out_c, &sh.deposit, &sh.tallies, &sh.vacuum];
-        let shared: u64 = shared.iter().map(|b| b.size()).sum();
+        let shared: u64 =
+            shared.iter().map(|b| b.size()).sum::<u64>() + sh.tally_sums.as_ref().map_or(0, DeviceTallySums::bytes);
         let slots: u64 = self
             .slots
             .iter()

@@ -274,8 +274,17 @@ impl ResidentSizes {
     }
 }
 
-/// The buffers shared by the slots: ray state, deposit, the tallies' staging and the vacuum
-/// stand-in.
+/// Rays to a chunk of the device's tally sums (`glsl/tally_sums.comp`'s `CHUNK`: a loop of at most
+/// this many iterations per invocation, well under llvmpipe's limit).
+pub const TALLY_CHUNK: u64 = 4096;
+
+/// Chunks of [`TALLY_CHUNK`] rays a segment of `rays` rays is summed in.
+pub fn tally_chunks(rays: u64) -> u64 {
+    rays.div_ceil(TALLY_CHUNK).max(1)
+}
+
+/// The buffers shared by the slots: ray state, deposit, the tallies' staging and sums, and the
+/// vacuum stand-in.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct SharedSizes {
     /// Each of the three ray buffers (radiance, then what left through the far face; what left
@@ -283,21 +292,35 @@ pub struct SharedSizes {
     pub ray_buffer: u64,
     /// `group` directions × channels × `planes` planes × rays.
     pub deposit: u64,
-    /// The three ray buffers come home through this after a pass (the tallies by face).
+    /// Host-visible staging for the rays after a pass: with the sums on the device, the far
+    /// face's exits (what a periodic sweep axis carries) and the radiance the rays of such a
+    /// pass start with; else all three ray buffers come home through it (the tallies by face).
     pub tallies: u64,
+    /// Host-visible: the sums of what the rays carried out, per chunk of rays
+    /// ([`super::tally_sums`]); 0 where the host sums (a device without f64 shaders).
+    pub tally_sums: u64,
     pub vacuum: u64,
 }
 
 impl SharedSizes {
-    pub fn new(plan: &Plan, rays: u64, pass: u32, group: u32, planes: u32) -> SharedSizes {
+    /// For `pass` directions of `rays` rays, `group` directions and `planes` planes to a
+    /// dispatch; `device_sums`: the rays' tallies are summed on the device.
+    pub fn new(plan: &Plan, rays: u64, pass: u32, group: u32, planes: u32, device_sums: bool) -> SharedSizes {
         let c = plan.channels as u64;
         let ray_buffer = pass as u64 * c * rays * 4;
+        let segments = pass as u64 * c;
         SharedSizes {
             ray_buffer: buffer_bytes(ray_buffer),
             deposit: buffer_bytes(group as u64 * c * planes as u64 * rays * 4),
-            tallies: buffer_bytes(3 * ray_buffer),
+            tallies: buffer_bytes(if device_sums { ray_buffer } else { 3 * ray_buffer }),
+            tally_sums: if device_sums { buffer_bytes(3 * segments * tally_chunks(rays) * 8) } else { 0 },
             vacuum: VACUUM_BYTES,
         }
+    }
+
+    /// What comes home after a pass: the tallies' staging and the sums.
+    pub fn readback(&self) -> u64 {
+        self.tallies + self.tally_sums
     }
 
     /// The three ray buffers and the vacuum stand-in.

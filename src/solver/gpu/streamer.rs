@@ -178,6 +178,10 @@ impl SliceStreamer {
         let after = [(&*t.upload, self.upload_value, vk::PipelineStageFlags2::ALL_COMMANDS)];
         rec.submit(self.ctx.compute_queue(), &after, (&t.compute, v))?;
         t.compute.wait(&self.ctx, v, WAIT_FOREVER)?;
+        // A host signal may not pass a signal still pending on the device: a download on a queue
+        // of its own may not have signalled its value yet (the compute work waited for the
+        // uploads, so those are done).
+        t.download.wait(&self.ctx, self.download_value, WAIT_FOREVER)?;
         t.upload.signal(&self.ctx, v)?;
         t.download.signal(&self.ctx, v)?;
         (self.upload_value, self.compute_value, self.download_value) = (v, v, v);
