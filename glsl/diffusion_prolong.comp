@@ -33,7 +33,7 @@ void main() {
     if (!in_grid(rho)) return;
     uvec3 v = origin[slot].xyz + uvec3(local % BRICK_EDGE, (local / BRICK_EDGE) % BRICK_EDGE, local / (BRICK_EDGE * BRICK_EDGE));
     uvec3 at = v / pc.edge;
-    uint u = unknown_of[at.x + pc.cells_x * (at.y + pc.cells_y * at.z)];
+    uint u = unknown_of[at.x + pc.cells[0] * (at.y + pc.cells[1] * at.z)];
     if (u == NONE) return;
     double a = pc.albedo_grid != 0u ? f64_of_f32_bits(albedo[i]) : 1.0;
     for (uint ch = 0u; ch < pc.channels; ch++) {

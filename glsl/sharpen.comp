@@ -22,7 +22,7 @@ layout(std430, binding = 4) readonly buffer BrickSlots { uint brick_slot[]; };
 layout(std430, binding = 5) readonly buffer Origins { uvec4 origin[]; };
 // The albedo factor per voxel (bound to the density, unread, without an albedo grid: flag bit 9).
 layout(std430, binding = 7) readonly buffer Albedo { uint albedo[]; };
-// Keep in sync with `SharpenConstants` in src/solver/gpu/sharpen.rs (computed on the host, so no
+// `SharpenConstants` in src/solver/gpu/kernels.rs, checked by tests/it/shader_interface.rs (computed on the host, so no
 // f64 literal is parsed here).
 layout(std430, binding = 6) readonly buffer Constants {
     double kappa_w[3];     // PARTNER_WEIGHT · κ per axis
@@ -40,19 +40,16 @@ layout(std430, binding = 6) readonly buffer Constants {
     double exp_limit;      // 700
 } c;
 
-// Keep in sync with `SharpenPush` in src/solver/gpu/sharpen.rs.
+// `SharpenPush` in src/solver/gpu/kernels.rs (checked by tests/it/shader_interface.rs).
 layout(push_constant) uniform Push {
     uint count;     // voxels of the occupied bricks
     uint groups_x;  // workgroups along x of the dispatch (more go along y)
     uint comps;
     uint channels;
-    uint dims_x;
-    uint dims_y;
-    uint dims_z;
+    uint dims[3];
     uint flags;     // bit a: axis a periodic; bit 3 + 2a + side: that face of axis a a mirror;
                     // bit 9: a per-voxel albedo factor
-    uint bricks_x;  // bricks of the volume per axis (x, y)
-    uint bricks_y;
+    uint bricks[2]; // bricks of the volume along x and y
 } pc;
 
 const uint BRICK_EDGE = 16u;
@@ -100,7 +97,7 @@ double stable_share(double rho, double factor, uint ch) {
 // The slot and voxel of volume voxel `v`, or EMPTY.
 uvec2 locate(uvec3 v) {
     uvec3 b = v / BRICK_EDGE;
-    uint slot = brick_slot[b.x + pc.bricks_x * (b.y + pc.bricks_y * b.z)];
+    uint slot = brick_slot[b.x + pc.bricks[0] * (b.y + pc.bricks[1] * b.z)];
     uvec3 l = v % BRICK_EDGE;
     return uvec2(slot, l.x + BRICK_EDGE * (l.y + BRICK_EDGE * l.z));
 }
@@ -145,7 +142,7 @@ void main() {
     for (uint ch = 0u; ch < pc.channels; ch++) share[ch] = stable_share(rho, factor, ch);
     // The partners (−x, +x, −y, +y, −z, +z) that scatter, with a voxel between that scatters too.
     uvec3 v = origin[slot].xyz + uvec3(local % BRICK_EDGE, (local / BRICK_EDGE) % BRICK_EDGE, local / (BRICK_EDGE * BRICK_EDGE));
-    uint dims[3] = uint[3](pc.dims_x, pc.dims_y, pc.dims_z);
+    uint dims[3] = pc.dims;
     uvec2 partner[6];
     double partner_m[6];
     double partner_share[6][3];

@@ -10,7 +10,7 @@ layout(local_size_x = 256, local_size_y = 1, local_size_z = 1) in;
 
 layout(std430, binding = 0) buffer Field { uint words[]; };
 
-// Keep in sync with `TransposePush` in src/solver/gpu/transpose.rs.
+// `TransposePush` in src/solver/gpu/kernels.rs (checked by tests/it/shader_interface.rs).
 layout(push_constant) uniform Push {
     uint blocks;        // blocks of 4096 values in the buffer
     uint half_values;   // 1: the values are f16, two to a word (lower address in the low half)

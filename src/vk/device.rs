@@ -389,14 +389,13 @@ fn open(instance: &Instance, c: &Candidate, force_single_queue: bool) -> Result<
     let props = p2.properties;
     // SAFETY: plain query.
     let mem = unsafe { inst.get_physical_device_memory_properties(c.physical) };
-    let memory_budget = has_ext(&device_extensions(instance, c.physical)?, ash::ext::memory_budget::NAME)
-        .then(|| {
-            let mut budget = vk::PhysicalDeviceMemoryBudgetPropertiesEXT::default();
-            let mut m2 = vk::PhysicalDeviceMemoryProperties2::default().push_next(&mut budget);
-            // SAFETY: the device has the extension, so the chained struct is valid to query.
-            unsafe { inst.get_physical_device_memory_properties2(c.physical, &mut m2) };
-            budget.heap_budget
-        });
+    let memory_budget = has_ext(&device_extensions(instance, c.physical)?, ash::ext::memory_budget::NAME).then(|| {
+        let mut budget = vk::PhysicalDeviceMemoryBudgetPropertiesEXT::default();
+        let mut m2 = vk::PhysicalDeviceMemoryProperties2::default().push_next(&mut budget);
+        // SAFETY: the device has the extension, so the chained struct is valid to query.
+        unsafe { inst.get_physical_device_memory_properties2(c.physical, &mut m2) };
+        budget.heap_budget
+    });
     let device_local_heap_bytes = planning_heap_bytes(&mem, memory_budget.as_ref());
     let l = props.limits;
     let limits = Limits {
@@ -515,4 +514,3 @@ mod tests {
         assert_eq!(planning_heap_bytes(&mem, Some(&budgets)), 80 * gib);
     }
 }
-

@@ -4,9 +4,8 @@
 //! only if it is. Started from the device's quotient and from quotients spoiled on purpose (up to
 //! a relative 2^-20 off, as a loose division would give), every result must equal the host's.
 
+use lpm::solver::gpu::kernels::{DivisionTestPush, DIVISION_TEST};
 use lpm::vk::{vk, BufferRange, Context, ContextOptions, MemoryLocation, Recorder};
-
-const DIVISION_TEST_SPV: &[u8] = include_bytes!("../../spirv/division_test.spv");
 
 /// splitmix64: a fixed sequence, so a failure is reproducible.
 struct Sequence(u64);
@@ -64,13 +63,14 @@ fn the_kernels_division_is_the_hosts_to_the_bit() {
     let mut input = ctx.create_host_buffer("division cases", 24 * n as u64, usage, MemoryLocation::CpuToGpu).unwrap();
     input.bytes_mut().copy_from_slice(bytemuck::cast_slice(&cases));
     let output = ctx.create_host_buffer("quotients", 8 * n as u64, usage, MemoryLocation::GpuToCpu).unwrap();
-    let pipeline = ctx.create_compute_pipeline("division test", DIVISION_TEST_SPV, 2, 8).unwrap();
+    let k = DIVISION_TEST;
+    let pipeline = ctx.create_compute_pipeline(k.name, k.spirv, k.layout_bindings, k.push.size as u32).unwrap();
     let timeline = ctx.create_timeline("division test", 0).unwrap();
     for own in [0u32, 1] {
         let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "division test").unwrap();
         let buffers = [BufferRange::from(&*input), BufferRange::from(&*output)];
-        let push: [u32; 2] = [n as u32, own];
-        rec.dispatch(&pipeline, &buffers, bytemuck::bytes_of(&push), [(n as u32).div_ceil(64), 1, 1]).unwrap();
+        let push = DivisionTestPush { count: n as u32, own };
+        rec.dispatch(&pipeline, &buffers, bytemuck::bytes_of(&push), [k.groups_for(n as u32), 1, 1]).unwrap();
         rec.compute_to_host();
         let value = u64::from(own) + 1;
         rec.submit(ctx.compute_queue(), &[], (&timeline, value)).unwrap();
@@ -84,7 +84,11 @@ fn the_kernels_division_is_the_hosts_to_the_bit() {
             .map(|([a, b, q0], q)| format!("{a:e} / {b:e}: host {:e}, kernel {q:e} (from {q0:e})", a / b))
             .collect();
         let from = if own == 1 { "the device's own quotient" } else { "the spoiled quotients" };
-        assert!(wrong.is_empty(), "started from {from}, the kernel's division differs from the host's:\n{}", wrong.join("\n"));
+        assert!(
+            wrong.is_empty(),
+            "started from {from}, the kernel's division differs from the host's:\n{}",
+            wrong.join("\n")
+        );
     }
     // SAFETY: the timeline waits above: the submissions using them have completed.
     unsafe {

@@ -3,12 +3,13 @@
 
 use std::sync::Arc;
 
+use lpm::solver::gpu::kernels;
 use lpm::vk::{vk, BufferRange, Context, ContextOptions, MemoryLocation, Recorder, VkError};
 
-const FILL_SPV: &[u8] = include_bytes!("../../spirv/fill.spv");
+const FILL_SPV: &[u8] = kernels::FILL.spirv;
 const SECOND: u64 = 1_000_000_000;
-/// fill.comp's local_size_x.
-const FILL_GROUP: u32 = 64;
+/// fill.comp's workgroup.
+const FILL_GROUP: u32 = kernels::FILL.local_size[0];
 
 fn context() -> Arc<Context> {
     let _ = tracing_subscriber::fmt().with_test_writer().with_env_filter("lpm=info").try_init();

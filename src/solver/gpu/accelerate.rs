@@ -18,6 +18,8 @@
 //! solve is the streamed one to the bit (`tests/it/resident.rs`).
 
 use super::end_of_order::{dispatch_linear, readback};
+use super::kernels;
+pub use super::kernels::DiffusionPush;
 use super::owned::Owned;
 use super::resources::{DiffusionBuffers, ResidentBuffers};
 use super::streamer::SliceStreamer;
@@ -25,35 +27,9 @@ use crate::solver::acceleration::{self, Acceleration};
 use crate::solver::plan::Plan;
 use crate::solver::SolveError;
 use crate::store::{BRICK_EDGE, BRICK_VOXELS};
-use crate::vk::{Buffer, BufferRange, ComputePipeline, Context, DescriptorSet, HostBuffer, Recorder};
+use crate::vk::{Buffer, ComputePipeline, Context, DescriptorSet, HostBuffer, Recorder};
 use ash::vk;
-use bytemuck::{Pod, Zeroable};
 use std::sync::Arc;
-
-const MOMENTS_SPV: &[u8] = include_bytes!("../../../spirv/diffusion_moments.spv");
-const PROLONG_SPV: &[u8] = include_bytes!("../../../spirv/diffusion_prolong.spv");
-
-/// Push constants of both kernels. Keep in sync with `Push` in glsl/diffusion.glsl.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-pub struct DiffusionPush {
-    pub count: u32,
-    pub groups_x: u32,
-    pub unknowns: u32,
-    pub comps: u32,
-    pub channels: u32,
-    pub edge: u32,
-    pub cells: [u32; 3],
-    pub first: u32,
-    pub round_voxels: u32,
-    /// 1 when the scene has a per-voxel albedo factor (the prolongation scales by it).
-    pub albedo_grid: u32,
-    pub extinction: [f64; 3],
-    pub scatter: [f64; 3],
-    pub voxel_size: f64,
-    pub four_pi: f64,
-}
-const _: () = assert!(std::mem::size_of::<DiffusionPush>() == 112);
 
 /// Loop iterations one invocation of the moments kernel may run per round (about) on a CPU
 /// implementation: the rounds keep every invocation's loops far below llvmpipe's 65535 (see
@@ -81,42 +57,39 @@ impl DeviceAcceleration {
     pub fn new(ctx: &Arc<Context>, resident: &ResidentBuffers, occupied: u64) -> Result<Option<Self>, SolveError> {
         let Some(totals) = resident.totals.as_ref() else { return Ok(None) };
         let Some(d) = totals.diffusion.as_ref() else { return Ok(None) };
-        let push = std::mem::size_of::<DiffusionPush>() as u32;
-        let moments_pipeline = Owned::new(ctx, ctx.create_compute_pipeline("diffusion moments", MOMENTS_SPV, 8, push)?);
-        let prolong_pipeline = Owned::new(ctx, ctx.create_compute_pipeline("diffusion prolong", PROLONG_SPV, 7, push)?);
-        let set = |name: &str, p: &ComputePipeline, buffers: &[&Buffer]| -> Result<Owned<DescriptorSet>, SolveError> {
-            let ranges: Vec<BufferRange> = buffers.iter().map(|&b| BufferRange::from(b)).collect();
-            Ok(Owned::new(ctx, ctx.create_descriptor_set(name, p, &ranges)?))
-        };
+        let moments_pipeline = kernels::DIFFUSION_MOMENTS.pipeline(ctx)?;
+        let prolong_pipeline = kernels::DIFFUSION_PROLONG.pipeline(ctx)?;
         let voxels = u32::try_from(occupied * BRICK_VOXELS as u64)
             .map_err(|_| SolveError::Internal("more resident voxels than a dispatch can reach"))?;
         Ok(Some(DeviceAcceleration {
-            moments_set: set(
+            moments_set: kernels::DIFFUSION_MOMENTS.set(
+                ctx,
                 "diffusion moments",
                 &moments_pipeline,
                 &[
-                    &resident.density,
-                    &resident.source_next,
-                    &d.solid_angles,
-                    &d.cell_of_unknown,
-                    &d.brick_start,
-                    &d.bricks,
-                    &totals.origins,
-                    &d.moments,
+                    ("Density", &resident.density),
+                    ("Source", &resident.source_next),
+                    ("SolidAngles", &d.solid_angles),
+                    ("CellOfUnknown", &d.cell_of_unknown),
+                    ("BrickStart", &d.brick_start),
+                    ("Bricks", &d.bricks),
+                    ("Origins", &totals.origins),
+                    ("Moments", &d.moments),
                 ],
             )?,
-            prolong_set: set(
+            prolong_set: kernels::DIFFUSION_PROLONG.set(
+                ctx,
                 "diffusion prolong",
                 &prolong_pipeline,
                 &[
-                    &resident.density,
-                    &resident.source_next,
-                    &resident.fluence,
-                    &d.unknown_of,
-                    &totals.origins,
-                    &d.change,
+                    ("Density", &resident.density),
+                    ("Source", &resident.source_next),
+                    ("Fluence", &resident.fluence),
+                    ("UnknownOf", &d.unknown_of),
+                    ("Origins", &totals.origins),
+                    ("Change", &d.change),
                     // Unread without an albedo grid: any buffer will do.
-                    totals.albedo.as_deref().unwrap_or(&resident.density),
+                    ("Albedo", totals.albedo.as_deref().unwrap_or(&resident.density)),
                 ],
             )?,
             push: None,

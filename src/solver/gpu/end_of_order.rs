@@ -38,6 +38,8 @@
 //! keeps every pass there and brings the fields home every order, and says so ([`EndOfOrder`]).
 //! The energy books and the tail run once, after the fields come home at the end.
 
+use super::kernels;
+pub use super::kernels::{BlockSum, EndPush, GpuUnitTally};
 use super::owned::Owned;
 use super::resources::{DeviceResources, ResidentBuffers, TotalBuffers};
 use super::sharpen::DeviceSharpening;
@@ -48,20 +50,14 @@ use crate::solver::plan::{Plan, Precision};
 use crate::solver::remaining::{self, RemainingError, UnitTally};
 use crate::solver::SolveError;
 use crate::store::Field;
-use crate::vk::{Buffer, BufferRange, ComputePipeline, Context, DescriptorSet, Limits, Recorder};
+use crate::vk::{Buffer, ComputePipeline, Context, DescriptorSet, Limits, Recorder};
 use ash::vk;
-use bytemuck::{Pod, Zeroable};
+use bytemuck::Pod;
 use serde::Serialize;
 use std::sync::Arc;
 
-const BLOCK_SUMS_SPV: &[u8] = include_bytes!("../../../spirv/block_sums.spv");
-const COMMIT_SPV: &[u8] = include_bytes!("../../../spirv/commit.spv");
-const TO_HALF_SPV: &[u8] = include_bytes!("../../../spirv/to_half.spv");
-const REMAINING_SPV: &[u8] = include_bytes!("../../../spirv/remaining.spv");
-const ALBEDO_SCALE_SPV: &[u8] = include_bytes!("../../../spirv/albedo_scale.spv");
-
-/// Invocations per workgroup of the four kernels (`local_size_x`).
-const GROUP: u32 = 64;
+/// Invocations per workgroup of the one-dimensional kernels (their `local_size_x`).
+const GROUP: u32 = kernels::LINEAR_GROUP;
 /// Workgroups along x of one dispatch at most; more go along y.
 const MAX_GROUPS_X: u32 = 65535;
 
@@ -101,42 +97,8 @@ impl EndOfOrder {
     }
 }
 
-/// One block's sums. Keep in sync with `BlockSum` in glsl/block_sums.comp.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-pub struct BlockSum {
-    pub abs_sum: f64,
-    pub max_abs_bits: u32,
-    pub pad: u32,
-}
 const _: () = assert!(std::mem::size_of::<BlockSum>() as u64 == BLOCK_SUM_BYTES);
-
-/// One brick's tally. Keep in sync with `UnitTally` in glsl/remaining.comp.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-pub struct GpuUnitTally {
-    pub brightest: f64,
-    pub sum_sq: f64,
-    pub max_e_bits: u32,
-    pub count: u32,
-    pub pad: [u32; 2],
-}
 const _: () = assert!(std::mem::size_of::<GpuUnitTally>() as u64 == UNIT_TALLY_BYTES);
-
-/// Push constants of the four kernels. Keep in sync with `Push` in glsl/block_sums.comp,
-/// commit.comp, to_half.comp and remaining.comp.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-pub struct EndPush {
-    pub count: u32,
-    pub groups_x: u32,
-    pub mode: u32,
-    /// to_half: the f16 scale's exponent; remaining: the channels.
-    pub exponent: i32,
-    pub factor: [f64; 3],
-    pub dark_floor: f64,
-}
-const _: () = assert!(std::mem::size_of::<EndPush>() == 48);
 
 /// The kernels and their descriptor sets over the resident buffers.
 pub struct EndPasses {
@@ -184,26 +146,24 @@ impl EndPasses {
         let Some(totals) = resident.totals.as_ref() else {
             return Err(SolveError::Internal("the device's end of order without resident totals"));
         };
-        let push = std::mem::size_of::<EndPush>() as u32;
-        let pipeline = |name, spv, bindings| -> Result<Owned<ComputePipeline>, SolveError> {
-            Ok(Owned::new(ctx, ctx.create_compute_pipeline(name, spv, bindings, push)?))
-        };
-        let block_sums_pipeline = pipeline("block sums", BLOCK_SUMS_SPV, 2)?;
-        let commit_pipeline = pipeline("commit", COMMIT_SPV, 2)?;
-        let to_half_pipeline = pipeline("to half", TO_HALF_SPV, 2)?;
-        let remaining_pipeline = pipeline("remaining", REMAINING_SPV, 4)?;
-        let albedo_scale_pipeline = pipeline("albedo scale", ALBEDO_SCALE_SPV, 2)?;
-        let set = |name: &str, p: &ComputePipeline, buffers: &[&Buffer]| -> Result<Owned<DescriptorSet>, SolveError> {
-            let ranges: Vec<BufferRange> = buffers.iter().map(|&b| BufferRange::from(b)).collect();
-            Ok(Owned::new(ctx, ctx.create_descriptor_set(name, p, &ranges)?))
-        };
+        let block_sums_pipeline = kernels::BLOCK_SUMS.pipeline(ctx)?;
+        let commit_pipeline = kernels::COMMIT.pipeline(ctx)?;
+        let to_half_pipeline = kernels::TO_HALF.pipeline(ctx)?;
+        let remaining_pipeline = kernels::REMAINING.pipeline(ctx)?;
+        let albedo_scale_pipeline = kernels::ALBEDO_SCALE.pipeline(ctx)?;
         let TotalBuffers { source_total, fluence_total, block_sums, unit_tallies, .. } = totals;
         // What the next order propagates: the sharpened source with the diffusion correction.
         let propagated = propagated(resident);
         let sharpening = match (DeviceSharpening::new(ctx, plan, resident, occupied, bricks)?, &totals.sharpen) {
-            (Some(kernel), Some(s)) => {
-                Some((kernel, set("sharpened sums", &block_sums_pipeline, &[propagated, &s.sums])?))
-            }
+            (Some(kernel), Some(s)) => Some((
+                kernel,
+                kernels::BLOCK_SUMS.set(
+                    ctx,
+                    "sharpened sums",
+                    &block_sums_pipeline,
+                    &[("Field", propagated), ("Sums", &s.sums)],
+                )?,
+            )),
             _ => None,
         };
         let (comps, c) = (plan.source_components() as u64, plan.channels as u64);
@@ -212,18 +172,44 @@ impl EndPasses {
         };
         let voxels = occupied * crate::store::BRICK_VOXELS as u64;
         Ok(EndPasses {
-            source_sums: set("block sums", &block_sums_pipeline, &[&resident.source_next, block_sums])?,
+            source_sums: kernels::BLOCK_SUMS.set(
+                ctx,
+                "block sums",
+                &block_sums_pipeline,
+                &[("Field", &resident.source_next), ("Sums", block_sums)],
+            )?,
             sharpening,
-            commit_source: set("commit source", &commit_pipeline, &[source_total, &resident.source_next])?,
-            commit_fluence: set("commit fluence", &commit_pipeline, &[fluence_total, &resident.fluence])?,
+            commit_source: kernels::COMMIT.set(
+                ctx,
+                "commit source",
+                &commit_pipeline,
+                &[("Total", source_total), ("Order", &resident.source_next)],
+            )?,
+            commit_fluence: kernels::COMMIT.set(
+                ctx,
+                "commit fluence",
+                &commit_pipeline,
+                &[("Total", fluence_total), ("Order", &resident.fluence)],
+            )?,
             to_half: match plan.source_precision {
-                Precision::F16 => Some(set("to half", &to_half_pipeline, &[&resident.source_prev, propagated])?),
+                Precision::F16 => Some(kernels::TO_HALF.set(
+                    ctx,
+                    "to half",
+                    &to_half_pipeline,
+                    &[("Half", &resident.source_prev), ("Full", propagated)],
+                )?),
                 Precision::F32 => None,
             },
-            remaining: set(
+            remaining: kernels::REMAINING.set(
+                ctx,
                 "remaining",
                 &remaining_pipeline,
-                &[&resident.density, fluence_total, &resident.fluence, unit_tallies],
+                &[
+                    ("Density", &resident.density),
+                    ("Total", fluence_total),
+                    ("Newest", &resident.fluence),
+                    ("Tallies", unit_tallies),
+                ],
             )?,
             source_values: count(voxels * comps)?,
             fluence_values: count(voxels * c)?,
@@ -233,7 +219,12 @@ impl EndPasses {
             commit_pipeline,
             to_half_pipeline,
             albedo_scale: match &totals.albedo {
-                Some(albedo) => Some(set("albedo scale", &albedo_scale_pipeline, &[&resident.source_next, albedo])?),
+                Some(albedo) => Some(kernels::ALBEDO_SCALE.set(
+                    ctx,
+                    "albedo scale",
+                    &albedo_scale_pipeline,
+                    &[("Source", &resident.source_next), ("Albedo", albedo)],
+                )?),
                 None => None,
             },
             remaining_pipeline,
@@ -322,7 +313,7 @@ impl EndPasses {
         rec.compute_to_transfer();
         match (&self.to_half, half_exponent) {
             (Some(set), Some(exponent)) => {
-                let push = EndPush { exponent, ..EndPush::default() };
+                let push = EndPush { param: exponent, ..EndPush::default() };
                 Self::dispatch(rec, &self.to_half_pipeline, set, self.source_values / 2, push)?;
                 rec.compute_to_transfer();
             }
@@ -354,7 +345,7 @@ impl EndPasses {
         factor: [f64; 3],
     ) -> Result<RemainingError, SolveError> {
         let ctx = Arc::clone(streamer.context());
-        let push = EndPush { exponent: plan.channels as i32, factor, ..EndPush::default() };
+        let push = EndPush { param: plan.channels as i32, factor, ..EndPush::default() };
         let mut run = |mode: u32, dark_floor: f64| -> Result<Vec<GpuUnitTally>, SolveError> {
             let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "remaining error on the device")?;
             rec.compute_to_compute();

@@ -72,6 +72,7 @@ mod copier;
 pub mod cost;
 pub mod encoder;
 pub mod end_of_order;
+pub mod kernels;
 pub mod layout;
 mod owned;
 pub mod profile;
@@ -485,7 +486,8 @@ fn read_tallies(
     };
     if buffers_home > 0 {
         rec.compute_to_transfer();
-        for (i, b) in [&shared.rays, &shared.rays_out_b, &shared.rays_out_c].into_iter().take(buffers_home).enumerate() {
+        for (i, b) in [&shared.rays, &shared.rays_out_b, &shared.rays_out_c].into_iter().take(buffers_home).enumerate()
+        {
             rec.copy_buffer(b, &shared.tallies, &region(i as u64 * bytes));
         }
         rec.transfer_to_host();

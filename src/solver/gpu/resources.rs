@@ -12,7 +12,7 @@
 
 use super::budget::MemoryPlan;
 use super::encoder;
-use super::layout::SweepPush;
+use super::kernels;
 use super::owned::Owned;
 use super::sizes::{ResidentSizes, SharedSizes, SlotSizes};
 use super::streamer::SliceStreamer;
@@ -25,10 +25,8 @@ use crate::vk::{Buffer, ComputePipeline, Context, DescriptorSet, HostBuffer, Mem
 use ash::vk;
 use std::sync::Arc;
 
-const PROPAGATE_SPV: &[u8] = include_bytes!("../../../spirv/propagate.spv");
-const COLLECT_SPV: &[u8] = include_bytes!("../../../spirv/collect.spv");
-/// Storage buffers in the descriptor set both kernels share (see [`super::encoder::SWEEP_BINDINGS`]).
-pub const SWEEP_BINDING_COUNT: u32 = 12;
+/// Storage buffers in the descriptor set both sweep kernels share ([`kernels::SWEEP_BINDINGS`]).
+pub const SWEEP_BINDING_COUNT: u32 = kernels::SWEEP_BINDINGS.len() as u32;
 
 /// The device buffers and staging of one slice in flight.
 pub struct SlotBuffers {
@@ -329,13 +327,14 @@ impl DeviceResources {
                 )?,
             });
         }
-        let push_bytes = std::mem::size_of::<SweepPush>() as u32;
+        // Both kernels share one layout (and so one set per slot): the table's push block.
+        let push_bytes = kernels::PROPAGATE.push.size as u32;
         let layout = Owned::new(ctx, ctx.create_pipeline_layout("sweep", SWEEP_BINDING_COUNT, push_bytes)?);
-        let pipeline = |name: &str, spirv: &[u8]| -> Result<Owned<ComputePipeline>, SolveError> {
-            Ok(Owned::new(ctx, ctx.create_compute_pipeline_with_layout(name, spirv, &layout)?))
+        let pipeline = |k: &kernels::Kernel| -> Result<Owned<ComputePipeline>, SolveError> {
+            Ok(Owned::new(ctx, ctx.create_compute_pipeline_with_layout(k.name, k.spirv, &layout)?))
         };
-        let propagate = pipeline("propagate", PROPAGATE_SPV)?;
-        let collect = pipeline("collect", COLLECT_SPV)?;
+        let propagate = pipeline(&kernels::PROPAGATE)?;
+        let collect = pipeline(&kernels::COLLECT)?;
         let face_tables =
             plan.faces.iter().map(|face| SweepTables::upload(ctx, streamer, face)).collect::<Result<Vec<_>, _>>()?;
         let beam_tables = plan

@@ -15,32 +15,13 @@
 //! sum of all three buffers (`SharedSizes::tally_sums` is then 0 and no kernel is made).
 
 use super::end_of_order::{dispatch_linear, readback};
+use super::kernels::{self, TallySumsPush};
 use super::owned::Owned;
 use super::sizes::{tally_chunks, TALLY_CHUNK};
 use crate::solver::SolveError;
-use crate::vk::{Buffer, BufferRange, ComputePipeline, Context, DescriptorSet, MemoryLocation, Recorder};
+use crate::vk::{Buffer, ComputePipeline, Context, DescriptorSet, MemoryLocation, Recorder};
 use ash::vk;
-use bytemuck::{Pod, Zeroable};
 use std::sync::Arc;
-
-const TALLY_SUMS_SPV: &[u8] = include_bytes!("../../../spirv/tally_sums.spv");
-
-/// The kernel's push constants (`Push` in glsl/tally_sums.comp; the reflection test checks the
-/// offsets).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-pub struct TallySumsPush {
-    /// Directions × channels of the pass.
-    pub segments: u32,
-    /// Rays per segment.
-    pub rays: u32,
-    /// Chunks per segment.
-    pub chunks: u32,
-    /// Rays to a chunk ([`TALLY_CHUNK`]).
-    pub chunk: u32,
-    /// Workgroups along x of the dispatch.
-    pub groups_x: u32,
-}
 
 /// The kernel, its set over the three ray buffers, and the host-readable sums it writes.
 pub struct DeviceTallySums {
@@ -57,10 +38,13 @@ impl DeviceTallySums {
     pub fn new(ctx: &Arc<Context>, rays: [&Buffer; 3], bytes: u64) -> Result<Self, SolveError> {
         let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
         let sums = Owned::new(ctx, ctx.create_buffer("tally sums", bytes, storage, MemoryLocation::GpuToCpu)?);
-        let push = std::mem::size_of::<TallySumsPush>() as u32;
-        let pipeline = Owned::new(ctx, ctx.create_compute_pipeline("tally sums", TALLY_SUMS_SPV, 4, push)?);
-        let ranges = [rays[0], rays[1], rays[2], &*sums].map(BufferRange::from);
-        let set = Owned::new(ctx, ctx.create_descriptor_set("tally sums", &pipeline, &ranges)?);
+        let pipeline = kernels::TALLY_SUMS.pipeline(ctx)?;
+        let set = kernels::TALLY_SUMS.set(
+            ctx,
+            "tally sums",
+            &pipeline,
+            &[("Far", rays[0]), ("SideB", rays[1]), ("SideC", rays[2]), ("Sums", &sums)],
+        )?;
         Ok(DeviceTallySums { set, pipeline, sums })
     }
 
