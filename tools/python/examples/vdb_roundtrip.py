@@ -68,7 +68,10 @@ def main():
     grids = [density]
     for c, channel in enumerate(names):
         grid = vdb.FloatGrid()
-        grid.copyFromArray(np.nan_to_num(fluence[..., c], nan=0.0), ijk=lo)
+        # pyopenvdb reads an array's memory as C order, ignoring strides: hand it a C-ordered copy
+        # of the channel (the memory map is the file's layout, x fastest), NaN (not solved) as 0.
+        channel_values = np.ascontiguousarray(np.nan_to_num(fluence[..., c], nan=0.0))
+        grid.copyFromArray(channel_values, ijk=lo)
         grid.name = "fluence" if channel == "grey" else f"fluence_{channel}"
         grid.gridClass = vdb.GridClass.FOG_VOLUME
         grid.transform = density.transform

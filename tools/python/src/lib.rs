@@ -254,7 +254,11 @@ fn prepare_scene(
 fn dict_to_toml(py: Python<'_>, json: &str, nominal: &str) -> PyResult<String> {
     let fail = |m: String| Failure::plain(Class::Scene, format!("{nominal}: {m}")).into_pyerr(py);
     let value: serde_json::Value = serde_json::from_str(json).map_err(|e| fail(format!("not a scene table: {e}")))?;
-    let table: toml::Table = toml::Table::try_from(value).map_err(|e| fail(format!("not a scene table: {e}")))?;
+    let table = match toml::Value::try_from(value) {
+        Ok(toml::Value::Table(table)) => table,
+        Ok(_) => return Err(fail("not a scene table".to_string())),
+        Err(e) => return Err(fail(format!("not a scene table: {e}"))),
+    };
     toml::to_string(&table).map_err(|e| fail(format!("cannot be written as TOML: {e}")))
 }
 
@@ -499,10 +503,10 @@ fn solve(
 /// (colour linear; alpha = 1 − transmittance). With `image`, also writes it there (.exr or .png),
 /// as `--image` does.
 #[pyfunction]
-#[pyo3(signature = (out, camera=None, width=None, height=None, eye=None, target=None, up=None, fov=None,
+#[pyo3(name = "render", signature = (out, camera=None, width=None, height=None, eye=None, target=None, up=None, fov=None,
     background="sky", image=None))]
 #[allow(clippy::too_many_arguments)]
-fn render<'py>(
+fn render_again<'py>(
     py: Python<'py>,
     out: PathBuf,
     camera: Option<PathBuf>,
@@ -630,11 +634,11 @@ fn tempfile_in(dir: &Path) -> Result<PathBuf, Failure> {
 /// the background 0. Voxel `v` is VDB index `index_min + v`, its centre at `translation + h·index`.
 #[pyfunction]
 #[pyo3(signature = (path, grids, active, index_min, voxel_size, translation, precision="float"))]
-fn write_vdb(
-    py: Python<'_>,
+fn write_vdb<'py>(
+    py: Python<'py>,
     path: PathBuf,
-    grids: Vec<(String, Vec<(String, String)>, PyReadonlyArray3<'_, f32>)>,
-    active: PyReadonlyArray3<'_, f32>,
+    grids: Vec<(String, Vec<(String, String)>, PyReadonlyArray3<'py, f32>)>,
+    active: PyReadonlyArray3<'py, f32>,
     index_min: [i32; 3],
     voxel_size: f64,
     translation: [f64; 3],
@@ -728,7 +732,7 @@ fn _lpm(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(parse_byte_size, m)?)?;
     m.add_function(wrap_pyfunction!(check_unlocked, m)?)?;
     m.add_function(wrap_pyfunction!(solve, m)?)?;
-    m.add_function(wrap_pyfunction!(render, m)?)?;
+    m.add_function(wrap_pyfunction!(render_again, m)?)?;
     m.add_function(wrap_pyfunction!(reference, m)?)?;
     m.add_function(wrap_pyfunction!(compare, m)?)?;
     m.add_function(wrap_pyfunction!(write_vdb, m)?)?;

@@ -45,7 +45,7 @@ def test_a_toml_string_error_names_the_line(tmp_path):
 
 def test_a_missing_raw_file_is_an_input_file_error_naming_it(tmp_path, lpm_cli):
     scene = tmp_path / "scene.toml"
-    scene.write_text('[volume]\nraw = "nowhere.raw"\ndims = [16, 16, 16]\n[medium]\nsigma_t = 1.0\n')
+    scene.write_text('[volume]\nraw = "nowhere.raw"\ndims = [16, 16, 16]\n[medium]\nsigma_t = 1.0\nalbedo = 0.8\n')
     with pytest.raises(lpm.InputFileError) as e:
         lpm.solve(scene, out=tmp_path / "o", backend="cpu")
     assert e.value.path == str(tmp_path / "nowhere.raw")
@@ -85,7 +85,7 @@ def test_dims_that_contradict_the_array_name_the_key(tmp_path):
 
 def test_a_missing_device_is_a_device_error_with_the_cli_message(tmp_path, lpm_cli):
     scene = tmp_path / "scene.toml"
-    scene.write_text('[volume]\nprocedural = "sphere"\ndims = [16, 16, 16]\n[medium]\nsigma_t = 1.0\n')
+    scene.write_text('[volume]\nprocedural = "sphere"\ndims = [16, 16, 16]\n[medium]\nsigma_t = 1.0\nalbedo = 0.8\n')
     with pytest.raises(lpm.DeviceError) as e:
         lpm.solve(scene, out=tmp_path / "o", backend="gpu", device=99)
     assert str(e.value) == cli_message(lpm_cli, "solve", scene, "--out", tmp_path / "cli", "--device", 99)
@@ -113,7 +113,7 @@ def test_a_busy_output_directory_is_an_output_error_and_stays_untouched(tmp_path
 
 def test_resume_on_the_cpu_backend_is_refused_as_the_cli_refuses_it(tmp_path, lpm_cli):
     scene = tmp_path / "scene.toml"
-    scene.write_text('[volume]\nprocedural = "sphere"\ndims = [16, 16, 16]\n[medium]\nsigma_t = 1.0\n')
+    scene.write_text('[volume]\nprocedural = "sphere"\ndims = [16, 16, 16]\n[medium]\nsigma_t = 1.0\nalbedo = 0.8\n')
     with pytest.raises(lpm.Error) as e:
         lpm.solve(scene, out=tmp_path / "o", backend="cpu", resume=True)
     assert str(e.value) == cli_message(

@@ -137,7 +137,6 @@ def reference(scene, out, *, samples, seed=0, image_spp=0, threads=0):
     :class:`ReferenceResult` (``fluence``, ``fluence_stderr``, ``report``). The GIL is released."""
     scene = as_scene(scene)
     out = Path(out)
-    _lpm.check_unlocked(str(out))
     path = scene.stage(out / INPUT_DIR)
     _lpm.reference(str(path), str(out), int(samples), seed=int(seed), image_spp=int(image_spp), threads=int(threads))
     return ReferenceResult(out)
