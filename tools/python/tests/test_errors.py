@@ -60,6 +60,8 @@ def test_a_bad_density_in_an_array_is_an_input_file_error_naming_the_voxel(tmp_p
         lpm.solve(scene_dict(density), out=tmp_path / "o", backend="cpu")
     assert "voxel (3, 4, 5)" in str(e.value)
     assert e.value.path == str(tmp_path / "o/input/density.raw")
+    # As the CLI: a failed solve that created its output directory (and left no checkpoint) removes it.
+    assert not (tmp_path / "o").exists()
 
 
 @pytest.mark.parametrize(

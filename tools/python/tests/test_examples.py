@@ -58,3 +58,8 @@ def test_the_vdb_example_writes_the_fluence_beside_the_density(tmp_path):
     own_dense = np.zeros(shape, np.float32)
     own.copyToArray(own_dense, ijk=lo)
     assert np.array_equal(own_dense, dense)
+    # Result.write_vdb (lpm's own writer) puts the fluence on the same index box too.
+    mine = lpm.open_result(out).write_vdb(tmp_path / "mine.vdb", grids={"density": solved})
+    mine_dense = np.zeros(shape, np.float32)
+    pyopenvdb.read(str(mine), "fluence").copyToArray(mine_dense, ijk=lo)
+    assert np.array_equal(mine_dense, dense)

@@ -171,3 +171,28 @@ def test_reference_and_compare_are_the_cli_commands(tmp_path, lpm_cli):
     assert {k: v for k, v in table.items() if k != "text"} == cli
     assert table["fluence"]["voxels_used"] > 0
     assert "rel" in table["text"].lower()
+
+
+def test_per_voxel_emission_and_albedo_arrays_are_their_raw_files(tmp_path):
+    density = blob((20, 18, 16))
+    x = np.arange(20, dtype=np.float64)[:, None, None]
+    emission = np.broadcast_to(np.exp(-((x - 6) ** 2) / 8.0), density.shape).astype(np.float64)  # F or C: any
+    albedo = np.asfortranarray(np.clip(0.5 + density / 2, 0, 1)).astype(np.float32)
+    for name, array in (("d.raw", density), ("e.raw", emission), ("a.raw", albedo)):
+        (tmp_path / name).write_bytes(np.asarray(array, "<f4").ravel(order="F").tobytes())
+    scene_file = write_scene_file(tmp_path / "scene.toml", "d.raw", density.shape)
+    # The file's keys as a dict (Scene.to_dict), the files named by path, then by arrays.
+    by_path = lpm.Scene.load(scene_file).to_dict()
+    by_path["volume"].update(emission_raw="e.raw", albedo_raw="a.raw")
+    by_path["medium"]["emission"] = 0.7
+    by_array = lpm.Scene.load(scene_file).to_dict()
+    by_array["volume"].update(raw=density, emission_raw=emission, albedo_raw=albedo)
+    del by_array["volume"]["dims"]
+    by_array["medium"]["emission"] = 0.7
+    a = lpm.solve(lpm.Scene.from_dict(by_path, base_dir=tmp_path), out=tmp_path / "a", backend="cpu", no_image=True)
+    b = lpm.solve(by_array, out=tmp_path / "b", backend="cpu", no_image=True)
+    assert same_bits(a.fluence, b.fluence) and same_bits(a.source, b.source)
+    assert a.report["plan"] == b.report["plan"]
+    # The per-voxel fields were used: the emission makes the fluence differ from the plain scene's.
+    plain = lpm.solve(scene_file, out=tmp_path / "plain", backend="cpu", no_image=True)
+    assert not same_bits(plain.fluence, a.fluence)

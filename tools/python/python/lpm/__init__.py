@@ -21,6 +21,7 @@ subclass carrying the CLI's message (see :mod:`lpm.errors`).
 """
 
 import json
+import shutil
 from pathlib import Path
 
 from . import _lpm
@@ -95,7 +96,7 @@ def solve(
     ``progress(event)`` is called in the calling thread with a dict: first ``{"phase": "store",
     "message": "building the brick store", ...}``, then after every order ``{"phase": "orders",
     "order", "residual", "max_orders", "tolerance", "seconds", "fraction", "seconds_left",
-    "message"}`` — the CLI's line (``order 3 done, residual 1.2e-02``) and ``lpm serve``'s
+    "message"}`` — the CLI's line (``order 3 done, residual 1.234e-2``) and ``lpm serve``'s
     estimate of the fraction done and the time left.
 
     The GIL is released while the solve runs. Ctrl-C (or an exception raised by ``progress``)
@@ -106,8 +107,24 @@ def solve(
     """
     scene = as_scene(scene)
     out = Path(out)
-    _lpm.check_unlocked(str(out))
-    path = scene.stage(out / INPUT_DIR)
+    # As the CLI: a failed solve that created OUT and left no checkpoint to resume removes it.
+    created = not out.exists()
+    try:
+        _lpm.check_unlocked(str(out))
+        path = scene.stage(out / INPUT_DIR)
+        _solve(path, out, backend, device, device_memory_budget, threads, progress, resume, fresh, keep_store,
+               no_image, no_fields, no_render_data, vdb_precision, background, warm_start, validation)
+    except BaseException:
+        # (A KeyboardInterrupt raised after a CPU solve that finished leaves its outputs.)
+        kept = (out / ".lpm-work" / "checkpoint.json").exists() or (out / "report.json").exists()
+        if created and not kept:
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+    return Result(out)
+
+
+def _solve(path, out, backend, device, device_memory_budget, threads, progress, resume, fresh, keep_store,
+           no_image, no_fields, no_render_data, vdb_precision, background, warm_start, validation):
     _lpm.solve(
         str(path),
         str(out),
@@ -127,14 +144,14 @@ def solve(
         validation=validation,
         progress=progress,
     )
-    return Result(out)
 
 
 def reference(scene, out, *, samples, seed=0, image_spp=0, threads=0):
     """The Monte-Carlo reference of ``scene`` into ``out`` (``lpm reference``): ``samples``
     photons per channel, ``seed`` (the same seed gives bitwise the same result), ``image_spp``
     camera paths per pixel (0: no image), ``threads`` (0: all). Returns a
-    :class:`ReferenceResult` (``fluence``, ``fluence_stderr``, ``report``). The GIL is released."""
+    :class:`ReferenceResult` (``fluence``, ``fluence_stderr``, ``report``). The GIL is released;
+    the reference cannot be stopped mid-way (neither can the CLI's): Ctrl-C is raised when it ends."""
     scene = as_scene(scene)
     out = Path(out)
     path = scene.stage(out / INPUT_DIR)
