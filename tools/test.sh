@@ -32,6 +32,7 @@ LPM_FUZZ_SANITIZER=none LPM_FUZZ_DEV=1 bash tools/fuzz.sh 15 scene raw vdb nanov
 # ("N passed, M failed in S") joins the totals below; pipefail makes any pytest failure, exit 5
 # (no test collected) included, fail the script here.
 cargo build --features test-hooks --bin lpm
+cargo fmt --check --manifest-path tools/python/Cargo.toml
 bash tools/python/install.sh
 LPM_CLI="$PWD/target/debug/lpm" tools/python/.venv/bin/python -m pytest tools/python/tests -q -p no:cacheprovider \
     2>&1 | tee -a "$log"

@@ -385,6 +385,13 @@ fn solve(
     validation: bool,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<String> {
+    if let Some(cb) = &progress {
+        if !cb.bind(py).is_callable() {
+            return Err(pyo3::exceptions::PyTypeError::new_err(
+                "progress must be callable (it is called with a dict per event)",
+            ));
+        }
+    }
     if device_memory_budget == Some(0) {
         return Err(PyValueError::new_err("device_memory_budget must be more than 0 bytes"));
     }
@@ -627,6 +634,9 @@ fn tempfile_in(dir: &Path) -> Result<PathBuf, Failure> {
 // ---------------------------------------------------------------------------------------------
 // VDB
 
+/// One grid to write: its name, its string metadata, its values indexed [x, y, z].
+type GridIn<'py> = (String, Vec<(String, String)>, PyReadonlyArray3<'py, f32>);
+
 /// Writes `grids` (name, metadata, array indexed [x, y, z]) as float grids of one OpenVDB file at
 /// `path`, atomically, with lpm's own writer (`lpm::output::write_vdb`, the one `fluence.vdb` is
 /// written with). The voxels where `active` is finite are the active ones (for a fluence, NaN marks
@@ -634,10 +644,11 @@ fn tempfile_in(dir: &Path) -> Result<PathBuf, Failure> {
 /// the background 0. Voxel `v` is VDB index `index_min + v`, its centre at `translation + h·index`.
 #[pyfunction]
 #[pyo3(signature = (path, grids, active, index_min, voxel_size, translation, precision="float"))]
+#[allow(clippy::too_many_arguments)]
 fn write_vdb<'py>(
     py: Python<'py>,
     path: PathBuf,
-    grids: Vec<(String, Vec<(String, String)>, PyReadonlyArray3<'py, f32>)>,
+    grids: Vec<GridIn<'py>>,
     active: PyReadonlyArray3<'py, f32>,
     index_min: [i32; 3],
     voxel_size: f64,

@@ -121,3 +121,9 @@ def test_resume_on_the_cpu_backend_is_refused_as_the_cli_refuses_it(tmp_path, lp
     assert str(e.value) == cli_message(
         lpm_cli, "solve", scene, "--out", tmp_path / "cli", "--backend", "cpu", "--resume"
     )
+
+
+def test_a_progress_that_cannot_be_called_is_refused_before_solving(tmp_path):
+    with pytest.raises(TypeError, match="progress must be callable"):
+        lpm.solve(scene_dict(blob()), out=tmp_path / "o", backend="cpu", progress="not callable")
+    assert not (tmp_path / "o").exists()
