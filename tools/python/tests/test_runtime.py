@@ -15,40 +15,89 @@ import lpm
 from conftest import blob, same_bits, scene_dict
 
 
-def test_ctrl_c_cancels_at_a_slice_and_resume_gives_the_uninterrupted_result(tmp_path):
+def gpu_table():
     # The GPU backend (lavapipe here): the one that checkpoints and stops at a slice, as the CLI.
-    # A checkpoint after every order, so the cancelled solve has one to resume from.
-    table = scene_dict(blob((24, 24, 24)), albedo=0.95, max_orders=10, tolerance=1e-9, checkpoint_every_seconds=0)
-    whole = lpm.solve(table, out=tmp_path / "whole", backend="gpu", no_image=True)
-    assert whole.report["orders"] == 10
+    # A checkpoint after every order, so a cancelled solve has one to resume from.
+    return scene_dict(blob((24, 24, 24)), albedo=0.95, max_orders=24, tolerance=1e-12, checkpoint_every_seconds=0)
 
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory):
+    whole = lpm.solve(gpu_table(), out=tmp_path_factory.mktemp("gpu") / "whole", backend="gpu", no_image=True)
+    assert whole.report["orders"] == 24
+    return whole
+
+
+def resume_and_compare(out, whole):
+    assert (out / ".lpm-work/checkpoint.json").is_file()
+    assert not (out / "fluence.raw").exists()
+    # Without resume (or fresh) the checkpoint is in the way, as in the CLI.
+    with pytest.raises(lpm.Error) as e:
+        lpm.solve(gpu_table(), out=out, backend="gpu", no_image=True)
+    assert "--resume" in str(e.value)
+    resumed = lpm.solve(gpu_table(), out=out, backend="gpu", no_image=True, resume=True)
+    assert resumed.report["orders"] == 24
+    assert same_bits(resumed.fluence, whole.fluence)
+    assert same_bits(resumed.source, whole.source)
+
+
+def test_ctrl_c_cancels_at_a_slice_and_resume_gives_the_uninterrupted_result(tmp_path, uninterrupted):
     seen = []
 
     def ctrl_c_at_order_3(event):
         seen.append(event.get("order"))
         if event.get("order") == 3:
-            # A real SIGINT to this process, as a terminal's Ctrl-C sends it.
+            # A real SIGINT to this process, as a terminal's Ctrl-C sends it (Python raises the
+            # KeyboardInterrupt in this callback, which stops the solve like any exception here).
             os.kill(os.getpid(), signal.SIGINT)
 
     out = tmp_path / "cut"
     with pytest.raises(lpm.Cancelled) as e:
-        lpm.solve(table, out=out, backend="gpu", no_image=True, progress=ctrl_c_at_order_3)
+        lpm.solve(gpu_table(), out=out, backend="gpu", no_image=True, progress=ctrl_c_at_order_3)
     assert isinstance(e.value, KeyboardInterrupt) and isinstance(e.value, lpm.Error)
     assert e.value.resumable
     assert "cancelled" in str(e.value) and "--resume" in str(e.value)
-    assert 3 in seen and max(o for o in seen if o is not None) < 10
-    assert (out / ".lpm-work/checkpoint.json").is_file()
-    assert not (out / "fluence.raw").exists()
+    assert 3 in seen and max(o for o in seen if o is not None) < 24
+    resume_and_compare(out, uninterrupted)
 
-    # Without resume (or fresh) the checkpoint is in the way, as in the CLI.
-    with pytest.raises(lpm.Error) as e:
-        lpm.solve(table, out=out, backend="gpu", no_image=True)
-    assert "--resume" in str(e.value)
 
-    resumed = lpm.solve(table, out=out, backend="gpu", no_image=True, resume=True)
-    assert resumed.report["orders"] == 10
-    assert same_bits(resumed.fluence, whole.fluence)
-    assert same_bits(resumed.source, whole.source)
+CTRL_C_CHILD = r"""
+import sys
+sys.path.insert(0, sys.argv[2])
+import lpm
+from test_runtime import gpu_table
+
+def progress(event):
+    print(event["phase"], event.get("order"), flush=True)
+
+try:
+    lpm.solve(gpu_table(), out=sys.argv[1], backend="gpu", no_image=True, progress=progress)
+except lpm.Cancelled as e:
+    print("cancelled", e.resumable, e, flush=True)
+    sys.exit(3)
+print("finished", flush=True)
+"""
+
+
+def test_ctrl_c_from_outside_while_waiting_cancels_and_resumes(tmp_path, uninterrupted):
+    # SIGINT from another process while the solve's thread is waiting (not in a callback): the
+    # 50 ms poll sees the pending KeyboardInterrupt and raises the cancel flag.
+    out = tmp_path / "cut"
+    tests = os.path.dirname(__file__)
+    child = subprocess.Popen(
+        [sys.executable, "-c", CTRL_C_CHILD, str(out), tests], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    lines = []
+    for line in child.stdout:
+        lines.append(line.strip())
+        if line.startswith("orders 2"):
+            child.send_signal(signal.SIGINT)
+            break
+    rest, err = child.communicate(timeout=300)
+    lines += rest.split("\n")
+    assert child.returncode == 3, (lines, err)
+    assert any(l.startswith("cancelled True the solve was cancelled") for l in lines), lines
+    resume_and_compare(out, uninterrupted)
 
 
 def test_an_exception_in_progress_stops_the_solve_and_propagates(tmp_path):
