@@ -6,6 +6,8 @@ command line prints after ``lpm:`` (the error and its causes in one line, naming
 scene key), and as attributes:
 
 - ``path``: the file the error is about (the scene file, the raw or VDB volume, an output), or None;
+  a scene given as a dict or as TOML text is named ``<dict>`` or ``<string>`` (prefixed by its
+  ``base_dir`` when one was given), in the message and here;
 - ``key``: the dotted scene key (``medium.albedo[1]``, ``volume.raw``), or None.
 """
 
