@@ -2,9 +2,15 @@
 # GPU figures without wasting a GPU window (issue 33, item 5): build here, then two calls on the
 # device machine, each meant to end well inside 5 minutes on a 16-core machine with an H100/H200.
 #
-#   bash tools/gpu-bench.sh prepare   # here: binaries + Vulkan loader + validation layer into .gl/
-#   bash tools/gpu-bench.sh tests     # there: the integration suite under validation (~2-4 min)
-#   bash tools/gpu-bench.sh bench     # there: order benchmark, `lpm bench stream`, CPU backend (~2-4 min)
+#   bash tools/gpu-bench.sh prepare   # here: binaries + Vulkan loader, glvnd, validation layer into .gl/
+#   bash tools/gpu-bench.sh tests     # there: the integration suite under validation (172 s on an H200)
+#   bash tools/gpu-bench.sh bench     # there: order benchmark, `lpm bench stream`, CPU backend (79 s on an H200)
+#
+# On the device tool: carry .gl, and begin the command with
+#   for f in .gl/*.deb; do dpkg -x $f /; done; ldconfig;
+# (the modes do it themselves when the loader or glvnd is missing). Measured 2026-11-27 on a
+# 16-core machine with an NVIDIA H200 (driver 580.159.04): tests 172 s, bench 79 s with
+# STEP_TIMEOUT=60 SIZES="128 256 512"; each needs a timeout_s well under 600.
 #
 # Both device modes also run here, on lavapipe, with the same .gl/ folder (their rows then say
 # "CPU figure"). Everything they measure goes into $OUT (default gpu-bench-out/) as it is measured:

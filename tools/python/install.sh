@@ -7,8 +7,11 @@
 # The virtual environment is made from Debian's python3 with --system-site-packages so that
 # Debian's python3-openvdb (`import pyopenvdb`, used by the VDB example and tests) is seen in it;
 # NumPy stays below 2 there because that pyopenvdb is built against NumPy 1. The build is maturin's
-# release build (`maturin develop --release`) into tools/python/target; the first one compiles the
-# lpm library as a dependency (several minutes on 2 cores), later ones only what changed.
+# release build (`maturin develop --release`); the first one compiles the lpm library as a
+# dependency (8-12 minutes on 2 cores), later ones only what changed. Its target folder is
+# LPM_PYTHON_TARGET, by default ~/.cache/lpm/python-target: outside the checkout, so that a fresh
+# clone on the same machine (CI's, or a second worktree) rebuilds only what differs instead of
+# everything, as cargo's own registry cache spares it the downloads.
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 cd "$here"
@@ -29,6 +32,8 @@ if [ ! -x .venv/bin/python ]; then
     "$python" -m venv --system-site-packages .venv
 fi
 .venv/bin/pip install -q --disable-pip-version-check "numpy>=1.21,<2" "maturin>=1.5,<2" pytest matplotlib
-VIRTUAL_ENV="$here/.venv" PATH="$here/.venv/bin:$PATH" CARGO_TARGET_DIR="$here/target" \
+target="${LPM_PYTHON_TARGET:-${XDG_CACHE_HOME:-$HOME/.cache}/lpm/python-target}"
+mkdir -p "$target"
+VIRTUAL_ENV="$here/.venv" PATH="$here/.venv/bin:$PATH" CARGO_TARGET_DIR="$target" \
     .venv/bin/maturin develop --release --quiet
 .venv/bin/python -c 'import lpm; print("lpm python module installed in", __import__("sys").prefix)'

@@ -17,12 +17,11 @@
 //! f32 from the bits as the host's `as f32` does (`glsl/exact.glsl`). So an accelerated resident
 //! solve is the streamed one to the bit (`tests/it/resident.rs`).
 
-use super::end_of_order::{dispatch_linear, readback};
-use super::kernels;
 pub use super::kernels::DiffusionPush;
+use super::kernels::{self, dispatch_linear, readback};
 use super::owned::Owned;
 use super::resources::{DiffusionBuffers, ResidentBuffers};
-use super::streamer::SliceStreamer;
+use super::submit::Submitter;
 use crate::solver::acceleration::{self, Acceleration};
 use crate::solver::plan::Plan;
 use crate::solver::SolveError;
@@ -105,7 +104,7 @@ impl DeviceAcceleration {
     /// voxel, in slot order (wanted once, for the grid's tables). Waits.
     pub fn fold(
         &mut self,
-        streamer: &mut SliceStreamer,
+        sub: &mut Submitter,
         plan: &Plan,
         buffers: &mut DiffusionBuffers,
         grid: &mut Acceleration,
@@ -118,13 +117,13 @@ impl DeviceAcceleration {
         let (push, rounds) = match self.push {
             Some(loaded) => loaded,
             None => {
-                let loaded = self.load_grid(streamer, plan, buffers, grid, &origins())?;
+                let loaded = self.load_grid(sub, plan, buffers, grid, &origins())?;
                 self.push = Some(loaded);
                 loaded
             }
         };
         let c = plan.channels as usize;
-        let ctx = Arc::clone(streamer.context());
+        let ctx = Arc::clone(sub.context());
         let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "diffusion moments")?;
         // The last order's moments were read on the host after a wait; the sweeps wrote the source.
         rec.compute_to_transfer();
@@ -137,8 +136,8 @@ impl DeviceAcceleration {
             rec.compute_to_compute();
         }
         rec.compute_to_host();
-        streamer.submit_and_wait(rec)?;
-        streamer.count_transfer(0, (n * c * 8) as u64);
+        sub.submit_and_wait(rec)?;
+        sub.count_transfer(0, (n * c * 8) as u64);
         let moments: Vec<Vec<f64>> = readback::<f64>(&buffers.moments, n * c)?.chunks(n).map(<[f64]>::to_vec).collect();
         let change: Vec<f64> = grid.solve(&moments).concat();
         let bytes: &[u8] = bytemuck::cast_slice(&change);
@@ -155,8 +154,8 @@ impl DeviceAcceleration {
         rec.copy_buffer(&buffers.staging, &buffers.change, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size }]);
         rec.transfer_to_compute();
         dispatch(&mut rec, &self.prolong_pipeline, &self.prolong_set, self.voxels, push)?;
-        streamer.submit_and_wait(rec)?;
-        streamer.count_transfer(size, 0);
+        sub.submit_and_wait(rec)?;
+        sub.count_transfer(size, 0);
         Ok(())
     }
 
@@ -164,7 +163,7 @@ impl DeviceAcceleration {
     /// returns the kernels' push constants and the moments kernel's rounds.
     fn load_grid(
         &self,
-        streamer: &mut SliceStreamer,
+        sub: &mut Submitter,
         plan: &Plan,
         buffers: &mut DiffusionBuffers,
         grid: &Acceleration,
@@ -180,7 +179,7 @@ impl DeviceAcceleration {
             (bytemuck::cast_slice(&tables.bricks), &buffers.bricks),
             (bytemuck::cast_slice(solid_angles), &buffers.solid_angles),
         ] {
-            upload(streamer, staging, dst, bytes)?;
+            upload(sub, staging, dst, bytes)?;
         }
         let count = |v: usize| u32::try_from(v).map_err(|_| SolveError::Internal("a diffusion grid too large"));
         // Each cell's voxels: a box of min(e, 16)³ in each of its bricks, walked in rounds.
@@ -189,7 +188,7 @@ impl DeviceAcceleration {
         // Rounds only where a CPU implementation (llvmpipe) limits an invocation's loops; a GPU
         // walks every cell's voxels in one dispatch. The same additions in the same order either
         // way: the same bits.
-        let round_voxels = if streamer.context().limits().is_cpu {
+        let round_voxels = if sub.context().limits().is_cpu {
             (ROUND_ITERATIONS / (1 + plan.channels + plan.source_components())).max(1)
         } else {
             (box_voxels * most_bricks).max(1)
@@ -281,17 +280,12 @@ fn dispatch(
 }
 
 /// Copies `bytes` into the start of `dst` through `staging`, a chunk at a time (waits).
-fn upload(
-    streamer: &mut SliceStreamer,
-    staging: &mut HostBuffer,
-    dst: &Buffer,
-    bytes: &[u8],
-) -> Result<(), SolveError> {
+fn upload(sub: &mut Submitter, staging: &mut HostBuffer, dst: &Buffer, bytes: &[u8]) -> Result<(), SolveError> {
     if bytes.len() as u64 > dst.size() {
         return Err(SolveError::Internal("a diffusion table is larger than its buffer"));
     }
     let chunk = staging.size() as usize;
-    let ctx = Arc::clone(streamer.context());
+    let ctx = Arc::clone(sub.context());
     for (i, part) in bytes.chunks(chunk).enumerate() {
         staging.bytes_mut()[..part.len()].copy_from_slice(part);
         let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "diffusion tables")?;
@@ -299,8 +293,8 @@ fn upload(
         let region = vk::BufferCopy { src_offset: 0, dst_offset: (i * chunk) as u64, size: part.len() as u64 };
         rec.copy_buffer(staging, dst, &[region]);
         rec.transfer_to_compute();
-        streamer.submit_and_wait(rec)?;
-        streamer.count_transfer(region.size, 0);
+        sub.submit_and_wait(rec)?;
+        sub.count_transfer(region.size, 0);
     }
     Ok(())
 }

@@ -39,12 +39,12 @@
 //! The energy books and the tail run once, after the fields come home at the end.
 
 use super::kernels;
-pub use super::kernels::{BlockSum, EndPush, GpuUnitTally};
+pub use super::kernels::{dispatch_linear, readback, BlockSum, EndPush, GpuUnitTally};
 use super::owned::Owned;
 use super::resources::{DeviceResources, ResidentBuffers, TotalBuffers};
 use super::sharpen::DeviceSharpening;
 use super::sizes::{BLOCK_SUM_BYTES, UNIT_TALLY_BYTES};
-use super::streamer::SliceStreamer;
+use super::submit::Submitter;
 use crate::solver::passes::block_power;
 use crate::solver::plan::{Plan, Precision};
 use crate::solver::remaining::{self, RemainingError, UnitTally};
@@ -52,14 +52,8 @@ use crate::solver::SolveError;
 use crate::store::Field;
 use crate::vk::{Buffer, ComputePipeline, Context, DescriptorSet, Limits, Recorder};
 use ash::vk;
-use bytemuck::Pod;
 use serde::Serialize;
 use std::sync::Arc;
-
-/// Invocations per workgroup of the one-dimensional kernels (their `local_size_x`).
-const GROUP: u32 = kernels::LINEAR_GROUP;
-/// Workgroups along x of one dispatch at most; more go along y.
-const MAX_GROUPS_X: u32 = 65535;
 
 /// Where the passes between orders run, and why.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -247,13 +241,8 @@ impl EndPasses {
     /// next order propagates (from the total before this order joins it); the new source's block
     /// sums (and the sharpened one's); then the new source and the fluence added into the totals.
     /// One submission; waits, and returns the power and the next order's largest value.
-    pub fn commit(
-        &self,
-        streamer: &mut SliceStreamer,
-        plan: &Plan,
-        totals: &TotalBuffers,
-    ) -> Result<Committed, SolveError> {
-        let ctx = Arc::clone(streamer.context());
+    pub fn commit(&self, sub: &mut Submitter, plan: &Plan, totals: &TotalBuffers) -> Result<Committed, SolveError> {
+        let ctx = Arc::clone(sub.context());
         let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "commit on the device")?;
         rec.compute_to_compute();
         rec.transfer_to_compute();
@@ -270,7 +259,7 @@ impl EndPasses {
         Self::dispatch(&mut rec, &self.commit_pipeline, &self.commit_source, self.source_values, push)?;
         Self::dispatch(&mut rec, &self.commit_pipeline, &self.commit_fluence, self.fluence_values, push)?;
         rec.compute_to_host();
-        streamer.submit_and_wait(rec)?;
+        sub.submit_and_wait(rec)?;
         let sums: &[BlockSum] = readback(&totals.block_sums, self.blocks as usize)?;
         let mut power = [0.0; 3];
         let mut max_bits = 0u32;
@@ -289,15 +278,15 @@ impl EndPasses {
 
     /// With a per-voxel albedo, multiplies the order's new source by each voxel's factor, as the
     /// host's commit first does (the sweeps scatter with the medium's albedo). Waits.
-    pub fn scale_by_albedo(&self, streamer: &mut SliceStreamer, plan: &Plan) -> Result<(), SolveError> {
+    pub fn scale_by_albedo(&self, sub: &mut Submitter, plan: &Plan) -> Result<(), SolveError> {
         let Some(set) = &self.albedo_scale else { return Ok(()) };
-        let ctx = Arc::clone(streamer.context());
+        let ctx = Arc::clone(sub.context());
         let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "albedo scale on the device")?;
         rec.compute_to_compute();
         rec.transfer_to_compute();
         let push = EndPush { mode: plan.source_components(), ..EndPush::default() };
         Self::dispatch(&mut rec, &self.albedo_scale_pipeline, set, self.source_values, push)?;
-        streamer.submit_and_wait(rec)
+        sub.submit_and_wait(rec)
     }
 
     /// Records the start of an order after a commit on the device: the new source becomes the
@@ -339,12 +328,12 @@ impl EndPasses {
     /// added up in brick order as the host's pass adds its units.
     pub fn remaining(
         &self,
-        streamer: &mut SliceStreamer,
+        sub: &mut Submitter,
         plan: &Plan,
         totals: &TotalBuffers,
         factor: [f64; 3],
     ) -> Result<RemainingError, SolveError> {
-        let ctx = Arc::clone(streamer.context());
+        let ctx = Arc::clone(sub.context());
         let push = EndPush { param: plan.channels as i32, factor, ..EndPush::default() };
         let mut run = |mode: u32, dark_floor: f64| -> Result<Vec<GpuUnitTally>, SolveError> {
             let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "remaining error on the device")?;
@@ -352,7 +341,7 @@ impl EndPasses {
             let push = EndPush { mode, dark_floor, ..push };
             Self::dispatch(&mut rec, &self.remaining_pipeline, &self.remaining, self.bricks, push)?;
             rec.compute_to_host();
-            streamer.submit_and_wait(rec)?;
+            sub.submit_and_wait(rec)?;
             Ok(readback::<GpuUnitTally>(&totals.unit_tallies, self.bricks as usize)?.to_vec())
         };
         let brightest = run(0, 0.0)?.iter().map(|t| t.brightest).fold(0.0, f64::max);
@@ -374,44 +363,11 @@ pub fn propagated(resident: &ResidentBuffers) -> &Buffer {
     }
 }
 
-/// Records one dispatch of `count` invocations of a kernel indexed as [`linear_groups`] says, with
-/// the push constants `push(count, groups_x)`.
-pub(super) fn dispatch_linear<P: Pod>(
-    rec: &mut Recorder,
-    pipeline: &ComputePipeline,
-    set: &DescriptorSet,
-    count: u32,
-    push: impl FnOnce(u32, u32) -> P,
-) -> Result<(), SolveError> {
-    let groups = linear_groups(count);
-    let push = push(count, groups[0]);
-    rec.bind(pipeline, set)?;
-    rec.dispatch_bound(pipeline, bytemuck::bytes_of(&push), groups)?;
-    Ok(())
-}
-
-/// The workgroups of a dispatch of `count` invocations, [`GROUP`] to a workgroup, at most
-/// [`MAX_GROUPS_X`] along x and the rest along y (the kernels index `(y·groups_x + x)·GROUP + i`).
-fn linear_groups(count: u32) -> [u32; 3] {
-    let groups = count.div_ceil(GROUP).max(1);
-    let groups_x = groups.min(MAX_GROUPS_X);
-    [groups_x, groups.div_ceil(groups_x), 1]
-}
-
-/// The first `n` values of a buffer the kernels wrote, as the host sees it (after a wait).
-pub(super) fn readback<T: Pod>(buffer: &Buffer, n: usize) -> Result<&[T], SolveError> {
-    let bytes = buffer.mapped().ok_or(SolveError::Internal("an end-of-order sum buffer is not host-visible"))?;
-    let bytes = bytes
-        .get(..n * std::mem::size_of::<T>())
-        .ok_or(SolveError::Internal("an end-of-order sum buffer is smaller than its values"))?;
-    Ok(bytemuck::cast_slice(bytes))
-}
-
 /// Copies a whole field of the store into its resident buffer (both hold the occupied bricks in
 /// slot order, laid out alike), through slot 0's upload staging, a chunk at a time. For the rare
 /// moves: the committed totals and the albedo factor on the first load.
 pub fn upload_field(
-    streamer: &mut SliceStreamer,
+    sub: &mut Submitter,
     res: &DeviceResources,
     field: &Field,
     device: &Buffer,
@@ -422,18 +378,18 @@ pub fn upload_field(
     }
     let staging = &res.slots.first().ok_or(SolveError::Internal("no slot staging for a field's transfer"))?.upload;
     let chunk = staging.size() as usize;
-    let ctx = Arc::clone(streamer.context());
+    let ctx = Arc::clone(sub.context());
     for (i, part) in bytes.chunks(chunk).enumerate() {
         let size = part.len() as u64;
         // SAFETY: the staging is mapped for `chunk` bytes, and no submission uses it now: the
-        // streamer is idle between orders (every earlier use was waited for).
+        // pipeline is idle between orders (every earlier use was waited for).
         unsafe { std::ptr::copy_nonoverlapping(part.as_ptr(), staging.as_mut_ptr(), part.len()) };
         let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "resident field upload")?;
         rec.compute_to_transfer();
         rec.copy_buffer(staging, device, &[vk::BufferCopy { src_offset: 0, dst_offset: (i * chunk) as u64, size }]);
         rec.transfer_to_compute();
-        streamer.submit_and_wait(rec)?;
-        streamer.count_transfer(size, 0);
+        sub.submit_and_wait(rec)?;
+        sub.count_transfer(size, 0);
     }
     field.release_all();
     Ok(())
@@ -442,7 +398,7 @@ pub fn upload_field(
 /// Copies a resident buffer home into its field of the store (the reverse of [`upload_field`]),
 /// through slot 0's download staging: at checkpoints and at the end.
 pub fn download_field(
-    streamer: &mut SliceStreamer,
+    sub: &mut Submitter,
     res: &DeviceResources,
     field: &mut Field,
     device: &Buffer,
@@ -453,16 +409,16 @@ pub fn download_field(
     }
     let staging = &res.slots.first().ok_or(SolveError::Internal("no slot staging for a field's transfer"))?.download;
     let chunk = staging.size() as usize;
-    let ctx = Arc::clone(streamer.context());
+    let ctx = Arc::clone(sub.context());
     for (i, part) in bytes.chunks_mut(chunk).enumerate() {
         let size = part.len() as u64;
         let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "resident field download")?;
         rec.compute_to_transfer();
         rec.copy_buffer(device, staging, &[vk::BufferCopy { src_offset: (i * chunk) as u64, dst_offset: 0, size }]);
         rec.transfer_to_host();
-        streamer.submit_and_wait(rec)?;
+        sub.submit_and_wait(rec)?;
         part.copy_from_slice(&staging.bytes()[..part.len()]);
-        streamer.count_transfer(0, size);
+        sub.count_transfer(0, size);
     }
     field.release_all();
     Ok(())

@@ -14,7 +14,7 @@
 use super::layout::{GpuDirection, SweepPush};
 use super::owned::Owned;
 use crate::solver::SolveError;
-use crate::vk::{Buffer, BufferRange, ComputePipeline, Context, DescriptorSet};
+use crate::vk::{Buffer, BufferRange, ComputePipeline, Context, DescriptorSet, Recorder};
 use bytemuck::{Pod, Zeroable};
 use std::mem::{offset_of, size_of};
 use std::sync::Arc;
@@ -87,6 +87,45 @@ impl Kernel {
     pub fn groups_for(&self, count: u32) -> u32 {
         count.div_ceil(self.local_size[0]).max(1)
     }
+}
+
+// ---- dispatching the one-dimensional kernels ----
+
+/// Workgroups along x of one dispatch at most (the least `maxComputeWorkGroupCount` a device may
+/// have); more go along y.
+const MAX_GROUPS_X: u32 = 65535;
+
+/// Records one dispatch of `count` invocations of a kernel indexed as [`linear_groups`] says, with
+/// the push constants `push(count, groups_x)`.
+pub fn dispatch_linear<P: Pod>(
+    rec: &mut Recorder,
+    pipeline: &ComputePipeline,
+    set: &DescriptorSet,
+    count: u32,
+    push: impl FnOnce(u32, u32) -> P,
+) -> Result<(), SolveError> {
+    let groups = linear_groups(count);
+    let push = push(count, groups[0]);
+    rec.bind(pipeline, set)?;
+    rec.dispatch_bound(pipeline, bytemuck::bytes_of(&push), groups)?;
+    Ok(())
+}
+
+/// The workgroups of a dispatch of `count` invocations, [`LINEAR_GROUP`] to a workgroup, at most
+/// [`MAX_GROUPS_X`] along x and the rest along y (the kernels index `(y·groups_x + x)·LINEAR_GROUP + i`).
+fn linear_groups(count: u32) -> [u32; 3] {
+    let groups = count.div_ceil(LINEAR_GROUP).max(1);
+    let groups_x = groups.min(MAX_GROUPS_X);
+    [groups_x, groups.div_ceil(groups_x), 1]
+}
+
+/// The first `n` values of a buffer the kernels wrote, as the host sees it (after a wait).
+pub fn readback<T: Pod>(buffer: &Buffer, n: usize) -> Result<&[T], SolveError> {
+    let bytes = buffer.mapped().ok_or(SolveError::Internal("an end-of-order sum buffer is not host-visible"))?;
+    let bytes = bytes
+        .get(..n * std::mem::size_of::<T>())
+        .ok_or(SolveError::Internal("an end-of-order sum buffer is smaller than its values"))?;
+    Ok(bytemuck::cast_slice(bytes))
 }
 
 // ---- the sweep: propagate.comp and collect.comp share one pipeline layout ----

@@ -54,6 +54,9 @@
 //!
 //! ## The pieces
 //!
+//! - [`kernels`]: every kernel once (SPIR-V, shared structs, bindings, workgroup size), the one
+//!   table the pipelines and descriptor sets are made from and the reflection test checks;
+//! - `tally_sums`: what the rays carried out of the volume, summed on the device after each pass;
 //! - [`resources`]: everything made on the device for a solve (pipelines, slot buffers and
 //!   staging, the shared ray state and deposit, the sweeps' tables), built all-or-nothing from
 //!   the byte sizes in [`sizes`], which the budget planner ([`budget`]) adds up;
@@ -64,7 +67,8 @@
 //! - [`end_of_order`]: the resident mode's passes between orders on the device, with
 //!   `accelerate` (the diffusion acceleration's kernels) and `sharpen` (the diffusion correction's);
 //! - this file: the order as sweeps and passes (the [`Backend`] the order loop drives), and the
-//!   tallies read back after each pass (per face of the volume).
+//!   tallies read back after each pass (per face of the volume: only the device's sums come
+//!   home, and on a periodic sweep axis what the rays carry to the next order).
 
 mod accelerate;
 pub mod budget;
@@ -82,6 +86,7 @@ mod sharpen;
 pub mod sizes;
 mod slice;
 mod streamer;
+mod submit;
 mod tables;
 mod tally_sums;
 mod transpose;
@@ -107,6 +112,7 @@ use resources::DeviceResources;
 use std::sync::Arc;
 use std::time::Instant;
 use streamer::{Pass, SliceStreamer, Stream};
+use submit::Submitter;
 
 /// How the GPU backend runs.
 #[derive(Clone, Copy, Debug)]
@@ -250,7 +256,7 @@ impl<'a> GpuBackend<'a> {
         #[cfg(not(feature = "test-hooks"))]
         let abort_at_slice = None;
         let mut streamer = SliceStreamer::new(&ctx, plan, memory, options.profile, abort_at_slice, options.cancel)?;
-        let resources = DeviceResources::new(&ctx, plan, &memory, &mut streamer)?;
+        let resources = DeviceResources::new(&ctx, plan, &memory, streamer.submitter())?;
         tracing::info!(
             device = ctx.device_name(),
             transfer_queue = ctx.transfer_queue().is_some(),
@@ -391,7 +397,7 @@ impl<'a> GpuBackend<'a> {
             }
             let births = Births { boundary, entries: entries.as_deref() };
             let (pass_tallies, exits) =
-                read_tallies(&mut self.streamer, &self.resources, plan, &sweep, pass_directions, births)?;
+                read_tallies(self.streamer.submitter(), &self.resources, plan, &sweep, pass_directions, births)?;
             tallies.add(&pass_tallies);
             for (i, (dir, exit)) in pass_directions.iter().zip(exits).enumerate() {
                 if let Some(of) = carry_of(first + i) {
@@ -459,7 +465,7 @@ struct Births<'e> {
 /// ([`side_births`]). Also returns, per direction, the radiance each slot left the far face with
 /// (empty unless the sweep axis is periodic: what the next order carries in).
 fn read_tallies(
-    streamer: &mut SliceStreamer,
+    sub: &mut Submitter,
     res: &DeviceResources,
     plan: &Plan,
     sweep: &FaceSweep,
@@ -471,7 +477,7 @@ fn read_tallies(
     let rays = sweep.rays();
     let bytes = (dirs.len() * c * rays * 4) as u64;
     let shared = &res.shared;
-    let ctx = Arc::clone(streamer.context());
+    let ctx = Arc::clone(sub.context());
     let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "tallies")?;
     let region = |dst| [vk::BufferCopy { src_offset: 0, dst_offset: dst, size: bytes }];
     // With the sums on the device, only they come home, and the far face's exits where a
@@ -492,7 +498,7 @@ fn read_tallies(
         }
         rec.transfer_to_host();
     }
-    streamer.submit_and_wait(rec)?;
+    sub.submit_and_wait(rec)?;
     let values: &[f32] = bytemuck::cast_slice(&shared.tallies.bytes()[..buffers_home * bytes as usize]);
     let per_buffer = bytes as usize / 4;
     let chunk_sums = match (&shared.tally_sums, &device_sums) {
@@ -615,12 +621,12 @@ impl<'a> Backend for GpuBackend<'a> {
         // In the host's order: the albedo factor, the acceleration, then (in the commit) the
         // diffusion correction.
         let (end, _, _) = device_end(&self.end_passes, &self.resources)?;
-        end.scale_by_albedo(&mut self.streamer, plan)?;
+        end.scale_by_albedo(self.streamer.submitter(), plan)?;
         if self.fields.acceleration_due(plan, &self.medium)? {
             self.accelerate_on_device(plan)?;
         }
         let (end, _, totals) = device_end(&self.end_passes, &self.resources)?;
-        let committed = end.commit(&mut self.streamer, plan, totals)?;
+        let committed = end.commit(self.streamer.submitter(), plan, totals)?;
         self.device_state = DeviceState::Committed { max_abs: committed.max_abs, home: false };
         Ok(committed.power)
     }
@@ -629,7 +635,7 @@ impl<'a> Backend for GpuBackend<'a> {
         match self.device_state {
             DeviceState::Committed { home: false, .. } => {
                 let (end, _, totals) = device_end(&self.end_passes, &self.resources)?;
-                end.remaining(&mut self.streamer, plan, totals, factor)
+                end.remaining(self.streamer.submitter(), plan, totals, factor)
             }
             _ => Ok(self.fields.remaining_error(&self.medium, plan, factor)),
         }
@@ -790,7 +796,7 @@ impl GpuBackend<'_> {
         let ctx = Arc::clone(self.streamer.context());
         let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "next order on the device")?;
         end.record_advance(&mut rec, resident, self.half_exponent)?;
-        self.streamer.submit_and_wait(rec)
+        self.streamer.submitter().submit_and_wait(rec)
     }
 
     /// Folds the diffusion acceleration into the order the sweeps just finished, on the device
@@ -804,7 +810,7 @@ impl GpuBackend<'_> {
                 SolveError::Internal("an accelerated commit on the device without the acceleration's buffers"),
             )?;
         let (medium, occupied) = (&self.medium, self.memory.slice.occupied_total);
-        kernels.fold(&mut self.streamer, plan, buffers, grid, || brick_origins(medium, occupied))
+        kernels.fold(self.streamer.submitter(), plan, buffers, grid, || brick_origins(medium, occupied))
     }
 
     /// Puts the committed totals on the device, with the first load of a solve (a resumed one's
@@ -826,7 +832,7 @@ impl GpuBackend<'_> {
             rec.update_buffer(&s.constants, 0, bytemuck::bytes_of(&constants));
         }
         rec.transfer_to_compute();
-        self.streamer.submit_and_wait(rec)?;
+        self.streamer.submitter().submit_and_wait(rec)?;
         let fields = &*self.fields;
         let albedo = self.medium.albedo_field().zip(totals.albedo.as_deref());
         for (field, buffer) in
@@ -834,7 +840,7 @@ impl GpuBackend<'_> {
                 .into_iter()
                 .chain(albedo)
         {
-            end_of_order::upload_field(&mut self.streamer, &self.resources, field, buffer)?;
+            end_of_order::upload_field(self.streamer.submitter(), &self.resources, field, buffer)?;
         }
         Ok(())
     }
@@ -847,15 +853,15 @@ impl GpuBackend<'_> {
         // The checkpoint in flight names fields the roles below move: it must be on disk first.
         self.settle_checkpoint()?;
         let (_, resident, totals) = device_end(&self.end_passes, &self.resources)?;
-        let streamer = &mut self.streamer;
+        let sub = self.streamer.submitter();
         let res = &self.resources;
         self.fields.take_device_commit(|source_total, fluence_total, source_next, fluence| {
             use end_of_order::download_field as to_host;
-            to_host(streamer, res, source_total, &totals.source_total)?;
-            to_host(streamer, res, fluence_total, &totals.fluence_total)?;
+            to_host(sub, res, source_total, &totals.source_total)?;
+            to_host(sub, res, fluence_total, &totals.fluence_total)?;
             // What the next order propagates (the sharpened source with the diffusion correction).
-            to_host(streamer, res, source_next, end_of_order::propagated(resident))?;
-            to_host(streamer, res, fluence, &resident.fluence)
+            to_host(sub, res, source_next, end_of_order::propagated(resident))?;
+            to_host(sub, res, fluence, &resident.fluence)
         })?;
         self.device_state = DeviceState::Committed { max_abs, home: true };
         Ok(())
@@ -872,7 +878,7 @@ impl GpuBackend<'_> {
         let ctx = Arc::clone(self.streamer.context());
         let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "reorder resident fields")?;
         transposer.record(&mut rec, lateral)?;
-        self.streamer.submit_and_wait(rec)?;
+        self.streamer.submitter().submit_and_wait(rec)?;
         self.resident_lateral = lateral;
         Ok(())
     }

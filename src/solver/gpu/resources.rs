@@ -15,7 +15,7 @@ use super::encoder;
 use super::kernels;
 use super::owned::Owned;
 use super::sizes::{ResidentSizes, SharedSizes, SlotSizes};
-use super::streamer::SliceStreamer;
+use super::submit::Submitter;
 use super::tables::SweepTables;
 use super::tally_sums::DeviceTallySums;
 use super::transpose::Transposer;
@@ -192,13 +192,8 @@ fn buffer(
 }
 
 impl DeviceResources {
-    /// Makes everything `memory` plans for `plan`; the tables are uploaded through `streamer`.
-    pub fn new(
-        ctx: &Arc<Context>,
-        plan: &Plan,
-        memory: &MemoryPlan,
-        streamer: &mut SliceStreamer,
-    ) -> Result<Self, SolveError> {
+    /// Makes everything `memory` plans for `plan`; the tables are uploaded through `sub`.
+    pub fn new(ctx: &Arc<Context>, plan: &Plan, memory: &MemoryPlan, sub: &mut Submitter) -> Result<Self, SolveError> {
         let storage = vk::BufferUsageFlags::STORAGE_BUFFER
             | vk::BufferUsageFlags::TRANSFER_DST
             | vk::BufferUsageFlags::TRANSFER_SRC;
@@ -336,17 +331,14 @@ impl DeviceResources {
         let propagate = pipeline(&kernels::PROPAGATE)?;
         let collect = pipeline(&kernels::COLLECT)?;
         let face_tables =
-            plan.faces.iter().map(|face| SweepTables::upload(ctx, streamer, face)).collect::<Result<Vec<_>, _>>()?;
+            plan.faces.iter().map(|face| SweepTables::upload(ctx, sub, face)).collect::<Result<Vec<_>, _>>()?;
         let beam_tables = plan
             .beams
             .iter()
-            .map(|beam| SweepTables::upload(ctx, streamer, std::slice::from_ref(beam)))
+            .map(|beam| SweepTables::upload(ctx, sub, std::slice::from_ref(beam)))
             .collect::<Result<Vec<_>, _>>()?;
-        let sky_tables = plan
-            .sky_faces
-            .iter()
-            .map(|face| SweepTables::upload(ctx, streamer, face))
-            .collect::<Result<Vec<_>, _>>()?;
+        let sky_tables =
+            plan.sky_faces.iter().map(|face| SweepTables::upload(ctx, sub, face)).collect::<Result<Vec<_>, _>>()?;
         let sets = |tables: &[SweepTables], what: &str| -> Result<Vec<SweepSets>, SolveError> {
             let mut all = Vec::with_capacity(tables.len());
             for (i, t) in tables.iter().enumerate() {

@@ -13,8 +13,7 @@
 //! answer is the streamed mode's to the bit (`tests/it/resident.rs`). A voxel's scattering weight
 //! is its density times its albedo factor (the resident albedo grid's, 1 without one).
 
-use super::end_of_order::dispatch_linear;
-use super::kernels;
+use super::kernels::{self, dispatch_linear};
 pub use super::kernels::{SharpenConstants, SharpenPush};
 use super::owned::Owned;
 use super::resources::{ResidentBuffers, SharpenBuffers};

@@ -14,8 +14,7 @@
 //! with them): one ray buffer instead of three. A device without `shaderFloat64` keeps the host's
 //! sum of all three buffers (`SharedSizes::tally_sums` is then 0 and no kernel is made).
 
-use super::end_of_order::{dispatch_linear, readback};
-use super::kernels::{self, TallySumsPush};
+use super::kernels::{self, dispatch_linear, readback, TallySumsPush};
 use super::owned::Owned;
 use super::sizes::{tally_chunks, TALLY_CHUNK};
 use crate::solver::SolveError;
