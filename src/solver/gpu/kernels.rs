@@ -93,7 +93,7 @@ impl Kernel {
 
 /// Workgroups along x of one dispatch at most (the least `maxComputeWorkGroupCount` a device may
 /// have); more go along y.
-const MAX_GROUPS_X: u32 = 65535;
+pub const MAX_GROUPS_X: u32 = 65535;
 
 /// Records one dispatch of `count` invocations of a kernel indexed as [`linear_groups`] says, with
 /// the push constants `push(count, groups_x)`.
@@ -113,7 +113,7 @@ pub fn dispatch_linear<P: Pod>(
 
 /// The workgroups of a dispatch of `count` invocations, [`LINEAR_GROUP`] to a workgroup, at most
 /// [`MAX_GROUPS_X`] along x and the rest along y (the kernels index `(y·groups_x + x)·LINEAR_GROUP + i`).
-fn linear_groups(count: u32) -> [u32; 3] {
+pub fn linear_groups(count: u32) -> [u32; 3] {
     let groups = count.div_ceil(LINEAR_GROUP).max(1);
     let groups_x = groups.min(MAX_GROUPS_X);
     [groups_x, groups.div_ceil(groups_x), 1]

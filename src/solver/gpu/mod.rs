@@ -52,10 +52,29 @@
 //! a warm start's first commit runs on the host. On a device without f64 shaders the new source
 //! and fluence come home every order for the host's passes.
 //!
-//! ## The pieces
+//! ## The pieces, bottom to top
+//!
+//! Each layer uses only the ones below it, except where the last paragraph says.
+//!
+//! 1. `layout` (the sweep's plain shared types), `owned` (who frees what), [`profile`]
+//!    (timestamps), `submit` (the timelines, one-off submissions that wait, the byte counts):
+//!    everything that submits outside the slice pipeline takes a `&mut Submitter`;
+//! 2. [`kernels`]: every kernel once (SPIR-V, shared structs, bindings, workgroup size), the one
+//!    table the pipelines and descriptor sets are made from and the reflection test checks;
+//! 3. [`sizes`], [`cost`], [`budget`]: what the plan allocates, what a cut costs, which cut fits;
+//! 4. `tables`, `copier`, `slice`, `transpose`, [`resources`], [`encoder`]: the device objects of
+//!    a solve and one slice's commands;
+//! 5. `tally_sums`, [`end_of_order`] with `accelerate` and `sharpen`, `streamer`: the passes;
+//! 6. this file: the order.
+//!
+//! Not yet layered (issue 33): `budget` and `cost` use each other, `sizes` takes `SliceExtent`
+//! from `budget` and `budget` the `EndOfOrder` choice from `end_of_order`; `resources` and
+//! `encoder` use each other, and `end_of_order`, `accelerate`, `sharpen` and `transpose` take
+//! their buffers from `resources`, which makes their pipelines.
 //!
 //! - [`kernels`]: every kernel once (SPIR-V, shared structs, bindings, workgroup size), the one
 //!   table the pipelines and descriptor sets are made from and the reflection test checks;
+//! - `submit`: the timelines and the one-off submissions;
 //! - `tally_sums`: what the rays carried out of the volume, summed on the device after each pass;
 //! - [`resources`]: everything made on the device for a solve (pipelines, slot buffers and
 //!   staging, the shared ray state and deposit, the sweeps' tables), built all-or-nothing from
@@ -88,7 +107,7 @@ mod slice;
 mod streamer;
 mod submit;
 mod tables;
-mod tally_sums;
+pub mod tally_sums;
 mod transpose;
 
 use super::antidiffusion::VoxelUnits;

@@ -27,7 +27,7 @@ pub struct DeviceTallySums {
     set: Owned<DescriptorSet>,
     /// Declared after the set, so freed after it.
     pipeline: Owned<ComputePipeline>,
-    /// `GpuToCpu`: [buffer][segment][chunk] f64, read after the pass's submission completed.
+    /// `GpuToCpu`: f64 by buffer, segment and chunk, read after the pass's submission completed.
     sums: Owned<Buffer>,
 }
 
@@ -81,7 +81,7 @@ impl DeviceTallySums {
     }
 }
 
-/// How the chunk sums of one pass lie in the sums buffer: [buffer][segment][chunk].
+/// How the chunk sums of one pass lie in the sums buffer: by buffer, then segment, then chunk.
 #[derive(Clone, Copy, Debug)]
 pub struct ChunkSums {
     segments: usize,
