@@ -13,12 +13,12 @@ layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 layout(std430, binding = 0) buffer Source { uint source[]; };
 layout(std430, binding = 1) readonly buffer Albedo { uint albedo[]; };
 
-// Keep in sync with `EndPush` in src/solver/gpu/end_of_order.rs.
+// `EndPush` in src/solver/gpu/kernels.rs (checked by tests/it/shader_interface.rs).
 layout(push_constant) uniform Push {
     uint count;     // values of the source
     uint groups_x;  // workgroups along x of the dispatch (more go along y)
     uint mode;      // source components per voxel
-    int exponent;
+    int param;
     double factor[3];
     double dark_floor;
 } pc;

@@ -12,7 +12,7 @@ layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 
 layout(std430, binding = 0) readonly buffer Field { uint words[]; };
 
-// Keep in sync with `BlockSum` in src/solver/gpu/end_of_order.rs.
+// `BlockSum` in src/solver/gpu/kernels.rs (checked by tests/it/shader_interface.rs).
 struct BlockSum {
     double abs_sum;
     uint max_abs_bits;
@@ -20,12 +20,12 @@ struct BlockSum {
 };
 layout(std430, binding = 1) writeonly buffer Sums { BlockSum sums[]; };
 
-// Keep in sync with `EndPush` in src/solver/gpu/end_of_order.rs.
+// `EndPush` in src/solver/gpu/kernels.rs (checked by tests/it/shader_interface.rs).
 layout(push_constant) uniform Push {
     uint count;     // blocks (block_sums), values (commit, to_half) or units (remaining)
     uint groups_x;  // workgroups along x of the dispatch (more go along y)
     uint mode;
-    int exponent;
+    int param;
     double factor[3];
     double dark_floor;
 } pc;

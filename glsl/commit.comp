@@ -12,12 +12,12 @@ layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 layout(std430, binding = 0) buffer Total { uint total[]; };
 layout(std430, binding = 1) readonly buffer Order { uint order_values[]; };
 
-// Keep in sync with `EndPush` in src/solver/gpu/end_of_order.rs.
+// `EndPush` in src/solver/gpu/kernels.rs (checked by tests/it/shader_interface.rs).
 layout(push_constant) uniform Push {
     uint count;
     uint groups_x;
     uint mode;
-    int exponent;
+    int param;
     double factor[3];
     double dark_floor;
 } pc;

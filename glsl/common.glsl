@@ -1,6 +1,6 @@
 // Shared by propagate.comp and collect.comp.
 //
-// Push constants: keep in sync with `SweepPush` in src/solver/gpu/layout.rs (size asserted there).
+// Push constants: `SweepPush` in src/solver/gpu/layout.rs (checked by tests/it/shader_interface.rs).
 layout(push_constant) uniform Push {
     uint na;            // planes along the sweep axis (real dims)
     uint nb;            // rays / voxels along lateral axis b
@@ -45,7 +45,7 @@ bool periodic_b() { return (pc.lateral & 16u) != 0u; }
 bool periodic_c() { return (pc.lateral & 32u) != 0u; }
 
 
-// Keep in sync with `GpuDirection` in src/solver/gpu/layout.rs.
+// `GpuDirection` in src/solver/gpu/layout.rs (checked by tests/it/shader_interface.rs).
 struct Direction {
     vec4 boundary;      // rgb radiance of a ray born at the boundary
     float path_length;  // h / |ω_a|

@@ -3,7 +3,7 @@
 // holds. The host's twin of both is src/solver/acceleration.rs; the host side of the kernels is
 // src/solver/gpu/accelerate.rs.
 
-// Keep in sync with `DiffusionPush` in src/solver/gpu/accelerate.rs.
+// `DiffusionPush` in src/solver/gpu/kernels.rs (checked by tests/it/shader_interface.rs).
 layout(push_constant) uniform Push {
     uint count;     // unknowns (moments) or voxels (prolong)
     uint groups_x;  // workgroups along x of the dispatch (more go along y)
@@ -11,9 +11,7 @@ layout(push_constant) uniform Push {
     uint comps;     // source components per voxel (storage directions × channels)
     uint channels;
     uint edge;      // voxels per cell edge (a power of two)
-    uint cells_x;
-    uint cells_y;
-    uint cells_z;
+    uint cells[3];  // cells of the grid along x, y, z
     uint first;         // moments: the round's first voxel of each cell's sequence
     uint round_voxels;  // moments: voxels per round
     uint albedo_grid;   // prolong: 1 when the scene has a per-voxel albedo factor

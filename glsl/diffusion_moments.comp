@@ -28,7 +28,7 @@ void main() {
     uint u = (gl_WorkGroupID.y * pc.groups_x + gl_WorkGroupID.x) * 64u + gl_LocalInvocationID.x;
     if (u >= pc.count) return;
     uint cell = cell_of_unknown[u];
-    uvec3 at = uvec3(cell % pc.cells_x, (cell / pc.cells_x) % pc.cells_y, cell / (pc.cells_x * pc.cells_y));
+    uvec3 at = uvec3(cell % pc.cells[0], (cell / pc.cells[0]) % pc.cells[1], cell / (pc.cells[0] * pc.cells[1]));
     uvec3 lo = at * pc.edge;
     // The cell's voxels in each of its bricks form a box `e` voxels a side: the cell (cells no
     // larger than bricks lie in one brick) or the whole brick (larger cells hold whole bricks).

@@ -33,7 +33,7 @@ void main() {
     if (!in_grid(rho)) return;
     uvec3 v = origin[slot].xyz + uvec3(local % BRICK_EDGE, (local / BRICK_EDGE) % BRICK_EDGE, local / (BRICK_EDGE * BRICK_EDGE));
     uvec3 at = v / pc.edge;
-    uint u = unknown_of[at.x + pc.cells_x * (at.y + pc.cells_y * at.z)];
+    uint u = unknown_of[at.x + pc.cells[0] * (at.y + pc.cells[1] * at.z)];
     if (u == NONE) return;
     double a = pc.albedo_grid != 0u ? f64_of_f32_bits(albedo[i]) : 1.0;
     for (uint ch = 0u; ch < pc.channels; ch++) {
@@ -41,7 +41,8 @@ void main() {
         uint f = (slot * pc.channels + ch) * BRICK_VOXELS + local;
         precise double phi = f64_of_f32_bits(fluence[f]) + g;
         fluence[f] = f32_bits_of(phi);
-        precise double add = rho * pc.scatter[ch] * a * g / pc.four_pi;
+        precise double numerator = rho * pc.scatter[ch] * a * g;
+        precise double add = div_rn(numerator, pc.four_pi);
         for (uint k = ch; k < pc.comps; k += pc.channels) {
             uint s = (slot * pc.comps + k) * BRICK_VOXELS + local;
             precise double j = f64_of_f32_bits(source[s]) + add;

@@ -119,3 +119,79 @@ uint f16_bits_scaled(uint b, int s) {
     uint bits = (uint(l + 15) << 10) + kept - 1024u;
     return sign | min(bits, 0x7c00u);
 }
+
+// ---- Correctly rounded f64 division from + − × alone ----
+//
+// The host divides in IEEE f64, correctly rounded. Vulkan promises that of f64 +, − and × (and
+// nothing of / or of an unfused fma), so `div_rn` rebuilds the quotient from those: Newton steps
+// on the device's own quotient with exact residuals (Dekker's product), then the rounding decided
+// between the three neighbours by the sign and size of their exact residuals. `precise` keeps the
+// compiler from contracting or reassociating any of it. Valid for the normal, finite operands
+// and quotients the end-of-order kernels divide (anything else returns the device's a / b).
+
+// Veltkamp's split: x = hi + lo with hi holding the top 26 bits, both exact.
+void split_f64(double x, out double hi, out double lo) {
+    precise double c = 134217729.0 * x;  // 2^27 + 1
+    precise double h = c - (c - x);
+    hi = h;
+    lo = x - h;
+}
+
+// a − q·b, exactly when it is representable (q within an ulp or so of a / b: then a − q·b rounds
+// to nothing, Sterbenz makes a − p exact and Dekker's e is q·b − p exactly); otherwise to within
+// a rounding, which is all a Newton step needs.
+double div_residual(double a, double b, double q) {
+    double qh, ql, bh, bl;
+    split_f64(q, qh, ql);
+    split_f64(b, bh, bl);
+    precise double p = q * b;
+    precise double e = ((qh * bh - p) + qh * bl + ql * bh) + ql * bl;
+    precise double r = (a - p) - e;
+    return r;
+}
+
+// The f64 next to `q` away from zero (up = true) or toward it.
+double f64_step(double q, bool up) {
+    uint64_t bits = doubleBitsToUint64(q);
+    return uint64BitsToDouble(up ? bits + 1UL : bits - 1UL);
+}
+
+// a / b correctly rounded to nearest even, starting from the approximation q0 (any quotient within
+// a relative 2^-20 of the true one; the device's own a / b is far better than that).
+double div_rn_from(double a, double b, double q0) {
+    double magnitude = abs(q0);
+    // Zeros, infinities, NaN, and quotients or operands near the ends of the range (where the
+    // split or the residual could overflow or underflow) keep the device's quotient.
+    if (!(magnitude > 1e-280 && magnitude < 1e280) || !(abs(a) > 1e-280 && abs(a) < 1e280)
+        || !(abs(b) > 1e-280 && abs(b) < 1e280)) {
+        return q0;
+    }
+    precise double q = q0;
+    // Each step squares the relative error (2^-20 → 2^-40 → below an ulp).
+    for (int i = 0; i < 2; i++) {
+        precise double step = div_residual(a, b, q) / b;
+        q = q + step;
+    }
+    // q is within an ulp or two of a / b: of q and its neighbours, the one with the smallest exact
+    // residual is the correctly rounded quotient; on a tie (a / b half-way), the even one.
+    double best = q;
+    double best_r = abs(div_residual(a, b, q));
+    for (int k = 0; k < 4; k++) {
+        double candidate = f64_step(q, k % 2 == 0);
+        if (k >= 2) {
+            candidate = f64_step(candidate, k % 2 == 0);
+        }
+        double r = abs(div_residual(a, b, candidate));
+        bool even = (doubleBitsToUint64(candidate) & 1UL) == 0UL;
+        if (r < best_r || (r == best_r && even)) {
+            best = candidate;
+            best_r = r;
+        }
+    }
+    return best;
+}
+
+// a / b, bitwise the host's (IEEE f64 division) on any conformant device.
+double div_rn(double a, double b) {
+    return div_rn_from(a, b, a / b);
+}

@@ -15,7 +15,7 @@ layout(std430, binding = 0) readonly buffer Density { uint density[]; };
 layout(std430, binding = 1) readonly buffer Total { uint total[]; };
 layout(std430, binding = 2) readonly buffer Newest { uint newest[]; };
 
-// Keep in sync with `UnitTally` in src/solver/gpu/end_of_order.rs.
+// `GpuUnitTally` in src/solver/gpu/kernels.rs (checked by tests/it/shader_interface.rs).
 struct UnitTally {
     double brightest;
     double sum_sq;
@@ -26,12 +26,12 @@ struct UnitTally {
 };
 layout(std430, binding = 3) buffer Tallies { UnitTally tallies[]; };
 
-// Keep in sync with `EndPush` in src/solver/gpu/end_of_order.rs.
+// `EndPush` in src/solver/gpu/kernels.rs (checked by tests/it/shader_interface.rs).
 layout(push_constant) uniform Push {
     uint count;     // bricks
     uint groups_x;
     uint mode;      // 0: brightest; 1: the tally
-    int channels;
+    int param;      // the channels
     double factor[3];
     double dark_floor;
 } pc;
@@ -43,7 +43,7 @@ void main() {
     precise double sum_sq = 0.0;
     uint max_e = 0u;
     uint n = 0u;
-    uint c = uint(pc.channels);
+    uint c = uint(pc.param);
     for (uint ch = 0u; ch < c; ch++) {
         uint base = (unit * c + ch) * 4096u;
         for (uint v = 0u; v < 4096u; v++) {
@@ -63,7 +63,7 @@ void main() {
                 e_bits = 0x7f800000u;
             } else {
                 precise double add = f * abs(f64_of_f32_bits(newest[base + v]));
-                precise double e = add / (t + add);
+                precise double e = div_rn(add, t + add);
                 e_bits = f32_bits_of(e);
             }
             precise double e = f64_of_f32_bits(e_bits);

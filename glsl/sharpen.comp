@@ -22,7 +22,7 @@ layout(std430, binding = 4) readonly buffer BrickSlots { uint brick_slot[]; };
 layout(std430, binding = 5) readonly buffer Origins { uvec4 origin[]; };
 // The albedo factor per voxel (bound to the density, unread, without an albedo grid: flag bit 9).
 layout(std430, binding = 7) readonly buffer Albedo { uint albedo[]; };
-// Keep in sync with `SharpenConstants` in src/solver/gpu/sharpen.rs (computed on the host, so no
+// `SharpenConstants` in src/solver/gpu/kernels.rs, checked by tests/it/shader_interface.rs (computed on the host, so no
 // f64 literal is parsed here).
 layout(std430, binding = 6) readonly buffer Constants {
     double kappa_w[3];     // PARTNER_WEIGHT · κ per axis
@@ -40,19 +40,16 @@ layout(std430, binding = 6) readonly buffer Constants {
     double exp_limit;      // 700
 } c;
 
-// Keep in sync with `SharpenPush` in src/solver/gpu/sharpen.rs.
+// `SharpenPush` in src/solver/gpu/kernels.rs (checked by tests/it/shader_interface.rs).
 layout(push_constant) uniform Push {
     uint count;     // voxels of the occupied bricks
     uint groups_x;  // workgroups along x of the dispatch (more go along y)
     uint comps;
     uint channels;
-    uint dims_x;
-    uint dims_y;
-    uint dims_z;
+    uint dims[3];
     uint flags;     // bit a: axis a periodic; bit 3 + 2a + side: that face of axis a a mirror;
                     // bit 9: a per-voxel albedo factor
-    uint bricks_x;  // bricks of the volume per axis (x, y)
-    uint bricks_y;
+    uint bricks[2]; // bricks of the volume along x and y
 } pc;
 
 const uint BRICK_EDGE = 16u;
@@ -67,7 +64,8 @@ double exp_neg(double x) {
     precise double y = (double(k) * c.ln2_hi - x) + double(k) * c.ln2_lo;
     precise double p = 1.0;
     for (int n = 13; n >= 1; n--) {
-        p = 1.0 + y * p / double(n);
+        precise double yp = y * p;
+        p = 1.0 + div_rn(yp, double(n));
     }
     precise double out_value = p * uint64BitsToDouble(uint64_t(1023 - k) << 52);
     return out_value;
@@ -82,12 +80,14 @@ double stable_share(double rho, double factor, uint ch) {
     if (x < c.small) {
         returned = 0.5 * x;
     } else {
-        returned = 1.0 + (exp_neg(x) - 1.0) / x;
+        precise double less = exp_neg(x) - 1.0;
+        returned = 1.0 + div_rn(less, x);
     }
     precise double loop_gain = c.albedo[ch] * factor * returned;
     precise double gained = loop_gain * c.one_plus_boost;
     if (gained <= c.growth || c.boost <= 0.0) return 1.0;
-    precise double share = (c.growth / loop_gain - 1.0) / c.boost;
+    precise double over = div_rn(c.growth, loop_gain) - 1.0;
+    precise double share = div_rn(over, c.boost);
     // f64::clamp(0, 1), as the host clamps.
     if (share < 0.0) share = 0.0;
     if (share > 1.0) share = 1.0;
@@ -97,7 +97,7 @@ double stable_share(double rho, double factor, uint ch) {
 // The slot and voxel of volume voxel `v`, or EMPTY.
 uvec2 locate(uvec3 v) {
     uvec3 b = v / BRICK_EDGE;
-    uint slot = brick_slot[b.x + pc.bricks_x * (b.y + pc.bricks_y * b.z)];
+    uint slot = brick_slot[b.x + pc.bricks[0] * (b.y + pc.bricks[1] * b.z)];
     uvec3 l = v % BRICK_EDGE;
     return uvec2(slot, l.x + BRICK_EDGE * (l.y + BRICK_EDGE * l.z));
 }
@@ -115,7 +115,8 @@ double weight(uvec2 at) {
 // One flux of the host's `flux` closure: s hands over to its partner, capped by the smaller value.
 double flux(double kappa, double m, double mn, double s, double other) {
     precise double limit = c.flux_share * max(min(s, other), 0.0);
-    precise double f = kappa * 2.0 * (m * other - mn * s) / (m + mn);
+    precise double numerator = kappa * 2.0 * (m * other - mn * s);
+    precise double f = div_rn(numerator, m + mn);
     // f64::clamp(−limit, limit), as the host clamps.
     if (f < -limit) f = -limit;
     if (f > limit) f = limit;
@@ -136,12 +137,12 @@ void main() {
         }
         return;
     }
-    precise double factor = rho > 0.0 ? m / rho : 0.0;
+    precise double factor = rho > 0.0 ? div_rn(m, rho) : 0.0;
     double share[3];
     for (uint ch = 0u; ch < pc.channels; ch++) share[ch] = stable_share(rho, factor, ch);
     // The partners (−x, +x, −y, +y, −z, +z) that scatter, with a voxel between that scatters too.
     uvec3 v = origin[slot].xyz + uvec3(local % BRICK_EDGE, (local / BRICK_EDGE) % BRICK_EDGE, local / (BRICK_EDGE * BRICK_EDGE));
-    uint dims[3] = uint[3](pc.dims_x, pc.dims_y, pc.dims_z);
+    uint dims[3] = pc.dims;
     uvec2 partner[6];
     double partner_m[6];
     double partner_share[6][3];
@@ -181,7 +182,7 @@ void main() {
         partner[n] = at;
         partner_m[n] = mn;
         double rho_n = f64_of_f32_bits(density[at.x * BRICK_VOXELS + at.y]);
-        precise double factor_n = rho_n > 0.0 ? mn / rho_n : 0.0;
+        precise double factor_n = rho_n > 0.0 ? div_rn(mn, rho_n) : 0.0;
         for (uint ch = 0u; ch < pc.channels; ch++) partner_share[n][ch] = stable_share(rho_n, factor_n, ch);
     }
     for (uint k = 0u; k < pc.comps; k++) {

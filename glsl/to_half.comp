@@ -12,12 +12,12 @@ layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 layout(std430, binding = 0) writeonly buffer Half { uint halves[]; };
 layout(std430, binding = 1) readonly buffer Full { uint values[]; };
 
-// Keep in sync with `EndPush` in src/solver/gpu/end_of_order.rs.
+// `EndPush` in src/solver/gpu/kernels.rs (checked by tests/it/shader_interface.rs).
 layout(push_constant) uniform Push {
     uint count;     // words of the f16 field (pairs of values)
     uint groups_x;
     uint mode;
-    int exponent;
+    int param;     // the f16 scale's exponent
     double factor[3];
     double dark_floor;
 } pc;
@@ -25,7 +25,7 @@ layout(push_constant) uniform Push {
 void main() {
     uint i = (gl_WorkGroupID.y * pc.groups_x + gl_WorkGroupID.x) * 64u + gl_LocalInvocationID.x;
     if (i >= pc.count) return;
-    uint lo = f16_bits_scaled(values[2u * i], pc.exponent);
-    uint hi = f16_bits_scaled(values[2u * i + 1u], pc.exponent);
+    uint lo = f16_bits_scaled(values[2u * i], pc.param);
+    uint hi = f16_bits_scaled(values[2u * i + 1u], pc.param);
     halves[i] = lo | (hi << 16);
 }

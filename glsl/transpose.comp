@@ -10,7 +10,7 @@ layout(local_size_x = 256, local_size_y = 1, local_size_z = 1) in;
 
 layout(std430, binding = 0) buffer Field { uint words[]; };
 
-// Keep in sync with `TransposePush` in src/solver/gpu/transpose.rs.
+// `TransposePush` in src/solver/gpu/kernels.rs (checked by tests/it/shader_interface.rs).
 layout(push_constant) uniform Push {
     uint blocks;        // blocks of 4096 values in the buffer
     uint half_values;   // 1: the values are f16, two to a word (lower address in the low half)
@@ -21,6 +21,15 @@ layout(push_constant) uniform Push {
 const uint VALUES = 4096u;
 shared uint tile[VALUES];
 
+// Where word k of the block sits in the tile: its low four bits XORed with bits 4-7 and 8-11, a
+// bijection inside each run of 16 words. The permuted reads step through the tile by 16 or 256
+// words (8 or 128 for f16 pairs); unswizzled, 32 neighbouring invocations would hit one or two of
+// the 32 banks of shared memory (16-way conflicts on a GPU); swizzled they spread over 16 to 32.
+// Without padding, so the tile stays at 16 KiB, the least every device has.
+uint slot(uint k) {
+    return k ^ (((k >> 4u) ^ (k >> 8u)) & 15u);
+}
+
 // Where the value that lands at index j comes from, inside its block.
 uint source_of(uint j) {
     // Lateral-major j = y + 16z + 256x comes from x + 16y + 256z = x + 16(y + 16z); brick-order
@@ -29,7 +38,7 @@ uint source_of(uint j) {
 }
 
 uint half_at(uint value) {
-    return (tile[value >> 1] >> (16u * (value & 1u))) & 0xffffu;
+    return (tile[slot(value >> 1)] >> (16u * (value & 1u))) & 0xffffu;
 }
 
 void main() {
@@ -38,13 +47,13 @@ void main() {
     if (block >= pc.blocks) return;
     uint n = pc.half_values != 0u ? VALUES / 2u : VALUES;
     uint base = block * n;
-    for (uint i = gl_LocalInvocationID.x; i < n; i += 256u) tile[i] = words[base + i];
+    for (uint i = gl_LocalInvocationID.x; i < n; i += 256u) tile[slot(i)] = words[base + i];
     barrier();
     for (uint i = gl_LocalInvocationID.x; i < n; i += 256u) {
         if (pc.half_values != 0u) {
             words[base + i] = half_at(source_of(2u * i)) | (half_at(source_of(2u * i + 1u)) << 16);
         } else {
-            words[base + i] = tile[source_of(i)];
+            words[base + i] = tile[slot(source_of(i))];
         }
     }
 }

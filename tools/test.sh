@@ -26,5 +26,20 @@ cargo test --no-fail-fast --features test-hooks "$@" 2>&1 | tee "$log"
 # to build; debug assertions and overflow checks on), after the build.
 # tools/fuzz.sh explains RUSTC_BOOTSTRAP and does long runs; it installs cargo-fuzz if missing.
 LPM_FUZZ_SANITIZER=none LPM_FUZZ_DEV=1 bash tools/fuzz.sh 15 scene raw vdb nanovdb nrrd
-# The suite's totals as the closing line (the fuzz statistics above would otherwise end the output).
-awk '/^test result:/ { p += $4; f += $6 } END { printf "tests: %d passed, %d failed\n", p, f }' "$log"
+# The Python module (tools/python, issue 37): built and installed into tools/python/.venv by its
+# one install command, then its pytest suite, which holds the module's outputs against the binary
+# cargo test built above (LPM_CLI; `cargo build` only finds it up to date). pytest's closing line
+# ("N passed, M failed in S") joins the totals below; pipefail makes any pytest failure, exit 5
+# (no test collected) included, fail the script here.
+cargo build --features test-hooks --bin lpm
+cargo fmt --check --manifest-path tools/python/Cargo.toml
+bash tools/python/install.sh
+LPM_CLI="$PWD/target/debug/lpm" tools/python/.venv/bin/python -m pytest tools/python/tests -q -p no:cacheprovider \
+    2>&1 | tee -a "$log"
+# The suite's totals as the closing line (the fuzz statistics above would otherwise end the output):
+# cargo's "test result:" lines and pytest's closing line.
+awk '/^test result:/ { p += $4; f += $6 }
+     /^(=+ )?[0-9]+ (passed|failed)/ && / in [0-9.]+s/ {
+         for (i = 2; i <= NF; i++) { if ($i ~ /^passed,?$/) p += $(i - 1); if ($i ~ /^failed,?$/) f += $(i - 1) }
+     }
+     END { printf "tests: %d passed, %d failed\n", p, f }' "$log"

@@ -384,12 +384,6 @@ impl Recorder {
     // No host_to_* barrier: submitting a batch already makes earlier host writes to coherent memory
     // visible to it (Vulkan spec, "host write ordering guarantees").
 
-    /// Resets `count` queries of `pool` from `first` (required before writing them again).
-    pub fn reset_queries(&mut self, pool: &TimestampQueryPool, first: u32, count: u32) {
-        // SAFETY: recording.
-        unsafe { self.ctx.device().cmd_reset_query_pool(self.cb, pool.raw, first, count) };
-    }
-
     /// Writes a timestamp into query `index` when all earlier commands have passed `stage`.
     pub fn write_timestamp(&mut self, pool: &TimestampQueryPool, index: u32, stage: vk::PipelineStageFlags2) {
         // SAFETY: recording.

@@ -56,9 +56,15 @@ pub struct Limits {
     pub subgroup_size: u32,
     /// Nanoseconds per timestamp tick.
     pub timestamp_period_ns: f32,
-    /// Whether compute queues can write timestamps (`timestampComputeAndGraphics`).
+    /// Whether compute queues can write timestamps (`timestampComputeAndGraphics`, valid bits on
+    /// the compute family) and queries can be reset from the host (`hostQueryReset`, enabled).
     pub timestamps_supported: bool,
-    /// Total size of the DEVICE_LOCAL memory heaps.
+    /// Whether the transfer (and download) queues' family writes timestamps too
+    /// (`timestampValidBits` > 0 there); where not, transfers go untimed.
+    pub transfer_timestamps: bool,
+    /// The memory lpm may plan with on the device: the largest DEVICE_LOCAL heap (an NVIDIA BAR
+    /// window or a second small heap is never added to it), capped by what `VK_EXT_memory_budget`
+    /// says this process may use of it where the device has that extension.
     pub device_local_heap_bytes: u64,
     /// A CPU implementation (lavapipe, SwiftShader): memory is host memory, "GPU-only" is a fiction.
     pub is_cpu: bool,
@@ -336,7 +342,17 @@ fn open(instance: &Instance, c: &Candidate, force_single_queue: bool) -> Result<
     if use_khr_sync2 {
         extensions.push(ash::khr::synchronization2::NAME.as_ptr());
     }
-    let mut f12 = vk::PhysicalDeviceVulkan12Features::default().timeline_semaphore(true);
+    // hostQueryReset (core 1.2, optional): the profiler resets its timestamps from the host, since
+    // vkCmdResetQueryPool is not allowed on a transfer-only queue, where uploads are recorded.
+    let host_query_reset = {
+        let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
+        let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut f12);
+        // SAFETY: valid chain for a ≥1.2 device.
+        unsafe { inst.get_physical_device_features2(c.physical, &mut f2) };
+        f12.host_query_reset == vk::TRUE
+    };
+    let mut f12 =
+        vk::PhysicalDeviceVulkan12Features::default().timeline_semaphore(true).host_query_reset(host_query_reset);
     let mut sync2_features = vk::PhysicalDeviceSynchronization2Features::default().synchronization2(true);
     // f64 and i64 in shaders where the device has both (the exact end-of-order passes use them).
     // SAFETY: plain query.
@@ -373,11 +389,14 @@ fn open(instance: &Instance, c: &Candidate, force_single_queue: bool) -> Result<
     let props = p2.properties;
     // SAFETY: plain query.
     let mem = unsafe { inst.get_physical_device_memory_properties(c.physical) };
-    let device_local_heap_bytes = mem.memory_heaps[..mem.memory_heap_count as usize]
-        .iter()
-        .filter(|h| h.flags.contains(vk::MemoryHeapFlags::DEVICE_LOCAL))
-        .map(|h| h.size)
-        .sum();
+    let memory_budget = has_ext(&device_extensions(instance, c.physical)?, ash::ext::memory_budget::NAME).then(|| {
+        let mut budget = vk::PhysicalDeviceMemoryBudgetPropertiesEXT::default();
+        let mut m2 = vk::PhysicalDeviceMemoryProperties2::default().push_next(&mut budget);
+        // SAFETY: the device has the extension, so the chained struct is valid to query.
+        unsafe { inst.get_physical_device_memory_properties2(c.physical, &mut m2) };
+        budget.heap_budget
+    });
+    let device_local_heap_bytes = planning_heap_bytes(&mem, memory_budget.as_ref());
     let l = props.limits;
     let limits = Limits {
         max_storage_buffer_range: u64::from(l.max_storage_buffer_range),
@@ -385,8 +404,13 @@ fn open(instance: &Instance, c: &Candidate, force_single_queue: bool) -> Result<
         max_workgroup_invocations: l.max_compute_work_group_invocations,
         subgroup_size: p11.subgroup_size,
         timestamp_period_ns: l.timestamp_period,
-        timestamps_supported: l.timestamp_compute_and_graphics == vk::TRUE
+        timestamps_supported: host_query_reset
+            && l.timestamp_compute_and_graphics == vk::TRUE
             && families[compute_family as usize].timestamp_valid_bits > 0,
+        transfer_timestamps: [choice.transfer, choice.download]
+            .into_iter()
+            .flatten()
+            .all(|(family, _)| families[family as usize].timestamp_valid_bits > 0),
         device_local_heap_bytes,
         is_cpu: props.device_type == vk::PhysicalDeviceType::CPU,
         min_storage_buffer_offset_alignment: l.min_storage_buffer_offset_alignment,
@@ -422,6 +446,24 @@ fn open(instance: &Instance, c: &Candidate, force_single_queue: bool) -> Result<
     })
 }
 
+/// The bytes of device memory to plan with: the largest DEVICE_LOCAL heap, capped by its
+/// `VK_EXT_memory_budget` budget when one is given (a budget of 0 means the driver gave none).
+/// Summing the heaps would count an NVIDIA BAR window (a second, small DEVICE_LOCAL heap that is
+/// the same memory seen through the bus) twice.
+fn planning_heap_bytes(mem: &vk::PhysicalDeviceMemoryProperties, budgets: Option<&[u64; vk::MAX_MEMORY_HEAPS]>) -> u64 {
+    (0..mem.memory_heap_count as usize)
+        .filter(|&i| mem.memory_heaps[i].flags.contains(vk::MemoryHeapFlags::DEVICE_LOCAL))
+        .map(|i| {
+            let size = mem.memory_heaps[i].size;
+            match budgets.map(|b| b[i]) {
+                Some(budget) if budget > 0 => size.min(budget),
+                _ => size,
+            }
+        })
+        .max()
+        .unwrap_or(0)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -452,5 +494,23 @@ mod tests {
         let one = [fam(gct, 16), fam(vk::QueueFlags::TRANSFER, 1)];
         assert_eq!(choose_queues(&one, false), choice(0, Some((1, 0)), None));
         assert_eq!(choose_queues(&[fam(vk::QueueFlags::GRAPHICS, 1)], false), None);
+    }
+
+    #[test]
+    fn the_planning_heap_is_the_largest_device_local_one_capped_by_its_budget() {
+        let mut mem = vk::PhysicalDeviceMemoryProperties { memory_heap_count: 3, ..Default::default() };
+        let gib = 1u64 << 30;
+        mem.memory_heaps[0] = vk::MemoryHeap { size: 80 * gib, flags: vk::MemoryHeapFlags::DEVICE_LOCAL };
+        mem.memory_heaps[1] = vk::MemoryHeap { size: 64 * gib, flags: vk::MemoryHeapFlags::empty() };
+        // An NVIDIA BAR window: the same memory through the bus, never added to the first.
+        mem.memory_heaps[2] = vk::MemoryHeap { size: gib / 4, flags: vk::MemoryHeapFlags::DEVICE_LOCAL };
+        assert_eq!(planning_heap_bytes(&mem, None), 80 * gib);
+        let mut budgets = [0u64; vk::MAX_MEMORY_HEAPS];
+        budgets[0] = 70 * gib;
+        budgets[2] = gib / 8;
+        assert_eq!(planning_heap_bytes(&mem, Some(&budgets)), 70 * gib);
+        // A budget of 0 means the driver gave none: the heap's size stands.
+        budgets[0] = 0;
+        assert_eq!(planning_heap_bytes(&mem, Some(&budgets)), 80 * gib);
     }
 }

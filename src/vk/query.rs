@@ -5,8 +5,10 @@ use ash::vk;
 use super::context::Context;
 use super::error::{VkError, VkResultExt};
 
-/// A pool of timestamp queries. Reset it in a recorder ([`super::Recorder::reset_queries`]) before
-/// writing, write with [`super::Recorder::write_timestamp`], read after the submission completed.
+/// A pool of timestamp queries, reset from the host (`hostQueryReset`): when created, and with
+/// [`TimestampQueryPool::reset`] after each read. Write with [`super::Recorder::write_timestamp`],
+/// read after the submission completed. Resets are never recorded into command buffers:
+/// `vkCmdResetQueryPool` is not allowed on a transfer-only queue, where uploads are recorded.
 pub struct TimestampQueryPool {
     pub(crate) raw: vk::QueryPool,
     count: u32,
@@ -40,6 +42,17 @@ impl TimestampQueryPool {
         .op("reading timestamp queries")?;
         Ok(data)
     }
+    /// Resets `count` queries from `first` from the host, so they can be written again.
+    ///
+    /// # Safety
+    /// No pending or executing command buffer may write those queries.
+    pub unsafe fn reset(&self, ctx: &Context, first: u32, count: u32) {
+        let end = first.saturating_add(count).min(self.count);
+        if end > first {
+            // SAFETY: live pool, range clamped; by the caller's guarantee nothing uses the queries.
+            unsafe { ctx.device().reset_query_pool(self.raw, first, end - first) };
+        }
+    }
 }
 
 impl Context {
@@ -56,7 +69,10 @@ impl Context {
         let raw = unsafe { self.device().create_query_pool(&info, None) }
             .op_with(|| format!("creating query pool `{name}`"))?;
         self.set_name(raw, name);
-        Ok(TimestampQueryPool { raw, count })
+        let pool = TimestampQueryPool { raw, count };
+        // SAFETY: a new pool: nothing has recorded its queries yet.
+        unsafe { pool.reset(self, 0, count) };
+        Ok(pool)
     }
 
     /// Destroys a query pool.

@@ -75,8 +75,9 @@ fn any_budget_gives_bitwise_the_same_fluence_and_source() {
     // The smallest budget: one slice at a time, one direction per pass, sub-slices of one plane.
     assert_eq!(full.slices_in_flight, 2);
     assert_eq!(cuts[0], (1, 1, 1, 1, 1));
-    // Every direction in one pass, two slots, but sub-slices.
-    assert!(cuts[1].0 == 2 && cuts[1].1 == 9 && cuts[1].2 < 16, "{:?}", cuts[1]);
+    // Every direction in one pass, but one slot or sub-slices: which, the cost model decides by
+    // the device's figures (a CPU device keeps two slots of sub-slices, a GPU one whole slice).
+    assert!(cuts[1].1 == 9 && (cuts[1].0 < 2 || cuts[1].2 < 16), "{:?}", cuts[1]);
     assert_ne!(cuts[2], (2, 9, 16, 9, 16), "the middle budget should cut the sweeps too");
 }
 

@@ -19,6 +19,7 @@ mod cpu_threads;
 mod diffusion_correction;
 mod emission;
 mod environment;
+mod exact_division;
 mod forward_peak;
 mod gpu_solver;
 mod hard_cases;

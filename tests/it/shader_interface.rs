@@ -1,24 +1,23 @@
-//! The interface between the host and the kernels, checked against the committed SPIR-V instead of
-//! "keep in sync" comments: the push-constant block's members sit at the Rust struct's
-//! `offset_of!`, the `Direction` table's members at `GpuDirection`'s, both kernels declare their
-//! storage buffers in the one descriptor set they share (set 0), each at the binding the host
-//! writes that buffer to and every binding used, their workgroup size is the one the
-//! dispatch grid is computed with, and the `FLAG_*` bits of glsl/common.glsl are the Rust ones. A
-//! small test kernel (glsl/segment_test.comp) evaluates the GLSL segment functions against
-//! src/solver/segment.rs over optical depths 1e-8 … 1e4.
+//! The interface between the host and every kernel, checked against the committed SPIR-V instead
+//! of "keep in sync" comments. `lpm::solver::gpu::kernels::ALL` is the one table of kernels; for
+//! each: it is a `glsl/*.comp` (and every one of those is in the table), its push-constant
+//! block's members sit at the Rust struct's `offset_of!` under the same names, the structs it
+//! shares through buffers likewise, it declares its storage buffers in set 0 at exactly the
+//! bindings the table gives (the names the host binds buffers by, `Kernel::set`), and its
+//! workgroup size is the one the host dispatches with. The two sweep kernels share one set
+//! (`SWEEP_BINDINGS`, every binding used by one of them), and the `FLAG_*` bits of
+//! glsl/common.glsl are the Rust ones. A small test kernel (glsl/segment_test.comp) evaluates the
+//! GLSL segment functions against src/solver/segment.rs over optical depths 1e-8 … 1e4.
 
-use lpm::solver::gpu::encoder::{LOCAL_SIZE, SWEEP_BINDINGS};
-use lpm::solver::gpu::layout::{self, GpuDirection, SweepPush};
+use lpm::solver::gpu::encoder::LOCAL_SIZE;
+use lpm::solver::gpu::kernels::{self, Kernel, ALL, SWEEP_BINDINGS};
+use lpm::solver::gpu::layout::{self, SweepPush};
 use lpm::solver::gpu::resources::SWEEP_BINDING_COUNT;
 use lpm::vk::{vk, BufferRange, Context, ContextOptions, MemoryLocation, Recorder};
 use rspirv::dr::{Instruction, Module, Operand};
 use rspirv::spirv::{Decoration, ExecutionMode, Op, StorageClass};
 use std::collections::{BTreeSet, HashMap};
-use std::mem::offset_of;
 
-const PROPAGATE_SPV: &[u8] = include_bytes!("../../spirv/propagate.spv");
-const COLLECT_SPV: &[u8] = include_bytes!("../../spirv/collect.spv");
-const SEGMENT_TEST_SPV: &[u8] = include_bytes!("../../spirv/segment_test.spv");
 const COMMON_GLSL: &str = include_str!("../../glsl/common.glsl");
 
 fn load(spirv: &[u8]) -> Module {
@@ -43,12 +42,21 @@ fn global(module: &Module, result: u32) -> &Instruction {
     module.types_global_values.iter().find(|i| i.result_id == Some(result)).expect("a type or global of that id")
 }
 
-/// The size in bytes of a scalar or vector type.
+/// The size in bytes of a scalar, vector or array type (an array's by its stride).
 fn type_size(module: &Module, ty: u32) -> u32 {
     let t = global(module, ty);
     match t.class.opcode {
         Op::TypeInt | Op::TypeFloat => literal(&t.operands[0]) / 8,
         Op::TypeVector => type_size(module, id(&t.operands[0])) * literal(&t.operands[1]),
+        Op::TypeArray => {
+            let length = literal(&global(module, id(&t.operands[1])).operands[0]);
+            let stride = decorations(module, ty)
+                .get(&Decoration::ArrayStride)
+                .copied()
+                .flatten()
+                .unwrap_or_else(|| type_size(module, id(&t.operands[0])));
+            stride * length
+        }
         other => panic!("unexpected member type {other:?}"),
     }
 }
@@ -154,77 +162,97 @@ fn other_descriptors(module: &Module) -> usize {
     [StorageClass::Uniform, StorageClass::UniformConstant].iter().map(|&c| variables(module, c).len()).sum()
 }
 
-macro_rules! rust_offsets {
-    ($ty:ty: $($field:ident),* $(,)?) => {{
-        let mut v = vec![$((stringify!($field).to_string(), offset_of!($ty, $field) as u32)),*];
-        v.sort_by_key(|(_, o)| *o);
-        v
-    }};
+fn load_kernel(k: &Kernel) -> Module {
+    load(k.spirv)
 }
 
-fn sweep_push_offsets() -> Vec<(String, u32)> {
-    rust_offsets!(SweepPush: na, nb, nc, t0, t1, axis_sign, lateral, bricks_b, bricks_c, dir_count, channels,
-        storage, flags, dir_base, ray_base, slab, sigma_t, sigma_s, emission)
+/// The table's members in offset order.
+fn table_members(m: &kernels::Members) -> Vec<(String, u32)> {
+    let mut v: Vec<(String, u32)> = m.fields.iter().map(|&(n, o)| (n.to_string(), o as u32)).collect();
+    v.sort_by_key(|(_, o)| *o);
+    v
+}
+
+#[test]
+fn every_kernel_in_glsl_is_in_the_table_once() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("glsl");
+    let mut in_glsl: Vec<String> = std::fs::read_dir(&dir)
+        .expect("glsl/")
+        .filter_map(|e| e.ok()?.file_name().to_str()?.strip_suffix(".comp").map(str::to_string))
+        .collect();
+    in_glsl.sort();
+    let mut in_table: Vec<String> = ALL.iter().map(|k| k.name.to_string()).collect();
+    in_table.sort();
+    assert_eq!(in_table, in_glsl, "kernels::ALL against glsl/*.comp");
+    for k in ALL {
+        let committed = std::fs::read(dir.join(format!("../spirv/{}.spv", k.name))).expect("spirv/<name>.spv");
+        assert!(committed == k.spirv, "{}: the table's SPIR-V is not spirv/{}.spv", k.name, k.name);
+    }
 }
 
 #[test]
 fn push_constants_sit_where_the_rust_struct_puts_them() {
-    for (name, spirv) in [("propagate", PROPAGATE_SPV), ("collect", COLLECT_SPV)] {
-        let (members, size) = push_block(&load(spirv));
-        assert_eq!(members, sweep_push_offsets(), "{name}: push-constant members (name, offset) in GLSL vs SweepPush");
-        assert_eq!(size as usize, std::mem::size_of::<SweepPush>(), "{name}: push-constant block size");
+    for k in ALL {
+        let (members, size) = push_block(&load_kernel(k));
+        assert_eq!(members, table_members(&k.push), "{}: push-constant members (name, offset), GLSL vs Rust", k.name);
+        assert_eq!(size as usize, k.push.size, "{}: push-constant block size", k.name);
     }
 }
 
 #[test]
-fn the_direction_table_matches_gpu_direction() {
-    let module = load(PROPAGATE_SPV);
-    // glslang emits the struct twice: laid out (std430, with offsets) for the buffer, and plain.
-    let (members, size) = module
-        .debug_names
-        .iter()
-        .filter(|n| n.class.opcode == Op::Name && n.operands[1] == Operand::LiteralString("Direction".into()))
-        .map(|n| struct_members(&module, id(&n.operands[0])))
-        .find(|(members, _)| !members.is_empty())
-        .expect("the Direction struct with offsets");
-    let expected = rust_offsets!(GpuDirection: boundary, path_length, fluence_weight, gain_storage, pad);
-    assert_eq!(members, expected);
-    assert_eq!(size as usize, std::mem::size_of::<GpuDirection>());
-}
-
-#[test]
-fn both_kernels_bind_the_one_shared_set_as_the_host_writes_it() {
-    assert_eq!(SWEEP_BINDINGS.len(), SWEEP_BINDING_COUNT as usize);
-    let mut used = BTreeSet::new();
-    for (name, spirv, expected) in [
-        ("propagate", PROPAGATE_SPV, &[0u32, 1, 2, 3, 4, 5, 6, 7, 8][..]),
-        ("collect", COLLECT_SPV, &[0, 1, 2, 3, 8, 9, 10, 11][..]),
-    ] {
-        let module = load(spirv);
-        let bindings = storage_bindings(&module);
-        for (set, binding, block) in &bindings {
-            assert_eq!(*set, 0, "{name}: {block} is not in the shared set 0");
-            let host = SWEEP_BINDINGS.get(*binding as usize).copied();
-            assert_eq!(
-                host,
-                Some(block.as_str()),
-                "{name}: binding {binding} is {block} in GLSL, {host:?} on the host"
-            );
-            used.insert(*binding);
+fn structs_in_buffers_match_the_rust_ones() {
+    for k in ALL {
+        let module = load_kernel(k);
+        for (glsl, rust) in k.structs {
+            // glslang emits a struct twice: laid out (std430, with offsets) for the buffer, and plain.
+            let (members, size) = module
+                .debug_names
+                .iter()
+                .filter(|n| n.class.opcode == Op::Name && n.operands[1] == Operand::LiteralString((*glsl).into()))
+                .map(|n| struct_members(&module, id(&n.operands[0])))
+                .find(|(members, _)| !members.is_empty())
+                .unwrap_or_else(|| panic!("{}: no struct `{glsl}` with offsets", k.name));
+            assert_eq!(members, table_members(rust), "{}: `{glsl}` members (name, offset), GLSL vs Rust", k.name);
+            assert_eq!(size as usize, rust.size, "{}: `{glsl}` size", k.name);
         }
-        let numbers: Vec<u32> = bindings.iter().map(|b| b.1).collect();
-        assert_eq!(numbers, expected, "{name}: the bindings it declares");
-        assert_eq!(other_descriptors(&module), 0, "{name}: the host binds storage buffers only");
     }
-    // Every binding of the shared set is used by some kernel: the host writes nothing for nothing.
-    assert_eq!(used, (0..SWEEP_BINDING_COUNT).collect::<BTreeSet<_>>());
 }
 
 #[test]
-fn the_workgroup_size_is_the_dispatch_grid_s() {
-    for (name, spirv) in [("propagate", PROPAGATE_SPV), ("collect", COLLECT_SPV)] {
-        assert_eq!(local_size(&load(spirv)), [LOCAL_SIZE[0], LOCAL_SIZE[1], 1], "{name}: local_size");
+fn every_kernel_binds_set_0_as_the_host_writes_it() {
+    let mut sweep_used = BTreeSet::new();
+    for k in ALL {
+        let module = load_kernel(k);
+        let bindings = storage_bindings(&module);
+        let declared: Vec<(u32, String)> = bindings
+            .iter()
+            .map(|(set, binding, block)| {
+                assert_eq!(*set, 0, "{}: {block} is not in set 0", k.name);
+                (*binding, block.clone())
+            })
+            .collect();
+        let table: Vec<(u32, String)> = k.bindings.iter().map(|&(b, n)| (b, n.to_string())).collect();
+        assert_eq!(declared, table, "{}: storage buffers (binding, block), GLSL vs the table", k.name);
+        assert!(k.bindings.iter().all(|&(b, _)| b < k.layout_bindings), "{}: a binding outside its layout", k.name);
+        assert_eq!(other_descriptors(&module), 0, "{}: the host binds storage buffers only", k.name);
+        if k.layout_bindings == SWEEP_BINDING_COUNT && ["propagate", "collect"].contains(&k.name) {
+            for &(b, name) in k.bindings {
+                assert_eq!(SWEEP_BINDINGS[b as usize], name, "{}: binding {b} of the shared sweep set", k.name);
+                sweep_used.insert(b);
+            }
+        }
     }
+    // Every binding of the shared sweep set is used by one of its kernels.
+    assert_eq!(sweep_used, (0..SWEEP_BINDING_COUNT).collect::<BTreeSet<_>>());
+}
+
+#[test]
+fn the_workgroup_size_is_the_one_the_host_dispatches_with() {
+    for k in ALL {
+        assert_eq!(local_size(&load_kernel(k)), k.local_size, "{}: local_size", k.name);
+    }
+    // The sweep's dispatch grid divides by this.
+    assert_eq!([LOCAL_SIZE[0], LOCAL_SIZE[1], 1], kernels::PROPAGATE.local_size);
 }
 
 #[test]
@@ -262,8 +290,8 @@ fn glsl_segment_functions_match_the_rust_ones() {
     let mut input = ctx.create_host_buffer("depths", 4 * n as u64, usage, MemoryLocation::CpuToGpu).unwrap();
     input.bytes_mut().copy_from_slice(bytemuck::cast_slice(&xs));
     let output = ctx.create_host_buffer("values", 8 * n as u64, usage, MemoryLocation::GpuToCpu).unwrap();
-    let push_bytes = std::mem::size_of::<SweepPush>() as u32;
-    let pipeline = ctx.create_compute_pipeline("segment test", SEGMENT_TEST_SPV, 2, push_bytes).unwrap();
+    let k = kernels::SEGMENT_TEST;
+    let pipeline = ctx.create_compute_pipeline(k.name, k.spirv, k.layout_bindings, k.push.size as u32).unwrap();
     let timeline = ctx.create_timeline("segment test", 0).unwrap();
     let push = SweepPush { na: n as u32, ..SweepPush::default() };
     let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "segment test").unwrap();

@@ -17,46 +17,22 @@
 //! f32 from the bits as the host's `as f32` does (`glsl/exact.glsl`). So an accelerated resident
 //! solve is the streamed one to the bit (`tests/it/resident.rs`).
 
-use super::end_of_order::{dispatch_linear, readback};
+pub use super::kernels::DiffusionPush;
+use super::kernels::{self, dispatch_linear, readback};
 use super::owned::Owned;
 use super::resources::{DiffusionBuffers, ResidentBuffers};
-use super::streamer::SliceStreamer;
+use super::submit::Submitter;
 use crate::solver::acceleration::{self, Acceleration};
 use crate::solver::plan::Plan;
 use crate::solver::SolveError;
 use crate::store::{BRICK_EDGE, BRICK_VOXELS};
-use crate::vk::{Buffer, BufferRange, ComputePipeline, Context, DescriptorSet, HostBuffer, Recorder};
+use crate::vk::{Buffer, ComputePipeline, Context, DescriptorSet, HostBuffer, Recorder};
 use ash::vk;
-use bytemuck::{Pod, Zeroable};
 use std::sync::Arc;
 
-const MOMENTS_SPV: &[u8] = include_bytes!("../../../spirv/diffusion_moments.spv");
-const PROLONG_SPV: &[u8] = include_bytes!("../../../spirv/diffusion_prolong.spv");
-
-/// Push constants of both kernels. Keep in sync with `Push` in glsl/diffusion.glsl.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-pub struct DiffusionPush {
-    pub count: u32,
-    pub groups_x: u32,
-    pub unknowns: u32,
-    pub comps: u32,
-    pub channels: u32,
-    pub edge: u32,
-    pub cells: [u32; 3],
-    pub first: u32,
-    pub round_voxels: u32,
-    /// 1 when the scene has a per-voxel albedo factor (the prolongation scales by it).
-    pub albedo_grid: u32,
-    pub extinction: [f64; 3],
-    pub scatter: [f64; 3],
-    pub voxel_size: f64,
-    pub four_pi: f64,
-}
-const _: () = assert!(std::mem::size_of::<DiffusionPush>() == 112);
-
-/// Loop iterations one invocation of the moments kernel may run per round (about): the rounds
-/// keep every invocation's loops far below llvmpipe's 65535 (see glsl/diffusion_moments.comp).
+/// Loop iterations one invocation of the moments kernel may run per round (about) on a CPU
+/// implementation: the rounds keep every invocation's loops far below llvmpipe's 65535 (see
+/// glsl/diffusion_moments.comp). A GPU runs one round.
 const ROUND_ITERATIONS: u32 = 16384;
 
 /// The two kernels, their sets over the resident fields and the diffusion buffers, and what the
@@ -80,42 +56,39 @@ impl DeviceAcceleration {
     pub fn new(ctx: &Arc<Context>, resident: &ResidentBuffers, occupied: u64) -> Result<Option<Self>, SolveError> {
         let Some(totals) = resident.totals.as_ref() else { return Ok(None) };
         let Some(d) = totals.diffusion.as_ref() else { return Ok(None) };
-        let push = std::mem::size_of::<DiffusionPush>() as u32;
-        let moments_pipeline = Owned::new(ctx, ctx.create_compute_pipeline("diffusion moments", MOMENTS_SPV, 8, push)?);
-        let prolong_pipeline = Owned::new(ctx, ctx.create_compute_pipeline("diffusion prolong", PROLONG_SPV, 7, push)?);
-        let set = |name: &str, p: &ComputePipeline, buffers: &[&Buffer]| -> Result<Owned<DescriptorSet>, SolveError> {
-            let ranges: Vec<BufferRange> = buffers.iter().map(|&b| BufferRange::from(b)).collect();
-            Ok(Owned::new(ctx, ctx.create_descriptor_set(name, p, &ranges)?))
-        };
+        let moments_pipeline = kernels::DIFFUSION_MOMENTS.pipeline(ctx)?;
+        let prolong_pipeline = kernels::DIFFUSION_PROLONG.pipeline(ctx)?;
         let voxels = u32::try_from(occupied * BRICK_VOXELS as u64)
             .map_err(|_| SolveError::Internal("more resident voxels than a dispatch can reach"))?;
         Ok(Some(DeviceAcceleration {
-            moments_set: set(
+            moments_set: kernels::DIFFUSION_MOMENTS.set(
+                ctx,
                 "diffusion moments",
                 &moments_pipeline,
                 &[
-                    &resident.density,
-                    &resident.source_next,
-                    &d.solid_angles,
-                    &d.cell_of_unknown,
-                    &d.brick_start,
-                    &d.bricks,
-                    &totals.origins,
-                    &d.moments,
+                    ("Density", &resident.density),
+                    ("Source", &resident.source_next),
+                    ("SolidAngles", &d.solid_angles),
+                    ("CellOfUnknown", &d.cell_of_unknown),
+                    ("BrickStart", &d.brick_start),
+                    ("Bricks", &d.bricks),
+                    ("Origins", &totals.origins),
+                    ("Moments", &d.moments),
                 ],
             )?,
-            prolong_set: set(
+            prolong_set: kernels::DIFFUSION_PROLONG.set(
+                ctx,
                 "diffusion prolong",
                 &prolong_pipeline,
                 &[
-                    &resident.density,
-                    &resident.source_next,
-                    &resident.fluence,
-                    &d.unknown_of,
-                    &totals.origins,
-                    &d.change,
+                    ("Density", &resident.density),
+                    ("Source", &resident.source_next),
+                    ("Fluence", &resident.fluence),
+                    ("UnknownOf", &d.unknown_of),
+                    ("Origins", &totals.origins),
+                    ("Change", &d.change),
                     // Unread without an albedo grid: any buffer will do.
-                    totals.albedo.as_deref().unwrap_or(&resident.density),
+                    ("Albedo", totals.albedo.as_deref().unwrap_or(&resident.density)),
                 ],
             )?,
             push: None,
@@ -131,7 +104,7 @@ impl DeviceAcceleration {
     /// voxel, in slot order (wanted once, for the grid's tables). Waits.
     pub fn fold(
         &mut self,
-        streamer: &mut SliceStreamer,
+        sub: &mut Submitter,
         plan: &Plan,
         buffers: &mut DiffusionBuffers,
         grid: &mut Acceleration,
@@ -144,13 +117,13 @@ impl DeviceAcceleration {
         let (push, rounds) = match self.push {
             Some(loaded) => loaded,
             None => {
-                let loaded = self.load_grid(streamer, plan, buffers, grid, &origins())?;
+                let loaded = self.load_grid(sub, plan, buffers, grid, &origins())?;
                 self.push = Some(loaded);
                 loaded
             }
         };
         let c = plan.channels as usize;
-        let ctx = Arc::clone(streamer.context());
+        let ctx = Arc::clone(sub.context());
         let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "diffusion moments")?;
         // The last order's moments were read on the host after a wait; the sweeps wrote the source.
         rec.compute_to_transfer();
@@ -163,8 +136,8 @@ impl DeviceAcceleration {
             rec.compute_to_compute();
         }
         rec.compute_to_host();
-        streamer.submit_and_wait(rec)?;
-        streamer.count_transfer(0, (n * c * 8) as u64);
+        sub.submit_and_wait(rec)?;
+        sub.count_transfer(0, (n * c * 8) as u64);
         let moments: Vec<Vec<f64>> = readback::<f64>(&buffers.moments, n * c)?.chunks(n).map(<[f64]>::to_vec).collect();
         let change: Vec<f64> = grid.solve(&moments).concat();
         let bytes: &[u8] = bytemuck::cast_slice(&change);
@@ -181,8 +154,8 @@ impl DeviceAcceleration {
         rec.copy_buffer(&buffers.staging, &buffers.change, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size }]);
         rec.transfer_to_compute();
         dispatch(&mut rec, &self.prolong_pipeline, &self.prolong_set, self.voxels, push)?;
-        streamer.submit_and_wait(rec)?;
-        streamer.count_transfer(size, 0);
+        sub.submit_and_wait(rec)?;
+        sub.count_transfer(size, 0);
         Ok(())
     }
 
@@ -190,7 +163,7 @@ impl DeviceAcceleration {
     /// returns the kernels' push constants and the moments kernel's rounds.
     fn load_grid(
         &self,
-        streamer: &mut SliceStreamer,
+        sub: &mut Submitter,
         plan: &Plan,
         buffers: &mut DiffusionBuffers,
         grid: &Acceleration,
@@ -206,13 +179,20 @@ impl DeviceAcceleration {
             (bytemuck::cast_slice(&tables.bricks), &buffers.bricks),
             (bytemuck::cast_slice(solid_angles), &buffers.solid_angles),
         ] {
-            upload(streamer, staging, dst, bytes)?;
+            upload(sub, staging, dst, bytes)?;
         }
         let count = |v: usize| u32::try_from(v).map_err(|_| SolveError::Internal("a diffusion grid too large"));
         // Each cell's voxels: a box of min(e, 16)³ in each of its bricks, walked in rounds.
         let box_voxels = grid.edge().min(BRICK_EDGE).pow(3);
         let most_bricks = tables.brick_start.windows(2).map(|w| w[1] - w[0]).max().unwrap_or(0);
-        let round_voxels = (ROUND_ITERATIONS / (1 + plan.channels + plan.source_components())).max(1);
+        // Rounds only where a CPU implementation (llvmpipe) limits an invocation's loops; a GPU
+        // walks every cell's voxels in one dispatch. The same additions in the same order either
+        // way: the same bits.
+        let round_voxels = if sub.context().limits().is_cpu {
+            (ROUND_ITERATIONS / (1 + plan.channels + plan.source_components())).max(1)
+        } else {
+            (box_voxels * most_bricks).max(1)
+        };
         let rounds = (box_voxels * most_bricks).div_ceil(round_voxels);
         let mut push = DiffusionPush {
             unknowns: count(grid.unknowns())?,
@@ -300,17 +280,12 @@ fn dispatch(
 }
 
 /// Copies `bytes` into the start of `dst` through `staging`, a chunk at a time (waits).
-fn upload(
-    streamer: &mut SliceStreamer,
-    staging: &mut HostBuffer,
-    dst: &Buffer,
-    bytes: &[u8],
-) -> Result<(), SolveError> {
+fn upload(sub: &mut Submitter, staging: &mut HostBuffer, dst: &Buffer, bytes: &[u8]) -> Result<(), SolveError> {
     if bytes.len() as u64 > dst.size() {
         return Err(SolveError::Internal("a diffusion table is larger than its buffer"));
     }
     let chunk = staging.size() as usize;
-    let ctx = Arc::clone(streamer.context());
+    let ctx = Arc::clone(sub.context());
     for (i, part) in bytes.chunks(chunk).enumerate() {
         staging.bytes_mut()[..part.len()].copy_from_slice(part);
         let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "diffusion tables")?;
@@ -318,8 +293,8 @@ fn upload(
         let region = vk::BufferCopy { src_offset: 0, dst_offset: (i * chunk) as u64, size: part.len() as u64 };
         rec.copy_buffer(staging, dst, &[region]);
         rec.transfer_to_compute();
-        streamer.submit_and_wait(rec)?;
-        streamer.count_transfer(region.size, 0);
+        sub.submit_and_wait(rec)?;
+        sub.count_transfer(region.size, 0);
     }
     Ok(())
 }

@@ -187,16 +187,16 @@ pub fn plan_memory(
             Residency::Resident => (SlotSizes::resident(plan, &extent), fields.device()),
             _ => (SlotSizes::new(plan, &extent, slab), 0),
         };
-        let shared = SharedSizes::new(plan, rays, pass, group, planes);
+        let shared = SharedSizes::new(plan, rays, pass, group, planes, limits.float64);
         // Per slot: the device slice buffers and their upload and download staging; plus the
-        // staging the rays' tallies come home through.
-        let staging = slots as u64 * slot.staging() + shared.tallies;
+        // staging and sums the rays' tallies come home through.
+        let staging = slots as u64 * slot.staging() + shared.readback();
         let total =
             table_bytes + resident + slots as u64 * slot.device() + shared.ray_state() + shared.deposit + staging;
         (slot.device(), shared.ray_state(), shared.deposit, staging, resident, total)
     };
     let shared_fits = |pass: u32, group: u32, planes: u32| {
-        let shared = SharedSizes::new(plan, rays, pass, group, planes);
+        let shared = SharedSizes::new(plan, rays, pass, group, planes, limits.float64);
         shared.ray_buffer <= max_range && shared.deposit <= max_range
     };
     let fits_range = |mode: Residency, pass: u32, slab: u32, group: u32, planes: u32| {

@@ -30,7 +30,7 @@ use std::ops::Range;
 /// Workgroup size of both kernels (`local_size_x`, `local_size_y` in glsl/common.glsl): rays
 /// along the sweep's lateral axes b and c. `tests/it/shader_interface.rs` checks it against the
 /// SPIR-V.
-pub const LOCAL_SIZE: [u32; 2] = [16, 4];
+pub const LOCAL_SIZE: [u32; 2] = [super::kernels::SWEEP_LOCAL_SIZE[0], super::kernels::SWEEP_LOCAL_SIZE[1]];
 
 /// One (sub-)slice's compute step.
 pub struct ComputeStep<'s> {
@@ -101,20 +101,7 @@ pub fn push_constants(plan: &Plan, sweep: &FaceSweep, layout: &SliceLayout) -> S
 /// The shared descriptor set's bindings, by the name of the buffer block each kernel declares
 /// there: `propagate.comp` uses 0..=8, `collect.comp` 0..=3 and 8..=11. `tests/it/shader_interface.rs`
 /// checks these names and numbers against both kernels' SPIR-V.
-pub const SWEEP_BINDINGS: [&str; SWEEP_BINDING_COUNT as usize] = [
-    "Directions",
-    "Offsets",
-    "SlotTable",
-    "Density",
-    "SourcePrev",
-    "Rays",
-    "RaysOutB",
-    "RaysOutC",
-    "Deposit",
-    "CollectRows",
-    "SourceNext",
-    "Fluence",
-];
+pub use super::kernels::SWEEP_BINDINGS;
 
 /// The buffers of a sweep's descriptor set, in [`SWEEP_BINDINGS`] order: the sweep's `tables`, a
 /// slot's `[slot_table, density, source_prev, source_next, fluence]` (the vacuum stand-in five

@@ -17,11 +17,13 @@
 //! Every value is bitwise what the host's passes give in the streamed mode (`glsl/exact.glsl` says
 //! how: f32 values are read from their bits, so a device that flushes denormals does too; each
 //! sum runs in the host's order, one invocation per block or brick), so the answer, the orders and
-//! the stop decisions are the streamed mode's (`tests/it/resident.rs`). The one assumption beyond
-//! what Vulkan promises is that f64 division is correctly rounded (the remaining error's e_v, the
-//! acceleration's σs·g/4π, the diffusion correction's fluxes and stability share): true of
-//! llvmpipe and of NVIDIA's compiler; a device where it is not would give answers a rounding
-//! apart from the streamed mode's, not wrong ones.
+//! the stop decisions are the streamed mode's (`tests/it/resident.rs`). Vulkan promises correctly
+//! rounded f64 +, − and ×, but not a correctly rounded f64 division (nor a fused fma), so every f64
+//! division of these kernels (the remaining error's e_v, the acceleration's σs·g/4π, the diffusion
+//! correction's fluxes and stability share) goes through `div_rn` (glsl/exact.glsl): Newton steps
+//! with exact residuals from + − × alone, and the rounding decided between neighbours, so the
+//! quotient is the host's on any conformant device (`tests/it/exact_division.rs`, which starts it
+//! from quotients spoiled on purpose).
 //!
 //! Before the commit, when the plan asks for them: with a per-voxel albedo, `albedo_scale.comp`
 //! multiplies the new source by each voxel's factor (resident from the first load); then the
@@ -36,32 +38,22 @@
 //! keeps every pass there and brings the fields home every order, and says so ([`EndOfOrder`]).
 //! The energy books and the tail run once, after the fields come home at the end.
 
+use super::kernels;
+pub use super::kernels::{dispatch_linear, readback, BlockSum, EndPush, GpuUnitTally};
 use super::owned::Owned;
 use super::resources::{DeviceResources, ResidentBuffers, TotalBuffers};
 use super::sharpen::DeviceSharpening;
 use super::sizes::{BLOCK_SUM_BYTES, UNIT_TALLY_BYTES};
-use super::streamer::SliceStreamer;
+use super::submit::Submitter;
 use crate::solver::passes::block_power;
 use crate::solver::plan::{Plan, Precision};
 use crate::solver::remaining::{self, RemainingError, UnitTally};
 use crate::solver::SolveError;
 use crate::store::Field;
-use crate::vk::{Buffer, BufferRange, ComputePipeline, Context, DescriptorSet, Limits, Recorder};
+use crate::vk::{Buffer, ComputePipeline, Context, DescriptorSet, Limits, Recorder};
 use ash::vk;
-use bytemuck::{Pod, Zeroable};
 use serde::Serialize;
 use std::sync::Arc;
-
-const BLOCK_SUMS_SPV: &[u8] = include_bytes!("../../../spirv/block_sums.spv");
-const COMMIT_SPV: &[u8] = include_bytes!("../../../spirv/commit.spv");
-const TO_HALF_SPV: &[u8] = include_bytes!("../../../spirv/to_half.spv");
-const REMAINING_SPV: &[u8] = include_bytes!("../../../spirv/remaining.spv");
-const ALBEDO_SCALE_SPV: &[u8] = include_bytes!("../../../spirv/albedo_scale.spv");
-
-/// Invocations per workgroup of the four kernels (`local_size_x`).
-const GROUP: u32 = 64;
-/// Workgroups along x of one dispatch at most; more go along y.
-const MAX_GROUPS_X: u32 = 65535;
 
 /// Where the passes between orders run, and why.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -99,42 +91,8 @@ impl EndOfOrder {
     }
 }
 
-/// One block's sums. Keep in sync with `BlockSum` in glsl/block_sums.comp.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-pub struct BlockSum {
-    pub abs_sum: f64,
-    pub max_abs_bits: u32,
-    pub pad: u32,
-}
 const _: () = assert!(std::mem::size_of::<BlockSum>() as u64 == BLOCK_SUM_BYTES);
-
-/// One brick's tally. Keep in sync with `UnitTally` in glsl/remaining.comp.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-pub struct GpuUnitTally {
-    pub brightest: f64,
-    pub sum_sq: f64,
-    pub max_e_bits: u32,
-    pub count: u32,
-    pub pad: [u32; 2],
-}
 const _: () = assert!(std::mem::size_of::<GpuUnitTally>() as u64 == UNIT_TALLY_BYTES);
-
-/// Push constants of the four kernels. Keep in sync with `Push` in glsl/block_sums.comp,
-/// commit.comp, to_half.comp and remaining.comp.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-pub struct EndPush {
-    pub count: u32,
-    pub groups_x: u32,
-    pub mode: u32,
-    /// to_half: the f16 scale's exponent; remaining: the channels.
-    pub exponent: i32,
-    pub factor: [f64; 3],
-    pub dark_floor: f64,
-}
-const _: () = assert!(std::mem::size_of::<EndPush>() == 48);
 
 /// The kernels and their descriptor sets over the resident buffers.
 pub struct EndPasses {
@@ -182,26 +140,24 @@ impl EndPasses {
         let Some(totals) = resident.totals.as_ref() else {
             return Err(SolveError::Internal("the device's end of order without resident totals"));
         };
-        let push = std::mem::size_of::<EndPush>() as u32;
-        let pipeline = |name, spv, bindings| -> Result<Owned<ComputePipeline>, SolveError> {
-            Ok(Owned::new(ctx, ctx.create_compute_pipeline(name, spv, bindings, push)?))
-        };
-        let block_sums_pipeline = pipeline("block sums", BLOCK_SUMS_SPV, 2)?;
-        let commit_pipeline = pipeline("commit", COMMIT_SPV, 2)?;
-        let to_half_pipeline = pipeline("to half", TO_HALF_SPV, 2)?;
-        let remaining_pipeline = pipeline("remaining", REMAINING_SPV, 4)?;
-        let albedo_scale_pipeline = pipeline("albedo scale", ALBEDO_SCALE_SPV, 2)?;
-        let set = |name: &str, p: &ComputePipeline, buffers: &[&Buffer]| -> Result<Owned<DescriptorSet>, SolveError> {
-            let ranges: Vec<BufferRange> = buffers.iter().map(|&b| BufferRange::from(b)).collect();
-            Ok(Owned::new(ctx, ctx.create_descriptor_set(name, p, &ranges)?))
-        };
+        let block_sums_pipeline = kernels::BLOCK_SUMS.pipeline(ctx)?;
+        let commit_pipeline = kernels::COMMIT.pipeline(ctx)?;
+        let to_half_pipeline = kernels::TO_HALF.pipeline(ctx)?;
+        let remaining_pipeline = kernels::REMAINING.pipeline(ctx)?;
+        let albedo_scale_pipeline = kernels::ALBEDO_SCALE.pipeline(ctx)?;
         let TotalBuffers { source_total, fluence_total, block_sums, unit_tallies, .. } = totals;
         // What the next order propagates: the sharpened source with the diffusion correction.
         let propagated = propagated(resident);
         let sharpening = match (DeviceSharpening::new(ctx, plan, resident, occupied, bricks)?, &totals.sharpen) {
-            (Some(kernel), Some(s)) => {
-                Some((kernel, set("sharpened sums", &block_sums_pipeline, &[propagated, &s.sums])?))
-            }
+            (Some(kernel), Some(s)) => Some((
+                kernel,
+                kernels::BLOCK_SUMS.set(
+                    ctx,
+                    "sharpened sums",
+                    &block_sums_pipeline,
+                    &[("Field", propagated), ("Sums", &s.sums)],
+                )?,
+            )),
             _ => None,
         };
         let (comps, c) = (plan.source_components() as u64, plan.channels as u64);
@@ -210,18 +166,44 @@ impl EndPasses {
         };
         let voxels = occupied * crate::store::BRICK_VOXELS as u64;
         Ok(EndPasses {
-            source_sums: set("block sums", &block_sums_pipeline, &[&resident.source_next, block_sums])?,
+            source_sums: kernels::BLOCK_SUMS.set(
+                ctx,
+                "block sums",
+                &block_sums_pipeline,
+                &[("Field", &resident.source_next), ("Sums", block_sums)],
+            )?,
             sharpening,
-            commit_source: set("commit source", &commit_pipeline, &[source_total, &resident.source_next])?,
-            commit_fluence: set("commit fluence", &commit_pipeline, &[fluence_total, &resident.fluence])?,
+            commit_source: kernels::COMMIT.set(
+                ctx,
+                "commit source",
+                &commit_pipeline,
+                &[("Total", source_total), ("Order", &resident.source_next)],
+            )?,
+            commit_fluence: kernels::COMMIT.set(
+                ctx,
+                "commit fluence",
+                &commit_pipeline,
+                &[("Total", fluence_total), ("Order", &resident.fluence)],
+            )?,
             to_half: match plan.source_precision {
-                Precision::F16 => Some(set("to half", &to_half_pipeline, &[&resident.source_prev, propagated])?),
+                Precision::F16 => Some(kernels::TO_HALF.set(
+                    ctx,
+                    "to half",
+                    &to_half_pipeline,
+                    &[("Half", &resident.source_prev), ("Full", propagated)],
+                )?),
                 Precision::F32 => None,
             },
-            remaining: set(
+            remaining: kernels::REMAINING.set(
+                ctx,
                 "remaining",
                 &remaining_pipeline,
-                &[&resident.density, fluence_total, &resident.fluence, unit_tallies],
+                &[
+                    ("Density", &resident.density),
+                    ("Total", fluence_total),
+                    ("Newest", &resident.fluence),
+                    ("Tallies", unit_tallies),
+                ],
             )?,
             source_values: count(voxels * comps)?,
             fluence_values: count(voxels * c)?,
@@ -231,7 +213,12 @@ impl EndPasses {
             commit_pipeline,
             to_half_pipeline,
             albedo_scale: match &totals.albedo {
-                Some(albedo) => Some(set("albedo scale", &albedo_scale_pipeline, &[&resident.source_next, albedo])?),
+                Some(albedo) => Some(kernels::ALBEDO_SCALE.set(
+                    ctx,
+                    "albedo scale",
+                    &albedo_scale_pipeline,
+                    &[("Source", &resident.source_next), ("Albedo", albedo)],
+                )?),
                 None => None,
             },
             remaining_pipeline,
@@ -254,13 +241,8 @@ impl EndPasses {
     /// next order propagates (from the total before this order joins it); the new source's block
     /// sums (and the sharpened one's); then the new source and the fluence added into the totals.
     /// One submission; waits, and returns the power and the next order's largest value.
-    pub fn commit(
-        &self,
-        streamer: &mut SliceStreamer,
-        plan: &Plan,
-        totals: &TotalBuffers,
-    ) -> Result<Committed, SolveError> {
-        let ctx = Arc::clone(streamer.context());
+    pub fn commit(&self, sub: &mut Submitter, plan: &Plan, totals: &TotalBuffers) -> Result<Committed, SolveError> {
+        let ctx = Arc::clone(sub.context());
         let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "commit on the device")?;
         rec.compute_to_compute();
         rec.transfer_to_compute();
@@ -277,7 +259,7 @@ impl EndPasses {
         Self::dispatch(&mut rec, &self.commit_pipeline, &self.commit_source, self.source_values, push)?;
         Self::dispatch(&mut rec, &self.commit_pipeline, &self.commit_fluence, self.fluence_values, push)?;
         rec.compute_to_host();
-        streamer.submit_and_wait(rec)?;
+        sub.submit_and_wait(rec)?;
         let sums: &[BlockSum] = readback(&totals.block_sums, self.blocks as usize)?;
         let mut power = [0.0; 3];
         let mut max_bits = 0u32;
@@ -296,15 +278,15 @@ impl EndPasses {
 
     /// With a per-voxel albedo, multiplies the order's new source by each voxel's factor, as the
     /// host's commit first does (the sweeps scatter with the medium's albedo). Waits.
-    pub fn scale_by_albedo(&self, streamer: &mut SliceStreamer, plan: &Plan) -> Result<(), SolveError> {
+    pub fn scale_by_albedo(&self, sub: &mut Submitter, plan: &Plan) -> Result<(), SolveError> {
         let Some(set) = &self.albedo_scale else { return Ok(()) };
-        let ctx = Arc::clone(streamer.context());
+        let ctx = Arc::clone(sub.context());
         let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "albedo scale on the device")?;
         rec.compute_to_compute();
         rec.transfer_to_compute();
         let push = EndPush { mode: plan.source_components(), ..EndPush::default() };
         Self::dispatch(&mut rec, &self.albedo_scale_pipeline, set, self.source_values, push)?;
-        streamer.submit_and_wait(rec)
+        sub.submit_and_wait(rec)
     }
 
     /// Records the start of an order after a commit on the device: the new source becomes the
@@ -320,7 +302,7 @@ impl EndPasses {
         rec.compute_to_transfer();
         match (&self.to_half, half_exponent) {
             (Some(set), Some(exponent)) => {
-                let push = EndPush { exponent, ..EndPush::default() };
+                let push = EndPush { param: exponent, ..EndPush::default() };
                 Self::dispatch(rec, &self.to_half_pipeline, set, self.source_values / 2, push)?;
                 rec.compute_to_transfer();
             }
@@ -346,20 +328,20 @@ impl EndPasses {
     /// added up in brick order as the host's pass adds its units.
     pub fn remaining(
         &self,
-        streamer: &mut SliceStreamer,
+        sub: &mut Submitter,
         plan: &Plan,
         totals: &TotalBuffers,
         factor: [f64; 3],
     ) -> Result<RemainingError, SolveError> {
-        let ctx = Arc::clone(streamer.context());
-        let push = EndPush { exponent: plan.channels as i32, factor, ..EndPush::default() };
+        let ctx = Arc::clone(sub.context());
+        let push = EndPush { param: plan.channels as i32, factor, ..EndPush::default() };
         let mut run = |mode: u32, dark_floor: f64| -> Result<Vec<GpuUnitTally>, SolveError> {
             let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "remaining error on the device")?;
             rec.compute_to_compute();
             let push = EndPush { mode, dark_floor, ..push };
             Self::dispatch(&mut rec, &self.remaining_pipeline, &self.remaining, self.bricks, push)?;
             rec.compute_to_host();
-            streamer.submit_and_wait(rec)?;
+            sub.submit_and_wait(rec)?;
             Ok(readback::<GpuUnitTally>(&totals.unit_tallies, self.bricks as usize)?.to_vec())
         };
         let brightest = run(0, 0.0)?.iter().map(|t| t.brightest).fold(0.0, f64::max);
@@ -381,44 +363,11 @@ pub fn propagated(resident: &ResidentBuffers) -> &Buffer {
     }
 }
 
-/// Records one dispatch of `count` invocations of a kernel indexed as [`linear_groups`] says, with
-/// the push constants `push(count, groups_x)`.
-pub(super) fn dispatch_linear<P: Pod>(
-    rec: &mut Recorder,
-    pipeline: &ComputePipeline,
-    set: &DescriptorSet,
-    count: u32,
-    push: impl FnOnce(u32, u32) -> P,
-) -> Result<(), SolveError> {
-    let groups = linear_groups(count);
-    let push = push(count, groups[0]);
-    rec.bind(pipeline, set)?;
-    rec.dispatch_bound(pipeline, bytemuck::bytes_of(&push), groups)?;
-    Ok(())
-}
-
-/// The workgroups of a dispatch of `count` invocations, [`GROUP`] to a workgroup, at most
-/// [`MAX_GROUPS_X`] along x and the rest along y (the kernels index `(y·groups_x + x)·GROUP + i`).
-fn linear_groups(count: u32) -> [u32; 3] {
-    let groups = count.div_ceil(GROUP).max(1);
-    let groups_x = groups.min(MAX_GROUPS_X);
-    [groups_x, groups.div_ceil(groups_x), 1]
-}
-
-/// The first `n` values of a buffer the kernels wrote, as the host sees it (after a wait).
-pub(super) fn readback<T: Pod>(buffer: &Buffer, n: usize) -> Result<&[T], SolveError> {
-    let bytes = buffer.mapped().ok_or(SolveError::Internal("an end-of-order sum buffer is not host-visible"))?;
-    let bytes = bytes
-        .get(..n * std::mem::size_of::<T>())
-        .ok_or(SolveError::Internal("an end-of-order sum buffer is smaller than its values"))?;
-    Ok(bytemuck::cast_slice(bytes))
-}
-
 /// Copies a whole field of the store into its resident buffer (both hold the occupied bricks in
 /// slot order, laid out alike), through slot 0's upload staging, a chunk at a time. For the rare
 /// moves: the committed totals and the albedo factor on the first load.
 pub fn upload_field(
-    streamer: &mut SliceStreamer,
+    sub: &mut Submitter,
     res: &DeviceResources,
     field: &Field,
     device: &Buffer,
@@ -429,18 +378,18 @@ pub fn upload_field(
     }
     let staging = &res.slots.first().ok_or(SolveError::Internal("no slot staging for a field's transfer"))?.upload;
     let chunk = staging.size() as usize;
-    let ctx = Arc::clone(streamer.context());
+    let ctx = Arc::clone(sub.context());
     for (i, part) in bytes.chunks(chunk).enumerate() {
         let size = part.len() as u64;
         // SAFETY: the staging is mapped for `chunk` bytes, and no submission uses it now: the
-        // streamer is idle between orders (every earlier use was waited for).
+        // pipeline is idle between orders (every earlier use was waited for).
         unsafe { std::ptr::copy_nonoverlapping(part.as_ptr(), staging.as_mut_ptr(), part.len()) };
         let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "resident field upload")?;
         rec.compute_to_transfer();
         rec.copy_buffer(staging, device, &[vk::BufferCopy { src_offset: 0, dst_offset: (i * chunk) as u64, size }]);
         rec.transfer_to_compute();
-        streamer.submit_and_wait(rec)?;
-        streamer.count_transfer(size, 0);
+        sub.submit_and_wait(rec)?;
+        sub.count_transfer(size, 0);
     }
     field.release_all();
     Ok(())
@@ -449,7 +398,7 @@ pub fn upload_field(
 /// Copies a resident buffer home into its field of the store (the reverse of [`upload_field`]),
 /// through slot 0's download staging: at checkpoints and at the end.
 pub fn download_field(
-    streamer: &mut SliceStreamer,
+    sub: &mut Submitter,
     res: &DeviceResources,
     field: &mut Field,
     device: &Buffer,
@@ -460,16 +409,16 @@ pub fn download_field(
     }
     let staging = &res.slots.first().ok_or(SolveError::Internal("no slot staging for a field's transfer"))?.download;
     let chunk = staging.size() as usize;
-    let ctx = Arc::clone(streamer.context());
+    let ctx = Arc::clone(sub.context());
     for (i, part) in bytes.chunks_mut(chunk).enumerate() {
         let size = part.len() as u64;
         let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "resident field download")?;
         rec.compute_to_transfer();
         rec.copy_buffer(device, staging, &[vk::BufferCopy { src_offset: (i * chunk) as u64, dst_offset: 0, size }]);
         rec.transfer_to_host();
-        streamer.submit_and_wait(rec)?;
+        sub.submit_and_wait(rec)?;
         part.copy_from_slice(&staging.bytes()[..part.len()]);
-        streamer.count_transfer(0, size);
+        sub.count_transfer(0, size);
     }
     field.release_all();
     Ok(())

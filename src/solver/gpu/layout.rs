@@ -31,8 +31,8 @@ pub fn half_source_flags(exponent: i32) -> u32 {
     FLAG_HALF_SOURCE | (((exponent + HALF_SCALE_BIAS) as u32 & 0xff) << HALF_SCALE_SHIFT)
 }
 
-/// Push constants of `propagate.comp` and `collect.comp`. Keep in sync with `Push` in
-/// glsl/common.glsl.
+/// Push constants of `propagate.comp` and `collect.comp` (`Push` in glsl/common.glsl; the kernel
+/// table's reflection test, `tests/it/shader_interface.rs`, checks it).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
 pub struct SweepPush {
@@ -64,7 +64,8 @@ pub struct SweepPush {
 }
 const _: () = assert!(std::mem::size_of::<SweepPush>() == 112);
 
-/// One swept direction. Keep in sync with `Direction` in glsl/common.glsl (std430).
+/// One swept direction (`Direction` in glsl/common.glsl, std430; the kernel table's reflection
+/// test checks it).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
 pub struct GpuDirection {

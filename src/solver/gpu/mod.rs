@@ -52,8 +52,30 @@
 //! a warm start's first commit runs on the host. On a device without f64 shaders the new source
 //! and fluence come home every order for the host's passes.
 //!
-//! ## The pieces
+//! ## The pieces, bottom to top
 //!
+//! Each layer uses only the ones below it, except where the last paragraph says.
+//!
+//! 1. `layout` (the sweep's plain shared types), `owned` (who frees what), [`profile`]
+//!    (timestamps), `submit` (the timelines, one-off submissions that wait, the byte counts):
+//!    everything that submits outside the slice pipeline takes a `&mut Submitter`;
+//! 2. [`kernels`]: every kernel once (SPIR-V, shared structs, bindings, workgroup size), the one
+//!    table the pipelines and descriptor sets are made from and the reflection test checks;
+//! 3. [`sizes`], [`cost`], [`budget`]: what the plan allocates, what a cut costs, which cut fits;
+//! 4. `tables`, `copier`, `slice`, `transpose`, [`resources`], [`encoder`]: the device objects of
+//!    a solve and one slice's commands;
+//! 5. `tally_sums`, [`end_of_order`] with `accelerate` and `sharpen`, `streamer`: the passes;
+//! 6. this file: the order.
+//!
+//! Not yet layered (issue 33): `budget` and `cost` use each other, `sizes` takes `SliceExtent`
+//! from `budget` and `budget` the `EndOfOrder` choice from `end_of_order`; `resources` and
+//! `encoder` use each other, and `end_of_order`, `accelerate`, `sharpen` and `transpose` take
+//! their buffers from `resources`, which makes their pipelines.
+//!
+//! - [`kernels`]: every kernel once (SPIR-V, shared structs, bindings, workgroup size), the one
+//!   table the pipelines and descriptor sets are made from and the reflection test checks;
+//! - `submit`: the timelines and the one-off submissions;
+//! - `tally_sums`: what the rays carried out of the volume, summed on the device after each pass;
 //! - [`resources`]: everything made on the device for a solve (pipelines, slot buffers and
 //!   staging, the shared ray state and deposit, the sweeps' tables), built all-or-nothing from
 //!   the byte sizes in [`sizes`], which the budget planner ([`budget`]) adds up;
@@ -64,7 +86,8 @@
 //! - [`end_of_order`]: the resident mode's passes between orders on the device, with
 //!   `accelerate` (the diffusion acceleration's kernels) and `sharpen` (the diffusion correction's);
 //! - this file: the order as sweeps and passes (the [`Backend`] the order loop drives), and the
-//!   tallies read back after each pass (per face of the volume).
+//!   tallies read back after each pass (per face of the volume: only the device's sums come
+//!   home, and on a periodic sweep axis what the rays carry to the next order).
 
 mod accelerate;
 pub mod budget;
@@ -72,6 +95,7 @@ mod copier;
 pub mod cost;
 pub mod encoder;
 pub mod end_of_order;
+pub mod kernels;
 pub mod layout;
 mod owned;
 pub mod profile;
@@ -81,7 +105,9 @@ mod sharpen;
 pub mod sizes;
 mod slice;
 mod streamer;
+mod submit;
 mod tables;
+pub mod tally_sums;
 mod transpose;
 
 use super::antidiffusion::VoxelUnits;
@@ -105,6 +131,7 @@ use resources::DeviceResources;
 use std::sync::Arc;
 use std::time::Instant;
 use streamer::{Pass, SliceStreamer, Stream};
+use submit::Submitter;
 
 /// How the GPU backend runs.
 #[derive(Clone, Copy, Debug)]
@@ -248,7 +275,7 @@ impl<'a> GpuBackend<'a> {
         #[cfg(not(feature = "test-hooks"))]
         let abort_at_slice = None;
         let mut streamer = SliceStreamer::new(&ctx, plan, memory, options.profile, abort_at_slice, options.cancel)?;
-        let resources = DeviceResources::new(&ctx, plan, &memory, &mut streamer)?;
+        let resources = DeviceResources::new(&ctx, plan, &memory, streamer.submitter())?;
         tracing::info!(
             device = ctx.device_name(),
             transfer_queue = ctx.transfer_queue().is_some(),
@@ -389,7 +416,7 @@ impl<'a> GpuBackend<'a> {
             }
             let births = Births { boundary, entries: entries.as_deref() };
             let (pass_tallies, exits) =
-                read_tallies(&mut self.streamer, &self.resources, plan, &sweep, pass_directions, births)?;
+                read_tallies(self.streamer.submitter(), &self.resources, plan, &sweep, pass_directions, births)?;
             tallies.add(&pass_tallies);
             for (i, (dir, exit)) in pass_directions.iter().zip(exits).enumerate() {
                 if let Some(of) = carry_of(first + i) {
@@ -448,7 +475,8 @@ struct Births<'e> {
     entries: Option<&'e [RayRadiance]>,
 }
 
-/// Downloads what the rays of the pass just finished carried out, as powers per face: the ray
+/// Reads what the rays of the pass just finished carried out, as powers per face (summed on the
+/// device where it has f64 shaders, [`tally_sums`]; else downloaded and summed here): the ray
 /// buffer holds the radiance leaving through the far face, the two side buffers what left through
 /// the sides of each lateral axis ([`FaceSweep::face_roles`]). What came in needs no download:
 /// every ray is born at plane 0 (with `births`) and wherever its slot wraps, with the direction's
@@ -456,7 +484,7 @@ struct Births<'e> {
 /// ([`side_births`]). Also returns, per direction, the radiance each slot left the far face with
 /// (empty unless the sweep axis is periodic: what the next order carries in).
 fn read_tallies(
-    streamer: &mut SliceStreamer,
+    sub: &mut Submitter,
     res: &DeviceResources,
     plan: &Plan,
     sweep: &FaceSweep,
@@ -468,17 +496,41 @@ fn read_tallies(
     let rays = sweep.rays();
     let bytes = (dirs.len() * c * rays * 4) as u64;
     let shared = &res.shared;
-    let ctx = Arc::clone(streamer.context());
+    let ctx = Arc::clone(sub.context());
     let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "tallies")?;
-    rec.compute_to_transfer();
     let region = |dst| [vk::BufferCopy { src_offset: 0, dst_offset: dst, size: bytes }];
-    rec.copy_buffer(&shared.rays, &shared.tallies, &region(0));
-    rec.copy_buffer(&shared.rays_out_b, &shared.tallies, &region(bytes));
-    rec.copy_buffer(&shared.rays_out_c, &shared.tallies, &region(2 * bytes));
-    rec.transfer_to_host();
-    streamer.submit_and_wait(rec)?;
-    let values: &[f32] = bytemuck::cast_slice(&shared.tallies.bytes()[..3 * bytes as usize]);
-    let per_buffer = values.len() / 3;
+    // With the sums on the device, only they come home, and the far face's exits where a
+    // periodic sweep axis carries them to the next order; else all three ray buffers.
+    let device_sums = match &shared.tally_sums {
+        Some(kernel) => Some(kernel.record(&mut rec, dirs.len() * c, rays)?),
+        None => None,
+    };
+    let buffers_home = match device_sums {
+        Some(_) => usize::from(sweep.periodic[0]),
+        None => 3,
+    };
+    if buffers_home > 0 {
+        rec.compute_to_transfer();
+        for (i, b) in [&shared.rays, &shared.rays_out_b, &shared.rays_out_c].into_iter().take(buffers_home).enumerate()
+        {
+            rec.copy_buffer(b, &shared.tallies, &region(i as u64 * bytes));
+        }
+        rec.transfer_to_host();
+    }
+    sub.submit_and_wait(rec)?;
+    let values: &[f32] = bytemuck::cast_slice(&shared.tallies.bytes()[..buffers_home * bytes as usize]);
+    let per_buffer = bytes as usize / 4;
+    let chunk_sums = match (&shared.tally_sums, &device_sums) {
+        (Some(kernel), Some(layout)) => Some((kernel.read(layout)?, layout)),
+        _ => None,
+    };
+    // The sum over the rays of `buffer` (0 far, 1 side b, 2 side c) for segment `d·c + ch`.
+    let ray_sum = |buffer: usize, segment: usize| -> f64 {
+        match &chunk_sums {
+            Some((sums, layout)) => layout.segment(sums, buffer, segment),
+            None => values[buffer * per_buffer..][segment * rays..(segment + 1) * rays].iter().map(|&v| v as f64).sum(),
+        }
+    };
     let mut tallies = Tallies::default();
     for (d, dir) in dirs.iter().enumerate() {
         let roles = sweep.face_roles(&dir.offsets);
@@ -487,9 +539,7 @@ fn read_tallies(
         let power = dir.power_per_radiance;
         for ch in 0..c {
             let range = (d * c + ch) * rays..(d * c + ch + 1) * rays;
-            let sum = |buffer: usize| -> f64 {
-                values[buffer * per_buffer..][range.clone()].iter().map(|&v| v as f64).sum::<f64>() * power
-            };
+            let sum = |buffer: usize| -> f64 { ray_sum(buffer, d * c + ch) * power };
             let far = sum(0);
             tallies.boundary_out[ch] += far;
             let birth = if boundary { dir.boundary[ch] * power } else { 0.0 };
@@ -590,12 +640,12 @@ impl<'a> Backend for GpuBackend<'a> {
         // In the host's order: the albedo factor, the acceleration, then (in the commit) the
         // diffusion correction.
         let (end, _, _) = device_end(&self.end_passes, &self.resources)?;
-        end.scale_by_albedo(&mut self.streamer, plan)?;
+        end.scale_by_albedo(self.streamer.submitter(), plan)?;
         if self.fields.acceleration_due(plan, &self.medium)? {
             self.accelerate_on_device(plan)?;
         }
         let (end, _, totals) = device_end(&self.end_passes, &self.resources)?;
-        let committed = end.commit(&mut self.streamer, plan, totals)?;
+        let committed = end.commit(self.streamer.submitter(), plan, totals)?;
         self.device_state = DeviceState::Committed { max_abs: committed.max_abs, home: false };
         Ok(committed.power)
     }
@@ -604,7 +654,7 @@ impl<'a> Backend for GpuBackend<'a> {
         match self.device_state {
             DeviceState::Committed { home: false, .. } => {
                 let (end, _, totals) = device_end(&self.end_passes, &self.resources)?;
-                end.remaining(&mut self.streamer, plan, totals, factor)
+                end.remaining(self.streamer.submitter(), plan, totals, factor)
             }
             _ => Ok(self.fields.remaining_error(&self.medium, plan, factor)),
         }
@@ -765,7 +815,7 @@ impl GpuBackend<'_> {
         let ctx = Arc::clone(self.streamer.context());
         let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "next order on the device")?;
         end.record_advance(&mut rec, resident, self.half_exponent)?;
-        self.streamer.submit_and_wait(rec)
+        self.streamer.submitter().submit_and_wait(rec)
     }
 
     /// Folds the diffusion acceleration into the order the sweeps just finished, on the device
@@ -779,7 +829,7 @@ impl GpuBackend<'_> {
                 SolveError::Internal("an accelerated commit on the device without the acceleration's buffers"),
             )?;
         let (medium, occupied) = (&self.medium, self.memory.slice.occupied_total);
-        kernels.fold(&mut self.streamer, plan, buffers, grid, || brick_origins(medium, occupied))
+        kernels.fold(self.streamer.submitter(), plan, buffers, grid, || brick_origins(medium, occupied))
     }
 
     /// Puts the committed totals on the device, with the first load of a solve (a resumed one's
@@ -801,7 +851,7 @@ impl GpuBackend<'_> {
             rec.update_buffer(&s.constants, 0, bytemuck::bytes_of(&constants));
         }
         rec.transfer_to_compute();
-        self.streamer.submit_and_wait(rec)?;
+        self.streamer.submitter().submit_and_wait(rec)?;
         let fields = &*self.fields;
         let albedo = self.medium.albedo_field().zip(totals.albedo.as_deref());
         for (field, buffer) in
@@ -809,7 +859,7 @@ impl GpuBackend<'_> {
                 .into_iter()
                 .chain(albedo)
         {
-            end_of_order::upload_field(&mut self.streamer, &self.resources, field, buffer)?;
+            end_of_order::upload_field(self.streamer.submitter(), &self.resources, field, buffer)?;
         }
         Ok(())
     }
@@ -822,15 +872,15 @@ impl GpuBackend<'_> {
         // The checkpoint in flight names fields the roles below move: it must be on disk first.
         self.settle_checkpoint()?;
         let (_, resident, totals) = device_end(&self.end_passes, &self.resources)?;
-        let streamer = &mut self.streamer;
+        let sub = self.streamer.submitter();
         let res = &self.resources;
         self.fields.take_device_commit(|source_total, fluence_total, source_next, fluence| {
             use end_of_order::download_field as to_host;
-            to_host(streamer, res, source_total, &totals.source_total)?;
-            to_host(streamer, res, fluence_total, &totals.fluence_total)?;
+            to_host(sub, res, source_total, &totals.source_total)?;
+            to_host(sub, res, fluence_total, &totals.fluence_total)?;
             // What the next order propagates (the sharpened source with the diffusion correction).
-            to_host(streamer, res, source_next, end_of_order::propagated(resident))?;
-            to_host(streamer, res, fluence, &resident.fluence)
+            to_host(sub, res, source_next, end_of_order::propagated(resident))?;
+            to_host(sub, res, fluence, &resident.fluence)
         })?;
         self.device_state = DeviceState::Committed { max_abs, home: true };
         Ok(())
@@ -847,7 +897,7 @@ impl GpuBackend<'_> {
         let ctx = Arc::clone(self.streamer.context());
         let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "reorder resident fields")?;
         transposer.record(&mut rec, lateral)?;
-        self.streamer.submit_and_wait(rec)?;
+        self.streamer.submitter().submit_and_wait(rec)?;
         self.resident_lateral = lateral;
         Ok(())
     }

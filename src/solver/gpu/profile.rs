@@ -49,6 +49,8 @@ impl StreamStats {
 pub struct Profiler {
     pool: Owned<TimestampQueryPool>,
     period_ns: f64,
+    compute_family: u32,
+    transfer_timestamps: bool,
     used: u32,
     intervals: Vec<(Work, u32, u64)>,
     pub stats: StreamStats,
@@ -59,6 +61,8 @@ impl Profiler {
         Ok(Profiler {
             pool: Owned::new(ctx, ctx.create_timestamp_pool("stream profile", capacity)?),
             period_ns: ctx.limits().timestamp_period_ns as f64,
+            compute_family: ctx.compute_queue().family(),
+            transfer_timestamps: ctx.limits().transfer_timestamps,
             used: 0,
             intervals: Vec::new(),
             stats: StreamStats::default(),
@@ -66,14 +70,15 @@ impl Profiler {
     }
 
     /// Opens an interval at the start of `rec`; returns the query index to close it with, or
-    /// `None` when the pool is full (the interval is then not measured).
+    /// `None` when the pool is full or `rec`'s queue family cannot write timestamps (the interval
+    /// is then not measured). The queries were reset from the host when the pool was made or last
+    /// read, so nothing but the timestamps goes into `rec` (a transfer queue may not reset queries).
     pub fn begin(&mut self, rec: &mut Recorder, work: Work, bytes: u64) -> Option<u32> {
-        if self.used + 2 > self.pool.count() {
+        if self.used + 2 > self.pool.count() || (rec.family() != self.compute_family && !self.transfer_timestamps) {
             return None;
         }
         let i = self.used;
         self.used += 2;
-        rec.reset_queries(&self.pool, i, 2);
         rec.write_timestamp(&self.pool, i, vk::PipelineStageFlags2::TOP_OF_PIPE);
         self.intervals.push((work, i, bytes));
         Some(i)
@@ -126,6 +131,9 @@ impl Profiler {
         if last > first {
             self.stats.device_seconds += seconds(last - first);
         }
+        // SAFETY: every submission that wrote these queries has completed (the caller's promise,
+        // and the read above waited for each result).
+        unsafe { self.pool.reset(ctx, 0, self.used) };
         self.used = 0;
         self.intervals.clear();
         Ok(())

@@ -12,11 +12,12 @@
 
 use super::budget::MemoryPlan;
 use super::encoder;
-use super::layout::SweepPush;
+use super::kernels;
 use super::owned::Owned;
 use super::sizes::{ResidentSizes, SharedSizes, SlotSizes};
-use super::streamer::SliceStreamer;
+use super::submit::Submitter;
 use super::tables::SweepTables;
+use super::tally_sums::DeviceTallySums;
 use super::transpose::Transposer;
 use crate::solver::plan::Plan;
 use crate::solver::SolveError;
@@ -24,10 +25,8 @@ use crate::vk::{Buffer, ComputePipeline, Context, DescriptorSet, HostBuffer, Mem
 use ash::vk;
 use std::sync::Arc;
 
-const PROPAGATE_SPV: &[u8] = include_bytes!("../../../spirv/propagate.spv");
-const COLLECT_SPV: &[u8] = include_bytes!("../../../spirv/collect.spv");
-/// Storage buffers in the descriptor set both kernels share (see [`super::encoder::SWEEP_BINDINGS`]).
-pub const SWEEP_BINDING_COUNT: u32 = 12;
+/// Storage buffers in the descriptor set both sweep kernels share ([`kernels::SWEEP_BINDINGS`]).
+pub const SWEEP_BINDING_COUNT: u32 = kernels::SWEEP_BINDINGS.len() as u32;
 
 /// The device buffers and staging of one slice in flight.
 pub struct SlotBuffers {
@@ -47,8 +46,12 @@ pub struct SharedBuffers {
     pub rays_out_b: Owned<Buffer>,
     pub rays_out_c: Owned<Buffer>,
     pub deposit: Owned<Buffer>,
-    /// The staging the rays' tallies come home through.
+    /// The staging the rays' tallies (or, with `tally_sums`, the far face's exits) come home
+    /// through; also where a periodic pass's starting radiance goes up from.
     pub tallies: Owned<HostBuffer>,
+    /// The device's sums of what the rays carried out ([`super::tally_sums`]); `None` on a
+    /// device without f64 shaders, where the host sums the ray buffers.
+    pub tally_sums: Option<DeviceTallySums>,
     /// Bound in place of the slot buffers when a vacuum slice computes (never read).
     pub vacuum: Owned<Buffer>,
 }
@@ -189,13 +192,8 @@ fn buffer(
 }
 
 impl DeviceResources {
-    /// Makes everything `memory` plans for `plan`; the tables are uploaded through `streamer`.
-    pub fn new(
-        ctx: &Arc<Context>,
-        plan: &Plan,
-        memory: &MemoryPlan,
-        streamer: &mut SliceStreamer,
-    ) -> Result<Self, SolveError> {
+    /// Makes everything `memory` plans for `plan`; the tables are uploaded through `sub`.
+    pub fn new(ctx: &Arc<Context>, plan: &Plan, memory: &MemoryPlan, sub: &mut Submitter) -> Result<Self, SolveError> {
         let storage = vk::BufferUsageFlags::STORAGE_BUFFER
             | vk::BufferUsageFlags::TRANSFER_DST
             | vk::BufferUsageFlags::TRANSFER_SRC;
@@ -206,8 +204,9 @@ impl DeviceResources {
             memory.directions_per_pass,
             memory.directions_per_dispatch,
             memory.planes_per_dispatch,
+            ctx.limits().float64,
         );
-        let shared = SharedBuffers {
+        let mut shared = SharedBuffers {
             rays: buffer(ctx, "rays", s.ray_buffer, storage, gpu)?,
             rays_out_b: buffer(ctx, "rays out b", s.ray_buffer, storage, gpu)?,
             rays_out_c: buffer(ctx, "rays out c", s.ray_buffer, storage, gpu)?,
@@ -220,8 +219,13 @@ impl DeviceResources {
                 vk::BufferUsageFlags::TRANSFER_DST | vk::BufferUsageFlags::TRANSFER_SRC,
                 MemoryLocation::GpuToCpu,
             )?,
+            tally_sums: None,
             vacuum: buffer(ctx, "vacuum", s.vacuum, storage, gpu)?,
         };
+        if s.tally_sums > 0 {
+            let rays = [&*shared.rays, &*shared.rays_out_b, &*shared.rays_out_c];
+            shared.tally_sums = Some(DeviceTallySums::new(ctx, rays, s.tally_sums)?);
+        }
         let z = if memory.is_resident() {
             SlotSizes::resident(plan, &memory.slice)
         } else {
@@ -318,25 +322,23 @@ impl DeviceResources {
                 )?,
             });
         }
-        let push_bytes = std::mem::size_of::<SweepPush>() as u32;
+        // Both kernels share one layout (and so one set per slot): the table's push block.
+        let push_bytes = kernels::PROPAGATE.push.size as u32;
         let layout = Owned::new(ctx, ctx.create_pipeline_layout("sweep", SWEEP_BINDING_COUNT, push_bytes)?);
-        let pipeline = |name: &str, spirv: &[u8]| -> Result<Owned<ComputePipeline>, SolveError> {
-            Ok(Owned::new(ctx, ctx.create_compute_pipeline_with_layout(name, spirv, &layout)?))
+        let pipeline = |k: &kernels::Kernel| -> Result<Owned<ComputePipeline>, SolveError> {
+            Ok(Owned::new(ctx, ctx.create_compute_pipeline_with_layout(k.name, k.spirv, &layout)?))
         };
-        let propagate = pipeline("propagate", PROPAGATE_SPV)?;
-        let collect = pipeline("collect", COLLECT_SPV)?;
+        let propagate = pipeline(&kernels::PROPAGATE)?;
+        let collect = pipeline(&kernels::COLLECT)?;
         let face_tables =
-            plan.faces.iter().map(|face| SweepTables::upload(ctx, streamer, face)).collect::<Result<Vec<_>, _>>()?;
+            plan.faces.iter().map(|face| SweepTables::upload(ctx, sub, face)).collect::<Result<Vec<_>, _>>()?;
         let beam_tables = plan
             .beams
             .iter()
-            .map(|beam| SweepTables::upload(ctx, streamer, std::slice::from_ref(beam)))
+            .map(|beam| SweepTables::upload(ctx, sub, std::slice::from_ref(beam)))
             .collect::<Result<Vec<_>, _>>()?;
-        let sky_tables = plan
-            .sky_faces
-            .iter()
-            .map(|face| SweepTables::upload(ctx, streamer, face))
-            .collect::<Result<Vec<_>, _>>()?;
+        let sky_tables =
+            plan.sky_faces.iter().map(|face| SweepTables::upload(ctx, sub, face)).collect::<Result<Vec<_>, _>>()?;
         let sets = |tables: &[SweepTables], what: &str| -> Result<Vec<SweepSets>, SolveError> {
             let mut all = Vec::with_capacity(tables.len());
             for (i, t) in tables.iter().enumerate() {
@@ -388,7 +390,8 @@ impl DeviceResources {
     pub fn buffer_bytes(&self) -> u64 {
         let sh = &self.shared;
         let shared: [&Buffer; 6] = [&sh.rays, &sh.rays_out_b, &sh.rays_out_c, &sh.deposit, &sh.tallies, &sh.vacuum];
-        let shared: u64 = shared.iter().map(|b| b.size()).sum();
+        let shared: u64 =
+            shared.iter().map(|b| b.size()).sum::<u64>() + sh.tally_sums.as_ref().map_or(0, DeviceTallySums::bytes);
         let slots: u64 = self
             .slots
             .iter()

@@ -13,7 +13,8 @@
 //! answer is the streamed mode's to the bit (`tests/it/resident.rs`). A voxel's scattering weight
 //! is its density times its albedo factor (the resident albedo grid's, 1 without one).
 
-use super::end_of_order::dispatch_linear;
+use super::kernels::{self, dispatch_linear};
+pub use super::kernels::{SharpenConstants, SharpenPush};
 use super::owned::Owned;
 use super::resources::{ResidentBuffers, SharpenBuffers};
 use super::sizes::SHARPEN_CONSTANTS;
@@ -21,48 +22,9 @@ use crate::solver::antidiffusion::{self, Sharpening};
 use crate::solver::plan::Plan;
 use crate::solver::SolveError;
 use crate::store::BRICK_VOXELS;
-use crate::vk::{BufferRange, ComputePipeline, Context, DescriptorSet, Recorder};
-use bytemuck::{Pod, Zeroable};
+use crate::vk::{ComputePipeline, Context, DescriptorSet, Recorder};
 use std::sync::Arc;
 
-const SHARPEN_SPV: &[u8] = include_bytes!("../../../spirv/sharpen.spv");
-
-/// Push constants of glsl/sharpen.comp. Keep in sync with `Push` there.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-pub struct SharpenPush {
-    pub count: u32,
-    pub groups_x: u32,
-    pub comps: u32,
-    pub channels: u32,
-    pub dims: [u32; 3],
-    /// Bit a: axis a is periodic; bit 3 + 2a + side: that face of axis a is a mirror; bit 9: a
-    /// per-voxel albedo factor.
-    pub flags: u32,
-    /// Bricks of the volume along x and y (a brick's index is x + bx·(y + by·z)).
-    pub bricks: [u32; 2],
-}
-const _: () = assert!(std::mem::size_of::<SharpenPush>() == 40);
-
-/// The kernel's f64 constants, computed here so that the shader parses no f64 literal. Keep in
-/// sync with `Constants` in glsl/sharpen.comp.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-pub struct SharpenConstants {
-    pub kappa_w: [f64; 3],
-    pub thickness: [f64; 3],
-    pub albedo: [f64; 3],
-    pub two_thirds: f64,
-    pub boost: f64,
-    pub one_plus_boost: f64,
-    pub growth: f64,
-    pub small: f64,
-    pub flux_share: f64,
-    pub log2_e: f64,
-    pub ln2_hi: f64,
-    pub ln2_lo: f64,
-    pub exp_limit: f64,
-}
 const _: () = assert!(std::mem::size_of::<SharpenConstants>() as u64 == SHARPEN_CONSTANTS * 8);
 
 impl SharpenConstants {
@@ -110,23 +72,23 @@ impl DeviceSharpening {
         let Some(SharpenBuffers { sharpened, brick_slots, constants, .. }) = totals.sharpen.as_ref() else {
             return Ok(None);
         };
-        let push_bytes = std::mem::size_of::<SharpenPush>() as u32;
-        let pipeline = Owned::new(ctx, ctx.create_compute_pipeline("sharpen", SHARPEN_SPV, 8, push_bytes)?);
-        let ranges: Vec<BufferRange> = [
-            &resident.density,
-            &totals.source_total,
-            &resident.source_next,
-            sharpened,
-            brick_slots,
-            &totals.origins,
-            constants,
-            // Unread without an albedo grid: any buffer will do.
-            totals.albedo.as_ref().unwrap_or(&resident.density),
-        ]
-        .into_iter()
-        .map(|b| BufferRange::from(&**b))
-        .collect();
-        let set = Owned::new(ctx, ctx.create_descriptor_set("sharpen", &pipeline, &ranges)?);
+        let pipeline = kernels::SHARPEN.pipeline(ctx)?;
+        let set = kernels::SHARPEN.set(
+            ctx,
+            "sharpen",
+            &pipeline,
+            &[
+                ("Density", &resident.density),
+                ("Total", &totals.source_total),
+                ("Raw", &resident.source_next),
+                ("Sharpened", sharpened),
+                ("BrickSlots", brick_slots),
+                ("Origins", &totals.origins),
+                ("Constants", constants),
+                // Unread without an albedo grid: any buffer will do.
+                ("Albedo", totals.albedo.as_ref().unwrap_or(&resident.density)),
+            ],
+        )?;
         let mut flags = if plan.albedo_field { 1 << 9 } else { 0 };
         for axis in 0..3 {
             if plan.periodic[axis] {

@@ -4,6 +4,7 @@
 //! allocated (`tests/it/budget.rs` checks the sum against the buffers made for several plans).
 
 use super::budget::SliceExtent;
+use super::kernels;
 use super::layout::GpuDirection;
 use crate::solver::plan::{Plan, SweepDirection};
 use crate::store::{BRICK_EDGE, BRICK_VOXELS};
@@ -19,9 +20,16 @@ pub fn slab_bytes(planes: u32) -> u64 {
     BRICK_BYTES / BRICK_EDGE as u64 * planes as u64
 }
 
-/// The size a buffer for `bytes` bytes is created with: Vulkan buffers are never empty.
+/// Every buffer's size is a multiple of this. A driver rounds each buffer's memory up to its own
+/// granularity (NVIDIA's H200 by 16 bytes or more, lavapipe not at all), and what it rounds
+/// counts against the budget: sizes already a multiple of the largest granularity in use (256
+/// bytes) are allocated exactly, so the plan's bytes are the device's on every driver.
+pub const BUFFER_GRANULE: u64 = 256;
+
+/// The size a buffer for `bytes` bytes is created with: never empty, a multiple of
+/// [`BUFFER_GRANULE`].
 pub fn buffer_bytes(bytes: u64) -> u64 {
-    bytes.max(4)
+    bytes.max(4).next_multiple_of(BUFFER_GRANULE)
 }
 
 /// The slot table's bytes: one i32 per brick of the slice, padded to 16 bytes (the upload staging
@@ -144,8 +152,8 @@ pub struct SharpenSizes {
     pub sums: u64,
 }
 
-/// The f64 constants of the diffusion correction's kernel. Keep in sync with glsl/sharpen.comp.
-pub const SHARPEN_CONSTANTS: u64 = 19;
+/// The f64 constants of the diffusion correction's kernel ([`kernels::SharpenConstants`]).
+pub const SHARPEN_CONSTANTS: u64 = (std::mem::size_of::<kernels::SharpenConstants>() / 8) as u64;
 
 impl SharpenSizes {
     pub fn new(plan: &Plan, occupied: u64) -> SharpenSizes {
@@ -215,10 +223,9 @@ impl DiffusionSizes {
     }
 }
 
-/// Bytes of one block's sums and one brick's tally. Keep in sync with `BlockSum` and `UnitTally`
-/// in glsl/block_sums.comp and glsl/remaining.comp (and in `end_of_order`).
-pub const BLOCK_SUM_BYTES: u64 = 16;
-pub const UNIT_TALLY_BYTES: u64 = 32;
+/// Bytes of one block's sums and one brick's tally ([`kernels::BlockSum`], [`kernels::GpuUnitTally`]).
+pub const BLOCK_SUM_BYTES: u64 = std::mem::size_of::<kernels::BlockSum>() as u64;
+pub const UNIT_TALLY_BYTES: u64 = std::mem::size_of::<kernels::GpuUnitTally>() as u64;
 
 impl ResidentSizes {
     /// With `totals`, the committed totals and the end-of-order sums are on the device too.
@@ -274,8 +281,17 @@ impl ResidentSizes {
     }
 }
 
-/// The buffers shared by the slots: ray state, deposit, the tallies' staging and the vacuum
-/// stand-in.
+/// Rays to a chunk of the device's tally sums (`glsl/tally_sums.comp`'s `CHUNK`: a loop of at most
+/// this many iterations per invocation, well under llvmpipe's limit).
+pub const TALLY_CHUNK: u64 = 4096;
+
+/// Chunks of [`TALLY_CHUNK`] rays a segment of `rays` rays is summed in.
+pub fn tally_chunks(rays: u64) -> u64 {
+    rays.div_ceil(TALLY_CHUNK).max(1)
+}
+
+/// The buffers shared by the slots: ray state, deposit, the tallies' staging and sums, and the
+/// vacuum stand-in.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct SharedSizes {
     /// Each of the three ray buffers (radiance, then what left through the far face; what left
@@ -283,21 +299,35 @@ pub struct SharedSizes {
     pub ray_buffer: u64,
     /// `group` directions × channels × `planes` planes × rays.
     pub deposit: u64,
-    /// The three ray buffers come home through this after a pass (the tallies by face).
+    /// Host-visible staging for the rays after a pass: with the sums on the device, the far
+    /// face's exits (what a periodic sweep axis carries) and the radiance the rays of such a
+    /// pass start with; else all three ray buffers come home through it (the tallies by face).
     pub tallies: u64,
+    /// Host-visible: the sums of what the rays carried out, per chunk of rays
+    /// ([`super::tally_sums`]); 0 where the host sums (a device without f64 shaders).
+    pub tally_sums: u64,
     pub vacuum: u64,
 }
 
 impl SharedSizes {
-    pub fn new(plan: &Plan, rays: u64, pass: u32, group: u32, planes: u32) -> SharedSizes {
+    /// For `pass` directions of `rays` rays, `group` directions and `planes` planes to a
+    /// dispatch; `device_sums`: the rays' tallies are summed on the device.
+    pub fn new(plan: &Plan, rays: u64, pass: u32, group: u32, planes: u32, device_sums: bool) -> SharedSizes {
         let c = plan.channels as u64;
         let ray_buffer = pass as u64 * c * rays * 4;
+        let segments = pass as u64 * c;
         SharedSizes {
             ray_buffer: buffer_bytes(ray_buffer),
             deposit: buffer_bytes(group as u64 * c * planes as u64 * rays * 4),
-            tallies: buffer_bytes(3 * ray_buffer),
-            vacuum: VACUUM_BYTES,
+            tallies: buffer_bytes(if device_sums { ray_buffer } else { 3 * ray_buffer }),
+            tally_sums: if device_sums { buffer_bytes(3 * segments * tally_chunks(rays) * 8) } else { 0 },
+            vacuum: buffer_bytes(VACUUM_BYTES),
         }
+    }
+
+    /// What comes home after a pass: the tallies' staging and the sums.
+    pub fn readback(&self) -> u64 {
+        self.tallies + self.tally_sums
     }
 
     /// The three ray buffers and the vacuum stand-in.

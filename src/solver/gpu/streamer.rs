@@ -18,11 +18,11 @@ use super::budget::MemoryPlan;
 use super::copier::{Copier, Ticket};
 use super::encoder::{self, ComputeStep};
 use super::layout::FLAG_GAIN;
-use super::owned::Owned;
-use super::profile::{self, Profiler};
+use super::profile;
 use super::resources::{DeviceResources, SweepSets};
 use super::sizes::BRICK_BYTES;
 use super::slice::SliceLayout;
+use super::submit::{Submitter, Timelines, WAIT_FOREVER};
 use super::tables::SweepTables;
 use crate::solver::cancel::CancelFlag;
 use crate::solver::fields::StoreFields;
@@ -30,19 +30,10 @@ use crate::solver::plan::{power_of_two, Plan};
 use crate::solver::sweep::{FaceSweep, SliceRange};
 use crate::solver::SolveError;
 use crate::store::{BrickStore, BRICK_EDGE};
-use crate::vk::{Context, Recorder, TimelineSemaphore};
+use crate::vk::{Context, Recorder};
 use ash::vk;
 use std::ops::Range;
 use std::sync::Arc;
-
-const WAIT_FOREVER: u64 = u64::MAX;
-
-/// The three timelines of the pipeline; each slice gets the next value on all three.
-struct Timelines {
-    upload: Owned<TimelineSemaphore>,
-    compute: Owned<TimelineSemaphore>,
-    download: Owned<TimelineSemaphore>,
-}
 
 /// What a slot is waiting for.
 #[derive(Default)]
@@ -78,22 +69,14 @@ pub struct Stream<'s> {
 }
 
 pub struct SliceStreamer {
-    ctx: Arc<Context>,
+    /// The timelines and their values, the one-off submissions and the profiler.
+    sub: Submitter,
     memory: MemoryPlan,
-    timelines: Timelines,
-    /// The last value handed out on the timelines.
-    value: u64,
-    /// The last values submitted to signal the upload, compute and download timelines (vacuum
-    /// slices skip the transfers; the resident mode's loads and unloads skip compute).
-    upload_value: u64,
-    compute_value: u64,
-    download_value: u64,
     /// The resident mode: the upload value of the order's last load, which every compute step
     /// waits for.
     resident_ready: u64,
     slots: Vec<SlotState>,
     copier: Copier,
-    profiler: Option<Profiler>,
     /// Test hook: abort the process when this many slices have been computed (simulates a kill).
     abort_at_slice: Option<u64>,
     /// Slices computed so far (what the kill test's hook counts).
@@ -114,32 +97,18 @@ impl SliceStreamer {
         abort_at_slice: Option<u64>,
         cancel: Option<CancelFlag>,
     ) -> Result<Self, SolveError> {
-        let timeline = |name: &str| -> Result<Owned<TimelineSemaphore>, SolveError> {
-            Ok(Owned::new(ctx, ctx.create_timeline(name, 0)?))
-        };
-        let timelines =
-            Timelines { upload: timeline("upload")?, compute: timeline("compute")?, download: timeline("download")? };
-        let profiler = if profile {
-            // Three intervals per sub-slice; a pass never has more slices than the longest axis has
-            // bricks, each cut into sub-slices of `planes_per_slice` planes.
+        // Three intervals per sub-slice; a pass never has more slices than the longest axis has
+        // bricks, each cut into sub-slices of `planes_per_slice` planes.
+        let profile_queries = profile.then(|| {
             let bricks = plan.dims.iter().map(|d| d.div_ceil(BRICK_EDGE)).max().unwrap_or(1);
-            let slices = bricks * (BRICK_EDGE / memory.planes_per_slice);
-            Some(Profiler::new(ctx, 6 * slices + 6)?)
-        } else {
-            None
-        };
+            6 * bricks * (BRICK_EDGE / memory.planes_per_slice) + 6
+        });
         Ok(SliceStreamer {
-            ctx: Arc::clone(ctx),
+            sub: Submitter::new(ctx, profile_queries)?,
             memory,
-            timelines,
-            value: 0,
-            upload_value: 0,
-            compute_value: 0,
-            download_value: 0,
             resident_ready: 0,
             slots: (0..memory.slices_in_flight).map(|_| SlotState::default()).collect(),
             copier: Copier::new(std::thread::available_parallelism().map_or(2, |n| n.get()).min(8)),
-            profiler,
             abort_at_slice,
             slices: 0,
             cancel,
@@ -148,54 +117,30 @@ impl SliceStreamer {
     }
 
     pub fn context(&self) -> &Arc<Context> {
-        &self.ctx
+        &self.sub.ctx
+    }
+
+    /// The submit layer, for the one-off submissions between passes.
+    pub fn submitter(&mut self) -> &mut Submitter {
+        &mut self.sub
     }
 
     /// Streaming time and bytes measured so far (when profiling).
     pub fn stats(&self) -> Option<profile::StreamStats> {
-        self.profiler.as_ref().map(|p| p.stats.clone())
-    }
-
-    /// Counts bytes moved outside the slice pipeline (the resident mode's field transfers, the
-    /// diffusion acceleration's moments and change) in the profile's totals, when profiling:
-    /// their time is inside the one-off submissions, not timestamped.
-    pub fn count_transfer(&mut self, uploaded: u64, downloaded: u64) {
-        if let Some(p) = self.profiler.as_mut() {
-            p.stats.upload_bytes += uploaded;
-            p.stats.download_bytes += downloaded;
-        }
-    }
-
-    /// Submits a one-off command buffer on the compute queue and waits for it (setup, the
-    /// per-pass tallies and the resident fields' reorder, not the slice pipeline). It runs after
-    /// the last upload (the resident load's, when it reorders what that wrote).
-    pub fn submit_and_wait(&mut self, rec: Recorder) -> Result<(), SolveError> {
-        self.value += 1;
-        let v = self.value;
-        let t = &self.timelines;
-        // The upload, compute and download timelines all advance to v, so the slice pipeline's
-        // values stay one sequence.
-        let after = [(&*t.upload, self.upload_value, vk::PipelineStageFlags2::ALL_COMMANDS)];
-        rec.submit(self.ctx.compute_queue(), &after, (&t.compute, v))?;
-        t.compute.wait(&self.ctx, v, WAIT_FOREVER)?;
-        t.upload.signal(&self.ctx, v)?;
-        t.download.signal(&self.ctx, v)?;
-        (self.upload_value, self.compute_value, self.download_value) = (v, v, v);
-        self.ctx.collect_garbage()?;
-        Ok(())
+        self.sub.stats()
     }
 
     /// The next value on the timelines for a slice's work. The kill test's hook counts the slices
     /// (not the one-off submissions between them, whose number changes with what the passes
     /// between orders do).
     fn next_slice_value(&mut self) -> u64 {
-        self.value += 1;
+        self.sub.value += 1;
         self.slices += 1;
         if self.abort_at_slice == Some(self.slices) {
             tracing::error!("LPM_TEST_ABORT_AT_SLICE={}: aborting as a kill would", self.slices);
             std::process::abort();
         }
-        self.value
+        self.sub.value
     }
 
     /// Streams every slice of the face through the slots for the pass's directions; returns when
@@ -244,8 +189,8 @@ impl SliceStreamer {
                 resident_table: None,
             };
             if layout.is_vacuum() {
-                self.value += 1;
-                let v = self.value;
+                self.sub.value += 1;
+                let v = self.sub.value;
                 self.submit_compute(io, &step(None, &layout), v)?;
                 continue;
             }
@@ -289,9 +234,9 @@ impl SliceStreamer {
             return Ok(());
         }
         // The staging is free once the slot's last upload has read it.
-        self.timelines.upload.wait(&self.ctx, self.upload_value, WAIT_FOREVER)?;
+        self.sub.timelines.upload.wait(&self.sub.ctx, self.sub.upload_value, WAIT_FOREVER)?;
         self.gather(io, s, &layout)?;
-        if let Some(p) = self.profiler.as_mut() {
+        if let Some(p) = self.sub.profiler.as_mut() {
             p.stats.pregathered_slices += 1;
         }
         self.pregathered = Some((s, layout));
@@ -310,10 +255,10 @@ impl SliceStreamer {
         for s in 0..n_slots {
             self.finish_scatter(io, s)?;
         }
-        if let Some(p) = self.profiler.as_mut() {
-            p.collect(&self.ctx)?;
+        if let Some(p) = self.sub.profiler.as_mut() {
+            p.collect(&self.sub.ctx)?;
         }
-        self.ctx.collect_garbage()?;
+        self.sub.ctx.collect_garbage()?;
         Ok(())
     }
 
@@ -331,8 +276,8 @@ impl SliceStreamer {
             let layout = SliceLayout::new(io.store, pass.sweep, *range, gain, c, comps, half);
             let vacuum = layout.is_vacuum();
             let table = if vacuum { Vec::new() } else { layout.resident_slots(io.store) };
-            let v = if vacuum { self.value + 1 } else { self.next_slice_value() };
-            self.value = v;
+            let v = if vacuum { self.sub.value + 1 } else { self.next_slice_value() };
+            self.sub.value = v;
             let step = ComputeStep {
                 slot: (!vacuum).then_some(0),
                 layout: &layout,
@@ -347,10 +292,10 @@ impl SliceStreamer {
             };
             self.submit_compute(io, &step, v)?;
         }
-        if let Some(p) = self.profiler.as_mut() {
-            p.collect(&self.ctx)?;
+        if let Some(p) = self.sub.profiler.as_mut() {
+            p.collect(&self.sub.ctx)?;
         }
-        self.ctx.collect_garbage()?;
+        self.sub.ctx.collect_garbage()?;
         Ok(())
     }
 
@@ -374,11 +319,11 @@ impl SliceStreamer {
         let (c, comps) = (plan.channels as u64, plan.source_components() as u64);
         let half = half_exponent.map(power_of_two);
         let prev_brick = comps * BRICK_BYTES / 4 * plan.source_precision.bytes();
-        let ctx = Arc::clone(&self.ctx);
+        let ctx = Arc::clone(&self.sub.ctx);
         let queue = ctx.upload_queue_or_fallback();
         // The previous order's kernels read and wrote the buffers the load overwrites, and its
         // unload read the accumulators the fill clears.
-        let (computed, downloaded) = (self.compute_value, self.download_value);
+        let (computed, downloaded) = (self.sub.compute_value, self.sub.download_value);
         let submit = |rec: Recorder, t: &Timelines, v: u64| {
             let after = [
                 (&*t.compute, computed, vk::PipelineStageFlags2::ALL_TRANSFER),
@@ -391,8 +336,8 @@ impl SliceStreamer {
             let mut rec = Recorder::begin(&ctx, queue.family(), "resident clear")?;
             rec.fill_buffer(&resident.source_next, 0, vk::WHOLE_SIZE, 0);
             rec.fill_buffer(&resident.fluence, 0, vk::WHOLE_SIZE, 0);
-            submit(rec, &self.timelines, v)?;
-            self.upload_value = v;
+            submit(rec, &self.sub.timelines, v)?;
+            self.sub.upload_value = v;
         }
         let sweep = FaceSweep::for_plan(0, plan);
         let n_slots = self.slots.len();
@@ -411,8 +356,11 @@ impl SliceStreamer {
             let v = self.next_slice_value();
             let slot = &io.res.slots[s];
             let mut rec = Recorder::begin(&ctx, queue.family(), "resident load")?;
-            let mark =
-                self.profiler.as_mut().and_then(|p| p.begin(&mut rec, profile::Work::Upload, layout.upload_bytes()));
+            let mark = self
+                .sub
+                .profiler
+                .as_mut()
+                .and_then(|p| p.begin(&mut rec, profile::Work::Upload, layout.upload_bytes()));
             let place = |staging: u64, each: u64, brick_bytes: u64| -> Vec<vk::BufferCopy> {
                 (layout.occupied.iter().enumerate())
                     .filter_map(|(i, &b)| io.store.slot(b).map(|k| (i as u64, k as u64)))
@@ -436,19 +384,19 @@ impl SliceStreamer {
                 rec.copy_buffer(&slot.upload, &resident.source_next, &place(layout.next_offset(), next, next));
                 rec.copy_buffer(&slot.upload, &resident.fluence, &place(layout.fluence_offset(), fluence, fluence));
             }
-            if let Some(p) = self.profiler.as_mut() {
+            if let Some(p) = self.sub.profiler.as_mut() {
                 p.end(&mut rec, mark);
             }
-            submit(rec, &self.timelines, v)?;
-            self.upload_value = v;
+            submit(rec, &self.sub.timelines, v)?;
+            self.sub.upload_value = v;
             self.slots[s].loading = Some((v, layout));
         }
-        self.resident_ready = self.upload_value;
+        self.resident_ready = self.sub.upload_value;
         for s in 0..n_slots {
             self.finish_load(io, s)?;
         }
-        if let Some(p) = self.profiler.as_mut() {
-            p.collect(&self.ctx)?;
+        if let Some(p) = self.sub.profiler.as_mut() {
+            p.collect(&self.sub.ctx)?;
         }
         Ok(())
     }
@@ -462,7 +410,7 @@ impl SliceStreamer {
             return Err(SolveError::Internal("resident unload without resident buffers"));
         };
         let (c, comps) = (plan.channels as u64, plan.source_components() as u64);
-        let ctx = Arc::clone(&self.ctx);
+        let ctx = Arc::clone(&self.sub.ctx);
         let queue = ctx.download_queue_or_fallback();
         let sweep = FaceSweep::for_plan(0, plan);
         let n_slots = self.slots.len();
@@ -481,7 +429,8 @@ impl SliceStreamer {
             let slot = &io.res.slots[s];
             let mut rec = Recorder::begin(&ctx, queue.family(), "resident unload")?;
             let (next, fluence) = (layout.source_bytes(), layout.fluence_bytes());
-            let mark = self.profiler.as_mut().and_then(|p| p.begin(&mut rec, profile::Work::Download, next + fluence));
+            let mark =
+                self.sub.profiler.as_mut().and_then(|p| p.begin(&mut rec, profile::Work::Download, next + fluence));
             let gather = |staging: u64, each: u64| -> Vec<vk::BufferCopy> {
                 (layout.occupied.iter().enumerate())
                     .filter_map(|(i, &b)| io.store.slot(b).map(|k| (i as u64, k as u64)))
@@ -491,16 +440,16 @@ impl SliceStreamer {
             rec.copy_buffer(&resident.source_next, &slot.download, &gather(0, comps * BRICK_BYTES));
             rec.copy_buffer(&resident.fluence, &slot.download, &gather(next, c * BRICK_BYTES));
             rec.transfer_to_host();
-            if let Some(p) = self.profiler.as_mut() {
+            if let Some(p) = self.sub.profiler.as_mut() {
                 p.end(&mut rec, mark);
             }
-            let t = &self.timelines;
+            let t = &self.sub.timelines;
             rec.submit(
                 queue,
-                &[(&*t.compute, self.compute_value, vk::PipelineStageFlags2::ALL_TRANSFER)],
+                &[(&*t.compute, self.sub.compute_value, vk::PipelineStageFlags2::ALL_TRANSFER)],
                 (&t.download, v),
             )?;
-            self.download_value = v;
+            self.sub.download_value = v;
             self.slots[s].pending = Some((v, layout));
         }
         self.drain(io)
@@ -510,7 +459,7 @@ impl SliceStreamer {
     /// of its slice back (done with until the unload).
     fn finish_load(&mut self, io: &mut Stream, s: usize) -> Result<(), SolveError> {
         let Some((v, layout)) = self.slots[s].loading.take() else { return Ok(()) };
-        self.timelines.upload.wait(&self.ctx, v, WAIT_FOREVER)?;
+        self.sub.timelines.upload.wait(&self.sub.ctx, v, WAIT_FOREVER)?;
         release_pages(io, &layout.occupied, &[&io.fields.source_prev]);
         Ok(())
     }
@@ -519,7 +468,7 @@ impl SliceStreamer {
     fn retire_slot(&mut self, io: &mut Stream, s: usize) -> Result<(), SolveError> {
         self.finish_scatter(io, s)?;
         let Some((v, layout)) = self.slots[s].pending.take() else { return Ok(()) };
-        self.timelines.download.wait(&self.ctx, v, WAIT_FOREVER)?;
+        self.sub.timelines.download.wait(&self.sub.ctx, v, WAIT_FOREVER)?;
         let staging = io.res.slots[s].download.bytes().as_ptr();
         let regions = layout.scatter(io.fields, staging);
         // SAFETY: the regions run from this slot's download staging (alive as long as the
@@ -567,10 +516,11 @@ impl SliceStreamer {
         layout: &SliceLayout,
         v: u64,
     ) -> Result<(), SolveError> {
-        let queue = self.ctx.upload_queue_or_fallback();
+        let queue = self.sub.ctx.upload_queue_or_fallback();
         let slot = &res.slots[s];
-        let mut rec = Recorder::begin(&self.ctx, queue.family(), "upload")?;
-        let mark = self.profiler.as_mut().and_then(|p| p.begin(&mut rec, profile::Work::Upload, layout.upload_bytes()));
+        let mut rec = Recorder::begin(&self.sub.ctx, queue.family(), "upload")?;
+        let mark =
+            self.sub.profiler.as_mut().and_then(|p| p.begin(&mut rec, profile::Work::Upload, layout.upload_bytes()));
         let copy = |src: u64, size: u64| [vk::BufferCopy { src_offset: src, dst_offset: 0, size }];
         rec.copy_buffer(&slot.upload, &slot.slot_table, &copy(0, layout.slot_table_bytes()));
         rec.copy_buffer(&slot.upload, &slot.density, &copy(layout.density_offset(), layout.density_bytes()));
@@ -579,37 +529,37 @@ impl SliceStreamer {
         }
         rec.copy_buffer(&slot.upload, &slot.source_next, &copy(layout.next_offset(), layout.source_bytes()));
         rec.copy_buffer(&slot.upload, &slot.fluence, &copy(layout.fluence_offset(), layout.fluence_bytes()));
-        if let Some(p) = self.profiler.as_mut() {
+        if let Some(p) = self.sub.profiler.as_mut() {
             p.end(&mut rec, mark);
         }
         // The slot's last download (on its own queue when the device has one) read the buffers
         // this upload overwrites: done already (the host waited for it before the gather), and
         // said here for the device.
-        let t = &self.timelines;
+        let t = &self.sub.timelines;
         rec.submit(
             queue,
-            &[(&*t.download, self.download_value, vk::PipelineStageFlags2::ALL_TRANSFER)],
+            &[(&*t.download, self.sub.download_value, vk::PipelineStageFlags2::ALL_TRANSFER)],
             (&t.upload, v),
         )?;
-        self.upload_value = v;
+        self.sub.upload_value = v;
         Ok(())
     }
 
     fn submit_compute(&mut self, io: &Stream, step: &ComputeStep, v: u64) -> Result<(), SolveError> {
-        let queue = self.ctx.compute_queue();
-        let mut rec = Recorder::begin(&self.ctx, queue.family(), "compute")?;
-        let mark = self.profiler.as_mut().and_then(|p| p.begin(&mut rec, profile::Work::Compute, 0));
+        let queue = self.sub.ctx.compute_queue();
+        let mut rec = Recorder::begin(&self.sub.ctx, queue.family(), "compute")?;
+        let mark = self.sub.profiler.as_mut().and_then(|p| p.begin(&mut rec, profile::Work::Compute, 0));
         encoder::record_compute(&mut rec, io.res, io.plan, &self.memory, step)?;
-        if let Some(p) = self.profiler.as_mut() {
+        if let Some(p) = self.sub.profiler.as_mut() {
             p.end(&mut rec, mark);
         }
-        let t = &self.timelines;
+        let t = &self.sub.timelines;
         // Streamed: the slice's own upload; resident: the order's load.
         let ready = if step.resident_table.is_some() { self.resident_ready } else { v };
         let waits = [(&*t.upload, ready, vk::PipelineStageFlags2::COMPUTE_SHADER)];
         // A vacuum slice waits for no upload: the compute queue's own order is enough.
         rec.submit(queue, if step.slot.is_some() { &waits } else { &[] }, (&t.compute, v))?;
-        self.compute_value = v;
+        self.sub.compute_value = v;
         Ok(())
     }
 
@@ -617,15 +567,15 @@ impl SliceStreamer {
     fn submit_download(&mut self, io: &mut Stream, s: usize) -> Result<(), SolveError> {
         // The staging is free once the scatter of its previous contents is done.
         self.finish_scatter(io, s)?;
-        let queue = self.ctx.download_queue_or_fallback();
+        let queue = self.sub.ctx.download_queue_or_fallback();
         let slot = &io.res.slots[s];
         let Some((v, layout)) = self.slots[s].pending.as_ref() else { return Ok(()) };
         let v = *v;
-        let mut rec = Recorder::begin(&self.ctx, queue.family(), "download")?;
+        let mut rec = Recorder::begin(&self.sub.ctx, queue.family(), "download")?;
         let next = layout.source_bytes();
         let bytes = next + layout.fluence_bytes();
         let fluence_bytes = layout.fluence_bytes();
-        let mark = self.profiler.as_mut().and_then(|p| p.begin(&mut rec, profile::Work::Download, bytes));
+        let mark = self.sub.profiler.as_mut().and_then(|p| p.begin(&mut rec, profile::Work::Download, bytes));
         rec.copy_buffer(
             &slot.source_next,
             &slot.download,
@@ -637,12 +587,12 @@ impl SliceStreamer {
             &[vk::BufferCopy { src_offset: 0, dst_offset: next, size: fluence_bytes }],
         );
         rec.transfer_to_host();
-        if let Some(p) = self.profiler.as_mut() {
+        if let Some(p) = self.sub.profiler.as_mut() {
             p.end(&mut rec, mark);
         }
-        let t = &self.timelines;
+        let t = &self.sub.timelines;
         rec.submit(queue, &[(&*t.compute, v, vk::PipelineStageFlags2::TRANSFER)], (&t.download, v))?;
-        self.download_value = v;
+        self.sub.download_value = v;
         Ok(())
     }
 }
@@ -669,14 +619,7 @@ impl Drop for SliceStreamer {
     /// Waits for the last submission on each timeline and for the copies still running, so that
     /// nothing the device or a copy worker uses is freed under it.
     fn drop(&mut self) {
-        let t = &self.timelines;
-        let last =
-            [(&t.upload, self.upload_value), (&t.compute, self.compute_value), (&t.download, self.download_value)];
-        for (timeline, value) in last {
-            if let Err(e) = timeline.wait(&self.ctx, value, WAIT_FOREVER) {
-                tracing::warn!("waiting for the last submission failed: {e}");
-            }
-        }
+        self.sub.wait_idle();
         // The tickets wait as they drop.
         self.slots.clear();
     }

@@ -4,7 +4,7 @@
 use super::layout::GpuDirection;
 use super::owned::Owned;
 use super::sizes::TableSizes;
-use super::streamer::SliceStreamer;
+use super::submit::Submitter;
 use crate::solver::plan::SweepDirection;
 use crate::solver::SolveError;
 use crate::vk::{Buffer, Context, MemoryLocation, Recorder};
@@ -23,11 +23,7 @@ pub struct SweepTables {
 
 impl SweepTables {
     /// Uploads the tables of `dirs` (waits for the copy).
-    pub fn upload(
-        ctx: &Arc<Context>,
-        streamer: &mut SliceStreamer,
-        dirs: &[SweepDirection],
-    ) -> Result<SweepTables, SolveError> {
+    pub fn upload(ctx: &Arc<Context>, sub: &mut Submitter, dirs: &[SweepDirection]) -> Result<SweepTables, SolveError> {
         let sizes = TableSizes::new(dirs);
         let gpu_dirs: Vec<GpuDirection> = dirs
             .iter()
@@ -91,7 +87,7 @@ impl SweepTables {
             src += size;
         }
         rec.transfer_to_compute();
-        streamer.submit_and_wait(rec)?;
+        sub.submit_and_wait(rec)?;
         Ok(tables)
     }
 

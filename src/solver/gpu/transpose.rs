@@ -12,29 +12,19 @@
 //! faces sweep x first ([`crate::quadrature::cube_face::FACES`]), so an order reorders twice (a
 //! few times more in order 0, whose beams and sky sweep between).
 
+use super::kernels;
+pub use super::kernels::TransposePush;
 use super::owned::Owned;
 use super::resources::ResidentBuffers;
 use crate::solver::plan::Plan;
 use crate::solver::SolveError;
-use crate::vk::{BufferRange, ComputePipeline, Context, DescriptorSet, Recorder};
-use bytemuck::{Pod, Zeroable};
+use crate::vk::{ComputePipeline, Context, DescriptorSet, Recorder};
 use std::sync::Arc;
-
-const TRANSPOSE_SPV: &[u8] = include_bytes!("../../../spirv/transpose.spv");
 
 /// Workgroups along x of one dispatch at most (the smallest `maxComputeWorkGroupCount` a device
 /// may have); more blocks go along y.
 const MAX_GROUPS_X: u32 = 65535;
 
-/// Push constants of `transpose.comp`. Keep in sync with `Push` in glsl/transpose.comp.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-pub struct TransposePush {
-    pub blocks: u32,
-    pub half_values: u32,
-    pub to_lateral: u32,
-    pub groups_x: u32,
-}
 const _: () = assert!(std::mem::size_of::<TransposePush>() == 16);
 
 /// One resident field's set and its shape.
@@ -55,8 +45,7 @@ pub struct Transposer {
 impl Transposer {
     /// The pipeline and the sets for `resident`, whose fields hold `occupied` bricks.
     pub fn new(ctx: &Arc<Context>, plan: &Plan, resident: &ResidentBuffers, occupied: u64) -> Result<Self, SolveError> {
-        let push = std::mem::size_of::<TransposePush>() as u32;
-        let pipeline = Owned::new(ctx, ctx.create_compute_pipeline("transpose", TRANSPOSE_SPV, 1, push)?);
+        let pipeline = kernels::TRANSPOSE.pipeline(ctx)?;
         let comps = plan.source_components() as u64;
         let half = plan.source_precision.bytes() == 2;
         let shapes = [
@@ -69,9 +58,8 @@ impl Transposer {
         for (buffer, name, components, half_values) in shapes {
             let blocks = u32::try_from(occupied * components)
                 .map_err(|_| SolveError::Internal("more resident brick blocks than a dispatch can reach"))?;
-            let set =
-                ctx.create_descriptor_set(&format!("transpose {name}"), &pipeline, &[BufferRange::from(buffer)])?;
-            fields.push(Field { set: Owned::new(ctx, set), blocks, half_values });
+            let set = kernels::TRANSPOSE.set(ctx, &format!("transpose {name}"), &pipeline, &[("Field", buffer)])?;
+            fields.push(Field { set, blocks, half_values });
         }
         Ok(Transposer { fields, pipeline })
     }
