@@ -54,7 +54,7 @@ impl DeviceTallySums {
 
     /// The chunk sums a pass recorded with `layout`, after its submission completed.
     pub fn read(&self, layout: &ChunkSums) -> Result<&[f64], SolveError> {
-        readback(&self.sums, layout.len())
+        readback(&self.sums, layout.values())
     }
 
     /// Records the sums of `segments` segments of `rays` rays each, after the pass's kernels
@@ -90,7 +90,7 @@ pub struct ChunkSums {
 
 impl ChunkSums {
     /// The values the host reads.
-    pub fn len(&self) -> usize {
+    pub fn values(&self) -> usize {
         3 * self.segments * self.chunks
     }
 
