@@ -6,7 +6,7 @@ its declared rust-version. Two checks stand in: clippy's `msrv` (clippy.toml) fl
 than it in lpm's own code, and this script fails when a locked dependency declares a newer
 rust-version than Cargo.toml (read from the registry sources cargo has already fetched).
 """
-import glob, os, re, sys
+import glob, json, os, re, subprocess, sys
 
 root = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
 declared = re.search(r'^rust-version\s*=\s*"([0-9.]+)"', open(os.path.join(root, "Cargo.toml")).read(), re.M)
@@ -24,7 +24,16 @@ def key(v):
 lock = open(os.path.join(root, "Cargo.lock")).read()
 newer, checked = [], 0
 home = os.environ.get("CARGO_HOME", os.path.expanduser("~/.cargo"))
+# Only the packages built for this machine's target: the lock file also names ones for other
+# targets (wasip2 for wasm), never compiled here, whose sources another build may have fetched.
+host = re.search(r"^host: (\S+)$", subprocess.run(["rustc", "-vV"], capture_output=True, text=True, check=True).stdout, re.M)
+meta = json.loads(subprocess.run(
+    ["cargo", "metadata", "--format-version", "1", "--filter-platform", host.group(1)],
+    cwd=root, capture_output=True, text=True, check=True).stdout)
+built = {(p["name"], p["version"]) for p in meta["packages"]}
 for name, version in re.findall(r'\[\[package\]\]\nname = "([^"]+)"\nversion = "([^"]+)"\nsource = "registry', lock):
+    if (name, version) not in built:
+        continue
     found = glob.glob(os.path.join(home, "registry", "src", "*", f"{name}-{version}", "Cargo.toml"))
     if not found:
         continue
