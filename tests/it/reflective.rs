@@ -248,7 +248,7 @@ fn a_gpu_solve_with_mirror_faces_writes_no_checkpoint_and_resumes_afresh() {
         .err()
         .expect("the solve is cancelled");
     assert!(matches!(err, lpm::solver::SolveError::Cancelled { resumable: false }), "{err}");
-    assert!(err.to_string().contains("keeps no checkpoints"), "{err}");
+    assert!(err.to_string().contains("no checkpoint is kept"), "{err}");
     assert!(!dir.join("store").join("unfolded").exists(), "the doubled store was left behind");
 }
 
