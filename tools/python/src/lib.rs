@@ -359,7 +359,7 @@ fn estimate(order: u32, residuals: &[f64], max_orders: u32, tolerance: f64, seco
 /// Ctrl-C, or an exception raised by `progress`, raises the solve's cancel flag: the GPU backend
 /// stops at its next slice keeping its last checkpoint, exactly as the CLI does on SIGINT, and
 /// `lpm.Cancelled` (a `KeyboardInterrupt`) is raised, or the callback's exception. The CPU backend
-/// cannot be stopped mid-solve (as in the CLI): it finishes, and the interrupt is raised after.
+/// stops before its next direction's sweep (it keeps no checkpoint), as the CLI's does.
 #[pyfunction]
 #[pyo3(signature = (scene, out, backend="gpu", device=None, device_memory_budget=None, threads=0, resume=false,
     fresh=false, keep_store=false, no_image=false, no_fields=false, no_render_data=false, vdb_precision="float",

@@ -102,8 +102,9 @@ def solve(
     The GIL is released while the solve runs. Ctrl-C (or an exception raised by ``progress``)
     stops a GPU solve at its next slice with its last checkpoint kept and raises
     :class:`lpm.Cancelled` (a ``KeyboardInterrupt``) or that exception; ``resume=True`` then
-    continues it to bitwise the uninterrupted result. A CPU solve cannot be stopped mid-way (as in
-    the CLI): it finishes, then the ``KeyboardInterrupt`` is raised.
+    continues it to bitwise the uninterrupted result. A CPU solve stops before its next
+    direction's sweep, as the CLI's does at SIGINT, and raises :class:`lpm.Cancelled` too; it keeps
+    no checkpoint, so it is solved again from the start.
     """
     scene = as_scene(scene)
     out = Path(out)
@@ -115,7 +116,6 @@ def solve(
         _solve(path, out, backend, device, device_memory_budget, threads, progress, resume, fresh, keep_store,
                no_image, no_fields, no_render_data, vdb_precision, background, warm_start, validation)
     except BaseException:
-        # (A KeyboardInterrupt raised after a CPU solve that finished leaves its outputs.)
         kept = (out / ".lpm-work" / "checkpoint.json").exists() or (out / "report.json").exists()
         if created and not kept:
             shutil.rmtree(out, ignore_errors=True)
