@@ -507,6 +507,15 @@ pub struct TallySumsPush {
     pub groups_x: u32,
 }
 
+/// Rays to a chunk of the device's tally sums (`glsl/tally_sums.comp`'s `CHUNK`: a loop of at most
+/// this many iterations per invocation, well under llvmpipe's limit).
+pub const TALLY_CHUNK: u64 = 4096;
+
+/// Chunks of [`TALLY_CHUNK`] rays a segment of `rays` rays is summed in.
+pub fn tally_chunks(rays: u64) -> u64 {
+    rays.div_ceil(TALLY_CHUNK).max(1)
+}
+
 pub const TALLY_SUMS: Kernel = Kernel {
     name: "tally_sums",
     spirv: include_bytes!("../../../spirv/tally_sums.spv"),

@@ -4,7 +4,7 @@
 //! allocated (`tests/it/budget.rs` checks the sum against the buffers made for several plans).
 
 use super::budget::SliceExtent;
-use super::kernels;
+use super::kernels::{self, tally_chunks};
 use super::layout::GpuDirection;
 use crate::solver::plan::{Plan, SweepDirection};
 use crate::store::{BRICK_EDGE, BRICK_VOXELS};
@@ -279,15 +279,6 @@ impl ResidentSizes {
             ("the density of all occupied bricks", self.density),
         ]
     }
-}
-
-/// Rays to a chunk of the device's tally sums (`glsl/tally_sums.comp`'s `CHUNK`: a loop of at most
-/// this many iterations per invocation, well under llvmpipe's limit).
-pub const TALLY_CHUNK: u64 = 4096;
-
-/// Chunks of [`TALLY_CHUNK`] rays a segment of `rays` rays is summed in.
-pub fn tally_chunks(rays: u64) -> u64 {
-    rays.div_ceil(TALLY_CHUNK).max(1)
 }
 
 /// The buffers shared by the slots: ray state, deposit, the tallies' staging and sums, and the

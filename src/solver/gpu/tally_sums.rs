@@ -14,9 +14,8 @@
 //! with them): one ray buffer instead of three. A device without `shaderFloat64` keeps the host's
 //! sum of all three buffers (`SharedSizes::tally_sums` is then 0 and no kernel is made).
 
-use super::kernels::{self, dispatch_linear, readback, TallySumsPush};
+use super::kernels::{self, dispatch_linear, readback, tally_chunks, TallySumsPush, TALLY_CHUNK};
 use super::owned::Owned;
-use super::sizes::{tally_chunks, TALLY_CHUNK};
 use crate::solver::SolveError;
 use crate::vk::{Buffer, ComputePipeline, Context, DescriptorSet, MemoryLocation, Recorder};
 use ash::vk;
