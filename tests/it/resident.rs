@@ -5,8 +5,8 @@
 //! host); the plan says which mode and why.
 use crate::common::*;
 use lpm::scene::{Acceleration, Boundary, DeviceResidency, Scene, Shape, SpatialScheme, StoragePrecision};
+use lpm::solver::gpu::budget::EndOfOrder;
 use lpm::solver::gpu::budget::Residency;
-use lpm::solver::gpu::end_of_order::EndOfOrder;
 use lpm::solver::BackendKind::Gpu;
 
 /// Solves `scene` resident and streamed; asserts the modes and equal bits, orders and books, and

@@ -9,10 +9,10 @@
 //! glsl/common.glsl are the Rust ones. A small test kernel (glsl/segment_test.comp) evaluates the
 //! GLSL segment functions against src/solver/segment.rs over optical depths 1e-8 … 1e4.
 
+use lpm::solver::gpu::buffers::SWEEP_BINDING_COUNT;
 use lpm::solver::gpu::encoder::LOCAL_SIZE;
 use lpm::solver::gpu::kernels::{self, Kernel, ALL, SWEEP_BINDINGS};
 use lpm::solver::gpu::layout::{self, SweepPush};
-use lpm::solver::gpu::resources::SWEEP_BINDING_COUNT;
 use lpm::vk::{vk, BufferRange, Context, ContextOptions, MemoryLocation, Recorder};
 use rspirv::dr::{Instruction, Module, Operand};
 use rspirv::spirv::{Decoration, ExecutionMode, Op, StorageClass};

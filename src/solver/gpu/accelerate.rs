@@ -17,10 +17,10 @@
 //! f32 from the bits as the host's `as f32` does (`glsl/exact.glsl`). So an accelerated resident
 //! solve is the streamed one to the bit (`tests/it/resident.rs`).
 
+use super::buffers::{DiffusionBuffers, ResidentBuffers};
 pub use super::kernels::DiffusionPush;
 use super::kernels::{self, dispatch_linear, readback};
 use super::owned::Owned;
-use super::resources::{DiffusionBuffers, ResidentBuffers};
 use super::submit::Submitter;
 use crate::solver::acceleration::{self, Acceleration};
 use crate::solver::plan::Plan;

@@ -38,8 +38,8 @@
 //! error says how much is needed.
 
 use super::cost::{self, Cut, DeviceFigures};
-use super::end_of_order::EndOfOrder;
-use super::sizes::{self, ResidentSizes, SharedSizes, SlotSizes};
+
+use super::sizes::{self, ResidentSizes, SharedSizes, SliceExtent, SlotSizes};
 use crate::solver::plan::Plan;
 use crate::solver::sweep::FaceSweep;
 use crate::solver::SolveError;
@@ -52,14 +52,40 @@ const SLAB_PLANES: [u32; 5] = [BRICK_EDGE, 8, 4, 2, 1];
 /// Fraction of the device-local heap used when no budget is given.
 pub const DEFAULT_HEAP_FRACTION: f64 = 0.5;
 
-/// The largest slice of any face: bricks in all, and occupied (only occupied bricks travel); and
-/// the occupied bricks of the whole volume (what the resident mode keeps on the device).
-#[derive(Clone, Copy, Debug, Serialize)]
-pub struct SliceExtent {
-    pub bricks: u64,
-    pub occupied: u64,
-    pub rays: u64,
-    pub occupied_total: u64,
+/// Where the passes between orders run, and why.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EndOfOrder {
+    /// On the device: the fields cross the bus at checkpoints and at the end only.
+    Device,
+    /// On the host: the sweeps stream, so the fields are on the host anyway.
+    HostStreamed,
+    /// On the host: the device lacks `shaderFloat64` or `shaderInt64`.
+    HostNoFloat64,
+}
+
+impl EndOfOrder {
+    /// For a resident solve on a device with `limits`: every pass a plan may have runs there.
+    pub fn choose(limits: &Limits) -> EndOfOrder {
+        if !limits.float64 {
+            EndOfOrder::HostNoFloat64
+        } else {
+            EndOfOrder::Device
+        }
+    }
+
+    /// In words, for the report's reader.
+    pub fn describe(self) -> &'static str {
+        match self {
+            EndOfOrder::Device => {
+                "on the device: the fields stay there between orders and come home at checkpoints and at the end (and for a warm start's first commit, which takes the guess back off on the host)"
+            }
+            EndOfOrder::HostStreamed => "on the host: the sweeps stream the fields through it",
+            EndOfOrder::HostNoFloat64 => {
+                "on the host, with the fields brought home every order: the device lacks shaderFloat64 or shaderInt64"
+            }
+        }
+    }
 }
 
 /// Whether the medium and fields stay on the device for the whole solve, and why (or why not).

@@ -13,17 +13,18 @@
 //! streamer's business (`streamer`).
 
 use super::budget::MemoryPlan;
+use super::buffers::SweepSets;
 use super::layout::{
     half_source_flags, SweepPush, FLAG_CARRY, FLAG_GAIN, FLAG_LATERAL_MAJOR, FLAG_VACUUM, LATERAL_PERIODIC_B,
     LATERAL_PERIODIC_C,
 };
-use super::resources::{DeviceResources, SharedBuffers, SweepSets, SWEEP_BINDING_COUNT};
+use super::resources::DeviceResources;
 use super::slice::SliceLayout;
 use super::tables::SweepTables;
 use crate::solver::plan::Plan;
 use crate::solver::sweep::FaceSweep;
 use crate::solver::SolveError;
-use crate::vk::{Buffer, BufferRange, Recorder};
+use crate::vk::Recorder;
 use ash::vk;
 use std::ops::Range;
 
@@ -102,31 +103,6 @@ pub fn push_constants(plan: &Plan, sweep: &FaceSweep, layout: &SliceLayout) -> S
 /// there: `propagate.comp` uses 0..=8, `collect.comp` 0..=3 and 8..=11. `tests/it/shader_interface.rs`
 /// checks these names and numbers against both kernels' SPIR-V.
 pub use super::kernels::SWEEP_BINDINGS;
-
-/// The buffers of a sweep's descriptor set, in [`SWEEP_BINDINGS`] order: the sweep's `tables`, a
-/// slot's `[slot_table, density, source_prev, source_next, fluence]` (the vacuum stand-in five
-/// times for a vacuum slice) and the shared ray state and deposit.
-pub fn sweep_bindings<'b>(
-    tables: &'b SweepTables,
-    slot: [&'b Buffer; 5],
-    shared: &'b SharedBuffers,
-) -> [BufferRange<'b>; SWEEP_BINDING_COUNT as usize] {
-    let [slot_table, density, source_prev, source_next, fluence] = slot;
-    [
-        BufferRange::from(&*tables.directions),
-        BufferRange::from(&*tables.offsets),
-        BufferRange::from(slot_table),
-        BufferRange::from(density),
-        BufferRange::from(source_prev),
-        BufferRange::from(&*shared.rays),
-        BufferRange::from(&*shared.rays_out_b),
-        BufferRange::from(&*shared.rays_out_c),
-        BufferRange::from(&*shared.deposit),
-        BufferRange::from(&*tables.rows),
-        BufferRange::from(source_next),
-        BufferRange::from(fluence),
-    ]
-}
 
 /// Records a step's dispatches into `rec` (the barriers between them included).
 pub fn record_compute(

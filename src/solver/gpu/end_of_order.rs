@@ -35,13 +35,14 @@
 //!
 //! What stays on the host: a warm start's first commit (the fields come home for that order, and
 //! stay on the device from the next one). A device without `shaderFloat64` and `shaderInt64`
-//! keeps every pass there and brings the fields home every order, and says so ([`EndOfOrder`]).
+//! keeps every pass there and brings the fields home every order, and says so ([`super::budget::EndOfOrder`]).
 //! The energy books and the tail run once, after the fields come home at the end.
 
+use super::buffers::{ResidentBuffers, TotalBuffers};
 use super::kernels;
 pub use super::kernels::{dispatch_linear, readback, BlockSum, EndPush, GpuUnitTally};
 use super::owned::Owned;
-use super::resources::{DeviceResources, ResidentBuffers, TotalBuffers};
+use super::resources::DeviceResources;
 use super::sharpen::DeviceSharpening;
 use super::sizes::{BLOCK_SUM_BYTES, UNIT_TALLY_BYTES};
 use super::submit::Submitter;
@@ -50,46 +51,9 @@ use crate::solver::plan::{Plan, Precision};
 use crate::solver::remaining::{self, RemainingError, UnitTally};
 use crate::solver::SolveError;
 use crate::store::Field;
-use crate::vk::{Buffer, ComputePipeline, Context, DescriptorSet, Limits, Recorder};
+use crate::vk::{Buffer, ComputePipeline, Context, DescriptorSet, Recorder};
 use ash::vk;
-use serde::Serialize;
 use std::sync::Arc;
-
-/// Where the passes between orders run, and why.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum EndOfOrder {
-    /// On the device: the fields cross the bus at checkpoints and at the end only.
-    Device,
-    /// On the host: the sweeps stream, so the fields are on the host anyway.
-    HostStreamed,
-    /// On the host: the device lacks `shaderFloat64` or `shaderInt64`.
-    HostNoFloat64,
-}
-
-impl EndOfOrder {
-    /// For a resident solve on a device with `limits`: every pass a plan may have runs there.
-    pub fn choose(limits: &Limits) -> EndOfOrder {
-        if !limits.float64 {
-            EndOfOrder::HostNoFloat64
-        } else {
-            EndOfOrder::Device
-        }
-    }
-
-    /// In words, for the report's reader.
-    pub fn describe(self) -> &'static str {
-        match self {
-            EndOfOrder::Device => {
-                "on the device: the fields stay there between orders and come home at checkpoints and at the end (and for a warm start's first commit, which takes the guess back off on the host)"
-            }
-            EndOfOrder::HostStreamed => "on the host: the sweeps stream the fields through it",
-            EndOfOrder::HostNoFloat64 => {
-                "on the host, with the fields brought home every order: the device lacks shaderFloat64 or shaderInt64"
-            }
-        }
-    }
-}
 
 const _: () = assert!(std::mem::size_of::<BlockSum>() as u64 == BLOCK_SUM_BYTES);
 const _: () = assert!(std::mem::size_of::<GpuUnitTally>() as u64 == UNIT_TALLY_BYTES);

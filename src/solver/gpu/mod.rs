@@ -54,43 +54,36 @@
 //!
 //! ## The pieces, bottom to top
 //!
-//! Each layer uses only the ones below it, except where the last paragraph says.
+//! Each layer uses only the ones below it (no file imports one that imports it back: the
+//! check is `python3 ../shared/tools/import_cycles.py`, which prints the cycles of a module
+//! folder).
 //!
 //! 1. `layout` (the sweep's plain shared types), `owned` (who frees what), [`profile`]
 //!    (timestamps), `submit` (the timelines, one-off submissions that wait, the byte counts):
 //!    everything that submits outside the slice pipeline takes a `&mut Submitter`;
 //! 2. [`kernels`]: every kernel once (SPIR-V, shared structs, bindings, workgroup size), the one
 //!    table the pipelines and descriptor sets are made from and the reflection test checks;
-//! 3. [`sizes`], [`cost`], [`budget`]: what the plan allocates, what a cut costs, which cut fits;
-//! 4. `tables`, `copier`, `slice`, `transpose`, [`resources`], [`encoder`]: the device objects of
-//!    a solve and one slice's commands;
-//! 5. `tally_sums`, [`end_of_order`] with `accelerate` and `sharpen`, `streamer`: the passes;
-//! 6. this file: the order.
-//!
-//! Not yet layered (issue 33): `budget` and `cost` use each other, `sizes` takes `SliceExtent`
-//! from `budget` and `budget` the `EndOfOrder` choice from `end_of_order`; `resources` and
-//! `encoder` use each other, and `end_of_order`, `accelerate`, `sharpen` and `transpose` take
-//! their buffers from `resources`, which makes their pipelines.
-//!
-//! - [`kernels`]: every kernel once (SPIR-V, shared structs, bindings, workgroup size), the one
-//!   table the pipelines and descriptor sets are made from and the reflection test checks;
-//! - `submit`: the timelines and the one-off submissions;
-//! - `tally_sums`: what the rays carried out of the volume, summed on the device after each pass;
-//! - [`resources`]: everything made on the device for a solve (pipelines, slot buffers and
-//!   staging, the shared ray state and deposit, the sweeps' tables), built all-or-nothing from
-//!   the byte sizes in [`sizes`], which the budget planner ([`budget`]) adds up;
-//! - `streamer`: the schedule of slices through the slots against the timelines, with the copy
-//!   workers (`copier`) gathering and scattering each slice's bricks (`slice`);
-//! - [`encoder`]: one slice's compute step as commands (push constants, bindings, dispatches);
-//! - `transpose`: the resident fields' reorder for the x sweeps;
-//! - [`end_of_order`]: the resident mode's passes between orders on the device, with
-//!   `accelerate` (the diffusion acceleration's kernels) and `sharpen` (the diffusion correction's);
-//! - this file: the order as sweeps and passes (the [`Backend`] the order loop drives), and the
-//!   tallies read back after each pass (per face of the volume: only the device's sums come
-//!   home, and on a periodic sweep axis what the rays carry to the next order).
+//! 3. [`sizes`] (what the plan allocates, the slice extent it is sized for), [`cost`] (what a
+//!    cut costs), [`budget`] (which cut fits, and where the passes between orders run:
+//!    `EndOfOrder`);
+//! 4. `tables` (a sweep's direction tables on the device), `copier` and `slice` (gathering and
+//!    scattering a slice's bricks), `tally_sums` (what the rays carried out, summed on the
+//!    device), [`buffers`] (the plain buffer structs and which buffer each sweep kernel binds
+//!    where);
+//! 5. `transpose` (the resident fields' reorder for the x sweeps), `sharpen` and `accelerate`
+//!    (the diffusion correction's and acceleration's kernels): passes over [`buffers`];
+//! 6. [`resources`]: everything made on the device for a solve, all-or-nothing, from the sizes
+//!    [`budget`] planned; [`encoder`]: one slice's compute step as commands (push constants,
+//!    bindings, dispatches);
+//! 7. [`end_of_order`] (the resident mode's passes between orders on the device) and `streamer`
+//!    (the schedule of slices through the slots against the timelines);
+//! 8. this file: the order as sweeps and passes (the [`Backend`] the order loop drives), and the
+//!    tallies read back after each pass (per face of the volume: only the device's sums come
+//!    home, and on a periodic sweep axis what the rays carry to the next order).
 
 mod accelerate;
 pub mod budget;
+pub mod buffers;
 mod copier;
 pub mod cost;
 pub mod encoder;
@@ -459,7 +452,7 @@ fn brick_origins(medium: &StoreMedium, occupied: u64) -> Vec<[u32; 4]> {
 fn device_end<'r>(
     end: &'r Option<EndPasses>,
     res: &'r DeviceResources,
-) -> Result<(&'r EndPasses, &'r resources::ResidentBuffers, &'r resources::TotalBuffers), SolveError> {
+) -> Result<(&'r EndPasses, &'r buffers::ResidentBuffers, &'r buffers::TotalBuffers), SolveError> {
     let missing = || SolveError::Internal("the device's end of order without its buffers");
     let end = end.as_ref().ok_or_else(missing)?;
     let resident = res.resident.as_ref().ok_or_else(missing)?;

@@ -11,7 +11,10 @@
 //! submission. Sizes come from [`super::sizes`], the figures the budget planner adds up.
 
 use super::budget::MemoryPlan;
-use super::encoder;
+use super::buffers::{
+    self, DiffusionBuffers, ResidentBuffers, SharedBuffers, SharpenBuffers, SlotBuffers, SweepSets, TotalBuffers,
+    SWEEP_BINDING_COUNT,
+};
 use super::kernels;
 use super::owned::Owned;
 use super::sizes::{ResidentSizes, SharedSizes, SlotSizes};
@@ -21,134 +24,9 @@ use super::tally_sums::DeviceTallySums;
 use super::transpose::Transposer;
 use crate::solver::plan::Plan;
 use crate::solver::SolveError;
-use crate::vk::{Buffer, ComputePipeline, Context, DescriptorSet, HostBuffer, MemoryLocation, PipelineLayout};
+use crate::vk::{Buffer, ComputePipeline, Context, HostBuffer, MemoryLocation, PipelineLayout};
 use ash::vk;
 use std::sync::Arc;
-
-/// Storage buffers in the descriptor set both sweep kernels share ([`kernels::SWEEP_BINDINGS`]).
-pub const SWEEP_BINDING_COUNT: u32 = kernels::SWEEP_BINDINGS.len() as u32;
-
-/// The device buffers and staging of one slice in flight.
-pub struct SlotBuffers {
-    pub slot_table: Owned<Buffer>,
-    pub density: Owned<Buffer>,
-    pub source_prev: Owned<Buffer>,
-    pub source_next: Owned<Buffer>,
-    pub fluence: Owned<Buffer>,
-    pub upload: Owned<HostBuffer>,
-    pub download: Owned<HostBuffer>,
-}
-
-/// Buffers shared by all slots: ray state and the deposit.
-pub struct SharedBuffers {
-    pub rays: Owned<Buffer>,
-    /// What rays carried out through a side of lateral axis b, and of axis c (per ray).
-    pub rays_out_b: Owned<Buffer>,
-    pub rays_out_c: Owned<Buffer>,
-    pub deposit: Owned<Buffer>,
-    /// The staging the rays' tallies (or, with `tally_sums`, the far face's exits) come home
-    /// through; also where a periodic pass's starting radiance goes up from.
-    pub tallies: Owned<HostBuffer>,
-    /// The device's sums of what the rays carried out ([`super::tally_sums`]); `None` on a
-    /// device without f64 shaders, where the host sums the ray buffers.
-    pub tally_sums: Option<DeviceTallySums>,
-    /// Bound in place of the slot buffers when a vacuum slice computes (never read).
-    pub vacuum: Owned<Buffer>,
-}
-
-/// The resident mode's device buffers ([`ResidentSizes`]): every occupied brick's fields for the
-/// whole solve, and the slot table of the slice being computed.
-pub struct ResidentBuffers {
-    pub slot_table: Owned<Buffer>,
-    pub density: Owned<Buffer>,
-    pub source_prev: Owned<Buffer>,
-    pub source_next: Owned<Buffer>,
-    pub fluence: Owned<Buffer>,
-    /// The committed totals and the sums the host reads, when the passes between orders run on
-    /// the device ([`super::end_of_order`]).
-    pub totals: Option<TotalBuffers>,
-}
-
-/// The device-side end of an order's buffers ([`ResidentSizes`]).
-pub struct TotalBuffers {
-    pub source_total: Owned<Buffer>,
-    pub fluence_total: Owned<Buffer>,
-    /// Host-readable (`GpuToCpu`): written by the kernels, read after a wait.
-    pub block_sums: Owned<Buffer>,
-    pub unit_tallies: Owned<Buffer>,
-    /// Per occupied brick, its first voxel (`uvec4`; written with the first load).
-    pub origins: Owned<Buffer>,
-    /// The per-voxel albedo factor, when the scene has one (written with the first load).
-    pub albedo: Option<Owned<Buffer>>,
-    /// The diffusion acceleration's, when the plan accelerates (`accelerate`).
-    pub diffusion: Option<DiffusionBuffers>,
-    /// The diffusion correction's, when the plan corrects (`sharpen`).
-    pub sharpen: Option<SharpenBuffers>,
-}
-
-/// The diffusion correction's kernel's buffers ([`super::sizes::SharpenSizes`]).
-pub struct SharpenBuffers {
-    pub sharpened: Owned<Buffer>,
-    /// Host-readable (`GpuToCpu`): the block sums of the sharpened source.
-    pub sums: Owned<Buffer>,
-    pub brick_slots: Owned<Buffer>,
-    pub constants: Owned<Buffer>,
-}
-
-/// The diffusion acceleration's kernels' buffers ([`super::sizes::DiffusionSizes`]).
-pub struct DiffusionBuffers {
-    pub unknown_of: Owned<Buffer>,
-    pub cell_of_unknown: Owned<Buffer>,
-    pub brick_start: Owned<Buffer>,
-    pub bricks: Owned<Buffer>,
-    pub solid_angles: Owned<Buffer>,
-    /// Host-readable (`GpuToCpu`).
-    pub moments: Owned<Buffer>,
-    pub change: Owned<Buffer>,
-    /// `CpuToGpu`: the change, and the tables once, go up through it.
-    pub staging: Owned<HostBuffer>,
-}
-
-impl DiffusionBuffers {
-    fn every(&self) -> [&Buffer; 8] {
-        [
-            &self.unknown_of,
-            &self.cell_of_unknown,
-            &self.brick_start,
-            &self.bricks,
-            &self.solid_angles,
-            &self.moments,
-            &self.change,
-            &self.staging,
-        ]
-    }
-}
-
-impl ResidentBuffers {
-    /// The five buffers a sweep binds.
-    fn all(&self) -> [&Buffer; 5] {
-        [&self.slot_table, &self.density, &self.source_prev, &self.source_next, &self.fluence]
-    }
-
-    /// Every buffer, for the byte count.
-    fn every(&self) -> Vec<&Buffer> {
-        let mut every = self.all().to_vec();
-        if let Some(t) = &self.totals {
-            every.extend([&*t.source_total, &*t.fluence_total, &*t.block_sums, &*t.unit_tallies]);
-            every.push(&t.origins);
-            every.extend(t.albedo.as_deref());
-            every.extend(t.diffusion.iter().flat_map(DiffusionBuffers::every));
-            every.extend(t.sharpen.iter().flat_map(|s| [&*s.sharpened, &*s.brick_slots, &*s.constants, &*s.sums]));
-        }
-        every
-    }
-}
-
-/// One sweep's descriptor sets of the shared layout, written once: `slots[s]` binds slot s (in the
-/// resident mode `slots[0]` binds the resident buffers), and the last one the vacuum stand-in.
-pub struct SweepSets {
-    pub slots: Vec<Owned<DescriptorSet>>,
-}
 
 pub struct DeviceResources {
     /// Per face, then per beam, parallel to the tables.
@@ -344,20 +222,20 @@ impl DeviceResources {
             for (i, t) in tables.iter().enumerate() {
                 let mut sets = Vec::with_capacity(slots.len() + 1);
                 if let Some(r) = &resident {
-                    let bindings = encoder::sweep_bindings(t, r.all(), &shared);
+                    let bindings = buffers::sweep_bindings(t, r.all(), &shared);
                     let name = format!("{what} {i} resident");
                     sets.push(Owned::new(ctx, ctx.create_descriptor_set_in(&name, &layout, &bindings)?));
                 } else {
                     for (s, slot) in slots.iter().enumerate() {
                         let buffers =
                             [&slot.slot_table, &slot.density, &slot.source_prev, &slot.source_next, &slot.fluence];
-                        let bindings = encoder::sweep_bindings(t, buffers.map(|b| &**b), &shared);
+                        let bindings = buffers::sweep_bindings(t, buffers.map(|b| &**b), &shared);
                         let name = format!("{what} {i} slot {s}");
                         sets.push(Owned::new(ctx, ctx.create_descriptor_set_in(&name, &layout, &bindings)?));
                     }
                 }
                 let v = &*shared.vacuum;
-                let bindings = encoder::sweep_bindings(t, [v; 5], &shared);
+                let bindings = buffers::sweep_bindings(t, [v; 5], &shared);
                 let name = format!("{what} {i} vacuum");
                 sets.push(Owned::new(ctx, ctx.create_descriptor_set_in(&name, &layout, &bindings)?));
                 all.push(SweepSets { slots: sets });

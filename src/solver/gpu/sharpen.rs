@@ -13,10 +13,10 @@
 //! answer is the streamed mode's to the bit (`tests/it/resident.rs`). A voxel's scattering weight
 //! is its density times its albedo factor (the resident albedo grid's, 1 without one).
 
+use super::buffers::{ResidentBuffers, SharpenBuffers};
 use super::kernels::{self, dispatch_linear};
 pub use super::kernels::{SharpenConstants, SharpenPush};
 use super::owned::Owned;
-use super::resources::{ResidentBuffers, SharpenBuffers};
 use super::sizes::SHARPEN_CONSTANTS;
 use crate::solver::antidiffusion::{self, Sharpening};
 use crate::solver::plan::Plan;

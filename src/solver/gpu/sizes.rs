@@ -3,11 +3,21 @@
 //! `tables`) create buffers of exactly these sizes, so the plan cannot under-count what is
 //! allocated (`tests/it/budget.rs` checks the sum against the buffers made for several plans).
 
-use super::budget::SliceExtent;
 use super::kernels::{self, tally_chunks};
 use super::layout::GpuDirection;
 use crate::solver::plan::{Plan, SweepDirection};
 use crate::store::{BRICK_EDGE, BRICK_VOXELS};
+use serde::Serialize;
+
+/// The largest slice of any face: bricks in all, and occupied (only occupied bricks travel); and
+/// the occupied bricks of the whole volume (what the resident mode keeps on the device).
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct SliceExtent {
+    pub bricks: u64,
+    pub occupied: u64,
+    pub rays: u64,
+    pub occupied_total: u64,
+}
 
 /// Bytes of one component of one brick (f32 values).
 pub const BRICK_BYTES: u64 = BRICK_VOXELS as u64 * 4;

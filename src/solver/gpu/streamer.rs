@@ -15,11 +15,12 @@
 //! [`DeviceResources`] it streams through (the driver declares it first).
 
 use super::budget::MemoryPlan;
+use super::buffers::SweepSets;
 use super::copier::{Copier, Ticket};
 use super::encoder::{self, ComputeStep};
 use super::layout::FLAG_GAIN;
 use super::profile;
-use super::resources::{DeviceResources, SweepSets};
+use super::resources::DeviceResources;
 use super::sizes::BRICK_BYTES;
 use super::slice::SliceLayout;
 use super::submit::{Submitter, Timelines, WAIT_FOREVER};

@@ -12,10 +12,10 @@
 //! faces sweep x first ([`crate::quadrature::cube_face::FACES`]), so an order reorders twice (a
 //! few times more in order 0, whose beams and sky sweep between).
 
+use super::buffers::ResidentBuffers;
 use super::kernels;
 pub use super::kernels::TransposePush;
 use super::owned::Owned;
-use super::resources::ResidentBuffers;
 use crate::solver::plan::Plan;
 use crate::solver::SolveError;
 use crate::vk::{ComputePipeline, Context, DescriptorSet, Recorder};
