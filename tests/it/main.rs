@@ -27,6 +27,7 @@ mod hostile_inputs;
 mod i3rc;
 mod image_views;
 mod kobayashi;
+mod layering;
 mod nanovdb_input;
 mod out_of_core;
 mod periodic;
