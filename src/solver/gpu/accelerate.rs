@@ -17,7 +17,7 @@
 //! f32 from the bits as the host's `as f32` does (`glsl/exact.glsl`). So an accelerated resident
 //! solve is the streamed one to the bit (`tests/it/resident.rs`).
 
-use super::buffers::{DiffusionBuffers, ResidentBuffers};
+use super::buffers::{DiffusionBuffers, ResidentBuffers, TotalBuffers};
 pub use super::kernels::DiffusionPush;
 use super::kernels::{self, dispatch_linear, readback};
 use super::owned::Owned;
@@ -51,16 +51,20 @@ pub struct DeviceAcceleration {
 }
 
 impl DeviceAcceleration {
-    /// The pipelines and sets over `resident` (`occupied` bricks) and its diffusion buffers;
-    /// `None` when the plan does not accelerate (no such buffers).
-    pub fn new(ctx: &Arc<Context>, resident: &ResidentBuffers, occupied: u64) -> Result<Option<Self>, SolveError> {
-        let Some(totals) = resident.totals.as_ref() else { return Ok(None) };
-        let Some(d) = totals.diffusion.as_ref() else { return Ok(None) };
+    /// The pipelines and sets over `resident` and `totals` (`occupied` bricks) and the diffusion
+    /// buffers `d` (which the driver's mode owns beside these kernels).
+    pub fn new(
+        ctx: &Arc<Context>,
+        resident: &ResidentBuffers,
+        totals: &TotalBuffers,
+        d: &DiffusionBuffers,
+        occupied: u64,
+    ) -> Result<Self, SolveError> {
         let moments_pipeline = kernels::DIFFUSION_MOMENTS.pipeline(ctx)?;
         let prolong_pipeline = kernels::DIFFUSION_PROLONG.pipeline(ctx)?;
         let voxels = u32::try_from(occupied * BRICK_VOXELS as u64)
             .map_err(|_| SolveError::Internal("more resident voxels than a dispatch can reach"))?;
-        Ok(Some(DeviceAcceleration {
+        Ok(DeviceAcceleration {
             moments_set: kernels::DIFFUSION_MOMENTS.set(
                 ctx,
                 "diffusion moments",
@@ -95,7 +99,7 @@ impl DeviceAcceleration {
             voxels,
             moments_pipeline,
             prolong_pipeline,
-        }))
+        })
     }
 
     /// Folds the correction into the order the sweeps just finished, on the resident fields

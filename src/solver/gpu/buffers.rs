@@ -43,7 +43,7 @@ pub struct SharedBuffers {
     pub vacuum: Owned<Buffer>,
 }
 
-/// The resident mode's device buffers ([`ResidentSizes`]): every occupied brick's fields for the
+/// The resident mode's device buffers ([`super::sizes::ResidentSizes`]): every occupied brick's fields for the
 /// whole solve, and the slot table of the slice being computed.
 pub struct ResidentBuffers {
     pub slot_table: Owned<Buffer>,
@@ -51,12 +51,11 @@ pub struct ResidentBuffers {
     pub source_prev: Owned<Buffer>,
     pub source_next: Owned<Buffer>,
     pub fluence: Owned<Buffer>,
-    /// The committed totals and the sums the host reads, when the passes between orders run on
-    /// the device ([`super::end_of_order`]).
-    pub totals: Option<TotalBuffers>,
 }
 
-/// The device-side end of an order's buffers ([`ResidentSizes`]).
+/// The buffers of the passes between orders on the device ([`super::end_of_order`];
+/// [`super::sizes::ResidentSizes`]): the committed totals, the sums the host reads, and what the diffusion
+/// acceleration and correction use when the plan has them.
 pub struct TotalBuffers {
     pub source_total: Owned<Buffer>,
     pub fluence_total: Owned<Buffer>,
@@ -67,8 +66,6 @@ pub struct TotalBuffers {
     pub origins: Owned<Buffer>,
     /// The per-voxel albedo factor, when the scene has one (written with the first load).
     pub albedo: Option<Owned<Buffer>>,
-    /// The diffusion acceleration's, when the plan accelerates (`accelerate`).
-    pub diffusion: Option<DiffusionBuffers>,
     /// The diffusion correction's, when the plan corrects (`sharpen`).
     pub sharpen: Option<SharpenBuffers>,
 }
@@ -118,15 +115,18 @@ impl ResidentBuffers {
     }
 
     /// Every buffer, for the byte count.
+    pub(super) fn every(&self) -> [&Buffer; 5] {
+        self.all()
+    }
+}
+
+impl TotalBuffers {
+    /// Every buffer, for the byte count.
     pub(super) fn every(&self) -> Vec<&Buffer> {
-        let mut every = self.all().to_vec();
-        if let Some(t) = &self.totals {
-            every.extend([&*t.source_total, &*t.fluence_total, &*t.block_sums, &*t.unit_tallies]);
-            every.push(&t.origins);
-            every.extend(t.albedo.as_deref());
-            every.extend(t.diffusion.iter().flat_map(DiffusionBuffers::every));
-            every.extend(t.sharpen.iter().flat_map(|s| [&*s.sharpened, &*s.brick_slots, &*s.constants, &*s.sums]));
-        }
+        let mut every = vec![&*self.source_total, &*self.fluence_total, &*self.block_sums, &*self.unit_tallies];
+        every.push(&self.origins);
+        every.extend(self.albedo.as_deref());
+        every.extend(self.sharpen.iter().flat_map(|s| [&*s.sharpened, &*s.brick_slots, &*s.constants, &*s.sums]));
         every
     }
 }

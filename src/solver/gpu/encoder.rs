@@ -3,7 +3,7 @@
 //! `directions_per_dispatch`, planes in chunks of `planes_per_dispatch`, each `propagate.comp`
 //! followed by `collect.comp` unless the slice is vacuum).
 //!
-//! The buffers the kernels bind are listed here too ([`SWEEP_BINDINGS`], [`sweep_bindings`]): both
+//! The buffers the kernels bind are listed here too ([`SWEEP_BINDINGS`], [`super::buffers::sweep_bindings`]): both
 //! kernels share one pipeline layout, so one descriptor set per sweep and slot serves both. The
 //! resources write the sets once per solve; a step binds its set once, by handle, and only
 //! switches pipelines between the kernels (the command buffer is the step's own, so this is as
@@ -24,7 +24,7 @@ use super::tables::SweepTables;
 use crate::solver::plan::Plan;
 use crate::solver::sweep::FaceSweep;
 use crate::solver::SolveError;
-use crate::vk::Recorder;
+use crate::vk::{Buffer, Recorder};
 use ash::vk;
 use std::ops::Range;
 
@@ -51,8 +51,9 @@ pub struct ComputeStep<'s> {
     /// The first slice of the pass (the ray state starts from zero).
     pub first: bool,
     /// The resident mode: the slice's slot table (store slots of its bricks), written into the
-    /// resident slot table before the kernels run. `None`: streamed (the upload brought it).
-    pub resident_table: Option<&'s [i32]>,
+    /// resident slot-table buffer (the second) before the kernels run. `None`: streamed (the
+    /// upload brought it).
+    pub resident_table: Option<(&'s [i32], &'s Buffer)>,
 }
 
 /// The workgroups of one `propagate.comp` dispatch over `sweep`'s rays (n + 1 per lateral axis:
@@ -123,10 +124,10 @@ pub fn record_compute(
     let order = if step.layout.lateral_major { FLAG_LATERAL_MAJOR } else { 0 };
     // Earlier compute submissions wrote the ray state and the deposit this one uses.
     rec.compute_to_compute();
-    if let (Some(table), Some(resident)) = (step.resident_table, &res.resident) {
+    if let Some((table, buffer)) = step.resident_table {
         // The previous step's kernels read the table this write replaces.
         rec.compute_to_transfer();
-        rec.update_buffer(&resident.slot_table, 0, bytemuck::cast_slice(table));
+        rec.update_buffer(buffer, 0, bytemuck::cast_slice(table));
         rec.transfer_to_compute();
     }
     if step.first {

@@ -92,18 +92,16 @@ pub struct Committed {
 }
 
 impl EndPasses {
-    /// The pipelines and the sets over `resident`, which holds `occupied` bricks of a volume of
-    /// `bricks` bricks per axis.
+    /// The pipelines and the sets over `resident` and `totals`, which hold `occupied` bricks of a
+    /// volume of `bricks` bricks per axis.
     pub fn new(
         ctx: &Arc<Context>,
         plan: &Plan,
         resident: &ResidentBuffers,
+        totals: &TotalBuffers,
         occupied: u64,
         bricks: [u32; 3],
     ) -> Result<Self, SolveError> {
-        let Some(totals) = resident.totals.as_ref() else {
-            return Err(SolveError::Internal("the device's end of order without resident totals"));
-        };
         let block_sums_pipeline = kernels::BLOCK_SUMS.pipeline(ctx)?;
         let commit_pipeline = kernels::COMMIT.pipeline(ctx)?;
         let to_half_pipeline = kernels::TO_HALF.pipeline(ctx)?;
@@ -111,8 +109,9 @@ impl EndPasses {
         let albedo_scale_pipeline = kernels::ALBEDO_SCALE.pipeline(ctx)?;
         let TotalBuffers { source_total, fluence_total, block_sums, unit_tallies, .. } = totals;
         // What the next order propagates: the sharpened source with the diffusion correction.
-        let propagated = propagated(resident);
-        let sharpening = match (DeviceSharpening::new(ctx, plan, resident, occupied, bricks)?, &totals.sharpen) {
+        let propagated = propagated(resident, totals);
+        let sharpening = match (DeviceSharpening::new(ctx, plan, resident, totals, occupied, bricks)?, &totals.sharpen)
+        {
             (Some(kernel), Some(s)) => Some((
                 kernel,
                 kernels::BLOCK_SUMS.set(
@@ -260,6 +259,7 @@ impl EndPasses {
         &self,
         rec: &mut Recorder,
         resident: &ResidentBuffers,
+        totals: &TotalBuffers,
         half_exponent: Option<i32>,
     ) -> Result<(), SolveError> {
         rec.compute_to_compute();
@@ -273,7 +273,7 @@ impl EndPasses {
             (None, None) => {
                 let size = resident.source_next.size();
                 rec.copy_buffer(
-                    propagated(resident),
+                    propagated(resident, totals),
                     &resident.source_prev,
                     &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size }],
                 );
@@ -320,8 +320,8 @@ impl EndPasses {
 
 /// The resident buffer that holds what the next order propagates: the sharpened source with the
 /// diffusion correction, else the order's new source.
-pub fn propagated(resident: &ResidentBuffers) -> &Buffer {
-    match resident.totals.as_ref().and_then(|t| t.sharpen.as_ref()) {
+pub fn propagated<'b>(resident: &'b ResidentBuffers, totals: &'b TotalBuffers) -> &'b Buffer {
+    match &totals.sharpen {
         Some(s) => &s.sharpened,
         None => &resident.source_next,
     }

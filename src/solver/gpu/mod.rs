@@ -77,7 +77,9 @@
 //!    bindings, dispatches);
 //! 7. [`end_of_order`] (the resident mode's passes between orders on the device) and `streamer`
 //!    (the schedule of slices through the slots against the timelines);
-//! 8. this file: the order as sweeps and passes (the [`Backend`] the order loop drives), and the
+//! 8. `mode`: streamed, resident with the passes between orders on the host, or resident with
+//!    them on the device, as a type whose variants own their buffers and kernels;
+//! 9. this file: the order as sweeps and passes (the [`Backend`] the order loop drives), and the
 //!    tallies read back after each pass (per face of the volume: only the device's sums come
 //!    home, and on a periodic sweep axis what the rays carry to the next order).
 
@@ -90,6 +92,7 @@ pub mod encoder;
 pub mod end_of_order;
 pub mod kernels;
 pub mod layout;
+mod mode;
 mod owned;
 pub mod profile;
 mod progress;
@@ -118,8 +121,8 @@ use crate::store::BrickStore;
 use crate::vk::{Context, Recorder};
 use ash::vk;
 use budget::MemoryPlan;
-use end_of_order::EndPasses;
 use layout::{FLAG_BOUNDARY, FLAG_CARRY, FLAG_EMIT, FLAG_GAIN};
+use mode::{DeviceEnd, DeviceState, Ends, Mode, Resident};
 use resources::DeviceResources;
 use std::sync::Arc;
 use std::time::Instant;
@@ -187,6 +190,9 @@ pub struct GpuBackend<'a> {
     /// before the resources below are freed.
     streamer: SliceStreamer,
     resources: DeviceResources,
+    /// Streamed or resident, with what each owns; after the resources, whose sets bind its
+    /// buffers.
+    mode: Mode,
     ctx: Arc<Context>,
     plan: &'a Plan,
     store: &'a BrickStore,
@@ -208,27 +214,6 @@ pub struct GpuBackend<'a> {
     progress: Option<progress::PassProgress>,
     /// What the rays of periodic-axis sweeps carried out last order ([`super::periodic`]).
     carry: PeriodicCarry,
-    /// The resident mode: whether the medium is on the device yet.
-    density_loaded: bool,
-    /// The resident mode: whether the resident fields are in the x sweeps' lateral-major order
-    /// ([`transpose`]) rather than brick order.
-    resident_lateral: bool,
-    /// The passes between orders on the device ([`end_of_order`]); `None`: on the host.
-    end_passes: Option<EndPasses>,
-    /// With `end_passes`: where the solve's state is (see [`DeviceState`]).
-    device_state: DeviceState,
-    /// With `end_passes`, when the plan accelerates: the acceleration's kernels ([`accelerate`]).
-    diffusion: Option<accelerate::DeviceAcceleration>,
-}
-
-/// Where the committed state of a solve whose passes between orders run on the device is.
-#[derive(Clone, Copy, Debug, PartialEq)]
-enum DeviceState {
-    /// Only on the host: the next order loads it (the first order of a solve or a resume).
-    OnHost,
-    /// On the device after a commit there, `max_abs` the new source's largest value; also on the
-    /// host when `home` (brought there for a checkpoint or the end).
-    Committed { max_abs: f32, home: bool },
 }
 
 impl<'a> GpuBackend<'a> {
@@ -268,7 +253,8 @@ impl<'a> GpuBackend<'a> {
         #[cfg(not(feature = "test-hooks"))]
         let abort_at_slice = None;
         let mut streamer = SliceStreamer::new(&ctx, plan, memory, options.profile, abort_at_slice, options.cancel)?;
-        let resources = DeviceResources::new(&ctx, plan, &memory, streamer.submitter())?;
+        let mode = Mode::new(&ctx, plan, &memory, store)?;
+        let resources = DeviceResources::new(&ctx, plan, &memory, streamer.submitter(), mode.resident_buffers())?;
         tracing::info!(
             device = ctx.device_name(),
             transfer_queue = ctx.transfer_queue().is_some(),
@@ -285,21 +271,12 @@ impl<'a> GpuBackend<'a> {
             "GPU backend ready"
         );
         let medium = StoreMedium::new(store, plan)?;
-        let (end_passes, diffusion) = match resources.resident.as_ref().filter(|_| memory.ends_on_device()) {
-            Some(resident) => {
-                let occupied = memory.slice.occupied_total;
-                (
-                    Some(EndPasses::new(&ctx, plan, resident, occupied, store.grid().bricks)?),
-                    accelerate::DeviceAcceleration::new(&ctx, resident, occupied)?,
-                )
-            }
-            None => (None, None),
-        };
         // A resumed solve goes on with what its checkpoint's periodic sweeps carried over.
         let carry = fields.resumed_carry.take().unwrap_or_else(|| PeriodicCarry::new(plan));
         Ok(GpuBackend {
             streamer,
             resources,
+            mode,
             ctx,
             plan,
             store,
@@ -313,11 +290,6 @@ impl<'a> GpuBackend<'a> {
             half_exponent: None,
             progress: None,
             carry,
-            density_loaded: false,
-            resident_lateral: false,
-            end_passes,
-            device_state: DeviceState::OnHost,
-            diffusion,
         })
     }
 
@@ -339,7 +311,7 @@ impl<'a> GpuBackend<'a> {
     /// The bytes of every buffer the backend made (see [`DeviceResources::buffer_bytes`]): equal
     /// to the memory plan's `planned_bytes`.
     pub fn buffer_bytes(&self) -> u64 {
-        self.resources.buffer_bytes()
+        self.resources.buffer_bytes() + self.mode.buffer_bytes()
     }
 
     /// The Vulkan context the backend runs on.
@@ -402,6 +374,7 @@ impl<'a> GpuBackend<'a> {
                 flags,
                 half_exponent: self.half_exponent,
                 another_follows: pass_dirs.end < dirs.len() as u32,
+                resident: self.mode.resident_buffers(),
             };
             self.streamer.stream_pass(&mut io, &job)?;
             if let Some(p) = self.progress.as_mut() {
@@ -449,15 +422,18 @@ fn brick_origins(medium: &StoreMedium, occupied: u64) -> Vec<[u32; 4]> {
         .collect()
 }
 
-fn device_end<'r>(
-    end: &'r Option<EndPasses>,
-    res: &'r DeviceResources,
-) -> Result<(&'r EndPasses, &'r buffers::ResidentBuffers, &'r buffers::TotalBuffers), SolveError> {
-    let missing = || SolveError::Internal("the device's end of order without its buffers");
-    let end = end.as_ref().ok_or_else(missing)?;
-    let resident = res.resident.as_ref().ok_or_else(missing)?;
-    let totals = resident.totals.as_ref().ok_or_else(missing)?;
-    Ok((end, resident, totals))
+/// The start of an order after a commit on the device: the new source becomes the previous one
+/// there (at the order's f16 scale, `half_exponent`), the accumulators are cleared.
+fn advance_on_device(
+    sub: &mut Submitter,
+    end: &DeviceEnd,
+    resident: &buffers::ResidentBuffers,
+    half_exponent: Option<i32>,
+) -> Result<(), SolveError> {
+    let ctx = Arc::clone(sub.context());
+    let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "next order on the device")?;
+    end.passes.record_advance(&mut rec, resident, &end.totals, half_exponent)?;
+    sub.submit_and_wait(rec)
 }
 
 /// What the rays of a pass were born with at plane 0: the direction's boundary radiance
@@ -609,7 +585,10 @@ impl<'a> Backend for GpuBackend<'a> {
                 // taken some of it, so the checkpoint before stands.
                 // And unless the device committed it: its new source is gone from there (this
                 // order's previous source took its place, at f16 perhaps).
-                let on_host = !matches!(self.device_state, DeviceState::Committed { home: false, .. });
+                let on_host = !matches!(
+                    self.mode.device_end().map(|e| e.state),
+                    Some(DeviceState::Committed { home: false, .. })
+                );
                 if let Some(state) = self.pending.take().filter(|_| self.carry.is_empty() && on_host) {
                     self.write_checkpoint(&state, false)?;
                 }
@@ -627,30 +606,36 @@ impl<'a> Backend for GpuBackend<'a> {
     }
 
     fn commit_order(&mut self, plan: &Plan) -> Result<[f64; 3], SolveError> {
-        if !self.commits_on_device() {
-            return self.fields.commit_order(plan, &self.medium);
-        }
+        let initial_guess = self.fields.initial_guess;
+        let end = match &mut self.mode {
+            // Not a warm start's first commit: that takes the guess back off on the host (the
+            // fields came home for it; from the next order on they stay).
+            Mode::Resident(Resident { ends: Ends::OnDevice(end), .. }) if !initial_guess => end,
+            _ => return self.fields.commit_order(plan, &self.medium),
+        };
+        let sub = self.streamer.submitter();
         // In the host's order: the albedo factor, the acceleration, then (in the commit) the
-        // diffusion correction.
-        let (end, _, _) = device_end(&self.end_passes, &self.resources)?;
-        end.scale_by_albedo(self.streamer.submitter(), plan)?;
-        if self.fields.acceleration_due(plan, &self.medium)? {
-            self.accelerate_on_device(plan)?;
+        // diffusion correction. The mode has the acceleration's kernels when the plan accelerates.
+        end.passes.scale_by_albedo(sub, plan)?;
+        if let Some(a) = end.acceleration.as_mut() {
+            if self.fields.acceleration_due(plan, &self.medium)? {
+                let grid = self.fields.acceleration.as_mut().ok_or(SolveError::Internal("no diffusion grid"))?;
+                let (medium, occupied) = (&self.medium, self.memory.slice.occupied_total);
+                a.kernels.fold(sub, plan, &mut a.buffers, grid, || brick_origins(medium, occupied))?;
+            }
         }
-        let (end, _, totals) = device_end(&self.end_passes, &self.resources)?;
-        let committed = end.commit(self.streamer.submitter(), plan, totals)?;
-        self.device_state = DeviceState::Committed { max_abs: committed.max_abs, home: false };
+        let committed = end.passes.commit(sub, plan, &end.totals)?;
+        end.state = DeviceState::Committed { max_abs: committed.max_abs, home: false };
         Ok(committed.power)
     }
 
     fn remaining_error(&mut self, plan: &Plan, factor: [f64; 3]) -> Result<RemainingError, SolveError> {
-        match self.device_state {
-            DeviceState::Committed { home: false, .. } => {
-                let (end, _, totals) = device_end(&self.end_passes, &self.resources)?;
-                end.remaining(self.streamer.submitter(), plan, totals, factor)
+        if let Some(end) = self.mode.device_end() {
+            if let DeviceState::Committed { home: false, .. } = end.state {
+                return end.passes.remaining(self.streamer.submitter(), plan, &end.totals, factor);
             }
-            _ => Ok(self.fields.remaining_error(&self.medium, plan, factor)),
         }
+        Ok(self.fields.remaining_error(&self.medium, plan, factor))
     }
 
     fn carried_power(&self) -> [f64; 3] {
@@ -735,13 +720,14 @@ impl GpuBackend<'_> {
         let plan = self.plan;
         // The device committed the last order ([`end_of_order`]): its new source is on the device
         // and becomes this order's there; nothing on the host changes.
-        let committed_on_device = match self.device_state {
-            DeviceState::Committed { max_abs, .. } => Some(max_abs),
-            DeviceState::OnHost => None,
+        let committed_on_device = match self.mode.device_end().map(|e| e.state) {
+            Some(DeviceState::Committed { max_abs, .. }) => Some(max_abs),
+            Some(DeviceState::OnHost) | None => None,
         };
+        let resident = matches!(self.mode, Mode::Resident(_));
         if committed_on_device.is_none() {
             // Resident: the load clears the device's accumulators and the unload overwrites the host's.
-            self.fields.begin_order(!self.memory.is_resident())?;
+            self.fields.begin_order(!resident)?;
         }
         // The scale of this order's f16 source, from its largest value (exact: a power of two).
         let max_abs = || committed_on_device.unwrap_or_else(|| self.fields.source_prev.max_abs());
@@ -752,16 +738,22 @@ impl GpuBackend<'_> {
         let beams: Vec<usize> = (0..plan.beams.len()).filter(|&b| plan.beam_swept_in(b, order)).collect();
         let passes = progress::passes_per_order(&face_dirs, beams.len(), self.memory.directions_per_pass);
         self.progress = Some(progress::PassProgress::new(order, passes));
-        if committed_on_device.is_some() {
-            self.advance_on_device()?;
-        } else if self.memory.is_resident() {
-            let mut io = Stream { plan, store: self.store, fields: &mut *self.fields, res: &self.resources };
-            let seeded = io.fields.seeded;
-            self.streamer.load_resident(&mut io, self.half_exponent, !self.density_loaded, seeded)?;
-            self.density_loaded = true;
-            if self.commits_on_device() {
-                self.load_totals()?;
+        let loads = match &mut self.mode {
+            Mode::Resident(Resident { ends: Ends::OnDevice(end), buffers, .. }) if committed_on_device.is_some() => {
+                advance_on_device(self.streamer.submitter(), end, buffers, self.half_exponent)?;
+                false
             }
+            Mode::Resident(r) => {
+                let mut io = Stream { plan, store: self.store, fields: &mut *self.fields, res: &self.resources };
+                let seeded = io.fields.seeded;
+                self.streamer.load_resident(&mut io, &r.buffers, self.half_exponent, !r.density_loaded, seeded)?;
+                r.density_loaded = true;
+                true
+            }
+            Mode::Streamed => false,
+        };
+        if loads && self.commits_on_device() {
+            self.load_totals()?;
         }
         let mut tallies = Tallies::default();
         // Beams in order 0; those along a periodic axis again in every order, carrying what they
@@ -782,13 +774,14 @@ impl GpuBackend<'_> {
         for face in 0..plan.faces.len() {
             tallies.add(&self.sweep(SweepOf::Face(face), flags)?);
         }
-        if self.memory.is_resident() {
-            // The fields come home (and the next order's load goes in) in brick order; so do the
-            // device's passes between orders read them.
-            self.reorder_resident(false)?;
-            if !self.commits_on_device() {
+        // The fields come home (and the next order's load goes in) in brick order; so do the
+        // device's passes between orders read them.
+        self.reorder_resident(false)?;
+        let commits = self.commits_on_device();
+        if let Mode::Resident(r) = &self.mode {
+            if !commits {
                 let mut io = Stream { plan, store: self.store, fields: &mut *self.fields, res: &self.resources };
-                self.streamer.unload_resident(&mut io)?;
+                self.streamer.unload_resident(&mut io, &r.buffers)?;
             }
         }
         Ok(tallies)
@@ -798,37 +791,15 @@ impl GpuBackend<'_> {
     /// lets the device end its orders, except a warm start's first order, whose commit takes the
     /// guess back off on the host (the fields come home for it; from the next order on they stay).
     fn commits_on_device(&self) -> bool {
-        self.end_passes.is_some() && !self.fields.initial_guess
-    }
-
-    /// The start of an order after a commit on the device: the new source becomes the previous
-    /// one there (at this order's f16 scale), the accumulators are cleared.
-    fn advance_on_device(&mut self) -> Result<(), SolveError> {
-        let (end, resident, _) = device_end(&self.end_passes, &self.resources)?;
-        let ctx = Arc::clone(self.streamer.context());
-        let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "next order on the device")?;
-        end.record_advance(&mut rec, resident, self.half_exponent)?;
-        self.streamer.submitter().submit_and_wait(rec)
-    }
-
-    /// Folds the diffusion acceleration into the order the sweeps just finished, on the device
-    /// ([`accelerate`]); the host keeps the grid and solves on it.
-    fn accelerate_on_device(&mut self, plan: &Plan) -> Result<(), SolveError> {
-        let missing = SolveError::Internal("an accelerated commit on the device without the acceleration's kernels");
-        let grid = self.fields.acceleration.as_mut().ok_or(SolveError::Internal("no diffusion grid"))?;
-        let kernels = self.diffusion.as_mut().ok_or(missing)?;
-        let buffers =
-            self.resources.resident.as_mut().and_then(|r| r.totals.as_mut()).and_then(|t| t.diffusion.as_mut()).ok_or(
-                SolveError::Internal("an accelerated commit on the device without the acceleration's buffers"),
-            )?;
-        let (medium, occupied) = (&self.medium, self.memory.slice.occupied_total);
-        kernels.fold(self.streamer.submitter(), plan, buffers, grid, || brick_origins(medium, occupied))
+        self.mode.device_end().is_some() && !self.fields.initial_guess
     }
 
     /// Puts the committed totals on the device, with the first load of a solve (a resumed one's
     /// are not zero); they come home with the rest of the device's state ([`Self::bring_home`]).
     fn load_totals(&mut self) -> Result<(), SolveError> {
-        let (_, _, totals) = device_end(&self.end_passes, &self.resources)?;
+        // Streamed, or the passes between orders on the host: nothing to load.
+        let Some(end) = self.mode.device_end() else { return Ok(()) };
+        let totals = &end.totals;
         // The tables of where each brick is (for the kernels that look at a voxel's
         // neighbourhood), and the diffusion correction's constants.
         let ctx = Arc::clone(self.streamer.context());
@@ -861,10 +832,16 @@ impl GpuBackend<'_> {
     /// totals, the last new source and the last order's fluence take the roles the host's own
     /// commit would have given them ([`OrderFieldSet::take_device_commit`]).
     fn bring_home(&mut self) -> Result<(), SolveError> {
-        let DeviceState::Committed { max_abs, home: false } = self.device_state else { return Ok(()) };
+        // Streamed, or the passes between orders on the host: the fields are home already.
+        let Some(DeviceState::Committed { max_abs, home: false }) = self.mode.device_end().map(|e| e.state) else {
+            return Ok(());
+        };
         // The checkpoint in flight names fields the roles below move: it must be on disk first.
         self.settle_checkpoint()?;
-        let (_, resident, totals) = device_end(&self.end_passes, &self.resources)?;
+        let Mode::Resident(Resident { ends: Ends::OnDevice(end), buffers: resident, .. }) = &mut self.mode else {
+            return Ok(());
+        };
+        let totals = &end.totals;
         let sub = self.streamer.submitter();
         let res = &self.resources;
         self.fields.take_device_commit(|source_total, fluence_total, source_next, fluence| {
@@ -872,10 +849,10 @@ impl GpuBackend<'_> {
             to_host(sub, res, source_total, &totals.source_total)?;
             to_host(sub, res, fluence_total, &totals.fluence_total)?;
             // What the next order propagates (the sharpened source with the diffusion correction).
-            to_host(sub, res, source_next, end_of_order::propagated(resident))?;
+            to_host(sub, res, source_next, end_of_order::propagated(resident, totals))?;
             to_host(sub, res, fluence, &resident.fluence)
         })?;
-        self.device_state = DeviceState::Committed { max_abs, home: true };
+        end.state = DeviceState::Committed { max_abs, home: true };
         Ok(())
     }
 
@@ -883,15 +860,15 @@ impl GpuBackend<'_> {
     /// lateral-major for an x sweep (`lateral`), else brick order ([`transpose`]). Nothing to do
     /// when they are in it already, or when streamed (the copy workers order each slab).
     fn reorder_resident(&mut self, lateral: bool) -> Result<(), SolveError> {
-        let Some(transposer) = self.resources.transposer.as_ref() else { return Ok(()) };
-        if self.resident_lateral == lateral {
+        let Mode::Resident(r) = &mut self.mode else { return Ok(()) };
+        if r.lateral == lateral {
             return Ok(());
         }
         let ctx = Arc::clone(self.streamer.context());
         let mut rec = Recorder::begin(&ctx, ctx.compute_queue().family(), "reorder resident fields")?;
-        transposer.record(&mut rec, lateral)?;
+        r.transposer.record(&mut rec, lateral)?;
         self.streamer.submitter().submit_and_wait(rec)?;
-        self.resident_lateral = lateral;
+        r.lateral = lateral;
         Ok(())
     }
 }

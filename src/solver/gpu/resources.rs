@@ -2,8 +2,10 @@
 //! pipeline layout, the slots' buffers and staging, the buffers shared by the slots, every sweep's
 //! tables, and one descriptor set per sweep and slot that serves both kernels (written once: the
 //! buffers never change), so a compute step binds its set once. In the resident mode the slots
-//! are staging only and each sweep has one set for the [`ResidentBuffers`] instead, and the
-//! `Transposer` reorders them for the x sweeps.
+//! are staging only and each sweep has one set for the [`ResidentBuffers`] instead; those, and
+//! the [`TotalBuffers`] of the passes between orders on the device, are made here too
+//! ([`resident_buffers`], [`total_buffers`]) but owned by the mode that uses them (the driver's
+//! `Mode`), so no code asks whether they exist.
 //!
 //! Every object is an `Owned` value, so a constructor that fails half-way frees what it made by
 //! dropping it, and a finished [`DeviceResources`] frees everything when dropped. Whoever submits
@@ -21,7 +23,6 @@ use super::sizes::{ResidentSizes, SharedSizes, SlotSizes};
 use super::submit::Submitter;
 use super::tables::SweepTables;
 use super::tally_sums::DeviceTallySums;
-use super::transpose::Transposer;
 use crate::solver::plan::Plan;
 use crate::solver::SolveError;
 use crate::vk::{Buffer, ComputePipeline, Context, HostBuffer, MemoryLocation, PipelineLayout};
@@ -33,16 +34,12 @@ pub struct DeviceResources {
     pub face_sets: Vec<SweepSets>,
     pub beam_sets: Vec<SweepSets>,
     pub sky_sets: Vec<SweepSets>,
-    /// The resident mode's reorder of its fields for the x sweeps (`None`: streamed).
-    pub transposer: Option<Transposer>,
     pub propagate: Owned<ComputePipeline>,
     pub collect: Owned<ComputePipeline>,
     /// The layout both pipelines share; declared after them, so freed after them.
     pub layout: Owned<PipelineLayout>,
     pub slots: Vec<SlotBuffers>,
     pub shared: SharedBuffers,
-    /// The resident mode's buffers (`None`: streamed).
-    pub resident: Option<ResidentBuffers>,
     pub face_tables: Vec<SweepTables>,
     pub beam_tables: Vec<SweepTables>,
     /// Per face, the sky's own directions (`Plan::sky_faces`; empty unless it has them).
@@ -70,8 +67,16 @@ fn buffer(
 }
 
 impl DeviceResources {
-    /// Makes everything `memory` plans for `plan`; the tables are uploaded through `sub`.
-    pub fn new(ctx: &Arc<Context>, plan: &Plan, memory: &MemoryPlan, sub: &mut Submitter) -> Result<Self, SolveError> {
+    /// Makes everything `memory` plans for `plan` but the resident mode's own buffers (see
+    /// [`resident_buffers`], [`total_buffers`]: the mode that uses them owns them); a resident
+    /// solve's sweeps bind `resident`. The tables are uploaded through `sub`.
+    pub fn new(
+        ctx: &Arc<Context>,
+        plan: &Plan,
+        memory: &MemoryPlan,
+        sub: &mut Submitter,
+        resident: Option<&ResidentBuffers>,
+    ) -> Result<Self, SolveError> {
         let storage = vk::BufferUsageFlags::STORAGE_BUFFER
             | vk::BufferUsageFlags::TRANSFER_DST
             | vk::BufferUsageFlags::TRANSFER_SRC;
@@ -108,72 +113,6 @@ impl DeviceResources {
             SlotSizes::resident(plan, &memory.slice)
         } else {
             SlotSizes::new(plan, &memory.slice, memory.planes_per_slice)
-        };
-        let resident = if memory.is_resident() {
-            let r = ResidentSizes::new(plan, &memory.slice, memory.ends_on_device());
-            Some(ResidentBuffers {
-                slot_table: buffer(ctx, "resident slot table", r.slot_table, storage, gpu)?,
-                density: buffer(ctx, "resident density", r.density, storage, gpu)?,
-                source_prev: buffer(ctx, "resident source prev", r.source_prev, storage, gpu)?,
-                source_next: buffer(ctx, "resident source next", r.source_next, storage, gpu)?,
-                fluence: buffer(ctx, "resident fluence", r.fluence, storage, gpu)?,
-                totals: if memory.ends_on_device() {
-                    let readback = MemoryLocation::GpuToCpu;
-                    Some(TotalBuffers {
-                        source_total: buffer(ctx, "resident source total", r.source_total, storage, gpu)?,
-                        fluence_total: buffer(ctx, "resident fluence total", r.fluence_total, storage, gpu)?,
-                        block_sums: buffer(ctx, "end-of-order block sums", r.block_sums, storage, readback)?,
-                        unit_tallies: buffer(ctx, "end-of-order brick tallies", r.unit_tallies, storage, readback)?,
-                        diffusion: match r.diffusion {
-                            Some(d) => Some(DiffusionBuffers {
-                                unknown_of: buffer(ctx, "diffusion unknown of cell", d.unknown_of, storage, gpu)?,
-                                cell_of_unknown: buffer(
-                                    ctx,
-                                    "diffusion cell of unknown",
-                                    d.cell_of_unknown,
-                                    storage,
-                                    gpu,
-                                )?,
-                                brick_start: buffer(ctx, "diffusion brick start", d.brick_start, storage, gpu)?,
-                                bricks: buffer(ctx, "diffusion bricks", d.bricks, storage, gpu)?,
-                                solid_angles: buffer(ctx, "diffusion solid angles", d.solid_angles, storage, gpu)?,
-                                moments: buffer(ctx, "diffusion moments", d.moments, storage, readback)?,
-                                change: buffer(ctx, "diffusion change", d.change, storage, gpu)?,
-                                staging: host_buffer(
-                                    ctx,
-                                    "diffusion staging",
-                                    d.staging,
-                                    vk::BufferUsageFlags::TRANSFER_SRC,
-                                    MemoryLocation::CpuToGpu,
-                                )?,
-                            }),
-                            None => None,
-                        },
-                        origins: buffer(ctx, "resident brick origins", r.origins, storage, gpu)?,
-                        albedo: match r.albedo {
-                            0 => None,
-                            bytes => Some(buffer(ctx, "resident albedo factor", bytes, storage, gpu)?),
-                        },
-                        sharpen: match r.sharpen {
-                            Some(d) => Some(SharpenBuffers {
-                                sharpened: buffer(ctx, "resident sharpened source", d.sharpened, storage, gpu)?,
-                                sums: buffer(ctx, "sharpened source sums", d.sums, storage, readback)?,
-                                brick_slots: buffer(ctx, "resident brick slots", d.brick_slots, storage, gpu)?,
-                                constants: buffer(ctx, "diffusion correction constants", d.constants, storage, gpu)?,
-                            }),
-                            None => None,
-                        },
-                    })
-                } else {
-                    None
-                },
-            })
-        } else {
-            None
-        };
-        let transposer = match &resident {
-            Some(r) => Some(Transposer::new(ctx, plan, r, memory.slice.occupied_total)?),
-            None => None,
         };
         let mut slots = Vec::with_capacity(memory.slices_in_flight as usize);
         for i in 0..memory.slices_in_flight {
@@ -221,7 +160,7 @@ impl DeviceResources {
             let mut all = Vec::with_capacity(tables.len());
             for (i, t) in tables.iter().enumerate() {
                 let mut sets = Vec::with_capacity(slots.len() + 1);
-                if let Some(r) = &resident {
+                if let Some(r) = resident {
                     let bindings = buffers::sweep_bindings(t, r.all(), &shared);
                     let name = format!("{what} {i} resident");
                     sets.push(Owned::new(ctx, ctx.create_descriptor_set_in(&name, &layout, &bindings)?));
@@ -249,13 +188,11 @@ impl DeviceResources {
             face_sets,
             beam_sets,
             sky_sets,
-            transposer,
             propagate,
             collect,
             layout,
             slots,
             shared,
-            resident,
             face_tables,
             beam_tables,
             sky_tables,
@@ -278,9 +215,85 @@ impl DeviceResources {
             })
             .map(|b| b.size())
             .sum();
-        let resident: u64 = self.resident.iter().flat_map(ResidentBuffers::every).map(|b| b.size()).sum();
         let tables = self.face_tables.iter().chain(&self.beam_tables).chain(&self.sky_tables);
         let staging = tables.clone().map(|t| t.staging_bytes).max().unwrap_or(0);
-        shared + slots + resident + tables.map(SweepTables::device_bytes).sum::<u64>() + staging
+        shared + slots + tables.map(SweepTables::device_bytes).sum::<u64>() + staging
     }
+}
+
+/// The storage usage of every device buffer here.
+const STORAGE: vk::BufferUsageFlags = vk::BufferUsageFlags::from_raw(
+    vk::BufferUsageFlags::STORAGE_BUFFER.as_raw()
+        | vk::BufferUsageFlags::TRANSFER_DST.as_raw()
+        | vk::BufferUsageFlags::TRANSFER_SRC.as_raw(),
+);
+
+/// The resident mode's buffers ([`ResidentSizes`]): every occupied brick's fields.
+pub fn resident_buffers(ctx: &Arc<Context>, plan: &Plan, memory: &MemoryPlan) -> Result<ResidentBuffers, SolveError> {
+    let (storage, gpu) = (STORAGE, MemoryLocation::GpuOnly);
+    let r = ResidentSizes::new(plan, &memory.slice, memory.ends_on_device());
+    Ok(ResidentBuffers {
+        slot_table: buffer(ctx, "resident slot table", r.slot_table, storage, gpu)?,
+        density: buffer(ctx, "resident density", r.density, storage, gpu)?,
+        source_prev: buffer(ctx, "resident source prev", r.source_prev, storage, gpu)?,
+        source_next: buffer(ctx, "resident source next", r.source_next, storage, gpu)?,
+        fluence: buffer(ctx, "resident fluence", r.fluence, storage, gpu)?,
+    })
+}
+
+/// The buffers of the passes between orders on the device ([`ResidentSizes`] with totals).
+pub fn total_buffers(ctx: &Arc<Context>, plan: &Plan, memory: &MemoryPlan) -> Result<TotalBuffers, SolveError> {
+    let (storage, gpu) = (STORAGE, MemoryLocation::GpuOnly);
+    let r = ResidentSizes::new(plan, &memory.slice, true);
+    let readback = MemoryLocation::GpuToCpu;
+    Ok(TotalBuffers {
+        source_total: buffer(ctx, "resident source total", r.source_total, storage, gpu)?,
+        fluence_total: buffer(ctx, "resident fluence total", r.fluence_total, storage, gpu)?,
+        block_sums: buffer(ctx, "end-of-order block sums", r.block_sums, storage, readback)?,
+        unit_tallies: buffer(ctx, "end-of-order brick tallies", r.unit_tallies, storage, readback)?,
+        origins: buffer(ctx, "resident brick origins", r.origins, storage, gpu)?,
+        albedo: match r.albedo {
+            0 => None,
+            bytes => Some(buffer(ctx, "resident albedo factor", bytes, storage, gpu)?),
+        },
+        sharpen: match r.sharpen {
+            Some(d) => Some(SharpenBuffers {
+                sharpened: buffer(ctx, "resident sharpened source", d.sharpened, storage, gpu)?,
+                sums: buffer(ctx, "sharpened source sums", d.sums, storage, readback)?,
+                brick_slots: buffer(ctx, "resident brick slots", d.brick_slots, storage, gpu)?,
+                constants: buffer(ctx, "diffusion correction constants", d.constants, storage, gpu)?,
+            }),
+            None => None,
+        },
+    })
+}
+
+/// The diffusion acceleration's buffers on the device ([`ResidentSizes`]), when the plan
+/// accelerates and the passes between orders run there.
+pub fn diffusion_buffers(
+    ctx: &Arc<Context>,
+    plan: &Plan,
+    memory: &MemoryPlan,
+) -> Result<Option<DiffusionBuffers>, SolveError> {
+    let (storage, gpu, readback) = (STORAGE, MemoryLocation::GpuOnly, MemoryLocation::GpuToCpu);
+    let r = ResidentSizes::new(plan, &memory.slice, true);
+    Ok(match r.diffusion {
+        Some(d) => Some(DiffusionBuffers {
+            unknown_of: buffer(ctx, "diffusion unknown of cell", d.unknown_of, storage, gpu)?,
+            cell_of_unknown: buffer(ctx, "diffusion cell of unknown", d.cell_of_unknown, storage, gpu)?,
+            brick_start: buffer(ctx, "diffusion brick start", d.brick_start, storage, gpu)?,
+            bricks: buffer(ctx, "diffusion bricks", d.bricks, storage, gpu)?,
+            solid_angles: buffer(ctx, "diffusion solid angles", d.solid_angles, storage, gpu)?,
+            moments: buffer(ctx, "diffusion moments", d.moments, storage, readback)?,
+            change: buffer(ctx, "diffusion change", d.change, storage, gpu)?,
+            staging: host_buffer(
+                ctx,
+                "diffusion staging",
+                d.staging,
+                vk::BufferUsageFlags::TRANSFER_SRC,
+                MemoryLocation::CpuToGpu,
+            )?,
+        }),
+        None => None,
+    })
 }

@@ -13,7 +13,7 @@
 //! answer is the streamed mode's to the bit (`tests/it/resident.rs`). A voxel's scattering weight
 //! is its density times its albedo factor (the resident albedo grid's, 1 without one).
 
-use super::buffers::{ResidentBuffers, SharpenBuffers};
+use super::buffers::{ResidentBuffers, SharpenBuffers, TotalBuffers};
 use super::kernels::{self, dispatch_linear};
 pub use super::kernels::{SharpenConstants, SharpenPush};
 use super::owned::Owned;
@@ -59,16 +59,16 @@ pub struct DeviceSharpening {
 }
 
 impl DeviceSharpening {
-    /// The pipeline and set over `resident` (`occupied` bricks of a volume of `bricks` bricks per
-    /// axis); `None` when the plan does not correct (no buffers for it).
+    /// The pipeline and set over `resident` and `totals` (`occupied` bricks of a volume of
+    /// `bricks` bricks per axis); `None` when the plan does not correct (no buffers for it).
     pub fn new(
         ctx: &Arc<Context>,
         plan: &Plan,
         resident: &ResidentBuffers,
+        totals: &TotalBuffers,
         occupied: u64,
         bricks: [u32; 3],
     ) -> Result<Option<Self>, SolveError> {
-        let Some(totals) = resident.totals.as_ref() else { return Ok(None) };
         let Some(SharpenBuffers { sharpened, brick_slots, constants, .. }) = totals.sharpen.as_ref() else {
             return Ok(None);
         };

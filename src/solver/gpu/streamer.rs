@@ -15,7 +15,7 @@
 //! [`DeviceResources`] it streams through (the driver declares it first).
 
 use super::budget::MemoryPlan;
-use super::buffers::SweepSets;
+use super::buffers::{ResidentBuffers, SweepSets};
 use super::copier::{Copier, Ticket};
 use super::encoder::{self, ComputeStep};
 use super::layout::FLAG_GAIN;
@@ -59,6 +59,9 @@ pub struct Pass<'p> {
     /// Another pass of the same sweep follows, in the same order: its first slice may be gathered
     /// while this pass ends ([`SliceStreamer::stream_pass`]).
     pub another_follows: bool,
+    /// The resident mode's buffers, which every slice computes on (nothing streams); `None`:
+    /// streamed.
+    pub resident: Option<&'p ResidentBuffers>,
 }
 
 /// What a pass streams between: the plan, the store and its fields, the device resources.
@@ -154,8 +157,8 @@ impl SliceStreamer {
     pub fn stream_pass(&mut self, io: &mut Stream, pass: &Pass) -> Result<(), SolveError> {
         // Taken whatever happens: staging gathered for another pass is never used.
         let pregathered = self.pregathered.take();
-        if self.memory.is_resident() {
-            return self.compute_resident_pass(io, pass);
+        if let Some(resident) = pass.resident {
+            return self.compute_resident_pass(io, pass, resident);
         }
         let plan = io.plan;
         let slices = pass.sweep.slices(BRICK_EDGE, self.memory.planes_per_slice);
@@ -265,7 +268,12 @@ impl SliceStreamer {
 
     /// A pass of the resident mode: every slice computes on the resident buffers (after the
     /// order's load), nothing moves.
-    fn compute_resident_pass(&mut self, io: &mut Stream, pass: &Pass) -> Result<(), SolveError> {
+    fn compute_resident_pass(
+        &mut self,
+        io: &mut Stream,
+        pass: &Pass,
+        resident: &ResidentBuffers,
+    ) -> Result<(), SolveError> {
         let plan = io.plan;
         let gain = pass.flags & FLAG_GAIN != 0;
         let (c, comps) = (plan.channels as u64, plan.source_components() as u64);
@@ -289,7 +297,7 @@ impl SliceStreamer {
                 flags: pass.flags,
                 half_exponent: pass.half_exponent,
                 first: i == 0,
-                resident_table: (!vacuum).then_some(&table[..]),
+                resident_table: (!vacuum).then_some((&table[..], &*resident.slot_table)),
             };
             self.submit_compute(io, &step, v)?;
         }
@@ -309,14 +317,12 @@ impl SliceStreamer {
     pub fn load_resident(
         &mut self,
         io: &mut Stream,
+        resident: &ResidentBuffers,
         half_exponent: Option<i32>,
         with_density: bool,
         seeded: bool,
     ) -> Result<(), SolveError> {
         let plan = io.plan;
-        let Some(resident) = io.res.resident.as_ref() else {
-            return Err(SolveError::Internal("resident load without resident buffers"));
-        };
         let (c, comps) = (plan.channels as u64, plan.source_components() as u64);
         let half = half_exponent.map(power_of_two);
         let prev_brick = comps * BRICK_BYTES / 4 * plan.source_precision.bytes();
@@ -405,11 +411,8 @@ impl SliceStreamer {
     /// The resident mode's end of an order: the new source and the fluence of every occupied
     /// brick come home through the slots' download staging, slice by slice (pipelined like a
     /// streamed pass's downloads); returns when all are in the store.
-    pub fn unload_resident(&mut self, io: &mut Stream) -> Result<(), SolveError> {
+    pub fn unload_resident(&mut self, io: &mut Stream, resident: &ResidentBuffers) -> Result<(), SolveError> {
         let plan = io.plan;
-        let Some(resident) = io.res.resident.as_ref() else {
-            return Err(SolveError::Internal("resident unload without resident buffers"));
-        };
         let (c, comps) = (plan.channels as u64, plan.source_components() as u64);
         let ctx = Arc::clone(&self.sub.ctx);
         let queue = ctx.download_queue_or_fallback();
