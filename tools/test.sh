@@ -21,7 +21,9 @@ log="$(mktemp)"
 trap 'rm -f "$log"' EXIT
 # pipefail (above): a failing cargo test fails the script here. `test-hooks` compiles in the kill
 # test's hook (LPM_TEST_ABORT_AT_SLICE, tests/it/resume.rs), which no plain or release build has.
-cargo test --no-fail-fast --features test-hooks "$@" 2>&1 | tee "$log"
+# No backtraces: CI shows the output's tail, and a failure's own message (a proptest's minimal
+# failing input, say) must not be pushed out of it by a stack trace.
+RUST_BACKTRACE=0 cargo test --no-fail-fast --features test-hooks "$@" 2>&1 | tee "$log"
 # A short bounded fuzzing run of every fuzz target (issue 13): 15 s each, built unoptimised (faster
 # to build; debug assertions and overflow checks on), after the build.
 # tools/fuzz.sh explains RUSTC_BOOTSTRAP and does long runs; it installs cargo-fuzz if missing.

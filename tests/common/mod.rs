@@ -239,10 +239,21 @@ pub fn write_scene(dir: &std::path::Path, text: &str) -> PathBuf {
     write_scene_as(dir, "scene.toml", text)
 }
 
+/// The k×k-per-face direction set, made once per k for the whole test process: the exact
+/// references below evaluate it at many thousands of points (made per point, building a 32×32 set
+/// took most of the spatial-accuracy tests' time).
+pub fn propagation_set(k: u32) -> std::sync::Arc<lpm::quadrature::PropagationSet> {
+    use std::collections::HashMap;
+    use std::sync::{Arc, Mutex, OnceLock};
+    static SETS: OnceLock<Mutex<HashMap<u32, Arc<lpm::quadrature::PropagationSet>>>> = OnceLock::new();
+    let mut sets = SETS.get_or_init(Default::default).lock().unwrap_or_else(|e| e.into_inner());
+    Arc::clone(sets.entry(k).or_insert_with(|| Arc::new(lpm::quadrature::PropagationSet::new(k))))
+}
+
 /// ∫ e^{−σ d(x, −ω)} dω at point x of a box [0, n]³ (d: the distance from x back to the box's
 /// surface along −ω), by a fine cube-face quadrature of `k`×`k` directions per face.
 pub fn exact_absorber_fluence(sigma: f64, n: [f64; 3], x: [f64; 3], k: u32) -> f64 {
-    let fine = lpm::quadrature::PropagationSet::new(k);
+    let fine = propagation_set(k);
     fine.directions
         .iter()
         .map(|d| {

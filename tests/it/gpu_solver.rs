@@ -28,7 +28,7 @@ fn gpu_matches_cpu_twin_on_rgb_cloud_with_sun_and_sky() {
         vec![sky(0.4), sun([0.3, 1.0, 0.2], [3.0, 2.8, 2.5])],
     );
     scene.solver.directions_per_face = 4;
-    let err = gpu_vs_cpu("rgb-cloud", scene, 8);
+    let err = gpu_vs_cpu("rgb-cloud", scene, 4);
     assert!(err <= 1e-4, "relative L2 {err}");
 }
 
@@ -73,7 +73,10 @@ fn energy_balances_on_the_gpu() {
         vec![sky(0.5), sun([0.2, -0.4, 1.0], [2.0, 1.0, 3.0])],
     );
     scene.medium.emission = [0.0, 0.3, 0.1];
+    // The books close at any order count (what is left is counted as unpropagated): a few orders
+    // show it as well as the converged solve.
     scene.solver.tolerance = 1e-5;
+    scene.solver.max_orders = 8;
     let s = solve("energy", &scene, Gpu);
     let e = &s.run.outcome.energy;
     assert!(e.relative_imbalance < 1e-5, "{e:?}");

@@ -91,7 +91,7 @@ fn f16_rgb_cloud_with_sun_and_sky_matches_the_f16_twin() {
 #[test]
 fn f16_and_f32_differ_by_less_than_the_tolerance_and_f16_saves_bytes() {
     let mut scene =
-        scene(Shape::Cloud, [28, 26, 30], [1.2; 3], [0.95; 3], vec![sky(0.5), sun([0.2, -0.4, 1.0], [3.0; 3])]);
+        scene(Shape::Cloud, [28, 26, 30], [1.2; 3], [0.9; 3], vec![sky(0.5), sun([0.2, -0.4, 1.0], [3.0; 3])]);
     scene.solver.directions_per_face = 3;
     scene.solver.tolerance = 1e-3;
     // `auto` at tolerance 1e-3 picks f16.
