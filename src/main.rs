@@ -10,7 +10,6 @@ use lpm::solver::BackendKind;
 use lpm::vk::ContextOptions;
 use std::io::IsTerminal;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
 
 #[derive(Parser)]
 #[command(
@@ -543,12 +542,10 @@ fn main() {
 /// `lpm serve`'s workers and scripts tell apart from a failure).
 const EXIT_CANCELLED: i32 = 3;
 
-/// Raised by the first SIGTERM or SIGINT (see [`cancel_on_signals`]).
-static STOP_REQUESTED: AtomicBool = AtomicBool::new(false);
-
 extern "C" fn on_stop_signal(signal: libc::c_int) {
-    // Only async-signal-safe calls here: an atomic store, signal() and raise().
-    if STOP_REQUESTED.swap(true, Ordering::SeqCst) {
+    // Only async-signal-safe calls here: an atomic swap, signal() and raise(). The process's flag
+    // is the one every phase looks at (the renderer included, see `lpm::solver::cancel`).
+    if lpm::solver::cancel::CancelFlag::process().raise_again() {
         // The second signal: end now, as without a handler.
         // SAFETY: signal and raise are async-signal-safe.
         unsafe {
@@ -567,7 +564,7 @@ fn cancel_on_signals() -> lpm::solver::cancel::CancelFlag {
         // SAFETY: the handler is a plain function doing only async-signal-safe work.
         unsafe { libc::signal(signal, handler as libc::sighandler_t) };
     }
-    lpm::solver::cancel::CancelFlag::from_static(&STOP_REQUESTED)
+    lpm::solver::cancel::CancelFlag::process()
 }
 
 /// Whether `e` is a solve that stopped because it was cancelled.
