@@ -320,7 +320,9 @@ fn check_claims(b: &Buf, tree: &Tree, seen: &Seen, t: &TreeClaims, claims: &Clai
     let corrupt = |what: &'static str, at: u64, message: String| VdbError::Malformed {
         what,
         offset: at,
-        message: format!("{message}; the file is corrupt (NanoVDB writes these from the nodes, so they agree in a sound file)"),
+        message: format!(
+            "{message}; the file is corrupt (NanoVDB writes these from the nodes, so they agree in a sound file)"
+        ),
     };
     if seen.nodes != counts || seen.tiles != tree_tiles {
         return Err(corrupt(
