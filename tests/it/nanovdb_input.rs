@@ -222,3 +222,24 @@ fn a_nanovdb_grid_whose_claimed_size_disagrees_with_its_nodes_is_refused() {
     let plain = read_nanovdb_bytes(&std::fs::read(dir.join("n.nvdb")).unwrap(), "density").expect("-s none reads");
     assert_eq!(plain.tree.active_bbox(), sound.tree.active_bbox());
 }
+
+/// Issue 35 item 8: reading a VDB or NanoVDB grid (seconds for a large one) looks at the cancel
+/// flag at every read of the file: raised, the read stops as a cancellation, not as an error.
+#[test]
+fn reading_a_vdb_or_nanovdb_grid_stops_once_cancelled() {
+    let dir = files("nvdb-cancel");
+    for file in ["smoke.vdb", "smoke.nvdb"] {
+        let path = dir.join(file);
+        let info = lpm::store::vdb::vdb_info(&path, "density").unwrap();
+        let dims = info.dims.map(|d| d as u32);
+        let flag = lpm::solver::cancel::CancelFlag::new();
+        let read = |flag| lpm::store::vdb::vdb_density_until(&path, "density", dims, info.index_min, Some(flag));
+        assert!(read(flag).is_ok(), "{file}");
+        flag.raise();
+        match read(flag) {
+            Err(lpm::store::StoreError::Cancelled) => {}
+            Err(e) => panic!("{file}: {e}"),
+            Ok(_) => panic!("{file}: read whole after the flag was raised"),
+        }
+    }
+}

@@ -33,7 +33,8 @@ pub struct VdbVolumeInfo {
 /// `path` opened through the input checks, every read of it stopping once `cancel` is raised.
 fn open(path: &Path, cancel: Option<CancelFlag>) -> Result<VdbReader<BufReader<Stoppable<File>>>, StoreError> {
     let file = crate::input::open(path)?;
-    VdbReader::new(BufReader::with_capacity(1 << 16, Stoppable { inner: file, cancel })).map_err(|e| vdb_error(path, e))
+    VdbReader::new(BufReader::with_capacity(1 << 16, Stoppable { inner: file, cancel }))
+        .map_err(|e| stopped_or(cancel, vdb_error(path, e)))
 }
 
 /// A failed read as [`StoreError::Cancelled`] when it failed because `cancel` was raised.
