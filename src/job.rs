@@ -183,7 +183,14 @@ pub fn run(job: &SolveJob, progress: impl FnMut(u32, f64)) -> Result<Report, Job
     if job.resume && job.backend == BackendKind::Cpu {
         return Err(SolveError::ResumeNeedsGpu.into());
     }
-    let mut scene = Scene::load(&job.scene)?;
+    // Loading a scene reads a VDB volume's topology, or a NanoVDB grid whole: stopped by SIGTERM
+    // (the process's flag, see `store::vdb::vdb_info`), nothing is kept.
+    let mut scene = match Scene::load(&job.scene) {
+        Err(_) if solver::cancel::raised(job.cancel) || solver::cancel::CancelFlag::process().is_raised() => {
+            return Err(SolveError::Cancelled { resumable: false }.into())
+        }
+        scene => scene?,
+    };
     if job.device_memory_budget.is_some() {
         scene.solver.device_memory_budget = job.device_memory_budget;
     }

@@ -1192,6 +1192,35 @@ fn parse_budget(text: &str) -> Result<u64, String> {
     }
 }
 
+/// The keys `lpm info` and the programs reading `--json` rely on, each of its type: a report that
+/// was cut short, edited or is some other JSON is refused naming the first key that is wrong.
+fn check_report(r: &serde_json::Value) -> std::result::Result<(), String> {
+    use serde_json::Value;
+    /// A key, the test of its value and what the test asks for, in words.
+    type Check = (&'static str, fn(&Value) -> bool, &'static str);
+    let checks: [Check; 8] = [
+        ("lpm_version", Value::is_string, "a string"),
+        ("scene", Value::is_string, "a string"),
+        ("plan", Value::is_object, "an object"),
+        ("orders", Value::is_u64, "a whole number"),
+        ("converged", Value::is_boolean, "true or false"),
+        ("final_residual", Value::is_number, "a number"),
+        ("energy", Value::is_object, "an object"),
+        ("outputs", Value::is_array, "a list"),
+    ];
+    if !r.is_object() {
+        return Err("it is not a JSON object".into());
+    }
+    for (key, ok, what) in checks {
+        match r.get(key) {
+            None => return Err(format!("it has no \"{key}\"")),
+            Some(v) if !ok(v) => return Err(format!("\"{key}\" is not {what}")),
+            Some(_) => {}
+        }
+    }
+    Ok(())
+}
+
 fn info(dir: &std::path::Path, json: bool) -> Result<()> {
     let path = dir.join("report.json");
     // A report is a few kilobytes; 64 MiB leaves room for very long histories.
@@ -1199,7 +1228,8 @@ fn info(dir: &std::path::Path, json: bool) -> Result<()> {
     // Checked before it is printed, --json included: a corrupt report is an error, not output.
     let r: serde_json::Value =
         serde_json::from_str(&text).with_context(|| format!("{} is not valid JSON", path.display()))?;
-    let Some(plan) = r.get("plan") else { bail!("{}: no plan in the report", path.display()) };
+    check_report(&r).map_err(|why| anyhow::anyhow!("{}: not a report lpm wrote: {why}", path.display()))?;
+    let plan = &r["plan"];
     if json {
         println!("{text}");
         return Ok(());

@@ -247,6 +247,24 @@ fn info_json_refuses_a_corrupt_report() {
     let o = run_within(&["info", s(&dir), "--json"], Duration::from_secs(60));
     refused(&o, "report.json", "is not valid JSON");
     assert!(o.stdout.is_empty(), "nothing is printed: {}", String::from_utf8_lossy(&o.stdout));
+    // Valid JSON, but not a report (or one whose keys were damaged): named by its first wrong key.
+    for (text, why) in [
+        ("[1, 2]", "not a JSON object"),
+        ("{\"plan\": 1}", "has no \"lpm_version\""),
+        (
+            "{\"lpm_version\": \"0\", \"scene\": \"s\", \"plan\": {}, \"orders\": -1}",
+            "\"orders\" is not a whole number",
+        ),
+    ] {
+        std::fs::write(dir.join("report.json"), text).unwrap();
+        let o = run_within(&["info", s(&dir), "--json"], Duration::from_secs(60));
+        refused(&o, "report.json", why);
+        assert!(o.stdout.is_empty(), "nothing is printed: {}", String::from_utf8_lossy(&o.stdout));
+    }
+    // A real report passes.
+    let out = solved(&dir, "out");
+    let o = run_within(&["info", s(&out), "--json"], Duration::from_secs(60));
+    assert!(o.status.success(), "{}", stderr(&o));
 }
 
 #[test]

@@ -81,15 +81,18 @@ fn read_nanovdb(path: &Path, grid: &str, cancel: Option<CancelFlag>) -> Result<(
 }
 
 /// Places grid `grid` of `path` (topology only: fast, and bounded by the file's node count). A
-/// NanoVDB file (recognised by its magic number) is read whole.
+/// NanoVDB file (recognised by its magic number) is read whole. Called while a scene is loaded,
+/// where no job has handed a flag yet: the reads stop at the process's own
+/// ([`CancelFlag::process`], raised by the `lpm` binary's SIGTERM), as [`StoreError::Cancelled`].
 pub fn vdb_info(path: &Path, grid: &str) -> Result<VdbVolumeInfo, StoreError> {
+    let process = Some(CancelFlag::process());
     if crate::store::nanovdb::is_nanovdb(path) {
-        let (g, grids) = read_nanovdb(path, grid, None)?;
+        let (g, grids) = read_nanovdb(path, grid, process)?;
         return info_of(path, &g, grids);
     }
-    let mut r = open(path, None)?;
+    let mut r = open(path, process)?;
     let grids = r.grids().into_iter().map(|g| g.name).collect();
-    let g = r.read_grid(grid, false).map_err(|e| vdb_error(path, e))?;
+    let g = r.read_grid(grid, false).map_err(|e| stopped_or(process, vdb_error(path, e)))?;
     info_of(path, &g, grids)
 }
 
