@@ -556,3 +556,31 @@ fn sigterm_during_the_render_stops_at_once() {
         sigterm_when(&args, &[], || staging_in(&out).is_some(), Duration::from_millis(300), Duration::from_secs(2));
     cancelled_keeping_nothing(&o, &out);
 }
+
+#[test]
+fn sigterm_during_the_export_of_a_checkpointed_solve_keeps_its_checkpoint_and_resumes() {
+    // On the GPU the last order is checkpointed before the export: stopped there, the message says
+    // the checkpoint is kept, and it is; --resume publishes what an uninterrupted solve does.
+    let dir = temp_dir("hostile-sigterm-export-gpu");
+    let scene = write_scene(&dir, SMALL);
+    let out = dir.join("out");
+    let args = ["solve", s(&scene), "--out", s(&out), "--no-image"];
+    let env = [("LPM_TEST_EXPORT_ROW_DELAY_MS", "20")];
+    let (o, _) =
+        sigterm_when(&args, &env, || staging_in(&out).is_some(), Duration::from_millis(300), Duration::from_secs(2));
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(3), "{e}");
+    assert!(e.contains("its last checkpoint is kept") && e.contains("--resume"), "{e}");
+    assert!(out.join(".lpm-work/checkpoint.json").exists(), "the checkpoint is kept");
+    assert!(!out.join("report.json").exists() && staging_in(&out).is_none(), "nothing published, no staging left");
+    let mut resume = args.to_vec();
+    resume.push("--resume");
+    let o = run_within(&resume, Duration::from_secs(300));
+    assert!(o.status.success(), "{}", stderr(&o));
+    let whole = dir.join("whole");
+    let o = run_within(&["solve", s(&scene), "--out", s(&whole), "--no-image"], Duration::from_secs(300));
+    assert!(o.status.success(), "{}", stderr(&o));
+    for f in ["fluence.raw", "source.raw"] {
+        assert!(std::fs::read(out.join(f)).unwrap() == std::fs::read(whole.join(f)).unwrap(), "{f} differs");
+    }
+}
