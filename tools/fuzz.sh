@@ -33,11 +33,13 @@ for t in "${TARGETS[@]}"; do
     # A NanoVDB grid holding even one voxel is about 300 KB (a 32³ node's table alone is 270 KB):
     # within 64 KiB no seed fits and the fuzzer never gets past the headers (issue 35: 127 edges).
     # Seeds are written here by OpenVDB's Python module and nanovdb_convert (tools/setup.sh
-    # installs both): a few voxels in one leaf, and a second grid and a tile.
+    # installs both): a few voxels in one leaf, and a second grid and a tile; and, within the
+    # default 64 KiB, a grid of root tiles only (1 KB: the headers, the map, the root and the
+    # checks of its claimed sizes, issue 35).
     max_len=1048576
     nvdb_seeds="tools/fuzz/seeds-generated/nanovdb"
     mkdir -p "$nvdb_seeds"
-    if [ ! -s "$nvdb_seeds/two-grids.nvdb" ]; then
+    if [ ! -s "$nvdb_seeds/two-grids.nvdb" ] || [ ! -s "$nvdb_seeds/root-tiles.nvdb" ]; then
       /usr/bin/python3 - "$nvdb_seeds" <<'PY'
 import sys, pyopenvdb as vdb
 d = sys.argv[1]
@@ -50,8 +52,13 @@ h = vdb.FloatGrid(); h.name = 'temperature'
 h.fill((8, 0, 0), (15, 7, 7), 2.0)
 h.transform = vdb.createLinearTransform(voxelSize=0.25)
 vdb.write(d + '/two-grids.vdb', [g, h])
+t = vdb.FloatGrid(); t.name = 'density'
+t.fill((0, 0, 0), (4095, 4095, 4095), 0.5, True)
+t.fill((-4096, 0, 0), (-1, 4095, 4095), 0.25, False)
+t.transform = vdb.createLinearTransform(voxelSize=0.5)
+vdb.write(d + '/root-tiles.vdb', [t])
 PY
-      for v in one-leaf two-grids; do
+      for v in one-leaf two-grids root-tiles; do
         nanovdb_convert -f "$nvdb_seeds/$v.vdb" "$nvdb_seeds/$v.nvdb" >/dev/null
         rm -f "$nvdb_seeds/$v.vdb"
       done
