@@ -75,9 +75,12 @@ pub struct SolveJob {
     /// Discard a checkpoint in `OUT/.lpm-work` and start over (without it, a checkpoint there makes
     /// a solve without `resume` fail rather than silently lose the work).
     pub fresh: bool,
-    /// Raised, the solve stops (`SolveError::Cancelled`, see [`solver::cancel`]): on the GPU at its
-    /// next slice, keeping its last checkpoint; while the store is built, at the next brick; on
-    /// the CPU twin, before the next direction's sweep (those two keep nothing to resume from).
+    /// Raised, the solve stops (`SolveError::Cancelled`, see [`solver::cancel`]): while its volume
+    /// is read or decoded, at the next read or chunk; while the store is built, at the next brick;
+    /// on the GPU at its next slice, keeping its last checkpoint; on the CPU twin, before the next
+    /// direction's sweep; in the export, at the next row or write (the first two and the CPU twin
+    /// keep nothing to resume from; the export keeps the last order's checkpoint where there is
+    /// one). The renderer stops at the process's flag ([`solver::cancel::CancelFlag::process`]).
     pub cancel: Option<solver::cancel::CancelFlag>,
     /// Start from the solution in this output directory (its `source.raw`, e.g. the previous
     /// frame's) instead of from nothing; see [`solver::warm`].

@@ -1,7 +1,9 @@
 //! Issue 35, "nothing gets in, nothing hangs, nothing lies": hostile files given where lpm reads
 //! its inputs. Each test failed before its fix: a FIFO blocked `open()` forever, `/dev/zero` as a
-//! camera was read until memory ran out, a NRRD header with four space directions panicked, and a
-//! confined solve read a NRRD data file outside its root.
+//! camera was read until memory ran out, a NRRD header with four space directions panicked, a
+//! confined solve read a NRRD data file outside its root, a NRRD claiming terabytes was decoded
+//! until the disk was full, and SIGTERM went unheeded while a NRRD was decoded, the fields
+//! exported or the image rendered.
 use crate::common::{lpm_command, temp_dir, write_scene};
 use std::path::{Path, PathBuf};
 use std::process::Output;
