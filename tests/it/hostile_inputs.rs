@@ -555,7 +555,7 @@ fn sigterm_during_the_render_stops_at_once() {
     let out = dir.join("out");
     let args = ["solve", s(&scene), "--out", s(&out), "--backend", "cpu", "--no-fields", "--no-render-data"];
     let (o, _) =
-        sigterm_when(&args, &[], || staging_in(&out).is_some(), Duration::from_millis(300), Duration::from_secs(2));
+        sigterm_when(&args, &[], || staging_in(&out).is_some(), Duration::from_millis(100), Duration::from_secs(2));
     cancelled_keeping_nothing(&o, &out);
 }
 
