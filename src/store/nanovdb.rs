@@ -23,7 +23,12 @@
 //!   files OpenVDB wrote, in `tests/it/nanovdb_input.rs`).
 //!
 //! The grid's buffer is read into memory once (NanoVDB grids are in-memory images), then converted
-//! to the sparse tree leaf by leaf.
+//! to the sparse tree leaf by leaf. What the grid says of its size — active voxels and their
+//! bounding box in the file's metadata, node, tile and voxel counts in `TreeData`, the bounding box
+//! in the root — is then checked against what its nodes hold (`check_claims`): NanoVDB writes all
+//! of them from the nodes, so a disagreement is a corrupt file (a few changed bytes can make a
+//! grid describe a far larger volume), never a volume to solve. A grid written without statistics
+//! has NanoVDB's empty bounding box, which claims nothing.
 
 use crate::store::vdb::{Placement, Tree, VdbError, VdbGrid};
 use std::io::Read;
