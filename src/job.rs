@@ -75,9 +75,12 @@ pub struct SolveJob {
     /// Discard a checkpoint in `OUT/.lpm-work` and start over (without it, a checkpoint there makes
     /// a solve without `resume` fail rather than silently lose the work).
     pub fresh: bool,
-    /// Raised, the solve stops (`SolveError::Cancelled`, see [`solver::cancel`]): on the GPU at its
-    /// next slice, keeping its last checkpoint; while the store is built, at the next brick; on
-    /// the CPU twin, before the next direction's sweep (those two keep nothing to resume from).
+    /// Raised, the solve stops (`SolveError::Cancelled`, see [`solver::cancel`]): while its volume
+    /// is read or decoded, at the next read or chunk; while the store is built, at the next brick;
+    /// on the GPU at its next slice, keeping its last checkpoint; on the CPU twin, before the next
+    /// direction's sweep; in the export, at the next row or write (the first two and the CPU twin
+    /// keep nothing to resume from; the export keeps the last order's checkpoint where there is
+    /// one). The renderer stops at the process's flag ([`solver::cancel::CancelFlag::process`]).
     pub cancel: Option<solver::cancel::CancelFlag>,
     /// Start from the solution in this output directory (its `source.raw`, e.g. the previous
     /// frame's) instead of from nothing; see [`solver::warm`].
@@ -183,7 +186,14 @@ pub fn run(job: &SolveJob, progress: impl FnMut(u32, f64)) -> Result<Report, Job
     if job.resume && job.backend == BackendKind::Cpu {
         return Err(SolveError::ResumeNeedsGpu.into());
     }
-    let mut scene = Scene::load(&job.scene)?;
+    // Loading a scene reads a VDB volume's topology, or a NanoVDB grid whole: stopped by SIGTERM
+    // (the process's flag, see `store::vdb::vdb_info`), nothing is kept.
+    let mut scene = match Scene::load(&job.scene) {
+        Err(_) if solver::cancel::raised(job.cancel) || solver::cancel::CancelFlag::process().is_raised() => {
+            return Err(SolveError::Cancelled { resumable: false }.into())
+        }
+        scene => scene?,
+    };
     if job.device_memory_budget.is_some() {
         scene.solver.device_memory_budget = job.device_memory_budget;
     }
@@ -267,24 +277,39 @@ pub fn run(job: &SolveJob, progress: impl FnMut(u32, f64)) -> Result<Report, Job
     result
 }
 
-/// Refuses a job whose exported fields cannot fit on `OUT`'s disk, before anything is built: the
-/// fluence and the source are dense volumes of at least 4 bytes per voxel each (one channel; more
-/// for RGB and anisotropic plans). The store itself is checked as it is allocated.
+/// Refuses a job whose volume or exported fields cannot fit on `OUT`'s disk, before anything is
+/// built, naming what the bytes are for: the fluence and the source are dense volumes of at least
+/// 4 bytes per voxel each (one channel; more for RGB and anisotropic plans), and a NRRD volume is
+/// decoded into the store as a dense f32 copy (4 bytes per voxel, whatever its samples' type or
+/// encoding: a gzip or a sparse file of a few KB can claim terabytes). The store's bricks are
+/// checked as they are allocated (how many are occupied is known only once they are read).
 fn check_space(job: &SolveJob, scene: &Scene) -> Result<(), JobError> {
-    if job.no_fields {
+    let voxels: u64 = scene.volume.dims.iter().map(|&d| u64::from(d)).product();
+    let dims = scene.volume.dims;
+    let mut needed = 0u64;
+    let mut what = Vec::new();
+    if !job.no_fields {
+        let per_voxel = if scene.is_grey() { 4 } else { 12 };
+        needed = voxels.saturating_mul(per_voxel).saturating_mul(2);
+        what.push(format!(
+            "fluence.raw and source.raw of {} × {} × {} voxels (at the least; --no-fields skips them)",
+            dims[0], dims[1], dims[2]
+        ));
+    }
+    if let crate::scene::VolumeSource::Nrrd { path } = &scene.volume.source {
+        needed = needed.saturating_add(voxels.saturating_mul(4));
+        what.push(format!(
+            "the volume of {} decoded into the store ({} × {} × {} voxels as 32-bit floats)",
+            path.display(),
+            dims[0],
+            dims[1],
+            dims[2]
+        ));
+    }
+    if what.is_empty() {
         return Ok(());
     }
-    let voxels: u64 = scene.volume.dims.iter().map(|&d| u64::from(d)).product();
-    let per_voxel = if scene.is_grey() { 4 } else { 12 };
-    let needed = voxels.saturating_mul(per_voxel).saturating_mul(2);
-    output::space::ensure_free(
-        &job.out,
-        needed,
-        &format!(
-            "fluence.raw and source.raw of {} × {} × {} voxels (at the least; --no-fields skips them)",
-            scene.volume.dims[0], scene.volume.dims[1], scene.volume.dims[2]
-        ),
-    )?;
+    output::space::ensure_free(&job.out, needed, &what.join(" and "))?;
     Ok(())
 }
 
@@ -294,6 +319,7 @@ fn check_finite(
     field: &crate::store::Field,
     store: &crate::store::BrickStore,
     name: &'static str,
+    cancel: Option<solver::cancel::CancelFlag>,
 ) -> Result<(), JobError> {
     let grid = *store.grid();
     for (n, brick) in store.occupied_bricks().enumerate() {
@@ -311,6 +337,9 @@ fn check_finite(
         }
         if n % 1024 == 1023 {
             field.release_all();
+            if solver::cancel::raised(cancel) {
+                return Err(JobError::Solve(SolveError::Cancelled { resumable: true }));
+            }
         }
     }
     field.release_all();
@@ -354,8 +383,23 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
     let SolveRun { plan, outcome, device, peak_device_bytes, memory, mut phases, residency } = run;
     let store_bytes = store.file_bytes();
     phases.insert(0, ("store".to_string(), store_seconds));
-    check_finite(&fields.fluence_total, &store, "fluence")?;
-    check_finite(&fields.source_total, &store, "source")?;
+    // From here on a cancelled job keeps what the solve checkpointed (its last order, on the GPU):
+    // `run` says that none is kept where there is none.
+    let cancel = job.cancel;
+    let stop = || {
+        if solver::cancel::raised(cancel) {
+            Err(JobError::Solve(SolveError::Cancelled { resumable: true }))
+        } else {
+            Ok(())
+        }
+    };
+    let cancelled = |e: OutputError| match e {
+        OutputError::Cancelled => JobError::Solve(SolveError::Cancelled { resumable: true }),
+        e => JobError::Output(e),
+    };
+    stop()?;
+    check_finite(&fields.fluence_total, &store, "fluence", cancel)?;
+    check_finite(&fields.source_total, &store, "source", cancel)?;
 
     // Every output goes to a staging directory first and is published with the others as a set.
     let staging = output::Staging::new(&job.out)?;
@@ -371,14 +415,16 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
             components: channel_names.clone(),
             description: "fluence φ = ∫L dω over all scattering orders, per voxel".into(),
         };
-        output::export_field(
+        output::export_field_until(
             &fields.fluence_total,
             &store,
             &stage,
             "fluence",
             &fluence_meta,
             output::EmptyBricks::NotSolved,
-        )?;
+            cancel,
+        )
+        .map_err(cancelled)?;
         outputs.extend(["fluence.raw", "fluence.json", "fluence.nhdr"].map(String::from));
         let source_names: Vec<String> = if plan.storage.is_isotropic() {
             channel_names.clone()
@@ -400,7 +446,16 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
                 )
             },
         };
-        output::export_field(&fields.source_total, &store, &stage, "source", &source_meta, output::EmptyBricks::Zero)?;
+        output::export_field_until(
+            &fields.source_total,
+            &store,
+            &stage,
+            "source",
+            &source_meta,
+            output::EmptyBricks::Zero,
+            cancel,
+        )
+        .map_err(cancelled)?;
         outputs.extend(["source.raw", "source.json", "source.nhdr"].map(String::from));
         // The same fields as sparse OpenVDB grids, on the input's index grid and transform.
         let placement = vdb_placement(scene);
@@ -408,7 +463,17 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
             [(&fields.fluence_total, "fluence", &fluence_meta), (&fields.source_total, "source", &source_meta)]
         {
             let name = format!("{base}.vdb");
-            output::export_vdb(field, &store, &stage.join(&name), base, meta, placement, job.vdb_precision)?;
+            output::export_vdb_until(
+                field,
+                &store,
+                &stage.join(&name),
+                base,
+                meta,
+                placement,
+                job.vdb_precision,
+                cancel,
+            )
+            .map_err(cancelled)?;
             outputs.push(name);
         }
     }
@@ -462,10 +527,17 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
             &camera,
             job.background,
         );
+        // The renderer stops at SIGTERM (the process's flag) with the image unfinished: never
+        // written as if it were whole.
+        if solver::cancel::CancelFlag::process().is_raised() {
+            return Err(JobError::Solve(SolveError::Cancelled { resumable: true }));
+        }
+        stop()?;
         render::write_images(Some(&stage.join("image.exr")), Some(&stage.join("image.png")), &image, job.background)?;
         outputs.extend(["image.exr", "image.png"].map(String::from));
         phases.push(("render".to_string(), t.elapsed().as_secs_f64()));
     }
+    stop()?;
     outputs.push("report.json".into());
     let report = Report {
         lpm_version: env!("CARGO_PKG_VERSION"),
@@ -534,10 +606,10 @@ mod tests {
         })
         .unwrap();
         let mut field = store.create_field("f", 2, Coverage::Occupied).unwrap();
-        check_finite(&field, &store, "fluence").unwrap();
+        check_finite(&field, &store, "fluence", None).unwrap();
         let (brick, local) = store.grid().locate([17, 3, 18]);
         field.brick_mut(brick).unwrap()[crate::store::BRICK_VOXELS + local] = f32::INFINITY;
-        let e = check_finite(&field, &store, "fluence").unwrap_err();
+        let e = check_finite(&field, &store, "fluence", None).unwrap_err();
         assert!(matches!(e, JobError::NonFinite { voxel: [17, 3, 18], component: 1, .. }), "{e}");
         assert!(e.to_string().contains("non-finite fluence"), "{e}");
     }

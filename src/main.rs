@@ -10,7 +10,6 @@ use lpm::solver::BackendKind;
 use lpm::vk::ContextOptions;
 use std::io::IsTerminal;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
 
 #[derive(Parser)]
 #[command(
@@ -543,12 +542,10 @@ fn main() {
 /// `lpm serve`'s workers and scripts tell apart from a failure).
 const EXIT_CANCELLED: i32 = 3;
 
-/// Raised by the first SIGTERM or SIGINT (see [`cancel_on_signals`]).
-static STOP_REQUESTED: AtomicBool = AtomicBool::new(false);
-
 extern "C" fn on_stop_signal(signal: libc::c_int) {
-    // Only async-signal-safe calls here: an atomic store, signal() and raise().
-    if STOP_REQUESTED.swap(true, Ordering::SeqCst) {
+    // Only async-signal-safe calls here: an atomic swap, signal() and raise(). The process's flag
+    // is the one every phase looks at (the renderer included, see `lpm::solver::cancel`).
+    if lpm::solver::cancel::CancelFlag::process().raise_again() {
         // The second signal: end now, as without a handler.
         // SAFETY: signal and raise are async-signal-safe.
         unsafe {
@@ -567,7 +564,7 @@ fn cancel_on_signals() -> lpm::solver::cancel::CancelFlag {
         // SAFETY: the handler is a plain function doing only async-signal-safe work.
         unsafe { libc::signal(signal, handler as libc::sighandler_t) };
     }
-    lpm::solver::cancel::CancelFlag::from_static(&STOP_REQUESTED)
+    lpm::solver::cancel::CancelFlag::process()
 }
 
 /// Whether `e` is a solve that stopped because it was cancelled.
@@ -1195,6 +1192,35 @@ fn parse_budget(text: &str) -> Result<u64, String> {
     }
 }
 
+/// The keys `lpm info` and the programs reading `--json` rely on, each of its type: a report that
+/// was cut short, edited or is some other JSON is refused naming the first key that is wrong.
+fn check_report(r: &serde_json::Value) -> std::result::Result<(), String> {
+    use serde_json::Value;
+    /// A key, the test of its value and what the test asks for, in words.
+    type Check = (&'static str, fn(&Value) -> bool, &'static str);
+    let checks: [Check; 8] = [
+        ("lpm_version", Value::is_string, "a string"),
+        ("scene", Value::is_string, "a string"),
+        ("plan", Value::is_object, "an object"),
+        ("orders", Value::is_u64, "a whole number"),
+        ("converged", Value::is_boolean, "true or false"),
+        ("final_residual", Value::is_number, "a number"),
+        ("energy", Value::is_object, "an object"),
+        ("outputs", Value::is_array, "a list"),
+    ];
+    if !r.is_object() {
+        return Err("it is not a JSON object".into());
+    }
+    for (key, ok, what) in checks {
+        match r.get(key) {
+            None => return Err(format!("it has no \"{key}\"")),
+            Some(v) if !ok(v) => return Err(format!("\"{key}\" is not {what}")),
+            Some(_) => {}
+        }
+    }
+    Ok(())
+}
+
 fn info(dir: &std::path::Path, json: bool) -> Result<()> {
     let path = dir.join("report.json");
     // A report is a few kilobytes; 64 MiB leaves room for very long histories.
@@ -1202,7 +1228,8 @@ fn info(dir: &std::path::Path, json: bool) -> Result<()> {
     // Checked before it is printed, --json included: a corrupt report is an error, not output.
     let r: serde_json::Value =
         serde_json::from_str(&text).with_context(|| format!("{} is not valid JSON", path.display()))?;
-    let Some(plan) = r.get("plan") else { bail!("{}: no plan in the report", path.display()) };
+    check_report(&r).map_err(|why| anyhow::anyhow!("{}: not a report lpm wrote: {why}", path.display()))?;
+    let plan = &r["plan"];
     if json {
         println!("{text}");
         return Ok(());

@@ -23,6 +23,10 @@ pub enum OutputError {
     #[error("{}: another lpm run is writing to this directory (it holds {}/.lpm-lock); wait for it to finish or choose another --out", dir.display(), dir.display())]
     Locked { dir: PathBuf },
 
+    /// Stopped on request (SIGTERM) while writing; what was written is removed.
+    #[error("the export was cancelled")]
+    Cancelled,
+
     #[error("{}: not enough disk space for {what}: {} needed, {} free", path.display(), super::space::human_bytes(*needed), super::space::human_bytes(*free))]
     NoSpace { path: PathBuf, needed: u64, free: u64, what: String },
 }

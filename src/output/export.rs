@@ -1,6 +1,7 @@
 //! Exporting a [`Field`] (or a field held in memory) as `<base>.raw` + `<base>.json` + `<base>.nhdr`.
 
 use super::{nrrd, write_atomic, write_json_atomic, OutputError};
+use crate::solver::cancel::{self, CancelFlag, Stoppable};
 use crate::store::{BrickStore, Field, BRICK_EDGE, BRICK_VOXELS};
 use serde::{Deserialize, Serialize};
 use std::fs::File;
@@ -69,6 +70,21 @@ pub fn export_field(
     meta: &FieldMeta,
     empty: EmptyBricks,
 ) -> Result<(), OutputError> {
+    export_field_until(field, store, out_dir, base, meta, empty, None)
+}
+
+/// [`export_field`], stopping with [`OutputError::Cancelled`] once `cancel` is raised (looked at
+/// before every row written: a large field takes many seconds to write). What was written is a
+/// temporary, removed.
+pub fn export_field_until(
+    field: &Field,
+    store: &BrickStore,
+    out_dir: &Path,
+    base: &str,
+    meta: &FieldMeta,
+    empty: EmptyBricks,
+    cancel: Option<CancelFlag>,
+) -> Result<(), OutputError> {
     let invalid = |message: String| OutputError::Invalid { path: out_dir.join(format!("{base}.json")), message };
     if field.grid() != store.grid() {
         return Err(invalid(format!(
@@ -92,7 +108,28 @@ pub fn export_field(
     };
     let unstored = field.stored_bricks() < store.grid().brick_count();
     let note = (empty == EmptyBricks::NotSolved && unstored).then(|| NOT_SOLVED.to_string());
-    write_described(out_dir, base, store.grid().dims, store.voxel_size(), meta, note, |w| write_raw(field, fill, w))
+    let written = write_described(out_dir, base, store.grid().dims, store.voxel_size(), meta, note, |w| {
+        write_raw(field, fill, &mut Stoppable { inner: w, cancel })
+    });
+    cancelled_or(cancel, written)
+}
+
+/// A failed write as [`OutputError::Cancelled`] when it failed because `cancel` was raised.
+pub(crate) fn cancelled_or(cancel: Option<CancelFlag>, r: Result<(), OutputError>) -> Result<(), OutputError> {
+    match r {
+        Err(_) if cancel::raised(cancel) => Err(OutputError::Cancelled),
+        r => r,
+    }
+}
+
+/// The export test hook (`tests/it/hostile_inputs.rs`): with the `test-hooks` cargo feature only,
+/// `LPM_TEST_EXPORT_ROW_DELAY_MS` slows every row written, so that a signal finds the export
+/// running. Never in a plain or release build.
+fn test_row_delay() {
+    #[cfg(feature = "test-hooks")]
+    if let Some(ms) = std::env::var("LPM_TEST_EXPORT_ROW_DELAY_MS").ok().and_then(|v| v.parse::<u64>().ok()) {
+        std::thread::sleep(std::time::Duration::from_millis(ms));
+    }
 }
 
 /// Writes a field held in memory (`values` in the exported layout: component fastest, then x, y, z;
@@ -192,6 +229,7 @@ fn write_raw(field: &Field, fill: f32, w: &mut impl Write) -> std::io::Result<()
                     None => (0..width * c).for_each(|_| row.extend_from_slice(&fill.to_le_bytes())),
                 }
             }
+            test_row_delay();
             w.write_all(&row)?;
         }
         if (z + 1) % BRICK_EDGE == 0 {

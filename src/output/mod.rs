@@ -30,8 +30,12 @@ mod vdb;
 pub use atomic::{write_atomic, write_json_atomic};
 pub use confine::{confine, ConfineError};
 pub use error::OutputError;
-pub use export::{export_dense, export_field, EmptyBricks, FieldInfo, FieldMeta, LAYOUT, NOT_SOLVED};
+pub use export::{
+    export_dense, export_field, export_field_until, EmptyBricks, FieldInfo, FieldMeta, LAYOUT, NOT_SOLVED,
+};
 pub use lock::{DirLock, LOCK_FILE};
 pub use publish::{finish_commit, recover, Recovery, Staging, KNOWN_OUTPUTS};
 pub use read::{read_field_json, read_raw_field};
-pub use vdb::{export_vdb, tree_order, vdb_grid_names, write_vdb, GridOut, VdbPlacement, VdbPrecision};
+pub use vdb::{
+    export_vdb, export_vdb_until, tree_order, vdb_grid_names, write_vdb, GridOut, VdbPlacement, VdbPrecision,
+};

@@ -91,6 +91,22 @@ pub fn export_vdb(
     placement: VdbPlacement,
     precision: VdbPrecision,
 ) -> Result<(), OutputError> {
+    export_vdb_until(field, store, path, base, meta, placement, precision, None)
+}
+
+/// [`export_vdb`], stopping with [`OutputError::Cancelled`] once `cancel` is raised (looked at at
+/// every write; the temporary is removed).
+#[allow(clippy::too_many_arguments)] // export_vdb's and the flag
+pub fn export_vdb_until(
+    field: &Field,
+    store: &BrickStore,
+    path: &Path,
+    base: &str,
+    meta: &FieldMeta,
+    placement: VdbPlacement,
+    precision: VdbPrecision,
+    cancel: Option<crate::solver::cancel::CancelFlag>,
+) -> Result<(), OutputError> {
     let invalid = |message: String| OutputError::Invalid { path: path.to_path_buf(), message };
     if field.grid() != store.grid() || meta.components.len() != field.components() as usize {
         return Err(invalid(format!(
@@ -185,7 +201,11 @@ pub fn export_vdb(
             component: c as u32,
         })
         .collect();
-    write_atomic(path, |w| write_vdb(w, &leaves, &grids, placement, precision, &mask, &mut values))?;
+    let written = write_atomic(path, |w| {
+        let mut w = crate::solver::cancel::Stoppable { inner: w, cancel };
+        write_vdb(&mut w, &leaves, &grids, placement, precision, &mask, &mut values)
+    });
+    super::export::cancelled_or(cancel, written)?;
     field.release_all();
     if clamped > 0 {
         tracing::warn!(

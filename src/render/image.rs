@@ -97,6 +97,11 @@ pub fn render(inputs: &RenderInputs) -> Image {
                     Err(_) => return,
                 };
                 let Some((y, (row, alpha_row))) = next else { return };
+                // SIGTERM (the `lpm` binary's flag): stop before the next row; the caller, who
+                // knows its own flag, reports the cancellation and drops the unfinished image.
+                if crate::solver::cancel::CancelFlag::process().is_raised() {
+                    return;
+                }
                 if y % RELEASE_ROWS == 0 {
                     // Hand back the pages the rows so far read (resident memory stays bounded on
                     // volumes larger than RAM; see `store::Field`). Other workers refault what they use.

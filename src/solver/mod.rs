@@ -81,10 +81,13 @@ pub enum SolveError {
     #[error("a host copy worker thread died (it panicked) while copying bricks between the store and the staging")]
     CopyWorkerDied,
     /// `resumable`: whether a checkpoint is kept to resume from. None is when the solve was
-    /// stopped before its first checkpoint (while its store was built, or in its first orders), or
-    /// writes none (a GPU solve of mirror faces on its doubled volume): it starts afresh when rerun.
+    /// stopped before its first checkpoint (while its volume was read or its store built, or in its
+    /// first orders), or writes none (the CPU twin; a GPU solve of mirror faces on its doubled
+    /// volume): it starts afresh when rerun. Stopped at a slice of an order, or in the export or
+    /// the render after the last order's checkpoint, the message is the same: what is kept is the
+    /// last checkpoint, whatever the phase.
     #[error("{}", if *.resumable {
-        "the solve was cancelled (stopped at a slice); its last checkpoint is kept: rerun the same command with --resume to continue it"
+        "the solve was cancelled; its last checkpoint is kept: rerun the same command with --resume to continue it"
     } else {
         "the solve was cancelled; no checkpoint is kept (it stopped before its first, or writes none, as for mirror faces on the GPU, solved on a doubled volume): rerun the same command to solve it again"
     })]
@@ -131,21 +134,27 @@ pub fn build_store(scene: &Scene, dir: &Path) -> Result<BrickStore, SolveError> 
     build_store_until(scene, dir, None)
 }
 
-/// [`build_store`], stopping between bricks once `cancel` is raised (a sparse volume's box can
-/// hold hundreds of thousands of bricks: a SIGTERM must not wait for all of them). A cancelled
-/// build returns [`SolveError::Cancelled`] with nothing to resume from.
+/// [`build_store`], stopping once `cancel` is raised: while a VDB or NanoVDB file is read, while
+/// a NRRD file is decoded, and between bricks (a sparse volume's box can hold hundreds of
+/// thousands of bricks: a SIGTERM must not wait for all of them). A cancelled build returns
+/// [`SolveError::Cancelled`] with nothing to resume from.
 pub fn build_store_until(
     scene: &Scene,
     dir: &Path,
     cancel: Option<cancel::CancelFlag>,
 ) -> Result<BrickStore, SolveError> {
-    let stopped = || cancel.is_some_and(|c| c.is_raised());
-    let store =
-        build_density(scene, dir, &|| if stopped() { Err(crate::store::StoreError::Cancelled) } else { Ok(()) })
-            .map_err(|e| match e {
-                SolveError::Store(crate::store::StoreError::Cancelled) => SolveError::Cancelled { resumable: false },
-                e => e,
-            })?;
+    let stopped = || cancel::raised(cancel);
+    let store = build_density(scene, dir, cancel, &|| {
+        if stopped() {
+            Err(crate::store::StoreError::Cancelled)
+        } else {
+            Ok(())
+        }
+    })
+    .map_err(|e| match e {
+        SolveError::Store(crate::store::StoreError::Cancelled) => SolveError::Cancelled { resumable: false },
+        e => e,
+    })?;
     if let Some(grid) = &scene.volume.emission {
         crate::store::emission::import_emission(&store, grid, &scene.volume.source, &scene.medium)?;
     }
@@ -155,10 +164,12 @@ pub fn build_store_until(
     Ok(store)
 }
 
-/// The density bricks of the scene's volume; `check` is asked before each brick whether to go on.
+/// The density bricks of the scene's volume; `check` is asked before each brick whether to go on,
+/// and a file read or decoded first stops once `cancel` is raised.
 fn build_density(
     scene: &Scene,
     dir: &Path,
+    cancel: Option<cancel::CancelFlag>,
     check: &(dyn Fn() -> Result<(), crate::store::StoreError> + Sync),
 ) -> Result<BrickStore, SolveError> {
     let dims = scene.volume.dims;
@@ -177,7 +188,7 @@ fn build_density(
             BrickStore::create_with(dir, dims, h, |brick, out| check().and_then(|()| raw.fill_brick(brick, out)))?
         }
         VolumeSource::Vdb { path, grid, index_min } => {
-            let vdb = crate::store::vdb::vdb_density(path, grid, dims, *index_min)?;
+            let vdb = crate::store::vdb::vdb_density_until(path, grid, dims, *index_min, cancel)?;
             BrickStore::create_with(dir, dims, h, |brick, out| check().and_then(|()| vdb.fill_brick(brick, out)))?
         }
         VolumeSource::Nrrd { path } => {
@@ -195,7 +206,7 @@ fn build_density(
             }
             std::fs::create_dir_all(dir).map_err(crate::store::StoreError::io(dir, "create the store directory"))?;
             let decoded = dir.join("nrrd-density.raw");
-            crate::store::nrrd_input::convert_to_raw(path, &header, &decoded)?;
+            crate::store::nrrd_input::convert_to_raw(path, &header, &decoded, cancel)?;
             let raw = import::raw_density(&decoded, dims)?;
             // A bad density is reported against the NRRD file, not the temporary.
             let store = BrickStore::create_with(dir, dims, h, |brick, out| {

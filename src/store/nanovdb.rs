@@ -23,7 +23,12 @@
 //!   files OpenVDB wrote, in `tests/it/nanovdb_input.rs`).
 //!
 //! The grid's buffer is read into memory once (NanoVDB grids are in-memory images), then converted
-//! to the sparse tree leaf by leaf.
+//! to the sparse tree leaf by leaf. What the grid says of its size — active voxels and their
+//! bounding box in the file's metadata, node, tile and voxel counts in `TreeData`, the bounding box
+//! in the root — is then checked against what its nodes hold (`check_claims`): NanoVDB writes all
+//! of them from the nodes, so a disagreement is a corrupt file (a few changed bytes can make a
+//! grid describe a far larger volume), never a volume to solve. A grid written without statistics
+//! has NanoVDB's empty bounding box, which claims nothing.
 
 use crate::store::vdb::{Placement, Tree, VdbError, VdbGrid};
 use std::io::Read;
@@ -154,6 +159,11 @@ pub fn read_nanovdb(bytes_of: &mut impl Read, file_len: u64, name: &str) -> Resu
             let grid_size = m.u64(0, "a grid's size")?;
             let file_size = m.u64(8, "a grid's size in the file")?;
             let name_size = m.u32(136, "a grid's name size")? as u64;
+            let claims = Claims {
+                voxels: m.u64(24, "a grid's voxel count")?,
+                bbox: bbox_at(&m, 88, "a grid's bounding box")?,
+                at: pos,
+            };
             let codec = m.u16(168, "a grid's codec")?;
             if codec != 0 {
                 return Err(codec_error(codec, pos + 168));
@@ -198,7 +208,7 @@ pub fn read_nanovdb(bytes_of: &mut impl Read, file_len: u64, name: &str) -> Resu
                 if read.ok() != Some(file_size as usize) {
                     return Err(VdbError::Truncated { what: "a grid", offset: pos, len: file_len });
                 }
-                found = Some(read_grid(&Buf { bytes: &buffer, base: pos }, &grid_name)?);
+                found = Some(read_grid(&Buf { bytes: &buffer, base: pos }, &grid_name, &claims)?);
             } else {
                 let skipped = std::io::copy(&mut bytes_of.by_ref().take(file_size), &mut std::io::sink());
                 if skipped.ok() != Some(file_size) {
@@ -252,8 +262,110 @@ fn codec_error(codec: u16, at: u64) -> VdbError {
     }
 }
 
-/// One grid buffer (`GridData` onwards) into a sparse tree.
-fn read_grid(b: &Buf, name: &str) -> Result<VdbGrid, VdbError> {
+/// What a grid's file metadata says of it: its active voxel count and their index bounding box,
+/// and where the metadata starts in the file.
+struct Claims {
+    voxels: u64,
+    bbox: [i32; 6],
+    at: u64,
+}
+
+/// The bounding box NanoVDB writes when its statistics are off (`nanovdb_convert -s none`): empty.
+const UNSET_BBOX: [i32; 6] = [i32::MAX, i32::MAX, i32::MAX, i32::MIN, i32::MIN, i32::MIN];
+
+fn bbox_at(b: &Buf, at: usize, what: &'static str) -> Result<[i32; 6], VdbError> {
+    let mut bbox = [0i32; 6];
+    for (i, v) in bbox.iter_mut().enumerate() {
+        *v = i32::from_le_bytes(b.get::<4>(at + 4 * i, what)?);
+    }
+    Ok(bbox)
+}
+
+/// What a grid's tree (`TreeData`) and root say of it: node counts (leaves, 16³, 32³), active
+/// tile counts, active voxels, and the root's bounding box of the active voxels.
+struct TreeClaims {
+    nodes: [u64; 3],
+    tiles: [u64; 3],
+    voxels: u64,
+    root_bbox: [i32; 6],
+}
+
+/// What the nodes of a grid really hold, counted as they are read.
+#[derive(Default)]
+struct Seen {
+    /// Leaves, 16³ and 32³ nodes.
+    nodes: [u64; 3],
+    /// Active tiles in 16³ nodes (8³ voxels each), in 32³ nodes (128³) and in the root (4096³).
+    tiles: [u64; 3],
+    /// Active voxels, those of active tiles included.
+    voxels: u64,
+}
+
+/// Voxels of an active tile at each level (8³, 128³, 4096³).
+const TILE_VOXELS: [u64; 3] = [1 << 9, 1 << 21, 1 << 36];
+
+fn describe_bbox(b: &[i32; 6]) -> String {
+    if *b == UNSET_BBOX {
+        return "no bounding box".into();
+    }
+    let dims: [i64; 3] = std::array::from_fn(|i| i64::from(b[i + 3]) - i64::from(b[i]) + 1);
+    format!("{} × {} × {} voxels from {:?}", dims[0], dims[1], dims[2], [b[0], b[1], b[2]])
+}
+
+/// A grid's sizes as its metadata, tree and root claim them against what its nodes hold: a few
+/// changed bytes (a flipped mask bit, a moved tile) make a grid describe another, far larger
+/// volume, which would be solved (or its disk and memory claimed) as if it were the file's.
+/// NanoVDB writes each of these claims from the nodes, so in a sound file they all agree.
+fn check_claims(b: &Buf, tree: &Tree, seen: &Seen, t: &TreeClaims, claims: &Claims) -> Result<(), VdbError> {
+    let (counts, tree_tiles, tree_voxels, root_bbox) = (t.nodes, t.tiles, t.voxels, t.root_bbox);
+    let held = match tree.active_bbox() {
+        Some([lo, hi]) => [lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]].map(|v| v as i32),
+        None => UNSET_BBOX,
+    };
+    let corrupt = |what: &'static str, at: u64, message: String| VdbError::Malformed {
+        what,
+        offset: at,
+        message: format!(
+            "{message}; the file is corrupt (NanoVDB writes these from the nodes, so they agree in a sound file)"
+        ),
+    };
+    if seen.nodes != counts || seen.tiles != tree_tiles {
+        return Err(corrupt(
+            "the tree",
+            b.base + GRID_DATA as u64 + 32,
+            format!(
+                "it counts {counts:?} leaves, 16³ and 32³ nodes and {tree_tiles:?} active tiles, its nodes hold {:?} and {:?}",
+                seen.nodes, seen.tiles
+            ),
+        ));
+    }
+    if seen.voxels != tree_voxels || seen.voxels != claims.voxels {
+        return Err(corrupt(
+            "the grid's voxel count",
+            claims.at + 24,
+            format!(
+                "the grid claims {} active voxels (its tree {tree_voxels}), its nodes hold {}",
+                claims.voxels, seen.voxels
+            ),
+        ));
+    }
+    if root_bbox != claims.bbox || (root_bbox != UNSET_BBOX && root_bbox != held) {
+        return Err(corrupt(
+            "the grid's bounding box",
+            claims.at + 88,
+            format!(
+                "the grid claims {} (its root {}), its nodes' active voxels span {}",
+                describe_bbox(&claims.bbox),
+                describe_bbox(&root_bbox),
+                describe_bbox(&held)
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// One grid buffer (`GridData` onwards) into a sparse tree, its claims checked against its nodes.
+fn read_grid(b: &Buf, name: &str, claims: &Claims) -> Result<VdbGrid, VdbError> {
     if b.get::<8>(0, "the grid's magic number")? != MAGIC {
         return Err(b.malformed("the grid", 0, "the grid does not start with NanoVDB's magic number".into()));
     }
@@ -278,13 +390,23 @@ fn read_grid(b: &Buf, name: &str) -> Result<VdbGrid, VdbError> {
     if limits[0] > fits(LEAF_SIZE) || limits[1] > fits(LOWER_SIZE) || limits[2] > fits(UPPER_SIZE) {
         return Err(b.malformed("the tree", tree_at + 32, format!("node counts {counts:?} cannot fit in the grid")));
     }
+    let mut tiles = [0u64; 3];
+    for (l, t) in tiles.iter_mut().enumerate() {
+        *t = u64::from(b.u32(tree_at + 44 + 4 * l, "the tree's tile counts")?);
+    }
+    let tree_claims = TreeClaims {
+        nodes: limits,
+        tiles,
+        voxels: b.u64(tree_at + 56, "the tree's voxel count")?,
+        root_bbox: bbox_at(b, root, "the root's bounding box")?,
+    };
     let table = b.u32(root + 24, "the root table size")? as usize;
     let background = b.f32(root + 28, "the background")?;
     if table > (b.bytes.len() - root) / ROOT_TILE {
         return Err(b.malformed("the root", root + 24, format!("{table} root tiles cannot fit in the grid")));
     }
     let mut tree = Tree::with_background(background);
-    let mut seen = [0u64; 3];
+    let mut seen = Seen::default();
     for t in 0..table {
         let at = root + ROOT_DATA + ROOT_TILE * t;
         let key = b.u64(at, "a root tile")?;
@@ -297,10 +419,14 @@ fn read_grid(b: &Buf, name: &str) -> Result<VdbGrid, VdbError> {
             if !tree.add_root_tile(origin, value, active) {
                 return Err(b.malformed("the root", at, format!("two entries at {origin:?}")));
             }
+            if active {
+                seen.tiles[2] += 1;
+                seen.voxels = seen.voxels.saturating_add(TILE_VOXELS[2]);
+            }
             continue;
         }
-        seen[2] += 1;
-        if seen[2] > limits[2] {
+        seen.nodes[2] += 1;
+        if seen.nodes[2] > limits[2] {
             return Err(b.malformed("the root", at, "more 32³ nodes than the tree counts".into()));
         }
         let upper = b.child(root, child, UPPER_SIZE, "a root tile")?;
@@ -309,6 +435,7 @@ fn read_grid(b: &Buf, name: &str) -> Result<VdbGrid, VdbError> {
         };
         read_upper(b, &mut tree, upper, n5, origin, &mut seen, limits)?;
     }
+    check_claims(b, &tree, &seen, &tree_claims, claims)?;
     Ok(VdbGrid { name: name.to_string(), placement, half: false, tree })
 }
 
@@ -318,7 +445,7 @@ fn read_upper(
     at: usize,
     n5: u32,
     origin: [i32; 3],
-    seen: &mut [u64; 3],
+    seen: &mut Seen,
     limits: [u64; 3],
 ) -> Result<(), VdbError> {
     let value_mask = b.words::<512>(at + 32, "a 32³ node's value mask")?;
@@ -329,11 +456,16 @@ fn read_upper(
         let child_origin = [origin[0] + o[0], origin[1] + o[1], origin[2] + o[2]];
         if !bit(&child_mask, slot) {
             let value = b.f32(entry, "a 32³ node's tile")?;
-            tree.set_node5_tile(n5, origin, slot, value, bit(&value_mask, slot));
+            let active = bit(&value_mask, slot);
+            tree.set_node5_tile(n5, origin, slot, value, active);
+            if active {
+                seen.tiles[1] += 1;
+                seen.voxels = seen.voxels.saturating_add(TILE_VOXELS[1]);
+            }
             continue;
         }
-        seen[1] += 1;
-        if seen[1] > limits[1] {
+        seen.nodes[1] += 1;
+        if seen.nodes[1] > limits[1] {
             return Err(b.malformed("a 32³ node", entry, "more 16³ nodes than the tree counts".into()));
         }
         let lower = b.child(at, b.i64(entry, "a 32³ node's child")?, LOWER_SIZE, "a 32³ node's child")?;
@@ -349,7 +481,7 @@ fn read_lower(
     at: usize,
     n4: u32,
     origin: [i32; 3],
-    seen: &mut [u64; 3],
+    seen: &mut Seen,
     limits: [u64; 3],
 ) -> Result<(), VdbError> {
     let value_mask = b.words::<64>(at + 32, "a 16³ node's value mask")?;
@@ -358,11 +490,16 @@ fn read_lower(
         let entry = at + LOWER_TABLE + 8 * slot;
         if !bit(&child_mask, slot) {
             let value = b.f32(entry, "a 16³ node's tile")?;
-            tree.set_node4_tile(n4, origin, slot, value, bit(&value_mask, slot));
+            let active = bit(&value_mask, slot);
+            tree.set_node4_tile(n4, origin, slot, value, active);
+            if active {
+                seen.tiles[0] += 1;
+                seen.voxels = seen.voxels.saturating_add(TILE_VOXELS[0]);
+            }
             continue;
         }
-        seen[0] += 1;
-        if seen[0] > limits[0] {
+        seen.nodes[0] += 1;
+        if seen.nodes[0] > limits[0] {
             return Err(b.malformed("a 16³ node", entry, "more leaves than the tree counts".into()));
         }
         let leaf = b.child(at, b.i64(entry, "a 16³ node's child")?, LEAF_SIZE, "a 16³ node's child")?;
@@ -370,6 +507,7 @@ fn read_lower(
         let leaf_origin = [origin[0] + o[0], origin[1] + o[1], origin[2] + o[2]];
         let words = b.words::<8>(leaf + 16, "a leaf's value mask")?;
         let mask: [u64; 8] = std::array::from_fn(|i| words[i]);
+        seen.voxels = seen.voxels.saturating_add(mask.iter().map(|w| u64::from(w.count_ones())).sum::<u64>());
         let mut values = [0.0f32; 512];
         for (i, v) in values.iter_mut().enumerate() {
             *v = b.f32(leaf + LEAF_VALUES + 4 * i, "a leaf's values")?;

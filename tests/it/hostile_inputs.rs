@@ -1,7 +1,9 @@
 //! Issue 35, "nothing gets in, nothing hangs, nothing lies": hostile files given where lpm reads
 //! its inputs. Each test failed before its fix: a FIFO blocked `open()` forever, `/dev/zero` as a
-//! camera was read until memory ran out, a NRRD header with four space directions panicked, and a
-//! confined solve read a NRRD data file outside its root.
+//! camera was read until memory ran out, a NRRD header with four space directions panicked, a
+//! confined solve read a NRRD data file outside its root, a NRRD claiming terabytes was decoded
+//! until the disk was full, and SIGTERM went unheeded while a NRRD was decoded, the fields
+//! exported or the image rendered.
 use crate::common::{lpm_command, temp_dir, write_scene};
 use std::path::{Path, PathBuf};
 use std::process::Output;
@@ -247,6 +249,24 @@ fn info_json_refuses_a_corrupt_report() {
     let o = run_within(&["info", s(&dir), "--json"], Duration::from_secs(60));
     refused(&o, "report.json", "is not valid JSON");
     assert!(o.stdout.is_empty(), "nothing is printed: {}", String::from_utf8_lossy(&o.stdout));
+    // Valid JSON, but not a report (or one whose keys were damaged): named by its first wrong key.
+    for (text, why) in [
+        ("[1, 2]", "not a JSON object"),
+        ("{\"plan\": 1}", "has no \"lpm_version\""),
+        (
+            "{\"lpm_version\": \"0\", \"scene\": \"s\", \"plan\": {}, \"orders\": -1}",
+            "\"orders\" is not a whole number",
+        ),
+    ] {
+        std::fs::write(dir.join("report.json"), text).unwrap();
+        let o = run_within(&["info", s(&dir), "--json"], Duration::from_secs(60));
+        refused(&o, "report.json", why);
+        assert!(o.stdout.is_empty(), "nothing is printed: {}", String::from_utf8_lossy(&o.stdout));
+    }
+    // A real report passes.
+    let out = solved(&dir, "out");
+    let o = run_within(&["info", s(&out), "--json"], Duration::from_secs(60));
+    assert!(o.status.success(), "{}", stderr(&o));
 }
 
 #[test]
@@ -393,4 +413,176 @@ fn sigterm_stops_the_cpu_twin_between_directions_and_says_no_checkpoint_is_kept(
     assert_eq!(o.status.code(), Some(3), "{e}");
     assert!(e.contains("no checkpoint is kept"), "{e}");
     assert!(!out.join("report.json").exists(), "a cancelled solve publishes nothing");
+}
+
+/// Runs `lpm args` (with `env`), sends it SIGTERM `after` once `ready()` holds, and fails unless
+/// it has ended within `within` of the signal: every phase must look at SIGTERM at least every
+/// second. Returns its output and how long it took to stop.
+fn sigterm_when(
+    args: &[&str],
+    env: &[(&str, &str)],
+    ready: impl Fn() -> bool,
+    after: Duration,
+    within: Duration,
+) -> (Output, Duration) {
+    let mut cmd = lpm_command(args);
+    cmd.envs(env.iter().copied()).stdout(std::process::Stdio::piped()).stderr(std::process::Stdio::piped());
+    let mut child = cmd.spawn().expect("run lpm");
+    let t = Instant::now();
+    while !ready() {
+        if let Some(status) = child.try_wait().unwrap() {
+            let o = child.wait_with_output().unwrap();
+            panic!("lpm {args:?} ended ({status:?}) before the phase to cancel: {}", stderr(&o));
+        }
+        assert!(t.elapsed() < Duration::from_secs(120), "the phase to cancel not reached after 120 s");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    std::thread::sleep(after);
+    // SAFETY: kill(2) on our own child, not yet reaped.
+    assert_eq!(unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) }, 0);
+    let signalled = Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if signalled.elapsed() > within {
+            let _ = child.kill();
+            let o = child.wait_with_output().unwrap();
+            panic!("lpm {args:?} still running {within:?} after SIGTERM: {}", stderr(&o));
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let stopped = signalled.elapsed();
+    (child.wait_with_output().unwrap(), stopped)
+}
+
+/// A staging directory of `out` (the export and the render write into one).
+fn staging_in(out: &Path) -> Option<PathBuf> {
+    std::fs::read_dir(out)
+        .ok()?
+        .flatten()
+        .find(|e| e.file_name().to_string_lossy().starts_with(".lpm-staging-"))
+        .map(|e| e.path())
+}
+
+/// A cancelled CPU solve: exit 3, says no checkpoint is kept, publishes nothing, leaves no store
+/// or staging behind.
+fn cancelled_keeping_nothing(o: &Output, out: &Path) {
+    let e = stderr(o);
+    assert_eq!(o.status.code(), Some(3), "{e}");
+    assert!(e.contains("no checkpoint is kept") && !e.contains("checkpoint is kept:"), "{e}");
+    assert!(!out.join("report.json").exists(), "a cancelled solve publishes nothing");
+    assert!(!out.join(".lpm-work").exists(), "the store is removed");
+    assert!(staging_in(out).is_none(), "the staging is removed");
+}
+
+/// A NRRD header of `sizes` uchar samples over a sparse data file of that many bytes (no disk used).
+fn sparse_nrrd(dir: &Path, sizes: [u64; 3]) -> PathBuf {
+    let data = dir.join("sparse.raw");
+    std::fs::File::create(&data).unwrap().set_len(sizes.iter().product()).unwrap();
+    let header = dir.join("sparse.nhdr");
+    std::fs::write(
+        &header,
+        format!(
+            "NRRD0004\ntype: uchar\ndimension: 3\nsizes: {} {} {}\nencoding: raw\ndata file: sparse.raw\n",
+            sizes[0], sizes[1], sizes[2]
+        ),
+    )
+    .unwrap();
+    header
+}
+
+#[test]
+fn a_nrrd_whose_decoded_volume_cannot_fit_is_refused_before_it_is_decoded() {
+    // 65536 × 65536 × 256 one-byte samples in a sparse file (no disk used): decoded into the store
+    // as floats, 4 TiB. --no-fields: the exports are not what runs out; the decoding filled the
+    // disk before.
+    let dir = temp_dir("hostile-nrrd-space");
+    let nrrd = sparse_nrrd(&dir, [65536, 65536, 256]);
+    let scene = write_scene(
+        &dir,
+        &SMALL.replace("procedural = \"sphere\"\ndims = [16, 16, 16]", &format!("nrrd = \"{}\"", s(&nrrd))),
+    );
+    let out = dir.join("out");
+    let t = Instant::now();
+    let o =
+        run_within(&["solve", s(&scene), "--out", s(&out), "--backend", "cpu", "--no-fields"], Duration::from_secs(30));
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    assert!(
+        e.contains("not enough disk space") && e.contains("decoded into the store") && e.contains("4.0 TiB"),
+        "{e}"
+    );
+    assert!(e.contains(s(&nrrd)) && e.contains("65536 × 65536 × 256"), "{e}");
+    assert!(t.elapsed() < Duration::from_secs(10), "refused before anything was decoded");
+    assert!(!out.join(".lpm-work").exists());
+}
+
+#[test]
+fn sigterm_while_a_nrrd_is_decoded_stops_at_once() {
+    // 1024³ one-byte samples, sparse: decoding writes 4 GiB of floats, many seconds, and looked
+    // at no signal before.
+    let dir = temp_dir("hostile-sigterm-nrrd");
+    let nrrd = sparse_nrrd(&dir, [1024, 1024, 1024]);
+    let scene = write_scene(
+        &dir,
+        &SMALL.replace("procedural = \"sphere\"\ndims = [16, 16, 16]", &format!("nrrd = \"{}\"", s(&nrrd))),
+    );
+    let out = dir.join("out");
+    let args = ["solve", s(&scene), "--out", s(&out), "--backend", "cpu", "--no-fields", "--no-image"];
+    let work = out.join(".lpm-work");
+    let (o, _) = sigterm_when(&args, &[], || work.exists(), Duration::from_millis(200), Duration::from_secs(2));
+    cancelled_keeping_nothing(&o, &out);
+}
+
+#[test]
+fn sigterm_during_the_export_stops_at_once_and_says_what_is_kept() {
+    // Each exported row slowed to 20 ms by the test hook: the export takes over 10 s, and no
+    // signal was looked at in it before.
+    let dir = temp_dir("hostile-sigterm-export");
+    let scene = write_scene(&dir, SMALL);
+    let out = dir.join("out");
+    let args = ["solve", s(&scene), "--out", s(&out), "--backend", "cpu", "--no-image"];
+    let env = [("LPM_TEST_EXPORT_ROW_DELAY_MS", "20")];
+    let (o, _) =
+        sigterm_when(&args, &env, || staging_in(&out).is_some(), Duration::from_millis(300), Duration::from_secs(2));
+    cancelled_keeping_nothing(&o, &out);
+}
+
+#[test]
+fn sigterm_during_the_render_stops_at_once() {
+    // A 1200 × 1000 image of the small sphere: seconds of ray marching (7 s here), which looked at
+    // no signal (the solve went on to publish everything and exit 0).
+    let dir = temp_dir("hostile-sigterm-render");
+    let scene = write_scene(&dir, &format!("{SMALL}[camera]\nwidth = 1200\nheight = 1000\n"));
+    let out = dir.join("out");
+    let args = ["solve", s(&scene), "--out", s(&out), "--backend", "cpu", "--no-fields", "--no-render-data"];
+    let (o, _) =
+        sigterm_when(&args, &[], || staging_in(&out).is_some(), Duration::from_millis(100), Duration::from_secs(2));
+    cancelled_keeping_nothing(&o, &out);
+}
+
+#[test]
+fn sigterm_during_the_export_of_a_checkpointed_solve_keeps_its_checkpoint_and_resumes() {
+    // On the GPU the last order is checkpointed before the export: stopped there, the message says
+    // the checkpoint is kept, and it is; --resume publishes what an uninterrupted solve does.
+    let dir = temp_dir("hostile-sigterm-export-gpu");
+    let scene = write_scene(&dir, SMALL);
+    let out = dir.join("out");
+    let args = ["solve", s(&scene), "--out", s(&out), "--no-image"];
+    let env = [("LPM_TEST_EXPORT_ROW_DELAY_MS", "20")];
+    let (o, _) =
+        sigterm_when(&args, &env, || staging_in(&out).is_some(), Duration::from_millis(300), Duration::from_secs(2));
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(3), "{e}");
+    assert!(e.contains("its last checkpoint is kept") && e.contains("--resume"), "{e}");
+    assert!(out.join(".lpm-work/checkpoint.json").exists(), "the checkpoint is kept");
+    assert!(!out.join("report.json").exists() && staging_in(&out).is_none(), "nothing published, no staging left");
+    let mut resume = args.to_vec();
+    resume.push("--resume");
+    let o = run_within(&resume, Duration::from_secs(300));
+    assert!(o.status.success(), "{}", stderr(&o));
+    let whole = dir.join("whole");
+    let o = run_within(&["solve", s(&scene), "--out", s(&whole), "--no-image"], Duration::from_secs(300));
+    assert!(o.status.success(), "{}", stderr(&o));
+    for f in ["fluence.raw", "source.raw"] {
+        assert!(std::fs::read(out.join(f)).unwrap() == std::fs::read(whole.join(f)).unwrap(), "{f} differs");
+    }
 }

@@ -178,3 +178,68 @@ fn unreadable_nanovdb_files_are_clear_errors() {
     let e = err(read_nanovdb_bytes(&std::fs::read(dir.join("z.nvdb")).unwrap(), "density"));
     assert!(e.contains("compressed") && e.contains("zip"), "{e}");
 }
+
+/// Issue 35 item 4: a NanoVDB grid says how large it is in its file metadata (active voxels and
+/// their bounding box), its tree (node, tile and voxel counts) and its root (bounding box); a few
+/// changed bytes — a mask word of a 32³ node turning 32 empty 128³ tiles active, a leaf's mask, a
+/// bounding box — made it describe another volume (a 644 KB file became a 767 × 2687 × 3968
+/// volume), which was then solved, or its memory and disk claimed, as if it were the file's. Every
+/// claim must agree with what the nodes hold; a grid converted without statistics (no bounding
+/// box) still reads.
+#[test]
+fn a_nanovdb_grid_whose_claimed_size_disagrees_with_its_nodes_is_refused() {
+    let dir = files("nvdb-claims");
+    let good = std::fs::read(dir.join("smoke.nvdb")).unwrap();
+    let sound = read_nanovdb_bytes(&good, "density").expect("the sound file reads");
+    let [_, hi] = sound.tree.active_bbox().unwrap();
+    let word = |at: usize| u64::from_le_bytes(good[at..at + 8].try_into().unwrap()) as usize;
+    // The first grid ("density"): its metadata after the 16-byte segment header, then its name,
+    // then its buffer: GridData (672 bytes), TreeData (node offsets from it), the nodes.
+    let meta = 16;
+    let name_size = u32::from_le_bytes(good[meta + 136..meta + 140].try_into().unwrap()) as usize;
+    let tree = meta + 176 + name_size + 672;
+    let (leaf, upper, root) = (tree + word(tree), tree + word(tree + 16), tree + word(tree + 24));
+    let plus = |at: usize, by: i64| (i64::from(i32::from_le_bytes(good[at..at + 4].try_into().unwrap())) + by) as i32;
+    let voxels = word(meta + 24) as u32;
+    for (what, at, bytes, expect) in [
+        ("a 32³ node's value mask", upper + 32 + 8 * 300 + 4, [0xff; 4], "active tiles"),
+        ("a leaf's value mask", leaf + 16, [0xff; 4], "active voxels"),
+        ("the root's bounding box", root + 12, plus(root + 12, 4096).to_le_bytes(), "bounding box"),
+        ("the metadata's bounding box", meta + 88 + 16, (hi[1] as i32 + 2687).to_le_bytes(), "bounding box"),
+        ("the metadata's voxel count", meta + 24, (voxels + 1).to_le_bytes(), "active voxels"),
+    ] {
+        let mut bad = good.clone();
+        bad[at..at + 4].copy_from_slice(&bytes);
+        assert_ne!(bad, good, "{what}: the bytes changed");
+        let e = err(read_nanovdb_bytes(&bad, "density"));
+        assert!(e.contains(expect) && e.contains("corrupt"), "{what}: {e}");
+    }
+    // Without statistics (`-s none`) the bounding boxes are NanoVDB's empty box: not a claim.
+    run(
+        Command::new("nanovdb_convert").args(["-f", "-s", "none"]).arg(dir.join("smoke.vdb")).arg(dir.join("n.nvdb")),
+        "nanovdb_convert",
+    );
+    let plain = read_nanovdb_bytes(&std::fs::read(dir.join("n.nvdb")).unwrap(), "density").expect("-s none reads");
+    assert_eq!(plain.tree.active_bbox(), sound.tree.active_bbox());
+}
+
+/// Issue 35 item 8: reading a VDB or NanoVDB grid (seconds for a large one) looks at the cancel
+/// flag at every read of the file: raised, the read stops as a cancellation, not as an error.
+#[test]
+fn reading_a_vdb_or_nanovdb_grid_stops_once_cancelled() {
+    let dir = files("nvdb-cancel");
+    for file in ["smoke.vdb", "smoke.nvdb"] {
+        let path = dir.join(file);
+        let info = lpm::store::vdb::vdb_info(&path, "density").unwrap();
+        let dims = info.dims.map(|d| d as u32);
+        let flag = lpm::solver::cancel::CancelFlag::new();
+        let read = |flag| lpm::store::vdb::vdb_density_until(&path, "density", dims, info.index_min, Some(flag));
+        assert!(read(flag).is_ok(), "{file}");
+        flag.raise();
+        match read(flag) {
+            Err(lpm::store::StoreError::Cancelled) => {}
+            Err(e) => panic!("{file}: {e}"),
+            Ok(_) => panic!("{file}: read whole after the flag was raised"),
+        }
+    }
+}

@@ -112,7 +112,7 @@ fn sigterm_stops_at_a_slice_keeps_the_checkpoint_and_resumes_to_the_same_bits() 
     let o = child.wait_with_output().unwrap();
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(3), "{stderr}");
-    assert!(stderr.contains("the solve was cancelled (stopped at a slice)"), "{stderr}");
+    assert!(stderr.contains("the solve was cancelled; its last checkpoint is kept"), "{stderr}");
     let checkpoint: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(cut.join(".lpm-work/checkpoint.json")).expect("checkpoint"))
             .unwrap();

@@ -526,7 +526,10 @@ fn cancel_stops_at_a_slice_and_resume_continues_bitwise() {
         std::thread::sleep(Duration::from_millis(50));
     }
     let log = std::fs::read_to_string(data.join(format!("jobs/{a}/solve.log"))).unwrap();
-    assert!(log.contains("the solve was cancelled (stopped at a slice)"), "not stopped at a slice:\n{log}");
+    assert!(
+        log.contains("the solve was cancelled; its last checkpoint is kept"),
+        "not cancelled keeping its checkpoint:\n{log}"
+    );
     let checkpoint = data.join(format!("jobs/{a}/out/.lpm-work/checkpoint.json"));
     assert!(checkpoint.exists(), "the checkpoint was not kept");
     let kept: serde_json::Value = serde_json::from_slice(&std::fs::read(&checkpoint).unwrap()).unwrap();

@@ -6,6 +6,7 @@
 
 pub mod header;
 
+use crate::solver::cancel::{self, CancelFlag, Stoppable};
 use crate::store::StoreError;
 use header::{DataSource, Encoding, NrrdHeader, SampleType};
 use std::io::{BufReader, Read, Seek, SeekFrom, Write};
@@ -31,7 +32,31 @@ pub fn nrrd_header(path: &Path) -> Result<NrrdHeader, StoreError> {
 pub fn decode(
     path: &Path,
     h: &NrrdHeader,
+    sink: impl FnMut(&[f32]) -> Result<(), StoreError>,
+) -> Result<(), StoreError> {
+    decode_until(path, h, None, sink)
+}
+
+/// [`decode`], stopping with [`StoreError::Cancelled`] once `cancel` is raised: it is looked at
+/// before each chunk of samples and at every read of the file (a large volume takes many
+/// seconds to decode, and a gzip stream can promise any number of samples).
+pub fn decode_until(
+    path: &Path,
+    h: &NrrdHeader,
+    cancel: Option<CancelFlag>,
     mut sink: impl FnMut(&[f32]) -> Result<(), StoreError>,
+) -> Result<(), StoreError> {
+    match decode_samples(path, h, cancel, &mut sink) {
+        Err(_) if cancel::raised(cancel) => Err(StoreError::Cancelled),
+        r => r,
+    }
+}
+
+fn decode_samples(
+    path: &Path,
+    h: &NrrdHeader,
+    cancel: Option<CancelFlag>,
+    sink: &mut impl FnMut(&[f32]) -> Result<(), StoreError>,
 ) -> Result<(), StoreError> {
     let (data_path, offset) = match &h.data {
         DataSource::Detached(p) => (p.as_path(), 0),
@@ -42,7 +67,7 @@ pub fn decode(
     let mut file = crate::input::open(data_path)?;
     let skip = if h.encoding == Encoding::Raw { offset + h.byte_skip } else { offset };
     file.seek(SeekFrom::Start(skip)).map_err(StoreError::io(data_path, "seek in"))?;
-    let reader = BufReader::with_capacity(1 << 20, file);
+    let reader = BufReader::with_capacity(1 << 20, Stoppable { inner: file, cancel });
     let mut reader: Box<dyn Read> = match h.encoding {
         Encoding::Raw => Box::new(reader),
         Encoding::Gzip => Box::new(flate2::read::MultiGzDecoder::new(reader)),
@@ -59,6 +84,9 @@ pub fn decode(
     let mut values = vec![0f32; CHUNK as usize];
     let mut done = 0u64;
     while done < total {
+        if cancel::raised(cancel) {
+            return Err(StoreError::Cancelled);
+        }
         let n = CHUNK.min(total - done) as usize;
         let b = &mut bytes[..n * size];
         reader.read_exact(b).map_err(|e| {
@@ -94,12 +122,15 @@ pub fn decode(
 }
 
 /// Decodes `path`'s samples into `out` as little-endian f32 (x fastest): the raw volume the brick
-/// store imports. Written under a temporary name and renamed when complete.
-pub fn convert_to_raw(path: &Path, h: &NrrdHeader, out: &Path) -> Result<(), StoreError> {
+/// store imports. Written under a temporary name and renamed when complete; stopped (and the
+/// temporary removed) once `cancel` is raised.
+pub fn convert_to_raw(path: &Path, h: &NrrdHeader, out: &Path, cancel: Option<CancelFlag>) -> Result<(), StoreError> {
     // The writer closure can only return io errors; a decoding error is parked here and returned.
     let mut failed = None;
     let r = crate::store::write_atomic_io(out, |w| {
-        let r = decode(path, h, |v| w.write_all(bytemuck::cast_slice(v)).map_err(StoreError::io(out, "write")));
+        let r = decode_until(path, h, cancel, |v| {
+            w.write_all(bytemuck::cast_slice(v)).map_err(StoreError::io(out, "write"))
+        });
         match r {
             Ok(()) => Ok(()),
             Err(e) => {

@@ -4,6 +4,7 @@
 //! few leaves spread over a 4096³ box cost a few leaves, and every brick is filled on its own.
 
 use super::{VdbError, VdbGrid, VdbReader};
+use crate::solver::cancel::{self, CancelFlag, Stoppable};
 use crate::store::grid::{local_index, BrickGrid};
 use crate::store::StoreError;
 use std::fs::File;
@@ -29,9 +30,20 @@ pub struct VdbVolumeInfo {
     pub grids: Vec<String>,
 }
 
-fn open(path: &Path) -> Result<VdbReader<BufReader<File>>, StoreError> {
+/// `path` opened through the input checks, every read of it stopping once `cancel` is raised.
+fn open(path: &Path, cancel: Option<CancelFlag>) -> Result<VdbReader<BufReader<Stoppable<File>>>, StoreError> {
     let file = crate::input::open(path)?;
-    VdbReader::new(BufReader::with_capacity(1 << 16, file)).map_err(|e| vdb_error(path, e))
+    VdbReader::new(BufReader::with_capacity(1 << 16, Stoppable { inner: file, cancel }))
+        .map_err(|e| stopped_or(cancel, vdb_error(path, e)))
+}
+
+/// A failed read as [`StoreError::Cancelled`] when it failed because `cancel` was raised.
+fn stopped_or(cancel: Option<CancelFlag>, e: StoreError) -> StoreError {
+    if cancel::raised(cancel) {
+        StoreError::Cancelled
+    } else {
+        e
+    }
 }
 
 pub(crate) fn vdb_error(path: &Path, source: VdbError) -> StoreError {
@@ -61,23 +73,26 @@ fn info_of(path: &Path, grid: &VdbGrid, grids: Vec<String>) -> Result<VdbVolumeI
 }
 
 /// Grid `grid` of the NanoVDB file `path` (see [`crate::store::nanovdb`]) and the file's grid names.
-fn read_nanovdb(path: &Path, grid: &str) -> Result<(VdbGrid, Vec<String>), StoreError> {
+fn read_nanovdb(path: &Path, grid: &str, cancel: Option<CancelFlag>) -> Result<(VdbGrid, Vec<String>), StoreError> {
     let file = crate::input::open(path)?;
     let len = file.metadata().map_err(StoreError::io(path, "read the size of"))?.len();
-    crate::store::nanovdb::read_nanovdb(&mut BufReader::with_capacity(1 << 16, file), len, grid)
-        .map_err(|e| vdb_error(path, e))
+    let mut reader = BufReader::with_capacity(1 << 16, Stoppable { inner: file, cancel });
+    crate::store::nanovdb::read_nanovdb(&mut reader, len, grid).map_err(|e| stopped_or(cancel, vdb_error(path, e)))
 }
 
 /// Places grid `grid` of `path` (topology only: fast, and bounded by the file's node count). A
-/// NanoVDB file (recognised by its magic number) is read whole.
+/// NanoVDB file (recognised by its magic number) is read whole. Called while a scene is loaded,
+/// where no job has handed a flag yet: the reads stop at the process's own
+/// ([`CancelFlag::process`], raised by the `lpm` binary's SIGTERM), as [`StoreError::Cancelled`].
 pub fn vdb_info(path: &Path, grid: &str) -> Result<VdbVolumeInfo, StoreError> {
+    let process = Some(CancelFlag::process());
     if crate::store::nanovdb::is_nanovdb(path) {
-        let (g, grids) = read_nanovdb(path, grid)?;
+        let (g, grids) = read_nanovdb(path, grid, process)?;
         return info_of(path, &g, grids);
     }
-    let mut r = open(path)?;
+    let mut r = open(path, process)?;
     let grids = r.grids().into_iter().map(|g| g.name).collect();
-    let g = r.read_grid(grid, false).map_err(|e| vdb_error(path, e))?;
+    let g = r.read_grid(grid, false).map_err(|e| stopped_or(process, vdb_error(path, e)))?;
     info_of(path, &g, grids)
 }
 
@@ -93,10 +108,22 @@ pub struct VdbDensity {
 /// validated (from [`vdb_info`]); a file that changed since gives an error rather than a different
 /// volume.
 pub fn vdb_density(path: &Path, grid: &str, dims: [u32; 3], index_min: [i32; 3]) -> Result<VdbDensity, StoreError> {
+    vdb_density_until(path, grid, dims, index_min, None)
+}
+
+/// [`vdb_density`], stopping with [`StoreError::Cancelled`] once `cancel` is raised: every read of
+/// the file looks at it (a grid of many leaves takes seconds to read and decompress).
+pub fn vdb_density_until(
+    path: &Path,
+    grid: &str,
+    dims: [u32; 3],
+    index_min: [i32; 3],
+    cancel: Option<CancelFlag>,
+) -> Result<VdbDensity, StoreError> {
     let g = if crate::store::nanovdb::is_nanovdb(path) {
-        read_nanovdb(path, grid)?.0
+        read_nanovdb(path, grid, cancel)?.0
     } else {
-        open(path)?.read_grid(grid, true).map_err(|e| vdb_error(path, e))?
+        open(path, cancel)?.read_grid(grid, true).map_err(|e| stopped_or(cancel, vdb_error(path, e)))?
     };
     let info = info_of(path, &g, Vec::new())?;
     if info.dims != dims.map(u64::from) || info.index_min != index_min {
@@ -117,9 +144,9 @@ pub fn vdb_density(path: &Path, grid: &str, dims: [u32; 3], index_min: [i32; 3])
 pub fn vdb_grid_over(path: &Path, grid: &str, dims: [u32; 3], index_min: [i32; 3]) -> Result<VdbDensity, StoreError> {
     // A NanoVDB file named by `vdb`/`nvdb` holds its other grids too (as `vdb_density` reads it).
     let g = if crate::store::nanovdb::is_nanovdb(path) {
-        read_nanovdb(path, grid)?.0
+        read_nanovdb(path, grid, None)?.0
     } else {
-        open(path)?.read_grid(grid, true).map_err(|e| vdb_error(path, e))?
+        open(path, None)?.read_grid(grid, true).map_err(|e| vdb_error(path, e))?
     };
     let mut info = info_of(path, &g, Vec::new())?;
     info.dims = dims.map(u64::from);

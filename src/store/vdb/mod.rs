@@ -38,7 +38,7 @@ mod values;
 
 pub use error::VdbError;
 pub use header::{MAX_VERSION, MIN_VERSION};
-pub use import::{vdb_density, vdb_grid_over, vdb_info, VdbDensity, VdbVolumeInfo};
+pub use import::{vdb_density, vdb_density_until, vdb_grid_over, vdb_info, VdbDensity, VdbVolumeInfo};
 pub use transform::Placement;
 pub use tree::Tree;
 
