@@ -88,6 +88,9 @@ pub struct SolveJob {
     pub background: render::Background,
     /// Do not keep `OUT/render-data/` (what `lpm render` re-renders from).
     pub no_render_data: bool,
+    /// The PNG's exposure and view transform where they differ from the scene's `[camera]`
+    /// (`--exposure`, `--view`).
+    pub display: render::keep::DisplayChange,
 }
 
 impl SolveJob {
@@ -111,6 +114,7 @@ impl SolveJob {
             vdb_precision: Default::default(),
             background: Default::default(),
             no_render_data: false,
+            display: Default::default(),
         }
     }
 }
@@ -370,6 +374,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
             units: "radiance units × sr (W/m² for radiance in W/m²/sr)".into(),
             components: channel_names.clone(),
             description: "fluence φ = ∫L dω over all scattering orders, per voxel".into(),
+            origin: scene.volume.origin.to_array(),
         };
         output::export_field(
             &fields.fluence_total,
@@ -399,6 +404,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
                     plan.storage.per_face
                 )
             },
+            origin: scene.volume.origin.to_array(),
         };
         output::export_field(&fields.source_total, &store, &stage, "source", &source_meta, output::EmptyBricks::Zero)?;
         outputs.extend(["source.raw", "source.json", "source.nhdr"].map(String::from));
@@ -417,6 +423,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
     // What `lpm render` needs to render this result again (render-data/, linked, not copied),
     // and the image, rendered from the same data by the same path.
     let camera = scene.camera.clone().unwrap_or_else(|| render::default_camera(plan.dims, plan.voxel_size));
+    let display = job.display.apply(scene.display);
     let mut render_data = render::RenderData::new(
         plan.dims,
         plan.voxel_size,
@@ -427,6 +434,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
         &plan.medium,
         &scene.lights,
         &camera,
+        &display,
     );
     render_data.emission_per_voxel = plan.emission_grid;
     render_data.albedo_per_voxel = plan.albedo_field;
@@ -462,7 +470,13 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
             &camera,
             job.background,
         );
-        render::write_images(Some(&stage.join("image.exr")), Some(&stage.join("image.png")), &image, job.background)?;
+        render::write_images(
+            Some(&stage.join("image.exr")),
+            Some(&stage.join("image.png")),
+            &image,
+            job.background,
+            &display,
+        )?;
         outputs.extend(["image.exr", "image.png"].map(String::from));
         phases.push(("render".to_string(), t.elapsed().as_secs_f64()));
     }

@@ -2,7 +2,7 @@
 
 use glam::DVec3;
 use lpm::render::{default_camera, render, write_exr, write_png, Image, RenderInputs};
-use lpm::scene::{Camera, Medium, Projection};
+use lpm::scene::{Camera, Display, Medium, Projection};
 use lpm::store::{BrickStore, Coverage, Field, BRICK_VOXELS};
 use std::fs;
 use std::path::{Path, PathBuf};
@@ -237,7 +237,7 @@ fn exr_and_png_are_written_atomically_and_read_back() {
     assert_eq!(layer.channel_data.pixels.1, img.rgb);
 
     let png_path = dir.join("view.png");
-    write_png(&png_path, &img, 1.0).expect("png");
+    write_png(&png_path, &img, &Display::default()).expect("png");
     let decoder = png::Decoder::new(fs::File::open(&png_path).expect("open png"));
     let mut reader = decoder.read_info().expect("png header");
     let mut buf = vec![0u8; reader.output_buffer_size()];
@@ -255,6 +255,6 @@ fn exr_and_png_are_written_atomically_and_read_back() {
     // A malformed image is refused and writes nothing.
     let bad = Image { width: 3, height: 3, rgb: vec![0.0; 5], alpha: None };
     assert!(write_exr(&dir.join("bad.exr"), &bad).is_err());
-    assert!(write_png(&dir.join("bad.png"), &bad, 1.0).is_err());
+    assert!(write_png(&dir.join("bad.png"), &bad, &Display::default()).is_err());
     assert!(!dir.join("bad.exr").exists() && !dir.join("bad.png").exists());
 }
