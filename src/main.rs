@@ -169,6 +169,10 @@ enum Command {
         /// Summarise done / running / interrupted / failed / pending tasks from their directories.
         #[arg(long, conflicts_with_all = ["slurm", "submit"])]
         status: bool,
+        /// Gather every task's parameters, state, orders, seconds, R, T and absorptance into
+        /// DIR/results.csv and DIR/results.json.
+        #[arg(long, conflicts_with_all = ["slurm", "submit", "status"])]
+        collect: bool,
     },
     /// Run the job server: an HTTP/JSON API under /v1 with a durable queue (see README, "Running
     /// lpm as a service").
@@ -795,7 +799,7 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Info { dir, json } => info(&dir, json),
-        Command::Sweep { manifest, slurm, submit, status } => sweep(&manifest, slurm, submit, status),
+        Command::Sweep { manifest, slurm, submit, status, collect } => sweep(&manifest, slurm, submit, status, collect),
         #[cfg(feature = "service")]
         Command::Serve {
             listen,
@@ -1197,8 +1201,15 @@ fn run_task(manifest: &std::path::Path, task: &str, template: &SolveJob) -> Resu
     Ok(())
 }
 
-fn sweep(manifest: &std::path::Path, slurm: bool, submit: bool, status: bool) -> Result<()> {
+fn sweep(manifest: &std::path::Path, slurm: bool, submit: bool, status: bool, collect: bool) -> Result<()> {
     let sweep = lpm::sweep::Sweep::load(manifest)?;
+    if collect {
+        let (written, rows) = lpm::sweep::collect::collect(&sweep)?;
+        let done = rows.iter().filter(|r| r.status == "done").count();
+        let names: Vec<String> = written.iter().map(|p| p.display().to_string()).collect();
+        println!("{} tasks ({done} done): wrote {}", rows.len(), names.join(" and "));
+        return Ok(());
+    }
     if status {
         let mut counts = std::collections::BTreeMap::new();
         for t in &sweep.tasks {
