@@ -556,3 +556,36 @@ fn read_camera_keys(path: &Path) -> Result<CameraKeys, SceneError> {
     };
     keys.try_into().map_err(|e: toml::de::Error| parse(format!("camera: {}", e.message())))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `render.json` of a solve from before the view could be chosen has no `display`: it reads as
+    /// `standard` at EV 0, the mapping that solve's PNG was written with (so `lpm render` of it
+    /// still gives that PNG); a new one round-trips, "auto" included; a bad one is an error naming
+    /// the key.
+    #[test]
+    fn display_in_render_json_old_new_and_bad() {
+        let camera = crate::scene::default_camera([4, 4, 4], 1.0);
+        let medium = Medium { sigma_t: [1.0; 3], albedo: [0.5; 3], g: 0.0, emission: [0.0; 3] };
+        let set = PropagationSet::new(2);
+        let storage = StorageSet::isotropic(&set);
+        let auto = Display { view: View::Filmic, exposure: Exposure::Auto };
+        let data = RenderData::new([4, 4, 4], 1.0, DVec3::ZERO, 1, &set, &storage, &medium, &[], &camera, &auto);
+        let mut json = serde_json::to_value(&data).expect("json");
+        assert_eq!(json["display"], serde_json::json!({"view": "filmic", "exposure": "auto"}));
+        let path = Path::new("render.json");
+        let back: RenderData = serde_json::from_value(json.clone()).expect("read back");
+        assert_eq!(back.display.display(path).expect("display"), auto);
+        json.as_object_mut().expect("object").remove("display");
+        let old: RenderData = serde_json::from_value(json.clone()).expect("old render.json");
+        assert_eq!(
+            old.display.display(path).expect("display"),
+            Display { view: View::Standard, exposure: Exposure::Ev(0.0) }
+        );
+        json["display"] = serde_json::json!({"view": "aces", "exposure": 0.0});
+        let bad: RenderData = serde_json::from_value(json).expect("parses");
+        assert!(bad.display.display(path).unwrap_err().to_string().contains("display.view"));
+    }
+}
