@@ -645,11 +645,12 @@ impl From<VdbPrecisionArg> for lpm::output::VdbPrecision {
 #[derive(Clone, Copy, clap::Args)]
 struct DisplayArgs {
     /// Exposure of the PNG in stops (EV: radiance × 2^EV), or "auto" (the medium's log-average
-    /// luminance at mid grey). Default: the scene's camera.exposure, else 0.
+    /// luminance at mid grey). Default: the scene's camera.exposure, else 0 (render: the solve's).
     #[arg(long, value_name = "EV|auto", allow_hyphen_values = true, value_parser = parse_exposure)]
     exposure: Option<lpm::scene::Exposure>,
     /// The PNG's view transform: agx (default: highlights roll off to white), filmic (the same
-    /// curve per channel) or standard (Reinhard, lpm's old flat mapping). Default: the scene's camera.view.
+    /// curve per channel) or standard (Reinhard, lpm's old flat mapping). Default: the scene's
+    /// camera.view (render: the solve's).
     #[arg(long, value_enum)]
     view: Option<ViewArg>,
 }
