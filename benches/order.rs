@@ -58,6 +58,7 @@ fn bench_scene() -> Scene {
         },
         camera: None,
         boundary: Default::default(),
+        display: Default::default(),
     }
 }
 

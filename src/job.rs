@@ -91,6 +91,9 @@ pub struct SolveJob {
     pub background: render::Background,
     /// Do not keep `OUT/render-data/` (what `lpm render` re-renders from).
     pub no_render_data: bool,
+    /// The PNG's exposure and view transform where they differ from the scene's `[camera]`
+    /// (`--exposure`, `--view`).
+    pub display: render::keep::DisplayChange,
 }
 
 impl SolveJob {
@@ -114,6 +117,7 @@ impl SolveJob {
             vdb_precision: Default::default(),
             background: Default::default(),
             no_render_data: false,
+            display: Default::default(),
         }
     }
 }
@@ -414,6 +418,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
             units: "radiance units × sr (W/m² for radiance in W/m²/sr)".into(),
             components: channel_names.clone(),
             description: "fluence φ = ∫L dω over all scattering orders, per voxel".into(),
+            origin: scene.volume.origin.to_array(),
         };
         output::export_field_until(
             &fields.fluence_total,
@@ -445,6 +450,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
                     plan.storage.per_face
                 )
             },
+            origin: scene.volume.origin.to_array(),
         };
         output::export_field_until(
             &fields.source_total,
@@ -482,6 +488,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
     // What `lpm render` needs to render this result again (render-data/, linked, not copied),
     // and the image, rendered from the same data by the same path.
     let camera = scene.camera.clone().unwrap_or_else(|| render::default_camera(plan.dims, plan.voxel_size));
+    let display = job.display.apply(scene.display);
     let mut render_data = render::RenderData::new(
         plan.dims,
         plan.voxel_size,
@@ -492,6 +499,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
         &plan.medium,
         &scene.lights,
         &camera,
+        &display,
     );
     render_data.emission_per_voxel = plan.emission_grid;
     render_data.albedo_per_voxel = plan.albedo_field;
@@ -533,7 +541,13 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
             return Err(JobError::Solve(SolveError::Cancelled { resumable: true }));
         }
         stop()?;
-        render::write_images(Some(&stage.join("image.exr")), Some(&stage.join("image.png")), &image, job.background)?;
+        render::write_images(
+            Some(&stage.join("image.exr")),
+            Some(&stage.join("image.png")),
+            &image,
+            job.background,
+            &display,
+        )?;
         outputs.extend(["image.exr", "image.png"].map(String::from));
         phases.push(("render".to_string(), t.elapsed().as_secs_f64()));
     }

@@ -92,6 +92,8 @@ enum Command {
         /// (transparent: colour premultiplied by alpha = 1 − transmittance, for compositing).
         #[arg(long, value_enum, default_value_t = BackgroundArg::Sky)]
         background: BackgroundArg,
+        #[command(flatten)]
+        display: DisplayArgs,
         /// Do not keep OUT/render-data (the density and solved source in brick form, linked from
         /// the solver's store) that `lpm render OUT` renders new views from.
         #[arg(long)]
@@ -166,6 +168,10 @@ enum Command {
         /// Summarise done / running / interrupted / failed / pending tasks from their directories.
         #[arg(long, conflicts_with_all = ["slurm", "submit"])]
         status: bool,
+        /// Gather every task's parameters, state, orders, seconds, R, T and absorptance into
+        /// DIR/results.csv and DIR/results.json.
+        #[arg(long, conflicts_with_all = ["slurm", "submit", "status"])]
+        collect: bool,
     },
     /// Run the job server: an HTTP/JSON API under /v1 with a durable queue (see README, "Running
     /// lpm as a service").
@@ -284,6 +290,8 @@ enum Command {
         /// What the image shows behind the volume (as for `solve`).
         #[arg(long, value_enum, default_value_t = BackgroundArg::Sky)]
         background: BackgroundArg,
+        #[command(flatten)]
+        display: DisplayArgs,
         /// Write this one file instead (its extension, .exr or .png, says which).
         #[arg(long)]
         image: Option<PathBuf>,
@@ -629,6 +637,43 @@ impl From<VdbPrecisionArg> for lpm::output::VdbPrecision {
     }
 }
 
+/// The PNG's exposure and view transform (the EXR stays linear), over the scene's `[camera]`
+/// `exposure` and `view` (for `lpm render`: over the solve's).
+#[derive(Clone, Copy, clap::Args)]
+struct DisplayArgs {
+    /// Exposure of the PNG in stops (EV: radiance × 2^EV), or "auto" (the medium's log-average
+    /// luminance at mid grey). Default: the scene's camera.exposure, else 0 (render: the solve's).
+    #[arg(long, value_name = "EV|auto", allow_hyphen_values = true, value_parser = parse_exposure)]
+    exposure: Option<lpm::scene::Exposure>,
+    /// The PNG's view transform: agx (default: highlights roll off to white), filmic (the same
+    /// curve per channel) or standard (Reinhard, lpm's old flat mapping). Default: the scene's
+    /// camera.view (render: the solve's).
+    #[arg(long, value_enum)]
+    view: Option<ViewArg>,
+}
+
+impl From<DisplayArgs> for lpm::render::keep::DisplayChange {
+    fn from(d: DisplayArgs) -> Self {
+        let view = d.view.map(|v| match v {
+            ViewArg::Standard => lpm::scene::View::Standard,
+            ViewArg::Filmic => lpm::scene::View::Filmic,
+            ViewArg::Agx => lpm::scene::View::Agx,
+        });
+        lpm::render::keep::DisplayChange { exposure: d.exposure, view }
+    }
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum ViewArg {
+    Standard,
+    Filmic,
+    Agx,
+}
+
+fn parse_exposure(text: &str) -> Result<lpm::scene::Exposure, String> {
+    text.parse()
+}
+
 #[derive(Clone, Copy, ValueEnum)]
 enum BackgroundArg {
     Sky,
@@ -663,6 +708,7 @@ fn run(cli: Cli) -> Result<()> {
             warm_start,
             vdb_precision,
             background,
+            display,
             no_render_data,
             confine_to,
         } => {
@@ -696,6 +742,7 @@ fn run(cli: Cli) -> Result<()> {
                     vdb_precision: vdb_precision.into(),
                     background: background.into(),
                     no_render_data,
+                    display: display.into(),
                 };
                 return run_task(&scene, &task, &template);
             }
@@ -719,6 +766,7 @@ fn run(cli: Cli) -> Result<()> {
                 vdb_precision: vdb_precision.into(),
                 background: background.into(),
                 no_render_data,
+                display: display.into(),
             };
             let bar = std::io::stderr().is_terminal().then(|| {
                 let bar = indicatif::ProgressBar::new_spinner();
@@ -749,7 +797,7 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Info { dir, json } => info(&dir, json),
-        Command::Sweep { manifest, slurm, submit, status } => sweep(&manifest, slurm, submit, status),
+        Command::Sweep { manifest, slurm, submit, status, collect } => sweep(&manifest, slurm, submit, status, collect),
         #[cfg(feature = "service")]
         Command::Serve {
             listen,
@@ -831,9 +879,9 @@ fn run(cli: Cli) -> Result<()> {
             println!("fetched {} into {}", written.join(", "), out.display());
             Ok(())
         }
-        Command::Render { dir, camera, width, height, eye, target, up, fov, background, image } => {
+        Command::Render { dir, camera, width, height, eye, target, up, fov, background, display, image } => {
             let change = lpm::render::keep::ViewChange { width, height, eye, target, up, fov_y: fov };
-            render_again(&dir, camera, change, background.into(), image)
+            render_again(&dir, camera, change, background.into(), display.into(), image)
         }
         Command::Reference { scene, out, samples, seed, image_spp, threads } => {
             let job = lpm::reference::job::ReferenceJob {
@@ -1106,6 +1154,7 @@ fn render_again(
     camera: Option<PathBuf>,
     change: lpm::render::keep::ViewChange,
     background: lpm::render::Background,
+    display: lpm::render::keep::DisplayChange,
     image: Option<PathBuf>,
 ) -> Result<()> {
     let (exr, png) = match &image {
@@ -1119,9 +1168,10 @@ fn render_again(
     // Held while reading and writing: a solve into DIR cannot replace the data under us.
     let _lock = lpm::output::DirLock::acquire(dir)?;
     let kept = lpm::render::keep::open(dir)?;
+    let display = lpm::render::keep::view_display(&kept, camera.as_deref(), &display)?;
     let camera = lpm::render::keep::view_camera(&kept, camera.as_deref(), &change)?;
     let img = kept.render(&camera, background);
-    lpm::render::write_images(exr.as_deref(), png.as_deref(), &img, background)?;
+    lpm::render::write_images(exr.as_deref(), png.as_deref(), &img, background, &display)?;
     let written: Vec<String> = [exr, png].into_iter().flatten().map(|p| p.display().to_string()).collect();
     println!("rendered {}×{} pixels: {}", img.width, img.height, written.join(", "));
     Ok(())
@@ -1149,8 +1199,15 @@ fn run_task(manifest: &std::path::Path, task: &str, template: &SolveJob) -> Resu
     Ok(())
 }
 
-fn sweep(manifest: &std::path::Path, slurm: bool, submit: bool, status: bool) -> Result<()> {
+fn sweep(manifest: &std::path::Path, slurm: bool, submit: bool, status: bool, collect: bool) -> Result<()> {
     let sweep = lpm::sweep::Sweep::load(manifest)?;
+    if collect {
+        let (written, rows) = lpm::sweep::collect::collect(&sweep)?;
+        let done = rows.iter().filter(|r| r.status == "done").count();
+        let names: Vec<String> = written.iter().map(|p| p.display().to_string()).collect();
+        println!("{} tasks ({done} done): wrote {}", rows.len(), names.join(" and "));
+        return Ok(());
+    }
     if status {
         let mut counts = std::collections::BTreeMap::new();
         for t in &sweep.tasks {

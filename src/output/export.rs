@@ -18,6 +18,9 @@ pub struct FieldMeta {
     /// One name per component, e.g. `["r", "g", "b"]` or `["d0.r", "d0.g", …]`.
     pub components: Vec<String>,
     pub description: String,
+    /// World position of the volume's low corner (the corner of voxel (0, 0, 0)): the scene's
+    /// `volume.origin`.
+    pub origin: [f64; 3],
 }
 
 /// The content of `<base>.json`: everything needed to read `<base>.raw` without lpm.
@@ -33,6 +36,11 @@ pub struct FieldInfo {
     /// Always [`LAYOUT`].
     pub layout: String,
     pub voxel_size: f64,
+    /// World position of the volume's low corner (the corner of voxel (0, 0, 0), not its centre);
+    /// voxel (i, j, k) spans `origin + [i, i+1) × voxel_size` along x, and so on. Absent in files
+    /// written before it was recorded: read as 0.
+    #[serde(default)]
+    pub origin: [f64; 3],
     pub quantity: String,
     pub units: String,
     pub description: String,
@@ -193,6 +201,7 @@ fn write_described(
         endianness: "little".to_string(),
         layout: LAYOUT.to_string(),
         voxel_size,
+        origin: meta.origin,
         quantity: meta.quantity.clone(),
         units: meta.units.clone(),
         description: meta.description.clone(),

@@ -184,7 +184,7 @@ fn run_in(
             super::run_with_fields(&scene, &at, fields, channels, &opts)
         }
     };
-    let outputs = write_outputs(&result, h, stage)?;
+    let outputs = write_outputs(&result, h, &scene, stage)?;
     let report = ReferenceReport {
         lpm_version: env!("CARGO_PKG_VERSION"),
         scene: job.scene.display().to_string(),
@@ -343,7 +343,12 @@ fn raw_densities(path: &Path, dims: [u32; 3]) -> Result<Vec<f32>, StoreError> {
 }
 
 /// Writes the fields and the image into `dir`; returns the names written, `report.json` last.
-fn write_outputs(result: &ReferenceResult, voxel_size: f64, dir: &Path) -> Result<Vec<String>, OutputError> {
+fn write_outputs(
+    result: &ReferenceResult,
+    voxel_size: f64,
+    scene: &Scene,
+    dir: &Path,
+) -> Result<Vec<String>, OutputError> {
     let names: Vec<String> =
         if result.channels == 1 { vec!["grey".into()] } else { ["r", "g", "b"].map(String::from).to_vec() };
     let photons = result.photons;
@@ -358,6 +363,7 @@ fn write_outputs(result: &ReferenceResult, voxel_size: f64, dir: &Path) -> Resul
                 description: format!(
                     "fluence φ = ∫L dω, all orders: Monte-Carlo reference (track-length estimator, {photons} photons per channel)"
                 ),
+                origin: scene.volume.origin.to_array(),
             },
         ),
         (
@@ -368,6 +374,7 @@ fn write_outputs(result: &ReferenceResult, voxel_size: f64, dir: &Path) -> Resul
                 units: "radiance units × sr (W/m² for radiance in W/m²/sr)".into(),
                 components: names,
                 description: "standard error of each value of fluence.raw, from the spread of the batch estimates".into(),
+                origin: scene.volume.origin.to_array(),
             },
         ),
     ];
@@ -379,7 +386,7 @@ fn write_outputs(result: &ReferenceResult, voxel_size: f64, dir: &Path) -> Resul
     if let Some(img) = &result.image {
         let image = Image { width: img.width, height: img.height, rgb: img.rgb.clone(), alpha: None };
         render::write_exr(&dir.join("image.exr"), &image)?;
-        render::write_png(&dir.join("image.png"), &image, 1.0)?;
+        render::write_png(&dir.join("image.png"), &image, &scene.display)?;
         outputs.extend(["image.exr", "image.png"].map(String::from));
     }
     outputs.push("report.json".into());

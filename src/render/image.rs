@@ -123,8 +123,9 @@ pub fn render(inputs: &RenderInputs) -> Image {
     Image { width, height, rgb, alpha: Some(alpha) }
 }
 
-/// Display value in [0, 1] (before sRGB encoding) of a linear radiance scaled by `exposure`:
-/// Reinhard's `x / (1 + x)`, which keeps highlights from clipping. Negative or NaN maps to 0.
+/// Display value in [0, 1] (before sRGB encoding) of a linear radiance scaled by `exposure` (a
+/// factor): Reinhard's `x / (1 + x)`, the `standard` view's curve (see [`super::tone`]). Negative
+/// or NaN maps to 0.
 pub fn tone_map(radiance: f32, exposure: f64) -> f64 {
     let x = radiance as f64 * exposure;
     if x.is_nan() || x <= 0.0 {

@@ -21,7 +21,8 @@ use super::{render, Background, Image, RenderInputs, VoxelFactors};
 use crate::output::{write_json_atomic, OutputError};
 use crate::quadrature::{PropagationSet, StorageSet};
 use crate::scene::{
-    camera_from_keys, Camera, CameraKeys, EnvironmentLight, Light, MapUp, Medium, Projection, SceneError, VolumeFrame,
+    camera_from_keys, display_from_keys, Camera, CameraKeys, Display, EnvironmentLight, Exposure, Light, MapUp, Medium,
+    Projection, SceneError, View, VolumeFrame,
 };
 use crate::store::{BrickStore, Coverage, Field};
 use glam::DVec3;
@@ -67,6 +68,49 @@ pub struct RenderData {
     /// kept as `environment.exr` (linked or copied).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub environment: Option<EnvironmentData>,
+    /// How the solve exposed and tone-mapped its PNG (`lpm render` does the same unless told
+    /// otherwise). Absent (render data kept before the choice existed): `standard` at EV 0, the
+    /// only mapping there was.
+    #[serde(default = "DisplayData::before_views")]
+    pub display: DisplayData,
+}
+
+/// [`Display`] as `render.json` stores it: `view` a name, `exposure` stops or "auto".
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DisplayData {
+    pub view: String,
+    pub exposure: serde_json::Value,
+}
+
+impl DisplayData {
+    fn before_views() -> DisplayData {
+        (&Display { view: View::Standard, exposure: Exposure::Ev(0.0) }).into()
+    }
+
+    fn display(&self, path: &Path) -> Result<Display, OutputError> {
+        let invalid = |m: String| OutputError::Invalid { path: path.to_path_buf(), message: m };
+        let view = View::from_name(&self.view)
+            .ok_or_else(|| invalid(format!("display.view: unknown view transform {:?}", self.view)))?;
+        let exposure = match &self.exposure {
+            serde_json::Value::String(s) if s == "auto" => Exposure::Auto,
+            serde_json::Value::Number(n) => n
+                .as_f64()
+                .ok_or_else(|| invalid("display.exposure: not a number".to_string()))
+                .and_then(|ev| Exposure::ev(ev).map_err(|m| invalid(format!("display.exposure: {m}"))))?,
+            other => return Err(invalid(format!("display.exposure: expected stops or \"auto\", got {other}"))),
+        };
+        Ok(Display { view, exposure })
+    }
+}
+
+impl From<&Display> for DisplayData {
+    fn from(d: &Display) -> Self {
+        let exposure = match d.exposure {
+            Exposure::Auto => serde_json::Value::from("auto"),
+            Exposure::Ev(ev) => serde_json::Value::from(ev),
+        };
+        DisplayData { view: d.view.name().to_string(), exposure }
+    }
 }
 
 /// How the kept `environment.exr` lies around the volume (`[[lights]] kind = "environment"`).
@@ -167,6 +211,7 @@ impl RenderData {
         medium: &Medium,
         lights: &[Light],
         camera: &Camera,
+        display: &Display,
     ) -> RenderData {
         RenderData {
             format: FORMAT,
@@ -187,6 +232,7 @@ impl RenderData {
             emission_per_voxel: false,
             albedo_per_voxel: false,
             environment: environment_light(lights).map(EnvironmentData::new),
+            display: display.into(),
         }
     }
 }
@@ -262,6 +308,8 @@ pub struct Kept {
     pub albedo: Option<Field>,
     /// The camera the solve rendered with, in the volume's frame.
     pub camera: Camera,
+    /// How the solve exposed and tone-mapped its PNG.
+    pub display: Display,
     /// The environment map behind the volume, read back from `environment.exr`.
     pub environment: Option<EnvironmentLight>,
 }
@@ -300,6 +348,7 @@ pub fn open(out: &Path) -> Result<Kept, OutputError> {
         )));
     }
     let camera = data.camera.camera(&path)?;
+    let display = data.display.display(&path)?;
     let store = BrickStore::open(&dir)?;
     if store.grid().dims != data.dims || store.voxel_size() != data.voxel_size {
         return Err(invalid(format!(
@@ -337,7 +386,7 @@ pub fn open(out: &Path) -> Result<Kept, OutputError> {
             })
         }
     };
-    Ok(Kept { data, store, source, emission, albedo, camera, environment })
+    Ok(Kept { data, store, source, emission, albedo, camera, display, environment })
 }
 
 impl Kept {
@@ -452,8 +501,41 @@ pub fn view_camera(kept: &Kept, file: Option<&Path>, change: &ViewChange) -> Res
         up: Some(change.up.unwrap_or(base.up.to_array())),
         width: Some(width),
         height: Some(height),
+        exposure: None,
+        view: None,
     };
     camera_from_keys(keys, Path::new("the command line"), &frame)
+}
+
+/// Changes to the kept exposure and view transform asked for on `lpm render`'s command line.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct DisplayChange {
+    pub exposure: Option<Exposure>,
+    pub view: Option<View>,
+}
+
+impl DisplayChange {
+    /// `display` with what this changes.
+    pub fn apply(&self, display: Display) -> Display {
+        Display { view: self.view.unwrap_or(display.view), exposure: self.exposure.unwrap_or(display.exposure) }
+    }
+}
+
+/// The exposure and view transform `lpm render` maps its PNG with: the solve's own, then the
+/// camera file's `exposure` and `view` where it has them, then `change`.
+pub fn view_display(kept: &Kept, file: Option<&Path>, change: &DisplayChange) -> Result<Display, SceneError> {
+    let mut display = kept.display;
+    if let Some(path) = file {
+        let keys = read_camera_keys(path)?;
+        let given = display_from_keys(&keys, path)?;
+        if keys.exposure.is_some() {
+            display.exposure = given.exposure;
+        }
+        if keys.view.is_some() {
+            display.view = given.view;
+        }
+    }
+    Ok(change.apply(display))
 }
 
 /// A camera file: a `[camera]` table, or the same keys at the top level.
@@ -473,4 +555,37 @@ fn read_camera_keys(path: &Path) -> Result<CameraKeys, SceneError> {
         _ => table,
     };
     keys.try_into().map_err(|e: toml::de::Error| parse(format!("camera: {}", e.message())))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `render.json` of a solve from before the view could be chosen has no `display`: it reads as
+    /// `standard` at EV 0, the mapping that solve's PNG was written with (so `lpm render` of it
+    /// still gives that PNG); a new one round-trips, "auto" included; a bad one is an error naming
+    /// the key.
+    #[test]
+    fn display_in_render_json_old_new_and_bad() {
+        let camera = crate::scene::default_camera([4, 4, 4], 1.0);
+        let medium = Medium { sigma_t: [1.0; 3], albedo: [0.5; 3], g: 0.0, emission: [0.0; 3] };
+        let set = PropagationSet::new(2);
+        let storage = StorageSet::isotropic(&set);
+        let auto = Display { view: View::Filmic, exposure: Exposure::Auto };
+        let data = RenderData::new([4, 4, 4], 1.0, DVec3::ZERO, 1, &set, &storage, &medium, &[], &camera, &auto);
+        let mut json = serde_json::to_value(&data).expect("json");
+        assert_eq!(json["display"], serde_json::json!({"view": "filmic", "exposure": "auto"}));
+        let path = Path::new("render.json");
+        let back: RenderData = serde_json::from_value(json.clone()).expect("read back");
+        assert_eq!(back.display.display(path).expect("display"), auto);
+        json.as_object_mut().expect("object").remove("display");
+        let old: RenderData = serde_json::from_value(json.clone()).expect("old render.json");
+        assert_eq!(
+            old.display.display(path).expect("display"),
+            Display { view: View::Standard, exposure: Exposure::Ev(0.0) }
+        );
+        json["display"] = serde_json::json!({"view": "aces", "exposure": 0.0});
+        let bad: RenderData = serde_json::from_value(json).expect("parses");
+        assert!(bad.display.display(path).unwrap_err().to_string().contains("display.view"));
+    }
 }

@@ -9,13 +9,15 @@
 //!
 //! [`render`] produces linear radiance and alpha = 1 − transmittance ([`Image`]); the background
 //! is the sky, or nothing ([`Background::Transparent`]: premultiplied colour, for compositing).
-//! [`write_exr`] stores it unchanged (RGBA), [`write_png`] tone-maps it for viewing (RGB), and
+//! [`write_exr`] stores it unchanged (RGBA), [`write_png`] exposes and tone-maps it for viewing
+//! (RGB; the exposure and view transform of [`crate::scene::Display`], see [`tone`]), and
 //! [`write_png_rgba`] does the same with straight alpha for a transparent background.
 
 mod camera;
 mod image;
 pub mod keep;
 pub mod march;
+pub mod tone;
 mod write;
 
 pub use crate::scene::default_camera;

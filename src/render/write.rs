@@ -1,7 +1,9 @@
 //! Image files: linear EXR (the data) and tone-mapped sRGB PNG (for looking at), both atomic.
 
-use super::image::{tone_map, Image};
+use super::image::Image;
+use super::tone::{exposure_scale, pixel_u8};
 use crate::output::{write_atomic, OutputError};
+use crate::scene::Display;
 use std::io;
 use std::path::Path;
 
@@ -52,11 +54,13 @@ pub fn write_exr(path: &Path, img: &Image) -> Result<(), OutputError> {
     }
 }
 
-/// Writes `img` as an 8-bit sRGB PNG: radiance × `exposure`, tone-mapped ([`tone_map`]), then
-/// sRGB-encoded. Atomic.
-pub fn write_png(path: &Path, img: &Image, exposure: f64) -> Result<(), OutputError> {
+/// Writes `img` as an 8-bit sRGB PNG: radiance × 2^exposure through `display`'s view transform
+/// (see [`super::tone`]). Atomic.
+pub fn write_png(path: &Path, img: &Image, display: &Display) -> Result<(), OutputError> {
     check(path, img)?;
-    let bytes: Vec<u8> = img.rgb.iter().map(|&v| (srgb_encode(tone_map(v, exposure)) * 255.0 + 0.5) as u8).collect();
+    let scale = exposure_scale(display, img);
+    let bytes: Vec<u8> =
+        img.rgb.chunks_exact(3).flat_map(|p| pixel_u8([p[0], p[1], p[2]], scale, display.view)).collect();
     write_atomic(path, |out| {
         let mut encoder = png::Encoder::new(out, img.width, img.height);
         encoder.set_color(png::ColorType::Rgb);
@@ -70,18 +74,17 @@ pub fn write_png(path: &Path, img: &Image, exposure: f64) -> Result<(), OutputEr
 
 /// Writes `img` as an 8-bit sRGB PNG with alpha, for an image rendered over a transparent
 /// background: PNG colour is straight (not premultiplied), so each pixel's colour is divided by its
-/// alpha before it is scaled by `exposure`, tone-mapped and encoded; alpha is stored linearly.
+/// alpha before it is exposed and mapped as [`write_png`] does; alpha is stored linearly.
 /// Pixels of zero alpha are black and fully transparent. An image without alpha is written opaque.
-pub fn write_png_rgba(path: &Path, img: &Image, exposure: f64) -> Result<(), OutputError> {
+pub fn write_png_rgba(path: &Path, img: &Image, display: &Display) -> Result<(), OutputError> {
     check(path, img)?;
+    let scale = exposure_scale(display, img);
     let pixels = img.width as usize * img.height as usize;
     let mut bytes = Vec::with_capacity(pixels * 4);
     for p in 0..pixels {
         let a = img.alpha.as_ref().map_or(1.0, |a| a[p].clamp(0.0, 1.0));
-        for ch in 0..3 {
-            let straight = if a > 0.0 { img.rgb[3 * p + ch] / a } else { 0.0 };
-            bytes.push((srgb_encode(tone_map(straight, exposure)) * 255.0 + 0.5) as u8);
-        }
+        let straight = [0, 1, 2].map(|ch| if a > 0.0 { img.rgb[3 * p + ch] / a } else { 0.0 });
+        bytes.extend(pixel_u8(straight, scale, display.view));
         bytes.push((a * 255.0 + 0.5) as u8);
     }
     write_atomic(path, |out| {
@@ -97,29 +100,20 @@ pub fn write_png_rgba(path: &Path, img: &Image, exposure: f64) -> Result<(), Out
 
 /// Writes `img` as `exr` and `png` (either may be `None`), as a solve does: the EXR always with
 /// alpha, the PNG with alpha only for a transparent background (over the sky it is an opaque
-/// preview).
+/// preview), exposed and mapped as `display` says.
 pub fn write_images(
     exr: Option<&Path>,
     png: Option<&Path>,
     img: &Image,
     background: super::Background,
+    display: &Display,
 ) -> Result<(), OutputError> {
     if let Some(path) = exr {
         write_exr(path, img)?;
     }
     match (png, background) {
-        (Some(path), super::Background::Sky) => write_png(path, img, 1.0),
-        (Some(path), super::Background::Transparent) => write_png_rgba(path, img, 1.0),
+        (Some(path), super::Background::Sky) => write_png(path, img, display),
+        (Some(path), super::Background::Transparent) => write_png_rgba(path, img, display),
         (None, _) => Ok(()),
-    }
-}
-
-/// The sRGB transfer function, for `v` in [0, 1].
-fn srgb_encode(v: f64) -> f64 {
-    let v = v.clamp(0.0, 1.0);
-    if v <= 0.003_130_8 {
-        12.92 * v
-    } else {
-        1.055 * v.powf(1.0 / 2.4) - 0.055
     }
 }

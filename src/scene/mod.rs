@@ -69,7 +69,9 @@ pub fn make_file_paths_absolute(scene: &mut toml::Table, base: &Path, except: &[
         }
     }
 }
-pub use validate::{camera_from_keys, default_camera, fitted_default_camera, CameraKeys, VolumeFrame};
+pub use validate::{
+    camera_from_keys, default_camera, display_from_keys, fitted_default_camera, CameraKeys, ExposureKey, VolumeFrame,
+};
 
 use std::path::Path;
 

@@ -19,6 +19,100 @@ pub struct Scene {
     pub camera: Option<Camera>,
     /// How light crosses the volume's faces.
     pub boundary: Boundary,
+    /// How the PNG preview turns radiance into display values (`[camera]`'s `exposure` and
+    /// `view`); the EXR is linear whatever it says.
+    pub display: Display,
+}
+
+/// How an image's linear radiance becomes the 8-bit display values of its PNG preview: scaled by
+/// the exposure, then through the view transform (see `render::tone`).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Display {
+    pub view: View,
+    pub exposure: Exposure,
+}
+
+/// The view transform (tone curve) of the PNG preview.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum View {
+    /// Reinhard's `x / (1 + x)` per channel, then sRGB: the mapping of lpm before the choice
+    /// existed (flat: mid tones sit high and the contrast between lit and shaded sides is small).
+    Standard,
+    /// A film-like curve per channel: a log2 encoding of 16.5 stops around mid grey through an
+    /// S-shaped contrast curve. Highlights roll off into white instead of clipping; saturated
+    /// highlights skew in hue (toward the primaries' yellows and cyans) as each channel saturates.
+    Filmic,
+    /// The same curve applied in AgX's inset space (Troy Sobotka's AgX, as in Blender 4): bright
+    /// saturated light desaturates toward white as film and eyes do, instead of skewing in hue.
+    #[default]
+    Agx,
+}
+
+/// `View` names as written in scenes and on the command line.
+pub const VIEW_NAMES: &str = "\"standard\", \"filmic\", \"agx\"";
+
+impl View {
+    pub fn name(self) -> &'static str {
+        match self {
+            View::Standard => "standard",
+            View::Filmic => "filmic",
+            View::Agx => "agx",
+        }
+    }
+    /// The view named `name` (see [`VIEW_NAMES`]), if any.
+    pub fn from_name(name: &str) -> Option<View> {
+        [View::Standard, View::Filmic, View::Agx].into_iter().find(|v| v.name() == name)
+    }
+}
+
+/// Largest |exposure| in stops (EV): 2^±32 spans any radiance an f32 image holds.
+pub const MAX_EXPOSURE_EV: f64 = 32.0;
+
+/// How bright the preview is exposed.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Exposure {
+    /// Radiance × 2^EV (0: as is).
+    Ev(f64),
+    /// From the image itself: the exposure that puts the log-average luminance of the medium (the
+    /// pixels weighted by their alpha) at mid grey, 0.18 (see `render::tone::auto_exposure`).
+    Auto,
+}
+
+impl Default for Exposure {
+    fn default() -> Self {
+        Exposure::Ev(0.0)
+    }
+}
+
+impl std::str::FromStr for Exposure {
+    type Err = String;
+    /// `"auto"` or a number of stops in ±[`MAX_EXPOSURE_EV`].
+    fn from_str(s: &str) -> Result<Self, String> {
+        if s.trim() == "auto" {
+            return Ok(Exposure::Auto);
+        }
+        let ev: f64 =
+            s.trim().parse().map_err(|_| format!("expected a number of stops (EV) or \"auto\", got {s:?}"))?;
+        Exposure::ev(ev)
+    }
+}
+
+impl Exposure {
+    /// `Ev(ev)` when `ev` is finite and within ±[`MAX_EXPOSURE_EV`].
+    pub fn ev(ev: f64) -> Result<Exposure, String> {
+        if ev.is_finite() && ev.abs() <= MAX_EXPOSURE_EV {
+            Ok(Exposure::Ev(ev))
+        } else {
+            Err(format!("must be a finite number of stops (EV) in [-{MAX_EXPOSURE_EV}, {MAX_EXPOSURE_EV}], got {ev}"))
+        }
+    }
+    /// `"auto"` or the number of stops, as written in scenes.
+    pub fn describe(self) -> String {
+        match self {
+            Exposure::Auto => "auto".to_string(),
+            Exposure::Ev(ev) => format!("{ev}"),
+        }
+    }
 }
 
 /// How light crosses the faces of the volume, per axis (x, y, z): `open` (the default: the lights

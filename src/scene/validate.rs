@@ -22,8 +22,8 @@ mod nrrd_volume;
 mod vdb_volume;
 
 pub use camera::{
-    camera_from_keys, default_camera, fitted_default_camera, CameraKeys, VolumeFrame, DEFAULT_FOV_Y_DEGREES,
-    DEFAULT_IMAGE_SIZE,
+    camera_from_keys, default_camera, display_from_keys, fitted_default_camera, CameraKeys, ExposureKey, VolumeFrame,
+    DEFAULT_FOV_Y_DEGREES, DEFAULT_IMAGE_SIZE,
 };
 
 /// Largest voxel count accepted (product of dims).
@@ -118,6 +118,7 @@ impl Validator<'_> {
         // The solver and renderer work in the volume's frame (its corner at 0): the camera comes
         // back in it.
         let frame = VolumeFrame { dims: volume.dims, voxel_size: volume.voxel_size, origin: volume.origin };
+        let display = raw.camera.as_ref().map(|c| self.display(c)).transpose()?.unwrap_or_default();
         let camera = raw.camera.map(|c| self.camera(c, &frame)).transpose()?;
         let boundary = self.boundary(raw.boundary)?;
         if boundary.any_periodic() {
@@ -148,7 +149,7 @@ impl Validator<'_> {
                  order, which its own directions do not have)",
             ));
         }
-        Ok(Scene { path: self.path.to_path_buf(), volume, medium, lights, solver, camera, boundary })
+        Ok(Scene { path: self.path.to_path_buf(), volume, medium, lights, solver, camera, boundary, display })
     }
 
     /// What a scene with mirror faces may hold (see `solver::mirror`): the lights must look the

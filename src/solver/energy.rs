@@ -91,8 +91,10 @@ impl FacePower {
     }
 }
 
-/// The whole solve's balance, per channel (only the first `channels` entries are meaningful).
+/// The whole solve's balance, per channel (only the first `channels` entries are meaningful;
+/// `report.json` gives only those: one entry per array for a grey solve).
 #[derive(Clone, Copy, Debug, Default, Serialize)]
+#[serde(into = "EnergyJson")]
 pub struct EnergyBalance {
     pub boundary_in: [f64; 3],
     pub emitted: [f64; 3],
@@ -111,6 +113,60 @@ pub struct EnergyBalance {
     /// The boundary power split by the face of the volume it crossed (`-x`, `+x`, `-y`, `+y`,
     /// `-z`, `+z`); the faces' sums are `boundary_in` and `boundary_out`.
     pub faces: [FacePower; 6],
+    /// How many channels the solve had (1 grey, or 3).
+    pub channels: usize,
+}
+
+/// [`EnergyBalance`] as `report.json` writes it: each per-channel array cut to the solve's channels.
+#[derive(Serialize)]
+struct EnergyJson {
+    boundary_in: Vec<f64>,
+    emitted: Vec<f64>,
+    point_lights: Vec<f64>,
+    boundary_out: Vec<f64>,
+    absorbed: Vec<f64>,
+    absorptance: Vec<f64>,
+    unpropagated: Vec<f64>,
+    relative_imbalance: f64,
+    faces: Vec<FaceJson>,
+}
+
+#[derive(Serialize)]
+struct FaceJson {
+    face: &'static str,
+    power_in: Vec<f64>,
+    power_out: Vec<f64>,
+    reflectance: Vec<Option<f64>>,
+    transmittance: Vec<Option<f64>>,
+}
+
+impl From<EnergyBalance> for EnergyJson {
+    fn from(e: EnergyBalance) -> Self {
+        // A balance never computed (Default) has no channel count: give all three.
+        let n = if e.channels == 0 { 3 } else { e.channels.min(3) };
+        let cut = |v: [f64; 3]| v[..n].to_vec();
+        EnergyJson {
+            boundary_in: cut(e.boundary_in),
+            emitted: cut(e.emitted),
+            point_lights: cut(e.point_lights),
+            boundary_out: cut(e.boundary_out),
+            absorbed: cut(e.absorbed),
+            absorptance: cut(e.absorptance),
+            unpropagated: cut(e.unpropagated),
+            relative_imbalance: e.relative_imbalance,
+            faces: e
+                .faces
+                .iter()
+                .map(|f| FaceJson {
+                    face: f.face,
+                    power_in: cut(f.power_in),
+                    power_out: cut(f.power_out),
+                    reflectance: f.reflectance[..n].to_vec(),
+                    transmittance: f.transmittance[..n].to_vec(),
+                })
+                .collect(),
+        }
+    }
 }
 
 impl EnergyBalance {
@@ -144,6 +200,7 @@ impl EnergyBalance {
             unpropagated,
             relative_imbalance: worst,
             faces: std::array::from_fn(|f| FacePower::new(f, tallies, channels)),
+            channels,
         }
     }
 }
@@ -176,5 +233,23 @@ mod tests {
         assert_eq!(e.faces[4].reflectance[0], None);
         assert_eq!(e.absorptance[0], 0.3);
         assert!(e.relative_imbalance < 1e-15);
+    }
+
+    /// A grey balance writes one entry per array (not `[x, 0, 0]` or `[x, null, null]`); an RGB one three.
+    #[test]
+    fn the_json_has_one_entry_per_channel() {
+        let mut t = Tallies::default();
+        t.face_in[5] = [10.0, 0.0, 0.0];
+        t.boundary_in = [10.0, 0.0, 0.0];
+        let grey = serde_json::to_value(EnergyBalance::new(&t, [0.0; 3], [0.0; 3], [3.0, 0.0, 0.0], [0.0; 3], 1))
+            .expect("json");
+        assert_eq!(grey["absorbed"], serde_json::json!([3.0]));
+        assert_eq!(grey["faces"][5]["reflectance"], serde_json::json!([0.0]));
+        assert_eq!(grey["faces"][4]["transmittance"], serde_json::json!([null]));
+        assert_eq!(grey["faces"][5]["face"], "+z");
+        let rgb = serde_json::to_value(EnergyBalance::new(&t, [0.0; 3], [0.0; 3], [3.0, 1.0, 0.0], [0.0; 3], 3))
+            .expect("json");
+        assert_eq!(rgb["absorbed"], serde_json::json!([3.0, 1.0, 0.0]));
+        assert_eq!(rgb["faces"].as_array().map(Vec::len), Some(6));
     }
 }

@@ -86,7 +86,10 @@ pub struct OrderRecord {
 /// q the ratio of its last two steps, the ratio may still move by d = |Δ|/(1 − |q|). The tail
 /// uses the middle of that range, ρ + ½d (in the direction of Δ), and its uncertainty is half the
 /// tail's change over the range.
+///
+/// `report.json` gives each per-channel array for the solve's channels only (one entry when grey).
 #[derive(Clone, Debug, Serialize)]
+#[serde(into = "TailJson")]
 pub struct TailEstimate {
     /// Per channel, the ratio of the last order's scattered power to the previous one's.
     pub ratio: [f64; 3],
@@ -110,6 +113,38 @@ pub struct TailEstimate {
     /// energy balance's faces cover the propagated orders; add this for the totals with the tail
     /// (e.g. the reflectance and transmittance of a converged high-albedo slab).
     pub face_out: [[f64; 3]; 6],
+    /// How many channels the solve had (1 grey, or 3).
+    pub channels: usize,
+}
+
+/// [`TailEstimate`] as `report.json` writes it: each per-channel array cut to the solve's channels.
+#[derive(Serialize)]
+struct TailJson {
+    ratio: Vec<f64>,
+    drift: Vec<f64>,
+    drift_ratio: f64,
+    factor: Vec<f64>,
+    power: f64,
+    uncertainty: f64,
+    uncertainty_factor: Vec<f64>,
+    face_out: Vec<Vec<f64>>,
+}
+
+impl From<TailEstimate> for TailJson {
+    fn from(t: TailEstimate) -> Self {
+        let n = t.channels.clamp(1, 3);
+        let cut = |v: [f64; 3]| v[..n].to_vec();
+        TailJson {
+            ratio: cut(t.ratio),
+            drift: cut(t.drift),
+            drift_ratio: t.drift_ratio,
+            factor: cut(t.factor),
+            power: t.power,
+            uncertainty: t.uncertainty,
+            uncertainty_factor: cut(t.uncertainty_factor),
+            face_out: t.face_out.iter().map(|&f| cut(f)).collect(),
+        }
+    }
 }
 
 /// Orders in a row whose scattered power grew, and by how much in all, that mark a diverging series
@@ -180,6 +215,7 @@ pub fn tail_estimate(plan: &Plan, state: &LoopState) -> Option<TailEstimate> {
         uncertainty: 0.0,
         uncertainty_factor: [0.0; 3],
         face_out: [[0.0; 3]; 6],
+        channels: c,
     };
     let tail = |rho: f64| rho / (1.0 - rho);
     for ch in 0..c {
@@ -402,6 +438,28 @@ pub fn run_orders<B: Backend + ?Sized>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A grey solve's tail writes one entry per per-channel array (not `[x, 0, 0]`).
+    #[test]
+    fn a_grey_tail_has_one_entry_per_array() {
+        let t = TailEstimate {
+            ratio: [0.9, 0.0, 0.0],
+            drift: [0.01, 0.0, 0.0],
+            drift_ratio: 0.5,
+            factor: [9.0, 0.0, 0.0],
+            power: 2.0,
+            uncertainty: 0.1,
+            uncertainty_factor: [0.2, 0.0, 0.0],
+            face_out: [[1.0, 0.0, 0.0]; 6],
+            channels: 1,
+        };
+        let json = serde_json::to_value(&t).expect("json");
+        assert_eq!(json["ratio"], serde_json::json!([0.9]));
+        assert_eq!(json["face_out"][5], serde_json::json!([1.0]));
+        assert_eq!(json["power"], 2.0);
+        let rgb = serde_json::to_value(TailEstimate { channels: 3, ..t }).expect("json");
+        assert_eq!(rgb["factor"], serde_json::json!([9.0, 0.0, 0.0]));
+    }
 
     fn history(powers: &[f64]) -> Vec<OrderRecord> {
         powers

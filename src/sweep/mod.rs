@@ -32,7 +32,8 @@
 //! varies fastest). Task N lives in `DIR/task-NNNN/`: `scene.toml` (the base scene with the frame
 //! and parameters substituted, validated like any scene), `out/` (the solve's outputs and its
 //! checkpoint while it runs), `status.json` (running / done / failed) and `attempts.log` (one line
-//! per start, saying whether it resumed). See [`task`] for running one and [`slurm`] for the script.
+//! per start, saying whether it resumed). See [`task`] for running one, [`slurm`] for the script and
+//! [`collect`] for gathering every task's results into one table.
 //!
 //! `frames.warm_start = "previous"` starts each frame's solve from the solution of the previous
 //! frame with the same parameters (its exported `source.raw`, see [`crate::solver::warm`]): the
@@ -41,6 +42,7 @@
 //! and `attempts.log` and its report say which; to chain the frames on a cluster, let them run in
 //! order (`slurm.max_running` = the number of parameter combinations, or 1).
 
+pub mod collect;
 pub mod slurm;
 pub mod task;
 

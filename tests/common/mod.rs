@@ -40,6 +40,7 @@ pub fn scene(shape: Shape, dims: [u32; 3], sigma_t: [f64; 3], albedo: [f64; 3], 
         },
         camera: None,
         boundary: Boundary::default(),
+        display: Default::default(),
     }
 }
 

@@ -412,3 +412,42 @@ fn bench_accuracy_sky_directions_run_each_value_and_fit_every_k() {
     let rows = run(&dir.join("own"), &["--k", "4"]);
     assert_eq!(rows[0]["setting"], "k=4 tol=1e-2 f32");
 }
+
+/// Where the fields are in the world and how many channels the report speaks of: the NRRD headers
+/// carry `space origin` (the first voxel's centre) and `space directions`, the JSON sidecars the
+/// volume's corner as `origin`; a grey solve's energy arrays have one entry each, not three.
+#[test]
+fn outputs_are_placed_in_the_world_and_a_grey_report_has_one_channel() {
+    let dir = temp_dir("cli-origin");
+    let grey = SMALL
+        .replace("sigma_t = [1.0, 0.8, 0.6]", "sigma_t = 1.0")
+        .replace("voxel_size = 0.5", "voxel_size = 0.5\norigin = [-3.0, 2.0, 10.5]")
+        .replace("max_orders = 6", "max_orders = 2");
+    let scene = write_scene(&dir, &grey);
+    let out = dir.join("out");
+    let o = lpm(&["solve", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--backend", "cpu", "--no-image"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for base in ["fluence", "source"] {
+        let nhdr = std::fs::read_to_string(out.join(format!("{base}.nhdr"))).unwrap();
+        assert!(nhdr.contains("space origin: (-2.75,2.25,10.75)\n"), "{nhdr}");
+        assert!(nhdr.contains("space directions: (0.5,0,0) (0,0.5,0) (0,0,0.5)\n"), "{nhdr}");
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join(format!("{base}.json"))).unwrap()).unwrap();
+        assert_eq!(json["origin"], serde_json::json!([-3.0, 2.0, 10.5]));
+    }
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["plan"]["channels"], 1);
+    let energy = &report["energy"];
+    for key in ["boundary_in", "emitted", "point_lights", "boundary_out", "absorbed", "absorptance", "unpropagated"] {
+        assert_eq!(energy[key].as_array().map(Vec::len), Some(1), "{key}: {energy}");
+    }
+    for face in energy["faces"].as_array().unwrap() {
+        for key in ["power_in", "power_out", "reflectance", "transmittance"] {
+            assert_eq!(face[key].as_array().map(Vec::len), Some(1), "{key}: {face}");
+        }
+    }
+    assert!(energy["absorptance"][0].as_f64().unwrap() > 0.0);
+    let o = lpm(&["info", out.to_str().unwrap()]);
+    assert!(o.status.success() && String::from_utf8_lossy(&o.stdout).contains("faces     -x in "), "{}", stderr(&o));
+}

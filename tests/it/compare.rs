@@ -11,6 +11,7 @@ fn meta(components: usize) -> FieldMeta {
         units: "test".into(),
         components: (0..components).map(|c| format!("c{c}")).collect(),
         description: "synthetic".into(),
+        origin: [0.0; 3],
     }
 }
 

@@ -247,3 +247,97 @@ fn lpm_render_re_renders_a_solved_result_from_a_new_view() {
     let o = lpm_command(&["render", out_s, "--image", dir.join("x.jpg").to_str().unwrap()]).output().unwrap();
     assert!(String::from_utf8_lossy(&o.stderr).contains(".exr or .png"));
 }
+
+/// The PNG's exposure and view transform: `[camera]`'s `exposure` and `view` keys (checked, with
+/// the key named), overridden by `--exposure`/`--view` on the solve, kept in render-data so that
+/// `lpm render OUT` writes the solve's PNG bitwise, and changed there by the same flags; the PNG is
+/// exactly the EXR through `render::tone` at 2^EV. On a sunlit sphere the default (AgX) spreads the
+/// lit and shaded sides over more of the 8-bit range than the old mapping (`standard`).
+#[test]
+fn exposure_and_view_from_the_camera_keys_and_the_flags() {
+    use lpm::render::tone::pixel_u8;
+    use lpm::scene::{Exposure, View};
+    let dir = temp_dir("render-display");
+    // The keys are checked, naming the key.
+    for (keys, key, words) in [
+        ("view = \"aces\"", "camera.view", "\"standard\", \"filmic\", \"agx\""),
+        ("exposure = 40", "camera.exposure", "[-32, 32]"),
+        ("exposure = \"bright\"", "camera.exposure", "\"auto\""),
+        ("exposure = nan", "camera.exposure", "finite"),
+    ] {
+        let text = SPHERE.replace("SIGMA", "2.0") + keys + "\n";
+        let e = Scene::from_toml_str(&text, &dir.join("keys.toml")).unwrap_err().to_string();
+        assert!(e.contains(key) && e.contains(words), "{keys}: {e}");
+    }
+    let text = SPHERE.replace("SIGMA", "2.0") + "exposure = -1.5\nview = \"filmic\"\n";
+    let scene = Scene::from_toml_str(&text, &dir.join("keys.toml")).unwrap();
+    assert_eq!((scene.display.view, scene.display.exposure), (View::Filmic, Exposure::Ev(-1.5)));
+    let plain = Scene::from_toml_str(&SPHERE.replace("SIGMA", "2.0"), &dir.join("keys.toml")).unwrap();
+    assert_eq!((plain.display.view, plain.display.exposure), (View::Agx, Exposure::Ev(0.0)), "the defaults");
+
+    // A solve with the keys: its PNG is its EXR at 2^1 through filmic.
+    let scene = write_scene(&dir, &(SPHERE.replace("SIGMA", "2.0") + "exposure = 1\nview = \"filmic\"\n"));
+    let out = dir.join("out");
+    let out_s = out.to_str().unwrap();
+    lpm_ok(&["solve", scene.to_str().unwrap(), "--out", out_s, "--backend", "cpu", "--no-fields"]);
+    let (_, _, exr) = read_exr(&out.join("image.exr"));
+    let as_png = |scale: f64, view: View| -> Vec<u8> {
+        exr.iter().flat_map(|p| pixel_u8([p[0], p[1], p[2]], scale, view)).collect::<Vec<u8>>()
+    };
+    let (_, _, _, png) = read_png(&out.join("image.png"));
+    assert_eq!(png, as_png(2.0, View::Filmic), "the PNG is the EXR through the scene's exposure and view");
+    let kept: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("render-data/render.json")).unwrap()).unwrap();
+    assert_eq!(kept["display"], serde_json::json!({"view": "filmic", "exposure": 1.0}));
+
+    // `lpm render OUT` keeps the solve's mapping (bitwise), the flags change it.
+    let solved_png = std::fs::read(out.join("image.png")).unwrap();
+    lpm_ok(&["render", out_s]);
+    assert_eq!(std::fs::read(out.join("image.png")).unwrap(), solved_png, "re-render with the solve's mapping");
+    let std_png = dir.join("standard.png");
+    lpm_ok(&["render", out_s, "--view", "standard", "--exposure", "-1", "--image", std_png.to_str().unwrap()]);
+    assert_eq!(read_png(&std_png).3, as_png(0.5, View::Standard));
+    let auto_png = dir.join("auto.png");
+    lpm_ok(&["render", out_s, "--exposure", "auto", "--image", auto_png.to_str().unwrap()]);
+    assert_ne!(read_png(&auto_png).3, png, "auto exposure changes the PNG");
+    for (flag, value, words) in
+        [("--exposure", "99", "[-32, 32]"), ("--exposure", "loud", "\"auto\""), ("--view", "aces", "agx")]
+    {
+        let o = lpm_command(&["render", out_s, flag, value]).output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && err.contains(flag) && err.contains(words), "{flag} {value}: {err}");
+    }
+
+    // The solve's flags override the keys, and are what render-data keeps.
+    let out2 = dir.join("out2");
+    lpm_ok(&[
+        "solve",
+        scene.to_str().unwrap(),
+        "--out",
+        out2.to_str().unwrap(),
+        "--backend",
+        "cpu",
+        "--no-fields",
+        "--view",
+        "agx",
+        "--exposure",
+        "auto",
+    ]);
+    let kept: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out2.join("render-data/render.json")).unwrap()).unwrap();
+    assert_eq!(kept["display"], serde_json::json!({"view": "agx", "exposure": "auto"}));
+
+    // Lit and shaded sides: over the pixels that see the sphere, the default view at EV 0 spans
+    // more 8-bit levels than the old mapping did.
+    let spread = |view: View| {
+        let greens: Vec<u8> =
+            exr.iter().filter(|p| p[3] > 0.9).map(|p| pixel_u8([p[0], p[1], p[2]], 1.0, view)[1]).collect();
+        greens.iter().max().unwrap() - greens.iter().min().unwrap()
+    };
+    assert!(
+        spread(View::Agx) > spread(View::Standard),
+        "agx {} vs standard {}",
+        spread(View::Agx),
+        spread(View::Standard)
+    );
+}

@@ -44,6 +44,7 @@ fn scene(dims: [u32; 3], h: f64, sigma_t: f64, albedo: f64, g: f64, emission: f6
         },
         camera: None,
         boundary: Default::default(),
+        display: Default::default(),
     }
 }
 

@@ -2,7 +2,7 @@
 
 use glam::DVec3;
 use lpm::render::{default_camera, render, write_exr, write_png, Image, RenderInputs};
-use lpm::scene::{Camera, Medium, Projection};
+use lpm::scene::{Camera, Display, Medium, Projection};
 use lpm::store::{BrickStore, Coverage, Field, BRICK_VOXELS};
 use std::fs;
 use std::path::{Path, PathBuf};
@@ -218,7 +218,8 @@ fn default_camera_frames_the_whole_volume_and_render_is_deterministic() {
 fn exr_and_png_are_written_atomically_and_read_back() {
     let dir = test_dir("files");
     let (w, h) = (7u32, 5u32);
-    let rgb: Vec<f32> = (0..w * h * 3).map(|i| i as f32 * 0.125).collect();
+    // Pixel 0 black in all three channels (AgX mixes the channels: a black red beside a lit green is not black).
+    let rgb: Vec<f32> = (0..w * h * 3).map(|i| if i < 3 { 0.0 } else { i as f32 * 0.125 }).collect();
     let img = Image { width: w, height: h, rgb, alpha: None };
 
     let exr_path = dir.join("view.exr");
@@ -237,7 +238,7 @@ fn exr_and_png_are_written_atomically_and_read_back() {
     assert_eq!(layer.channel_data.pixels.1, img.rgb);
 
     let png_path = dir.join("view.png");
-    write_png(&png_path, &img, 1.0).expect("png");
+    write_png(&png_path, &img, &Display::default()).expect("png");
     let decoder = png::Decoder::new(fs::File::open(&png_path).expect("open png"));
     let mut reader = decoder.read_info().expect("png header");
     let mut buf = vec![0u8; reader.output_buffer_size()];
@@ -255,6 +256,6 @@ fn exr_and_png_are_written_atomically_and_read_back() {
     // A malformed image is refused and writes nothing.
     let bad = Image { width: 3, height: 3, rgb: vec![0.0; 5], alpha: None };
     assert!(write_exr(&dir.join("bad.exr"), &bad).is_err());
-    assert!(write_png(&dir.join("bad.png"), &bad, 1.0).is_err());
+    assert!(write_png(&dir.join("bad.png"), &bad, &Display::default()).is_err());
     assert!(!dir.join("bad.exr").exists() && !dir.join("bad.png").exists());
 }

@@ -124,6 +124,38 @@ fn sweep_expands_reruns_and_locks() {
 
     let st = ok(&run(&mut lpm_command(&["sweep", m, "--status"])));
     assert!(st.contains("4 tasks: 2 pending, 2 done"), "{st}");
+
+    // --collect: one row per task, its frame and parameters against its results (grey: one
+    // column per quantity), empty cells for the tasks not done; the JSON says the same.
+    let said = ok(&run(&mut lpm_command(&["sweep", m, "--collect"])));
+    assert!(said.contains("4 tasks (2 done)"), "{said}");
+    let csv = std::fs::read_to_string(tasks_dir.join("results.csv")).unwrap();
+    let lines: Vec<&str> = csv.lines().collect();
+    assert_eq!(
+        lines[0], "task,frame,medium.albedo,status,orders,converged,seconds,lit_face,R,T,absorptance,error",
+        "{csv}"
+    );
+    assert_eq!(lines.len(), 5, "{csv}");
+    assert!(lines[1].starts_with("0,1,0.5,pending,,,,,,,,"), "{csv}");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(tasks_dir.join("results.json")).unwrap()).unwrap();
+    for t in [1usize, 2] {
+        let cells: Vec<&str> = lines[t + 1].split(',').collect();
+        assert_eq!(cells[3], "done", "{csv}");
+        let row = &json[t];
+        let report: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(tasks_dir.join(format!("task-000{t}/out/report.json"))).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(row["orders"], report["orders"]);
+        assert_eq!(row["absorptance"], report["energy"]["absorptance"], "grey: one entry");
+        assert_eq!(cells[10].parse::<f64>().unwrap(), report["energy"]["absorptance"][0].as_f64().unwrap());
+        let r = row["R"][0].as_f64().unwrap();
+        assert!(r > 0.0 && r < 1.0 && row["T"][0].as_f64().unwrap() > 0.0, "{row}");
+        assert_eq!(row["parameters"]["medium.albedo"].as_f64(), Some([0.9, 0.5][t - 1]));
+    }
+    // A sky all round: more absorbed at the lower albedo (task 2: albedo 0.5) than at 0.9 (task 1).
+    assert!(json[2]["absorptance"][0].as_f64() > json[1]["absorptance"][0].as_f64());
 }
 
 /// A port p with p + 1 free too (slurmctld's and slurmd's), as the kernel hands out free ports:

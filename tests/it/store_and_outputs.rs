@@ -302,6 +302,7 @@ fn export_field_layout_json_and_nhdr() {
         units: "W/m^2".into(),
         components: vec!["r".into(), "g".into(), "b".into()],
         description: "test".into(),
+        origin: [-2.0, 1.0, 0.5],
     };
     export_field(&f, &store, &out, "fluence", &meta, EmptyBricks::NotSolved).expect("export");
     let (info, data) = read_raw_field(&out, "fluence").expect("read back");
@@ -331,7 +332,10 @@ fn export_field_layout_json_and_nhdr() {
         "type: float",
         "dimension: 4",
         "sizes: 3 37 20 53",
-        "spacings: nan 0.5 0.5 0.5",
+        "space dimension: 3",
+        "space directions: none (0.5,0,0) (0,0.5,0) (0,0,0.5)",
+        // NRRD's origin is the first voxel's centre: the corner plus half a voxel.
+        "space origin: (-1.75,1.25,0.75)",
         "kinds: vector domain domain domain",
         "endian: little",
         "encoding: raw",
@@ -345,6 +349,7 @@ fn export_field_layout_json_and_nhdr() {
     assert_eq!(json["layout"], "component fastest, then x, then y, then z");
     assert_eq!(json["component_names"][2], "b");
     assert_eq!(json["not_solved"], lpm::output::NOT_SOLVED);
+    assert_eq!(json["origin"], serde_json::json!([-2.0, 1.0, 0.5]), "the json gives the corner");
 
     // The same field with empty bricks as zeros (a source): no NaN, no note.
     export_field(&f, &store, &out, "source", &meta, EmptyBricks::Zero).expect("export");
@@ -358,6 +363,10 @@ fn export_field_layout_json_and_nhdr() {
     export_field(&one, &store, &out, "phi", &meta1, EmptyBricks::NotSolved).expect("export");
     let nhdr = fs::read_to_string(out.join("phi.nhdr")).expect("nhdr");
     assert!(nhdr.contains("dimension: 3\n") && nhdr.contains("sizes: 37 20 53\n"), "{nhdr}");
+    assert!(nhdr.contains("space directions: (0.5,0,0) (0,0.5,0) (0,0,0.5)\n"), "{nhdr}");
+    // lpm's own NRRD reader places the exported field where it was.
+    let back = lpm::store::nrrd_input::nrrd_header(&out.join("phi.nhdr")).expect("read the exported header");
+    assert_eq!((back.voxel_size, back.corner), (Some(0.5), Some([-2.0, 1.0, 0.5])));
     // Names that do not match the components are refused.
     assert!(export_field(&one, &store, &out, "bad", &meta, EmptyBricks::Zero).is_err());
 

@@ -13,7 +13,7 @@
 //!   `view_height` to the volume's diagonal and `width`/`height` to 512 each (as they always have).
 
 use super::{Validator, MAX_IMAGE_SIZE, MAX_MAGNITUDE, PROJECTIONS, R};
-use crate::scene::{Camera, Projection, SceneError};
+use crate::scene::{Camera, Display, Exposure, Projection, SceneError, View, VIEW_NAMES};
 use glam::DVec3;
 use serde::Deserialize;
 use std::path::Path;
@@ -49,6 +49,18 @@ pub struct CameraKeys {
     pub up: Option<[f64; 3]>,
     pub width: Option<i64>,
     pub height: Option<i64>,
+    /// The PNG preview's exposure: stops (EV, default 0) or "auto".
+    pub exposure: Option<ExposureKey>,
+    /// The PNG preview's view transform: "standard", "filmic" or "agx" (default).
+    pub view: Option<String>,
+}
+
+/// `camera.exposure` as written: a number of stops or a word ("auto").
+#[derive(Clone, Debug, Deserialize)]
+#[serde(untagged)]
+pub enum ExposureKey {
+    Stops(f64),
+    Word(String),
 }
 
 /// Where the volume is: what the camera defaults are computed from.
@@ -146,7 +158,34 @@ pub fn camera_from_keys(keys: CameraKeys, source: &Path, frame: &VolumeFrame) ->
     Validator { path: source }.camera(keys, frame)
 }
 
+/// Checks `[camera]`'s `exposure` and `view` (defaults for those omitted); `source` names where
+/// the keys came from in messages (a file, or the command line).
+pub fn display_from_keys(keys: &CameraKeys, source: &Path) -> Result<Display, SceneError> {
+    Validator { path: source }.display(keys)
+}
+
 impl Validator<'_> {
+    /// The preview's exposure and view transform.
+    pub(super) fn display(&self, c: &CameraKeys) -> R<Display> {
+        let exposure = match &c.exposure {
+            None => Exposure::default(),
+            Some(ExposureKey::Word(w)) if w == "auto" => Exposure::Auto,
+            Some(ExposureKey::Word(w)) => {
+                return Err(
+                    self.err("camera.exposure", format!("expected a number of stops (EV) or \"auto\", got \"{w}\""))
+                )
+            }
+            Some(ExposureKey::Stops(ev)) => Exposure::ev(*ev).map_err(|m| self.err("camera.exposure", m))?,
+        };
+        let view = match c.view.as_deref() {
+            None => View::default(),
+            Some(name) => View::from_name(name).ok_or_else(|| {
+                self.err("camera.view", format!("unknown view transform \"{name}\", expected one of {VIEW_NAMES}"))
+            })?,
+        };
+        Ok(Display { view, exposure })
+    }
+
     /// The camera in the volume's frame.
     pub(super) fn camera(&self, c: CameraKeys, frame: &VolumeFrame) -> R<Camera> {
         let orthographic = match c.projection.as_deref().unwrap_or("pinhole") {

@@ -315,6 +315,20 @@ fn background(name: &str) -> PyResult<Background> {
     }
 }
 
+/// `exposure` (stops, or "auto") and `view` ("standard", "filmic", "agx") as the CLI's flags take them.
+fn display_change(exposure: Option<&str>, view: Option<&str>) -> PyResult<render::keep::DisplayChange> {
+    let exposure =
+        exposure.map(|e| e.parse::<lpm::scene::Exposure>().map_err(|m| PyValueError::new_err(format!("exposure {m}")))).transpose()?;
+    let view = view
+        .map(|v| {
+            lpm::scene::View::from_name(v).ok_or_else(|| {
+                PyValueError::new_err(format!("view must be one of {}, not {v:?}", lpm::scene::VIEW_NAMES))
+            })
+        })
+        .transpose()?;
+    Ok(render::keep::DisplayChange { exposure, view })
+}
+
 fn vdb_precision(name: &str) -> PyResult<VdbPrecision> {
     match name {
         "float" => Ok(VdbPrecision::Float),
@@ -511,7 +525,7 @@ fn solve(
 /// as `--image` does.
 #[pyfunction]
 #[pyo3(name = "render", signature = (out, camera=None, width=None, height=None, eye=None, target=None, up=None, fov=None,
-    background="sky", image=None))]
+    background="sky", image=None, exposure=None, view=None))]
 #[allow(clippy::too_many_arguments)]
 fn render_again<'py>(
     py: Python<'py>,
@@ -525,8 +539,11 @@ fn render_again<'py>(
     fov: Option<f64>,
     background: &str,
     image: Option<PathBuf>,
+    exposure: Option<&str>,
+    view: Option<&str>,
 ) -> PyResult<Bound<'py, PyArray3<f32>>> {
     let background = self::background(background)?;
+    let display = display_change(exposure, view)?;
     let (exr, png) = match &image {
         None => (None, None),
         Some(p) => match p.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
@@ -542,9 +559,12 @@ fn render_again<'py>(
         .detach(|| -> Result<render::Image, Failure> {
             let _lock = output::DirLock::acquire(&out).map_err(|e| output_failure(&e))?;
             let kept = render::keep::open(&out).map_err(|e| output_failure(&e))?;
+            let display =
+                render::keep::view_display(&kept, camera.as_deref(), &display).map_err(|e| scene_failure(&e))?;
             let camera = render::keep::view_camera(&kept, camera.as_deref(), &change).map_err(|e| scene_failure(&e))?;
             let img = kept.render(&camera, background);
-            render::write_images(exr.as_deref(), png.as_deref(), &img, background).map_err(|e| output_failure(&e))?;
+            render::write_images(exr.as_deref(), png.as_deref(), &img, background, &display)
+                .map_err(|e| output_failure(&e))?;
             Ok(img)
         })
         .map_err(|f| f.into_pyerr(py))?;

@@ -109,6 +109,8 @@ class Result:
         camera=None,
         background="sky",
         image=None,
+        exposure=None,
+        view=None,
     ):
         """Renders the solved result again (``lpm render OUT``) and returns the image as a float32
         array of shape (height, width, 4): linear RGB and alpha = 1 − transmittance, top row first.
@@ -117,7 +119,8 @@ class Result:
         ``width``/``height`` (one alone keeps the aspect ratio), ``eye``/``target``/``up`` (world
         X, Y, Z), ``fov`` (vertical, degrees), ``background`` ("sky" or "transparent"). With no
         option, the solve's own view (its ``image.exr``, bitwise). ``image``: also write it there
-        (.exr or .png)."""
+        (.exr or .png); a PNG is exposed and tone-mapped as the solve's was, or with ``exposure``
+        (stops as a number or string, or "auto") and ``view`` ("agx", "filmic", "standard")."""
         return _lpm.render(
             str(self.out),
             camera=None if camera is None else str(camera),
@@ -128,6 +131,8 @@ class Result:
             up=_vec3(up, "up"),
             fov=fov,
             background=background,
+            exposure=None if exposure is None else str(exposure),
+            view=view,
             image=None if image is None else str(image),
         )
 
