@@ -426,7 +426,8 @@ pub enum Acceleration {
     Off,
 }
 
-/// When the GPU driver writes a checkpoint: after an order when `every_orders` orders have passed
+/// When a solve writes a checkpoint (the order loop schedules them, `solver::orders`; the GPU
+/// backend keeps them): after an order when `every_orders` orders have passed
 /// since the last one, or `every_seconds`, whichever comes first; and always after the last order.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CheckpointCadence {

@@ -48,10 +48,17 @@ pub trait Backend {
         [0.0; 3]
     }
 
-    /// Records the state after a completed order so that a killed solve can resume from it, when
-    /// the backend's cadence says so (always when `last`: the solve ends with this order). Only
-    /// the brick store's fields outlive the process; the default does nothing.
-    fn checkpoint(&mut self, _state: &LoopState, _last: bool) -> Result<(), SolveError> {
+    /// How often the backend wants its state recorded for a resume (`None`: it keeps no
+    /// checkpoints). The order loop schedules them ([`run_orders`]): the same rule for every
+    /// backend.
+    fn checkpoint_cadence(&self) -> Option<crate::scene::CheckpointCadence> {
+        None
+    }
+    /// The state after a completed order: to be recorded so that a killed solve can resume from
+    /// it when `due` (the cadence says so; always with `last` when the backend keeps
+    /// checkpoints), else the latest state not recorded. `last`: the solve ends with this order.
+    /// Only the brick store's fields outlive the process; the default does nothing.
+    fn checkpoint(&mut self, _state: &LoopState, _due: bool, _last: bool) -> Result<(), SolveError> {
         Ok(())
     }
     /// The power emitted when order 0's source is a per-voxel emission ([`super::emission`]),
@@ -314,6 +321,9 @@ pub fn run_orders<B: Backend + ?Sized>(
 ) -> Result<OrderOutcome, SolveError> {
     let clock = Instant::now();
     let start_orders = start.orders_done;
+    // Checkpoints: orders completed since the last one (or the start), and when that was.
+    let cadence = backend.checkpoint_cadence();
+    let mut since_checkpoint = (0u32, Instant::now());
     let mut state = start;
     let residual_of = |s: &LoopState| {
         let total: f64 = s.total_power.iter().sum();
@@ -374,7 +384,14 @@ pub fn run_orders<B: Backend + ?Sized>(
             seconds: t.elapsed().as_secs_f64(),
         });
         converged = done(&state, remaining);
-        backend.checkpoint(&state, converged || state.orders_done >= plan.max_orders)?;
+        let last = converged || state.orders_done >= plan.max_orders;
+        since_checkpoint.0 += 1;
+        let (orders_since, since) = since_checkpoint;
+        let due = cadence.is_some_and(|c| c.due(orders_since, since.elapsed().as_secs_f64(), last));
+        backend.checkpoint(&state, due, last)?;
+        if due {
+            since_checkpoint = (0, Instant::now());
+        }
         // What the stop rule compares with the tolerance: the per-voxel remaining error (the power
         // residual while no ratio is known yet, and under the tail's own rule).
         let measure = match remaining {

@@ -199,10 +199,9 @@ pub struct GpuBackend<'a> {
     fields: &'a mut StoreFields,
     /// The store's density as the host passes walk it.
     medium: StoreMedium<'a>,
-    /// The scene digest checkpoints are written under and their cadence; `None`: no checkpoints.
+    /// The scene digest checkpoints are written under and their cadence (the order loop
+    /// schedules them); `None`: no checkpoints.
     checkpoints: Option<(String, CheckpointCadence)>,
-    /// Orders completed since the last checkpoint (or the start), and when that was.
-    since_checkpoint: (u32, Instant),
     /// The state after the last completed order when the cadence skipped its checkpoint.
     pending: Option<LoopState>,
     /// The checkpoint being written in the background while the next order's sweeps run.
@@ -283,7 +282,6 @@ impl<'a> GpuBackend<'a> {
             fields,
             medium,
             checkpoints: None,
-            since_checkpoint: (0, Instant::now()),
             pending: None,
             writing: None,
             memory,
@@ -649,15 +647,11 @@ impl<'a> Backend for GpuBackend<'a> {
         Ok(Some(super::emission::emitted_power(self.store, self.plan)?))
     }
 
-    fn checkpoint(&mut self, state: &LoopState, last: bool) -> Result<(), SolveError> {
-        let due = match &self.checkpoints {
-            Some((_, cadence)) => {
-                self.since_checkpoint.0 += 1;
-                let (orders, since) = self.since_checkpoint;
-                cadence.due(orders, since.elapsed().as_secs_f64(), last)
-            }
-            None => false,
-        };
+    fn checkpoint_cadence(&self) -> Option<CheckpointCadence> {
+        self.checkpoints.as_ref().map(|(_, cadence)| *cadence)
+    }
+
+    fn checkpoint(&mut self, state: &LoopState, due: bool, last: bool) -> Result<(), SolveError> {
         // The state the device committed comes home for a checkpoint and for the passes that
         // end the solve.
         if due || last {
@@ -699,7 +693,6 @@ impl GpuBackend<'_> {
         if !background {
             self.settle_checkpoint()?;
         }
-        self.since_checkpoint = (0, Instant::now());
         self.pending = None;
         Ok(())
     }
