@@ -317,8 +317,9 @@ fn background(name: &str) -> PyResult<Background> {
 
 /// `exposure` (stops, or "auto") and `view` ("standard", "filmic", "agx") as the CLI's flags take them.
 fn display_change(exposure: Option<&str>, view: Option<&str>) -> PyResult<render::keep::DisplayChange> {
-    let exposure =
-        exposure.map(|e| e.parse::<lpm::scene::Exposure>().map_err(|m| PyValueError::new_err(format!("exposure {m}")))).transpose()?;
+    let exposure = exposure
+        .map(|e| e.parse::<lpm::scene::Exposure>().map_err(|m| PyValueError::new_err(format!("exposure {m}"))))
+        .transpose()?;
     let view = view
         .map(|v| {
             lpm::scene::View::from_name(v).ok_or_else(|| {
