@@ -17,7 +17,7 @@ fn anisotropic_cloud() -> Scene {
     s.medium.g = 0.7;
     s.solver.directions_per_face = 3;
     s.solver.storage_directions_per_face = Some(2);
-    s.solver.max_orders = 6;
+    s.solver.max_orders = 4;
     s.solver.tolerance = 1e-30;
     with_precision(s, StoragePrecision::F16)
 }
