@@ -134,9 +134,15 @@ pub(crate) fn cancelled_or(cancel: Option<CancelFlag>, r: Result<(), OutputError
 /// `LPM_TEST_EXPORT_ROW_DELAY_MS` slows every row written, so that a signal finds the export
 /// running. Never in a plain or release build.
 fn test_row_delay() {
+    // Read once per process: this runs for every row.
     #[cfg(feature = "test-hooks")]
-    if let Some(ms) = std::env::var("LPM_TEST_EXPORT_ROW_DELAY_MS").ok().and_then(|v| v.parse::<u64>().ok()) {
-        std::thread::sleep(std::time::Duration::from_millis(ms));
+    {
+        static DELAY: std::sync::OnceLock<Option<u64>> = std::sync::OnceLock::new();
+        let delay = DELAY
+            .get_or_init(|| std::env::var("LPM_TEST_EXPORT_ROW_DELAY_MS").ok().and_then(|v| v.parse::<u64>().ok()));
+        if let Some(ms) = *delay {
+            std::thread::sleep(std::time::Duration::from_millis(ms));
+        }
     }
 }
 

@@ -113,11 +113,6 @@ impl ResidentBuffers {
     pub(super) fn all(&self) -> [&Buffer; 5] {
         [&self.slot_table, &self.density, &self.source_prev, &self.source_next, &self.fluence]
     }
-
-    /// Every buffer, for the byte count.
-    pub(super) fn every(&self) -> [&Buffer; 5] {
-        self.all()
-    }
 }
 
 impl TotalBuffers {

@@ -133,7 +133,7 @@ impl Mode {
     /// The bytes of the buffers the mode owns.
     pub fn buffer_bytes(&self) -> u64 {
         let Mode::Resident(r) = self else { return 0 };
-        let mut every: Vec<&Buffer> = r.buffers.every().to_vec();
+        let mut every: Vec<&Buffer> = r.buffers.all().to_vec();
         if let Ends::OnDevice(end) = &r.ends {
             every.extend(end.totals.every());
             every.extend(end.acceleration.iter().flat_map(|a| a.buffers.every()));

@@ -77,10 +77,7 @@ impl DeviceResources {
         sub: &mut Submitter,
         resident: Option<&ResidentBuffers>,
     ) -> Result<Self, SolveError> {
-        let storage = vk::BufferUsageFlags::STORAGE_BUFFER
-            | vk::BufferUsageFlags::TRANSFER_DST
-            | vk::BufferUsageFlags::TRANSFER_SRC;
-        let gpu = MemoryLocation::GpuOnly;
+        let (storage, gpu) = (STORAGE, MemoryLocation::GpuOnly);
         let s = SharedSizes::new(
             plan,
             memory.slice.rays,
