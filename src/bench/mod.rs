@@ -64,6 +64,8 @@ pub struct StreamOrder {
     pub updates_per_second: f64,
     /// Slices gathered while the pass before ended (a face's later passes start with an upload).
     pub pregathered_slices: u64,
+    /// Slices gathered on the copy workers while the slices before them computed.
+    pub gathered_ahead_slices: u64,
 }
 
 #[derive(Debug, Serialize)]
@@ -147,6 +149,7 @@ fn run_stream(
             download_bytes: now.download_bytes - before.download_bytes,
             updates_per_second: updates / wall,
             pregathered_slices: now.pregathered_slices - before.pregathered_slices,
+            gathered_ahead_slices: now.gathered_ahead_slices - before.gathered_ahead_slices,
         });
         before = now;
     }

@@ -243,6 +243,49 @@ fn later_passes_start_from_a_slice_gathered_while_the_pass_before_ended() {
 /// budget, and the first cut below the whole plan keeps two slots, every direction in one pass and
 /// whole slices, and takes fewer directions or planes per dispatch instead. Where the device's
 /// cache can hold a dispatch's deposit, the dispatches are sized to fit it.
+/// In a streamed pass of whole slices, every occupied slice after the pass's first is gathered on
+/// the copy workers while the slices before it compute, not on the submitting thread at its
+/// turn, with one slot or two; the bits are those of the resident solve
+/// (`any_budget_gives_bitwise_the_same_fluence_and_source`, `pipelined_and_serial_schedules_agree_bitwise`
+/// run the same schedule).
+#[test]
+fn streamed_slices_are_gathered_while_the_slices_before_them_compute() {
+    use lpm::solver::fields::StoreFields;
+    use lpm::solver::gpu::{GpuBackend, GpuOptions};
+    use lpm::solver::orders::Backend;
+    use lpm::solver::plan::Plan;
+    let mut scene = cloud();
+    scene.solver.device_residency = lpm::scene::DeviceResidency::Streamed;
+    // The sky alone: a sun adds its beam's sweep to order 0, one more pass to count.
+    scene.lights.truncate(1);
+    let dir = temp_dir("gather-ahead");
+    let store = lpm::solver::build_store(&scene, &dir.join("store")).unwrap();
+    let total = store.grid().brick_count();
+    let plan = Plan::new(&scene, total, total - store.occupied_count());
+    let ctx = lpm::vk::Context::new(validated()).unwrap();
+    // Slices along each axis that hold an occupied brick.
+    let grid = *store.grid();
+    let occupied_slices = |axis: usize| {
+        (0..grid.bricks[axis])
+            .filter(|&k| (0..total).any(|b| grid.brick_coords(b)[axis] == k && store.slot(b).is_some()))
+            .count() as u64
+    };
+    for slots in [1, 2] {
+        let options =
+            GpuOptions { resident: false, profile: true, max_slices_in_flight: slots, ..GpuOptions::default() };
+        let mut fields = StoreFields::create(&store, &plan).unwrap();
+        let mut gpu = GpuBackend::new(ctx.clone(), &plan, &store, &mut fields, options).unwrap();
+        let memory = gpu.memory_plan();
+        assert_eq!((memory.slices_in_flight, memory.planes_per_slice), (slots, 16), "{memory:?}");
+        gpu.propagate_order(0).unwrap();
+        let stats = gpu.stream_stats().unwrap();
+        let passes = (plan.propagation.per_face() as u32).div_ceil(memory.directions_per_pass) as u64;
+        let expected: u64 = (0..3).map(|axis| 2 * passes * (occupied_slices(axis) - 1)).sum();
+        assert!(expected > 0);
+        assert_eq!(stats.gathered_ahead_slices, expected, "{slots} slot(s): {memory:?}");
+    }
+}
+
 #[test]
 fn the_planner_keeps_the_quickest_cut_that_fits() {
     use lpm::solver::gpu::budget;

@@ -21,7 +21,11 @@
 //!
 //! With two slots (the memory plan decides, see [`budget`]) the steps of neighbouring slices
 //! overlap: slice l+1 is gathered and uploaded, and slice l−1 downloaded and scattered, while slice
-//! l computes. When a whole slice does not fit the budget it is streamed as sub-slices of fewer
+//! l computes. The gather of slice l+1 starts on the copy workers as soon as slice l is submitted
+//! (with one slot too: only the upload staging must be free, not the device buffers), so the
+//! submitting thread does not copy bricks itself; it waits for that gather only at slice l+1's
+//! turn. This costs no device memory (the slot's own staging) and so nothing the planner must
+//! count. Sub-slices that share bricks with a slice still in flight are gathered at their turn. When a whole slice does not fit the budget it is streamed as sub-slices of fewer
 //! planes (each slot then holds that slab of each occupied brick). Only occupied bricks travel; a
 //! (sub-)slice without any is vacuum: it takes no slot and no transfer, and its compute step only
 //! moves the rays across it (and is left out for directions that do not move sideways there).

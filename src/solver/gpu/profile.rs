@@ -33,6 +33,9 @@ pub struct StreamStats {
     pub device_seconds: f64,
     /// Slices gathered while the pass before ended (the first slice of a face's next pass).
     pub pregathered_slices: u64,
+    /// Slices gathered on the copy workers while the slices before them computed, instead of on
+    /// the submitting thread at their turn.
+    pub gathered_ahead_slices: u64,
 }
 
 impl StreamStats {

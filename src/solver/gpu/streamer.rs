@@ -1,7 +1,9 @@
 //! The slice streamer: schedules the (sub-)slices of a pass through the slots — gather on the copy
 //! workers, upload, compute, download, scatter — against three timeline semaphores, so that with
 //! two slots the transfers of one slice overlap the compute of another (see the module docs of
-//! [`super`] for the five steps).
+//! [`super`] for the five steps). The next occupied slice's gather is started on the copy workers
+//! as soon as a slice is submitted (`SliceStreamer::gather_ahead`), so the host's copies overlap
+//! the device's work instead of running on the submitting thread between submissions.
 //!
 //! In the resident mode ([`super::budget::Residency`]) a pass only computes: the order's fields
 //! live in the resident buffers, loaded through the slots' staging at the start of the order
@@ -45,6 +47,18 @@ struct SlotState {
     pending: Option<(u64, SliceLayout)>,
     /// The scatter of this slot's download staging still being copied, and its slice.
     scattering: Option<(Ticket, SliceLayout)>,
+    /// The timeline value of the last upload that read this slot's upload staging: the staging
+    /// may be gathered into again once the upload timeline has passed it.
+    uploaded: u64,
+}
+
+/// A slice's gather started before its turn (`SliceStreamer::gather_ahead`): the slot whose
+/// upload staging it fills, the slice's index in its pass, and the copies still running (which
+/// the ticket waits for, also when dropped on an error).
+struct GatherAhead {
+    slot: usize,
+    index: usize,
+    ticket: Ticket,
 }
 
 /// One pass of one sweep: its directions streamed through every slice of the face.
@@ -161,26 +175,30 @@ impl SliceStreamer {
             return self.compute_resident_pass(io, pass, resident);
         }
         let plan = io.plan;
+        let store = io.store;
+        let gain = pass.flags & FLAG_GAIN != 0;
+        let (c, comps) = (plan.channels as u64, plan.source_components() as u64);
+        let half = if gain { pass.half_exponent.map(power_of_two) } else { None };
         let slices = pass.sweep.slices(BRICK_EDGE, self.memory.planes_per_slice);
+        // Every slice's layout up front: the loop looks one occupied slice ahead to gather it.
+        let layouts: Vec<SliceLayout> =
+            slices.iter().map(|range| SliceLayout::new(store, pass.sweep, *range, gain, c, comps, half)).collect();
         let n_slots = self.slots.len();
         // The first occupied slice goes to the slot it was gathered into, if it was.
         let first_slot = pregathered.as_ref().map_or(0, |(s, _)| *s);
         let mut filled = first_slot;
         let mut first_occupied: Option<SliceRange> = None;
-        let gain = pass.flags & FLAG_GAIN != 0;
-        let (c, comps) = (plan.channels as u64, plan.source_components() as u64);
         // The slot of the slice computed in the previous iteration: its download is submitted after
         // this iteration's upload, so the transfer queue can upload the next slice while it computes.
         let mut to_download: Option<usize> = None;
-        for (i, range) in slices.iter().enumerate() {
+        // The next occupied slice's gather, started once the slice before it was submitted.
+        let mut ahead: Option<GatherAhead> = None;
+        for (i, (range, layout)) in slices.iter().zip(&layouts).enumerate() {
             // A cancelled solve stops here; what is in flight is waited for when the streamer drops.
             if self.cancel.is_some_and(|c| c.is_raised()) {
                 return Err(SolveError::Cancelled { resumable: true });
             }
-            let first = i == 0;
-            let half = if gain { pass.half_exponent.map(power_of_two) } else { None };
-            let layout = SliceLayout::new(io.store, pass.sweep, *range, gain, c, comps, half);
-            let step = |slot, layout| ComputeStep {
+            let step = |slot| ComputeStep {
                 slot,
                 layout,
                 tables: pass.tables,
@@ -189,56 +207,97 @@ impl SliceStreamer {
                 pass_dirs: pass.dirs.clone(),
                 flags: pass.flags,
                 half_exponent: pass.half_exponent,
-                first,
+                first: i == 0,
                 resident_table: None,
             };
             if layout.is_vacuum() {
                 self.sub.value += 1;
                 let v = self.sub.value;
-                self.submit_compute(io, &step(None, &layout), v)?;
+                self.submit_compute(io, &step(None), v)?;
                 continue;
             }
             let s = filled % n_slots;
             filled += 1;
             self.retire_slot(io, s)?;
-            match (first_occupied, &pregathered) {
-                (None, Some((p, ready))) if *p == s && *ready == layout => {}
-                _ => self.gather(io, s, &layout)?,
+            let gathered = match ahead.take() {
+                Some(a) if a.slot == s && a.index == i => {
+                    a.ticket.wait()?;
+                    true
+                }
+                // Not this slice's (the ticket waits as it drops): gathered below.
+                _ => first_occupied.is_none() && pregathered.as_ref().is_some_and(|(p, l)| *p == s && l == layout),
+            };
+            if !gathered {
+                self.gather(io, s, layout)?;
             }
             first_occupied.get_or_insert(*range);
             let v = self.next_slice_value();
-            self.submit_upload(io.res, s, &layout, v)?;
-            self.submit_compute(io, &step(Some(s), &layout), v)?;
-            self.slots[s].pending = Some((v, layout));
+            self.submit_upload(io.res, s, layout, v)?;
+            self.submit_compute(io, &step(Some(s)), v)?;
+            self.slots[s].pending = Some((v, layout.clone()));
             if n_slots == 1 {
                 self.submit_download(io, s)?;
             } else if let Some(prev) = to_download.replace(s) {
                 self.submit_download(io, prev)?;
+            }
+            if let Some(next) = (i + 1..layouts.len()).find(|&j| !layouts[j].is_vacuum()) {
+                ahead = self.gather_ahead(io, filled % n_slots, next, &layouts[next])?;
             }
         }
         if let Some(prev) = to_download {
             self.submit_download(io, prev)?;
         }
         if let (true, Some(range)) = (pass.another_follows && n_slots > 1, first_occupied) {
-            let half = if gain { pass.half_exponent.map(power_of_two) } else { None };
-            let next = SliceLayout::new(io.store, pass.sweep, range, gain, c, comps, half);
+            let next = SliceLayout::new(store, pass.sweep, range, gain, c, comps, half);
             self.pregather(io, filled % n_slots, next)?;
         }
         self.drain(io)
     }
 
+    /// The slices whose bricks the device or a copy worker may still be using: those computed
+    /// and not yet downloaded, and those whose scatter is still being copied.
+    fn in_flight(&self) -> impl Iterator<Item = &SliceLayout> {
+        self.slots.iter().flat_map(|slot| {
+            let pending = slot.pending.as_ref().map(|(_, l)| l);
+            pending.into_iter().chain(slot.scattering.as_ref().map(|(_, l)| l))
+        })
+    }
+
+    /// Starts gathering the pass's slice `index` (`layout`) into slot `s`'s upload staging on the
+    /// copy workers, and returns without waiting: the copies run while the device computes the
+    /// slices before it, so the submitting thread's next turn finds them done instead of doing
+    /// them (on a GPU the host's gathers, not the bus, otherwise set a streamed order's pace).
+    /// It costs no device memory (the slot's own staging, free once its last upload has read
+    /// it) and no more host memory than one slice's pages mapped a little earlier.
+    ///
+    /// Not when a slice in flight shares a brick with it (sub-slices of one slice of bricks:
+    /// its bricks' pages may be handed back under the gather); it is then gathered at its turn.
+    fn gather_ahead(
+        &mut self,
+        io: &mut Stream,
+        s: usize,
+        index: usize,
+        layout: &SliceLayout,
+    ) -> Result<Option<GatherAhead>, SolveError> {
+        if self.in_flight().any(|other| other.shares_bricks(layout)) {
+            return Ok(None);
+        }
+        self.sub.timelines.upload.wait(&self.sub.ctx, self.slots[s].uploaded, WAIT_FOREVER)?;
+        let ticket = self.start_gather(io, s, layout)?;
+        if let Some(p) = self.sub.profiler.as_mut() {
+            p.stats.gathered_ahead_slices += 1;
+        }
+        Ok(Some(GatherAhead { slot: s, index, ticket }))
+    }
+
     /// Gathers `layout` (the next pass's first slice) into slot `s`'s upload staging, unless a
     /// slice still in flight shares a brick with it.
     fn pregather(&mut self, io: &mut Stream, s: usize, layout: SliceLayout) -> Result<(), SolveError> {
-        let mut in_flight = self.slots.iter().flat_map(|slot| {
-            let pending = slot.pending.as_ref().map(|(_, l)| l);
-            pending.into_iter().chain(slot.scattering.as_ref().map(|(_, l)| l))
-        });
-        if in_flight.any(|other| other.shares_bricks(&layout)) {
+        if self.in_flight().any(|other| other.shares_bricks(&layout)) {
             return Ok(());
         }
         // The staging is free once the slot's last upload has read it.
-        self.sub.timelines.upload.wait(&self.sub.ctx, self.sub.upload_value, WAIT_FOREVER)?;
+        self.sub.timelines.upload.wait(&self.sub.ctx, self.slots[s].uploaded, WAIT_FOREVER)?;
         self.gather(io, s, &layout)?;
         if let Some(p) = self.sub.profiler.as_mut() {
             p.stats.pregathered_slices += 1;
@@ -496,21 +555,29 @@ impl SliceStreamer {
 
     /// Fills slot `s`'s upload staging with the slice's bricks (waits for the copies).
     fn gather(&mut self, io: &mut Stream, s: usize, layout: &SliceLayout) -> Result<(), SolveError> {
+        self.start_gather(io, s, layout)?.wait()
+    }
+
+    /// Starts filling slot `s`'s upload staging with the slice's bricks on the copy workers; the
+    /// ticket says when they are done. The caller has made sure that no upload still reads the
+    /// staging and that no copy in flight writes the slice's bricks.
+    fn start_gather(&mut self, io: &mut Stream, s: usize, layout: &SliceLayout) -> Result<Ticket, SolveError> {
         let upload = &io.res.slots[s].upload;
         if upload.size() < layout.upload_bytes() {
             return Err(SolveError::Internal("upload staging smaller than the slice"));
         }
         // The staging is written through a pointer: the copy workers write it while the
-        // resources are shared. Only this slot's slice uses it: its previous upload completed
-        // (retire_slot waited for the download that followed it).
+        // resources are shared. Only this slot's slice uses it, and its previous upload has
+        // completed (the caller waited for it).
         let base = upload.as_mut_ptr();
         let table: &[u8] = bytemuck::cast_slice(&layout.slots);
         // SAFETY: `table.len()` bytes fit the staging (checked above: the table is its first part).
         unsafe { std::ptr::copy_nonoverlapping(table.as_ptr(), base, table.len()) };
         let regions = layout.gather(io.store, io.fields, base);
         // SAFETY: the regions run from the store (mapped for the solve) into this slot's staging,
-        // which nothing else reads or writes until the upload is submitted after this wait.
-        unsafe { self.copier.copy(regions) }.wait()
+        // which nothing else reads or writes until the upload is submitted after the ticket's
+        // wait; the ticket waits as it drops, so the staging and the store outlive the copies.
+        Ok(unsafe { self.copier.copy(regions) })
     }
 
     fn submit_upload(
@@ -546,6 +613,7 @@ impl SliceStreamer {
             (&t.upload, v),
         )?;
         self.sub.upload_value = v;
+        self.slots[s].uploaded = v;
         Ok(())
     }
 
