@@ -135,6 +135,30 @@
 //! taken out as one more beam ([`solver::environment`]). A point light's uncollided light is
 //! computed exactly from the point on the host (a DDA from the light to every voxel), and its
 //! first scattering joins order 0's new source ([`solver::point`]).
+//!
+//! ## The method by topic
+//!
+//! Each part of the method is explained, with its derivation and what was measured, in the module
+//! that implements it (the README names these pages; the measured studies are in
+//! `benches/RESULTS.md`):
+//!
+//! | topic | where |
+//! |---|---|
+//! | sweep geometry, the `constant` and `linear` spatial schemes | [`solver::sweep`], [`solver::segment`] |
+//! | the plan: channels, storage directions, f16 storage, the sky's own directions, the spatial scheme's choice | [`solver::plan`] |
+//! | the stop rule (per-voxel remaining error) | [`solver::remaining`] |
+//! | the order loop, the geometric tail (`extrapolate_tail`), divergence checks | [`solver::orders`] |
+//! | diffusion synthetic acceleration | [`solver::acceleration`] |
+//! | the diffusion correction (numerical diffusion taken back out) | [`solver::antidiffusion`] |
+//! | Henyey–Greenstein scattering between direction cells; the forward peak (δ-M with the shape kept) | [`quadrature::phase`] |
+//! | point lights, environment maps, emission | [`solver::point`], [`solver::environment`], [`scene::environment`], [`solver::emission`] |
+//! | periodic and mirror faces | [`solver::periodic`], [`solver::mirror`], [`solver::unfold`] |
+//! | warm starts | [`solver::warm`] |
+//! | the energy books | [`solver::energy`] |
+//! | per-voxel albedo, the host passes between orders | [`solver::passes`] |
+//! | streaming, the memory plan and its cost model, device residency | [`solver::gpu`], [`solver::gpu::cost`] |
+//! | the blackbody colour of a temperature | [`scene::blackbody`] |
+//! | the Monte-Carlo reference | [`reference`](mod@reference) |
 
 pub mod bench;
 pub mod compare;

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Regenerates the README's and benches/RESULTS.md's "diffusion synthetic acceleration" table. For
+# Regenerates benches/RESULTS.md's "Diffusion synthetic acceleration" table. For
 # the thick cloud (tools/scenes/thick_cloud_a0.999.toml with the albedo set to 0.9, 0.99, 0.999,
 # 0.9999; tolerance 1e-3) it solves
 #   - with solver.acceleration = "off" ("plain"),

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Regenerates the README's "High albedo" table. For the thick cloud at albedo 0.9, 0.99 and 0.999
-# (tools/scenes/thick_cloud_a*.toml, tolerance 1e-3) it solves
+# Regenerates benches/RESULTS.md's "The tail of the order series" table. For the thick cloud at
+# albedo 0.9, 0.99 and 0.999 (tools/scenes/thick_cloud_a*.toml, tolerance 1e-3) it solves
 #   - with solver.extrapolate_tail = true ("tail");
 #   - without, at the same tolerance ("plain"), then at 10×, 100×, … tighter ones until the plain
 #     series is as close to the converged answer as the tail, and then cut by max_orders to find

@@ -7,7 +7,7 @@
 set -euo pipefail
 
 # `lpm serve` links the system SQLite (libsqlite3-dev, pkg-config); the Slurm array test starts a
-# single-node slurmctld + slurmd (slurm-wlm) authenticated by munge.
+# single-node slurmctld + slurmd (slurm-wlm), and tools/slurm-local.sh one authenticated by munge.
 packages=(libvulkan1 mesa-vulkan-drivers vulkan-validationlayers glslang-tools spirv-tools
     libsqlite3-dev pkg-config slurm-wlm munge python3-openvdb libnanovdb-tools)
 missing=()

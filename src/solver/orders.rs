@@ -3,6 +3,19 @@
 //! of the medium is estimated to be within the tolerance of its converged value
 //! ([`super::remaining`]), or, with `solver.extrapolate_tail`, when the geometric tail of the
 //! series is known to the tolerance.
+//!
+//! **The geometric tail** (`solver.extrapolate_tail`, [`TailEstimate`]). In thick media with
+//! albedo near 1 the orders shrink by a nearly constant ratio ρ, and the rest of the series after
+//! the last order is ρ/(1 − ρ) times it. The ratio is not settled when the loop would like to
+//! stop: it creeps up toward its limit by steps that shrink slowly (by a ratio q of 0.91–0.97 per
+//! order in the thick clouds of `benches/RESULTS.md`), so the loop sums the steps still to come as
+//! well: the ratio may still move by d = |Δρ|/(1 − |q|), the tail uses the middle of that range,
+//! ρ̂ = ρ + ½d, and its uncertainty is half the tail's change over the range. The solve stops once
+//! that uncertainty is within the tolerance of the total; the tail (ρ̂/(1 − ρ̂) times the last
+//! order's fluence and source, per channel) is then added. The tolerance bounds the power the tail
+//! misses; the fluence's shape is off a little more, since the last order's shape stands for the
+//! tail's. An earlier form took one step of the drift for all of it and stopped far too early
+//! while reporting an uncertainty within the tolerance.
 
 use super::antidiffusion::VoxelUnits;
 use super::energy::{EnergyBalance, Tallies};

@@ -171,6 +171,18 @@ fn free_port_pair() -> u16 {
     panic!("no two consecutive free ports on 127.0.0.1");
 }
 
+/// `tools/slurm-local.conf.in` with its `@NAME@` fields filled in; a field left unfilled is a
+/// failure here rather than a daemon's puzzling complaint.
+fn fill_conf(fields: &[(&str, String)]) -> String {
+    let mut conf = include_str!("../../tools/slurm-local.conf.in").to_string();
+    for (name, value) in fields {
+        conf = conf.replace(&format!("@{name}@"), value);
+    }
+    let unfilled = conf.lines().find(|l| !l.starts_with('#') && l.contains('@'));
+    assert!(unfilled.is_none(), "tools/slurm-local.conf.in: a field left unfilled in {unfilled:?}");
+    conf
+}
+
 /// A single-node Slurm cluster on localhost, stopped when dropped.
 struct Slurm {
     conf: PathBuf,
@@ -193,22 +205,21 @@ impl Slurm {
         let port = free_port_pair();
         std::fs::create_dir_all(dir.join("state")).unwrap();
         std::fs::create_dir_all(dir.join("spool")).unwrap();
-        let d = dir.display();
-        // auth/none: the daemons and clients are all on this host, run by one user, in a temporary
-        // cluster that lives as long as the test; it spares a munge key and daemon.
-        let conf = format!(
-            "ClusterName=lpmtest\nSlurmctldHost={host}(127.0.0.1)\nSlurmctldPort={port}\nSlurmdPort={}\n\
-             AuthType=auth/none\nCredType=cred/none\nSlurmUser=root\nSlurmdUser=root\n\
-             StateSaveLocation={d}/state\nSlurmdSpoolDir={d}/spool\nSlurmctldPidFile={d}/slurmctld.pid\n\
-             SlurmdPidFile={d}/slurmd.pid\nSlurmctldLogFile={d}/slurmctld.log\nSlurmdLogFile={d}/slurmd.log\n\
-             ProctrackType=proctrack/linuxproc\nTaskPlugin=task/none\nSelectType=select/cons_tres\n\
-             SelectTypeParameters=CR_CPU\nJobAcctGatherType=jobacct_gather/none\n\
-             AccountingStorageType=accounting_storage/none\nMpiDefault=none\nSwitchType=switch/none\n\
-             ReturnToService=2\nJobRequeue=1\nMinJobAge=3600\n\
-             NodeName={host} NodeAddr=127.0.0.1 CPUs={cpus} RealMemory=1000 State=UNKNOWN\n\
-             PartitionName=test Nodes={host} Default=YES MaxTime=INFINITE State=UP\n",
-            port + 1
-        );
+        // The configuration tools/slurm-local.sh starts its cluster with, here with auth/none: the
+        // daemons and clients are all on this host, run by one user, in a temporary cluster that
+        // lives as long as the test; it spares a munge key and daemon.
+        let conf = fill_conf(&[
+            ("CLUSTER", "lpmtest".to_string()),
+            ("HOST", host.clone()),
+            ("PORT", port.to_string()),
+            ("SLURMD_PORT", (port + 1).to_string()),
+            ("AUTH", "auth/none".to_string()),
+            ("CRED", "cred/none".to_string()),
+            ("DIR", dir.display().to_string()),
+            ("CPUS", cpus.to_string()),
+            ("MEMORY_MB", "1000".to_string()),
+            ("PARTITION", "test".to_string()),
+        ]);
         let conf_path = dir.join("slurm.conf");
         std::fs::write(&conf_path, conf).unwrap();
         let mut slurm = Slurm { conf: conf_path.clone(), dir: dir.to_path_buf(), daemons: Vec::new() };
