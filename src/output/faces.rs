@@ -84,8 +84,7 @@ fn write_exr(path: &Path, map: &FaceMap) -> Result<(), OutputError> {
         .enumerate()
         .map(|(ch, name)| {
             // Image row y holds v = n_v − 1 − y (v upwards).
-            let samples =
-                (0..nv).rev().flat_map(|v| (0..nu).map(move |u| map.values[(v * nu + u) * c + ch])).collect();
+            let samples = (0..nv).rev().flat_map(|v| (0..nu).map(move |u| map.values[(v * nu + u) * c + ch])).collect();
             AnyChannel::new(*name, FlatSamples::F32(samples))
         })
         .collect();

@@ -12,12 +12,12 @@
 //!   not solved (the fluence of empty bricks), a `not_solved` note saying so;
 //! - `<base>.nhdr`: a detached NRRD header so ParaView, 3D Slicer, teem … open the raw directly.
 //!
-//! A solve also writes `faces/`: per face of the volume, the outgoing power per boundary pixel
-//! (`<face>.exr`, `.raw`, `.nhdr`; [`write_face_map`]).
-//!
-//! and, beside the fields, `<base>.vdb`: the same values as sparse OpenVDB grids (only the leaves of
+//! and, beside them, `<base>.vdb`: the same values as sparse OpenVDB grids (only the leaves of
 //! bricks with medium), placed where the input volume was, for Houdini, Blender and Nuke
 //! ([`export_vdb`], written by our own writer: see `vdb.rs` for why).
+//!
+//! A CPU solve also writes `faces/`: per face of the volume, the outgoing power per boundary pixel
+//! (`<face>.exr`, `.raw`, `.nhdr`; [`write_face_map`]).
 
 mod atomic;
 pub mod confine;
@@ -34,10 +34,10 @@ mod vdb;
 pub use atomic::{write_atomic, write_json_atomic};
 pub use confine::{confine, ConfineError};
 pub use error::OutputError;
-pub use faces::{write_face_map, FaceMap, FacePlacement};
 pub use export::{
     export_dense, export_field, export_field_until, EmptyBricks, FieldInfo, FieldMeta, LAYOUT, NOT_SOLVED,
 };
+pub use faces::{write_face_map, FaceMap, FacePlacement};
 pub use lock::{DirLock, LOCK_FILE};
 pub use publish::{finish_commit, recover, Recovery, Staging, KNOWN_OUTPUTS};
 pub use read::{read_field_json, read_raw_field};

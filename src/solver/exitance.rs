@@ -19,12 +19,24 @@
 //!   two columns it lies between, with their weights); across an edge half goes to each side, as
 //!   in the books.
 //!
-//! The lattice holds one ray more than the voxels per open lateral axis, the outermost of them
-//! in the vacuum beside the volume for part of the sweep; the books count such a ray whole where
-//! it leaves (its weight outside meets only vacuum), so here its weight outside the volume is
-//! put on the boundary pixel it borders (columns clamped to the volume). On a sky-lit face this
-//! makes the rim pixels carry up to one extra ray's power: the discretisation's, kept so that the
-//! maps add up to the books.
+//! Along a sweep's axis a side exit lands where the lattice moves its slot out, not where the
+//! ray's centre crosses the side (up to ½/|δ| planes earlier for a lateral slope δ): the lattice
+//! moves a direction's rays by whole columns at a few planes, so that direction's side exits come
+//! in stripes at those planes. Summed over whole sweeps along the side's other axis the maps are
+//! as the books; pixel by pixel they show that pattern: the I3RC step cloud (uniform along y,
+//! periodic, 4 voxels in y, k = 3) has its top face's map vary by up to 22 % along y, most of it
+//! from the periodic y sweeps, whose rays leave through the top in the step between two periods
+//! (all placed at the last plane). Placing each exit at its crossing plane instead (a search back
+//! along the offsets from the wrap) is the refinement to make if such pictures matter.
+//!
+//! The lattice holds one ray more than the voxels per open lateral axis: its column n (≡ −1, the
+//! lattice wraps with period n + 1) is the vacuum beside the volume. The books count a ray whole
+//! where it leaves, its weight on that column included (it meets only vacuum), so here that
+//! weight goes half to each rim pixel it borders (0 and n − 1): the maps add up to the books,
+//! and a scene symmetric under a mirror gives mirror-symmetric maps (the vacuum column of a
+//! direction whose rays sit on whole columns lies on the − side of the lattice; put on the pixel
+//! beside it, it made the maps lopsided). On a sky-lit face the rims therefore carry up to one
+//! extra ray's power per row: the discretisation's, not the medium's.
 //!
 //! Periodic faces hold what the books count through them: the rays of the directions swept
 //! along the periodic axis leaving through its far face (which the next order carries in through
@@ -175,15 +187,23 @@ impl ExitMaps {
 
 /// The voxel columns of one lateral axis (of `n`, `periodic` or not) a ray at lattice column `l`
 /// with weight `w` is placed on: column ℓ − 1 with 1 − w and column ℓ with w (as the collect step
-/// splits it, [`FaceSweep::taps`]), clamped into the volume on an open axis (module docs),
-/// modulo n on a periodic one.
-fn pixel_taps(l: u32, w: f64, n: u32, periodic: bool) -> [(u32, f64); 2] {
-    let below = match l {
-        0 if periodic => n - 1,
-        0 => 0,
-        l => l - 1,
-    };
-    [(below, 1.0 - w), (l.min(n - 1), w)]
+/// splits it, [`FaceSweep::taps`]); on a periodic axis column −1 is column n − 1; on an open axis
+/// the weight on the vacuum column (−1 or n: the same column of the lattice, which wraps with
+/// period n + 1) goes half to each rim pixel, 0 and n − 1 (module docs). Entries of weight 0 may
+/// be among the four.
+fn pixel_taps(l: u32, w: f64, n: u32, periodic: bool) -> [(u32, f64); 4] {
+    let mut out = [(0, 0.0); 4];
+    for (i, (column, weight)) in [(l as i64 - 1, 1.0 - w), (l as i64, w)].into_iter().enumerate() {
+        if periodic {
+            out[2 * i] = (column.rem_euclid(n as i64) as u32, weight);
+        } else if (0..n as i64).contains(&column) {
+            out[2 * i] = (column as u32, weight);
+        } else {
+            out[2 * i] = (0, 0.5 * weight);
+            out[2 * i + 1] = (n - 1, 0.5 * weight);
+        }
+    }
+    out
 }
 
 /// Records in `out` the exit of a ray of `sweep` carrying `l` (times `share`) through `face`:
@@ -238,10 +258,10 @@ mod tests {
 
     #[test]
     fn taps_clamp_on_open_axes_and_wrap_on_periodic_ones() {
-        assert_eq!(pixel_taps(0, 0.25, 4, false), [(0, 0.75), (0, 0.25)]);
-        assert_eq!(pixel_taps(4, 0.25, 4, false), [(3, 0.75), (3, 0.25)]);
-        assert_eq!(pixel_taps(2, 0.25, 4, false), [(1, 0.75), (2, 0.25)]);
-        assert_eq!(pixel_taps(0, 0.25, 4, true), [(3, 0.75), (0, 0.25)]);
+        assert_eq!(pixel_taps(0, 0.25, 4, false), [(0, 0.375), (3, 0.375), (0, 0.25), (0, 0.0)]);
+        assert_eq!(pixel_taps(4, 0.25, 4, false), [(3, 0.75), (0, 0.0), (0, 0.125), (3, 0.125)]);
+        assert_eq!(pixel_taps(2, 0.25, 4, false), [(1, 0.75), (0, 0.0), (2, 0.25), (0, 0.0)]);
+        assert_eq!(pixel_taps(0, 0.25, 4, true), [(3, 0.75), (0, 0.0), (0, 0.25), (0, 0.0)]);
     }
 
     #[test]
@@ -257,14 +277,16 @@ mod tests {
         assert_eq!(maps.map(5)[1][0], 2.0);
         assert_eq!(maps.map(5)[2][0], 2.0);
         assert_eq!(maps.total(5)[0], 4.0);
-        // A side exit through +x at plane 3 (z = 3 on a +z sweep), y column 3 of 3 clamped to 2.
+        // A side exit through +x at plane 3 (z = 3 on a +z sweep), y column 3 of 3: half on
+        // voxel 2, half on the vacuum column, which borders both rims (y = 0 and y = 2).
         let mut out = Vec::new();
         record_exit(&mut out, &sweep, 1, Exit::Side(0), [4, 3], [0.0, 0.5], 3, 0.5, [2.0, 0.0, 0.0]);
         let mut maps = ExitMaps::new([4, 3, 5], 1);
         maps.add(&out, 1.0);
-        // The +x map is over (y, z): 3 × 5; pixel (y = 2, z = 3).
+        // The +x map is over (y, z): 3 × 5; pixels (y = 2, z = 3) and (y = 0, z = 3).
         assert_eq!(maps.size(1), [3, 5]);
-        assert_eq!(maps.map(1)[2 + 3 * 3][0], 1.0);
+        assert_eq!(maps.map(1)[2 + 3 * 3][0], 0.75);
+        assert_eq!(maps.map(1)[3 * 3][0], 0.25);
         assert_eq!(maps.total(1)[0], 1.0);
     }
 }
