@@ -28,10 +28,11 @@
 //! from the periodic y sweeps, whose rays leave through the top in the step between two periods
 //! (all placed at the last plane). Placing each exit at its crossing plane instead (a search back
 //! along the offsets from the wrap) is the refinement to make if such pictures matter. It would
-//! also make opposite faces of a mirror-symmetric scene agree pixel by pixel: where a direction's
-//! rays sit on whole columns (w = 0), its mirror image's slots wrap one plane later, so today
-//! such a scene's `-x` and `+x` maps have equal sums and are each mirror-symmetric, but differ
-//! by up to ~15 % at rim pixels.
+//! also make a mirror-symmetric scene's maps mirror-symmetric pixel by pixel whatever the
+//! directions: where a direction's rays sit on whole columns (w = 0, as the slope-0 direction of
+//! an odd k always does), its mirror image's slots wrap one plane later, so with k = 3 a ball
+//! under a sky has its `-x` and `+x` maps equal in sum but ~15 % apart at a rim pixel (and 1 %
+//! between mirror pixels of one face); with k = 2 (no such direction) they agree to round-off.
 //!
 //! The lattice holds one ray more than the voxels per open lateral axis: its column n (≡ −1, the
 //! lattice wraps with period n + 1) is the vacuum beside the volume. The books count a ray whole

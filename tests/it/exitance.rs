@@ -1,6 +1,6 @@
 //! Per-face exitance maps (issue 36, item 4; `solver::exitance`): each face's map adds up to the
 //! power the books count out through that face (open, periodic and mirror faces; grey and RGB;
-//! sun and sky), a symmetric scene gives mirror-symmetric maps, the maps are the same bits at any thread
+//! sun and sky), a symmetric scene gives symmetric maps, the maps are the same bits at any thread
 //! count, and a solve writes them as `faces/<face>.exr`, `.raw` and `.nhdr`.
 use crate::common::*;
 use lpm::scene::{Boundary, Scene, Shape};
@@ -83,35 +83,32 @@ fn periodic_and_mirror_faces_hold_what_the_books_count_through_them() {
 
 #[test]
 fn a_symmetric_scene_gives_symmetric_maps() {
-    // A ball in a cube under a uniform sky: each face's map is symmetric under u → n − 1 − u and
-    // v → n − 1 − v, and every face lets out the same power. (Pixel by pixel, opposite faces
-    // differ: where a direction's rays sit on whole columns its mirror image's slots wrap a plane
-    // later, and side exits are placed at the plane before the wrap; `solver::exitance`.)
+    // A ball in a cube under a uniform sky: every face's map is the same, and each is symmetric
+    // under u → n − 1 − u and v → n − 1 − v. With k = 2 no direction's rays ever sit on whole
+    // columns; where one does (the slope-0 direction of an odd k), the maps are mirror-symmetric
+    // only up to a plane's shift of some side exits (`solver::exitance`).
     let n = 10u32;
     let mut sc = scene(Shape::Sphere, [n; 3], [0.7; 3], [0.8; 3], vec![sky(1.0)]);
+    sc.solver.directions_per_face = 2;
     sc.solver.max_orders = 5;
     let s = solve("exitance-symmetric", &sc, Cpu);
     let maps = maps_add_up_to_the_books(&s, "ball");
-    let total = maps.total(0)[0];
+    let reference = maps.map(0);
+    let largest = reference.iter().fold(0f64, |m, p| m.max(p[0]));
     let at = |m: &[[f64; 3]], u: u32, v: u32| m[(u + n * v) as usize][0];
+    let mut worst = 0f64;
     for face in 0..6 {
         let m = maps.map(face);
-        let largest = m.iter().fold(0f64, |l, p| l.max(p[0]));
-        assert!((maps.total(face)[0] - total).abs() <= 1e-9 * total, "face {}", ExitMaps::name(face));
         for v in 0..n {
             for u in 0..n {
                 let value = at(m, u, v);
-                for (other, what) in [(at(m, n - 1 - u, v), "its u mirror's"), (at(m, u, n - 1 - v), "its v mirror's")]
-                {
-                    assert!(
-                        (value - other).abs() <= 1e-9 * largest,
-                        "face {} pixel ({u}, {v}): {value} vs {what} {other}",
-                        ExitMaps::name(face)
-                    );
+                for other in [at(reference, u, v), at(m, n - 1 - u, v), at(m, u, n - 1 - v)] {
+                    worst = worst.max((value - other).abs() / largest);
                 }
             }
         }
     }
+    assert!(worst <= 1e-9, "largest difference between pixels a symmetry maps onto each other: {worst} of the largest");
 }
 
 #[test]
