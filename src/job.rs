@@ -384,7 +384,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
             },
             e => JobError::Solve(e),
         })?;
-    let SolveRun { plan, outcome, device, peak_device_bytes, memory, mut phases, residency } = run;
+    let SolveRun { plan, outcome, device, peak_device_bytes, memory, mut phases, residency, exit_maps } = run;
     let store_bytes = store.file_bytes();
     phases.insert(0, ("store".to_string(), store_seconds));
     // From here on a cancelled job keeps what the solve checkpointed (its last order, on the GPU):
@@ -483,6 +483,14 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
             outputs.push(name);
         }
     }
+    // Where the light leaves, per boundary pixel of each face (the CPU twin's maps; the GPU
+    // backend does not produce them yet): faces/, a directory published with the set.
+    let mut published = Vec::new();
+    if let Some(maps) = &exit_maps {
+        let dir = stage.join(solver::exitance::FACES_DIR);
+        maps.write(&dir, scene.volume.origin.to_array(), plan.voxel_size)?;
+        published.push(solver::exitance::FACES_DIR.to_string());
+    }
     phases.push(("export".to_string(), t.elapsed().as_secs_f64()));
 
     // What `lpm render` needs to render this result again (render-data/, linked, not copied),
@@ -513,7 +521,6 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
     } else {
         None
     };
-    let mut published = Vec::new();
     if !job.no_render_data {
         render::keep::keep(
             &stage.join(render::RENDER_DATA),
@@ -580,7 +587,8 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
         outputs,
     };
     output::write_json_atomic(&stage.join("report.json"), &report)?;
-    // render-data/ is published with the set but is not one of the report's files (a directory).
+    // render-data/ and faces/ are published with the set but are not among the report's files
+    // (directories).
     published.extend(report.outputs.iter().cloned());
     staging.commit(&published)?;
     Ok(report)

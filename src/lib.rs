@@ -25,7 +25,7 @@
 //! | [`input`] | opening every file a user names: regular files only, size caps for small inputs, and a solve's confinement to the server's data root, checked on the open file |
 //! | [`scene`] | the TOML job description, validated into typed values and typed errors; the physics every layer shares from it (procedural densities, the blackbody colour of a temperature) |
 //! | [`store`] | the 16³ brick store: memory-mapped field files, empty-brick table, importers (raw, OpenVDB `.vdb`, NanoVDB `.nvdb`, NRRD), the per-voxel emission field (grey, or r, g, b from a temperature grid) and albedo factor field |
-//! | [`output`] | atomic writes (temporary name, then rename), outputs published as a set, the exported raw/json/nhdr layout and the sparse OpenVDB export (our own writer) |
+//! | [`output`] | atomic writes (temporary name, then rename), outputs published as a set, the exported raw/json/nhdr layout, the sparse OpenVDB export (our own writer) and the per-face exitance maps' files (`faces/`) |
 //! | [`quadrature`] | propagation directions and their solid angles, storage directions, phase tables |
 //! | [`vk`] | the thin Vulkan layer: instance, device, queues, buffers, pipelines, timeline sync |
 //! | [`solver`] | the plan (what a scene needs), the discretisation shared by both backends, the CPU twin (f64), the GPU driver, the order loop |

@@ -15,11 +15,15 @@
 //! and, beside them, `<base>.vdb`: the same values as sparse OpenVDB grids (only the leaves of
 //! bricks with medium), placed where the input volume was, for Houdini, Blender and Nuke
 //! ([`export_vdb`], written by our own writer: see `vdb.rs` for why).
+//!
+//! A CPU solve also writes `faces/`: per face of the volume, the outgoing power per boundary pixel
+//! (`<face>.exr`, `.raw`, `.nhdr`; [`write_face_map`]).
 
 mod atomic;
 pub mod confine;
 mod error;
 mod export;
+mod faces;
 mod lock;
 mod nrrd;
 mod publish;
@@ -33,6 +37,7 @@ pub use error::OutputError;
 pub use export::{
     export_dense, export_field, export_field_until, EmptyBricks, FieldInfo, FieldMeta, LAYOUT, NOT_SOLVED,
 };
+pub use faces::{write_face_map, FaceMap, FacePlacement};
 pub use lock::{DirLock, LOCK_FILE};
 pub use publish::{finish_commit, recover, Recovery, Staging, KNOWN_OUTPUTS};
 pub use read::{read_field_json, read_raw_field};

@@ -20,8 +20,8 @@ use std::fs::{self, File};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-/// Every file (and directory: `render-data`) name `lpm solve` may write into `OUT`.
-pub const KNOWN_OUTPUTS: [&str; 12] = [
+/// Every file (and directory: `render-data`, `faces`) name `lpm solve` may write into `OUT`.
+pub const KNOWN_OUTPUTS: [&str; 13] = [
     "fluence.raw",
     "fluence.json",
     "fluence.nhdr",
@@ -33,6 +33,7 @@ pub const KNOWN_OUTPUTS: [&str; 12] = [
     "image.exr",
     "image.png",
     "render-data",
+    "faces",
     "report.json",
 ];
 const COMMIT_DIR: &str = ".lpm-commit";

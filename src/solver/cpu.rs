@@ -15,6 +15,7 @@
 
 use super::cpu_sweep::{sweep_direction, SweepInputs, SweepMode, SweepOutputs};
 use super::energy::Tallies;
+use super::exitance::ExitMaps;
 use super::mirror::MirrorState;
 use super::orders::Backend;
 use super::passes::{MemField, OrderFieldSet, VoxelMedium};
@@ -38,6 +39,9 @@ pub struct CpuTwin<'a> {
     carry: PeriodicCarry,
     /// What the sweeps hand over to their mirror images across mirror faces ([`super::mirror`]).
     mirror: MirrorState,
+    /// Where the light left, per boundary pixel of each face, over every sweep so far
+    /// ([`super::exitance`]).
+    exits: ExitMaps,
     /// Looked at before each direction's sweep (SIGTERM): the twin keeps no checkpoint, so a
     /// cancelled solve stops there with nothing to resume from.
     cancel: Option<super::cancel::CancelFlag>,
@@ -81,6 +85,7 @@ impl<'a> CpuTwin<'a> {
             emitted_field: None,
             carry: PeriodicCarry::new(plan),
             mirror: MirrorState::new(plan),
+            exits: ExitMaps::new(plan.dims, plan.channels as usize),
             cancel: None,
         })
     }
@@ -164,6 +169,12 @@ impl<'a> CpuTwin<'a> {
         self.fields.fluence_total.values[self.index(v) * self.plan.channels as usize + ch]
     }
 
+    /// The per-face exitance maps over every order propagated so far: each face's sum is its
+    /// `power_out` in the energy books ([`super::exitance`]).
+    pub fn exit_maps(&self) -> &ExitMaps {
+        &self.exits
+    }
+
     /// Summed in-scattered source of voxel v, component d·C + ch.
     pub fn source(&self, v: [u32; 3], component: usize) -> f64 {
         self.fields.source_total.values[self.index(v) * self.plan.source_components() as usize + component]
@@ -179,8 +190,11 @@ impl<'a> CpuTwin<'a> {
         let fields = &mut self.fields;
         let gained = if self.j_gain.is_empty() { &fields.source_prev.values } else { &self.j_gain };
         let inputs = SweepInputs { density: &self.medium.density, gained, occupied: &self.occupied };
-        let mut outputs =
-            SweepOutputs { fluence_order: &mut fields.fluence.values, j_next: &mut fields.source_next.values };
+        let mut outputs = SweepOutputs {
+            fluence_order: &mut fields.fluence.values,
+            j_next: &mut fields.source_next.values,
+            exits: &mut self.exits,
+        };
         let birth = if boundary { dir.boundary } else { [0.0; 3] };
         // With mirror faces, a face's direction hands over to and from its mirror images.
         let mirrored = match of {

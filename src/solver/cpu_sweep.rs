@@ -24,6 +24,7 @@
 //! (crossing vacuum changes no radiance, so this is exact).
 
 use super::energy::{volume_face, Tallies};
+use super::exitance::{record_exit, Exit, ExitEntry, ExitMaps};
 use super::mirror::{rebirth, stepped_out_radiance, CellKey, FarCarry, MirrorRecords, MirrorView};
 use super::periodic::PeriodStep;
 use super::plan::{Plan, SweepDirection};
@@ -42,10 +43,12 @@ pub(super) struct SweepInputs<'a> {
 }
 
 /// The fields a sweep adds into, per voxel: this order's fluence `[voxel][ch]` (the order loop
-/// adds it to the total, `super::passes`) and the next order's source `[voxel][d·C + ch]`.
+/// adds it to the total, `super::passes`) and the next order's source `[voxel][d·C + ch]`; and
+/// the per-face exitance maps, per boundary pixel ([`super::exitance`]).
 pub(super) struct SweepOutputs<'a> {
     pub fluence_order: &'a mut [f64],
     pub j_next: &'a mut [f64],
+    pub exits: &'a mut ExitMaps,
 }
 
 /// What one sweep needs to know besides its direction.
@@ -93,6 +96,9 @@ pub(super) fn sweep_direction(
     let (near, far) = (volume_face(f.axis, f.sign < 0.0), volume_face(f.axis, f.sign > 0.0));
     let mut rows = vec![RowTally::default(); lc_us];
     let mut row_records: Vec<Vec<(CellKey, [f64; 3])>> = vec![Vec::new(); lc_us];
+    // Per row of slots, the side exits its rays made, where they made them (`super::exitance`):
+    // added to the maps in row order after the sweep.
+    let mut row_exits: Vec<Vec<ExitEntry>> = vec![Vec::new(); lc_us];
     // On a periodic sweep axis the slots that left through a side in the step from the last
     // period came in there as new rays ([`PeriodStep`]), the others through the near face.
     let period = sweep.periodic[0].then(|| PeriodStep::new(&sweep, dir));
@@ -126,9 +132,9 @@ pub(super) fn sweep_direction(
         radiance
             .par_chunks_mut(lb_us)
             .zip(average.par_chunks_mut(lb_us))
-            .zip(rows.par_iter_mut().zip(row_records.par_iter_mut()))
+            .zip(rows.par_iter_mut().zip(row_records.par_iter_mut()).zip(row_exits.par_iter_mut()))
             .enumerate()
-            .for_each(|(q, ((l_row, avg_row), (tally, records)))| {
+            .for_each(|(q, ((l_row, avg_row), ((tally, records), exits)))| {
                 let (cc, row_wrap) = now_c[q];
                 for (p, &(cb, wrap)) in now_b.iter().enumerate() {
                     // How the slot's wrap counts changed: +1 past n (the + side), −1 below 0.
@@ -139,7 +145,7 @@ pub(super) fn sweep_direction(
                     };
                     let (l, avg) = (&mut l_row[p], &mut avg_row[p]);
                     let prev = [wrap_b[p].0, wrap_c[q].0];
-                    step.ray([cb, cc], prev, wraps, l, avg, tally, records);
+                    step.ray([cb, cc], prev, wraps, l, avg, tally, records, exits);
                 }
             });
         (wrap_b, wrap_c) = (now_b, now_c);
@@ -155,6 +161,8 @@ pub(super) fn sweep_direction(
     });
     // Rays still inside leave through the far face (on a periodic sweep axis, those that leave
     // through a side in the step into the next period count there: [`PeriodStep`]).
+    let last = na - 1;
+    let mut far_exits = Vec::new();
     for (q, row) in radiance.chunks(lb_us).enumerate() {
         for (p, l) in row.iter().enumerate() {
             for ch in 0..c {
@@ -164,10 +172,24 @@ pub(super) fn sweep_direction(
                     None => rows[q].face_out[far][ch] += l[ch],
                 }
             }
+            // The same exits per boundary pixel, where the books put them.
+            let (columns, weights) = ([wrap_b[p].0, wrap_c[q].0], dir.weights[last as usize]);
+            let sides = period.as_ref().map_or([None; 2], |s| s.side_exits(p, q));
+            let mut far_share = 1.0;
+            for (k, side) in sides.into_iter().enumerate() {
+                if let Some((face, share)) = side {
+                    record_exit(&mut far_exits, &sweep, face, Exit::Side(k), columns, weights, last, share, *l);
+                    far_share -= share;
+                }
+            }
+            record_exit(&mut far_exits, &sweep, far, Exit::Far, columns, weights, last, far_share, *l);
         }
     }
-    let mut tallies = Tallies::default();
     let power = dir.power_per_radiance;
+    for entries in row_exits.iter().chain(std::iter::once(&far_exits)) {
+        outputs.exits.add(entries, power);
+    }
+    let mut tallies = Tallies::default();
     for ch in 0..c {
         tallies.boundary_in[ch] = rows.iter().map(|r| r.born[ch]).sum::<f64>() * power;
         tallies.boundary_out[ch] = rows.iter().map(|r| r.left[ch]).sum::<f64>() * power;
@@ -286,8 +308,8 @@ struct PlaneStep<'s, 'a> {
 impl PlaneStep<'_, '_> {
     /// Advances the ray at lattice column `[cb, cc]` (from `prev` at the plane before) through
     /// the plane: rebirth after a wrap (`wraps`: per lateral axis, +1 when the slot passed n, −1
-    /// when it went below 0), hand-overs at mirror sides (recorded in `records`), gather, exact
-    /// segment.
+    /// when it went below 0; its side exit placed on the face in `exits`), hand-overs at mirror
+    /// sides (recorded in `records`), gather, exact segment.
     #[allow(clippy::too_many_arguments)]
     fn ray(
         &self,
@@ -298,6 +320,7 @@ impl PlaneStep<'_, '_> {
         avg: &mut [f64; 3],
         tally: &mut RowTally,
         records: &mut Vec<(CellKey, [f64; 3])>,
+        exits: &mut Vec<ExitEntry>,
     ) {
         let c = self.plan.channels as usize;
         let wrapped = wraps != [0, 0];
@@ -318,6 +341,10 @@ impl PlaneStep<'_, '_> {
                     for ch in 0..c {
                         tally.face_out[exit][ch] += share * l[ch];
                     }
+                    // Where it left: plane t − 1, at its position there along the other axis.
+                    let t_last = self.t - 1;
+                    let w = self.dir.weights[t_last as usize];
+                    record_exit(exits, self.sweep, exit, Exit::Side(k), prev, w, t_last, share, *l);
                 }
                 if open[k] {
                     let entry = volume_face(lateral[k], wraps[k] < 0);

@@ -5,7 +5,8 @@
 //! - [`sweep`] and [`segment`] are the discretisation (voxels walked, exact segment solution);
 //! - [`cpu`] is the f64 twin of the GPU kernels, [`gpu`] the Vulkan driver;
 //! - [`orders`] runs scattering orders until [`remaining`] says every voxel of the medium is within
-//!   the tolerance of its converged value; [`energy`] keeps the books (per face of the volume too);
+//!   the tolerance of its converged value; [`energy`] keeps the books (per face of the volume too),
+//!   [`exitance`] the outgoing power per boundary pixel of each face (the twin's);
 //! - [`periodic`] closes periodic boundaries (wrapping lattices, carried rays between orders);
 //!   [`mirror`] closes reflective ones on the twin (hand-overs to the mirror-image directions),
 //!   [`unfold`] on the GPU (the volume doubled by its images, solved and folded back);
@@ -27,6 +28,7 @@ mod cpu_sweep;
 pub mod emission;
 pub mod energy;
 pub mod environment;
+pub mod exitance;
 pub mod fields;
 pub mod gpu;
 pub mod mirror;
@@ -127,6 +129,9 @@ pub struct SolveRun {
     pub phases: Vec<(String, f64)>,
     /// Whether the store's pages stayed resident between passes ([`crate::store::resident`]).
     pub residency: Residency,
+    /// The outgoing power per boundary pixel of each face ([`exitance`]): the CPU twin's; `None`
+    /// from the GPU backend, which does not produce them yet.
+    pub exit_maps: Option<exitance::ExitMaps>,
 }
 
 /// Builds the brick store for the scene's volume in `dir`.
@@ -373,6 +378,7 @@ pub fn solve_from(
     }
     let mut memory = None;
     let mut doubled_reason = None;
+    let mut exit_maps = None;
     let (outcome, device, peak) = match backend {
         BackendKind::Cpu => {
             let t = Instant::now();
@@ -394,6 +400,7 @@ pub fn solve_from(
             let outcome = orders::run_orders(&plan, &mut twin, start, &mut progress)?;
             phases.push(("orders".to_string(), t.elapsed().as_secs_f64()));
             twin.write_into(store, &mut fields);
+            exit_maps = Some(twin.exit_maps().clone());
             let device = format!("CPU twin (f64, {} threads)", rayon::current_num_threads());
             (outcome, device, 0)
         }
@@ -417,7 +424,7 @@ pub fn solve_from(
     fields.source_total.flush()?;
     let mut plan = plan;
     plan.reasons.extend(doubled_reason);
-    Ok((SolveRun { plan, outcome, device, peak_device_bytes: peak, memory, phases, residency }, fields))
+    Ok((SolveRun { plan, outcome, device, peak_device_bytes: peak, memory, phases, residency, exit_maps }, fields))
 }
 
 /// What a GPU solve hands back besides the fields.

@@ -216,6 +216,16 @@ impl PeriodStep {
         split_by_sides(faces, far, value, ch, self.exit_shares(p, q), sides);
     }
 
+    /// Per lateral axis (b, c): the face and the share of what slot (p, q) carried out of the far
+    /// face that [`PeriodStep::count_exit`] books through a side instead (`None`: none).
+    pub fn side_exits(&self, p: usize, q: usize) -> [Option<(usize, f64)>; 2] {
+        let shares = self.exit_shares(p, q);
+        [0, 1].map(|k| match self.sides[k] {
+            Some((exit, _)) if shares[k] > 0.0 => Some((exit, shares[k])),
+            _ => None,
+        })
+    }
+
     /// Books `value` (channel `ch`) that slot (p', q') entered plane 0 with: in `faces[near]`,
     /// except the shares of a ray born at a side in the step from the last period.
     pub fn count_entry(&self, faces: &mut [[f64; 3]; 6], near: usize, p: usize, q: usize, ch: usize, value: f64) {

@@ -20,6 +20,7 @@ mod diffusion_correction;
 mod emission;
 mod environment;
 mod exact_division;
+mod exitance;
 mod forward_peak;
 mod gpu_solver;
 mod hard_cases;

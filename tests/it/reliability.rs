@@ -274,6 +274,7 @@ fn two_concurrent_solves_into_one_out_never_mix() {
     assert_eq!(
         names(&out),
         [
+            "faces",
             "fluence.json",
             "fluence.nhdr",
             "fluence.raw",
@@ -307,6 +308,7 @@ fn stale_temporaries_are_cleaned_and_a_rerun_replaces_the_whole_set() {
     assert_eq!(
         names(&out),
         [
+            "faces",
             "fluence.json",
             "fluence.nhdr",
             "fluence.raw",

@@ -18,6 +18,9 @@ Usage:
   i3rc.py compare SOLVE_DIR [--markdown]
       reads SOLVE_DIR/report.json: domain-mean reflectance (+z face out / in) and transmittance (-z
       face out / +z face in; the direct beam included, as in the consensus T) against the consensus
+  i3rc.py columns SOLVE_DIR [--markdown]
+      reads SOLVE_DIR/faces/+z.raw and -z.raw (the per-face exitance maps a CPU solve writes) and
+      report.json: reflectance and transmittance per column (1..32) against the consensus per column
 Python 3 standard library only.
 """
 import argparse
@@ -119,6 +122,52 @@ def compare(args):
               .format(**CONSENSUS))
 
 
+def face_map(solve_dir, face):
+    """The grey exitance map of `face` (faces/<face>.raw, sizes from its .nhdr): rows of v, each a list over u."""
+    base = os.path.join(solve_dir, "faces", face)
+    with open(base + ".nhdr") as f:
+        sizes = next(line for line in f if line.startswith("sizes:")).split()[1:]
+    if len(sizes) != 2:
+        raise SystemExit(f"{base}.nhdr: expected a grey map (two sizes), got sizes {' '.join(sizes)}")
+    nu, nv = int(sizes[0]), int(sizes[1])
+    with open(base + ".raw", "rb") as f:
+        values = struct.unpack(f"<{nu * nv}f", f.read())
+    return [values[v * nu:(v + 1) * nu] for v in range(nv)]
+
+
+def columns(args):
+    with open(os.path.join(args.solve_dir, "report.json")) as f:
+        rep = json.load(f)
+    sun = rep["energy"]["faces"][5]["power_in"][0]
+    top, bottom = face_map(args.solve_dir, "+z"), face_map(args.solve_dir, "-z")
+    nx = len(top[0])
+    if nx % NX:
+        raise SystemExit(f"the maps are {nx} pixels along x, not a multiple of the {NX} columns")
+    r = nx // NX
+
+    def per_column(rows):
+        # Each column gets sun/NX in: the sun lights every pixel of the periodic top face alike.
+        return [sum(sum(row[c * r:(c + 1) * r]) for row in rows) * NX / sun for c in range(NX)]
+
+    got_r, got_t = per_column(top), per_column(bottom)
+    if args.markdown:
+        print("| column | R | consensus | C/E | T | consensus | C/E |")
+        print("|---|---|---|---|---|---|---|")
+    for c in range(NX):
+        row = (c + 1, got_r[c], R[c], got_r[c] / R[c], got_t[c], T[c], got_t[c] / T[c])
+        if args.markdown:
+            print("| {} | {:.5f} | {:.5f} | {:.3f} | {:.5f} | {:.5f} | {:.3f} |".format(*row))
+        else:
+            print("column {:2}: R {:.5f} (consensus {:.5f}, C/E {:.3f})  T {:.5f} (consensus {:.5f}, C/E {:.3f})"
+                  .format(*row))
+    halves = [(name, mean(v[:16]), mean(v[16:])) for name, v in (("R", got_r), ("T", got_t))]
+    for name, thin, thick in halves:
+        print(f"{name} halves (tau 2 | tau 18): lpm {thin:.5f} | {thick:.5f}, consensus "
+              f"{CONSENSUS[name + '_thin']:.5f} | {CONSENSUS[name + '_thick']:.5f}")
+    print(f"R, T over all columns: {mean(got_r):.5f}, {mean(got_t):.5f} (the report's faces: "
+          f"{rep['energy']['faces'][5]['power_out'][0] / sun:.5f}, {rep['energy']['faces'][4]['power_out'][0] / sun:.5f})")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -138,8 +187,11 @@ def main():
     c = sub.add_parser("compare")
     c.add_argument("solve_dir")
     c.add_argument("--markdown", action="store_true")
+    col = sub.add_parser("columns")
+    col.add_argument("solve_dir")
+    col.add_argument("--markdown", action="store_true")
     args = ap.parse_args()
-    generate(args) if args.cmd == "generate" else compare(args)
+    {"generate": generate, "compare": compare, "columns": columns}[args.cmd](args)
 
 
 if __name__ == "__main__":
