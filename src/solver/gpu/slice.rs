@@ -24,7 +24,7 @@ use crate::solver::fields::StoreFields;
 use crate::solver::sweep::{FaceSweep, SliceRange};
 use crate::store::{BrickStore, BRICK_EDGE};
 
-#[derive(Clone, PartialEq)]
+#[derive(PartialEq)]
 pub struct SliceLayout {
     pub range: SliceRange,
     /// Every brick of the slice, b fastest (the order of the slot table and of the fluence).

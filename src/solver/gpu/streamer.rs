@@ -180,9 +180,10 @@ impl SliceStreamer {
         let (c, comps) = (plan.channels as u64, plan.source_components() as u64);
         let half = if gain { pass.half_exponent.map(power_of_two) } else { None };
         let slices = pass.sweep.slices(BRICK_EDGE, self.memory.planes_per_slice);
-        // Every slice's layout up front: the loop looks one occupied slice ahead to gather it.
-        let layouts: Vec<SliceLayout> =
-            slices.iter().map(|range| SliceLayout::new(store, pass.sweep, *range, gain, c, comps, half)).collect();
+        let layout_at = |j: usize| SliceLayout::new(store, pass.sweep, slices[j], gain, c, comps, half);
+        // The next occupied slice's layout, made when the loop looked ahead to gather it (only it
+        // and the slices in flight are kept: a huge volume's pass has millions of bricks).
+        let mut next: Option<(usize, SliceLayout)> = None;
         let n_slots = self.slots.len();
         // The first occupied slice goes to the slot it was gathered into, if it was.
         let first_slot = pregathered.as_ref().map_or(0, |(s, _)| *s);
@@ -193,14 +194,21 @@ impl SliceStreamer {
         let mut to_download: Option<usize> = None;
         // The next occupied slice's gather, started once the slice before it was submitted.
         let mut ahead: Option<GatherAhead> = None;
-        for (i, (range, layout)) in slices.iter().zip(&layouts).enumerate() {
+        for (i, range) in slices.iter().enumerate() {
             // A cancelled solve stops here; what is in flight is waited for when the streamer drops.
             if self.cancel.is_some_and(|c| c.is_raised()) {
                 return Err(SolveError::Cancelled { resumable: true });
             }
+            let layout = match next.take() {
+                Some((j, layout)) if j == i => layout,
+                later => {
+                    next = later;
+                    layout_at(i)
+                }
+            };
             let step = |slot| ComputeStep {
                 slot,
-                layout,
+                layout: &layout,
                 tables: pass.tables,
                 sets: pass.sets,
                 sweep: pass.sweep,
@@ -225,23 +233,26 @@ impl SliceStreamer {
                     true
                 }
                 // Not this slice's (the ticket waits as it drops): gathered below.
-                _ => first_occupied.is_none() && pregathered.as_ref().is_some_and(|(p, l)| *p == s && l == layout),
+                _ => first_occupied.is_none() && pregathered.as_ref().is_some_and(|(p, l)| *p == s && *l == layout),
             };
             if !gathered {
-                self.gather(io, s, layout)?;
+                self.gather(io, s, &layout)?;
             }
             first_occupied.get_or_insert(*range);
             let v = self.next_slice_value();
-            self.submit_upload(io.res, s, layout, v)?;
+            self.submit_upload(io.res, s, &layout, v)?;
             self.submit_compute(io, &step(Some(s)), v)?;
-            self.slots[s].pending = Some((v, layout.clone()));
+            self.slots[s].pending = Some((v, layout));
             if n_slots == 1 {
                 self.submit_download(io, s)?;
             } else if let Some(prev) = to_download.replace(s) {
                 self.submit_download(io, prev)?;
             }
-            if let Some(next) = (i + 1..layouts.len()).find(|&j| !layouts[j].is_vacuum()) {
-                ahead = self.gather_ahead(io, filled % n_slots, next, &layouts[next])?;
+            if next.is_none() {
+                next = (i + 1..slices.len()).map(|j| (j, layout_at(j))).find(|(_, l)| !l.is_vacuum());
+            }
+            if let Some((j, layout)) = &next {
+                ahead = self.gather_ahead(io, filled % n_slots, *j, layout)?;
             }
         }
         if let Some(prev) = to_download {
