@@ -1,4 +1,10 @@
 //! One camera ray through the volume: box intersection, exact voxel walk, closed-form integration.
+//!
+//! Along the ray the source is sampled trilinearly in space (between voxel centres) and blended in
+//! direction between the storage directions around the ray's direction
+//! ([`crate::quadrature::StorageBlend`]), so the image is continuous both across voxels and across
+//! storage cells: neighbouring pixels whose rays fall in different storage cells no longer see a
+//! jump (a straight seam across a pinhole image, bands on a face lit from the side).
 
 use super::RenderInputs;
 use glam::DVec3;
@@ -80,8 +86,10 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
     let mut radiance = [0.0; 3];
     let mut transmittance = [1.0; 3];
     if let Some(span) = intersect_box(origin, dir, size) {
-        // The light reaching the camera travels along −dir: that is the direction J is stored for.
-        let d = (inputs.storage_lookup)(-dir).min(inputs.storage_dirs.saturating_sub(1) as usize) as u32;
+        // The light reaching the camera travels along −dir: J is blended for that direction from
+        // the storage directions around it (one with weight 1 for an isotropic medium).
+        let last = inputs.storage_dirs.saturating_sub(1);
+        let blend = (inputs.storage_lookup)(-dir);
         let m = inputs.medium;
         let mut t = span.0;
         walk_voxels(origin, dir, span, grid.dims, h, |_, s| {
@@ -105,7 +113,14 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                 let sigma_t = density * m.sigma_t[ch];
                 let sigma_a = sigma_t * (1.0 - m.albedo[ch] * albedo);
                 let j_ch = if inputs.channels == 1 { 0 } else { ch as u32 };
-                let j = sample(&|v| inputs.source.value(v, d * inputs.channels + j_ch) as f64);
+                let mut parts = blend.entries().map(|(d, w)| {
+                    let c = d.min(last) * inputs.channels + j_ch;
+                    w * sample(&|v| inputs.source.value(v, c) as f64)
+                });
+                // Started from the first part, not from 0.0: a single weight of 1 gives the stored
+                // value bit for bit (an isotropic image is what it was before blending).
+                let first = parts.next().unwrap_or(0.0);
+                let j = parts.fold(first, |sum, part| sum + part);
                 let q = j + sigma_a * m.emission[ch] * glow[ch];
                 let x = sigma_t * s;
                 // ∫₀ˢ e^{−σt·u} du, exact as σt → 0 (where it tends to s).
