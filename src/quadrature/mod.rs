@@ -13,15 +13,22 @@
 //! power emitted over the cells of d is J^d·Ω_d by construction. An isotropic medium needs a single
 //! storage direction (the whole sphere).
 //!
+//! A camera ray needs the source for its own direction, between the storage directions: [`blend`]
+//! weighs the few storage directions around it (barycentric weights on a mesh of the storage
+//! directions), so the rendered source is continuous in direction instead of jumping at a storage
+//! cell's boundary.
+//!
 //! [`phase`] builds the collect matrix `M[i][d] = Ω_i·P(i→d)/Ω_d`, where P(i→d) is the probability
 //! that light travelling along cell i scatters into cell d (Henyey–Greenstein, integrated over both
 //! cells, rows normalised to sum to 1 so scattering conserves energy exactly in the discrete set),
 //! or, under δ-M scaling, what HG is left with once its forward peak joins the unscattered light
 //! ([`phase::Truncation`]).
 
+pub mod blend;
 mod cube_face;
 pub mod phase;
 
+pub use blend::{Blend, StorageBlend};
 pub use cube_face::{cell_solid_angle, Face, FACES};
 
 /// The face (0..6) a direction of travel belongs to (its dominant axis and sign).

@@ -2,6 +2,7 @@
 
 use super::camera::RayGenerator;
 use super::march::march_ray;
+use crate::quadrature::Blend;
 use crate::scene::{Camera, EnvironmentLight, Medium};
 use crate::store::{BrickStore, Field};
 use glam::DVec3;
@@ -62,8 +63,10 @@ pub struct RenderInputs<'a> {
     /// 1 (grey: channel 0 serves r, g and b) or 3.
     pub channels: u32,
     pub storage_dirs: u32,
-    /// Storage direction index for a direction of light travel.
-    pub storage_lookup: &'a (dyn Fn(DVec3) -> usize + Sync),
+    /// The storage directions, and their weights, that make up the source for a direction of
+    /// light travel (see [`crate::quadrature::StorageBlend`]; [`Blend::single`] for one
+    /// direction).
+    pub storage_lookup: &'a (dyn Fn(DVec3) -> Blend + Sync),
     pub medium: &'a Medium,
     /// Radiance seen where a ray leaves the volume (zero for [`Background::Transparent`]).
     pub background: [f64; 3],

@@ -19,7 +19,7 @@
 
 use super::{render, Background, Image, RenderInputs, VoxelFactors};
 use crate::output::{write_json_atomic, OutputError};
-use crate::quadrature::{PropagationSet, StorageSet};
+use crate::quadrature::{PropagationSet, StorageBlend, StorageSet};
 use crate::scene::{
     camera_from_keys, display_from_keys, Camera, CameraKeys, Display, EnvironmentLight, Exposure, Light, MapUp, Medium,
     Projection, SceneError, View, VolumeFrame,
@@ -426,7 +426,8 @@ pub fn render_solved(
     };
     let m = &data.medium;
     let medium = Medium { sigma_t: m.sigma_t, albedo: m.albedo, g: m.g, emission: m.emission };
-    let lookup = |omega: DVec3| storage.owner[propagation.containing(omega)] as usize;
+    let blend = StorageBlend::new(&storage);
+    let lookup = |omega: DVec3| blend.weights(omega);
     render(&RenderInputs {
         store,
         source,

@@ -1,6 +1,14 @@
 //! One camera ray through the volume: box intersection, exact voxel walk, closed-form integration.
+//!
+//! Along the ray the source is sampled trilinearly in space (between voxel centres) and blended in
+//! direction between the storage directions around the ray's direction
+//! ([`crate::quadrature::StorageBlend`]), so the image is continuous both across voxels and across
+//! storage cells: neighbouring pixels whose rays fall in different storage cells no longer see a
+//! jump (a straight seam across a pinhole image, bands on a face lit from the side).
 
 use super::RenderInputs;
+use crate::quadrature::Blend;
+use crate::store::BRICK_VOXELS;
 use glam::DVec3;
 
 /// A ray stops once every channel's transmittance is below this: what lies behind can change the
@@ -80,8 +88,10 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
     let mut radiance = [0.0; 3];
     let mut transmittance = [1.0; 3];
     if let Some(span) = intersect_box(origin, dir, size) {
-        // The light reaching the camera travels along −dir: that is the direction J is stored for.
-        let d = (inputs.storage_lookup)(-dir).min(inputs.storage_dirs.saturating_sub(1) as usize) as u32;
+        // The light reaching the camera travels along −dir: J is blended for that direction from
+        // the storage directions around it (one with weight 1 for an isotropic medium).
+        let last = inputs.storage_dirs.saturating_sub(1);
+        let blend = (inputs.storage_lookup)(-dir);
         let m = inputs.medium;
         let mut t = span.0;
         walk_voxels(origin, dir, span, grid.dims, h, |_, s| {
@@ -101,11 +111,12 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
             };
             // The albedo factor a(v) (1 without an albedo grid), sampled like the density.
             let albedo = inputs.albedo.map_or(1.0, |a| sample(&|v| a.value(v, 0) as f64));
+            // The source per stored channel (1 or 3), blended over the storage directions.
+            let source = blended_source(inputs, &blend, last, &corners);
             for ch in 0..3 {
                 let sigma_t = density * m.sigma_t[ch];
                 let sigma_a = sigma_t * (1.0 - m.albedo[ch] * albedo);
-                let j_ch = if inputs.channels == 1 { 0 } else { ch as u32 };
-                let j = sample(&|v| inputs.source.value(v, d * inputs.channels + j_ch) as f64);
+                let j = source[if inputs.channels == 1 { 0 } else { ch }];
                 let q = j + sigma_a * m.emission[ch] * glow[ch];
                 let x = sigma_t * s;
                 // ∫₀ˢ e^{−σt·u} du, exact as σt → 0 (where it tends to s).
@@ -117,6 +128,43 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
         });
     }
     (radiance, transmittance)
+}
+
+/// The source J per stored channel (entries past `inputs.channels` unused) at the trilinear
+/// `corners`, blended over `blend`'s storage directions (indices clamped to `last`). Each corner's
+/// brick is looked up once for every component the ray reads; the sums are the ones
+/// `Field::value` per component gave (same terms, same order), and the blend starts from its first
+/// part rather than from 0.0, so a single weight of 1 gives the stored value bit for bit: an
+/// isotropic image is what it was before blending.
+fn blended_source(inputs: &RenderInputs, blend: &Blend, last: u32, corners: &[([u32; 3], f64); 8]) -> [f64; 3] {
+    let channels = inputs.channels.min(3) as usize;
+    let field = inputs.source;
+    let grid = field.grid();
+    // values[k][e·3 + ch]: component (direction e, channel ch) at corner k.
+    let mut values = [[0.0f64; 9]; 8];
+    for (k, &(v, _)) in corners.iter().enumerate() {
+        // Outside the volume, unstored bricks and components past the field's read as 0, as
+        // `Field::value` has them.
+        let Some(data) = grid.contains(v).then(|| grid.locate(v)).and_then(|(b, l)| field.brick(b).map(|d| (d, l)))
+        else {
+            continue;
+        };
+        for (e, (d, _)) in blend.entries().enumerate() {
+            for ch in 0..channels {
+                let c = (d.min(last) * inputs.channels) as usize + ch;
+                values[k][e * 3 + ch] = data.0.get(c * BRICK_VOXELS + data.1).map_or(0.0, |&x| x as f64);
+            }
+        }
+    }
+    let mut out = [0.0; 3];
+    for (ch, slot) in out.iter_mut().enumerate().take(channels) {
+        let mut parts = blend.entries().enumerate().map(|(e, (_, w))| {
+            w * corners.iter().enumerate().map(|(k, &(_, cw))| cw * values[k][e * 3 + ch]).sum::<f64>()
+        });
+        let first = parts.next().unwrap_or(0.0);
+        *slot = parts.fold(first, |sum, part| sum + part);
+    }
+    out
 }
 
 /// The eight voxels around `p` (in voxel units) with their trilinear weights; voxel centres sit at

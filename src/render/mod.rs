@@ -3,7 +3,11 @@
 //! World frame: voxel (i, j, k) occupies `[i·h, (i+1)·h) × [j·h, (j+1)·h) × [k·h, (k+1)·h)` with
 //! `h` the voxel size; the volume spans `[0, dims·h]`. Each pixel's ray is walked voxel by voxel
 //! (3D DDA, Amanatides–Woo); inside a voxel the medium is constant, so the radiance gathered over the
-//! segment uses the exact closed form of the transfer equation ([`march`]). What the camera sees
+//! segment uses the exact closed form of the transfer equation ([`march`]). The source is read
+//! trilinearly between voxel centres and, for an anisotropic medium, blended between the storage
+//! directions around the ray's direction ([`crate::quadrature::StorageBlend`]; [`render_solved`]
+//! builds the blend): taking the one storage cell that holds the direction made a seam wherever
+//! neighbouring pixels' rays fell in different cells. What the camera sees
 //! beyond the volume is the sky's uniform radiance plus the environment map's pixel in the ray's
 //! direction.
 //!

@@ -42,6 +42,7 @@ mod reference_job;
 mod reflective;
 mod reliability;
 mod render;
+mod render_blend;
 mod resident;
 mod resume;
 mod scene_files;

@@ -1,6 +1,7 @@
 //! The camera ray-march against closed-form answers, and the image files.
 
 use glam::DVec3;
+use lpm::quadrature::Blend;
 use lpm::render::{default_camera, render, write_exr, write_png, Image, RenderInputs};
 use lpm::scene::{Camera, Display, Medium, Projection};
 use lpm::store::{BrickStore, Coverage, Field, BRICK_VOXELS};
@@ -70,7 +71,7 @@ fn inputs<'a>(
     source: &'a Field,
     channels: u32,
     storage_dirs: u32,
-    lookup: &'a (dyn Fn(DVec3) -> usize + Sync),
+    lookup: &'a (dyn Fn(DVec3) -> Blend + Sync),
     medium: &'a Medium,
     background: [f64; 3],
     camera: &'a Camera,
@@ -99,7 +100,7 @@ fn empty_volume_renders_exactly_the_background() {
     let bg = [0.3, 0.5, 0.7];
     let camera = default_camera(store.grid().dims, store.voxel_size());
     assert_eq!(camera.width, 512);
-    let lookup = |_: DVec3| 0usize;
+    let lookup = |_: DVec3| Blend::single(0);
     let img = render(&inputs(&store, &source, 1, 1, &lookup, &m, bg, &camera));
     assert_eq!((img.width, img.height), (camera.width, camera.height));
     let expected = bg.map(|v| v as f32);
@@ -116,7 +117,7 @@ fn pure_absorber_follows_beer_lambert() {
     let m = medium(sigma_t, 0.0, 0.0);
     let bg = [1.0, 2.0, 3.0];
     let size = DVec3::new(dims[0] as f64, dims[1] as f64, dims[2] as f64) * h;
-    let lookup = |_: DVec3| 0usize;
+    let lookup = |_: DVec3| Blend::single(0);
     for dir_ in [DVec3::Z, DVec3::NEG_X, DVec3::new(1.0, 0.7, 0.4), DVec3::new(-0.3, -1.0, 0.55)] {
         let camera = ortho_through(size * 0.5, dir_);
         let img = render(&inputs(&store, &source, 1, 1, &lookup, &m, bg, &camera));
@@ -150,7 +151,7 @@ fn uniform_source_without_extinction_integrates_the_path_length() {
         }
     }
     let m = medium([0.0; 3], 0.5, 0.0);
-    let lookup = |travel: DVec3| if travel.z > 0.0 { 0usize } else { 1 };
+    let lookup = |travel: DVec3| Blend::single(if travel.z > 0.0 { 0 } else { 1 });
     let size = DVec3::new(dims[0] as f64, dims[1] as f64, dims[2] as f64) * h;
     let camera = ortho_through(size * 0.5, DVec3::Z);
     let img = render(&inputs(&store, &source, channels, dirs, &lookup, &m, [0.0; 3], &camera));
@@ -177,7 +178,7 @@ fn emission_saturates_at_le() {
     let source = store.create_field("source", 1, Coverage::Occupied).expect("field");
     let m = medium([1.0, 2.0, 4.0], 0.0, 2.0);
     let size = DVec3::splat(4.0);
-    let lookup = |_: DVec3| 0usize;
+    let lookup = |_: DVec3| Blend::single(0);
     let camera = ortho_through(size * 0.5, DVec3::X);
     let img = render(&inputs(&store, &source, 1, 1, &lookup, &m, [0.0; 3], &camera));
     for ch in 0..3 {
@@ -196,7 +197,7 @@ fn default_camera_frames_the_whole_volume_and_render_is_deterministic() {
     // The default view, at a smaller size with the same aspect (keeps the test fast).
     let full = default_camera(dims, 0.1);
     let camera = Camera { width: 96, height: (96 * full.height).div_ceil(full.width).max(1), ..full };
-    let lookup = |_: DVec3| 0usize;
+    let lookup = |_: DVec3| Blend::single(0);
     let bg = [1.0; 3];
     let img = render(&inputs(&store, &source, 1, 1, &lookup, &m, bg, &camera));
     let (w, h) = (img.width, img.height);

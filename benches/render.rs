@@ -1,0 +1,60 @@
+//! Rendering a solved volume: what `lpm render OUT` costs per megapixel (the camera ray-march over
+//! the kept source, on the CPU's threads), for an anisotropic cloud (24 storage directions, where
+//! the source is blended between storage directions) and the same cloud isotropic (one storage
+//! direction). The solve is set up once (CPU twin, two orders: the render's cost does not depend
+//! on how converged the source is); each iteration renders one 256×256 image from the solve's view.
+//! Criterion's "elements/s" are pixels per second.
+//!
+//! Run: `cargo bench --bench render` (LPM_BENCH_DIMS=N changes the volume, LPM_BENCH_PIXELS=W the
+//! image's width and height).
+
+use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use lpm::job::{run, SolveJob};
+use lpm::render::keep::open;
+use lpm::render::Background;
+use lpm::solver::BackendKind;
+use std::path::Path;
+
+fn env_u32(name: &str, default: u32) -> u32 {
+    std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
+}
+
+/// A procedural cloud lit by a sun and a sky, Henyey–Greenstein `g`, solved into `out`.
+fn solve(dir: &Path, name: &str, g: f64) -> std::path::PathBuf {
+    let n = env_u32("LPM_BENCH_DIMS", 48);
+    let storage = if g == 0.0 { String::new() } else { "storage_directions_per_face = 2\n".to_string() };
+    let scene = format!(
+        "[volume]\nprocedural = \"cloud\"\ndims = [{n}, {n}, {n}]\nvoxel_size = 1.0\nseed = 2\n\n\
+         [medium]\nsigma_t = 0.8\nalbedo = 0.99\ng = {g}\n\n\
+         [[lights]]\nkind = \"sky\"\nradiance = 0.5\n\n\
+         [[lights]]\nkind = \"sun\"\ndirection = [-0.55, -0.35, 0.75]\nirradiance = 3.0\n\n\
+         [solver]\ndirections_per_face = 4\n{storage}max_orders = 2\nforward_peak = \"keep\"\n"
+    );
+    let path = dir.join(format!("{name}.toml"));
+    std::fs::write(&path, scene).expect("write the scene");
+    let out = dir.join(name);
+    let job =
+        SolveJob { backend: BackendKind::Cpu, no_image: true, no_fields: true, ..SolveJob::new(path, out.clone()) };
+    run(&job, |_, _| {}).expect("solve");
+    out
+}
+
+fn render(c: &mut Criterion) {
+    let dir = std::env::temp_dir().join(format!("lpm-bench-render-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("bench dir");
+    let side = env_u32("LPM_BENCH_PIXELS", 256);
+    let mut group = c.benchmark_group(format!("render {side}x{side}"));
+    group.sample_size(10);
+    group.throughput(Throughput::Elements(u64::from(side) * u64::from(side)));
+    for (name, g) in [("anisotropic g=0.8", 0.8), ("isotropic", 0.0)] {
+        let out = solve(&dir, &name.replace([' ', '='], "_"), g);
+        let kept = open(&out).expect("render data");
+        let camera = lpm::scene::Camera { width: side, height: side, ..kept.camera.clone() };
+        group.bench_function(name, |b| b.iter(|| kept.render(&camera, Background::Sky)));
+    }
+    group.finish();
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+criterion_group!(benches, render);
+criterion_main!(benches);
