@@ -253,7 +253,7 @@ pub fn solve(
     store: &BrickStore,
     backend: BackendKind,
     vk_options: ContextOptions,
-    progress: impl FnMut(u32, f64),
+    progress: impl crate::progress::Observer,
 ) -> Result<(SolveRun, StoreFields), SolveError> {
     let gpu = gpu::GpuOptions::for_scene(scene);
     solve_with(scene, store, backend, vk_options, gpu, false, progress)
@@ -300,7 +300,7 @@ pub fn solve_with(
     vk_options: ContextOptions,
     gpu_options: gpu::GpuOptions,
     resume: bool,
-    progress: impl FnMut(u32, f64),
+    progress: impl crate::progress::Observer,
 ) -> Result<(SolveRun, StoreFields), SolveError> {
     solve_from(scene, store, backend, vk_options, gpu_options, resume, None, progress)
 }
@@ -316,7 +316,7 @@ pub fn solve_from(
     gpu_options: gpu::GpuOptions,
     resume: bool,
     warm_start: Option<&Path>,
-    mut progress: impl FnMut(u32, f64),
+    mut progress: impl crate::progress::Observer,
 ) -> Result<(SolveRun, StoreFields), SolveError> {
     let mut phases = Vec::new();
     let t = Instant::now();
@@ -391,7 +391,7 @@ pub fn solve_from(
             }
             phases.push(("setup".to_string(), t.elapsed().as_secs_f64()));
             let t = Instant::now();
-            let outcome = orders::run_orders(&plan, &mut twin, start, &mut progress)?;
+            let outcome = orders::run_orders(&plan, &mut twin, start, progress)?;
             phases.push(("orders".to_string(), t.elapsed().as_secs_f64()));
             twin.write_into(store, &mut fields);
             let device = format!("CPU twin (f64, {} threads)", rayon::current_num_threads());
@@ -441,7 +441,7 @@ fn run_gpu(
     vk_options: ContextOptions,
     gpu_options: gpu::GpuOptions,
     checkpoints: Option<(String, crate::scene::CheckpointCadence)>,
-    progress: &mut impl FnMut(u32, f64),
+    progress: &mut dyn crate::progress::Observer,
 ) -> Result<GpuRun, SolveError> {
     let mut phases = Vec::new();
     let t = Instant::now();
@@ -455,7 +455,7 @@ fn run_gpu(
     }
     phases.push(("setup".to_string(), t.elapsed().as_secs_f64()));
     let t = Instant::now();
-    let outcome = orders::run_orders(plan, &mut gpu, start, progress).map_err(|e| match e {
+    let outcome = orders::run_orders(plan, &mut gpu, start, crate::progress::Forward(progress)).map_err(|e| match e {
         SolveError::Cancelled { .. } => SolveError::Cancelled { resumable },
         e => e,
     })?;
