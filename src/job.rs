@@ -297,11 +297,19 @@ pub fn run(job: &SolveJob, observer: impl Observer) -> Result<Report, JobError> 
     // atomically, so a reader sees the last complete state or nothing.
     let progress_path = job.out.join("progress.json");
     let _ = std::fs::remove_file(&progress_path);
+    let render_work = if job.no_image {
+        0.0
+    } else {
+        let camera =
+            scene.camera.clone().unwrap_or_else(|| render::default_camera(scene.volume.dims, scene.volume.voxel_size));
+        let longest = scene.volume.dims.iter().copied().max().unwrap_or(0);
+        f64::from(camera.width) * f64::from(camera.height) * f64::from(longest)
+    };
     let settings = progress::Settings {
         tolerance: scene.solver.tolerance,
         max_orders: scene.solver.max_orders,
-        export: !job.no_fields,
-        render: !job.no_image,
+        export_values: if job.no_fields { 0.0 } else { export_values(&scene) },
+        render_work,
     };
     let watch = Watch {
         estimator: progress::Estimator::new(settings),
@@ -311,7 +319,8 @@ pub fn run(job: &SolveJob, observer: impl Observer) -> Result<Report, JobError> 
         settings,
         inner: observer,
     };
-    let result = check_space(job, &scene).and_then(|()| run_in(job, &scene, &work, watch));
+    let mut watch = watch;
+    let result = check_space(job, &scene).and_then(|()| run_in(job, &scene, &work, &mut watch));
     let checkpointed = work.join("checkpoint.json").exists();
     // Cancelled before its first checkpoint: say so, not that a checkpoint is kept.
     let result = match result {
@@ -346,6 +355,21 @@ pub fn run(job: &SolveJob, observer: impl Observer) -> Result<Report, JobError> 
         let _ = std::fs::remove_dir(&job.out);
     }
     result
+}
+
+/// The values the export writes, as the progress estimate counts them: voxels × (fluence channels
+/// + source components), the source's storage directions as the plan chooses them when it may
+/// reduce (1 for an isotropic medium, else k_s² per face; `solver::plan`).
+fn export_values(scene: &Scene) -> f64 {
+    let voxels: f64 = scene.volume.dims.iter().map(|&d| f64::from(d)).product();
+    let channels = if scene.is_grey() { 1.0 } else { 3.0 };
+    let storage = if scene.medium.g == 0.0 {
+        1.0
+    } else {
+        let ks = scene.solver.storage_directions_per_face.unwrap_or(scene.solver.directions_per_face.min(2));
+        6.0 * f64::from(ks * ks)
+    };
+    voxels * channels * (1.0 + storage)
 }
 
 /// Refuses a job whose volume or exported fields cannot fit on `OUT`'s disk, before anything is
@@ -417,7 +441,7 @@ fn check_finite(
     Ok(())
 }
 
-fn run_in(job: &SolveJob, scene: &Scene, work: &Path, mut observer: impl Observer) -> Result<Report, JobError> {
+fn run_in(job: &SolveJob, scene: &Scene, work: &Path, observer: &mut impl Observer) -> Result<Report, JobError> {
     observer.stage(progress::Stage::Store);
     let t = Instant::now();
     let reopen = job.resume && work.join("checkpoint.json").exists();
@@ -440,7 +464,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, mut observer: impl Observe
         cancel: job.cancel,
         ..solver::gpu::GpuOptions::for_scene(scene)
     };
-    let (run, fields) = solver::solve_from(scene, &store, job.backend, job.vk.clone(), gpu, reopen, warm, progress::Forward(&mut observer))
+    let (run, fields) = solver::solve_from(scene, &store, job.backend, job.vk.clone(), gpu, reopen, warm, progress::Forward(observer))
         .map_err(|e| match e {
             SolveError::BudgetTooSmall { .. } | SolveError::BudgetTooLarge { .. } => JobError::Budget {
                 origin: match (job.device_memory_budget, scene.solver.device_memory_budget) {

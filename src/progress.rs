@@ -11,17 +11,26 @@
 //! The seconds left are the orders left times the time per order, plus the stages after the
 //! orders:
 //! - **Orders left** ([`orders_left`]): how many more orders the stop rule's quantity needs to
-//!   fall to the tolerance, at the rate the order series has been decaying: a least-squares fit of
-//!   the logarithm of each order's scattered power over the last few orders (noise and a bump
-//!   average out; one ratio does not decide), applied to the stop rule's quantity of the last
-//!   order, capped by the orders the cap leaves. Unknown (`None`) before two orders, or while the
-//!   series does not decay: then no time is promised, and the fraction counts the cap.
+//!   fall to the tolerance, at the rate the series has been decaying ([`decay_rate`]): least-squares
+//!   fits of the logarithm of the orders' scattered power, and of the stop rule's quantity itself
+//!   once it has three values, over the last few orders (noise and a bump average out; one ratio
+//!   does not decide), the slower of the two taken; applied to the stop rule's quantity of the last
+//!   order, capped by the orders the cap leaves. The ratio of successive orders creeps up as the
+//!   fast-decaying modes die out (`solver::orders`, "the orders not propagated"), so the first one
+//!   alone (after order 1) says too few orders: then the rate is taken half-way to 1 (its square
+//!   root). Unknown (`None`) before two orders, or while the series does not decay: then no time is
+//!   promised, and the fraction counts the cap.
 //! - **Time per order**: the mean of the last few orders' measured seconds, leaving order 0 out
 //!   once a later one has run (order 0 also sweeps the direct light's beams and may differ).
-//! - **Export and render**: not measured before they run; estimated as a multiple of the time the
-//!   store took to build ([`AFTER_ORDERS_PER_STORE`]): both walk the whole volume and write it
-//!   out as the store build does (measured over the shipped scenes, benches/RESULTS.md "Progress
-//!   and ETA"), and each is dropped when the job skips it.
+//! - **Export and render**: not measured before they run (both run on the CPU, whatever the
+//!   backend). The export costs a fixed part like the store build's ([`EXPORT_PER_STORE`] times
+//!   its seconds) and [`EXPORT_SECONDS_PER_VALUE`] per value written (voxels × components); the
+//!   render marches a ray per pixel through the volume: [`RENDER_SECONDS_PER_PIXEL_VOXEL`] per
+//!   pixel and voxel of the volume's longest side. These rates were measured over the shipped
+//!   scenes with the debug build (opt-level 1) on a 2-core VM shared with other work
+//!   (benches/RESULTS.md, "Progress and ETA"; they spread over ×5 there, with the load); a release
+//!   build renders faster, so there the estimate errs long until the render starts. Once a stage
+//!   after the orders runs, its estimate counts down from the time it started.
 //!
 //! The estimator reads no clock: every call takes the seconds since the job started, so that the
 //! tests give it exact histories.
@@ -110,9 +119,15 @@ impl Observer for Forward<'_> {
     }
 }
 
-/// Export and render together take about this many times the store build's seconds (measured
-/// over the shipped scenes; see the module docs).
-pub const AFTER_ORDERS_PER_STORE: f64 = 2.0;
+/// The export's fixed part is about this many times the store build's seconds (see the module
+/// docs).
+pub const EXPORT_PER_STORE: f64 = 4.0;
+
+/// The export's seconds per value written (see the module docs).
+pub const EXPORT_SECONDS_PER_VALUE: f64 = 1e-6;
+
+/// The render's seconds per pixel and voxel of the volume's longest side (see the module docs).
+pub const RENDER_SECONDS_PER_PIXEL_VOXEL: f64 = 2e-6;
 
 /// The orders whose decay the fit uses, at most.
 const FIT_ORDERS: usize = 4;
@@ -127,10 +142,12 @@ pub struct Settings {
     pub tolerance: f64,
     /// The cap on the orders (counted from order 0, whatever order a resumed solve starts at).
     pub max_orders: u32,
-    /// Whether the job exports the fields after the orders.
-    pub export: bool,
-    /// Whether the job renders an image after the export.
-    pub render: bool,
+    /// The values the export writes: voxels × components of the fluence and the source (0 when
+    /// the job skips it).
+    pub export_values: f64,
+    /// The image's pixels times the volume's longest side in voxels (0 without an image): the
+    /// render's work.
+    pub render_work: f64,
 }
 
 /// The estimate at one moment.
@@ -184,6 +201,7 @@ pub struct Estimator {
     orders_ended: Option<f64>,
     /// Seconds the store build took, once it is over.
     store_seconds: Option<f64>,
+
     /// This run's orders, oldest first.
     orders: Vec<OrderDone>,
     /// Each of those orders' wall-clock seconds, from its start (or the previous order's end) to
@@ -245,14 +263,14 @@ impl Estimator {
         (!recent.is_empty()).then(|| recent.iter().sum::<f64>() / recent.len() as f64)
     }
 
-    /// The seconds export and render are expected to take, from the store build's.
+    /// The seconds export and render are expected to take (see the module docs).
     fn after_orders_seconds(&self) -> f64 {
-        let share = match (self.settings.export, self.settings.render) {
-            (true, true) => 1.0,
-            (true, false) | (false, true) => 0.5,
-            (false, false) => 0.0,
+        let export = if self.settings.export_values > 0.0 {
+            EXPORT_PER_STORE * self.store_seconds.unwrap_or(0.0) + EXPORT_SECONDS_PER_VALUE * self.settings.export_values
+        } else {
+            0.0
         };
-        self.store_seconds.unwrap_or(0.0) * AFTER_ORDERS_PER_STORE * share
+        export + RENDER_SECONDS_PER_PIXEL_VOXEL * self.settings.render_work
     }
 
     /// The estimate at `t` seconds since the job started.
@@ -302,12 +320,8 @@ impl Estimator {
 /// Orders still to run after `orders` (this run's, oldest first) for the stop rule's quantity
 /// ([`OrderDone::measure`]) to fall to `tolerance`, at most what `max_orders` leaves: 0 once the
 /// last order met the tolerance or scattered nothing; `None` before two orders or while the
-/// order series does not decay.
-///
-/// The decay rate ρ per order is fitted to the logarithm of the orders' scattered power over the
-/// last [`FIT_ORDERS`] orders by least squares (so one noisy or bumped ratio does not decide it);
-/// the stop rule's quantity is taken to fall by ρ per order from its last value m, which gives
-/// ⌈ln(tolerance/m)/ln ρ⌉ orders.
+/// order series does not decay. With ρ the [`decay_rate`] and m the last order's measure, that
+/// is ⌈ln(tolerance/m)/ln ρ⌉ orders.
 pub fn orders_left(orders: &[OrderDone], tolerance: f64, max_orders: u32) -> Option<u32> {
     let last = orders.last()?;
     let cap_left = max_orders.saturating_sub(last.order + 1);
@@ -322,12 +336,28 @@ pub fn orders_left(orders: &[OrderDone], tolerance: f64, max_orders: u32) -> Opt
     Some(if more >= cap_left as f64 { cap_left } else { (more as u32).max(1) })
 }
 
-/// The per-order decay ratio of the scattered power fitted over the last [`FIT_ORDERS`] orders
-/// (least squares on its logarithm), when it is below 1.
+/// The ratio per order by which the stop rule's quantity is expected to fall, when it is below 1:
+/// the slower of the least-squares decays (over the last [`FIT_ORDERS`] orders) of the scattered
+/// power and of the stop rule's quantity (that one from order 1 on, where it is the per-voxel
+/// remaining error, and once it has three values). With only two orders' power known, the one
+/// ratio is the lowest the series will show: its square root is taken.
 pub fn decay_rate(orders: &[OrderDone]) -> Option<f64> {
-    let recent = &orders[orders.len().saturating_sub(FIT_ORDERS)..];
+    let power = fitted_ratio(orders.iter().map(|o| (o.order, o.power)))?;
+    let power = if orders.iter().filter(|o| o.power != 0.0).count() == 2 { power.sqrt() } else { power };
+    let measures = orders.iter().filter(|o| o.order >= 1).map(|o| (o.order, o.measure));
+    let rho = match fitted_ratio(measures.clone()) {
+        Some(m) if measures.count() >= 3 => power.max(m),
+        _ => power,
+    };
+    (rho > 0.0 && rho < 1.0).then_some(rho)
+}
+
+/// exp of the least-squares slope of ln|value| against the order over the last [`FIT_ORDERS`]
+/// non-zero values (at least two).
+fn fitted_ratio(values: impl Iterator<Item = (u32, f64)>) -> Option<f64> {
     let points: Vec<(f64, f64)> =
-        recent.iter().filter(|o| o.power.abs() > 0.0).map(|o| (f64::from(o.order), o.power.abs().ln())).collect();
+        values.filter(|(_, v)| v.abs() > 0.0 && v.is_finite()).map(|(k, v)| (f64::from(k), v.abs().ln())).collect();
+    let points = &points[points.len().saturating_sub(FIT_ORDERS)..];
     if points.len() < 2 {
         return None;
     }
@@ -335,11 +365,7 @@ pub fn decay_rate(orders: &[OrderDone]) -> Option<f64> {
     let (mx, my) = (points.iter().map(|p| p.0).sum::<f64>() / n, points.iter().map(|p| p.1).sum::<f64>() / n);
     let sxx: f64 = points.iter().map(|p| (p.0 - mx).powi(2)).sum();
     let sxy: f64 = points.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
-    if sxx <= 0.0 {
-        return None;
-    }
-    let rho = (sxy / sxx).exp();
-    (rho > 0.0 && rho < 1.0).then_some(rho)
+    (sxx > 0.0).then(|| (sxy / sxx).exp())
 }
 
 #[cfg(test)]
@@ -363,11 +389,28 @@ mod tests {
         let orders = geometric(3, 0.5, 1.0);
         assert_eq!(decay_rate(&orders).map(|r| (r * 1e12).round() / 1e12), Some(0.5));
         assert_eq!(orders_left(&orders, 1e-3, 100), Some(8));
-        // After order 1 alone (the first moment a rate is known): 9 more.
-        assert_eq!(orders_left(&orders[..2], 1e-3, 100), Some(9));
+        // And after orders 0..=4, with the measure's own decay known too: 6 more.
+        assert_eq!(orders_left(&geometric(5, 0.5, 1.0), 1e-3, 100), Some(6));
+        // After order 1 (one ratio known, the lowest the series will show): its square root,
+        // 0.707 per order from 0.5: ⌈ln(2e-3)/ln(0.707)⌉ = 18.
+        assert_eq!(orders_left(&orders[..2], 1e-3, 100), Some(18));
         // Before two orders, nothing is known.
         assert_eq!(orders_left(&orders[..1], 1e-3, 100), None);
         assert_eq!(orders_left(&[], 1e-3, 100), None);
+    }
+
+    /// A series whose power falls faster than the stop rule's per-voxel error (the light deep in
+    /// the medium decays slower than the whole): the slower decay decides.
+    #[test]
+    fn the_slower_of_the_power_and_the_measure_decides() {
+        let orders: Vec<OrderDone> = geometric(6, 0.5, 1.0)
+            .into_iter()
+            .map(|o| OrderDone { measure: 0.8f64.powi(o.order as i32), ..o })
+            .collect();
+        let rho = decay_rate(&orders).expect("a decay");
+        assert!((rho - 0.8).abs() < 1e-12, "{rho}");
+        // 0.8^5 = 0.328 to 1e-3: ⌈ln(3.05e-3)/ln 0.8⌉ = 26.
+        assert_eq!(orders_left(&orders, 1e-3, 100), Some(26));
     }
 
     #[test]
@@ -404,7 +447,7 @@ mod tests {
     }
 
     fn settings() -> Settings {
-        Settings { tolerance: 1e-3, max_orders: 100, export: true, render: true }
+        Settings { tolerance: 1e-3, max_orders: 100, export_values: 1e6, render_work: 0.0 }
     }
 
     #[test]
@@ -416,39 +459,46 @@ mod tests {
         let est = e.estimate(2.0);
         assert_eq!((est.stage, est.orders_done, est.orders_left, est.seconds_left), (Stage::Order(0), 0, None, None));
         assert_eq!(est.fraction, 0.0);
-        // Order 0 took 5 s (its beams), order 1 2 s; 0.5 per order from measure 0.5: 9 more.
-        // (The orders' wall-clock times count, from one order's end to the next's.)
-        let orders = geometric(2, 0.5, 1.0);
-        e.order_done(&orders[0], 6.5);
-        e.stage(Stage::Order(1), 6.5);
-        e.order_done(&orders[1], 8.5);
-        e.stage(Stage::Order(2), 8.5);
-        let est = e.estimate(8.5);
-        assert_eq!(est.orders_left, Some(9));
+        // Order 0 takes 5 s (its beams), the later ones 2 s each (their wall-clock time, from one
+        // order's end to the next's); 0.5 per order from measure 0.25: 8 more.
+        let orders = geometric(3, 0.5, 1.0);
+        for (k, (o, t)) in orders.iter().zip([6.5, 8.5, 10.5]).enumerate() {
+            e.order_done(o, t);
+            e.stage(Stage::Order(k as u32 + 1), t);
+        }
+        let est = e.estimate(10.5);
+        assert_eq!((est.orders_done, est.orders_left), (3, Some(8)));
         assert_eq!(e.seconds_per_order(), Some(2.0));
-        // 9 orders of 2 s, plus export and render: twice the store's 1 s.
-        assert_eq!(est.seconds_left, Some(18.0 + 2.0));
-        assert!((est.fraction - 8.5 / 28.5).abs() < 1e-12, "{est:?}");
-        // Half-way through order 2: 1 s less.
-        assert_eq!(e.estimate(9.5).seconds_left, Some(19.0));
+        // 8 orders of 2 s, plus the export: 4 times the store's 1 s and 1 s per million values.
+        assert_eq!(est.seconds_left, Some(16.0 + 5.0));
+        assert!((est.fraction - 10.5 / 31.5).abs() < 1e-12, "{est:?}");
+        // Half-way through order 3: 1 s less.
+        assert_eq!(e.estimate(11.5).seconds_left, Some(20.0));
         // The export: what is left of the stages after the orders; then done.
         e.stage(Stage::Export, 30.0);
-        assert_eq!(e.estimate(30.5).seconds_left, Some(1.5));
+        assert_eq!(e.estimate(30.5).seconds_left, Some(4.5));
         assert_eq!(e.estimate(30.5).orders_left, Some(0));
         e.stage(Stage::Done, 32.0);
         assert_eq!((e.estimate(32.0).seconds_left, e.estimate(32.0).fraction), (Some(0.0), 1.0));
     }
 
     #[test]
-    fn a_job_without_export_or_image_expects_nothing_after_the_orders() {
-        let mut e = Estimator::new(Settings { export: false, render: false, ..settings() });
-        e.stage(Stage::Plan, 4.0);
-        e.stage(Stage::Order(0), 4.0);
-        for (o, t) in geometric(2, 0.5, 1.0).iter().zip([6.0, 8.0]) {
+    fn the_render_counts_its_pixels_times_the_longest_side_and_a_job_without_outputs_expects_none() {
+        let mut e = Estimator::new(Settings { export_values: 0.0, render_work: 1e6, ..settings() });
+        e.stage(Stage::Plan, 0.0);
+        e.stage(Stage::Order(0), 0.0);
+        for (o, t) in geometric(3, 0.5, 1.0).iter().zip([2.0, 4.0, 6.0]) {
             e.order_done(o, t);
         }
-        e.stage(Stage::Order(2), 8.0);
-        assert_eq!(e.estimate(8.0).seconds_left, Some(18.0));
+        e.stage(Stage::Order(3), 6.0);
+        let left = e.estimate(6.0).seconds_left.expect("known");
+        assert!((left - (16.0 + 1e6 * RENDER_SECONDS_PER_PIXEL_VOXEL)).abs() < 1e-9, "{left}");
+        let mut e = Estimator::new(Settings { export_values: 0.0, ..settings() });
+        e.stage(Stage::Order(0), 0.0);
+        for (o, t) in geometric(3, 0.5, 1.0).iter().zip([2.0, 4.0, 6.0]) {
+            e.order_done(o, t);
+        }
+        assert_eq!(e.estimate(6.0).seconds_left, Some(16.0));
     }
 
     #[test]

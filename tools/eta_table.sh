@@ -31,7 +31,7 @@ for s in "${SCENES[@]}"; do
         args=(solve "$s" --out "$OUT/$name" --backend "$BACKEND")
         [ "$BACKEND" = cpu ] && args+=(--threads "$THREADS")
         # shellcheck disable=SC2086
-        LPM_LOG=lpm=debug "$LPM" "${args[@]}" $EXTRA 2>"$OUT/$name.log" >/dev/null ||
+        LPM_LOG=debug "$LPM" "${args[@]}" $EXTRA 2>"$OUT/$name.log" >/dev/null ||
             { echo "$name: the solve failed (see $OUT/$name.log)" >&2; continue; }
     fi
 done
