@@ -464,18 +464,19 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, observer: &mut impl Observ
         cancel: job.cancel,
         ..solver::gpu::GpuOptions::for_scene(scene)
     };
-    let (run, fields) = solver::solve_from(scene, &store, job.backend, job.vk.clone(), gpu, reopen, warm, progress::Forward(observer))
-        .map_err(|e| match e {
-            SolveError::BudgetTooSmall { .. } | SolveError::BudgetTooLarge { .. } => JobError::Budget {
-                origin: match (job.device_memory_budget, scene.solver.device_memory_budget) {
-                    (Some(_), _) => "--device-memory-budget".to_string(),
-                    (None, Some(_)) => format!("{}: solver.device_memory_budget", job.scene.display()),
-                    (None, None) => "the default device memory budget".to_string(),
+    let (run, fields) =
+        solver::solve_from(scene, &store, job.backend, job.vk.clone(), gpu, reopen, warm, progress::Forward(observer))
+            .map_err(|e| match e {
+                SolveError::BudgetTooSmall { .. } | SolveError::BudgetTooLarge { .. } => JobError::Budget {
+                    origin: match (job.device_memory_budget, scene.solver.device_memory_budget) {
+                        (Some(_), _) => "--device-memory-budget".to_string(),
+                        (None, Some(_)) => format!("{}: solver.device_memory_budget", job.scene.display()),
+                        (None, None) => "the default device memory budget".to_string(),
+                    },
+                    inner: e,
                 },
-                inner: e,
-            },
-            e => JobError::Solve(e),
-        })?;
+                e => JobError::Solve(e),
+            })?;
     let SolveRun { plan, outcome, device, peak_device_bytes, memory, mut phases, residency } = run;
     let store_bytes = store.file_bytes();
     phases.insert(0, ("store".to_string(), store_seconds));

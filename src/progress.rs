@@ -127,7 +127,7 @@ pub const EXPORT_PER_STORE: f64 = 4.0;
 pub const EXPORT_SECONDS_PER_VALUE: f64 = 1e-6;
 
 /// The render's seconds per pixel and voxel of the volume's longest side (see the module docs).
-pub const RENDER_SECONDS_PER_PIXEL_VOXEL: f64 = 2e-6;
+pub const RENDER_SECONDS_PER_PIXEL_VOXEL: f64 = 2.5e-6;
 
 /// The orders whose decay the fit uses, at most.
 const FIT_ORDERS: usize = 4;
@@ -266,7 +266,8 @@ impl Estimator {
     /// The seconds export and render are expected to take (see the module docs).
     fn after_orders_seconds(&self) -> f64 {
         let export = if self.settings.export_values > 0.0 {
-            EXPORT_PER_STORE * self.store_seconds.unwrap_or(0.0) + EXPORT_SECONDS_PER_VALUE * self.settings.export_values
+            EXPORT_PER_STORE * self.store_seconds.unwrap_or(0.0)
+                + EXPORT_SECONDS_PER_VALUE * self.settings.export_values
         } else {
             0.0
         };
@@ -313,7 +314,14 @@ impl Estimator {
                 }
             }
         };
-        Estimate { stage: self.stage, orders_done, orders_left, fraction: fraction.clamp(0.0, 1.0), seconds_left, elapsed: t }
+        Estimate {
+            stage: self.stage,
+            orders_done,
+            orders_left,
+            fraction: fraction.clamp(0.0, 1.0),
+            seconds_left,
+            elapsed: t,
+        }
     }
 }
 
@@ -440,8 +448,11 @@ mod tests {
         assert!(rho > 0.3 && rho < 0.8, "{rho}");
         assert!(orders_left(&orders, 1e-3, 100).is_some_and(|n| n > 0 && n < 30));
         // Growing over the whole window: no promise.
-        let growing: Vec<OrderDone> =
-            geometric(5, 0.5, 1.0).into_iter().enumerate().map(|(k, o)| OrderDone { power: 1.0 + k as f64, ..o }).collect();
+        let growing: Vec<OrderDone> = geometric(5, 0.5, 1.0)
+            .into_iter()
+            .enumerate()
+            .map(|(k, o)| OrderDone { power: 1.0 + k as f64, ..o })
+            .collect();
         assert_eq!(decay_rate(&growing), None);
         assert_eq!(orders_left(&growing, 1e-3, 100), None);
     }
@@ -498,6 +509,7 @@ mod tests {
         for (o, t) in geometric(3, 0.5, 1.0).iter().zip([2.0, 4.0, 6.0]) {
             e.order_done(o, t);
         }
+        e.stage(Stage::Order(3), 6.0);
         assert_eq!(e.estimate(6.0).seconds_left, Some(16.0));
     }
 

@@ -455,10 +455,11 @@ fn run_gpu(
     }
     phases.push(("setup".to_string(), t.elapsed().as_secs_f64()));
     let t = Instant::now();
-    let outcome = orders::run_orders(plan, &mut gpu, start, crate::progress::Forward(progress)).map_err(|e| match e {
-        SolveError::Cancelled { .. } => SolveError::Cancelled { resumable },
-        e => e,
-    })?;
+    let outcome =
+        orders::run_orders(plan, &mut gpu, start, crate::progress::Forward(progress)).map_err(|e| match e {
+            SolveError::Cancelled { .. } => SolveError::Cancelled { resumable },
+            e => e,
+        })?;
     phases.push(("orders".to_string(), t.elapsed().as_secs_f64()));
     drop(gpu);
     let peak = ctx.peak_allocated_bytes();
