@@ -221,3 +221,33 @@ fn last_error(log: &Path) -> Option<String> {
     let text = std::fs::read_to_string(log).ok()?;
     text.lines().rev().find_map(|l| l.strip_prefix("lpm: ")).map(str::to_string)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The worker reads the estimate the solve wrote (`job::Progress`, from `progress::Estimator`)
+    /// as it is, with no estimator of its own.
+    #[test]
+    fn the_progress_file_carries_the_solves_own_estimate() {
+        let written = crate::job::Progress {
+            stage: crate::progress::Stage::Order(3),
+            order: Some(2),
+            residual: Some(1.5e-3),
+            residuals: &[1.0, 0.1, 1.5e-3],
+            max_orders: 100,
+            tolerance: 1e-3,
+            seconds: 12.0,
+            fraction: 0.4,
+            seconds_left: Some(18.0),
+            orders_left: Some(4),
+        };
+        let p: ProgressFile = serde_json::from_value(serde_json::to_value(&written).expect("json")).expect("read");
+        assert_eq!((p.stage, p.order, p.residual), (crate::progress::Stage::Order(3), Some(2), Some(1.5e-3)));
+        assert_eq!((p.fraction, p.seconds_left), (0.4, Some(18.0)));
+        // Before order 1 the time left is not known: absent, not a guess from the cap.
+        let early = crate::job::Progress { order: Some(0), seconds_left: None, orders_left: None, ..written };
+        let p: ProgressFile = serde_json::from_value(serde_json::to_value(&early).expect("json")).expect("read");
+        assert_eq!(p.seconds_left, None);
+    }
+}

@@ -318,6 +318,7 @@ pub fn solve_from(
     warm_start: Option<&Path>,
     mut progress: impl crate::progress::Observer,
 ) -> Result<(SolveRun, StoreFields), SolveError> {
+    progress.stage(crate::progress::Stage::Plan);
     let mut phases = Vec::new();
     let t = Instant::now();
     let total = store.grid().brick_count();
