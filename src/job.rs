@@ -357,9 +357,9 @@ pub fn run(job: &SolveJob, observer: impl Observer) -> Result<Report, JobError> 
     result
 }
 
-/// The values the export writes, as the progress estimate counts them: voxels × (fluence channels
-/// + source components), the source's storage directions as the plan chooses them when it may
-/// reduce (1 for an isotropic medium, else k_s² per face; `solver::plan`).
+/// The values the export writes, as the progress estimate counts them: voxels times the fluence's
+/// channels and the source's components, the source's storage directions as the plan chooses
+/// them when it may reduce (1 for an isotropic medium, else k_s² per face; `solver::plan`).
 fn export_values(scene: &Scene) -> f64 {
     let voxels: f64 = scene.volume.dims.iter().map(|&d| f64::from(d)).product();
     let channels = if scene.is_grey() { 1.0 } else { 3.0 };
