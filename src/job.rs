@@ -19,6 +19,7 @@
 //! reading it in one place is what makes that property checkable.
 
 use crate::output::{self, FieldMeta, OutputError};
+use crate::progress::{self, Observer};
 use crate::render;
 use crate::scene::{Scene, SceneError};
 use crate::solver::{self, BackendKind, SolveError, SolveRun};
@@ -166,17 +167,85 @@ pub struct Report {
     pub outputs: Vec<String>,
 }
 
-/// `progress.json`: the solve's state after its latest order (this run's orders only).
+/// `progress.json`: the solve's state after its latest event (a stage started, an order done;
+/// this run's orders only), with the [`progress::Estimator`]'s estimate: what `lpm serve` reports.
 #[derive(Debug, Serialize)]
 pub struct Progress<'a> {
-    pub order: u32,
-    pub residual: f64,
+    /// The stage under way.
+    pub stage: progress::Stage,
+    /// The last order done, if any.
+    pub order: Option<u32>,
+    /// Its residual (what `report.json` gives as `final_residual` if it is the last).
+    pub residual: Option<f64>,
     /// The residual after each order of this run, oldest first.
     pub residuals: &'a [f64],
     pub max_orders: u32,
     pub tolerance: f64,
     /// Seconds since this run started.
     pub seconds: f64,
+    /// The fraction of the job done, in [0, 1].
+    pub fraction: f64,
+    /// The estimated seconds left; absent while unknown.
+    pub seconds_left: Option<f64>,
+    /// The estimated orders left; absent while unknown.
+    pub orders_left: Option<u32>,
+}
+
+/// Feeds a job's events to the estimator, writes `progress.json` and passes events and estimate
+/// on to the caller's observer.
+struct Watch<'a, O: Observer> {
+    estimator: progress::Estimator,
+    started: Instant,
+    path: &'a Path,
+    residuals: Vec<f64>,
+    settings: progress::Settings,
+    inner: O,
+}
+
+impl<O: Observer> Watch<'_, O> {
+    fn publish(&mut self) {
+        let estimate = self.estimator.estimate(self.started.elapsed().as_secs_f64());
+        let last = self.estimator.orders().last();
+        // Best effort: a failed write only loses progress reporting, never the solve.
+        let _ = output::write_json_atomic(
+            self.path,
+            &Progress {
+                stage: estimate.stage,
+                order: last.map(|o| o.order),
+                residual: last.map(|o| o.residual),
+                residuals: &self.residuals,
+                max_orders: self.settings.max_orders,
+                tolerance: self.settings.tolerance,
+                seconds: estimate.elapsed,
+                fraction: estimate.fraction,
+                seconds_left: estimate.seconds_left,
+                orders_left: estimate.orders_left,
+            },
+        );
+        tracing::debug!(
+            stage = %estimate.stage,
+            elapsed = estimate.elapsed,
+            fraction = estimate.fraction,
+            seconds_left = estimate.seconds_left.unwrap_or(-1.0),
+            orders_left = estimate.orders_left.map_or(-1, i64::from),
+            "progress estimate"
+        );
+        self.inner.estimate(&estimate);
+    }
+}
+
+impl<O: Observer> Observer for Watch<'_, O> {
+    fn stage(&mut self, stage: progress::Stage) {
+        self.estimator.stage(stage, self.started.elapsed().as_secs_f64());
+        self.inner.stage(stage);
+        self.publish();
+    }
+    fn order_done(&mut self, done: &progress::OrderDone) {
+        self.estimator.order_done(done, self.started.elapsed().as_secs_f64());
+        self.residuals.push(done.residual);
+        self.inner.order_done(done);
+        self.publish();
+    }
 }
 
 #[derive(Debug, Serialize)]
@@ -185,8 +254,11 @@ pub struct Phase {
     pub seconds: f64,
 }
 
-/// Runs the job; `progress(order, residual)` is called after each order.
-pub fn run(job: &SolveJob, progress: impl FnMut(u32, f64)) -> Result<Report, JobError> {
+/// Runs the job. `observer` hears each stage as it starts and each order as it is done, and
+/// after each the estimate of the fraction done and the seconds left ([`progress::Estimator`]);
+/// a closure `|order, residual|` hears each order's residual.
+pub fn run(job: &SolveJob, observer: impl Observer) -> Result<Report, JobError> {
+    let started = Instant::now();
     if job.resume && job.backend == BackendKind::Cpu {
         return Err(SolveError::ResumeNeedsGpu.into());
     }
@@ -221,30 +293,34 @@ pub fn run(job: &SolveJob, progress: impl FnMut(u32, f64)) -> Result<Report, Job
     if !job.resume || !checkpointed_before {
         let _ = std::fs::remove_dir_all(&work);
     }
-    // OUT/progress.json after each order, for programs watching the solve (`lpm serve`): written
-    // atomically, so a reader sees the last complete order or nothing. Best effort: a failed write
-    // only loses progress reporting, never the solve.
+    // OUT/progress.json after each event, for programs watching the solve (`lpm serve`): written
+    // atomically, so a reader sees the last complete state or nothing.
     let progress_path = job.out.join("progress.json");
     let _ = std::fs::remove_file(&progress_path);
-    let (max_orders, tolerance, started) = (scene.solver.max_orders, scene.solver.tolerance, Instant::now());
-    let mut progress = progress;
-    let mut residuals = Vec::new();
-    let progress = |order: u32, residual: f64| {
-        residuals.push(residual);
-        let _ = output::write_json_atomic(
-            &progress_path,
-            &Progress {
-                order,
-                residual,
-                residuals: &residuals,
-                max_orders,
-                tolerance,
-                seconds: started.elapsed().as_secs_f64(),
-            },
-        );
-        progress(order, residual);
+    let render_work = if job.no_image {
+        0.0
+    } else {
+        let camera =
+            scene.camera.clone().unwrap_or_else(|| render::default_camera(scene.volume.dims, scene.volume.voxel_size));
+        let longest = scene.volume.dims.iter().copied().max().unwrap_or(0);
+        f64::from(camera.width) * f64::from(camera.height) * f64::from(longest)
     };
-    let result = check_space(job, &scene).and_then(|()| run_in(job, &scene, &work, progress));
+    let settings = progress::Settings {
+        tolerance: scene.solver.tolerance,
+        max_orders: scene.solver.max_orders,
+        export_values: if job.no_fields { 0.0 } else { export_values(&scene) },
+        render_work,
+    };
+    let watch = Watch {
+        estimator: progress::Estimator::new(settings),
+        started,
+        path: &progress_path,
+        residuals: Vec::new(),
+        settings,
+        inner: observer,
+    };
+    let mut watch = watch;
+    let result = check_space(job, &scene).and_then(|()| run_in(job, &scene, &work, &mut watch));
     let checkpointed = work.join("checkpoint.json").exists();
     // Cancelled before its first checkpoint: say so, not that a checkpoint is kept.
     let result = match result {
@@ -279,6 +355,21 @@ pub fn run(job: &SolveJob, progress: impl FnMut(u32, f64)) -> Result<Report, Job
         let _ = std::fs::remove_dir(&job.out);
     }
     result
+}
+
+/// The values the export writes, as the progress estimate counts them: voxels times the fluence's
+/// channels and the source's components, the source's storage directions as the plan chooses
+/// them when it may reduce (1 for an isotropic medium, else k_s² per face; `solver::plan`).
+fn export_values(scene: &Scene) -> f64 {
+    let voxels: f64 = scene.volume.dims.iter().map(|&d| f64::from(d)).product();
+    let channels = if scene.is_grey() { 1.0 } else { 3.0 };
+    let storage = if scene.medium.g == 0.0 {
+        1.0
+    } else {
+        let ks = scene.solver.storage_directions_per_face.unwrap_or(scene.solver.directions_per_face.min(2));
+        6.0 * f64::from(ks * ks)
+    };
+    voxels * channels * (1.0 + storage)
 }
 
 /// Refuses a job whose volume or exported fields cannot fit on `OUT`'s disk, before anything is
@@ -350,7 +441,8 @@ fn check_finite(
     Ok(())
 }
 
-fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, f64)) -> Result<Report, JobError> {
+fn run_in(job: &SolveJob, scene: &Scene, work: &Path, observer: &mut impl Observer) -> Result<Report, JobError> {
+    observer.stage(progress::Stage::Store);
     let t = Instant::now();
     let reopen = job.resume && work.join("checkpoint.json").exists();
     let store = if reopen {
@@ -372,18 +464,19 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
         cancel: job.cancel,
         ..solver::gpu::GpuOptions::for_scene(scene)
     };
-    let (run, fields) = solver::solve_from(scene, &store, job.backend, job.vk.clone(), gpu, reopen, warm, progress)
-        .map_err(|e| match e {
-            SolveError::BudgetTooSmall { .. } | SolveError::BudgetTooLarge { .. } => JobError::Budget {
-                origin: match (job.device_memory_budget, scene.solver.device_memory_budget) {
-                    (Some(_), _) => "--device-memory-budget".to_string(),
-                    (None, Some(_)) => format!("{}: solver.device_memory_budget", job.scene.display()),
-                    (None, None) => "the default device memory budget".to_string(),
+    let (run, fields) =
+        solver::solve_from(scene, &store, job.backend, job.vk.clone(), gpu, reopen, warm, progress::Forward(observer))
+            .map_err(|e| match e {
+                SolveError::BudgetTooSmall { .. } | SolveError::BudgetTooLarge { .. } => JobError::Budget {
+                    origin: match (job.device_memory_budget, scene.solver.device_memory_budget) {
+                        (Some(_), _) => "--device-memory-budget".to_string(),
+                        (None, Some(_)) => format!("{}: solver.device_memory_budget", job.scene.display()),
+                        (None, None) => "the default device memory budget".to_string(),
+                    },
+                    inner: e,
                 },
-                inner: e,
-            },
-            e => JobError::Solve(e),
-        })?;
+                e => JobError::Solve(e),
+            })?;
     let SolveRun { plan, outcome, device, peak_device_bytes, memory, mut phases, residency, exit_maps } = run;
     let store_bytes = store.file_bytes();
     phases.insert(0, ("store".to_string(), store_seconds));
@@ -406,6 +499,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
     check_finite(&fields.source_total, &store, "source", cancel)?;
 
     // Every output goes to a staging directory first and is published with the others as a set.
+    observer.stage(progress::Stage::Export);
     let staging = output::Staging::new(&job.out)?;
     let stage = staging.path().to_path_buf();
     let t = Instant::now();
@@ -521,6 +615,9 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
     } else {
         None
     };
+    if !job.no_render_data || !job.no_image {
+        observer.stage(progress::Stage::Render);
+    }
     if !job.no_render_data {
         render::keep::keep(
             &stage.join(render::RENDER_DATA),
@@ -591,6 +688,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, progress: impl FnMut(u32, 
     // (directories).
     published.extend(report.outputs.iter().cloned());
     staging.commit(&published)?;
+    observer.stage(progress::Stage::Done);
     Ok(report)
 }
 

@@ -535,7 +535,7 @@ fn main() {
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(format!("lpm={}", cli.log)));
     tracing_subscriber::fmt()
         .with_env_filter(filter)
-        .with_writer(std::io::stderr)
+        .with_writer(|| LogWriter)
         .with_target(false)
         // Colour codes only for a person at a terminal, never into a pipe or a log file.
         .with_ansi(std::io::stderr().is_terminal())
@@ -543,6 +543,92 @@ fn main() {
     if let Err(e) = run(cli) {
         eprintln!("lpm: {}", error_text(&e));
         std::process::exit(if was_cancelled(&e) { EXIT_CANCELLED } else { 1 });
+    }
+}
+
+/// The progress bar while a solve runs on a terminal: log lines are written above it, not glued
+/// to it ([`LogWriter`]).
+static BAR: std::sync::Mutex<Option<indicatif::ProgressBar>> = std::sync::Mutex::new(None);
+
+/// Where log lines go: stderr, with the progress bar (if any) taken off the screen meanwhile.
+struct LogWriter;
+
+impl std::io::Write for LogWriter {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let bar = BAR.lock().unwrap_or_else(|e| e.into_inner()).clone();
+        match bar {
+            Some(bar) => bar.suspend(|| std::io::stderr().write_all(buf))?,
+            None => std::io::stderr().write_all(buf)?,
+        }
+        Ok(buf.len())
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        std::io::stderr().flush()
+    }
+}
+
+/// One bar for the whole solve: the stage, the percentage and the estimated time left.
+fn progress_bar() -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new(1000);
+    let style = indicatif::ProgressStyle::with_template("{spinner} {elapsed:>4} [{bar:30}] {percent:>3}% {msg}")
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
+        .progress_chars("=> ");
+    bar.set_style(style);
+    bar.set_message("building the brick store");
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    *BAR.lock().unwrap_or_else(|e| e.into_inner()) = Some(bar.clone());
+    bar
+}
+
+/// A solve's progress: the bar on a terminal, else a log line per stage and per order, each with
+/// the percentage done and the time left (the library's one estimator, [`lpm::progress`]).
+struct SolveProgress {
+    bar: Option<indicatif::ProgressBar>,
+    /// The last order done, and whether it was done since the last estimate.
+    last_order: Option<(lpm::progress::OrderDone, bool)>,
+    /// The last stage a line was written for.
+    logged: Option<lpm::progress::Stage>,
+}
+
+impl lpm::progress::Observer for SolveProgress {
+    fn order_done(&mut self, done: &lpm::progress::OrderDone) {
+        self.last_order = Some((*done, true));
+    }
+
+    fn estimate(&mut self, e: &lpm::progress::Estimate) {
+        use lpm::progress::Stage;
+        let just_done = self.last_order.as_ref().is_some_and(|&(_, fresh)| fresh);
+        let order = self.last_order.as_mut().map(|(o, fresh)| {
+            *fresh = false;
+            let measure =
+                if o.measure == o.residual { String::new() } else { format!(", remaining error {:.3e}", o.measure) };
+            format!("order {} done: residual {:.3e}{measure}", o.order, o.residual)
+        });
+        match &self.bar {
+            Some(bar) => {
+                bar.set_position((e.fraction * 1000.0).round() as u64);
+                let left = match e.seconds_left {
+                    Some(s) => format!("about {} left", lpm::progress::human_seconds(s)),
+                    None => "time left not known yet".to_string(),
+                };
+                let last = match (&order, e.stage) {
+                    (Some(o), Stage::Order(_)) => format!(" ({o})"),
+                    _ => String::new(),
+                };
+                bar.set_message(format!("{}{last} · {left}", e.stage));
+            }
+            None => {
+                // A line per order done and per stage other than an order's start (those come as
+                // "order k done" lines), none for the end (the summary follows).
+                let what = match order {
+                    Some(o) if just_done => o,
+                    _ if matches!(e.stage, Stage::Order(_) | Stage::Done) || self.logged == Some(e.stage) => return,
+                    _ => e.stage.to_string(),
+                };
+                self.logged = Some(e.stage);
+                tracing::info!("{what} — {}", e.describe());
+            }
+        }
     }
 }
 
@@ -768,21 +854,11 @@ fn run(cli: Cli) -> Result<()> {
                 no_render_data,
                 display: display.into(),
             };
-            let bar = std::io::stderr().is_terminal().then(|| {
-                let bar = indicatif::ProgressBar::new_spinner();
-                bar.set_message("building the brick store");
-                bar.enable_steady_tick(std::time::Duration::from_millis(200));
-                bar
-            });
-            let report = job::run(&job, |order, residual| {
-                let msg = format!("order {order} done, residual {residual:.3e}");
-                match &bar {
-                    Some(bar) => bar.set_message(msg),
-                    None => tracing::info!("{msg}"),
-                }
-            });
+            let bar = std::io::stderr().is_terminal().then(progress_bar);
+            let report = job::run(&job, SolveProgress { bar: bar.clone(), last_order: None, logged: None });
             if let Some(bar) = &bar {
                 bar.finish_and_clear();
+                *BAR.lock().unwrap_or_else(|e| e.into_inner()) = None;
             }
             let report = report?;
             println!(

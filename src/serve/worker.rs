@@ -147,7 +147,7 @@ fn die_with_parent(_cmd: &mut Command) {}
 
 fn watch(shared: &Shared, id: i64, mut child: Child) {
     let out = shared.job_dir(id).join("out");
-    let mut last_order = None;
+    let mut last_seen = None;
     let status = loop {
         match child.try_wait() {
             Ok(Some(status)) => break Ok(status),
@@ -164,11 +164,15 @@ fn watch(shared: &Shared, id: i64, mut child: Child) {
                 return;
             }
         }
+        // The job's state once it has done an order, updated as the solve moves to another stage
+        // or order.
         if let Some(p) = read_progress(&out) {
-            if last_order != Some(p.order) {
-                last_order = Some(p.order);
-                let _ = shared.db.set_progress(id, p.order, p.residual, Some(p.fraction()), p.seconds_left());
-                shared.notify();
+            if let (Some(order), Some(residual)) = (p.order, p.residual) {
+                if last_seen != Some((p.stage, order)) {
+                    last_seen = Some((p.stage, order));
+                    let _ = shared.db.set_progress(id, order, residual, Some(p.fraction), p.seconds_left);
+                    shared.notify();
+                }
             }
         }
         std::thread::sleep(POLL);
@@ -191,46 +195,16 @@ fn watch(shared: &Shared, id: i64, mut child: Child) {
     shared.notify();
 }
 
+/// What the worker reads of the solve's `progress.json` ([`crate::job::Progress`]): the fraction
+/// done and the seconds left are the solve's own estimate ([`crate::progress::Estimator`], the
+/// one the CLI shows).
 #[derive(serde::Deserialize)]
 struct ProgressFile {
-    order: u32,
-    residual: f64,
-    residuals: Vec<f64>,
-    max_orders: u32,
-    tolerance: f64,
-    seconds: f64,
-}
-
-impl ProgressFile {
-    /// Orders still to go: from the residual's geometric decay when it decays, else the cap.
-    fn orders_left(&self) -> u32 {
-        let cap = self.max_orders.saturating_sub(self.order);
-        let n = self.residuals.len();
-        if n >= 2 && self.residual > self.tolerance {
-            let ratio = self.residuals[n - 1] / self.residuals[n - 2];
-            if ratio > 0.0 && ratio < 1.0 {
-                let more = ((self.tolerance / self.residual).ln() / ratio.ln()).ceil();
-                if more.is_finite() && more >= 0.0 {
-                    return (more as u32).min(cap);
-                }
-            }
-        }
-        if self.residual <= self.tolerance {
-            0
-        } else {
-            cap
-        }
-    }
-
-    fn fraction(&self) -> f64 {
-        let left = self.orders_left() as f64;
-        self.order as f64 / (self.order as f64 + left).max(1.0)
-    }
-
-    fn seconds_left(&self) -> Option<f64> {
-        let done = self.residuals.len();
-        (done > 0).then(|| self.seconds / done as f64 * self.orders_left() as f64)
-    }
+    stage: crate::progress::Stage,
+    order: Option<u32>,
+    residual: Option<f64>,
+    fraction: f64,
+    seconds_left: Option<f64>,
 }
 
 fn read_progress(out: &Path) -> Option<ProgressFile> {
@@ -246,4 +220,34 @@ fn report(out: &Path) -> Option<(u32, f64)> {
 fn last_error(log: &Path) -> Option<String> {
     let text = std::fs::read_to_string(log).ok()?;
     text.lines().rev().find_map(|l| l.strip_prefix("lpm: ")).map(str::to_string)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The worker reads the estimate the solve wrote (`job::Progress`, from `progress::Estimator`)
+    /// as it is, with no estimator of its own.
+    #[test]
+    fn the_progress_file_carries_the_solves_own_estimate() {
+        let written = crate::job::Progress {
+            stage: crate::progress::Stage::Order(3),
+            order: Some(2),
+            residual: Some(1.5e-3),
+            residuals: &[1.0, 0.1, 1.5e-3],
+            max_orders: 100,
+            tolerance: 1e-3,
+            seconds: 12.0,
+            fraction: 0.4,
+            seconds_left: Some(18.0),
+            orders_left: Some(4),
+        };
+        let p: ProgressFile = serde_json::from_value(serde_json::to_value(&written).expect("json")).expect("read");
+        assert_eq!((p.stage, p.order, p.residual), (crate::progress::Stage::Order(3), Some(2), Some(1.5e-3)));
+        assert_eq!((p.fraction, p.seconds_left), (0.4, Some(18.0)));
+        // Before order 1 the time left is not known: absent, not a guess from the cap.
+        let early = crate::job::Progress { order: Some(0), seconds_left: None, orders_left: None, ..written };
+        let p: ProgressFile = serde_json::from_value(serde_json::to_value(&early).expect("json")).expect("read");
+        assert_eq!(p.seconds_left, None);
+    }
 }

@@ -258,7 +258,7 @@ pub fn solve(
     store: &BrickStore,
     backend: BackendKind,
     vk_options: ContextOptions,
-    progress: impl FnMut(u32, f64),
+    progress: impl crate::progress::Observer,
 ) -> Result<(SolveRun, StoreFields), SolveError> {
     let gpu = gpu::GpuOptions::for_scene(scene);
     solve_with(scene, store, backend, vk_options, gpu, false, progress)
@@ -305,7 +305,7 @@ pub fn solve_with(
     vk_options: ContextOptions,
     gpu_options: gpu::GpuOptions,
     resume: bool,
-    progress: impl FnMut(u32, f64),
+    progress: impl crate::progress::Observer,
 ) -> Result<(SolveRun, StoreFields), SolveError> {
     solve_from(scene, store, backend, vk_options, gpu_options, resume, None, progress)
 }
@@ -321,8 +321,9 @@ pub fn solve_from(
     gpu_options: gpu::GpuOptions,
     resume: bool,
     warm_start: Option<&Path>,
-    mut progress: impl FnMut(u32, f64),
+    mut progress: impl crate::progress::Observer,
 ) -> Result<(SolveRun, StoreFields), SolveError> {
+    progress.stage(crate::progress::Stage::Plan);
     let mut phases = Vec::new();
     let t = Instant::now();
     let total = store.grid().brick_count();
@@ -397,7 +398,7 @@ pub fn solve_from(
             }
             phases.push(("setup".to_string(), t.elapsed().as_secs_f64()));
             let t = Instant::now();
-            let outcome = orders::run_orders(&plan, &mut twin, start, &mut progress)?;
+            let outcome = orders::run_orders(&plan, &mut twin, start, progress)?;
             phases.push(("orders".to_string(), t.elapsed().as_secs_f64()));
             twin.write_into(store, &mut fields);
             exit_maps = Some(twin.exit_maps().clone());
@@ -448,7 +449,7 @@ fn run_gpu(
     vk_options: ContextOptions,
     gpu_options: gpu::GpuOptions,
     checkpoints: Option<(String, crate::scene::CheckpointCadence)>,
-    progress: &mut impl FnMut(u32, f64),
+    progress: &mut dyn crate::progress::Observer,
 ) -> Result<GpuRun, SolveError> {
     let mut phases = Vec::new();
     let t = Instant::now();
@@ -462,10 +463,11 @@ fn run_gpu(
     }
     phases.push(("setup".to_string(), t.elapsed().as_secs_f64()));
     let t = Instant::now();
-    let outcome = orders::run_orders(plan, &mut gpu, start, progress).map_err(|e| match e {
-        SolveError::Cancelled { .. } => SolveError::Cancelled { resumable },
-        e => e,
-    })?;
+    let outcome =
+        orders::run_orders(plan, &mut gpu, start, crate::progress::Forward(progress)).map_err(|e| match e {
+            SolveError::Cancelled { .. } => SolveError::Cancelled { resumable },
+            e => e,
+        })?;
     phases.push(("orders".to_string(), t.elapsed().as_secs_f64()));
     drop(gpu);
     let peak = ctx.peak_allocated_bytes();

@@ -24,6 +24,7 @@ use super::passes::{FieldPlanes, Medium, OrderFieldSet};
 use super::plan::Plan;
 use super::remaining::{tail_factor, RemainingError};
 use super::SolveError;
+use crate::progress::{Observer, OrderDone, Stage};
 use serde::Serialize;
 use std::time::{Duration, Instant};
 
@@ -323,14 +324,28 @@ pub struct OrderOutcome {
     pub elapsed: Duration,
 }
 
+/// The residual a solve reports after the orders in `state` ([`OrderOutcome::residual`]): with
+/// `solver.extrapolate_tail` and a tail known, the tail's uncertainty over the total with the
+/// tail; else the last order's scattered power over the total (0 when nothing scatters). The
+/// order loop gives each order's progress this same value, so that the last order's residual is
+/// the report's.
+fn reported_residual(plan: &Plan, state: &LoopState) -> f64 {
+    let total: f64 = state.total_power.iter().sum();
+    match plan.extrapolate_tail.then(|| tail_estimate(plan, state)).flatten() {
+        Some(t) => t.uncertainty / (total + t.power),
+        None if total > 0.0 => state.last_new_power.iter().sum::<f64>() / total,
+        None => 0.0,
+    }
+}
+
 /// Runs orders until the tolerance or the cap, from `start` (a fresh solve passes the default
-/// state; a resumed one the state of its checkpoint). `progress(order, measure)` is called after
-/// each order.
+/// state; a resumed one the state of its checkpoint). `progress` hears each order start
+/// ([`Stage::Order`]) and end ([`OrderDone`]).
 pub fn run_orders<B: Backend + ?Sized>(
     plan: &Plan,
     backend: &mut B,
     start: LoopState,
-    mut progress: impl FnMut(u32, f64),
+    mut progress: impl Observer,
 ) -> Result<OrderOutcome, SolveError> {
     let clock = Instant::now();
     let start_orders = start.orders_done;
@@ -338,14 +353,6 @@ pub fn run_orders<B: Backend + ?Sized>(
     let cadence = backend.checkpoint_cadence();
     let mut since_checkpoint = (0u32, Instant::now());
     let mut state = start;
-    let residual_of = |s: &LoopState| {
-        let total: f64 = s.total_power.iter().sum();
-        if total > 0.0 {
-            s.last_new_power.iter().sum::<f64>() / total
-        } else {
-            0.0
-        }
-    };
     let extrapolate = plan.extrapolate_tail;
     // Nothing scatters any more (a non-scattering medium after order 0): the fluence is complete.
     let exhausted = |s: &LoopState| s.orders_done > 0 && s.last_new_power.iter().all(|&p| p <= 0.0);
@@ -364,6 +371,7 @@ pub fn run_orders<B: Backend + ?Sized>(
     };
     while !converged && state.orders_done < plan.max_orders {
         let order = state.orders_done;
+        progress.stage(Stage::Order(order));
         let t = Instant::now();
         let mut tallies = state.tallies();
         let this_order = backend.propagate_order(order)?;
@@ -387,14 +395,15 @@ pub fn run_orders<B: Backend + ?Sized>(
         state.last_new_power = new;
         state.tallies = tallies;
         state.orders_done += 1;
-        let residual = residual_of(&state);
+        let residual = reported_residual(plan, &state);
         remaining = remaining_of(backend, &state)?;
+        let (power, seconds) = (new.iter().sum(), t.elapsed().as_secs_f64());
         state.history.push(OrderRecord {
             order,
-            new_source_power: new.iter().sum(),
+            new_source_power: power,
             total_source_power: state.total_power.iter().sum(),
             remaining_max: remaining.map(|r| r.max),
-            seconds: t.elapsed().as_secs_f64(),
+            seconds,
         });
         converged = done(&state, remaining);
         let last = converged || state.orders_done >= plan.max_orders;
@@ -405,13 +414,14 @@ pub fn run_orders<B: Backend + ?Sized>(
         if due {
             since_checkpoint = (0, Instant::now());
         }
-        // What the stop rule compares with the tolerance: the per-voxel remaining error (the power
-        // residual while no ratio is known yet, and under the tail's own rule).
+        // What the stop rule compares with the tolerance: the per-voxel remaining error (the
+        // residual while no ratio is known yet, and under the tail's own rule, whose residual is
+        // the tail's uncertainty once it is known).
         let measure = match remaining {
             Some(r) if !extrapolate => r.max,
             _ => residual,
         };
-        progress(order, measure);
+        progress.order_done(&OrderDone { order, residual, measure, power, seconds });
         tracing::debug!(order, residual, remaining = remaining.map(|r| r.max), "order done");
     }
     // Resumed after its last order (killed in the export): no order ran here, so what the orders
@@ -443,10 +453,7 @@ pub fn run_orders<B: Backend + ?Sized>(
         plan.channels as usize,
     );
     let tail = if extrapolate { tail_estimate(plan, &state) } else { None };
-    let residual = match &tail {
-        Some(t) => t.uncertainty / (state.total_power.iter().sum::<f64>() + t.power),
-        None => residual_of(&state),
-    };
+    let residual = reported_residual(plan, &state);
     if let Some(t) = &tail {
         let (fields, medium) = backend.fields();
         fields.apply_tail(plan, t.factor);

@@ -185,7 +185,7 @@ pub(super) fn solve_doubled(
     fields: &mut StoreFields,
     vk_options: crate::vk::ContextOptions,
     gpu_options: super::gpu::GpuOptions,
-    progress: &mut impl FnMut(u32, f64),
+    progress: &mut dyn crate::progress::Observer,
 ) -> Result<(GpuRun, String), SolveError> {
     let t = std::time::Instant::now();
     let fold = Fold::new(plan.dims, plan.reflective);

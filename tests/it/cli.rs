@@ -124,6 +124,41 @@ fn cpu_backend_writes_the_same_layout() {
     assert!(!out.join("image.png").exists());
 }
 
+/// Issue 36, item 2: not at a terminal, a solve logs a line per stage and per order, each with the
+/// percentage done and the time left (known from order 1 on, where the decay is first seen); the
+/// last order's residual and the summary's are report.json's `final_residual`.
+#[test]
+fn log_lines_carry_percent_and_time_left_and_the_last_residual_is_the_reports() {
+    let dir = temp_dir("cli-progress");
+    let scene = write_scene(&dir, SMALL);
+    let out = dir.join("out");
+    let o = lpm_command(&["solve", scene.to_str().unwrap(), "--out", out.to_str().unwrap(), "--backend", "cpu"])
+        .env("LPM_LOG", "info")
+        .output()
+        .expect("run lpm");
+    assert!(o.status.success(), "{}", stderr(&o));
+    let log = stderr(&o);
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let orders = report["orders"].as_u64().unwrap();
+    let final_residual = format!("{:.3e}", report["final_residual"].as_f64().unwrap());
+    let order_lines: Vec<&str> = log.lines().filter(|l| l.contains(" done: residual ")).collect();
+    assert_eq!(order_lines.len() as u64, orders, "{log}");
+    for (k, line) in order_lines.iter().enumerate() {
+        assert!(line.contains(&format!("order {k} done")) && line.contains(" %, "), "{line}");
+        if k >= 1 {
+            assert!(line.contains(" left") && !line.contains("not known"), "{line}");
+        }
+    }
+    for stage in ["building the brick store", "planning", "exporting the fields", "rendering"] {
+        assert!(log.lines().any(|l| l.contains(stage) && l.contains(" %, ")), "no line for {stage}: {log}");
+    }
+    let last = order_lines.last().unwrap();
+    assert!(last.contains(&format!("residual {final_residual}")), "{last} against {final_residual}");
+    let summary = String::from_utf8_lossy(&o.stdout);
+    assert!(summary.contains(&format!("residual {final_residual},")), "{summary} against {final_residual}");
+}
+
 /// A failing solve: exit status 1, one line on stderr with every `needle`, and nothing written.
 fn assert_fails_cleanly(name: &str, scene_text: &str, extra: impl FnOnce(&Path), needles: &[&str]) {
     let dir = temp_dir(name);

@@ -688,6 +688,14 @@ fn progress_is_pushed_as_server_sent_events() {
     assert!(events[..events.len() - 1].iter().all(|e| !ended(e)), "{events:?}");
     let orders: Vec<i64> = events.iter().filter_map(|e| e["order"].as_i64()).collect();
     assert!(orders.windows(2).all(|w| w[0] <= w[1]), "orders go forward: {orders:?}");
+    // Issue 36, item 2: the time left is the solve's own estimate (progress.json, written by
+    // lpm::progress's estimator): known once order 1 is done, never negative, and the fraction
+    // done within [0, 1].
+    for e in events.iter().filter(|e| e["state"] == "running" && e["order"].as_i64() >= Some(1)) {
+        assert!(e["seconds_left"].as_f64().is_some_and(|s| s >= 0.0), "{e}");
+        assert!(e["progress"].as_f64().is_some_and(|p| (0.0..=1.0).contains(&p)), "{e}");
+    }
+    assert_eq!(last["seconds_left"], 0.0);
     // An ended job's stream is its one final event; an unknown job is a 404.
     let r = agent().get(&format!("{url}/v1/jobs/{id}/events")).call().unwrap();
     let text = r.into_string().unwrap();

@@ -1,0 +1,533 @@
+//! How far a solve has come and how long it has still to go: the one estimator behind the CLI's
+//! progress bar (or its log lines), `progress.json` and the job server's `seconds_left`.
+//!
+//! A solve is a sequence of stages ([`Stage`]): the brick store is built, the plan and the
+//! backend are set up, scattering orders run until the stop rule is met or the cap is reached,
+//! then the fields are exported and the image rendered. The layers that run them report what
+//! they do to an [`Observer`]: a stage as it starts, each order as it is done ([`OrderDone`]).
+//! [`Estimator`] turns those events and the times they came at into an [`Estimate`]: the stage,
+//! the fraction done and the seconds left.
+//!
+//! The seconds left are the orders left times the time per order, plus the stages after the
+//! orders:
+//! - **Orders left** ([`orders_left`]): how many more orders the stop rule's quantity needs to
+//!   fall to the tolerance, at the rate the series has been decaying ([`decay_rate`]): least-squares
+//!   fits of the logarithm of the orders' scattered power, and of the stop rule's quantity itself
+//!   once it has three values, over the last few orders (noise and a bump average out; one ratio
+//!   does not decide), the slower of the two taken; applied to the stop rule's quantity of the last
+//!   order, capped by the orders the cap leaves. The ratio of successive orders creeps up as the
+//!   fast-decaying modes die out (`solver::orders`, "the orders not propagated"), so the first one
+//!   alone (after order 1) says too few orders: then the rate is taken half-way to 1 (its square
+//!   root). Unknown (`None`) before two orders, or while the series does not decay: then no time is
+//!   promised, and the fraction counts the cap.
+//! - **Time per order**: the mean of the last few orders' measured seconds, leaving order 0 out
+//!   once a later one has run (order 0 also sweeps the direct light's beams and may differ).
+//! - **Export and render**: not measured before they run (both run on the CPU, whatever the
+//!   backend). The export costs a fixed part like the store build's ([`EXPORT_PER_STORE`] times
+//!   its seconds) and [`EXPORT_SECONDS_PER_VALUE`] per value written (voxels × components); the
+//!   render marches a ray per pixel through the volume: [`RENDER_SECONDS_PER_PIXEL_VOXEL`] per
+//!   pixel and voxel of the volume's longest side. These rates were measured over the shipped
+//!   scenes with the debug build (opt-level 1) on a 2-core VM shared with other work
+//!   (benches/RESULTS.md, "Progress and ETA"; they spread over ×5 there, with the load); a release
+//!   build renders faster, so there the estimate errs long until the render starts. Once a stage
+//!   after the orders runs, its estimate counts down from the time it started.
+//!
+//! The estimator reads no clock: every call takes the seconds since the job started, so that the
+//! tests give it exact histories.
+
+use serde::{Deserialize, Serialize};
+
+/// What a solve is doing. In JSON: `"store"`, `"plan"`, `{"order": 3}`, `"export"`, `"render"`,
+/// `"done"`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Stage {
+    /// Reading the volume into the brick store.
+    Store,
+    /// Planning, creating the solver's fields and setting up the backend.
+    Plan,
+    /// Propagating this scattering order.
+    Order(u32),
+    /// Writing the solved fields out.
+    Export,
+    /// Rendering the image (and keeping the render data).
+    Render,
+    /// Finished.
+    Done,
+}
+
+impl std::fmt::Display for Stage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Stage::Store => write!(f, "building the brick store"),
+            Stage::Plan => write!(f, "planning"),
+            Stage::Order(k) => write!(f, "order {k}"),
+            Stage::Export => write!(f, "exporting the fields"),
+            Stage::Render => write!(f, "rendering"),
+            Stage::Done => write!(f, "done"),
+        }
+    }
+}
+
+/// One order, done.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct OrderDone {
+    pub order: u32,
+    /// The residual `report.json` gives as `final_residual` when this order is the last: the
+    /// last order's scattered power over the total (with `solver.extrapolate_tail`, the tail's
+    /// uncertainty over the total with the tail, once the tail is known).
+    pub residual: f64,
+    /// What the stop rule compares with the tolerance after this order: the estimated remaining
+    /// relative error of the fluence (its maximum over the medium's voxels; the residual while no
+    /// ratio is known yet, and under `solver.extrapolate_tail`).
+    pub measure: f64,
+    /// The scattered power of the source this order produced (summed over channels).
+    pub power: f64,
+    /// Wall-clock seconds the order took.
+    pub seconds: f64,
+}
+
+/// What the solving layers tell whoever watches them. A closure `FnMut(order, residual)` is an
+/// observer that hears each order's [`OrderDone::residual`] and nothing else.
+pub trait Observer {
+    /// A stage starts.
+    fn stage(&mut self, _stage: Stage) {}
+    /// An order is done.
+    fn order_done(&mut self, _done: &OrderDone) {}
+    /// What a job ([`crate::job::run`]) estimates right after each of the events above.
+    fn estimate(&mut self, _estimate: &Estimate) {}
+}
+
+impl<F: FnMut(u32, f64)> Observer for F {
+    fn order_done(&mut self, done: &OrderDone) {
+        self(done.order, done.residual)
+    }
+}
+
+/// An observer passed on by reference (through layers that each take one by value).
+pub struct Forward<'a>(pub &'a mut dyn Observer);
+
+impl Observer for Forward<'_> {
+    fn stage(&mut self, stage: Stage) {
+        self.0.stage(stage)
+    }
+    fn order_done(&mut self, done: &OrderDone) {
+        self.0.order_done(done)
+    }
+    fn estimate(&mut self, estimate: &Estimate) {
+        self.0.estimate(estimate)
+    }
+}
+
+/// The export's fixed part is about this many times the store build's seconds (see the module
+/// docs).
+pub const EXPORT_PER_STORE: f64 = 4.0;
+
+/// The export's seconds per value written (see the module docs).
+pub const EXPORT_SECONDS_PER_VALUE: f64 = 1e-6;
+
+/// The render's seconds per pixel and voxel of the volume's longest side (see the module docs).
+pub const RENDER_SECONDS_PER_PIXEL_VOXEL: f64 = 2.5e-6;
+
+/// The orders whose decay the fit uses, at most.
+const FIT_ORDERS: usize = 4;
+
+/// The orders whose seconds the time per order averages, at most.
+const TIMED_ORDERS: usize = 3;
+
+/// What the estimator needs to know of the job before it starts.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Settings {
+    /// The stop rule's tolerance.
+    pub tolerance: f64,
+    /// The cap on the orders (counted from order 0, whatever order a resumed solve starts at).
+    pub max_orders: u32,
+    /// The values the export writes: voxels × components of the fluence and the source (0 when
+    /// the job skips it).
+    pub export_values: f64,
+    /// The image's pixels times the volume's longest side in voxels (0 without an image): the
+    /// render's work.
+    pub render_work: f64,
+}
+
+/// The estimate at one moment.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Estimate {
+    pub stage: Stage,
+    /// Orders done (counted from order 0).
+    pub orders_done: u32,
+    /// Orders still to run, when the series' decay is known (see [`orders_left`]).
+    pub orders_left: Option<u32>,
+    /// Fraction of the job's time done, in [0, 1] (counting the cap where the orders left are
+    /// unknown, so it errs low).
+    pub fraction: f64,
+    /// Seconds the job has still to run; `None` while the orders left are unknown.
+    pub seconds_left: Option<f64>,
+    /// Seconds since the job started.
+    pub elapsed: f64,
+}
+
+impl Estimate {
+    /// "42 %, about 1 min 5 s left" (or "… time left not known yet"), for log lines and the bar.
+    pub fn describe(&self) -> String {
+        let left = match self.seconds_left {
+            Some(s) => format!("about {} left", human_seconds(s)),
+            None => "time left not known yet".to_string(),
+        };
+        format!("{:.0} %, {}", 100.0 * self.fraction, left)
+    }
+}
+
+/// Seconds as "12 s", "3 min 5 s", "2 h 10 min".
+pub fn human_seconds(s: f64) -> String {
+    let s = s.max(0.0).round() as u64;
+    match s {
+        0..=59 => format!("{s} s"),
+        60..=3599 => format!("{} min {} s", s / 60, s % 60),
+        _ => format!("{} h {} min", s / 3600, (s % 3600) / 60),
+    }
+}
+
+/// Events and their times, turned into [`Estimate`]s.
+#[derive(Clone, Debug)]
+pub struct Estimator {
+    settings: Settings,
+    stage: Stage,
+    /// When the current stage started (seconds since the job started).
+    stage_started: f64,
+    /// When the orders started (after the plan), once they have.
+    orders_started: Option<f64>,
+    /// When the first stage after the orders started, once it has.
+    orders_ended: Option<f64>,
+    /// Seconds the store build took, once it is over.
+    store_seconds: Option<f64>,
+
+    /// This run's orders, oldest first.
+    orders: Vec<OrderDone>,
+    /// Each of those orders' wall-clock seconds, from its start (or the previous order's end) to
+    /// its end: the order's own seconds and the passes after it (stop rule, checkpoint).
+    walls: Vec<f64>,
+    /// When the last order ended.
+    last_done: Option<f64>,
+}
+
+impl Estimator {
+    pub fn new(settings: Settings) -> Estimator {
+        Estimator {
+            settings,
+            stage: Stage::Store,
+            stage_started: 0.0,
+            orders_started: None,
+            orders_ended: None,
+            store_seconds: None,
+            orders: Vec::new(),
+            walls: Vec::new(),
+            last_done: None,
+        }
+    }
+
+    /// `stage` started at `t` seconds.
+    pub fn stage(&mut self, stage: Stage, t: f64) {
+        if self.stage == Stage::Store && stage != Stage::Store {
+            self.store_seconds = Some(t - self.stage_started);
+        }
+        match stage {
+            Stage::Order(_) if self.orders_started.is_none() => self.orders_started = Some(t),
+            Stage::Export | Stage::Render | Stage::Done if self.orders_ended.is_none() => self.orders_ended = Some(t),
+            _ => {}
+        }
+        self.stage = stage;
+        self.stage_started = t;
+    }
+
+    /// An order was done at `t` seconds.
+    pub fn order_done(&mut self, done: &OrderDone, t: f64) {
+        let since = self.last_done.or(self.orders_started).unwrap_or(self.stage_started);
+        self.orders.push(*done);
+        self.walls.push((t - since).max(0.0));
+        self.last_done = Some(t);
+    }
+
+    /// This run's orders so far.
+    pub fn orders(&self) -> &[OrderDone] {
+        &self.orders
+    }
+
+    /// The time one more order is expected to take: the mean of the last few orders, order 0 left
+    /// out once a later order has run.
+    pub fn seconds_per_order(&self) -> Option<f64> {
+        let timed = || self.orders.iter().zip(&self.walls);
+        let later: Vec<f64> = timed().filter(|(o, _)| o.order > 0).map(|(_, &w)| w).collect();
+        let pool: Vec<f64> = if later.is_empty() { timed().map(|(_, &w)| w).collect() } else { later };
+        let recent = &pool[pool.len().saturating_sub(TIMED_ORDERS)..];
+        (!recent.is_empty()).then(|| recent.iter().sum::<f64>() / recent.len() as f64)
+    }
+
+    /// The seconds export and render are expected to take (see the module docs).
+    fn after_orders_seconds(&self) -> f64 {
+        let export = if self.settings.export_values > 0.0 {
+            EXPORT_PER_STORE * self.store_seconds.unwrap_or(0.0)
+                + EXPORT_SECONDS_PER_VALUE * self.settings.export_values
+        } else {
+            0.0
+        };
+        export + RENDER_SECONDS_PER_PIXEL_VOXEL * self.settings.render_work
+    }
+
+    /// The estimate at `t` seconds since the job started.
+    pub fn estimate(&self, t: f64) -> Estimate {
+        let orders_done = self.orders.last().map_or(0, |o| o.order + 1);
+        let run_orders = self.orders.len() as u32;
+        let cap_left = self.settings.max_orders.saturating_sub(orders_done);
+        let in_stage = (t - self.stage_started).max(0.0);
+        let after = self.after_orders_seconds();
+        let orders_left = match self.stage {
+            Stage::Store | Stage::Plan => None,
+            Stage::Order(_) => orders_left(&self.orders, self.settings.tolerance, self.settings.max_orders),
+            Stage::Export | Stage::Render | Stage::Done => Some(0),
+        };
+        let per_order = self.seconds_per_order();
+        let seconds_left = match self.stage {
+            Stage::Done => Some(0.0),
+            Stage::Export | Stage::Render => {
+                let spent = t - self.orders_ended.unwrap_or(t);
+                Some((after - spent).max(0.0))
+            }
+            Stage::Order(_) => match (orders_left, per_order) {
+                // The order under way counts as one of those left, less its time so far.
+                (Some(left), Some(per)) => Some((left as f64 * per - in_stage).max(0.0) + after),
+                _ => None,
+            },
+            Stage::Store | Stage::Plan => None,
+        };
+        // The fraction: time so far over time so far and left; before the time left is known,
+        // the orders done over those the cap allows (low, honestly so).
+        let fraction = match seconds_left {
+            Some(left) if t + left > 0.0 => t / (t + left),
+            Some(_) => 1.0,
+            None => {
+                let planned = run_orders + cap_left;
+                if planned == 0 {
+                    0.0
+                } else {
+                    run_orders as f64 / planned as f64
+                }
+            }
+        };
+        Estimate {
+            stage: self.stage,
+            orders_done,
+            orders_left,
+            fraction: fraction.clamp(0.0, 1.0),
+            seconds_left,
+            elapsed: t,
+        }
+    }
+}
+
+/// Orders still to run after `orders` (this run's, oldest first) for the stop rule's quantity
+/// ([`OrderDone::measure`]) to fall to `tolerance`, at most what `max_orders` leaves: 0 once the
+/// last order met the tolerance or scattered nothing; `None` before two orders or while the
+/// order series does not decay. With ρ the [`decay_rate`] and m the last order's measure, that
+/// is ⌈ln(tolerance/m)/ln ρ⌉ orders.
+pub fn orders_left(orders: &[OrderDone], tolerance: f64, max_orders: u32) -> Option<u32> {
+    let last = orders.last()?;
+    let cap_left = max_orders.saturating_sub(last.order + 1);
+    if cap_left == 0 || last.measure <= tolerance || last.power == 0.0 {
+        return Some(0);
+    }
+    let rho = decay_rate(orders)?;
+    let more = ((tolerance / last.measure).ln() / rho.ln()).ceil();
+    if !more.is_finite() {
+        return None;
+    }
+    Some(if more >= cap_left as f64 { cap_left } else { (more as u32).max(1) })
+}
+
+/// The ratio per order by which the stop rule's quantity is expected to fall, when it is below 1:
+/// the slower of the least-squares decays (over the last [`FIT_ORDERS`] orders) of the scattered
+/// power and of the stop rule's quantity (that one from order 1 on, where it is the per-voxel
+/// remaining error, and once it has three values). With only two orders' power known, the one
+/// ratio is the lowest the series will show: its square root is taken.
+pub fn decay_rate(orders: &[OrderDone]) -> Option<f64> {
+    let power = fitted_ratio(orders.iter().map(|o| (o.order, o.power)))?;
+    let power = if orders.iter().filter(|o| o.power != 0.0).count() == 2 { power.sqrt() } else { power };
+    let measures = orders.iter().filter(|o| o.order >= 1).map(|o| (o.order, o.measure));
+    let rho = match fitted_ratio(measures.clone()) {
+        Some(m) if measures.count() >= 3 => power.max(m),
+        _ => power,
+    };
+    (rho > 0.0 && rho < 1.0).then_some(rho)
+}
+
+/// exp of the least-squares slope of ln|value| against the order over the last [`FIT_ORDERS`]
+/// non-zero values (at least two).
+fn fitted_ratio(values: impl Iterator<Item = (u32, f64)>) -> Option<f64> {
+    let points: Vec<(f64, f64)> =
+        values.filter(|(_, v)| v.abs() > 0.0 && v.is_finite()).map(|(k, v)| (f64::from(k), v.abs().ln())).collect();
+    let points = &points[points.len().saturating_sub(FIT_ORDERS)..];
+    if points.len() < 2 {
+        return None;
+    }
+    let n = points.len() as f64;
+    let (mx, my) = (points.iter().map(|p| p.0).sum::<f64>() / n, points.iter().map(|p| p.1).sum::<f64>() / n);
+    let sxx: f64 = points.iter().map(|p| (p.0 - mx).powi(2)).sum();
+    let sxy: f64 = points.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
+    (sxx > 0.0).then(|| (sxy / sxx).exp())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Orders 0.. of a series whose power and measure fall by `rho` per order from `m0`.
+    fn geometric(n: u32, rho: f64, m0: f64) -> Vec<OrderDone> {
+        (0..n)
+            .map(|k| {
+                let m = m0 * rho.powi(k as i32);
+                OrderDone { order: k, residual: m, measure: m, power: 10.0 * rho.powi(k as i32), seconds: 2.0 }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_geometric_series_gives_the_exact_orders_left() {
+        // 0.5 per order from 1: 1/2^k ≤ 1e-3 first at k = 10; after orders 0..=2 (measure 1/4),
+        // 8 more.
+        let orders = geometric(3, 0.5, 1.0);
+        assert_eq!(decay_rate(&orders).map(|r| (r * 1e12).round() / 1e12), Some(0.5));
+        assert_eq!(orders_left(&orders, 1e-3, 100), Some(8));
+        // And after orders 0..=4, with the measure's own decay known too: 6 more.
+        assert_eq!(orders_left(&geometric(5, 0.5, 1.0), 1e-3, 100), Some(6));
+        // After order 1 (one ratio known, the lowest the series will show): its square root,
+        // 0.707 per order from 0.5: ⌈ln(2e-3)/ln(0.707)⌉ = 18.
+        assert_eq!(orders_left(&orders[..2], 1e-3, 100), Some(18));
+        // Before two orders, nothing is known.
+        assert_eq!(orders_left(&orders[..1], 1e-3, 100), None);
+        assert_eq!(orders_left(&[], 1e-3, 100), None);
+    }
+
+    /// A series whose power falls faster than the stop rule's per-voxel error (the light deep in
+    /// the medium decays slower than the whole): the slower decay decides.
+    #[test]
+    fn the_slower_of_the_power_and_the_measure_decides() {
+        let orders: Vec<OrderDone> = geometric(6, 0.5, 1.0)
+            .into_iter()
+            .map(|o| OrderDone { measure: 0.8f64.powi(o.order as i32), ..o })
+            .collect();
+        let rho = decay_rate(&orders).expect("a decay");
+        assert!((rho - 0.8).abs() < 1e-12, "{rho}");
+        // 0.8^5 = 0.328 to 1e-3: ⌈ln(3.05e-3)/ln 0.8⌉ = 26.
+        assert_eq!(orders_left(&orders, 1e-3, 100), Some(26));
+    }
+
+    #[test]
+    fn the_cap_bounds_the_orders_left() {
+        let orders = geometric(3, 0.9, 1.0);
+        // 0.9^k ≤ 1e-6 needs 132 orders: the cap of 10 leaves 7.
+        assert_eq!(orders_left(&orders, 1e-6, 10), Some(7));
+        assert_eq!(orders_left(&orders, 1e-6, 3), Some(0));
+    }
+
+    #[test]
+    fn a_converged_or_exhausted_series_has_no_orders_left() {
+        let mut orders = geometric(4, 0.5, 1.0);
+        assert_eq!(orders_left(&orders, 0.2, 100), Some(0));
+        orders.last_mut().unwrap().power = 0.0;
+        assert_eq!(orders_left(&orders, 1e-9, 100), Some(0));
+    }
+
+    #[test]
+    fn a_noisy_series_is_fitted_over_several_orders_and_a_growing_one_promises_nothing() {
+        // The power falls by 0.5 per order on average but rises at order 3: the last ratio alone
+        // (1.2) would say the series diverges; the fit over four orders still sees the decay.
+        let mut orders = geometric(5, 0.5, 1.0);
+        orders[3].power = orders[2].power * 0.2;
+        orders[4].power = orders[3].power * 1.2;
+        let rho = decay_rate(&orders).expect("a decay");
+        assert!(rho > 0.3 && rho < 0.8, "{rho}");
+        assert!(orders_left(&orders, 1e-3, 100).is_some_and(|n| n > 0 && n < 30));
+        // Growing over the whole window: no promise.
+        let growing: Vec<OrderDone> = geometric(5, 0.5, 1.0)
+            .into_iter()
+            .enumerate()
+            .map(|(k, o)| OrderDone { power: 1.0 + k as f64, ..o })
+            .collect();
+        assert_eq!(decay_rate(&growing), None);
+        assert_eq!(orders_left(&growing, 1e-3, 100), None);
+    }
+
+    fn settings() -> Settings {
+        Settings { tolerance: 1e-3, max_orders: 100, export_values: 1e6, render_work: 0.0 }
+    }
+
+    #[test]
+    fn the_estimate_counts_orders_left_times_the_later_orders_time_and_the_stages_after() {
+        let mut e = Estimator::new(settings());
+        e.stage(Stage::Store, 0.0);
+        e.stage(Stage::Plan, 1.0);
+        e.stage(Stage::Order(0), 1.5);
+        let est = e.estimate(2.0);
+        assert_eq!((est.stage, est.orders_done, est.orders_left, est.seconds_left), (Stage::Order(0), 0, None, None));
+        assert_eq!(est.fraction, 0.0);
+        // Order 0 takes 5 s (its beams), the later ones 2 s each (their wall-clock time, from one
+        // order's end to the next's); 0.5 per order from measure 0.25: 8 more.
+        let orders = geometric(3, 0.5, 1.0);
+        for (k, (o, t)) in orders.iter().zip([6.5, 8.5, 10.5]).enumerate() {
+            e.order_done(o, t);
+            e.stage(Stage::Order(k as u32 + 1), t);
+        }
+        let est = e.estimate(10.5);
+        assert_eq!((est.orders_done, est.orders_left), (3, Some(8)));
+        assert_eq!(e.seconds_per_order(), Some(2.0));
+        // 8 orders of 2 s, plus the export: 4 times the store's 1 s and 1 s per million values.
+        assert_eq!(est.seconds_left, Some(16.0 + 5.0));
+        assert!((est.fraction - 10.5 / 31.5).abs() < 1e-12, "{est:?}");
+        // Half-way through order 3: 1 s less.
+        assert_eq!(e.estimate(11.5).seconds_left, Some(20.0));
+        // The export: what is left of the stages after the orders; then done.
+        e.stage(Stage::Export, 30.0);
+        assert_eq!(e.estimate(30.5).seconds_left, Some(4.5));
+        assert_eq!(e.estimate(30.5).orders_left, Some(0));
+        e.stage(Stage::Done, 32.0);
+        assert_eq!((e.estimate(32.0).seconds_left, e.estimate(32.0).fraction), (Some(0.0), 1.0));
+    }
+
+    #[test]
+    fn the_render_counts_its_pixels_times_the_longest_side_and_a_job_without_outputs_expects_none() {
+        let mut e = Estimator::new(Settings { export_values: 0.0, render_work: 1e6, ..settings() });
+        e.stage(Stage::Plan, 0.0);
+        e.stage(Stage::Order(0), 0.0);
+        for (o, t) in geometric(3, 0.5, 1.0).iter().zip([2.0, 4.0, 6.0]) {
+            e.order_done(o, t);
+        }
+        e.stage(Stage::Order(3), 6.0);
+        let left = e.estimate(6.0).seconds_left.expect("known");
+        assert!((left - (16.0 + 1e6 * RENDER_SECONDS_PER_PIXEL_VOXEL)).abs() < 1e-9, "{left}");
+        let mut e = Estimator::new(Settings { export_values: 0.0, ..settings() });
+        e.stage(Stage::Order(0), 0.0);
+        for (o, t) in geometric(3, 0.5, 1.0).iter().zip([2.0, 4.0, 6.0]) {
+            e.order_done(o, t);
+        }
+        e.stage(Stage::Order(3), 6.0);
+        assert_eq!(e.estimate(6.0).seconds_left, Some(16.0));
+    }
+
+    #[test]
+    fn before_the_time_left_is_known_the_fraction_counts_the_cap() {
+        let mut e = Estimator::new(Settings { max_orders: 4, ..settings() });
+        e.stage(Stage::Order(0), 0.0);
+        e.order_done(&geometric(1, 0.5, 1.0)[0], 2.0);
+        e.stage(Stage::Order(1), 2.0);
+        assert_eq!(e.estimate(2.0).fraction, 0.25);
+        assert!(e.estimate(2.0).describe().contains("not known"), "{}", e.estimate(2.0).describe());
+    }
+
+    #[test]
+    fn seconds_read_as_people_write_them() {
+        assert_eq!(human_seconds(4.4), "4 s");
+        assert_eq!(human_seconds(65.0), "1 min 5 s");
+        assert_eq!(human_seconds(7800.0), "2 h 10 min");
+        assert_eq!(human_seconds(-3.0), "0 s");
+    }
+}
