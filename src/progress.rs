@@ -345,7 +345,7 @@ pub fn orders_left(orders: &[OrderDone], tolerance: f64, max_orders: u32) -> Opt
 }
 
 /// The ratio per order by which the stop rule's quantity is expected to fall, when it is below 1:
-/// the slower of the least-squares decays (over the last [`FIT_ORDERS`] orders) of the scattered
+/// the slower of the least-squares decays (over the last `FIT_ORDERS` (4) orders) of the scattered
 /// power and of the stop rule's quantity (that one from order 1 on, where it is the per-voxel
 /// remaining error, and once it has three values). With only two orders' power known, the one
 /// ratio is the lowest the series will show: its square root is taken.
