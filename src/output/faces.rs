@@ -124,24 +124,7 @@ fn nrrd_header(map: &FaceMap, place: &FacePlacement, data: &str, units: &str, de
     let _ = writeln!(s, "# components: {}", map.channels.join(" "));
     let _ = writeln!(s, "content: exitance {}", map.name);
     s.push_str("type: float\n");
-    s.push_str("space dimension: 3\n");
-    if map.channels.len() == 1 {
-        s.push_str("dimension: 2\n");
-        let _ = writeln!(s, "sizes: {nu} {nv}");
-        let _ = writeln!(s, "space directions: {directions}");
-        s.push_str("kinds: domain domain\n");
-        s.push_str("centers: cell cell\n");
-    } else {
-        s.push_str("dimension: 3\n");
-        let _ = writeln!(s, "sizes: {} {nu} {nv}", map.channels.len());
-        let _ = writeln!(s, "space directions: none {directions}");
-        s.push_str("kinds: vector domain domain\n");
-        s.push_str("centers: ??? cell cell\n");
-    }
-    let _ = writeln!(s, "space origin: ({},{},{})", o[0], o[1], o[2]);
-    s.push_str("endian: little\n");
-    s.push_str("encoding: raw\n");
-    let _ = writeln!(s, "data file: {data}");
+    super::nrrd::grid_fields(&mut s, map.channels.len(), &[nu as u64, nv as u64], &directions, o, data);
     s
 }
 

@@ -21,24 +21,39 @@ pub(crate) fn header(info: &FieldInfo) -> String {
     let _ = writeln!(s, "# components: {}", one_line(&info.component_names.join(" ")));
     let _ = writeln!(s, "content: {}", one_line(&info.quantity));
     s.push_str("type: float\n");
-    if info.components == 1 {
-        s.push_str("dimension: 3\n");
-        let _ = writeln!(s, "sizes: {nx} {ny} {nz}");
-        s.push_str("space dimension: 3\n");
-        let _ = writeln!(s, "space directions: {directions}");
-        s.push_str("kinds: domain domain domain\n");
-        s.push_str("centers: cell cell cell\n");
+    grid_fields(&mut s, info.components as usize, &[nx as u64, ny as u64, nz as u64], &directions, o, &info.file);
+    s
+}
+
+/// The fields after `type` that place a raw grid of `sizes` samples (fastest first) in a 3D
+/// world: `components` values per sample (a leading vector axis when more than one), each
+/// domain axis's step in `directions`, the first sample's centre at `origin`, the data in
+/// `data`. The exported fields and the faces' exitance maps (`super::faces`) share them.
+pub(crate) fn grid_fields(
+    s: &mut String,
+    components: usize,
+    sizes: &[u64],
+    directions: &str,
+    origin: [f64; 3],
+    data: &str,
+) {
+    let each = |word: &str| vec![word; sizes.len()].join(" ");
+    let vector = components > 1;
+    let dimension = sizes.len() + usize::from(vector);
+    let sizes = sizes.iter().map(|n| n.to_string()).collect::<Vec<_>>().join(" ");
+    let _ = writeln!(s, "dimension: {dimension}");
+    if vector {
+        let _ = writeln!(s, "sizes: {components} {sizes}");
     } else {
-        s.push_str("dimension: 4\n");
-        let _ = writeln!(s, "sizes: {} {nx} {ny} {nz}", info.components);
-        s.push_str("space dimension: 3\n");
-        let _ = writeln!(s, "space directions: none {directions}");
-        s.push_str("kinds: vector domain domain domain\n");
-        s.push_str("centers: ??? cell cell cell\n");
+        let _ = writeln!(s, "sizes: {sizes}");
     }
-    let _ = writeln!(s, "space origin: ({},{},{})", o[0], o[1], o[2]);
+    s.push_str("space dimension: 3\n");
+    let (lead_direction, lead_kind, lead_center) = if vector { ("none ", "vector ", "??? ") } else { ("", "", "") };
+    let _ = writeln!(s, "space directions: {lead_direction}{directions}");
+    let _ = writeln!(s, "kinds: {lead_kind}{}", each("domain"));
+    let _ = writeln!(s, "centers: {lead_center}{}", each("cell"));
+    let _ = writeln!(s, "space origin: ({},{},{})", origin[0], origin[1], origin[2]);
     s.push_str("endian: little\n");
     s.push_str("encoding: raw\n");
-    let _ = writeln!(s, "data file: {}", info.file);
-    s
+    let _ = writeln!(s, "data file: {data}");
 }
