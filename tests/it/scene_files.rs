@@ -47,10 +47,12 @@ fn scenes_dir() -> PathBuf {
 
 // ---- shipped scenes -------------------------------------------------------------------------
 
-/// A copy of `tools/scenes/fire.toml` in a temporary directory beside the `fire.vdb` that
-/// `tools/fire_vdb.py` writes (with OpenVDB's Python module, as tools/setup.sh installs it).
-fn generated_fire(scene: &Path) -> PathBuf {
-    let dir = temp_dir("shipped-fire");
+/// A copy of a shipped scene that reads `fire.vdb` (`fire.toml`, `smoke_plume.toml`) in a temporary
+/// directory beside the `fire.vdb` that `tools/fire_vdb.py` writes (with OpenVDB's Python module, as
+/// tools/setup.sh installs it).
+fn beside_generated_fire_vdb(scene: &Path) -> PathBuf {
+    let name = scene.file_stem().and_then(|s| s.to_str()).unwrap_or("scene");
+    let dir = temp_dir(&format!("shipped-{name}"));
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/fire_vdb.py");
     let status = std::process::Command::new("/usr/bin/python3")
         .arg(&script)
@@ -59,8 +61,8 @@ fn generated_fire(scene: &Path) -> PathBuf {
         .status()
         .expect("run tools/fire_vdb.py");
     assert!(status.success(), "tools/fire_vdb.py failed");
-    let copy = dir.join("fire.toml");
-    std::fs::copy(scene, &copy).expect("copy fire.toml");
+    let copy = dir.join(scene.file_name().expect("a scene file name"));
+    std::fs::copy(scene, &copy).expect("copy the scene");
     copy
 }
 
@@ -72,13 +74,12 @@ fn every_shipped_scene_loads() {
         if path.extension().and_then(|e| e.to_str()) != Some("toml") {
             continue;
         }
-        // fire.toml reads a VDB file that tools/fire_vdb.py generates (it is not committed): load
-        // a copy of the scene next to a freshly generated one.
-        let path =
-            if path.file_name() == Some(std::ffi::OsStr::new("fire.toml")) { generated_fire(&path) } else { path };
+        // fire.toml and smoke_plume.toml read a VDB file that tools/fire_vdb.py generates (it is
+        // not committed): load a copy of the scene next to a freshly generated one.
+        let text = std::fs::read_to_string(&path).expect("read");
+        let path = if text.contains("vdb = \"fire.vdb\"") { beside_generated_fire_vdb(&path) } else { path };
         let scene = Scene::load(&path).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(scene.path, path);
-        let text = std::fs::read_to_string(&path).expect("read");
         assert!(text.starts_with('#'), "{} should document itself in leading comments", path.display());
         n += 1;
     }
