@@ -237,3 +237,20 @@ fn the_gpu_maps_are_the_same_bits_run_to_run_and_resident_or_streamed_in_passes(
     assert!(cuts.iter().any(|&(planes, _)| planes < 16), "sub-slices: {cuts:?}");
     assert!(cuts.iter().any(|&(_, pass)| pass < per_face), "passes: {cuts:?}");
 }
+
+#[test]
+fn the_gpu_makes_no_maps_where_they_would_not_add_up_or_do_not_fit() {
+    // Mirror faces: solved as the doubled volume, whose faces are not the scene's (a mirror is a
+    // plane inside it), so there is nothing to place the light that reaches a mirror on.
+    let mut mirrored = scene(Shape::Cloud, [12, 10, 8], [0.6; 3], [0.9; 3], vec![sky(1.0)]);
+    mirrored.boundary = Boundary { reflective: [[false; 2], [true, false], [false; 2]], ..Default::default() };
+    mirrored.solver.max_orders = 3;
+    assert!(solve("exitance-gpu-mirror", &mirrored, Gpu).run.exit_maps.is_none(), "no maps with mirror faces");
+    // The smallest budget a solve fits holds no side-exit records: the solve goes on without maps.
+    let mut small = rgb_cloud();
+    small.solver.max_orders = 2;
+    small.solver.device_memory_budget = Some(smallest_unit(&small));
+    let s = solve("exitance-gpu-small", &small, Gpu);
+    assert!(!s.run.memory.expect("plan").exit_maps);
+    assert!(s.run.exit_maps.is_none(), "no maps when their records do not fit");
+}
