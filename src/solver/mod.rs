@@ -477,7 +477,7 @@ fn run_gpu(
             e => e,
         })?;
     phases.push(("orders".to_string(), t.elapsed().as_secs_f64()));
-    let exit_maps = gpu.exit_maps().filter(|_| !resumed).cloned();
+    let exit_maps = gpu.take_exit_maps().filter(|_| !resumed);
     drop(gpu);
     let peak = ctx.peak_allocated_bytes();
     // With validation on, any error it reported fails the solve: a clean run is part of the

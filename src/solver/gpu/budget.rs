@@ -21,6 +21,11 @@
 //! The previous source (the one the rays gain) counts at its storage precision: half the bytes of
 //! the new source when the plan stores it in f16, in the slot and in its upload staging.
 //!
+//! The exitance maps' side-exit records ([`super::face_maps`]) count with the staging: they grow
+//! with the directions per pass like the ray state, so on a tight budget they may cost passes (or
+//! thinner slices) the solve would not need without them; where no cut fits with them at all, the
+//! plan drops them, not the solve ([`plan_memory_wanting`]).
+//!
 //! **Resident or streamed.** Before cutting anything, the planner tries the resident mode: every
 //! occupied brick's density and fields stay on the device for the whole solve ([`ResidentSizes`]),
 //! with whole slices and the slots reduced to their staging (through which the medium is loaded

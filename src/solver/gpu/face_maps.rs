@@ -20,15 +20,16 @@
 //!
 //! **Why on the host.** The placement (the two-by-two columns and their lattice weights, the
 //! vacuum column's halves on the rim pixels, edges half to each side, periodic wraps) is the
-//! twin's `exitance::record_exit` called on the recorded values, so the two backends cannot drift apart;
-//! the work is a few operations per exit, against the kernels' per-voxel work. The maps are
-//! summed in f64 in a fixed order (directions of the pass, then side exits plane by plane, then
-//! the far face slot by slot), so they are the same bits run to run. What it costs is memory: the
-//! records of a pass, `directions × channels × planes × (lattice columns along b + along c)` f32
-//! ([`super::sizes::side_exit_cells`]), host-visible, counted by the budget planner (which drops
-//! the maps, not the solve, when no cut fits with them). Folding each slice's records on the
-//! device would bound them by a slice's planes instead: the refinement to make if that memory
-//! matters for very large volumes.
+//! twin's `exitance::record_exit` called on the recorded values, so the two backends cannot drift
+//! apart; the work is a few operations per exit, against the kernels' per-voxel work. The maps
+//! are summed in f64 in a fixed order (directions of the pass, then side exits plane by plane,
+//! then the far face row by row of slots), so they are the same bits run to run. What it costs is
+//! memory: the records of a pass, `directions × channels × planes × (lattice columns along b +
+//! along c)` f32 ([`super::sizes::side_exit_cells`]), host-visible, counted by the budget planner
+//! (on a tight budget they may cost passes or thinner slices; where no cut fits with them, it
+//! drops the maps, not the solve). Folding each slice's records on the device would bound them by
+//! a slice's planes instead: the refinement to make if that memory matters for very large
+//! volumes.
 //!
 //! The values are f32 (the kernels' precision); the twin's are f64, so the two backends' maps
 //! agree to the f32 propagation's round-off, not bitwise (`tests/it/exitance.rs`).
@@ -57,19 +58,33 @@ pub(super) fn add_pass(
     records: &[f32],
     far: &[f32],
 ) {
-    let mut entries = Vec::new();
     for (d, dir) in dirs.iter().enumerate() {
-        entries.clear();
-        add_side_exits(&mut entries, sweep, dir, channels, &records[d * channels * record_stride(sweep)..]);
-        add_far_exits(&mut entries, sweep, dir, channels, &far[d * channels * sweep.rays()..]);
-        maps.add(&entries, dir.power_per_radiance);
+        let mut out = Placed { maps, entries: Vec::new(), power: dir.power_per_radiance };
+        add_side_exits(&mut out, sweep, dir, channels, &records[d * channels * record_stride(sweep)..]);
+        add_far_exits(&mut out, sweep, dir, channels, &far[d * channels * sweep.rays()..]);
+    }
+}
+
+/// The exits of one direction being placed: gathered a plane (a row of slots) at a time and then
+/// added to the maps, so that the list stays a row's size however wide the lattice (a direction's
+/// far face alone would be four entries per ray: 170 MB for a 1024² lattice).
+struct Placed<'m> {
+    maps: &'m mut ExitMaps,
+    entries: Vec<ExitEntry>,
+    power: f64,
+}
+
+impl Placed<'_> {
+    fn flush(&mut self) {
+        self.maps.add(&self.entries, self.power);
+        self.entries.clear();
     }
 }
 
 /// The side exits of `dir` (its `records`, from its first channel's), plane by plane: along each
 /// open lateral axis whose offset moved between planes t − 1 and t, one slot column wrapped, each
 /// of its rays recorded at its column along the other axis.
-fn add_side_exits(out: &mut Vec<ExitEntry>, sweep: &FaceSweep, dir: &SweepDirection, channels: usize, records: &[f32]) {
+fn add_side_exits(out: &mut Placed, sweep: &FaceSweep, dir: &SweepDirection, channels: usize, records: &[f32]) {
     let stride = record_stride(sweep);
     let [lb, lc] = sweep.lattice().map(|l| l as usize);
     let na = sweep.n[0] as usize;
@@ -94,15 +109,16 @@ fn add_side_exits(out: &mut Vec<ExitEntry>, sweep: &FaceSweep, dir: &SweepDirect
                 let mut at = [0u32; 2];
                 at[1 - k] = column as u32;
                 let w = dir.weights[t - 1];
-                record_exit(out, sweep, face, Exit::Side(k), at, w, t as u32 - 1, 1.0, l);
+                record_exit(&mut out.entries, sweep, face, Exit::Side(k), at, w, t as u32 - 1, 1.0, l);
             }
+            out.flush();
         }
     }
 }
 
 /// What `dir`'s slots carried out of the far face (`far`, from its first channel's), placed as
 /// the twin places it.
-fn add_far_exits(out: &mut Vec<ExitEntry>, sweep: &FaceSweep, dir: &SweepDirection, channels: usize, far: &[f32]) {
+fn add_far_exits(out: &mut Placed, sweep: &FaceSweep, dir: &SweepDirection, channels: usize, far: &[f32]) {
     let f = sweep.geometry();
     let far_face = volume_face(f.axis, f.sign > 0.0);
     let [lb, lc] = sweep.lattice();
@@ -123,11 +139,12 @@ fn add_far_exits(out: &mut Vec<ExitEntry>, sweep: &FaceSweep, dir: &SweepDirecti
             let mut far_share = 1.0;
             for (k, side) in sides.into_iter().enumerate() {
                 if let Some((face, share)) = side {
-                    record_exit(out, sweep, face, Exit::Side(k), columns, weights, last, share, l);
+                    record_exit(&mut out.entries, sweep, face, Exit::Side(k), columns, weights, last, share, l);
                     far_share -= share;
                 }
             }
-            record_exit(out, sweep, far_face, Exit::Far, columns, weights, last, far_share, l);
+            record_exit(&mut out.entries, sweep, far_face, Exit::Far, columns, weights, last, far_share, l);
         }
+        out.flush();
     }
 }

@@ -336,6 +336,12 @@ impl<'a> GpuBackend<'a> {
         self.exits.as_ref()
     }
 
+    /// Takes the exitance maps out of the backend at the end of a solve (no copy: a 1024² face's
+    /// map is tens of MB).
+    pub fn take_exit_maps(&mut self) -> Option<ExitMaps> {
+        self.exits.take()
+    }
+
     /// The Vulkan context the backend runs on.
     pub fn context(&self) -> &Arc<Context> {
         &self.ctx
