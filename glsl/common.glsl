@@ -26,6 +26,9 @@ layout(push_constant) uniform Push {
 const uint FLAG_BOUNDARY = 1u;   // rays are born with the boundary radiance (else zero)
 const uint FLAG_GAIN = 2u;       // rays gain the previous order's source
 const uint FLAG_EMIT = 4u;       // rays gain the emission σa·Le
+// propagate.comp records every side exit where it happened (SideExits; the exitance maps).
+// Keep in sync with FLAG_EXITS in src/solver/gpu/layout.rs.
+const uint FLAG_EXITS = 8u;
 const uint FLAG_VACUUM = 16u;    // the slice has no occupied brick: rays only move (no slot buffers)
 // The previous source is f16, two per uint (lower address in the low half), each the source times
 // 2^e with e = ((flags >> 16) & 255) - 128. Keep in sync with `half_source_flags` in

@@ -5,7 +5,12 @@
 // and carries the ray's radiance to the next slice in the ray buffer (after the last slice: what
 // leaves through the far face). A ray leaving through a side adds its radiance to the side's tally
 // of its axis (half to each across an edge); the births need no tally, the host counts them from
-// the offsets (src/solver/sweep.rs, side_births). The rays of one direction
+// the offsets (src/solver/sweep.rs, side_births). With FLAG_EXITS it also records each side exit
+// where it happened, for the per-face exitance maps (src/solver/gpu/face_maps.rs): per pass
+// direction and channel, the exits through a b side by (plane t − 1, c column at t − 1), then those
+// through a c side by (plane t − 1, b column at t − 1). A direction's slots wrap along an axis in at
+// most one slot column (row) per plane, and its rays hold distinct columns in every plane, so each
+// entry has one writer: plain stores, no atomics, the same bits on every run. The rays of one direction
 // occupy distinct lattice cells in every plane (see src/solver/sweep.rs), so no two threads write
 // the same T entry; collect.comp pulls each voxel's share from the cells around it.
 // CPU twin: CpuTwin::sweep in src/solver/cpu.rs.
@@ -24,6 +29,8 @@ layout(std430, binding = 5) buffer Rays { float ray_l[]; };                     
 layout(std430, binding = 6) buffer RaysOutB { float ray_out_b[]; };              // [dir][ch][ray]: left through a b side
 layout(std430, binding = 7) buffer RaysOutC { float ray_out_c[]; };              // [dir][ch][ray]: left through a c side
 layout(std430, binding = 8) writeonly buffer Deposit { float deposit[]; };       // [dispatch dir][ch][plane][lc][lb]
+// [pass dir][ch]: [plane][lc] (b sides), then [plane][lb] (c sides); written only with FLAG_EXITS.
+layout(std430, binding = 12) writeonly buffer SideExits { float side_exits[]; };
 
 // Element i of the previous source. f16 values are unscaled by 2^-e (exact: a power of two); slab
 // voxel counts are multiples of 256, so every brick's components start on a whole uint.
@@ -86,6 +93,8 @@ void main() {
         // On a periodic sweep axis the ray enters plane 0 with what it was given (FLAG_CARRY).
         bool born = (t == 0u) && (pc.flags & FLAG_CARRY) == 0u;
         if (t > 0u) {
+            // The ray's columns at plane t − 1, where a side exit is recorded.
+            int last_b = cb, last_c = cc;
             cb += o.x - prev_o.x;
             cc += o.y - prev_o.y;
             bool wrapped_b = false, wrapped_c = false;
@@ -108,6 +117,16 @@ void main() {
                 }
                 if (wrapped_b) out_b += share * l;
                 if (wrapped_c) out_c += share * l;
+                if ((pc.flags & FLAG_EXITS) != 0u) {
+                    uint stride = pc.na * uint(lb_n + lc_n);
+                    for (uint ch = 0u; ch < C; ++ch) {
+                        uint rec = (ri * C + ch) * stride;
+                        if (wrapped_b) side_exits[rec + (t - 1u) * uint(lc_n) + uint(last_c)] = share * l[ch];
+                        if (wrapped_c) {
+                            side_exits[rec + pc.na * uint(lc_n) + (t - 1u) * uint(lb_n) + uint(last_b)] = share * l[ch];
+                        }
+                    }
+                }
                 born = true;
             }
         }

@@ -55,7 +55,9 @@
 //! The twin ([`super::cpu`]) fills the maps during its sweeps, bitwise the same at any thread
 //! count: the rays of a row of slots record their side exits in that row's list, and the lists
 //! are added in row order after the sweep, then the far face's exits in slot order. The GPU
-//! backend does not produce them yet (the solve then writes no `faces/`).
+//! backend's kernels record each side exit where it happens and the host places them, and the far
+//! face's, with the same `record_exit` ([`super::gpu::face_maps`]); it makes none for a resumed
+//! solve or mirror faces (solved as the doubled volume), so no `faces/` is written then.
 
 use super::energy::VOLUME_FACES;
 use super::sweep::FaceSweep;

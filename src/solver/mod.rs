@@ -129,8 +129,10 @@ pub struct SolveRun {
     pub phases: Vec<(String, f64)>,
     /// Whether the store's pages stayed resident between passes ([`crate::store::resident`]).
     pub residency: Residency,
-    /// The outgoing power per boundary pixel of each face ([`exitance`]): the CPU twin's; `None`
-    /// from the GPU backend, which does not produce them yet.
+    /// The outgoing power per boundary pixel of each face ([`exitance`]; on the GPU
+    /// [`gpu::face_maps`]). `None` where the GPU makes none: a resumed solve (the maps of the
+    /// orders before the checkpoint are not kept), mirror faces (solved as the doubled volume,
+    /// whose faces are not the scene's), or a budget their records do not fit.
     pub exit_maps: Option<exitance::ExitMaps>,
 }
 
@@ -418,6 +420,7 @@ pub fn solve_from(
             let run = run_gpu(&plan, store, &mut fields, start, vk_options, gpu_options, checkpoints, &mut progress)?;
             phases.extend(run.phases);
             memory = Some(run.memory);
+            exit_maps = run.exit_maps;
             (run.outcome, run.device, run.peak)
         }
     };
@@ -435,6 +438,8 @@ struct GpuRun {
     peak: u64,
     memory: gpu::budget::MemoryPlan,
     phases: Vec<(String, f64)>,
+    /// The exitance maps ([`gpu::face_maps`]), when made.
+    exit_maps: Option<exitance::ExitMaps>,
 }
 
 /// Runs the orders of `plan` on the GPU over `store`'s `fields` from `start`, writing checkpoints
@@ -458,6 +463,9 @@ fn run_gpu(
     let mut gpu = gpu::GpuBackend::new(ctx.clone(), plan, store, fields, gpu_options)?;
     let memory = gpu.memory_plan();
     let resumable = checkpoints.is_some();
+    // A resumed solve sweeps only the orders after its checkpoint: maps of those alone would not
+    // add up to the books, so it makes none.
+    let resumed = start.orders_done > 0;
     if let Some((digest, cadence)) = checkpoints {
         gpu.enable_checkpoints(digest, cadence);
     }
@@ -469,6 +477,7 @@ fn run_gpu(
             e => e,
         })?;
     phases.push(("orders".to_string(), t.elapsed().as_secs_f64()));
+    let exit_maps = gpu.take_exit_maps().filter(|_| !resumed);
     drop(gpu);
     let peak = ctx.peak_allocated_bytes();
     // With validation on, any error it reported fails the solve: a clean run is part of the
@@ -477,7 +486,7 @@ fn run_gpu(
     if !messages.is_empty() {
         return Err(SolveError::Validation(messages));
     }
-    Ok(GpuRun { outcome, device, peak, memory, phases })
+    Ok(GpuRun { outcome, device, peak, memory, phases, exit_maps })
 }
 
 #[cfg(test)]

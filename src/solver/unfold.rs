@@ -206,7 +206,8 @@ pub(super) fn solve_doubled(
         emission::write_initial_source(&doubled, &plan2, &mut fields2.source_prev)?;
     }
     let setup = t.elapsed().as_secs_f64();
-    let options = super::gpu::GpuOptions { checkpoints: false, ..gpu_options };
+    // The doubled volume's faces are not the scene's (a mirror is a plane inside it): no maps.
+    let options = super::gpu::GpuOptions { checkpoints: false, exit_maps: false, ..gpu_options };
     let run = super::run_gpu(&plan2, &doubled, &mut fields2, Default::default(), vk_options, options, None, progress)?;
     let t = std::time::Instant::now();
     fold_field(&fields2.fluence_total, &mut fields.fluence_total, store, &fold);

@@ -1,15 +1,24 @@
 //! Per-face exitance maps (issue 36, item 4; `solver::exitance`): each face's map adds up to the
 //! power the books count out through that face (open, periodic and mirror faces; grey and RGB;
 //! sun and sky), a symmetric scene gives symmetric maps, the maps are the same bits at any thread
-//! count, and a solve writes them as `faces/<face>.exr`, `.raw` and `.nhdr`.
+//! count, and a solve writes them as `faces/<face>.exr`, `.raw` and `.nhdr`. The GPU backend's
+//! maps (`solver::gpu::face_maps`) are the twin's to the f32 propagation's round-off, add up to
+//! its own books, are the same bits run to run and resident or streamed in passes, and its job
+//! writes them too.
 use crate::common::*;
-use lpm::scene::{Boundary, Scene, Shape};
+use lpm::scene::{Boundary, DeviceResidency, Scene, Shape};
 use lpm::solver::exitance::ExitMaps;
-use lpm::solver::BackendKind::Cpu;
+use lpm::solver::gpu::budget::Residency;
+use lpm::solver::BackendKind::{Cpu, Gpu};
 
 /// Every map's sum against its face's `power_out` (relative to the power in), per channel.
 fn maps_add_up_to_the_books(s: &Solved, what: &str) -> ExitMaps {
-    let maps = s.run.exit_maps.clone().expect("the CPU twin gives its maps");
+    maps_add_up_within(s, what, 1e-12)
+}
+
+/// [`maps_add_up_to_the_books`] to `tolerance` of the power in.
+fn maps_add_up_within(s: &Solved, what: &str, tolerance: f64) -> ExitMaps {
+    let maps = s.run.exit_maps.clone().expect("the solve gives its maps");
     let e = &s.run.outcome.energy;
     for ch in 0..s.run.plan.channels as usize {
         let scale = e.boundary_in[ch] + e.emitted[ch];
@@ -17,7 +26,7 @@ fn maps_add_up_to_the_books(s: &Solved, what: &str) -> ExitMaps {
         for face in 0..6 {
             let (sum, books) = (maps.total(face)[ch], e.faces[face].power_out[ch]);
             assert!(
-                (sum - books).abs() <= 1e-12 * scale,
+                (sum - books).abs() <= tolerance * scale,
                 "{what}: face {} channel {ch}: map sums to {sum}, the books say {books}",
                 ExitMaps::name(face)
             );
@@ -113,13 +122,19 @@ fn a_symmetric_scene_gives_symmetric_maps() {
 
 #[test]
 fn a_solve_writes_the_maps_as_exr_and_nrrd() {
-    let dir = temp_dir("exitance-job");
+    for backend in [Cpu, Gpu] {
+        a_solve_on_writes_the_maps(backend);
+    }
+}
+
+fn a_solve_on_writes_the_maps(backend: lpm::solver::BackendKind) {
+    let dir = temp_dir(&format!("exitance-job-{backend:?}"));
     let text = "[volume]\nprocedural = \"sphere\"\ndims = [12, 10, 8]\nvoxel_size = 0.5\n[medium]\nsigma_t = 1.0\n\
                 albedo = 0.9\n[[lights]]\nkind = \"sun\"\ndirection = [0.3, 0.2, 1.0]\nirradiance = 1.0\n\
                 [solver]\ndirections_per_face = 3\nmax_orders = 4\n";
     let scene = write_scene(&dir, text);
     let out = dir.join("out");
-    let job = lpm::job::SolveJob { backend: Cpu, no_image: true, ..lpm::job::SolveJob::new(scene, out.clone()) };
+    let job = lpm::job::SolveJob { backend, no_image: true, ..lpm::job::SolveJob::new(scene, out.clone()) };
     let report = lpm::job::run(&job, |_, _| {}).expect("solve");
     let faces = out.join("faces");
     for (f, face) in report.energy.faces.iter().enumerate() {
@@ -139,4 +154,103 @@ fn a_solve_writes_the_maps_as_exr_and_nrrd() {
             .expect("the EXR reads back");
         assert_eq!(image.layer_data.size.0 * image.layer_data.size.1, u * v);
     }
+}
+
+/// The GPU's books count what a slot carried out through the sides summed in f32 on the device
+/// (per slot, over its wraps), the maps each exit in f64: they agree to f32 round-off.
+const GPU_BOOKS: f64 = 1e-6;
+
+/// Every pixel's bits of every map, for bitwise comparisons.
+fn map_bits(s: &Solved) -> Vec<u64> {
+    let maps = s.run.exit_maps.as_ref().expect("maps");
+    (0..6).flat_map(|f| maps.map(f).iter().flatten().map(|v| v.to_bits()).collect::<Vec<_>>()).collect()
+}
+
+/// Solves `scene` for its fixed orders on both backends; the GPU's maps add up to its books and
+/// are the twin's to f32 round-off: per face and channel, the relative L2 difference and the
+/// largest pixel's difference (of the face's largest pixel) at most 1e-5. Not bitwise: the kernels
+/// propagate in f32, the twin in f64 (both measure about 1e-7 here, f32's round-off).
+fn gpu_maps_match_the_twin(name: &str, scene: &Scene) -> Solved {
+    let mut sc = scene.clone();
+    sc.solver.tolerance = 1e-30;
+    let gpu = solve(&format!("{name}-gpu"), &sc, Gpu);
+    let cpu = solve(&format!("{name}-cpu"), &sc, Cpu);
+    assert_eq!(gpu.run.outcome.orders, cpu.run.outcome.orders, "{name}");
+    let g = maps_add_up_within(&gpu, name, GPU_BOOKS);
+    let c = maps_add_up_to_the_books(&cpu, name);
+    for face in 0..6 {
+        for ch in 0..gpu.run.plan.channels as usize {
+            let (a, b): (Vec<f64>, Vec<f64>) = g.map(face).iter().zip(c.map(face)).map(|(x, y)| (x[ch], y[ch])).unzip();
+            let largest = b.iter().fold(0f64, |m, &v| m.max(v));
+            let worst = a.iter().zip(&b).fold(0f64, |m, (x, y)| m.max((x - y).abs()));
+            let l2 = if largest > 0.0 { relative_l2(&a, &b) } else { 0.0 };
+            assert!(l2 <= 1e-5, "{name}: face {} channel {ch}: relative L2 {l2}", ExitMaps::name(face));
+            assert!(
+                worst <= 1e-5 * largest,
+                "{name}: face {} channel {ch}: {worst} of {largest}",
+                ExitMaps::name(face)
+            );
+        }
+    }
+    gpu
+}
+
+#[test]
+fn the_gpu_maps_are_the_twins_and_add_up_to_its_books() {
+    // RGB, sky and slanted sun, all six faces lit from inside, rays wrapping across edges.
+    gpu_maps_match_the_twin("exitance-gpu-rgb", &rgb_cloud());
+    // Periodic along x: the far face's exits of the x sweeps, the sides' in the step between
+    // periods, and the carried rays.
+    let mut periodic = scene(Shape::Sphere, [12, 10, 8], [0.6; 3], [0.9; 3], vec![sun([0.5, 0.2, 1.0], [1.0; 3])]);
+    periodic.boundary = Boundary { periodic: [true, false, false], ..Default::default() };
+    periodic.solver.max_orders = 6;
+    let s = gpu_maps_match_the_twin("exitance-gpu-periodic", &periodic);
+    let maps = s.run.exit_maps.as_ref().expect("maps");
+    assert!(maps.total(0)[0] > 0.0 && maps.total(1)[0] > 0.0, "the periodic faces carry light out");
+}
+
+#[test]
+fn the_gpu_maps_are_the_same_bits_run_to_run_and_resident_or_streamed_in_passes() {
+    let sc = rgb_cloud();
+    let resident = solve("exitance-gpu-resident", &sc, Gpu);
+    let again = solve("exitance-gpu-again", &sc, Gpu);
+    let r = resident.run.memory.expect("plan");
+    assert_eq!(r.residency, Residency::Resident);
+    assert!(r.exit_maps);
+    assert!(map_bits(&resident) == map_bits(&again), "two runs give the same maps");
+    // Streamed on budgets that cut the slices into sub-slices, and each face's directions into
+    // passes (about 130 kB holds a face's 9 directions and their records here, 40 kB one): the
+    // records of a pass are folded after it, the ray state starts afresh.
+    let mut cuts = Vec::new();
+    for budget in [300_000, 100_000] {
+        let mut streamed = sc.clone();
+        streamed.solver.device_residency = DeviceResidency::Streamed;
+        streamed.solver.device_memory_budget = Some(budget);
+        let st = solve(&format!("exitance-gpu-streamed-{budget}"), &streamed, Gpu);
+        let m = st.run.memory.expect("plan");
+        assert!(m.exit_maps, "the records fit: {m:?}");
+        assert!(map_bits(&resident) == map_bits(&st), "resident and streamed ({m:?}) give the same maps");
+        assert!(resident.field_bits() == st.field_bits(), "{m:?}");
+        cuts.push((m.planes_per_slice, m.directions_per_pass));
+    }
+    let per_face = sc.solver.directions_per_face.pow(2);
+    assert!(cuts.iter().any(|&(planes, _)| planes < 16), "sub-slices: {cuts:?}");
+    assert!(cuts.iter().any(|&(_, pass)| pass < per_face), "passes: {cuts:?}");
+}
+
+#[test]
+fn the_gpu_makes_no_maps_where_they_would_not_add_up_or_do_not_fit() {
+    // Mirror faces: solved as the doubled volume, whose faces are not the scene's (a mirror is a
+    // plane inside it), so there is nothing to place the light that reaches a mirror on.
+    let mut mirrored = scene(Shape::Cloud, [12, 10, 8], [0.6; 3], [0.9; 3], vec![sky(1.0)]);
+    mirrored.boundary = Boundary { reflective: [[false; 2], [true, false], [false; 2]], ..Default::default() };
+    mirrored.solver.max_orders = 3;
+    assert!(solve("exitance-gpu-mirror", &mirrored, Gpu).run.exit_maps.is_none(), "no maps with mirror faces");
+    // The smallest budget a solve fits holds no side-exit records: the solve goes on without maps.
+    let mut small = rgb_cloud();
+    small.solver.max_orders = 2;
+    small.solver.device_memory_budget = Some(smallest_unit(&small));
+    let s = solve("exitance-gpu-small", &small, Gpu);
+    assert!(!s.run.memory.expect("plan").exit_maps);
+    assert!(s.run.exit_maps.is_none(), "no maps when their records do not fit");
 }

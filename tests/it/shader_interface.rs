@@ -268,6 +268,7 @@ fn flag_bits_are_the_rust_ones() {
         ("FLAG_BOUNDARY".to_string(), layout::FLAG_BOUNDARY),
         ("FLAG_GAIN".to_string(), layout::FLAG_GAIN),
         ("FLAG_EMIT".to_string(), layout::FLAG_EMIT),
+        ("FLAG_EXITS".to_string(), layout::FLAG_EXITS),
         ("FLAG_VACUUM".to_string(), layout::FLAG_VACUUM),
         ("FLAG_HALF_SOURCE".to_string(), layout::FLAG_HALF_SOURCE),
         ("FLAG_CARRY".to_string(), layout::FLAG_CARRY),

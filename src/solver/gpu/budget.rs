@@ -21,6 +21,11 @@
 //! The previous source (the one the rays gain) counts at its storage precision: half the bytes of
 //! the new source when the plan stores it in f16, in the slot and in its upload staging.
 //!
+//! The exitance maps' side-exit records ([`super::face_maps`]) count with the staging: they grow
+//! with the directions per pass like the ray state, so on a tight budget they may cost passes (or
+//! thinner slices) the solve would not need without them; where no cut fits with them at all, the
+//! plan drops them, not the solve ([`plan_memory_wanting`]).
+//!
 //! **Resident or streamed.** Before cutting anything, the planner tries the resident mode: every
 //! occupied brick's density and fields stay on the device for the whole solve ([`ResidentSizes`]),
 //! with whole slices and the slots reduced to their staging (through which the medium is loaded
@@ -154,6 +159,10 @@ pub struct MemoryPlan {
     pub slice_bytes: u64,
     pub staging_bytes: u64,
     pub table_bytes: u64,
+    /// The passes record their side exits for the exitance maps ([`super::face_maps`]; their
+    /// records are counted in `staging_bytes`); false when the solve makes none or they did not
+    /// fit the budget.
+    pub exit_maps: bool,
 }
 
 /// The largest slice over the six faces.
@@ -200,6 +209,44 @@ pub fn plan_memory(
     resident: bool,
     figures: &DeviceFigures,
 ) -> Result<MemoryPlan, SolveError> {
+    plan_memory_wanting(plan, extent, limits, budget, max_slots, resident, figures, true)
+}
+
+/// [`plan_memory`], with the exitance maps' side-exit records ([`super::face_maps`]) counted
+/// when `maps`. They are host-visible and grow with the directions per pass like the ray state;
+/// when no cut fits the budget with them, the plan is made without them (`exit_maps` false: the
+/// solve writes no maps) rather than refused, and a solve that fits no cut either way is refused
+/// with the smaller need.
+#[allow(clippy::too_many_arguments)]
+pub fn plan_memory_wanting(
+    plan: &Plan,
+    extent: SliceExtent,
+    limits: &Limits,
+    budget: u64,
+    max_slots: u32,
+    resident: bool,
+    figures: &DeviceFigures,
+    maps: bool,
+) -> Result<MemoryPlan, SolveError> {
+    let cut = |maps| plan_cut(plan, extent, limits, budget, max_slots, resident, figures, maps);
+    match cut(maps) {
+        Err(_) if maps => cut(false),
+        planned => planned,
+    }
+}
+
+/// The cheapest cut that fits `budget`, the side-exit records counted when `maps`.
+#[allow(clippy::too_many_arguments)]
+fn plan_cut(
+    plan: &Plan,
+    extent: SliceExtent,
+    limits: &Limits,
+    budget: u64,
+    max_slots: u32,
+    resident: bool,
+    figures: &DeviceFigures,
+    maps: bool,
+) -> Result<MemoryPlan, SolveError> {
     let per_face = plan.propagation.per_face() as u32;
     let max_range = limits.max_storage_buffer_range;
     let rays = extent.rays;
@@ -213,7 +260,7 @@ pub fn plan_memory(
             Residency::Resident => (SlotSizes::resident(plan, &extent), fields.device()),
             _ => (SlotSizes::new(plan, &extent, slab), 0),
         };
-        let shared = SharedSizes::new(plan, rays, pass, group, planes, limits.float64);
+        let shared = SharedSizes::new(plan, rays, pass, group, planes, limits.float64, maps);
         // Per slot: the device slice buffers and their upload and download staging; plus the
         // staging and sums the rays' tallies come home through.
         let staging = slots as u64 * slot.staging() + shared.readback();
@@ -222,8 +269,8 @@ pub fn plan_memory(
         (slot.device(), shared.ray_state(), shared.deposit, staging, resident, total)
     };
     let shared_fits = |pass: u32, group: u32, planes: u32| {
-        let shared = SharedSizes::new(plan, rays, pass, group, planes, limits.float64);
-        shared.ray_buffer <= max_range && shared.deposit <= max_range
+        let shared = SharedSizes::new(plan, rays, pass, group, planes, limits.float64, maps);
+        shared.ray_buffer <= max_range && shared.deposit <= max_range && shared.side_exits <= max_range
     };
     let fits_range = |mode: Residency, pass: u32, slab: u32, group: u32, planes: u32| {
         shared_fits(pass, group, planes)
@@ -289,6 +336,7 @@ pub fn plan_memory(
                                 slice_bytes: slots as u64 * slice_bytes,
                                 staging_bytes: staging,
                                 table_bytes,
+                                exit_maps: maps,
                             };
                             best = Some((seconds, memory));
                         }

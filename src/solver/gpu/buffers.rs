@@ -39,6 +39,9 @@ pub struct SharedBuffers {
     /// The device's sums of what the rays carried out ([`super::tally_sums`]); `None` on a
     /// device without f64 shaders, where the host sums the ray buffers.
     pub tally_sums: Option<DeviceTallySums>,
+    /// Host-readable (`GpuToCpu`): the side exits a pass recorded for the exitance maps
+    /// ([`super::face_maps`]); `None` when the solve makes none (the vacuum stand-in is bound).
+    pub side_exits: Option<Owned<Buffer>>,
     /// Bound in place of the slot buffers when a vacuum slice computes (never read).
     pub vacuum: Owned<Buffer>,
 }
@@ -134,7 +137,8 @@ pub struct SweepSets {
 
 /// The buffers of a sweep's descriptor set, in [`kernels::SWEEP_BINDINGS`] order: the sweep's `tables`, a
 /// slot's `[slot_table, density, source_prev, source_next, fluence]` (the vacuum stand-in five
-/// times for a vacuum slice) and the shared ray state and deposit.
+/// times for a vacuum slice) and the shared ray state, deposit and side exits (the vacuum stand-in
+/// when there are none: the kernel then writes none).
 pub fn sweep_bindings<'b>(
     tables: &'b SweepTables,
     slot: [&'b Buffer; 5],
@@ -154,5 +158,6 @@ pub fn sweep_bindings<'b>(
         BufferRange::from(&*tables.rows),
         BufferRange::from(source_next),
         BufferRange::from(fluence),
+        BufferRange::from(shared.side_exits.as_deref().unwrap_or(&shared.vacuum)),
     ]
 }

@@ -15,8 +15,8 @@
 use super::budget::MemoryPlan;
 use super::buffers::SweepSets;
 use super::layout::{
-    half_source_flags, SweepPush, FLAG_CARRY, FLAG_GAIN, FLAG_LATERAL_MAJOR, FLAG_VACUUM, LATERAL_PERIODIC_B,
-    LATERAL_PERIODIC_C,
+    half_source_flags, SweepPush, FLAG_CARRY, FLAG_EXITS, FLAG_GAIN, FLAG_LATERAL_MAJOR, FLAG_VACUUM,
+    LATERAL_PERIODIC_B, LATERAL_PERIODIC_C,
 };
 use super::resources::DeviceResources;
 use super::slice::SliceLayout;
@@ -101,7 +101,7 @@ pub fn push_constants(plan: &Plan, sweep: &FaceSweep, layout: &SliceLayout) -> S
 }
 
 /// The shared descriptor set's bindings, by the name of the buffer block each kernel declares
-/// there: `propagate.comp` uses 0..=8, `collect.comp` 0..=3 and 8..=11. `tests/it/shader_interface.rs`
+/// there: `propagate.comp` uses 0..=8 and 12, `collect.comp` 0..=3 and 8..=11. `tests/it/shader_interface.rs`
 /// checks these names and numbers against both kernels' SPIR-V.
 pub use super::kernels::SWEEP_BINDINGS;
 
@@ -122,6 +122,8 @@ pub fn record_compute(
     // An x sweep's slabs are lateral-major (the resident buffers too: the driver reorders them
     // before the x sweeps, super::transpose).
     let order = if step.layout.lateral_major { FLAG_LATERAL_MAJOR } else { 0 };
+    // The side exits are recorded where they happen when the solve makes exitance maps.
+    let exits = if memory.exit_maps { FLAG_EXITS } else { 0 };
     // Earlier compute submissions wrote the ray state and the deposit this one uses.
     rec.compute_to_compute();
     if let Some((table, buffer)) = step.resident_table {
@@ -172,7 +174,7 @@ pub fn record_compute(
             let t1 = (t0 + chunk).min(range.t1);
             push.t0 = t0;
             push.t1 = t1;
-            push.flags = step.flags | vacuum | half | order;
+            push.flags = step.flags | vacuum | half | order | exits;
             // Across vacuum, rays that do not move sideways keep everything: the kernel would
             // only read and write back the ray state (a big share of a sparse volume's time).
             // After the last slice the ray buffer holds what leaves through the far face.

@@ -131,7 +131,7 @@ pub fn readback<T: Pod>(buffer: &Buffer, n: usize) -> Result<&[T], SolveError> {
 // ---- the sweep: propagate.comp and collect.comp share one pipeline layout ----
 
 /// The sweep kernels' shared set, by binding: what the host binds where (the GLSL block names).
-pub const SWEEP_BINDINGS: [&str; 12] = [
+pub const SWEEP_BINDINGS: [&str; 13] = [
     "Directions",
     "Offsets",
     "SlotTable",
@@ -144,6 +144,7 @@ pub const SWEEP_BINDINGS: [&str; 12] = [
     "CollectRows",
     "SourceNext",
     "Fluence",
+    "SideExits",
 ];
 
 const SWEEP_PUSH: Members = members!(SweepPush {
@@ -186,6 +187,7 @@ pub const PROPAGATE: Kernel = Kernel {
         (6, "RaysOutB"),
         (7, "RaysOutC"),
         (8, "Deposit"),
+        (12, "SideExits"),
     ],
     layout_bindings: SWEEP_BINDINGS.len() as u32,
     structs: &[("Direction", DIRECTION)],

@@ -7,6 +7,9 @@ use bytemuck::{Pod, Zeroable};
 pub const FLAG_BOUNDARY: u32 = 1;
 pub const FLAG_GAIN: u32 = 2;
 pub const FLAG_EMIT: u32 = 4;
+/// `propagate.comp` records every side exit where it happened, for the exitance maps
+/// (`solver::gpu::face_maps`).
+pub const FLAG_EXITS: u32 = 8;
 pub const FLAG_VACUUM: u32 = 16;
 /// The previous source is stored as f16 pairs, scaled by 2^e with e in bits 16–23 of `flags`
 /// (biased by 128; see [`half_source_flags`]).

@@ -72,7 +72,8 @@
 //!    `EndOfOrder`);
 //! 4. `tables` (a sweep's direction tables on the device), `copier` and `slice` (gathering and
 //!    scattering a slice's bricks), `tally_sums` (what the rays carried out, summed on the
-//!    device), [`buffers`] (the plain buffer structs and which buffer each sweep kernel binds
+//!    device), [`face_maps`] (the per-face exitance maps, placed on the host from the side exits
+//!    the kernel records where they happen and the far face's), [`buffers`] (the plain buffer structs and which buffer each sweep kernel binds
 //!    where);
 //! 5. `transpose` (the resident fields' reorder for the x sweeps), `sharpen` and `accelerate`
 //!    (the diffusion correction's and acceleration's kernels): passes over [`buffers`];
@@ -85,7 +86,8 @@
 //!    them on the device, as a type whose variants own their buffers and kernels;
 //! 9. this file: the order as sweeps and passes (the [`Backend`] the order loop drives), and the
 //!    tallies read back after each pass (per face of the volume: only the device's sums come
-//!    home, and on a periodic sweep axis what the rays carry to the next order).
+//!    home, and on a periodic sweep axis what the rays carry to the next order; with the
+//!    exitance maps, the far face's exits and the side exits' records, folded into the maps).
 
 mod accelerate;
 pub mod budget;
@@ -94,6 +96,7 @@ mod copier;
 pub mod cost;
 pub mod encoder;
 pub mod end_of_order;
+pub mod face_maps;
 pub mod kernels;
 pub mod layout;
 mod mode;
@@ -112,6 +115,7 @@ mod transpose;
 
 use super::antidiffusion::VoxelUnits;
 use super::energy::Tallies;
+use super::exitance::ExitMaps;
 use super::fields::{LoopState, PendingCheckpoint, StoreFields};
 use super::orders::Backend;
 use super::passes::{OrderFieldSet, StoreMedium};
@@ -153,6 +157,8 @@ pub struct GpuOptions {
     /// The cost model's figures the memory planner chooses a cut with ([`cost`]); `None`: the
     /// typical ones for the kind of device. Calibrated figures (from `tools/gpu-bench.sh`) go here.
     pub cost_figures: Option<cost::DeviceFigures>,
+    /// Make the per-face exitance maps ([`face_maps`]) when the budget allows them.
+    pub exit_maps: bool,
 }
 
 impl Default for GpuOptions {
@@ -165,6 +171,7 @@ impl Default for GpuOptions {
             cancel: None,
             resident: true,
             cost_figures: None,
+            exit_maps: true,
         }
     }
 }
@@ -217,6 +224,8 @@ pub struct GpuBackend<'a> {
     progress: Option<progress::PassProgress>,
     /// What the rays of periodic-axis sweeps carried out last order ([`super::periodic`]).
     carry: PeriodicCarry,
+    /// The exitance maps, summed pass by pass ([`face_maps`]); `None` when not made.
+    exits: Option<ExitMaps>,
 }
 
 impl<'a> GpuBackend<'a> {
@@ -238,7 +247,7 @@ impl<'a> GpuBackend<'a> {
         if budget > limits.device_local_heap_bytes {
             return Err(SolveError::BudgetTooLarge { budget, device: limits.device_local_heap_bytes });
         }
-        let memory = budget::plan_memory(
+        let memory = budget::plan_memory_wanting(
             plan,
             budget::slice_extent(plan, store),
             &limits,
@@ -246,7 +255,11 @@ impl<'a> GpuBackend<'a> {
             options.max_slices_in_flight,
             options.resident,
             &options.cost_figures.unwrap_or_else(|| cost::DeviceFigures::for_device(&limits)),
+            options.exit_maps,
         )?;
+        if options.exit_maps && !memory.exit_maps {
+            tracing::warn!("the exitance maps' records do not fit the device memory budget: no faces/ maps");
+        }
         // The kill test's hook (tests/it/resume.rs): compiled only into builds with the
         // `test-hooks` cargo feature (tools/test.sh turns it on), never into a plain or release
         // build. The one environment variable read outside the CLI: plumbing a test hook through
@@ -292,6 +305,7 @@ impl<'a> GpuBackend<'a> {
             half_exponent: None,
             progress: None,
             carry,
+            exits: memory.exit_maps.then(|| ExitMaps::new(plan.dims, plan.channels as usize)),
         })
     }
 
@@ -314,6 +328,18 @@ impl<'a> GpuBackend<'a> {
     /// to the memory plan's `planned_bytes`.
     pub fn buffer_bytes(&self) -> u64 {
         self.resources.buffer_bytes() + self.mode.buffer_bytes()
+    }
+
+    /// The exitance maps of the orders swept so far ([`face_maps`]); `None` when the solve makes
+    /// none (not asked for, or their records did not fit the budget).
+    pub fn exit_maps(&self) -> Option<&ExitMaps> {
+        self.exits.as_ref()
+    }
+
+    /// Takes the exitance maps out of the backend at the end of a solve (no copy: a 1024² face's
+    /// map is tens of MB).
+    pub fn take_exit_maps(&mut self) -> Option<ExitMaps> {
+        self.exits.take()
     }
 
     /// The Vulkan context the backend runs on.
@@ -383,8 +409,9 @@ impl<'a> GpuBackend<'a> {
                 p.pass_done();
             }
             let births = Births { boundary, entries: entries.as_deref() };
+            let maps = self.exits.as_mut();
             let (pass_tallies, exits) =
-                read_tallies(self.streamer.submitter(), &self.resources, plan, &sweep, pass_directions, births)?;
+                read_tallies(self.streamer.submitter(), &self.resources, plan, &sweep, pass_directions, births, maps)?;
             tallies.add(&pass_tallies);
             for (i, (dir, exit)) in pass_directions.iter().zip(exits).enumerate() {
                 if let Some(of) = carry_of(first + i) {
@@ -453,7 +480,9 @@ struct Births<'e> {
 /// every ray is born at plane 0 (with `births`) and wherever its slot wraps, with the direction's
 /// boundary radiance when `births.boundary` (else zero), so the births follow from the offsets
 /// ([`side_births`]). Also returns, per direction, the radiance each slot left the far face with
-/// (empty unless the sweep axis is periodic: what the next order carries in).
+/// (empty unless the sweep axis is periodic: what the next order carries in). With `maps`, adds
+/// the pass's exits to them ([`face_maps`]: the far face's from the ray buffer, which then comes
+/// home too, the sides' from the records the kernel wrote).
 fn read_tallies(
     sub: &mut Submitter,
     res: &DeviceResources,
@@ -461,6 +490,7 @@ fn read_tallies(
     sweep: &FaceSweep,
     dirs: &[SweepDirection],
     births_at: Births,
+    maps: Option<&mut ExitMaps>,
 ) -> Result<(Tallies, Vec<RayRadiance>), SolveError> {
     let boundary = births_at.boundary;
     let c = plan.channels as usize;
@@ -477,9 +507,13 @@ fn read_tallies(
         None => None,
     };
     let buffers_home = match device_sums {
-        Some(_) => usize::from(sweep.periodic[0]),
+        Some(_) => usize::from(sweep.periodic[0] || maps.is_some()),
         None => 3,
     };
+    if maps.is_some() {
+        // The side exits' records are read where the kernel wrote them.
+        rec.compute_to_host();
+    }
     if buffers_home > 0 {
         rec.compute_to_transfer();
         for (i, b) in [&shared.rays, &shared.rays_out_b, &shared.rays_out_c].into_iter().take(buffers_home).enumerate()
@@ -547,6 +581,11 @@ fn read_tallies(
                 tallies.boundary_in[ch] += birth * births[k];
             }
         }
+    }
+    if let Some(maps) = maps {
+        let side_exits = shared.side_exits.as_deref().ok_or(SolveError::Internal("exitance maps without records"))?;
+        let records = kernels::readback::<f32>(side_exits, dirs.len() * c * face_maps::record_stride(sweep))?;
+        face_maps::add_pass(maps, sweep, dirs, c, records, &values[..per_buffer]);
     }
     let exits = if sweep.periodic[0] {
         (0..dirs.len())

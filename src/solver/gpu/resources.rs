@@ -85,6 +85,7 @@ impl DeviceResources {
             memory.directions_per_dispatch,
             memory.planes_per_dispatch,
             ctx.limits().float64,
+            memory.exit_maps,
         );
         let mut shared = SharedBuffers {
             rays: buffer(ctx, "rays", s.ray_buffer, storage, gpu)?,
@@ -100,6 +101,12 @@ impl DeviceResources {
                 MemoryLocation::GpuToCpu,
             )?,
             tally_sums: None,
+            // Written by the kernel only where a ray wraps, read by the host after the pass
+            // (`face_maps`): host-visible, so nothing is copied.
+            side_exits: match s.side_exits {
+                0 => None,
+                bytes => Some(buffer(ctx, "side exits", bytes, storage, MemoryLocation::GpuToCpu)?),
+            },
             vacuum: buffer(ctx, "vacuum", s.vacuum, storage, gpu)?,
         };
         if s.tally_sums > 0 {
@@ -204,6 +211,7 @@ impl DeviceResources {
         let shared: [&Buffer; 6] = [&sh.rays, &sh.rays_out_b, &sh.rays_out_c, &sh.deposit, &sh.tallies, &sh.vacuum];
         let shared: u64 =
             shared.iter().map(|b| b.size()).sum::<u64>() + sh.tally_sums.as_ref().map_or(0, DeviceTallySums::bytes);
+        let shared = shared + sh.side_exits.as_ref().map_or(0, |b| b.size());
         let slots: u64 = self
             .slots
             .iter()

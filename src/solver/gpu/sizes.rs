@@ -6,6 +6,7 @@
 use super::kernels::{self, tally_chunks};
 use super::layout::GpuDirection;
 use crate::solver::plan::{Plan, SweepDirection};
+use crate::solver::sweep::FaceSweep;
 use crate::store::{BRICK_EDGE, BRICK_VOXELS};
 use serde::Serialize;
 
@@ -307,13 +308,39 @@ pub struct SharedSizes {
     /// Host-visible: the sums of what the rays carried out, per chunk of rays
     /// ([`super::tally_sums`]); 0 where the host sums (a device without f64 shaders).
     pub tally_sums: u64,
+    /// Host-visible: where `propagate.comp` records the side exits of a pass for the exitance
+    /// maps ([`super::face_maps`]), `pass` directions × channels × [`side_exit_cells`]; 0 when
+    /// the solve makes no maps (the vacuum stand-in is bound in its place).
+    pub side_exits: u64,
     pub vacuum: u64,
+}
+
+/// Side-exit records per direction and channel ([`super::face_maps`]): the most over the faces'
+/// sweeps of planes × (lattice columns along b + along c).
+pub fn side_exit_cells(plan: &Plan) -> u64 {
+    (0..6)
+        .map(|face| {
+            let sweep = FaceSweep::for_plan(face, plan);
+            let [lb, lc] = sweep.lattice();
+            sweep.n[0] as u64 * (lb as u64 + lc as u64)
+        })
+        .max()
+        .unwrap_or(0)
 }
 
 impl SharedSizes {
     /// For `pass` directions of `rays` rays, `group` directions and `planes` planes to a
-    /// dispatch; `device_sums`: the rays' tallies are summed on the device.
-    pub fn new(plan: &Plan, rays: u64, pass: u32, group: u32, planes: u32, device_sums: bool) -> SharedSizes {
+    /// dispatch; `device_sums`: the rays' tallies are summed on the device; `maps`: the pass
+    /// records its side exits for the exitance maps.
+    pub fn new(
+        plan: &Plan,
+        rays: u64,
+        pass: u32,
+        group: u32,
+        planes: u32,
+        device_sums: bool,
+        maps: bool,
+    ) -> SharedSizes {
         let c = plan.channels as u64;
         let ray_buffer = pass as u64 * c * rays * 4;
         let segments = pass as u64 * c;
@@ -322,13 +349,14 @@ impl SharedSizes {
             deposit: buffer_bytes(group as u64 * c * planes as u64 * rays * 4),
             tallies: buffer_bytes(if device_sums { ray_buffer } else { 3 * ray_buffer }),
             tally_sums: if device_sums { buffer_bytes(3 * segments * tally_chunks(rays) * 8) } else { 0 },
+            side_exits: if maps { buffer_bytes(segments * side_exit_cells(plan) * 4) } else { 0 },
             vacuum: buffer_bytes(VACUUM_BYTES),
         }
     }
 
-    /// What comes home after a pass: the tallies' staging and the sums.
+    /// What comes home after a pass: the tallies' staging, the sums and the side exits.
     pub fn readback(&self) -> u64 {
-        self.tallies + self.tally_sums
+        self.tallies + self.tally_sums + self.side_exits
     }
 
     /// The three ray buffers and the vacuum stand-in.
