@@ -13,7 +13,7 @@
 //!
 //! **What the solve put in.** Order 0 sweeps each beam along its exact direction; every voxel of
 //! an occupied brick pulls the segment-average irradiance Ē(v) of the rays through it into the
-//! fluence (weight 1) and `ρ(v)·σs*·row[d]·Ē(v)` into the next source ([`super::cpu_sweep`],
+//! fluence (weight 1) and `ρ(v)·σs*·row[d]·Ē(v)` into the next source (the twin's `cpu_sweep`,
 //! `collect.comp`), with σs* and the beam's phase row of the plan's medium and phase (δ-M scaled
 //! where the plan scales, [`super::plan`]); the commit multiplies it by the voxel's albedo factor
 //! a(v) before the total takes it ([`super::passes`]). [`split`] sweeps each beam once more on the
