@@ -477,7 +477,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, observer: &mut impl Observ
                 },
                 e => JobError::Solve(e),
             })?;
-    let SolveRun { plan, outcome, device, peak_device_bytes, memory, mut phases, residency, exit_maps } = run;
+    let SolveRun { mut plan, outcome, device, peak_device_bytes, memory, mut phases, residency, exit_maps } = run;
     let store_bytes = store.file_bytes();
     phases.insert(0, ("store".to_string(), store_seconds));
     // From here on a cancelled job keeps what the solve checkpointed (its last order, on the GPU):
@@ -619,11 +619,45 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, observer: &mut impl Observ
     if !job.no_render_data || !job.no_image {
         observer.stage(progress::Stage::Render);
     }
+    // The suns' first scattering split off the image's source, for the renderer to evaluate
+    // exactly (solver::direct); the exported source above is the whole total.
+    let split = if !job.no_render_data || !job.no_image {
+        let split = solver::direct::split(&plan, &scene.medium, &store, &fields.source_total)?;
+        match (&split, solver::direct::left_out_because(&plan)) {
+            (Some(s), _) => plan.reasons.push(format!(
+                "image: the single scattering of {} sun(s) is evaluated exactly along each camera ray (true σs, \
+                 HG g = {}, true extinction), their binned first scattering taken off the image's source (not \
+                 off the exported source)",
+                s.travel.len(),
+                scene.medium.g
+            )),
+            (None, Some(why)) if !plan.beams.is_empty() => {
+                tracing::info!("image: the suns' single scattering is not split off: {why}");
+                plan.reasons.push(format!("image: the suns' single scattering is not split off: {why}"));
+            }
+            (None, _) => {}
+        }
+        split
+    } else {
+        None
+    };
+    let (image_source, direct_fields): (&crate::store::Field, &[crate::store::Field]) = match &split {
+        Some(s) => {
+            render_data.single_scattering = Some(render::keep::SingleScatteringData {
+                medium: (&s.medium).into(),
+                travel: s.travel.iter().map(|t| t.to_array()).collect(),
+            });
+            (&s.render_source, &s.fields)
+        }
+        None => (&fields.source_total, &[]),
+    };
+    stop()?;
     if !job.no_render_data {
         render::keep::keep(
             &stage.join(render::RENDER_DATA),
             &store,
-            &fields.source_total,
+            image_source,
+            direct_fields,
             render::keep::environment_light(&scene.lights),
             &render_data,
         )?;
@@ -634,8 +668,8 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, observer: &mut impl Observ
         let image = render::render_solved(
             &render_data,
             &store,
-            &fields.source_total,
-            render::VoxelFactors { emission: emission.as_ref(), albedo: albedo.as_ref() },
+            image_source,
+            render::VoxelFactors { emission: emission.as_ref(), albedo: albedo.as_ref(), direct: direct_fields },
             render::keep::environment_light(&scene.lights),
             &camera,
             job.background,

@@ -40,11 +40,33 @@ impl Image {
 }
 
 /// The per-voxel factors a solved volume may have besides its density: the emission factor and
-/// the albedo factor (the store's `emission` and `albedo` fields).
+/// the albedo factor (the store's `emission` and `albedo` fields), and the suns' uncollided
+/// irradiance per voxel (one field per sun of [`crate::render::keep::RenderData::single_scattering`], in its
+/// order; empty where the image's source still holds the suns' first scattering).
 #[derive(Clone, Copy, Default)]
 pub struct VoxelFactors<'a> {
     pub emission: Option<&'a Field>,
     pub albedo: Option<&'a Field>,
+    pub direct: &'a [Field],
+}
+
+/// One sun's light as the renderer scatters it exactly (see [`SingleScattering`]).
+#[derive(Clone, Copy)]
+pub struct DirectBeam<'a> {
+    /// The direction the sun's light travels (unit length).
+    pub travel: DVec3,
+    /// Its uncollided irradiance per voxel, attenuated by the true extinction (occupied bricks,
+    /// `channels` components).
+    pub irradiance: &'a Field,
+}
+
+/// The suns' single scattering, evaluated exactly along each camera ray
+/// (`σs(x)·p_HG(g; ω_sun·ω_camera)·E(x)`, attenuated towards the camera by the true extinction),
+/// the source the image reads then holding everything else ([`crate::solver::direct`]).
+pub struct SingleScattering<'a> {
+    pub beams: Vec<DirectBeam<'a>>,
+    /// The scene's medium, not δ-M scaled: its σt, albedo and Henyey–Greenstein g.
+    pub medium: Medium,
 }
 
 /// Everything a render reads.
@@ -68,6 +90,8 @@ pub struct RenderInputs<'a> {
     /// direction).
     pub storage_lookup: &'a (dyn Fn(DVec3) -> Blend + Sync),
     pub medium: &'a Medium,
+    /// The suns' single scattering, added exactly; `None`: the source holds it (binned).
+    pub single: Option<&'a SingleScattering<'a>>,
     /// Radiance seen where a ray leaves the volume (zero for [`Background::Transparent`]).
     pub background: [f64; 3],
     /// An environment map seen behind the volume, on top of `background` (`None` for

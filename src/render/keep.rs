@@ -9,15 +9,26 @@
 //! | file | content |
 //! |---|---|
 //! | `bricks.json`, `density.bricks` | the brick store's table and density (see [`crate::store`]) |
-//! | `source.field` | the in-scattered source summed over orders, in brick form |
+//! | `source.field` | the in-scattered source summed over orders, in brick form, less the suns' first scattering where the renderer evaluates it exactly (below) |
+//! | `direct_<b>.field` | sun b's uncollided irradiance per voxel, true extinction (one per sun, see [`SingleScatteringData`]) |
 //! | `environment.exr` | the scene's environment map, when it has one (the background) |
 //! | `render.json` | [`RenderData`]: everything else, written last |
 //!
-//! The three brick files are hard links to the solve's own store files (no copy, no extra space
-//! while `--keep-store` keeps them too), or copies where a link cannot be made. The directory is
+//! The brick files are hard links to the solve's own store files (no copy, no extra space while
+//! `--keep-store` keeps them too), or copies where a link cannot be made. The directory is
 //! published with the solve's other outputs as one set.
+//!
+//! **The suns' single scattering** (format 2). Where the solve could split it off
+//! ([`crate::solver::direct`]: every sun and an environment map's sun-like peak, no periodic or
+//! mirror faces), `source.field` is the solve's source total less the beams' first scattering
+//! (exactly what order 0 put in: binned in storage directions, with the δ-M scaled medium and
+//! phase), a field of its own rather than a link to the exported total, and each sun's uncollided
+//! irradiance is kept beside it; the renderer adds `σs·p_HG(g; ω_sun·ω_camera)·E` along each
+//! camera ray with the scene's true medium ([`super::march`]). The exported `source` of the solve
+//! is unchanged. Cost per sun: one f32 per voxel of the occupied bricks and channel
+//! (`4·channels·4096` bytes per occupied brick).
 
-use super::{render, Background, Image, RenderInputs, VoxelFactors};
+use super::{render, Background, DirectBeam, Image, RenderInputs, SingleScattering, VoxelFactors};
 use crate::output::{write_json_atomic, OutputError};
 use crate::quadrature::{PropagationSet, StorageBlend, StorageSet};
 use crate::scene::{
@@ -33,8 +44,10 @@ use std::path::Path;
 pub const RENDER_DATA: &str = "render-data";
 const DATA_FILE: &str = "render.json";
 const SOURCE_FIELD: &str = "source";
-/// [`RenderData::format`] of this version of lpm.
-const FORMAT: u32 = 1;
+/// [`RenderData::format`] of this version of lpm. 2: the image's source holds no suns' first
+/// scattering where `single_scattering` is given (format 1's held it; it cannot be rendered by this
+/// lpm without counting it twice or losing it).
+const FORMAT: u32 = 2;
 
 /// `render-data/render.json`. Vectors and the camera are in the volume's frame (its corner at 0),
 /// `origin` places it in the world.
@@ -73,6 +86,25 @@ pub struct RenderData {
     /// only mapping there was.
     #[serde(default = "DisplayData::before_views")]
     pub display: DisplayData,
+    /// The suns whose single scattering the renderer evaluates exactly (their first scattering is
+    /// not in `source.field`); absent: the source holds every order (no suns, or a scene whose
+    /// beams cross periodic or mirror faces).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub single_scattering: Option<SingleScatteringData>,
+}
+
+/// The suns' exact single scattering in `render.json`: sun b's irradiance is `direct_<b>.field`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SingleScatteringData {
+    /// The scene's medium, not δ-M scaled.
+    pub medium: MediumData,
+    /// Per sun, the direction its light travels (unit length, volume frame).
+    pub travel: Vec<[f64; 3]>,
+}
+
+/// The name, without `.field`, of sun b's irradiance in `render-data/`.
+pub fn direct_field_name(b: usize) -> String {
+    crate::solver::direct::irradiance_field_name(b)
 }
 
 /// [`Display`] as `render.json` stores it: `view` a name, `exposure` stops or "auto".
@@ -137,6 +169,12 @@ pub struct MediumData {
     pub albedo: [f64; 3],
     pub g: f64,
     pub emission: [f64; 3],
+}
+
+impl From<&Medium> for MediumData {
+    fn from(m: &Medium) -> Self {
+        MediumData { sigma_t: m.sigma_t, albedo: m.albedo, g: m.g, emission: m.emission }
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -221,18 +259,14 @@ impl RenderData {
             channels,
             directions_per_face: propagation.k,
             storage_per_face: storage.per_face,
-            medium: MediumData {
-                sigma_t: medium.sigma_t,
-                albedo: medium.albedo,
-                g: medium.g,
-                emission: medium.emission,
-            },
+            medium: medium.into(),
             sky: sky_radiance(lights),
             camera: camera.into(),
             emission_per_voxel: false,
             albedo_per_voxel: false,
             environment: environment_light(lights).map(EnvironmentData::new),
             display: display.into(),
+            single_scattering: None,
         }
     }
 }
@@ -257,12 +291,13 @@ pub fn environment_light(lights: &[Light]) -> Option<&EnvironmentLight> {
 }
 
 /// Writes `dir` (a new directory, e.g. in a staging directory): links to `store`'s table and
-/// density and to `source`'s file (and the environment map's, when `environment` is given), then
+/// density, to `source`'s file and to each of the suns' irradiance fields in `direct` (and the environment map's, when `environment` is given), then
 /// `render.json`.
 pub fn keep(
     dir: &Path,
     store: &BrickStore,
     source: &Field,
+    direct: &[Field],
     environment: Option<&EnvironmentLight>,
     data: &RenderData,
 ) -> Result<(), OutputError> {
@@ -277,6 +312,10 @@ pub fn keep(
         (store.dir().join("density.bricks"), "density.bricks".to_string()),
         (source.path().to_path_buf(), format!("{SOURCE_FIELD}.field")),
     ];
+    for (b, field) in direct.iter().enumerate() {
+        field.flush()?;
+        files.push((field.path().to_path_buf(), format!("{}.field", direct_field_name(b))));
+    }
     if data.emission_per_voxel {
         let name = format!("{}.field", crate::store::emission::EMISSION_FIELD);
         files.push((store.dir().join(&name), name));
@@ -306,6 +345,8 @@ pub struct Kept {
     pub emission: Option<Field>,
     /// The per-voxel albedo factor, when the albedo varies per voxel.
     pub albedo: Option<Field>,
+    /// The suns' uncollided irradiance, one field per sun of `data.single_scattering`.
+    pub direct: Vec<Field>,
     /// The camera the solve rendered with, in the volume's frame.
     pub camera: Camera,
     /// How the solve exposed and tone-mapped its PNG.
@@ -331,6 +372,12 @@ pub fn open(out: &Path) -> Result<Kept, OutputError> {
     };
     let data: RenderData =
         serde_json::from_str(&text).map_err(|source| OutputError::Json { path: path.clone(), source })?;
+    if data.format == 1 {
+        return Err(invalid(format!(
+            "format 1: kept by an lpm whose image source still held the suns' first scattering, which this lpm \
+             ({FORMAT}) adds exactly at render time from the suns' irradiance (not kept in format 1); solve again"
+        )));
+    }
     if data.format != FORMAT {
         return Err(invalid(format!("format {} is not the one this lpm reads ({FORMAT}); solve again", data.format)));
     }
@@ -363,6 +410,22 @@ pub fn open(out: &Path) -> Result<Kept, OutputError> {
     let source = store.open_field(SOURCE_FIELD, storage_dirs * data.channels, Coverage::Occupied)?;
     let emission = if data.emission_per_voxel { Some(crate::store::emission::open_emission(&store)?) } else { None };
     let albedo = if data.albedo_per_voxel { Some(crate::store::albedo::open_albedo(&store)?) } else { None };
+    let mut direct = Vec::new();
+    if let Some(single) = &data.single_scattering {
+        let m = &single.medium;
+        let fine = [m.sigma_t, m.albedo].iter().flatten().all(|v| v.is_finite() && *v >= 0.0)
+            && m.g.is_finite()
+            && m.g.abs() < 1.0
+            && single.travel.iter().all(|t| t.iter().all(|v| v.is_finite()) && DVec3::from_array(*t).length() > 0.5);
+        if !fine {
+            return Err(invalid(
+                "single_scattering: a non-finite or negative medium, |g| ≥ 1 or a bad direction".into(),
+            ));
+        }
+        for b in 0..single.travel.len() {
+            direct.push(store.open_field(&direct_field_name(b), data.channels, Coverage::Occupied)?);
+        }
+    }
     let environment = match &data.environment {
         None => None,
         Some(e) => {
@@ -386,7 +449,7 @@ pub fn open(out: &Path) -> Result<Kept, OutputError> {
             })
         }
     };
-    Ok(Kept { data, store, source, emission, albedo, camera, display, environment })
+    Ok(Kept { data, store, source, emission, albedo, direct, camera, display, environment })
 }
 
 impl Kept {
@@ -396,7 +459,7 @@ impl Kept {
             &self.data,
             &self.store,
             &self.source,
-            VoxelFactors { emission: self.emission.as_ref(), albedo: self.albedo.as_ref() },
+            VoxelFactors { emission: self.emission.as_ref(), albedo: self.albedo.as_ref(), direct: &self.direct },
             self.environment.as_ref(),
             camera,
             background,
@@ -428,6 +491,18 @@ pub fn render_solved(
     let medium = Medium { sigma_t: m.sigma_t, albedo: m.albedo, g: m.g, emission: m.emission };
     let blend = StorageBlend::new(&storage);
     let lookup = |omega: DVec3| blend.weights(omega);
+    // The suns' exact single scattering, when the source was kept without their first scattering
+    // (a caller without their fields renders the source alone: the contract is the caller's).
+    debug_assert_eq!(data.single_scattering.as_ref().map_or(0, |s| s.travel.len()), factors.direct.len());
+    let single = data.single_scattering.as_ref().map(|s| SingleScattering {
+        beams: s
+            .travel
+            .iter()
+            .zip(factors.direct)
+            .map(|(t, field)| DirectBeam { travel: DVec3::from_array(*t).normalize(), irradiance: field })
+            .collect(),
+        medium: Medium { sigma_t: s.medium.sigma_t, albedo: s.medium.albedo, g: s.medium.g, emission: [0.0; 3] },
+    });
     render(&RenderInputs {
         store,
         source,
@@ -437,6 +512,7 @@ pub fn render_solved(
         storage_dirs: storage.len() as u32,
         storage_lookup: &lookup,
         medium: &medium,
+        single: single.as_ref(),
         background: match background {
             Background::Sky => data.sky,
             Background::Transparent => [0.0; 3],

@@ -5,10 +5,17 @@
 //! ([`crate::quadrature::StorageBlend`]), so the image is continuous both across voxels and across
 //! storage cells: neighbouring pixels whose rays fall in different storage cells no longer see a
 //! jump (a straight seam across a pinhole image, bands on a face lit from the side).
+//!
+//! The suns' single scattering, when given ([`super::SingleScattering`]), is added per segment as
+//! `σs·Σ_b p_HG(g; ω_b·ω)·E_b` with the scene's true σs and g, ρ·a·E_b interpolated between voxel
+//! centres as the source is, and attenuated towards the camera by the true extinction: under δ-M
+//! the march keeps a second transmittance for it (the solved source travels with the scaled σt,
+//! as before); without δ-M it joins the source under the one transmittance.
 
 use super::RenderInputs;
+use crate::quadrature::phase::henyey_greenstein;
 use crate::quadrature::Blend;
-use crate::store::BRICK_VOXELS;
+use crate::store::{Field, BRICK_VOXELS};
 use glam::DVec3;
 
 /// A ray stops once every channel's transmittance is below this: what lies behind can change the
@@ -93,6 +100,16 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
         let last = inputs.storage_dirs.saturating_sub(1);
         let blend = (inputs.storage_lookup)(-dir);
         let m = inputs.medium;
+        // The suns' single scattering: the phase function between each sun's light and the
+        // light reaching the camera (along −dir) is the same all along the ray.
+        let single = inputs.single.map(|s| {
+            let phases: Vec<f64> = s.beams.iter().map(|b| henyey_greenstein(s.medium.g, b.travel.dot(-dir))).collect();
+            (s, phases)
+        });
+        // Under δ-M the march attenuates the solved source with the scaled extinction; the exact
+        // single scattering travels to the camera with the true one.
+        let apart = single.as_ref().is_some_and(|(s, _)| s.medium.sigma_t != m.sigma_t);
+        let mut true_transmittance = [1.0f64; 3];
         let mut t = span.0;
         walk_voxels(origin, dir, span, grid.dims, h, |_, s| {
             // Density and source are sampled trilinearly (between voxel centres, clamped at the
@@ -102,7 +119,8 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
             t += s;
             let corners = trilinear(mid / h, grid.dims);
             let sample = |f: &dyn Fn([u32; 3]) -> f64| corners.iter().map(|&(v, w)| w * f(v)).sum::<f64>();
-            let density = sample(&|v| inputs.store.density_at(v) as f64);
+            let rho = corners.map(|(v, _)| inputs.store.density_at(v) as f64);
+            let density = corners.iter().zip(&rho).map(|(&(_, w), r)| w * r).sum::<f64>();
             // The emission factor per channel: a grey field's one component, or r, g, b.
             let glow: [f64; 3] = match inputs.emission {
                 None => [1.0; 3],
@@ -113,21 +131,76 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
             let albedo = inputs.albedo.map_or(1.0, |a| sample(&|v| a.value(v, 0) as f64));
             // The source per stored channel (1 or 3), blended over the storage directions.
             let source = blended_source(inputs, &blend, last, &corners);
+            // σs·Σ_b p_b·E_b per channel with the true medium (zero without suns to scatter). The
+            // product ρ·a·E is taken at the voxel centres and then interpolated, as the solved
+            // source σs·E is: an isotropic medium's image is then the one its binned first order
+            // gave (the phase is 1/4π either way), where interpolating ρ and E apart brightened
+            // the lit limb of a cloud (E is the unattenuated irradiance in the empty voxels next
+            // to it) by tens of per cent.
+            let scattered: [f64; 3] = match &single {
+                None => [0.0; 3],
+                Some((s, phases)) => {
+                    let a = inputs.albedo.map_or([1.0; 8], |a| corners.map(|(v, _)| a.value(v, 0) as f64));
+                    let weights: [f64; 8] = std::array::from_fn(|k| corners[k].1 * rho[k] * a[k]);
+                    let mut e = [0.0; 3];
+                    for (beam, p) in s.beams.iter().zip(phases) {
+                        let v = sample_channels(beam.irradiance, inputs.channels, &corners, &weights);
+                        for (ch, e) in e.iter_mut().enumerate() {
+                            *e += p * v[if inputs.channels == 1 { 0 } else { ch }];
+                        }
+                    }
+                    std::array::from_fn(|ch| s.medium.sigma_t[ch] * s.medium.albedo[ch] * e[ch])
+                }
+            };
             for ch in 0..3 {
                 let sigma_t = density * m.sigma_t[ch];
                 let sigma_a = sigma_t * (1.0 - m.albedo[ch] * albedo);
                 let j = source[if inputs.channels == 1 { 0 } else { ch }];
-                let q = j + sigma_a * m.emission[ch] * glow[ch];
+                let mut q = j + sigma_a * m.emission[ch] * glow[ch];
+                if !apart {
+                    q += scattered[ch];
+                }
                 let x = sigma_t * s;
-                // ∫₀ˢ e^{−σt·u} du, exact as σt → 0 (where it tends to s).
-                let path = if sigma_t > 0.0 { -(-x).exp_m1() / sigma_t } else { s };
-                radiance[ch] += transmittance[ch] * q * path;
+                radiance[ch] += transmittance[ch] * q * path_integral(sigma_t, s);
                 transmittance[ch] *= (-x).exp();
+                if let (true, Some((sc, _))) = (apart, &single) {
+                    let sigma_true = density * sc.medium.sigma_t[ch];
+                    radiance[ch] += true_transmittance[ch] * scattered[ch] * path_integral(sigma_true, s);
+                    true_transmittance[ch] *= (-sigma_true * s).exp();
+                }
             }
-            transmittance.iter().any(|&t| t >= OPAQUE)
+            transmittance.iter().any(|&t| t >= OPAQUE) || (apart && true_transmittance.iter().any(|&t| t >= OPAQUE))
         });
     }
     (radiance, transmittance)
+}
+
+/// ∫₀ˢ e^{−σt·u} du, exact as σt → 0 (where it tends to s).
+fn path_integral(sigma_t: f64, s: f64) -> f64 {
+    if sigma_t > 0.0 {
+        -(-sigma_t * s).exp_m1() / sigma_t
+    } else {
+        s
+    }
+}
+
+/// `field`'s first `channels` components (1 or 3) summed over the trilinear `corners` with
+/// `weights` (one per corner: the trilinear weight times whatever multiplies the field there);
+/// outside the volume and in unstored bricks it reads 0, as `Field::value` has it.
+fn sample_channels(field: &Field, channels: u32, corners: &[([u32; 3], f64); 8], weights: &[f64; 8]) -> [f64; 3] {
+    let grid = field.grid();
+    let mut out = [0.0; 3];
+    for (&(v, _), &w) in corners.iter().zip(weights) {
+        let Some((data, local)) =
+            grid.contains(v).then(|| grid.locate(v)).and_then(|(b, l)| field.brick(b).map(|d| (d, l)))
+        else {
+            continue;
+        };
+        for (ch, o) in out.iter_mut().enumerate().take(channels.min(3) as usize) {
+            *o += w * data.get(ch * BRICK_VOXELS + local).map_or(0.0, |&x| x as f64);
+        }
+    }
+    out
 }
 
 /// The source J per stored channel (entries past `inputs.channels` unused) at the trilinear

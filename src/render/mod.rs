@@ -7,7 +7,13 @@
 //! trilinearly between voxel centres and, for an anisotropic medium, blended between the storage
 //! directions around the ray's direction ([`crate::quadrature::StorageBlend`]; [`render_solved`]
 //! builds the blend): taking the one storage cell that holds the direction made a seam wherever
-//! neighbouring pixels' rays fell in different cells. What the camera sees
+//! neighbouring pixels' rays fell in different cells. The suns' single scattering (every sun and an
+//! environment map's sun-like peak) is not read from that source but evaluated exactly along the
+//! ray, `σs(x)·p_HG(g; ω_sun·ω_camera)·E(x)` from each sun's uncollided irradiance per voxel with
+//! the scene's true medium ([`SingleScattering`]; the solve takes the suns' binned first
+//! scattering off the source it keeps for the image, [`crate::solver::direct`]): its forward peak,
+//! the silver lining of a cloud seen towards the sun, is far narrower than a storage cell and is
+//! truncated by δ-M in the solve. What the camera sees
 //! beyond the volume is the sky's uniform radiance plus the environment map's pixel in the ray's
 //! direction.
 //!
@@ -26,6 +32,6 @@ mod write;
 
 pub use crate::scene::default_camera;
 pub use camera::RayGenerator;
-pub use image::{render, tone_map, Background, Image, RenderInputs, VoxelFactors};
+pub use image::{render, tone_map, Background, DirectBeam, Image, RenderInputs, SingleScattering, VoxelFactors};
 pub use keep::{render_solved, RenderData, RENDER_DATA};
 pub use write::{write_exr, write_images, write_png, write_png_rgba};

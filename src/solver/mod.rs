@@ -17,6 +17,8 @@
 //! - [`cancel`] is the request to stop a solve at the next slice, its checkpoint kept;
 //! - [`point`] computes point lights' uncollided light exactly on the host and writes it, with its
 //!   first scattering, into order 0's fields (before order 0, and only in a fresh solve);
+//! - [`direct`] splits the suns' first scattering off the source an image is made from (the
+//!   renderer evaluates it exactly);
 //! - [`warm`] starts a solve from a guess (the previous frame's solution) and still converges to
 //!   the cold solve's answer.
 
@@ -25,6 +27,7 @@ pub mod antidiffusion;
 pub mod cancel;
 pub mod cpu;
 mod cpu_sweep;
+pub mod direct;
 pub mod emission;
 pub mod energy;
 pub mod environment;

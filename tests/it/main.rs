@@ -48,6 +48,7 @@ mod resume;
 mod scene_files;
 mod serve;
 mod shader_interface;
+mod single_scatter;
 mod sky_directions;
 mod slurm;
 mod spatial_accuracy;

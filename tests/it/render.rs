@@ -85,6 +85,7 @@ fn inputs<'a>(
         storage_dirs,
         storage_lookup: lookup,
         medium,
+        single: None,
         background,
         environment: None,
         camera,

@@ -1,0 +1,242 @@
+//! The direct light's first scattering split off the source an image is made from (issue 38,
+//! item 1): what the renderer needs to evaluate the suns' single scattering exactly along each
+//! camera ray instead of reading it from the binned, δ-M-scaled source.
+//!
+//! **What counts as direct light.** The collimated beams of the plan ([`Plan::beams`]): every
+//! `[[lights]] kind = "sun"` and an environment map's sun-like peak. Their first scattering is a
+//! delta in incident direction, so its angular shape is the phase function itself, which storage
+//! cells a few tens of degrees wide cannot hold (g = 0.8: half the forward lobe lies within 20°
+//! of the sun). The sky's diffuse light, the environment map's diffuse part and the emission stay
+//! in the solve (their first scattering is smooth in angle); so, for now, do point lights: their
+//! first scattering stays in the stored source, binned as before, and no exact term is added for
+//! them, so nothing is counted twice.
+//!
+//! **What the solve put in.** Order 0 sweeps each beam along its exact direction; every voxel of
+//! an occupied brick pulls the segment-average irradiance Ē(v) of the rays through it into the
+//! fluence (weight 1) and `ρ(v)·σs*·row[d]·Ē(v)` into the next source (the twin's `cpu_sweep`,
+//! `collect.comp`), with σs* and the beam's phase row of the plan's medium and phase (δ-M scaled
+//! where the plan scales, [`super::plan`]); the commit multiplies it by the voxel's albedo factor
+//! a(v) before the total takes it ([`super::passes`]). [`split`] sweeps each beam once more on the
+//! host with the twin's own sweep (the GPU's discretisation, in f64, the same for both backends)
+//! and takes exactly that off the solve's source total, per voxel and storage direction:
+//! `render source = source_total − Σ_beams a(v)·ρ(v)·σs*·row_b[d]·Ē*_b(v)`. What is left is every
+//! order ≥ 2 (and the sky's, the environment's diffuse part's, the point lights' and the
+//! emission's first scattering). The exported `source` is not touched: only the image's copy is.
+//!
+//! **What the renderer adds.** Per beam, the uncollided irradiance E_b(v) attenuated by the
+//! scene's **true** extinction (a second host sweep with the unscaled medium when the plan applies
+//! δ-M; the same sweep otherwise), kept in `render-data/` in bricks; along a camera ray the
+//! renderer adds `σs(x)·p_HG(g; ω_b·ω_camera)·E_b(x)` with the true σs and the scene's g,
+//! attenuated towards the camera by the true extinction ([`crate::render::march`]).
+//!
+//! The split is left out (the image is made from the whole source total, as before) where the
+//! beams are swept with more than order 0's boundary light: periodic axes carry a beam's light
+//! into later orders and mirror faces hand it over, so order 0's sweep is not all of the beams'
+//! first scattering there. It is also left out where the host sweep's dense arrays would exceed
+//! [`HOST_LIMIT_BYTES`]. Each case is logged and said in the plan's reasons of `report.json`.
+
+use super::cpu_sweep::{sweep_direction, SweepInputs, SweepMode, SweepOutputs};
+use super::exitance::ExitMaps;
+use super::plan::{Plan, SweepDirection};
+use super::SolveError;
+use crate::scene::Medium;
+use crate::store::{BrickGrid, BrickStore, Coverage, Field, BRICK_EDGE, BRICK_VOXELS};
+use glam::DVec3;
+
+/// Most bytes the host sweeps' dense arrays (density, irradiance) may take: beyond, the split is
+/// left out (the CPU twin's own limit is larger, but this runs beside a GPU solve's host fields).
+pub const HOST_LIMIT_BYTES: u64 = 4 << 30;
+
+/// The name of the image's source field in the store (and, linked, `render-data/source.field`).
+pub const RENDER_SOURCE: &str = "render_source";
+
+/// The store field of beam `b`'s uncollided irradiance.
+pub fn irradiance_field_name(b: usize) -> String {
+    format!("direct_{b}")
+}
+
+/// The direct light split off the image's source.
+pub struct DirectSplit {
+    /// The source total less the beams' first scattering (occupied bricks, the plan's components).
+    pub render_source: Field,
+    /// Per beam, the direction its light travels.
+    pub travel: Vec<DVec3>,
+    /// Per beam, its uncollided irradiance per voxel with the true extinction (occupied bricks,
+    /// `plan.channels` components).
+    pub fields: Vec<Field>,
+    /// The scene's medium, unscaled: what the exact single scattering uses.
+    pub medium: Medium,
+}
+
+/// Why the split was left out, for the plan's reasons; `None` when it can be made.
+pub fn left_out_because(plan: &Plan) -> Option<String> {
+    if plan.beams.is_empty() {
+        return Some("no sun".into());
+    }
+    if plan.periodic.iter().any(|&p| p) || plan.reflective.iter().flatten().any(|&r| r) {
+        return Some(
+            "periodic or mirror faces carry the beams' light into later orders: the image's source keeps \
+             the suns' first scattering (binned), as before"
+                .into(),
+        );
+    }
+    let voxels: u64 = plan.dims.iter().map(|&d| u64::from(d)).product();
+    let bytes = voxels.saturating_mul(1 + u64::from(plan.channels)).saturating_mul(8);
+    if bytes > HOST_LIMIT_BYTES {
+        return Some(format!(
+            "the host sweep of the beams would need {} MiB (more than {} MiB): the image's source keeps the \
+             suns' first scattering (binned), as before",
+            bytes >> 20,
+            HOST_LIMIT_BYTES >> 20
+        ));
+    }
+    None
+}
+
+/// Splits the beams' first scattering off `source_total` (see the [module docs](self)); `None`
+/// where [`left_out_because`] says why not. `medium` is the scene's (unscaled) medium.
+pub fn split(
+    plan: &Plan,
+    medium: &Medium,
+    store: &BrickStore,
+    source_total: &Field,
+) -> Result<Option<DirectSplit>, SolveError> {
+    if left_out_because(plan).is_some() {
+        return Ok(None);
+    }
+    let c = plan.channels as usize;
+    let comps = plan.source_components() as usize;
+    let grid = *store.grid();
+    let [nx, ny, nz] = plan.dims;
+    let voxels = nx as usize * ny as usize * nz as usize;
+    let index = |v: [u32; 3]| v[0] as usize + nx as usize * (v[1] as usize + ny as usize * v[2] as usize);
+    // As the twin reads the store: density per voxel (x fastest) in f64, and a brick holds medium
+    // where any voxel's density is non-zero.
+    let mut density = Vec::with_capacity(voxels);
+    let mut occupied = vec![false; grid.brick_count()];
+    for z in 0..nz {
+        for y in 0..ny {
+            for x in 0..nx {
+                let rho = store.density_at([x, y, z]);
+                if rho != 0.0 {
+                    occupied[grid.locate([x, y, z]).0] = true;
+                }
+                density.push(rho as f64);
+            }
+        }
+    }
+    store.release_all_density();
+    let albedo = if plan.albedo_field { Some(crate::store::albedo::open_albedo(store)?) } else { None };
+    // The plan with the scene's own extinction: the uncollided irradiance the exact single
+    // scattering needs (the plan's is the δ-M scaled one where the plan scales).
+    let scaled = plan.delta_m().is_some() && plan.medium != *medium;
+    let true_plan = scaled.then(|| Plan { medium: medium.clone(), ..plan.clone() });
+    let mut render_source = store.create_field(RENDER_SOURCE, comps as u32, Coverage::Occupied)?;
+    render_source.copy_from(source_total)?;
+    let mut fields = Vec::with_capacity(plan.beams.len());
+    let mut irradiance = vec![0.0f64; voxels * c];
+    for (b, beam) in plan.beams.iter().enumerate() {
+        // What order 0's sweep of this beam deposited: Ē*(v) per channel.
+        sweep_beam(plan, beam, &density, &occupied, &mut irradiance);
+        let coefficients: Vec<f64> = (0..c).map(|ch| plan.coefficients(ch).1).collect();
+        for brick in store.occupied_bricks().collect::<Vec<_>>() {
+            let a = albedo.as_ref().and_then(|f| f.brick(brick));
+            let origin = grid.brick_origin(grid.brick_coords(brick));
+            let Some(out) = render_source.brick_mut(brick) else { continue };
+            for_each_local(&grid, brick, |local, l| {
+                let v = [origin[0] + l[0], origin[1] + l[1], origin[2] + l[2]];
+                let i = index(v);
+                let rho = density[i];
+                for ch in 0..c {
+                    // The collect step's own product, σs·row·Ē, then the commit's albedo factor.
+                    let sigma_s = rho * coefficients[ch];
+                    if sigma_s <= 0.0 {
+                        continue;
+                    }
+                    let e = irradiance[i * c + ch];
+                    for (d, m) in beam.collect_row.iter().enumerate() {
+                        let mut first = sigma_s * m * e;
+                        if let Some(a) = a {
+                            first *= a[local] as f64;
+                        }
+                        let k = (d * c + ch) * BRICK_VOXELS + local;
+                        out[k] = (out[k] as f64 - first) as f32;
+                    }
+                }
+            });
+        }
+        // The true-extinction irradiance the renderer scatters exactly.
+        if let Some(true_plan) = &true_plan {
+            sweep_beam(true_plan, beam, &density, &occupied, &mut irradiance);
+        }
+        let mut field = store.create_field(&irradiance_field_name(b), c as u32, Coverage::Occupied)?;
+        for brick in store.occupied_bricks().collect::<Vec<_>>() {
+            let origin = grid.brick_origin(grid.brick_coords(brick));
+            let Some(out) = field.brick_mut(brick) else { continue };
+            for_each_local(&grid, brick, |local, l| {
+                let i = index([origin[0] + l[0], origin[1] + l[1], origin[2] + l[2]]);
+                for ch in 0..c {
+                    out[ch * BRICK_VOXELS + local] = irradiance[i * c + ch] as f32;
+                }
+            });
+        }
+        field.flush()?;
+        fields.push(field);
+    }
+    render_source.flush()?;
+    let travel = plan.beams.iter().map(|b| b.omega).collect();
+    Ok(Some(DirectSplit { render_source, travel, fields, medium: medium.clone() }))
+}
+
+/// Calls `visit(local index, local coordinates)` for each voxel of `brick` inside the volume.
+fn for_each_local(grid: &BrickGrid, brick: usize, mut visit: impl FnMut(usize, [u32; 3])) {
+    let extent = grid.brick_extent(grid.brick_coords(brick));
+    for z in 0..extent[2] {
+        for y in 0..extent[1] {
+            for x in 0..extent[0] {
+                let local = (x + BRICK_EDGE * (y + BRICK_EDGE * z)) as usize;
+                visit(local, [x, y, z]);
+            }
+        }
+    }
+}
+
+/// Order 0's sweep of `beam` alone, with `plan`'s medium: its fluence deposit (the segment-average
+/// irradiance Ē per voxel of an occupied brick, `[voxel][ch]`) into `irradiance`, which is zeroed
+/// first. Nothing is gained and no source is collected (an empty collect row).
+fn sweep_beam(plan: &Plan, beam: &SweepDirection, density: &[f64], occupied: &[bool], irradiance: &mut [f64]) {
+    irradiance.iter_mut().for_each(|e| *e = 0.0);
+    let alone = SweepDirection { collect_row: Vec::new(), ..beam.clone() };
+    let inputs = SweepInputs { density, gained: &[], occupied };
+    let mut exits = ExitMaps::new(plan.dims, plan.channels as usize);
+    let mut outputs = SweepOutputs { fluence_order: irradiance, j_next: &mut [], exits: &mut exits };
+    let mode = SweepMode { boundary: true, gain: false, emit: false };
+    sweep_direction(plan, &alone, mode, None, None, &inputs, &mut outputs);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::Scene;
+    use std::path::Path;
+
+    fn scene(extra: &str) -> Scene {
+        let text = format!(
+            "[volume]\nprocedural = \"sphere\"\ndims = [16, 16, 16]\n[medium]\nsigma_t = 1.0\nalbedo = 0.9\n\
+             g = 0.85\n[[lights]]\nkind = \"sun\"\ndirection = [0.2, 0.3, 1.0]\nirradiance = 1.0\n{extra}"
+        );
+        Scene::from_toml_str(&text, Path::new("t.toml")).expect("scene")
+    }
+
+    #[test]
+    fn the_split_is_left_out_without_suns_and_across_periodic_faces() {
+        let plan = Plan::new(&scene(""), 1, 0);
+        assert_eq!(left_out_because(&plan), None);
+        let mut periodic = plan.clone();
+        periodic.periodic = [true, false, false];
+        assert!(left_out_because(&periodic).is_some_and(|w| w.contains("periodic")));
+        let mut none = plan.clone();
+        none.beams.clear();
+        assert!(left_out_because(&none).is_some());
+    }
+}

@@ -1,0 +1,241 @@
+//! The suns' single scattering exact at render time (issue 38, item 1): the image's source holds
+//! every order but the suns' first scattering, which the renderer evaluates along each camera ray
+//! with the true phase function and extinction (`lpm::solver::direct`, `lpm::render::march`).
+
+use crate::common::{lpm_command, temp_dir, validated, write_scene};
+use glam::DVec3;
+use lpm::job::{run, SolveJob};
+use lpm::render::keep::{open, render_solved, Kept};
+use lpm::render::{Background, Image, VoxelFactors};
+use lpm::scene::{Camera, Projection};
+use lpm::solver::BackendKind;
+use lpm::store::{Coverage, Field, BRICK_EDGE, BRICK_VOXELS};
+use std::f64::consts::PI;
+use std::path::{Path, PathBuf};
+
+/// Solves `text` into `dir/name` (fields exported, render data kept, no image).
+fn solve(dir: &Path, name: &str, text: &str, backend: BackendKind) -> PathBuf {
+    let scene = crate::common::write_scene_as(dir, &format!("{name}.toml"), text);
+    let out = dir.join(name);
+    let job = SolveJob { backend, vk: validated(), no_image: true, fresh: true, ..SolveJob::new(scene, out.clone()) };
+    run(&job, |_, _| {}).expect("solve");
+    out
+}
+
+/// The exported `source.raw` (component fastest, then x, y, z) as a field of the kept store
+/// (named `name`): the solve's whole source total, first scattering of the suns included.
+fn exported_source(out: &Path, kept: &Kept, name: &str) -> Field {
+    let bytes = std::fs::read(out.join("source.raw")).expect("source.raw");
+    let raw: Vec<f32> = bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
+    let comps = kept.source.components();
+    let grid = *kept.store.grid();
+    let [nx, ny, _] = grid.dims;
+    let mut field = kept.store.create_field(name, comps, Coverage::Occupied).expect("field");
+    for brick in kept.store.occupied_bricks().collect::<Vec<_>>() {
+        let origin = grid.brick_origin(grid.brick_coords(brick));
+        let extent = grid.brick_extent(grid.brick_coords(brick));
+        let data = field.brick_mut(brick).expect("occupied");
+        for z in 0..extent[2] {
+            for y in 0..extent[1] {
+                for x in 0..extent[0] {
+                    let local = (x + BRICK_EDGE * (y + BRICK_EDGE * z)) as usize;
+                    let v = [origin[0] + x, origin[1] + y, origin[2] + z];
+                    let i = v[0] as usize + nx as usize * (v[1] as usize + ny as usize * v[2] as usize);
+                    for k in 0..comps as usize {
+                        data[k * BRICK_VOXELS + local] = raw[i * comps as usize + k];
+                    }
+                }
+            }
+        }
+    }
+    field
+}
+
+/// The image as lpm made it before the split: the whole source total, no exact single scattering.
+fn binned_image(out: &Path, kept: &Kept, camera: &Camera, background: Background) -> Image {
+    let total = exported_source(out, kept, "whole_total");
+    let mut data = kept.data.clone();
+    data.single_scattering = None;
+    let factors = VoxelFactors { emission: kept.emission.as_ref(), albedo: kept.albedo.as_ref(), direct: &[] };
+    render_solved(&data, &kept.store, &total, factors, kept.environment.as_ref(), camera, background)
+}
+
+/// The single scattering alone: the kept suns' irradiance over a zero source.
+fn single_only(kept: &Kept, camera: &Camera) -> Image {
+    let zero = kept.store.create_field("zero", kept.source.components(), Coverage::Occupied).expect("zero field");
+    let factors = VoxelFactors { emission: None, albedo: kept.albedo.as_ref(), direct: &kept.direct };
+    render_solved(&kept.data, &kept.store, &zero, factors, None, camera, Background::Transparent)
+}
+
+/// An orthographic 3×3 camera whose centre ray looks along `view` through `target`.
+fn ortho(target: DVec3, view: DVec3) -> Camera {
+    let view = view.normalize();
+    Camera {
+        projection: Projection::Orthographic { height: 1.0 },
+        position: target - view * 40.0,
+        look_at: target,
+        up: if view.x.abs() < 0.9 { DVec3::X } else { DVec3::Y },
+        width: 3,
+        height: 3,
+    }
+}
+
+/// A thin uniform slab (32 × 32 × 8 voxels of edge 1, σt = 0.05, albedo 0.9, g = 0.8, δ-M on) lit
+/// by a sun at normal incidence (its light travels along −z), seen from below by a camera in the
+/// forward peak, 15° off the sun. The centre ray crosses the whole thickness Z inside the slab,
+/// so its single scattering is, with μ = cos 15° and p the HG phase at μ,
+///
+/// `L₁ = ∫₀^Z σs·p·E₀·e^{−σt(Z−z)}·e^{−σt·z/μ} dz/μ`
+///    `= σs·p·E₀/μ · e^{−σt·Z} · (e^{σt·Z·(1−1/μ)} − 1)/(σt·(1 − 1/μ))`
+///
+/// with the true σt (not the δ-M scaled one the solve sweeps with). The rendered single scattering
+/// (the kept irradiance over a zero source) is within 1 % of it; the binned first order the image
+/// used to read (storage cells ~45° wide, the peak truncated) was far off.
+#[test]
+fn the_single_scattering_of_a_slab_under_a_sun_matches_the_closed_form_in_the_forward_peak() {
+    let dir = temp_dir("single-scatter-slab");
+    let (sigma_t, albedo, g, z_max) = (0.05, 0.9, 0.8, 8.0);
+    let text = format!(
+        "[volume]\nprocedural = \"box\"\ndims = [32, 32, 8]\nvoxel_size = 1.0\n\
+         [medium]\nsigma_t = {sigma_t}\nalbedo = {albedo}\ng = {g}\n\
+         [[lights]]\nkind = \"sun\"\ndirection = [0.0, 0.0, 1.0]\nirradiance = 1.0\n\
+         [solver]\ndirections_per_face = 4\nstorage_directions_per_face = 2\nmax_orders = 2\n\
+         forward_peak = \"delta-m\"\n"
+    );
+    let out = solve(&dir, "slab", &text, BackendKind::Cpu);
+    let kept = open(&out).expect("render data");
+    let single = kept.data.single_scattering.as_ref().expect("the sun's single scattering is kept");
+    assert_eq!(single.medium.sigma_t, [sigma_t; 3], "the true extinction, not δ-M's");
+    assert_eq!(single.medium.g, g);
+    assert!(kept.data.medium.sigma_t[0] < sigma_t, "the plan scaled the medium (δ-M)");
+    assert_eq!(kept.direct.len(), 1);
+
+    let theta = 15f64.to_radians();
+    let mu = theta.cos();
+    let camera = ortho(DVec3::new(16.0, 16.0, 4.0), DVec3::new(theta.sin(), 0.0, mu));
+    let image = single_only(&kept, &camera);
+    let got = image.pixel(1, 1)[0] as f64;
+    let hg = (1.0 - g * g) / (4.0 * PI * (1.0 + g * g - 2.0 * g * mu).powf(1.5));
+    let k = sigma_t * (1.0 - 1.0 / mu);
+    let want = sigma_t * albedo * hg / mu * (-sigma_t * z_max).exp() * ((k * z_max).exp() - 1.0) / k;
+    assert!((got / want - 1.0).abs() < 0.01, "single scattering {got} vs the closed form {want}");
+
+    // The whole image is the exact single scattering plus the orders ≥ 2; the binned image put
+    // far less than L₁ into the forward peak.
+    let whole = kept.render(&camera, Background::Transparent).pixel(1, 1)[0] as f64;
+    let binned = binned_image(&out, &kept, &camera, Background::Transparent).pixel(1, 1)[0] as f64;
+    eprintln!("slab, 15° off the sun: L1 exact {want:.5e}, rendered L1 {got:.5e}, image {whole:.5e}, binned image {binned:.5e}");
+    assert!(whole > got, "{whole} vs {got}");
+    assert!(binned < 0.5 * whole, "the binned image {binned} vs {whole}");
+}
+
+/// Nothing is counted twice: with a sun alone, order 0's new source is the sun's first scattering
+/// and nothing else, so a solve of one order keeps an image source of zero (to round-off), on the
+/// CPU twin and on the GPU alike; a solve of two orders keeps exactly its second order (the
+/// two-order total less the one-order total). The exported fields are the whole totals.
+#[test]
+fn the_image_source_holds_every_order_but_the_suns_first_scattering() {
+    let dir = temp_dir("single-scatter-orders");
+    let scene = |orders: u32| {
+        format!(
+            "[volume]\nprocedural = \"sphere\"\ndims = [16, 16, 16]\nvoxel_size = 1.0\n\
+             [medium]\nsigma_t = 0.6\nalbedo = 0.9\ng = 0.8\n\
+             [[lights]]\nkind = \"sun\"\ndirection = [0.3, -0.5, 1.0]\nirradiance = 2.0\n\
+             [solver]\ndirections_per_face = 3\nstorage_directions_per_face = 2\nmax_orders = {orders}\n\
+             tolerance = 1e-9\nextrapolate_tail = false\nacceleration = \"off\"\ndiffusion_correction = \"off\"\n"
+        )
+    };
+    let max_abs = |f: &Field| f.as_slice().iter().fold(0f32, |m, v| m.max(v.abs()));
+    let mut totals = Vec::new();
+    for (name, backend) in [("cpu", BackendKind::Cpu), ("gpu", BackendKind::Gpu)] {
+        let out = solve(&dir, &format!("one-{name}"), &scene(1), backend);
+        let kept = open(&out).expect("render data");
+        let total = exported_source(&out, &kept, "whole_total");
+        let (left, whole) = (max_abs(&kept.source), max_abs(&total));
+        eprintln!("{name}: one order, image source {left:.3e} of a total {whole:.3e}");
+        assert!(whole > 0.0);
+        assert!(left <= 1e-6 * whole, "{name}: {left} left of {whole}");
+        totals.push(total.as_slice().to_vec());
+    }
+    let out1 = dir.join("one-cpu");
+    let out2 = solve(&dir, "two-cpu", &scene(2), BackendKind::Cpu);
+    let (kept1, kept2) = (open(&out1).expect("one"), open(&out2).expect("two"));
+    let (t1, t2) = (exported_source(&out1, &kept1, "whole_total"), exported_source(&out2, &kept2, "whole_total"));
+    let scale = max_abs(&t2) as f64;
+    let worst = kept2
+        .source
+        .as_slice()
+        .iter()
+        .zip(t2.as_slice().iter().zip(t1.as_slice()))
+        .map(|(&r, (&b, &a))| (r as f64 - (b as f64 - a as f64)).abs())
+        .fold(0.0, f64::max);
+    assert!(max_abs(&kept2.source) > 0.0);
+    assert!(worst <= 1e-6 * scale, "the image source differs from the second order by {worst} (scale {scale})");
+}
+
+/// An isotropic cloud under a sun and a sky: the exact single scattering is the binned one (one
+/// storage direction, the phase 1/4π either way; ρ·E interpolated between voxel centres as the
+/// source σs·E is), so the image is the one the whole source made, to f32 round-off (the first
+/// order is no longer rounded to f32 in the source, and its sum is taken in another order): within
+/// 10⁻⁵ in all and pixel by pixel.
+#[test]
+fn an_isotropic_image_stays_what_it_was() {
+    let dir = temp_dir("single-scatter-iso");
+    let text = "[volume]\nprocedural = \"sphere\"\ndims = [24, 24, 24]\nvoxel_size = 1.0\n\
+                [medium]\nsigma_t = 0.4\nalbedo = 0.9\ng = 0.0\n\
+                [[lights]]\nkind = \"sun\"\ndirection = [0.4, -0.3, 1.0]\nirradiance = 3.0\n\
+                [[lights]]\nkind = \"sky\"\nradiance = 0.2\n\
+                [solver]\ndirections_per_face = 3\nmax_orders = 4\n[camera]\nwidth = 48\nheight = 40\n";
+    let out = solve(&dir, "iso", text, BackendKind::Cpu);
+    let kept = open(&out).expect("render data");
+    assert!(kept.data.single_scattering.is_some());
+    let new = kept.render(&kept.camera, Background::Transparent);
+    let old = binned_image(&out, &kept, &kept.camera, Background::Transparent);
+    let (sum_new, sum_old): (f64, f64) =
+        (new.rgb.iter().map(|&v| v as f64).sum(), old.rgb.iter().map(|&v| v as f64).sum());
+    let peak = old.rgb.iter().fold(0f32, |m, &v| m.max(v)) as f64;
+    let worst = new
+        .rgb
+        .iter()
+        .zip(&old.rgb)
+        .filter(|(_, &o)| o as f64 > 1e-3 * peak)
+        .map(|(&n, &o)| (n as f64 / o as f64 - 1.0).abs())
+        .fold(0.0, f64::max);
+    eprintln!("isotropic: image sum {sum_new:.8e} vs {sum_old:.8e} before, worst pixel {worst:.3e}");
+    assert!((sum_new / sum_old - 1.0).abs() < 1e-5, "{sum_new} vs {sum_old}");
+    assert!(worst < 1e-5, "worst pixel off by {worst}");
+}
+
+/// `lpm render OUT` of a solve with a sun and δ-M scaling from the solve's view writes bitwise the
+/// solve's image; render data of format 1 (its source held the suns' first scattering) is refused
+/// with a message saying why, not rendered with the sun counted twice.
+#[test]
+fn lpm_render_of_a_split_solve_is_the_solves_image_and_old_render_data_is_refused() {
+    let dir = temp_dir("single-scatter-render");
+    let scene = write_scene(
+        &dir,
+        "[volume]\nprocedural = \"sphere\"\ndims = [16, 16, 16]\nvoxel_size = 1.0\n\
+         [medium]\nsigma_t = 1.0\nalbedo = 0.95\ng = 0.85\n[[lights]]\nkind = \"sun\"\n\
+         direction = [0.3, 1.0, 0.2]\nirradiance = 2.0\n[[lights]]\nkind = \"sky\"\nradiance = 0.3\n\
+         [solver]\ndirections_per_face = 2\nstorage_directions_per_face = 2\nmax_orders = 2\n\
+         [camera]\nwidth = 32\nheight = 24\n",
+    );
+    let out = dir.join("out");
+    let out_s = out.to_str().expect("utf-8 path");
+    let lpm = |args: &[&str]| lpm_command(args).output().expect("run lpm");
+    let o = lpm(&["solve", scene.to_str().expect("utf-8"), "--out", out_s, "--backend", "cpu", "--no-fields"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let json = std::fs::read_to_string(out.join("render-data/render.json")).expect("render.json");
+    assert!(json.contains("\"single_scattering\""), "{json}");
+    assert!(out.join("render-data/direct_0.field").exists());
+    let again = dir.join("again.exr");
+    let o = lpm(&["render", out_s, "--image", again.to_str().expect("utf-8")]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(std::fs::read(&again).expect("again"), std::fs::read(out.join("image.exr")).expect("solve's image"));
+
+    std::fs::write(out.join("render-data/render.json"), json.replace("\"format\": 2", "\"format\": 1"))
+        .expect("rewrite");
+    let o = lpm(&["render", out_s, "--image", again.to_str().expect("utf-8")]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("format 1") && err.contains("solve again"), "{err}");
+}
