@@ -432,7 +432,7 @@ pub fn run_orders<B: Backend + ?Sized>(
             _ => 0.0,
         };
         progress.order_done(&OrderDone { order, residual, measure, power, seconds, ratio });
-        tracing::debug!(order, residual, remaining = remaining.map(|r| r.max), "order done");
+        tracing::debug!(order, residual, remaining = remaining.map(|r| r.max), ratio, "order done");
     }
     // Resumed after its last order (killed in the export): no order ran here, so what the orders
     // set up as they went is set up from the checkpoint, for the report to be the uninterrupted
