@@ -240,6 +240,11 @@ impl<O: Observer> Observer for Watch<'_, O> {
         self.inner.stage(stage);
         self.publish();
     }
+    fn decay_prior(&mut self, prior: &progress::DecayPrior) {
+        self.estimator.decay_prior(*prior);
+        tracing::debug!(accelerated = ?prior.accelerated, plain_ratio = ?prior.plain_ratio, "progress prior");
+        self.inner.decay_prior(prior);
+    }
     fn order_done(&mut self, done: &progress::OrderDone) {
         self.estimator.order_done(done, self.started.elapsed().as_secs_f64());
         self.residuals.push(done.residual);

@@ -2,9 +2,10 @@
 # The ETA against the truth (issue 36, item 2): for each scene, solves it and prints one Markdown
 # row: orders, the seconds the estimator said were left at the end of order 1 (the first moment it
 # knows the series' decay), the seconds that really were left (to the end of the job, by the same
-# clock), their ratio, and the orders it predicted against those that ran. The estimates are the
-# job's own ("progress estimate" lines at debug level, src/job.rs), the same that the progress bar,
-# the log lines and the job server show.
+# clock), their ratio, the orders it predicted against those that ran, and the ratio had it known
+# the machine's true pace (seconds per order and of the stages after: the load's share taken out).
+# The estimates are the job's own ("progress estimate" lines at debug level, src/job.rs), the same
+# that the progress bar, the log lines and the job server show.
 #
 #   tools/eta_table.sh [OUT_DIR] [SCENE.toml ...]    default out/eta and the small shipped scenes
 #   LPM=target/debug/lpm (the binary: build it first)  BACKEND=cpu (or gpu: lavapipe without a GPU)
@@ -35,8 +36,8 @@ for s in "${SCENES[@]}"; do
             { echo "$name: the solve failed (see $OUT/$name.log)" >&2; continue; }
     fi
 done
-echo "| scene | orders | predicted at order 1 | true | predicted / true | orders left: predicted (true) |"
-echo "|---|---|---|---|---|---|"
+echo "| scene | orders | predicted at order 1 | true | predicted / true | orders left: predicted (true) | predicted / true at the true pace |"
+echo "|---|---|---|---|---|---|---|"
 for s in "${SCENES[@]}"; do
     name=$(basename "$s" .toml)
     [ -f "$OUT/$name.log" ] || continue
@@ -50,13 +51,23 @@ orders = len({st for st, *_ in rows if st.startswith("order ")})
 after1 = [r for r in rows if r[0] == "order 1"]
 done = [r for r in rows if r[0] == "done"]
 if not after1 or not done:
-    print(f"| {name} | {orders} | – (fewer than 2 orders) | | | |")
+    print(f"| {name} | {orders} | – (fewer than 2 orders) | | | | |")
     sys.exit()
 t1, left, pred = float(after1[-1][1]), float(after1[-1][3]), int(after1[-1][4])
 true = float(done[-1][1]) - t1
+# The orders' end: the first estimate of a stage after them. "At the true pace": the predicted
+# orders left times the true seconds per order after order 1, plus the true seconds of the stages
+# after the orders: what the estimate would have said had it known the machine's speed (the load's
+# share of the error taken out; what is left is the orders' count).
+ends = [float(r[1]) for r in rows if not r[0].startswith("order ") and float(r[1]) > t1]
+t_end = ends[0] if ends else float(done[-1][1])
+ran = orders - 2
+pace = (t_end - t1) / ran if ran > 0 else 0.0
+after = float(done[-1][1]) - t_end
+at_pace = (pred * pace + after) / true if true > 0 and pred >= 0 else float("nan")
 if left < 0:
-    print(f"| {name} | {orders} | not known | {true:.1f} s | – | – ({orders - 2}) |")
+    print(f"| {name} | {orders} | not known | {true:.1f} s | – | – ({ran}) | – |")
 else:
-    print(f"| {name} | {orders} | {left:.1f} s | {true:.1f} s | {left / true:.2f} | {pred} ({orders - 2}) |")
+    print(f"| {name} | {orders} | {left:.1f} s | {true:.1f} s | {left / true:.2f} | {pred} ({ran}) | {at_pace:.2f} |")
 EOF
 done

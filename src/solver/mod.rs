@@ -42,6 +42,7 @@ pub mod plan;
 pub mod point;
 pub mod remaining;
 pub mod segment;
+pub mod slow_mode;
 pub mod sweep;
 pub mod unfold;
 pub mod warm;
@@ -333,6 +334,7 @@ pub fn solve_from(
     let t = Instant::now();
     let total = store.grid().brick_count();
     let plan = Plan::new(scene, total, total - store.occupied_count());
+    progress.decay_prior(&slow_mode::prior(&plan, store));
     let digest = checkpoint_digest(scene, &plan);
     if resume && backend == BackendKind::Cpu {
         return Err(SolveError::ResumeNeedsGpu);

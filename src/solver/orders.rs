@@ -421,8 +421,18 @@ pub fn run_orders<B: Backend + ?Sized>(
             Some(r) if !extrapolate => r.max,
             _ => residual,
         };
-        progress.order_done(&OrderDone { order, residual, measure, power, seconds });
-        tracing::debug!(order, residual, remaining = remaining.map(|r| r.max), "order done");
+        // The ratio whose tail factor that measure holds (the estimate separates the two), when
+        // it is the per-voxel error.
+        let ratio = match (remaining, tail_factors(plan, &state)) {
+            (Some(_), Some(factor)) if !extrapolate => factor
+                .iter()
+                .take(plan.channels as usize)
+                .map(|&f| if f.is_finite() { f / (1.0 + f) } else { 1.0 })
+                .fold(0.0, f64::max),
+            _ => 0.0,
+        };
+        progress.order_done(&OrderDone { order, residual, measure, power, seconds, ratio });
+        tracing::debug!(order, residual, remaining = remaining.map(|r| r.max), ratio, "order done");
     }
     // Resumed after its last order (killed in the export): no order ran here, so what the orders
     // set up as they went is set up from the checkpoint, for the report to be the uninterrupted

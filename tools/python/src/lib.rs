@@ -347,25 +347,36 @@ fn thread_pool(py: Python<'_>, threads: usize) -> PyResult<rayon::ThreadPool> {
         .map_err(|e| Failure::plain(Class::Base, format!("could not start the solver's threads: {e}")).into_pyerr(py))
 }
 
-/// Orders still to go, the fraction done and the seconds left, estimated from the residual's
-/// geometric decay as `lpm serve` estimates them for its jobs (`serve/worker.rs`).
-fn estimate(order: u32, residuals: &[f64], max_orders: u32, tolerance: f64, seconds: f64) -> (f64, Option<f64>) {
-    let residual = residuals.last().copied().unwrap_or(f64::INFINITY);
-    let cap = max_orders.saturating_sub(order);
-    let n = residuals.len();
-    let mut left = if residual <= tolerance { 0 } else { cap };
-    if n >= 2 && residual > tolerance {
-        let ratio = residuals[n - 1] / residuals[n - 2];
-        if ratio > 0.0 && ratio < 1.0 {
-            let more = ((tolerance / residual).ln() / ratio.ln()).ceil();
-            if more.is_finite() && more >= 0.0 {
-                left = (more as u32).min(cap);
-            }
+/// An order done, with the job's estimate right after it (`lpm::progress::Estimator`: the one the
+/// CLI's bar, `progress.json` and `lpm serve` show).
+struct OrderEvent {
+    order: u32,
+    residual: f64,
+    fraction: f64,
+    seconds_left: Option<f64>,
+}
+
+/// Hands each order done to the waiting thread with the estimate the job makes right after it.
+struct Orders {
+    tx: crossbeam_channel::Sender<OrderEvent>,
+    done: Option<lpm::progress::OrderDone>,
+}
+
+impl lpm::progress::Observer for Orders {
+    fn order_done(&mut self, done: &lpm::progress::OrderDone) {
+        self.done = Some(*done);
+    }
+    fn estimate(&mut self, estimate: &lpm::progress::Estimate) {
+        // Only the estimates that follow an order (the job estimates after each stage as well).
+        if let Some(done) = self.done.take() {
+            let _ = self.tx.send(OrderEvent {
+                order: done.order,
+                residual: done.residual,
+                fraction: estimate.fraction,
+                seconds_left: estimate.seconds_left,
+            });
         }
     }
-    let fraction = f64::from(order) / (f64::from(order) + f64::from(left)).max(1.0);
-    let seconds_left = (n > 0).then(|| seconds / n as f64 * f64::from(left));
-    (fraction, seconds_left)
 }
 
 /// Runs `lpm solve SCENE --out OUT …` (`lpm::job::run`) with the GIL released, and returns
@@ -431,9 +442,8 @@ fn solve(
         ..SolveJob::new(scene, out)
     };
     let pool = thread_pool(py, threads)?;
-    let (tx, rx) = crossbeam_channel::unbounded::<(u32, f64)>();
+    let (tx, rx) = crossbeam_channel::unbounded::<OrderEvent>();
     let started = Instant::now();
-    let mut residuals = Vec::new();
     // The first exception met while waiting (Ctrl-C, or one raised by the callback).
     let mut pending: Option<PyErr> = None;
     let call = |pending: &mut Option<PyErr>, event: Bound<'_, PyDict>| {
@@ -446,13 +456,7 @@ fn solve(
     };
     let joined = std::thread::scope(|s| {
         let (job, pool) = (&job, &pool);
-        let handle = s.spawn(move || {
-            pool.install(|| {
-                lpm::job::run(job, |order, residual| {
-                    let _ = tx.send((order, residual));
-                })
-            })
-        });
+        let handle = s.spawn(move || pool.install(|| lpm::job::run(job, Orders { tx, done: None })));
         let event = PyDict::new(py);
         let _ = event.set_item("phase", "store");
         let _ = event.set_item("message", "building the brick store");
@@ -461,10 +465,8 @@ fn solve(
         call(&mut pending, event);
         loop {
             match py.detach(|| rx.recv_timeout(POLL)) {
-                Ok((order, residual)) => {
-                    residuals.push(residual);
+                Ok(OrderEvent { order, residual, fraction, seconds_left }) => {
                     let seconds = started.elapsed().as_secs_f64();
-                    let (fraction, seconds_left) = estimate(order, &residuals, max_orders, tolerance, seconds);
                     let event = PyDict::new(py);
                     let _ = event.set_item("phase", "orders");
                     let _ = event.set_item("message", format!("order {order} done, residual {residual:.3e}"));

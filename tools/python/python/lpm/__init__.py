@@ -96,8 +96,9 @@ def solve(
     ``progress(event)`` is called in the calling thread with a dict: first ``{"phase": "store",
     "message": "building the brick store", ...}``, then after every order ``{"phase": "orders",
     "order", "residual", "max_orders", "tolerance", "seconds", "fraction", "seconds_left",
-    "message"}`` — the CLI's line (``order 3 done, residual 1.234e-2``) and ``lpm serve``'s
-    estimate of the fraction done and the time left.
+    "message"}`` — the CLI's line (``order 3 done, residual 1.234e-2``) and the job's estimate
+    of the fraction done and the seconds left (``None`` while not known yet), the one the CLI's
+    progress bar and ``lpm serve`` show.
 
     The GIL is released while the solve runs. Ctrl-C (or an exception raised by ``progress``)
     stops a GPU solve at its next slice with its last checkpoint kept and raises
