@@ -31,11 +31,12 @@
 //!   its seconds) and [`EXPORT_SECONDS_PER_VALUE`] per value written (voxels × components); the
 //!   render marches a ray per pixel through the volume: [`RENDER_SECONDS_PER_PIXEL_VOXEL`] per
 //!   pixel and voxel of the volume's longest side. These rates were measured over the shipped
-//!   scenes with the debug build (opt-level 1) on a 2-core VM shared with other work
-//!   (benches/RESULTS.md, "Progress and ETA"): the render's rate was 0.4–1e-6 s in one run and
-//!   0.75–6e-6 s in a more loaded one, and the constant sits between them; a release
-//!   build renders faster, so there the estimate errs long until the render starts. Once a stage
-//!   after the orders runs, its estimate counts down from the time it started.
+//!   scenes with the debug build (opt-level 1) on a quiet 2-core VM (benches/RESULTS.md,
+//!   "Progress and ETA"): the render took 1.2–3.8e-7 s per pixel and voxel, the export 0.7–3e-7 s
+//!   per value (the small volumes' fixed costs included); on the same VM loaded by other builds
+//!   both ran up to 4–20× slower, which no constant follows (the orders' pace is measured, these
+//!   are not). A release build renders faster, so there the estimate errs long until the render
+//!   starts. Once a stage after the orders runs, its estimate counts down from the time it started.
 //!
 //! The estimator reads no clock: every call takes the seconds since the job started, so that the
 //! tests give it exact histories.
@@ -153,10 +154,10 @@ impl Observer for Forward<'_> {
 pub const EXPORT_PER_STORE: f64 = 4.0;
 
 /// The export's seconds per value written (see the module docs).
-pub const EXPORT_SECONDS_PER_VALUE: f64 = 1e-6;
+pub const EXPORT_SECONDS_PER_VALUE: f64 = 1.5e-7;
 
 /// The render's seconds per pixel and voxel of the volume's longest side (see the module docs).
-pub const RENDER_SECONDS_PER_PIXEL_VOXEL: f64 = 1e-6;
+pub const RENDER_SECONDS_PER_PIXEL_VOXEL: f64 = 2.5e-7;
 
 /// The orders whose decay the fit uses, at most.
 const FIT_ORDERS: usize = 4;
@@ -706,8 +707,9 @@ mod tests {
         assert!(share(&orders[4]).expect("a share") < share(&orders[2]).expect("a share"));
     }
 
+    /// An export of one second's values at [`EXPORT_SECONDS_PER_VALUE`] (whatever its value).
     fn settings() -> Settings {
-        Settings { tolerance: 1e-3, max_orders: 100, export_values: 1e6, render_work: 0.0 }
+        Settings { tolerance: 1e-3, max_orders: 100, export_values: 1.0 / EXPORT_SECONDS_PER_VALUE, render_work: 0.0 }
     }
 
     #[test]
@@ -729,7 +731,7 @@ mod tests {
         let est = e.estimate(10.5);
         assert_eq!((est.orders_done, est.orders_left), (3, Some(8)));
         assert_eq!(e.seconds_per_order(), Some(2.0));
-        // 8 orders of 2 s, plus the export: 4 times the store's 1 s and 1 s per million values.
+        // 8 orders of 2 s, plus the export: 4 times the store's 1 s and 1 s for its values.
         assert_eq!(est.seconds_left, Some(16.0 + 5.0));
         assert!((est.fraction - 10.5 / 31.5).abs() < 1e-12, "{est:?}");
         // Half-way through order 3: 1 s less.
