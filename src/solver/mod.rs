@@ -6,7 +6,8 @@
 //! - [`cpu`] is the f64 twin of the GPU kernels, [`gpu`] the Vulkan driver;
 //! - [`orders`] runs scattering orders until [`remaining`] says every voxel of the medium is within
 //!   the tolerance of its converged value; [`energy`] keeps the books (per face of the volume too),
-//!   [`exitance`] the outgoing power per boundary pixel of each face (the twin's);
+//!   [`exitance`] the outgoing power per boundary pixel of each face (placed by the twin's rules;
+//!   the GPU's records folded by [`gpu::face_maps`]);
 //! - [`periodic`] closes periodic boundaries (wrapping lattices, carried rays between orders);
 //!   [`mirror`] closes reflective ones on the twin (hand-overs to the mirror-image directions),
 //!   [`unfold`] on the GPU (the volume doubled by its images, solved and folded back);
