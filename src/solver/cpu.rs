@@ -47,6 +47,28 @@ pub struct CpuTwin<'a> {
     cancel: Option<super::cancel::CancelFlag>,
 }
 
+/// The twin's view of a volume's density: per voxel (x fastest, then y, z) in f64, and per brick
+/// of the store's grid whether it holds medium (the store's own rule: any voxel non-zero).
+/// `density(v)` gives the density of voxel v = (x, y, z).
+pub(super) fn dense_density(dims: [u32; 3], density: impl Fn([u32; 3]) -> f32) -> (Vec<f64>, Vec<bool>) {
+    let [nx, ny, nz] = dims;
+    let grid = crate::store::BrickGrid::new(dims);
+    let mut occupied = vec![false; grid.brick_count()];
+    let mut values = Vec::with_capacity(nx as usize * ny as usize * nz as usize);
+    for z in 0..nz {
+        for y in 0..ny {
+            for x in 0..nx {
+                let rho = density([x, y, z]);
+                if rho != 0.0 {
+                    occupied[grid.locate([x, y, z]).0] = true;
+                }
+                values.push(rho as f64);
+            }
+        }
+    }
+    (values, occupied)
+}
+
 impl<'a> CpuTwin<'a> {
     /// `density(v)` gives the density of voxel v = (x, y, z).
     pub fn new(plan: &'a Plan, density: impl Fn([u32; 3]) -> f32) -> Result<Self, SolveError> {
@@ -61,21 +83,7 @@ impl<'a> CpuTwin<'a> {
         if bytes > 16 << 30 {
             return Err(SolveError::TooLargeForCpu { bytes: bytes as u64 });
         }
-        // Per brick of the store's grid, whether it holds medium (the store's own rule).
-        let grid = crate::store::BrickGrid::new(plan.dims);
-        let mut occupied = vec![false; grid.brick_count()];
-        let mut values = Vec::with_capacity(voxels);
-        for z in 0..nz {
-            for y in 0..ny {
-                for x in 0..nx {
-                    let rho = density([x, y, z]);
-                    if rho != 0.0 {
-                        occupied[grid.locate([x, y, z]).0] = true;
-                    }
-                    values.push(rho as f64);
-                }
-            }
-        }
+        let (values, occupied) = dense_density(plan.dims, density);
         Ok(CpuTwin {
             plan,
             medium: VoxelMedium { density: values, albedo: Vec::new(), dims: plan.dims },

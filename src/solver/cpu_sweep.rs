@@ -24,7 +24,7 @@
 //! (crossing vacuum changes no radiance, so this is exact).
 
 use super::energy::{volume_face, Tallies};
-use super::exitance::{record_exit, Exit, ExitEntry, ExitMaps};
+use super::exitance::{record_exit, record_far_exit, Exit, ExitEntry, ExitMaps};
 use super::mirror::{rebirth, stepped_out_radiance, CellKey, FarCarry, MirrorRecords, MirrorView};
 use super::periodic::PeriodStep;
 use super::plan::{Plan, SweepDirection};
@@ -175,14 +175,7 @@ pub(super) fn sweep_direction(
             // The same exits per boundary pixel, where the books put them.
             let (columns, weights) = ([wrap_b[p].0, wrap_c[q].0], dir.weights[last as usize]);
             let sides = period.as_ref().map_or([None; 2], |s| s.side_exits(p, q));
-            let mut far_share = 1.0;
-            for (k, side) in sides.into_iter().enumerate() {
-                if let Some((face, share)) = side {
-                    record_exit(&mut far_exits, &sweep, face, Exit::Side(k), columns, weights, last, share, *l);
-                    far_share -= share;
-                }
-            }
-            record_exit(&mut far_exits, &sweep, far, Exit::Far, columns, weights, last, far_share, *l);
+            record_far_exit(&mut far_exits, &sweep, far, sides, columns, weights, last, *l);
         }
     }
     let power = dir.power_per_radiance;

@@ -110,21 +110,8 @@ pub fn split(
     let [nx, ny, nz] = plan.dims;
     let voxels = nx as usize * ny as usize * nz as usize;
     let index = |v: [u32; 3]| v[0] as usize + nx as usize * (v[1] as usize + ny as usize * v[2] as usize);
-    // As the twin reads the store: density per voxel (x fastest) in f64, and a brick holds medium
-    // where any voxel's density is non-zero.
-    let mut density = Vec::with_capacity(voxels);
-    let mut occupied = vec![false; grid.brick_count()];
-    for z in 0..nz {
-        for y in 0..ny {
-            for x in 0..nx {
-                let rho = store.density_at([x, y, z]);
-                if rho != 0.0 {
-                    occupied[grid.locate([x, y, z]).0] = true;
-                }
-                density.push(rho as f64);
-            }
-        }
-    }
+    // As the twin reads the store.
+    let (density, occupied) = super::cpu::dense_density(plan.dims, |v| store.density_at(v));
     store.release_all_density();
     let albedo = if plan.albedo_field { Some(crate::store::albedo::open_albedo(store)?) } else { None };
     // The plan with the scene's own extinction: the uncollided irradiance the exact single
@@ -135,10 +122,11 @@ pub fn split(
     render_source.copy_from(source_total)?;
     let mut fields = Vec::with_capacity(plan.beams.len());
     let mut irradiance = vec![0.0f64; voxels * c];
+    // σs per channel at density 1, as the collect step multiplies it.
+    let coefficients: Vec<f64> = (0..c).map(|ch| plan.coefficients(ch).1).collect();
     for (b, beam) in plan.beams.iter().enumerate() {
         // What order 0's sweep of this beam deposited: Ē*(v) per channel.
         sweep_beam(plan, beam, &density, &occupied, &mut irradiance);
-        let coefficients: Vec<f64> = (0..c).map(|ch| plan.coefficients(ch).1).collect();
         for brick in store.occupied_bricks().collect::<Vec<_>>() {
             let a = albedo.as_ref().and_then(|f| f.brick(brick));
             let origin = grid.brick_origin(grid.brick_coords(brick));

@@ -213,6 +213,32 @@ fn pixel_taps(l: u32, w: f64, n: u32, periodic: bool) -> [(u32, f64); 4] {
     out
 }
 
+/// Records in `out` a ray of `sweep` still inside after its last plane `last` (lattice `columns`
+/// and `weights` there), carrying `l` out: through the far face `far_face`, less the shares that
+/// `sides` (a periodic sweep axis's [`super::periodic::PeriodStep::side_exits`] for the ray; none
+/// otherwise) say leave by a side in the step into the next period, which are placed on those
+/// sides. One placement for both backends (the twin's sweep, [`super::gpu::face_maps`]).
+#[allow(clippy::too_many_arguments)]
+pub(super) fn record_far_exit(
+    out: &mut Vec<ExitEntry>,
+    sweep: &FaceSweep,
+    far_face: usize,
+    sides: [Option<(usize, f64)>; 2],
+    columns: [u32; 2],
+    weights: [f64; 2],
+    last: u32,
+    l: [f64; 3],
+) {
+    let mut far_share = 1.0;
+    for (k, side) in sides.into_iter().enumerate() {
+        if let Some((face, share)) = side {
+            record_exit(out, sweep, face, Exit::Side(k), columns, weights, last, share, l);
+            far_share -= share;
+        }
+    }
+    record_exit(out, sweep, far_face, Exit::Far, columns, weights, last, far_share, l);
+}
+
 /// Records in `out` the exit of a ray of `sweep` carrying `l` (times `share`) through `face`:
 /// `exit` says which way it left, `columns` and `weights` are its lattice columns (b, c) and the
 /// lattice weights in plane `t`, the last plane it crossed.

@@ -35,7 +35,7 @@
 //! agree to the f32 propagation's round-off, not bitwise (`tests/it/exitance.rs`).
 
 use crate::solver::energy::volume_face;
-use crate::solver::exitance::{record_exit, Exit, ExitEntry, ExitMaps};
+use crate::solver::exitance::{record_exit, record_far_exit, Exit, ExitEntry, ExitMaps};
 use crate::solver::periodic::PeriodStep;
 use crate::solver::plan::SweepDirection;
 use crate::solver::sweep::FaceSweep;
@@ -136,14 +136,7 @@ fn add_far_exits(out: &mut Placed, sweep: &FaceSweep, dir: &SweepDirection, chan
                 *v = far[ch * rays + ray] as f64;
             }
             let sides = period.as_ref().map_or([None; 2], |s| s.side_exits(p as usize, q as usize));
-            let mut far_share = 1.0;
-            for (k, side) in sides.into_iter().enumerate() {
-                if let Some((face, share)) = side {
-                    record_exit(&mut out.entries, sweep, face, Exit::Side(k), columns, weights, last, share, l);
-                    far_share -= share;
-                }
-            }
-            record_exit(&mut out.entries, sweep, far_face, Exit::Far, columns, weights, last, far_share, l);
+            record_far_exit(&mut out.entries, sweep, far_face, sides, columns, weights, last, l);
         }
         out.flush();
     }
