@@ -651,6 +651,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, observer: &mut impl Observ
             render_data.single_scattering = Some(render::keep::SingleScatteringData {
                 medium: (&s.medium).into(),
                 travel: s.travel.iter().map(|t| t.to_array()).collect(),
+                peak_chains: s.peak_chains,
             });
             (&s.render_source, &s.fields)
         }

@@ -21,7 +21,9 @@
 //! default): the whole-medium figure is dominated by thin, easy voxels.
 //!
 //! **Images.** When both have `image.exr` of the same size, the same metrics over all pixels and
-//! r, g, b; otherwise a note says why the images were not compared.
+//! r, g, b, over the means of 4 × 4-pixel blocks, and over the blocks the medium covers (the
+//! candidate's alpha, 1 − transmittance, averaging ≥ 0.5 there); otherwise a note says why the
+//! images were not compared.
 //!
 //! [`Comparison`] serialises to JSON ([`write_comparison_json`]) and displays as a short text table.
 
@@ -137,7 +139,16 @@ pub struct CoreComparison {
 pub struct ImageComparison {
     pub width: u32,
     pub height: u32,
+    /// Over every pixel and r, g, b.
     pub metrics: Metrics,
+    /// Edge of the blocks below, in pixels.
+    pub block: u32,
+    /// Over the block × block means of r, g, b: what a Monte-Carlo reference's pixel noise does
+    /// not swamp.
+    pub blocks: Metrics,
+    /// Over the blocks where the candidate's alpha averages ≥ 0.5: the medium, not the sky around
+    /// it.
+    pub medium_blocks: Metrics,
 }
 
 /// Compares candidate directory `a` against reference directory `b`.

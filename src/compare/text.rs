@@ -52,6 +52,9 @@ impl fmt::Display for Comparison {
         }
         if let Some(img) = &self.image {
             row(f, "image", &img.metrics, &format!("{}×{} px", img.width, img.height))?;
+            let b = img.block;
+            row(f, "blocks", &img.blocks, &format!("{b}×{b}-pixel block means"))?;
+            row(f, "medium", &img.medium_blocks, &format!("{b}×{b} blocks where the candidate's alpha ≥ 0.5"))?;
         }
         if let (Some(noise), Some(corrected)) = (fl.reference_noise_relative_l2, fl.noise_corrected_relative_l2) {
             writeln!(

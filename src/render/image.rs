@@ -56,7 +56,8 @@ pub struct DirectBeam<'a> {
     /// The direction the sun's light travels (unit length).
     pub travel: DVec3,
     /// Its uncollided irradiance per voxel, attenuated by the true extinction (occupied bricks,
-    /// `channels` components).
+    /// `channels` components), followed by the δ-M scaled one when
+    /// [`SingleScattering::peak_chains`].
     pub irradiance: &'a Field,
 }
 
@@ -67,6 +68,9 @@ pub struct SingleScattering<'a> {
     pub beams: Vec<DirectBeam<'a>>,
     /// The scene's medium, not δ-M scaled: its σt, albedo and Henyey–Greenstein g.
     pub medium: Medium,
+    /// The fields hold the δ-M scaled irradiance too: the light the truncated peak kept in the
+    /// beam is scattered towards the camera as well ([`super::peak`]).
+    pub peak_chains: bool,
 }
 
 /// Everything a render reads.

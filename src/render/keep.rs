@@ -10,7 +10,7 @@
 //! |---|---|
 //! | `bricks.json`, `density.bricks` | the brick store's table and density (see [`crate::store`]) |
 //! | `source.field` | the in-scattered source summed over orders, in brick form, less the suns' first scattering where the renderer evaluates it exactly (below) |
-//! | `direct_<b>.field` | sun b's uncollided irradiance per voxel, true extinction (one per sun, see [`SingleScatteringData`]) |
+//! | `direct_<b>.field` | sun b's uncollided irradiance per voxel, true extinction, then (δ-M solves) the scaled one the solve swept (one per sun, see [`SingleScatteringData`]) |
 //! | `environment.exr` | the scene's environment map, when it has one (the background) |
 //! | `render.json` | [`RenderData`]: everything else, written last |
 //!
@@ -100,6 +100,11 @@ pub struct SingleScatteringData {
     pub medium: MediumData,
     /// Per sun, the direction its light travels (unit length, volume frame).
     pub travel: Vec<[f64; 3]>,
+    /// The solve applied δ-M: each `direct_<b>.field` holds the δ-M scaled irradiance after the
+    /// true one (2 × channels components), and the renderer scatters the peak's chains
+    /// ([`crate::render::peak`]). Absent (false) in render data written before it.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub peak_chains: bool,
 }
 
 /// The name, without `.field`, of sun b's irradiance in `render-data/`.
@@ -422,8 +427,9 @@ pub fn open(out: &Path) -> Result<Kept, OutputError> {
                 "single_scattering: a non-finite or negative medium, |g| ≥ 1 or a bad direction".into(),
             ));
         }
+        let components = if single.peak_chains { 2 * data.channels } else { data.channels };
         for b in 0..single.travel.len() {
-            direct.push(store.open_field(&direct_field_name(b), data.channels, Coverage::Occupied)?);
+            direct.push(store.open_field(&direct_field_name(b), components, Coverage::Occupied)?);
         }
     }
     let environment = match &data.environment {
@@ -502,6 +508,7 @@ pub fn render_solved(
             .map(|(t, field)| DirectBeam { travel: DVec3::from_array(*t).normalize(), irradiance: field })
             .collect(),
         medium: Medium { sigma_t: s.medium.sigma_t, albedo: s.medium.albedo, g: s.medium.g, emission: [0.0; 3] },
+        peak_chains: s.peak_chains,
     });
     render(&RenderInputs {
         store,

@@ -10,10 +10,12 @@
 //! `σs·Σ_b p_HG(g; ω_b·ω)·E_b` with the scene's true σs and g, ρ·a·E_b interpolated between voxel
 //! centres as the source is, and attenuated towards the camera by the true extinction: under δ-M
 //! the march keeps a second transmittance for it (the solved source travels with the scaled σt,
-//! as before); without δ-M it joins the source under the one transmittance.
+//! as before); without δ-M it joins the source under the one transmittance. Under δ-M the phase
+//! becomes the peak's chain sum at τ = ln(E*_b/E_b) and multiplies the scaled irradiance E*_b
+//! ([`super::peak`]); its τ = 0 term is the single scattering above.
 
+use super::peak::PeakChains;
 use super::RenderInputs;
-use crate::quadrature::phase::henyey_greenstein;
 use crate::quadrature::Blend;
 use crate::store::{Field, BRICK_VOXELS};
 use glam::DVec3;
@@ -103,7 +105,8 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
         // The suns' single scattering: the phase function between each sun's light and the
         // light reaching the camera (along −dir) is the same all along the ray.
         let single = inputs.single.map(|s| {
-            let phases: Vec<f64> = s.beams.iter().map(|b| henyey_greenstein(s.medium.g, b.travel.dot(-dir))).collect();
+            let phases: Vec<PeakChains> =
+                s.beams.iter().map(|b| PeakChains::new(s.medium.g, b.travel.dot(-dir))).collect();
             (s, phases)
         });
         // Under δ-M the march attenuates the solved source with the scaled extinction; the exact
@@ -143,10 +146,27 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                     let a = inputs.albedo.map_or([1.0; 8], |a| corners.map(|(v, _)| a.value(v, 0) as f64));
                     let weights: [f64; 8] = std::array::from_fn(|k| corners[k].1 * rho[k] * a[k]);
                     let mut e = [0.0; 3];
-                    for (beam, p) in s.beams.iter().zip(phases) {
-                        let v = sample_channels(beam.irradiance, inputs.channels, &corners, &weights);
+                    for (beam, chains) in s.beams.iter().zip(phases) {
+                        let v = sample_channels(beam.irradiance, 0, inputs.channels, &corners, &weights);
+                        if !s.peak_chains {
+                            let p = chains.single();
+                            for (ch, e) in e.iter_mut().enumerate() {
+                                *e += p * v[if inputs.channels == 1 { 0 } else { ch }];
+                            }
+                            continue;
+                        }
+                        // E*: the scaled irradiance after the true one; τ = ln(E*/E) the peak's
+                        // optical depth along the sun's path (∞ where E underflowed and E* did not).
+                        let scaled =
+                            sample_channels(beam.irradiance, inputs.channels, inputs.channels, &corners, &weights);
                         for (ch, e) in e.iter_mut().enumerate() {
-                            *e += p * v[if inputs.channels == 1 { 0 } else { ch }];
+                            let k = if inputs.channels == 1 { 0 } else { ch };
+                            let (true_e, scaled_e) = (v[k], scaled[k].max(v[k]));
+                            if scaled_e <= 0.0 {
+                                continue;
+                            }
+                            let tau = if true_e > 0.0 { (scaled_e / true_e).ln() } else { f64::INFINITY };
+                            *e += chains.phase(tau) * scaled_e;
                         }
                     }
                     std::array::from_fn(|ch| s.medium.sigma_t[ch] * s.medium.albedo[ch] * e[ch])
@@ -184,10 +204,16 @@ fn path_integral(sigma_t: f64, s: f64) -> f64 {
     }
 }
 
-/// `field`'s first `channels` components (1 or 3) summed over the trilinear `corners` with
-/// `weights` (one per corner: the trilinear weight times whatever multiplies the field there);
-/// outside the volume and in unstored bricks it reads 0, as `Field::value` has it.
-fn sample_channels(field: &Field, channels: u32, corners: &[([u32; 3], f64); 8], weights: &[f64; 8]) -> [f64; 3] {
+/// `field`'s `channels` components (1 or 3) from component `first` on, summed over the trilinear
+/// `corners` with `weights` (one per corner: the trilinear weight times whatever multiplies the
+/// field there); outside the volume and in unstored bricks it reads 0, as `Field::value` has it.
+fn sample_channels(
+    field: &Field,
+    first: u32,
+    channels: u32,
+    corners: &[([u32; 3], f64); 8],
+    weights: &[f64; 8],
+) -> [f64; 3] {
     let grid = field.grid();
     let mut out = [0.0; 3];
     for (&(v, _), &w) in corners.iter().zip(weights) {
@@ -197,7 +223,7 @@ fn sample_channels(field: &Field, channels: u32, corners: &[([u32; 3], f64); 8],
             continue;
         };
         for (ch, o) in out.iter_mut().enumerate().take(channels.min(3) as usize) {
-            *o += w * data.get(ch * BRICK_VOXELS + local).map_or(0.0, |&x| x as f64);
+            *o += w * data.get((first as usize + ch) * BRICK_VOXELS + local).map_or(0.0, |&x| x as f64);
         }
     }
     out

@@ -13,7 +13,8 @@
 //! the scene's true medium ([`SingleScattering`]; the solve takes the suns' binned first
 //! scattering off the source it keeps for the image, [`crate::solver::direct`]): its forward peak,
 //! the silver lining of a cloud seen towards the sun, is far narrower than a storage cell and is
-//! truncated by δ-M in the solve. What the camera sees
+//! truncated by δ-M in the solve. Under δ-M the light the truncated peak kept in the sun's beam
+//! is scattered towards the camera there too, by chains of peak scatterings ([`peak`]). What the camera sees
 //! beyond the volume is the sky's uniform radiance plus the environment map's pixel in the ray's
 //! direction.
 //!
@@ -27,6 +28,7 @@ mod camera;
 mod image;
 pub mod keep;
 pub mod march;
+pub mod peak;
 pub mod tone;
 mod write;
 

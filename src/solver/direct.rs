@@ -27,7 +27,12 @@
 //! scene's **true** extinction (a second host sweep with the unscaled medium when the plan applies
 //! δ-M; the same sweep otherwise), kept in `render-data/` in bricks; along a camera ray the
 //! renderer adds `σs(x)·p_HG(g; ω_b·ω_camera)·E_b(x)` with the true σs and the scene's g,
-//! attenuated towards the camera by the true extinction ([`crate::render::march`]).
+//! attenuated towards the camera by the true extinction ([`crate::render::march`]). Under δ-M the
+//! field also keeps the scaled irradiance E*_b the solve swept: the light E*_b − E_b that the
+//! truncated forward peak deflected and kept in the beam, whose first scattering was taken off
+//! with the rest, is scattered towards the camera by the renderer too, with the peak's chains
+//! ([`crate::render::peak`]); without it a camera looking towards the sun through a
+//! forward-scattering cloud misses much of its light.
 //!
 //! The split is left out (the image is made from the whole source total, as before) where the
 //! beams are swept with more than order 0's boundary light: periodic axes carry a beam's light
@@ -62,10 +67,14 @@ pub struct DirectSplit {
     /// Per beam, the direction its light travels.
     pub travel: Vec<DVec3>,
     /// Per beam, its uncollided irradiance per voxel with the true extinction (occupied bricks,
-    /// `plan.channels` components).
+    /// `plan.channels` components), followed, when [`peak_chains`](Self::peak_chains), by the
+    /// δ-M scaled irradiance the solve swept (`plan.channels` more).
     pub fields: Vec<Field>,
     /// The scene's medium, unscaled: what the exact single scattering uses.
     pub medium: Medium,
+    /// The plan applied δ-M: each field also holds the scaled irradiance, from which the renderer
+    /// scatters the light the forward peak kept in the beam ([`crate::render::peak`]).
+    pub peak_chains: bool,
 }
 
 /// Why the split was left out, for the plan's reasons; `None` when it can be made.
@@ -153,11 +162,18 @@ pub fn split(
                 }
             });
         }
-        // The true-extinction irradiance the renderer scatters exactly.
-        if let Some(true_plan) = &true_plan {
-            sweep_beam(true_plan, beam, &density, &occupied, &mut irradiance);
-        }
-        let mut field = store.create_field(&irradiance_field_name(b), c as u32, Coverage::Occupied)?;
+        // The true-extinction irradiance the renderer scatters exactly; under δ-M the scaled one
+        // the solve swept is kept beside it (the peak's chains, `crate::render::peak`).
+        let scaled = match &true_plan {
+            Some(true_plan) => {
+                let swept = irradiance.clone();
+                sweep_beam(true_plan, beam, &density, &occupied, &mut irradiance);
+                Some(swept)
+            }
+            None => None,
+        };
+        let components = if scaled.is_some() { 2 * c } else { c };
+        let mut field = store.create_field(&irradiance_field_name(b), components as u32, Coverage::Occupied)?;
         for brick in store.occupied_bricks().collect::<Vec<_>>() {
             let origin = grid.brick_origin(grid.brick_coords(brick));
             let Some(out) = field.brick_mut(brick) else { continue };
@@ -165,6 +181,9 @@ pub fn split(
                 let i = index([origin[0] + l[0], origin[1] + l[1], origin[2] + l[2]]);
                 for ch in 0..c {
                     out[ch * BRICK_VOXELS + local] = irradiance[i * c + ch] as f32;
+                    if let Some(swept) = &scaled {
+                        out[(c + ch) * BRICK_VOXELS + local] = swept[i * c + ch] as f32;
+                    }
                 }
             });
         }
@@ -173,7 +192,7 @@ pub fn split(
     }
     render_source.flush()?;
     let travel = plan.beams.iter().map(|b| b.omega).collect();
-    Ok(Some(DirectSplit { render_source, travel, fields, medium: medium.clone() }))
+    Ok(Some(DirectSplit { render_source, travel, fields, medium: medium.clone(), peak_chains: true_plan.is_some() }))
 }
 
 /// Calls `visit(local index, local coordinates)` for each voxel of `brick` inside the volume.
