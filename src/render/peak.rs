@@ -30,17 +30,19 @@
 //!
 //! **Not exact.** The chains are followed along straight lines (a small-angle view), and wide
 //! scatterings that return light into the peak are the solve's. Against the Monte-Carlo
-//! reference this brings a backlit g = 0.8 cloud from 31 % to 17 % (4 × 4-pixel blocks, relative
-//! L2) and g = 0.95 from 80 % to 39 %; side- and front-lit views are within 2.5–5.5 %
-//! (benches/RESULTS.md, "Render: the suns' single scattering exact").
+//! reference this brings a backlit g = 0.8 cloud from 31 % to 17 % (4 × 4-pixel blocks over the
+//! cloud, relative L2) and g = 0.95 from 80 % to 29–39 %, still too dark: forward light scattered
+//! outside δ-M's peak but within a storage cell of the sun is the binned source's, smeared. Side-
+//! and front-lit views are within 1.2–5.3 % (benches/RESULTS.md, "Render: the suns' single
+//! scattering exact", `tools/forward_image_table.sh`).
 
 use crate::quadrature::phase::henyey_greenstein;
 use std::f64::consts::PI;
 
 /// The chain sum stops once HG(gⁿ) is this close to isotropic (relative): what is left is 1/4π.
-const ISOTROPIC: f64 = 1e-6;
+const ISOTROPIC: f64 = 1e-5;
 
-/// Most terms of the table (g → 1 would need ever more: 0.99 needs ~1,400).
+/// Most terms of the table (g → 1 would need ever more: 0.99 needs ~1,200).
 const MOST_TERMS: usize = 4096;
 
 /// `HG(g^{n+1}; μ)` for n = 0, 1, … until it is isotropic to [`ISOTROPIC`], for one sun and one
@@ -80,19 +82,31 @@ impl PeakChains {
         if !tau.is_finite() {
             return iso;
         }
-        // Poisson weights in logarithms (e^{−τ} underflows for τ > 745); past τ + 12√τ + 12 the
-        // remaining mass is below 1e-25.
-        let last = (tau + 12.0 * tau.sqrt() + 12.0).ceil() as usize;
-        let (ln_tau, mut ln_w) = (tau.ln(), -tau);
+        // Past τ + 12√τ + 12 the remaining Poisson mass is below 1e-25; past the table's end
+        // every term is isotropic.
+        let last = ((tau + 12.0 * tau.sqrt() + 12.0).ceil() as usize).min(self.phases.len() - 1);
         let (mut sum, mut mass) = (0.0, 0.0);
-        for (n, &p) in self.phases.iter().enumerate().take(last + 1) {
-            if n > 0 {
-                ln_w += ln_tau - (n as f64).ln();
-            }
-            if ln_w > -60.0 {
-                let w = ln_w.exp();
+        if tau < 600.0 {
+            // The weights by their recurrence, w₀ = e^{−τ} and w_{n+1} = w_n·τ/(n+1): one
+            // exponential per sample (e^{−600} is still a normal f64).
+            let mut w = (-tau).exp();
+            for (n, &p) in self.phases[..=last].iter().enumerate() {
                 sum += w * p;
                 mass += w;
+                w *= tau / (n + 1) as f64;
+            }
+        } else {
+            // In logarithms, where e^{−τ} would underflow.
+            let (ln_tau, mut ln_w) = (tau.ln(), -tau);
+            for (n, &p) in self.phases[..=last].iter().enumerate() {
+                if n > 0 {
+                    ln_w += ln_tau - (n as f64).ln();
+                }
+                if ln_w > -60.0 {
+                    let w = ln_w.exp();
+                    sum += w * p;
+                    mass += w;
+                }
             }
         }
         sum + (1.0 - mass).max(0.0) * iso
