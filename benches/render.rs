@@ -1,7 +1,8 @@
 //! Rendering a solved volume: what `lpm render OUT` costs per megapixel (the camera ray-march over
 //! the kept source, on the CPU's threads), for an anisotropic cloud (24 storage directions, where
-//! the source is blended between storage directions) and the same cloud isotropic (one storage
-//! direction). The solve is set up once (CPU twin, two orders: the render's cost does not depend
+//! the source is blended between storage directions), the same cloud solved with δ-M (the render
+//! adds the forward peak's chains, `lpm::render::peak`: two irradiance fields and a chain sum per
+//! sample) and the same cloud isotropic (one storage direction). The solve is set up once (CPU twin, two orders: the render's cost does not depend
 //! on how converged the source is); each iteration renders one 256×256 image from the solve's view.
 //! Criterion's "elements/s" are pixels per second.
 //!
@@ -20,7 +21,7 @@ fn env_u32(name: &str, default: u32) -> u32 {
 }
 
 /// A procedural cloud lit by a sun and a sky, Henyey–Greenstein `g`, solved into `out`.
-fn solve(dir: &Path, name: &str, g: f64) -> std::path::PathBuf {
+fn solve(dir: &Path, name: &str, g: f64, forward_peak: &str) -> std::path::PathBuf {
     let n = env_u32("LPM_BENCH_DIMS", 48);
     let storage = if g == 0.0 { String::new() } else { "storage_directions_per_face = 2\n".to_string() };
     let scene = format!(
@@ -28,7 +29,7 @@ fn solve(dir: &Path, name: &str, g: f64) -> std::path::PathBuf {
          [medium]\nsigma_t = 0.8\nalbedo = 0.99\ng = {g}\n\n\
          [[lights]]\nkind = \"sky\"\nradiance = 0.5\n\n\
          [[lights]]\nkind = \"sun\"\ndirection = [-0.55, -0.35, 0.75]\nirradiance = 3.0\n\n\
-         [solver]\ndirections_per_face = 4\n{storage}max_orders = 2\nforward_peak = \"keep\"\n"
+         [solver]\ndirections_per_face = 4\n{storage}max_orders = 2\nforward_peak = \"{forward_peak}\"\n"
     );
     let path = dir.join(format!("{name}.toml"));
     std::fs::write(&path, scene).expect("write the scene");
@@ -46,8 +47,10 @@ fn render(c: &mut Criterion) {
     let mut group = c.benchmark_group(format!("render {side}x{side}"));
     group.sample_size(10);
     group.throughput(Throughput::Elements(u64::from(side) * u64::from(side)));
-    for (name, g) in [("anisotropic g=0.8", 0.8), ("isotropic", 0.0)] {
-        let out = solve(&dir, &name.replace([' ', '='], "_"), g);
+    for (name, g, peak) in
+        [("anisotropic g=0.8", 0.8, "keep"), ("anisotropic g=0.8 delta-m", 0.8, "delta-m"), ("isotropic", 0.0, "keep")]
+    {
+        let out = solve(&dir, &name.replace([' ', '=', '-'], "_"), g, peak);
         let kept = open(&out).expect("render data");
         let camera = lpm::scene::Camera { width: side, height: side, ..kept.camera.clone() };
         group.bench_function(name, |b| b.iter(|| kept.render(&camera, Background::Sky)));
