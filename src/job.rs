@@ -630,13 +630,15 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, observer: &mut impl Observ
         let split = solver::direct::split(&plan, &scene.medium, &store, &fields.source_total)?;
         match (&split, solver::direct::left_out_because(&plan)) {
             (Some(s), _) => plan.reasons.push(format!(
-                "image: the single scattering of {} sun(s) is evaluated exactly along each camera ray (true σs, \
-                 HG g = {}, true extinction), their binned first scattering taken off the image's source (not \
-                 off the exported source)",
+                "image: the single scattering of {} sun(s) and {} point light(s) is evaluated exactly along each \
+                 camera ray (true σs, HG g = {}, true extinction{}), their binned first scattering taken off the \
+                 image's source (not off the exported source)",
                 s.travel.len(),
-                scene.medium.g
+                s.points.len(),
+                scene.medium.g,
+                if s.peak_chains { "; the light δ-M kept in their beams by the forward peak's chains" } else { "" }
             )),
-            (None, Some(why)) if !plan.beams.is_empty() => {
+            (None, Some(why)) if !plan.beams.is_empty() || !plan.point_lights.is_empty() => {
                 tracing::info!("image: the suns' single scattering is not split off: {why}");
                 plan.reasons.push(format!("image: the suns' single scattering is not split off: {why}"));
             }
@@ -652,6 +654,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, observer: &mut impl Observ
                 medium: (&s.medium).into(),
                 travel: s.travel.iter().map(|t| t.to_array()).collect(),
                 peak_chains: s.peak_chains,
+                points: s.points.iter().map(|p| p.to_array()).collect(),
             });
             (&s.render_source, &s.fields)
         }

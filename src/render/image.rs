@@ -61,11 +61,22 @@ pub struct DirectBeam<'a> {
     pub irradiance: &'a Field,
 }
 
+/// One point light as the renderer scatters it exactly (see [`SingleScattering`]).
+#[derive(Clone, Copy)]
+pub struct PointSource<'a> {
+    /// Its position, in voxel units (the volume's corner at 0).
+    pub position: DVec3,
+    /// Its irradiance per voxel as the beam's ([`DirectBeam::irradiance`]).
+    pub irradiance: &'a Field,
+}
+
 /// The suns' single scattering, evaluated exactly along each camera ray
 /// (`σs(x)·p_HG(g; ω_sun·ω_camera)·E(x)`, attenuated towards the camera by the true extinction),
 /// the source the image reads then holding everything else ([`crate::solver::direct`]).
 pub struct SingleScattering<'a> {
     pub beams: Vec<DirectBeam<'a>>,
+    /// The point lights, whose light arrives at x from `x − position`.
+    pub points: Vec<PointSource<'a>>,
     /// The scene's medium, not δ-M scaled: its σt, albedo and Henyey–Greenstein g.
     pub medium: Medium,
     /// The fields hold the δ-M scaled irradiance too: the light the truncated peak kept in the

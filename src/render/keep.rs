@@ -28,7 +28,7 @@
 //! is unchanged. Cost per sun: one f32 per voxel of the occupied bricks and channel
 //! (`4·channels·4096` bytes per occupied brick).
 
-use super::{render, Background, DirectBeam, Image, RenderInputs, SingleScattering, VoxelFactors};
+use super::{render, Background, DirectBeam, Image, PointSource, RenderInputs, SingleScattering, VoxelFactors};
 use crate::output::{write_json_atomic, OutputError};
 use crate::quadrature::{PropagationSet, StorageBlend, StorageSet};
 use crate::scene::{
@@ -46,8 +46,11 @@ const DATA_FILE: &str = "render.json";
 const SOURCE_FIELD: &str = "source";
 /// [`RenderData::format`] of this version of lpm. 2: the image's source holds no suns' first
 /// scattering where `single_scattering` is given (format 1's held it; it cannot be rendered by this
-/// lpm without counting it twice or losing it).
-const FORMAT: u32 = 2;
+/// lpm without counting it twice or losing it). 3: under δ-M the suns' fields also hold the
+/// scaled irradiance, and the point lights' first scattering is off the source too, their
+/// irradiance kept after the suns' (`single_scattering.peak_chains`, `.points`); format 2 is
+/// still read (neither).
+const FORMAT: u32 = 3;
 
 /// `render-data/render.json`. Vectors and the camera are in the volume's frame (its corner at 0),
 /// `origin` places it in the world.
@@ -105,6 +108,10 @@ pub struct SingleScatteringData {
     /// ([`crate::render::peak`]). Absent (false) in render data written before it.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub peak_chains: bool,
+    /// Per point light, its position (voxel units, the volume's corner at 0); its irradiance is
+    /// `direct_<b>.field` with b counting on after the suns' (format 3).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub points: Vec<[f64; 3]>,
 }
 
 /// The name, without `.field`, of sun b's irradiance in `render-data/`.
@@ -383,7 +390,7 @@ pub fn open(out: &Path) -> Result<Kept, OutputError> {
              ({FORMAT}) adds exactly at render time from the suns' irradiance (not kept in format 1); solve again"
         )));
     }
-    if data.format != FORMAT {
+    if data.format != FORMAT && data.format != 2 {
         return Err(invalid(format!("format {} is not the one this lpm reads ({FORMAT}); solve again", data.format)));
     }
     let k = data.directions_per_face;
@@ -421,14 +428,15 @@ pub fn open(out: &Path) -> Result<Kept, OutputError> {
         let fine = [m.sigma_t, m.albedo].iter().flatten().all(|v| v.is_finite() && *v >= 0.0)
             && m.g.is_finite()
             && m.g.abs() < 1.0
-            && single.travel.iter().all(|t| t.iter().all(|v| v.is_finite()) && DVec3::from_array(*t).length() > 0.5);
+            && single.travel.iter().all(|t| t.iter().all(|v| v.is_finite()) && DVec3::from_array(*t).length() > 0.5)
+            && single.points.iter().flatten().all(|v| v.is_finite());
         if !fine {
             return Err(invalid(
-                "single_scattering: a non-finite or negative medium, |g| ≥ 1 or a bad direction".into(),
+                "single_scattering: a non-finite or negative medium, |g| ≥ 1, a bad direction or position".into(),
             ));
         }
         let components = if single.peak_chains { 2 * data.channels } else { data.channels };
-        for b in 0..single.travel.len() {
+        for b in 0..single.travel.len() + single.points.len() {
             direct.push(store.open_field(&direct_field_name(b), components, Coverage::Occupied)?);
         }
     }
@@ -499,13 +507,22 @@ pub fn render_solved(
     let lookup = |omega: DVec3| blend.weights(omega);
     // The suns' exact single scattering, when the source was kept without their first scattering
     // (a caller without their fields renders the source alone: the contract is the caller's).
-    debug_assert_eq!(data.single_scattering.as_ref().map_or(0, |s| s.travel.len()), factors.direct.len());
+    debug_assert_eq!(
+        data.single_scattering.as_ref().map_or(0, |s| s.travel.len() + s.points.len()),
+        factors.direct.len()
+    );
     let single = data.single_scattering.as_ref().map(|s| SingleScattering {
         beams: s
             .travel
             .iter()
             .zip(factors.direct)
             .map(|(t, field)| DirectBeam { travel: DVec3::from_array(*t).normalize(), irradiance: field })
+            .collect(),
+        points: s
+            .points
+            .iter()
+            .zip(factors.direct.iter().skip(s.travel.len()))
+            .map(|(p, field)| PointSource { position: DVec3::from_array(*p), irradiance: field })
             .collect(),
         medium: Medium { sigma_t: s.medium.sigma_t, albedo: s.medium.albedo, g: s.medium.g, emission: [0.0; 3] },
         peak_chains: s.peak_chains,

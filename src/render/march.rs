@@ -12,9 +12,10 @@
 //! the march keeps a second transmittance for it (the solved source travels with the scaled σt,
 //! as before); without δ-M it joins the source under the one transmittance. Under δ-M the phase
 //! becomes the peak's chain sum at τ = ln(E*_b/E_b) and multiplies the scaled irradiance E*_b
-//! ([`super::peak`]); its τ = 0 term is the single scattering above.
+//! ([`super::peak`]); its τ = 0 term is the single scattering above. Point lights are scattered
+//! alike, their light arriving at x along x − position (so the phase is evaluated per sample).
 
-use super::peak::PeakChains;
+use super::peak::{chain_phase, PeakChains};
 use super::RenderInputs;
 use crate::quadrature::Blend;
 use crate::store::{Field, BRICK_VOXELS};
@@ -167,6 +168,32 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                             }
                             let tau = if true_e > 0.0 { (scaled_e / true_e).ln() } else { f64::INFINITY };
                             *e += chains.phase(tau) * scaled_e;
+                        }
+                    }
+                    // The point lights: their light reaches x travelling from the light to x.
+                    for point in &s.points {
+                        let from = mid / h - point.position;
+                        let mu = if from.length_squared() > 0.0 { from.normalize().dot(-dir) } else { 0.0 };
+                        let v = sample_channels(point.irradiance, 0, inputs.channels, &corners, &weights);
+                        let scaled = if s.peak_chains {
+                            sample_channels(point.irradiance, inputs.channels, inputs.channels, &corners, &weights)
+                        } else {
+                            v
+                        };
+                        for (ch, e) in e.iter_mut().enumerate() {
+                            let k = if inputs.channels == 1 { 0 } else { ch };
+                            let (true_e, scaled_e) = (v[k], scaled[k].max(v[k]));
+                            if scaled_e <= 0.0 {
+                                continue;
+                            }
+                            let tau = if !s.peak_chains {
+                                0.0
+                            } else if true_e > 0.0 {
+                                (scaled_e / true_e).ln()
+                            } else {
+                                f64::INFINITY
+                            };
+                            *e += chain_phase(s.medium.g, mu, tau) * scaled_e;
                         }
                     }
                     std::array::from_fn(|ch| s.medium.sigma_t[ch] * s.medium.albedo[ch] * e[ch])

@@ -34,6 +34,8 @@ mod write;
 
 pub use crate::scene::default_camera;
 pub use camera::RayGenerator;
-pub use image::{render, tone_map, Background, DirectBeam, Image, RenderInputs, SingleScattering, VoxelFactors};
+pub use image::{
+    render, tone_map, Background, DirectBeam, Image, PointSource, RenderInputs, SingleScattering, VoxelFactors,
+};
 pub use keep::{render_solved, RenderData, RENDER_DATA};
 pub use write::{write_exr, write_images, write_png, write_png_rgba};

@@ -75,42 +75,73 @@ impl PeakChains {
     /// `Σₙ P(n; τ)·HG(g^{n+1}; μ)` for τ ≥ 0 (τ = ∞ gives 1/4π). τ = 0 returns
     /// [`single`](Self::single) bit for bit.
     pub fn phase(&self, tau: f64) -> f64 {
-        let iso = 1.0 / (4.0 * PI);
-        if tau <= 0.0 {
-            return self.phases[0];
-        }
-        if !tau.is_finite() {
-            return iso;
-        }
-        // Past τ + 12√τ + 12 the remaining Poisson mass is below 1e-25; past the table's end
-        // every term is isotropic.
-        let last = ((tau + 12.0 * tau.sqrt() + 12.0).ceil() as usize).min(self.phases.len() - 1);
-        let (mut sum, mut mass) = (0.0, 0.0);
-        if tau < 600.0 {
-            // The weights by their recurrence, w₀ = e^{−τ} and w_{n+1} = w_n·τ/(n+1): one
-            // exponential per sample (e^{−600} is still a normal f64).
-            let mut w = (-tau).exp();
-            for (n, &p) in self.phases[..=last].iter().enumerate() {
-                sum += w * p;
-                mass += w;
-                w *= tau / (n + 1) as f64;
-            }
-        } else {
-            // In logarithms, where e^{−τ} would underflow.
-            let (ln_tau, mut ln_w) = (tau.ln(), -tau);
-            for (n, &p) in self.phases[..=last].iter().enumerate() {
-                if n > 0 {
-                    ln_w += ln_tau - (n as f64).ln();
-                }
-                if ln_w > -60.0 {
-                    let w = ln_w.exp();
-                    sum += w * p;
-                    mass += w;
-                }
-            }
-        }
-        sum + (1.0 - mass).max(0.0) * iso
+        poisson_mix(tau, self.phases.len(), |n| self.phases[n])
     }
+}
+
+/// [`PeakChains::phase`] for one (g, μ) without a table: for a light whose direction changes
+/// along the camera ray (a point light), where a table per sample would cost more than the sum.
+pub fn chain_phase(g: f64, mu: f64, tau: f64) -> f64 {
+    let iso = 1.0 / (4.0 * PI);
+    if tau <= 0.0 {
+        return henyey_greenstein(g, mu);
+    }
+    if !tau.is_finite() {
+        return iso;
+    }
+    // Only the terms the Poisson weights reach, until they are isotropic.
+    let last = ((tau + 12.0 * tau.sqrt() + 12.0).ceil() as usize).min(MOST_TERMS - 1);
+    let mut terms = Vec::with_capacity(last + 1);
+    let mut gn = g;
+    for _ in 0..=last {
+        let p = henyey_greenstein(gn, mu);
+        terms.push(p);
+        if (p / iso - 1.0).abs() < ISOTROPIC {
+            break;
+        }
+        gn *= g;
+    }
+    poisson_mix(tau, terms.len(), |n| terms[n])
+}
+
+/// `Σₙ P(n; τ)·phase(n)` over n < `terms`, the Poisson mass past them counted as isotropic
+/// (1/4π): τ ≤ 0 gives `phase(0)` exactly, τ = ∞ 1/4π.
+fn poisson_mix(tau: f64, terms: usize, phase: impl Fn(usize) -> f64) -> f64 {
+    let iso = 1.0 / (4.0 * PI);
+    if tau <= 0.0 {
+        return phase(0);
+    }
+    if !tau.is_finite() || terms == 0 {
+        return iso;
+    }
+    // Past τ + 12√τ + 12 the remaining Poisson mass is below 1e-25; past the last term every
+    // term is isotropic.
+    let last = ((tau + 12.0 * tau.sqrt() + 12.0).ceil() as usize).min(terms - 1);
+    let (mut sum, mut mass) = (0.0, 0.0);
+    if tau < 600.0 {
+        // The weights by their recurrence, w₀ = e^{−τ} and w_{n+1} = w_n·τ/(n+1): one
+        // exponential per sample (e^{−600} is still a normal f64).
+        let mut w = (-tau).exp();
+        for n in 0..=last {
+            sum += w * phase(n);
+            mass += w;
+            w *= tau / (n + 1) as f64;
+        }
+    } else {
+        // In logarithms, where e^{−τ} would underflow.
+        let (ln_tau, mut ln_w) = (tau.ln(), -tau);
+        for n in 0..=last {
+            if n > 0 {
+                ln_w += ln_tau - (n as f64).ln();
+            }
+            if ln_w > -60.0 {
+                let w = ln_w.exp();
+                sum += w * phase(n);
+                mass += w;
+            }
+        }
+    }
+    sum + (1.0 - mass).max(0.0) * iso
 }
 
 #[cfg(test)]
@@ -170,5 +201,12 @@ mod tests {
         let back = PeakChains::new(0.8, -0.5);
         assert!(chains.phase(0.5) < chains.phase(0.0) && chains.phase(5.0) < chains.phase(0.5));
         assert!(back.phase(5.0) > back.phase(0.0));
+        // Without a table, the same sums.
+        for tau in [0.0, 0.3, 4.0, 90.0, 900.0, f64::INFINITY] {
+            for (g, mu) in [(0.8, 0.97), (0.95, 0.2)] {
+                let (a, b) = (chain_phase(g, mu, tau), PeakChains::new(g, mu).phase(tau));
+                assert!((a - b).abs() <= 1e-12 * b, "g {g}, μ {mu}, τ {tau}: {a} vs {b}");
+            }
+        }
     }
 }

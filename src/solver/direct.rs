@@ -66,6 +66,9 @@ pub struct DirectSplit {
     pub render_source: Field,
     /// Per beam, the direction its light travels.
     pub travel: Vec<DVec3>,
+    /// Per point light, its position (voxel units, the volume's corner at 0); its field follows
+    /// the beams' in [`fields`](Self::fields).
+    pub points: Vec<DVec3>,
     /// Per beam, its uncollided irradiance per voxel with the true extinction (occupied bricks,
     /// `plan.channels` components), followed, when [`peak_chains`](Self::peak_chains), by the
     /// δ-M scaled irradiance the solve swept (`plan.channels` more).
@@ -79,8 +82,8 @@ pub struct DirectSplit {
 
 /// Why the split was left out, for the plan's reasons; `None` when it can be made.
 pub fn left_out_because(plan: &Plan) -> Option<String> {
-    if plan.beams.is_empty() {
-        return Some("no sun".into());
+    if plan.beams.is_empty() && plan.point_lights.is_empty() {
+        return Some("no sun or point light".into());
     }
     if plan.periodic.iter().any(|&p| p) || plan.reflective.iter().flatten().any(|&r| r) {
         return Some(
@@ -190,9 +193,82 @@ pub fn split(
         field.flush()?;
         fields.push(field);
     }
+    if !plan.point_lights.is_empty() {
+        split_point_lights(plan, true_plan.as_ref(), store, albedo.as_ref(), &mut render_source, &mut fields)?;
+    }
     render_source.flush()?;
     let travel = plan.beams.iter().map(|b| b.omega).collect();
-    Ok(Some(DirectSplit { render_source, travel, fields, medium: medium.clone(), peak_chains: true_plan.is_some() }))
+    let points = plan.point_lights.iter().map(|l| l.position).collect();
+    Ok(Some(DirectSplit {
+        render_source,
+        travel,
+        points,
+        fields,
+        medium: medium.clone(),
+        peak_chains: true_plan.is_some(),
+    }))
+}
+
+/// The point lights' share of [`split`]: their first scattering, exactly what
+/// [`super::point::write_order0`] put into order 0's new source (written again into a scratch
+/// field: the same f32 values), times the albedo factor as the commit applied it, taken off
+/// `render_source`; then per light its irradiance with the true extinction (and, under δ-M, the
+/// scaled one after it), appended to `fields`. The irradiance passes scatter isotropically: the
+/// phase rows do not change the fluence, and an isotropic row needs no table.
+fn split_point_lights(
+    plan: &Plan,
+    true_plan: Option<&Plan>,
+    store: &BrickStore,
+    albedo: Option<&Field>,
+    render_source: &mut Field,
+    fields: &mut Vec<Field>,
+) -> Result<(), SolveError> {
+    let c = plan.channels as usize;
+    let comps = plan.source_components();
+    let scratch = |name: &str, components: u32| store.create_field(name, components, Coverage::Occupied);
+    {
+        // (Scoped: each scratch field is unmapped before the next pass creates it afresh.)
+        let mut fluence = scratch("direct_scratch_fluence", c as u32)?;
+        let mut source = scratch("direct_scratch_source", comps)?;
+        super::point::write_order0(store, plan, &mut fluence, &mut source)?;
+        for brick in store.occupied_bricks().collect::<Vec<_>>() {
+            let (Some(first), Some(out)) = (source.brick(brick), render_source.brick_mut(brick)) else { continue };
+            let a = albedo.and_then(|f| f.brick(brick));
+            for (k, (o, &j)) in out.iter_mut().zip(first).enumerate() {
+                let factor = a.map_or(1.0, |a| a[k % BRICK_VOXELS] as f64);
+                *o = (*o as f64 - j as f64 * factor) as f32;
+            }
+        }
+    }
+    let isotropic = crate::quadrature::phase::Phase::HenyeyGreenstein { g: 0.0 };
+    for (l, light) in plan.point_lights.iter().enumerate() {
+        let alone = |p: &Plan| Plan { point_lights: vec![*light], phase: isotropic, ..p.clone() };
+        let mut passes = vec![alone(true_plan.unwrap_or(plan))];
+        if true_plan.is_some() {
+            passes.push(alone(plan));
+        }
+        let mut field = store.create_field(
+            &irradiance_field_name(plan.beams.len() + l),
+            (passes.len() * c) as u32,
+            Coverage::Occupied,
+        )?;
+        for (pass, p) in passes.iter().enumerate() {
+            // (`e` and `j` are unmapped at the end of each pass.)
+            let mut e = scratch("direct_scratch_fluence", c as u32)?;
+            let mut j = scratch("direct_scratch_source", p.source_components())?;
+            super::point::write_order0(store, p, &mut e, &mut j)?;
+            for brick in store.occupied_bricks().collect::<Vec<_>>() {
+                let (Some(from), Some(out)) = (e.brick(brick), field.brick_mut(brick)) else { continue };
+                out[pass * c * BRICK_VOXELS..(pass + 1) * c * BRICK_VOXELS].copy_from_slice(from);
+            }
+        }
+        field.flush()?;
+        fields.push(field);
+    }
+    for name in ["direct_scratch_fluence", "direct_scratch_source"] {
+        let _ = std::fs::remove_file(store.dir().join(format!("{name}.field")));
+    }
+    Ok(())
 }
 
 /// Calls `visit(local index, local coordinates)` for each voxel of `brick` inside the volume.
