@@ -70,7 +70,7 @@ pub struct PointSource<'a> {
     pub irradiance: &'a Field,
 }
 
-/// The suns' single scattering, evaluated exactly along each camera ray
+/// The suns' and point lights' single scattering, evaluated exactly along each camera ray
 /// (`σs(x)·p_HG(g; ω_sun·ω_camera)·E(x)`, attenuated towards the camera by the true extinction),
 /// the source the image reads then holding everything else ([`crate::solver::direct`]).
 pub struct SingleScattering<'a> {
@@ -105,7 +105,8 @@ pub struct RenderInputs<'a> {
     /// direction).
     pub storage_lookup: &'a (dyn Fn(DVec3) -> Blend + Sync),
     pub medium: &'a Medium,
-    /// The suns' single scattering, added exactly; `None`: the source holds it (binned).
+    /// The suns' and point lights' single scattering, added exactly; `None`: the source holds it
+    /// (binned).
     pub single: Option<&'a SingleScattering<'a>>,
     /// Radiance seen where a ray leaves the volume (zero for [`Background::Transparent`]).
     pub background: [f64; 3],

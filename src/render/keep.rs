@@ -18,15 +18,17 @@
 //! `--keep-store` keeps them too), or copies where a link cannot be made. The directory is
 //! published with the solve's other outputs as one set.
 //!
-//! **The suns' single scattering** (format 2). Where the solve could split it off
-//! ([`crate::solver::direct`]: every sun and an environment map's sun-like peak, no periodic or
-//! mirror faces), `source.field` is the solve's source total less the beams' first scattering
-//! (exactly what order 0 put in: binned in storage directions, with the δ-M scaled medium and
-//! phase), a field of its own rather than a link to the exported total, and each sun's uncollided
-//! irradiance is kept beside it; the renderer adds `σs·p_HG(g; ω_sun·ω_camera)·E` along each
-//! camera ray with the scene's true medium ([`super::march`]). The exported `source` of the solve
-//! is unchanged. Cost per sun: one f32 per voxel of the occupied bricks and channel
-//! (`4·channels·4096` bytes per occupied brick).
+//! **The suns' and point lights' single scattering** (format 2: suns; format 3: and point lights,
+//! and under δ-M the scaled irradiance for the forward peak's chains, [`super::peak`]). Where the
+//! solve could split it off ([`crate::solver::direct`]: every sun, an environment map's sun-like
+//! peak and every point light, no periodic or mirror faces), `source.field` is the solve's source
+//! total less their first scattering (exactly what order 0 put in: binned in storage directions,
+//! with the δ-M scaled medium and phase), a field of its own rather than a link to the exported
+//! total, and each light's uncollided irradiance is kept beside it (suns first, then point
+//! lights); the renderer adds `σs·p_HG(g; ω_light·ω_camera)·E` along each camera ray with the
+//! scene's true medium ([`super::march`]). The exported `source` of the solve is unchanged. Cost
+//! per light: one f32 per voxel of the occupied bricks and channel (`4·channels·4096` bytes per
+//! occupied brick), twice that under δ-M.
 
 use super::{render, Background, DirectBeam, Image, PointSource, RenderInputs, SingleScattering, VoxelFactors};
 use crate::output::{write_json_atomic, OutputError};

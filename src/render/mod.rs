@@ -8,8 +8,8 @@
 //! directions around the ray's direction ([`crate::quadrature::StorageBlend`]; [`render_solved`]
 //! builds the blend): taking the one storage cell that holds the direction made a seam wherever
 //! neighbouring pixels' rays fell in different cells. The suns' single scattering (every sun and an
-//! environment map's sun-like peak) is not read from that source but evaluated exactly along the
-//! ray, `σs(x)·p_HG(g; ω_sun·ω_camera)·E(x)` from each sun's uncollided irradiance per voxel with
+//! environment map's sun-like peak; point lights alike) is not read from that source but
+//! evaluated exactly along the ray, `σs(x)·p_HG(g; ω_sun·ω_camera)·E(x)` from each sun's uncollided irradiance per voxel with
 //! the scene's true medium ([`SingleScattering`]; the solve takes the suns' binned first
 //! scattering off the source it keeps for the image, [`crate::solver::direct`]): its forward peak,
 //! the silver lining of a cloud seen towards the sun, is far narrower than a storage cell and is

@@ -1,15 +1,17 @@
 //! The direct light's first scattering split off the source an image is made from (issue 38,
-//! item 1): what the renderer needs to evaluate the suns' single scattering exactly along each
-//! camera ray instead of reading it from the binned, δ-M-scaled source.
+//! item 1): what the renderer needs to evaluate the suns' and point lights' single scattering
+//! exactly along each camera ray instead of reading it from the binned, δ-M-scaled source.
 //!
 //! **What counts as direct light.** The collimated beams of the plan ([`Plan::beams`]): every
 //! `[[lights]] kind = "sun"` and an environment map's sun-like peak. Their first scattering is a
 //! delta in incident direction, so its angular shape is the phase function itself, which storage
 //! cells a few tens of degrees wide cannot hold (g = 0.8: half the forward lobe lies within 20°
-//! of the sun). The sky's diffuse light, the environment map's diffuse part and the emission stay
-//! in the solve (their first scattering is smooth in angle); so, for now, do point lights: their
-//! first scattering stays in the stored source, binned as before, and no exact term is added for
-//! them, so nothing is counted twice.
+//! of the sun). Point lights too: their light reaches each voxel from one direction (the light's),
+//! and [`super::point`] computed it exactly there; their first scattering, what
+//! [`super::point::write_order0`] put into order 0's source, is written again into a scratch field
+//! (the same values) and taken off, and each light's irradiance is kept (true extinction; under
+//! δ-M the scaled one after it). The sky's diffuse light, the environment map's diffuse part and
+//! the emission stay in the solve (their first scattering is smooth in angle).
 //!
 //! **What the solve put in.** Order 0 sweeps each beam along its exact direction; every voxel of
 //! an occupied brick pulls the segment-average irradiance Ē(v) of the rays through it into the
