@@ -272,7 +272,7 @@ fn lpm_render_of_a_split_solve_is_the_solves_image_and_old_render_data_is_refuse
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert_eq!(std::fs::read(&again).expect("again"), std::fs::read(out.join("image.exr")).expect("solve's image"));
 
-    std::fs::write(out.join("render-data/render.json"), json.replace("\"format\": 2", "\"format\": 1"))
+    std::fs::write(out.join("render-data/render.json"), json.replace("\"format\": 3", "\"format\": 1"))
         .expect("rewrite");
     let o = lpm(&["render", out_s, "--image", again.to_str().expect("utf-8")]);
     let err = String::from_utf8_lossy(&o.stderr);
