@@ -45,7 +45,7 @@ const ISOTROPIC: f64 = 1e-5;
 /// Most terms of the table (g → 1 would need ever more: 0.99 needs ~1,200).
 const MOST_TERMS: usize = 4096;
 
-/// `HG(g^{n+1}; μ)` for n = 0, 1, … until it is isotropic to [`ISOTROPIC`], for one sun and one
+/// `HG(g^{n+1}; μ)` for n = 0, 1, … until it is isotropic to 10⁻⁵ (relative), for one sun and one
 /// camera ray (μ = ω_sun·ω_camera is the same all along the ray).
 pub struct PeakChains {
     phases: Vec<f64>,
