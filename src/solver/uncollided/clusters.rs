@@ -1,0 +1,275 @@
+//! The emitting voxels as an octree of clusters, and the uncollided light a target voxel receives
+//! from them ([module docs](super)).
+//!
+//! Each node holds its emitters' summed source per channel, their centroid (weighted by the
+//! channel-summed source), their covariance about it, their source-weighted σ per channel, the
+//! largest σ of any member and a bounding radius R (every member voxel lies within R of the
+//! centroid). A target voxel at distance r from a node takes the node as one source when
+//! `r ≥ KAPPA·R` and `σ_max·R ≤ TAU`, with the second-order correction of the module docs; else it
+//! opens the node. Leaves are single voxels, which take the exact kernel of [`super::kernel`].
+
+use super::kernel::{far_factor, NearTable, NEAR};
+use glam::DVec3;
+
+/// A node is taken whole by targets at least this many of its radii away.
+pub const KAPPA: f64 = 4.0;
+/// … and only when its optical radius (largest σ of a member × R) is at most this.
+pub const TAU: f64 = 0.5;
+
+/// One emitting voxel in the unfolded frame (mirror images included): its cell, its source J per
+/// channel (W/m³/sr, the f32 value the swept path would have written) and σt·h per channel.
+#[derive(Clone, Copy, Debug)]
+pub struct Emitter {
+    pub cell: [i64; 3],
+    pub j: [f64; 3],
+    pub sigma: [f64; 3],
+}
+
+impl Emitter {
+    fn centre(&self) -> DVec3 {
+        DVec3::new(self.cell[0] as f64, self.cell[1] as f64, self.cell[2] as f64) + 0.5
+    }
+}
+
+#[derive(Clone, Debug)]
+struct Node {
+    j: [f64; 3],
+    weight: f64,
+    centroid: DVec3,
+    /// Covariance about the centroid: xx, yy, zz, xy, xz, yz.
+    cov: [f64; 6],
+    sigma: [f64; 3],
+    sigma_max: f64,
+    radius: f64,
+    /// Leaf: the emitter's index; else the children's node indices.
+    kind: Kind,
+}
+
+#[derive(Clone, Debug)]
+enum Kind {
+    Leaf(usize),
+    Inner(Vec<usize>),
+}
+
+/// The octree over a list of emitters.
+pub struct Clusters {
+    emitters: Vec<Emitter>,
+    nodes: Vec<Node>,
+    root: Option<usize>,
+}
+
+/// What a target voxel receives: the fluence per channel (W/m²) and the flux vector (channel sum)
+/// for the direction of its first scattering.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Received {
+    pub fluence: [f64; 3],
+    pub flux: DVec3,
+}
+
+/// The pairs a target took: nodes taken whole, exact near pairs, far single voxels.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Work {
+    pub clusters: u64,
+    pub near: u64,
+    pub far: u64,
+}
+
+impl Clusters {
+    /// The tree over `emitters` (none with an all-zero source).
+    pub fn new(emitters: Vec<Emitter>) -> Clusters {
+        let mut nodes = Vec::with_capacity(2 * emitters.len());
+        let root = if emitters.is_empty() {
+            None
+        } else {
+            let (mut lo, mut hi) = ([i64::MAX; 3], [i64::MIN; 3]);
+            for e in &emitters {
+                for a in 0..3 {
+                    lo[a] = lo[a].min(e.cell[a]);
+                    hi[a] = hi[a].max(e.cell[a]);
+                }
+            }
+            let extent = (0..3).map(|a| hi[a] - lo[a] + 1).max().unwrap_or(1);
+            let size = (extent as u64).next_power_of_two() as i64;
+            let mut order: Vec<usize> = (0..emitters.len()).collect();
+            Some(build(&mut nodes, &emitters, &mut order, lo, size))
+        };
+        Clusters { emitters, nodes, root }
+    }
+
+    pub fn len(&self) -> usize {
+        self.emitters.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.emitters.is_empty()
+    }
+
+    /// Nodes of the tree (leaves included).
+    pub fn nodes(&self) -> usize {
+        self.nodes.len()
+    }
+
+    /// The uncollided light at the target voxel `cell` (σt·h `sigma_v` per channel) from every
+    /// emitter: `path(a, b)` is ∫ρ ds (voxel units) between two points of the unfolded frame,
+    /// `extinction` σt·h at density 1, `h` the voxel edge, `exact` forces every pair exact (tests).
+    #[allow(clippy::too_many_arguments)]
+    pub fn receive(
+        &self,
+        cell: [i64; 3],
+        sigma_v: [f64; 3],
+        channels: usize,
+        extinction: [f64; 3],
+        h: f64,
+        table: &NearTable,
+        path: &impl Fn(DVec3, DVec3) -> f64,
+        exact: bool,
+        work: &mut Work,
+    ) -> Received {
+        let mut out = Received::default();
+        let Some(root) = self.root else { return out };
+        let x = DVec3::new(cell[0] as f64, cell[1] as f64, cell[2] as f64) + 0.5;
+        let mut stack = vec![root];
+        while let Some(n) = stack.pop() {
+            let node = &self.nodes[n];
+            match &node.kind {
+                Kind::Leaf(i) => {
+                    let e = &self.emitters[*i];
+                    let c = [0, 1, 2].map(|a| cell[a] - e.cell[a]);
+                    let d = x - e.centre();
+                    let r = d.length();
+                    let mut g = [0.0; 3];
+                    if c.iter().all(|v| v.abs() <= NEAR) {
+                        work.near += 1;
+                        let tau = if r > 0.0 { path(e.centre(), x) } else { 0.0 };
+                        for ch in 0..channels {
+                            let s = if r > 0.0 { extinction[ch] * tau / r } else { e.sigma[ch] };
+                            g[ch] = table.kernel(c, s);
+                        }
+                    } else {
+                        work.far += 1;
+                        let tau = path(e.centre(), x);
+                        let cf = [d.x, d.y, d.z];
+                        for ch in 0..channels {
+                            let t = extinction[ch] * tau;
+                            g[ch] = (-t).exp() / (r * r) * far_factor(cf, e.sigma[ch], sigma_v[ch], t / r);
+                        }
+                    }
+                    let mut sum = 0.0;
+                    for ch in 0..channels {
+                        let phi = h * e.j[ch] * g[ch];
+                        out.fluence[ch] += phi;
+                        sum += phi;
+                    }
+                    if r > 0.0 {
+                        out.flux += d / r * sum;
+                    }
+                }
+                Kind::Inner(children) => {
+                    let d = x - node.centroid;
+                    let r = d.length();
+                    if exact || r < KAPPA * node.radius || node.sigma_max * node.radius > TAU {
+                        stack.extend(children.iter().rev());
+                        continue;
+                    }
+                    work.clusters += 1;
+                    let tau = path(node.centroid, x);
+                    let u = d / r;
+                    // Covariance of the source positions, each voxel spread over its cube (+I/12).
+                    let cv = node.cov;
+                    let along = u.x * u.x * cv[0]
+                        + u.y * u.y * cv[1]
+                        + u.z * u.z * cv[2]
+                        + 2.0 * (u.x * u.y * cv[3] + u.x * u.z * cv[4] + u.y * u.z * cv[5])
+                        + 1.0 / 12.0;
+                    let trace = cv[0] + cv[1] + cv[2] + 0.25;
+                    let mut sum = 0.0;
+                    for ch in 0..channels {
+                        let t = extinction[ch] * tau;
+                        let mean = t / r;
+                        let (ss, sv) = (node.sigma[ch], sigma_v[ch]);
+                        let a = (ss + 2.0 / r).powi(2) + 2.0 / (r * r);
+                        let b = (mean + 2.0 / r) / r;
+                        let source_end = 0.5 * (a * along - b * (trace - along));
+                        let target_end = (4.0 * sv / r + 6.0 / (r * r) - 2.0 * b) / 24.0;
+                        let ends = [u.x, u.y, u.z].iter().map(|w| super::kernel::sinhc(0.5 * sv * w)).product::<f64>();
+                        let g = (-t).exp() / (r * r) * ends * (1.0 + source_end + target_end);
+                        let phi = h * node.j[ch] * g;
+                        out.fluence[ch] += phi;
+                        sum += phi;
+                    }
+                    out.flux += u * sum;
+                }
+            }
+        }
+        out
+    }
+}
+
+/// Builds the node over `order` (indices into `emitters`, all with cells in the cube at `lo` of
+/// edge `size`, a power of two), returning its index.
+fn build(nodes: &mut Vec<Node>, emitters: &[Emitter], order: &mut [usize], lo: [i64; 3], size: i64) -> usize {
+    if order.len() == 1 {
+        let e = &emitters[order[0]];
+        let weight: f64 = e.j.iter().sum();
+        let sigma_max = e.sigma.iter().cloned().fold(0.0, f64::max);
+        nodes.push(Node {
+            j: e.j,
+            weight,
+            centroid: e.centre(),
+            cov: [0.0; 6],
+            sigma: e.sigma,
+            sigma_max,
+            radius: 0.5 * 3f64.sqrt(),
+            kind: Kind::Leaf(order[0]),
+        });
+        return nodes.len() - 1;
+    }
+    let half = size / 2;
+    // Partition into the eight octants, in a fixed order (bitwise the same tree every run).
+    let octant = |i: usize| {
+        let c = emitters[i].cell;
+        (0..3).map(|a| (((c[a] - lo[a]) >= half) as usize) << a).sum::<usize>()
+    };
+    order.sort_by_key(|&i| (octant(i), i));
+    let mut children = Vec::with_capacity(8);
+    let mut start = 0;
+    for o in 0..8 {
+        let end = start + order[start..].iter().take_while(|&&i| octant(i) == o).count();
+        if end > start {
+            let child_lo = [0, 1, 2].map(|a| lo[a] + if (o >> a) & 1 == 1 { half } else { 0 });
+            children.push(build(nodes, emitters, &mut order[start..end], child_lo, half));
+        }
+        start = end;
+    }
+    let mut j = [0.0; 3];
+    let mut weight = 0.0;
+    let mut moment = DVec3::ZERO;
+    let mut sigma_j = [0.0; 3];
+    let mut sigma_max: f64 = 0.0;
+    for &c in &children {
+        let n = &nodes[c];
+        for ch in 0..3 {
+            j[ch] += n.j[ch];
+            sigma_j[ch] += n.sigma[ch] * n.j[ch];
+        }
+        weight += n.weight;
+        moment += n.centroid * n.weight;
+        sigma_max = sigma_max.max(n.sigma_max);
+    }
+    let centroid = moment / weight;
+    let mut cov = [0.0; 6];
+    let mut radius: f64 = 0.0;
+    for &c in &children {
+        let n = &nodes[c];
+        let d = n.centroid - centroid;
+        let w = n.weight / weight;
+        let outer = [d.x * d.x, d.y * d.y, d.z * d.z, d.x * d.y, d.x * d.z, d.y * d.z];
+        for k in 0..6 {
+            cov[k] += w * (n.cov[k] + outer[k]);
+        }
+        radius = radius.max(d.length() + n.radius);
+    }
+    let sigma = std::array::from_fn(|ch| if j[ch] > 0.0 { sigma_j[ch] / j[ch] } else { 0.0 });
+    nodes.push(Node { j, weight, centroid, cov, sigma, sigma_max, radius, kind: Kind::Inner(children) });
+    nodes.len() - 1
+}
