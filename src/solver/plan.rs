@@ -585,6 +585,9 @@ impl Plan {
         self.emission_traced = true;
         self.emission = false;
         self.emission_field = false;
+        for r in &mut self.reasons {
+            *r = r.replace("the first order's source is", "the emission's source is");
+        }
         self.reasons.push(reason);
     }
 
