@@ -7,9 +7,8 @@
 use super::raw::{ByteSize, Channels, RawBoundary, RawFaces, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
 use super::{
     Acceleration, Boundary, CheckpointCadence, DeviceResidency, DiffusionCorrection, EmissionUncollided,
-    EnvironmentLight, ForwardPeak,
-    Light, MapUp, Medium, PlanMode, Scene, SceneError, Shape, SolverSettings, SpatialScheme, StoragePrecision, Volume,
-    VolumeSource,
+    EnvironmentLight, ForwardPeak, Light, MapUp, Medium, PlanMode, Scene, SceneError, Shape, SolverSettings,
+    SpatialScheme, StoragePrecision, Volume, VolumeSource,
 };
 use albedo::AlbedoKeys;
 use emission::{BlackbodyKeys, EmissionKeys};

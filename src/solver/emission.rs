@@ -64,7 +64,14 @@ impl Factors {
     }
 
     /// Calls `visit(local, source)` for every voxel of `brick` in channel `ch` (density `density`).
-    pub(crate) fn each(&self, brick: usize, density: &[f32], ch: usize, scale: (f64, f64), visit: &mut dyn FnMut(usize, f32)) {
+    pub(crate) fn each(
+        &self,
+        brick: usize,
+        density: &[f32],
+        ch: usize,
+        scale: (f64, f64),
+        visit: &mut dyn FnMut(usize, f32),
+    ) {
         let e = self.emission.as_ref().and_then(|f| f.brick(brick)).map(|b| channel_block(b, ch));
         let a = self.albedo.as_ref().and_then(|f| f.brick(brick));
         for (l, &rho) in density.iter().enumerate() {

@@ -251,14 +251,16 @@ mod tests {
         let mut t = Tallies::default();
         t.face_in[5] = [10.0, 0.0, 0.0];
         t.boundary_in = [10.0, 0.0, 0.0];
-        let grey = serde_json::to_value(EnergyBalance::new(&t, [0.0; 3], [0.0; 3], [0.0; 3], [3.0, 0.0, 0.0], [0.0; 3], 1))
-            .expect("json");
+        let grey =
+            serde_json::to_value(EnergyBalance::new(&t, [0.0; 3], [0.0; 3], [0.0; 3], [3.0, 0.0, 0.0], [0.0; 3], 1))
+                .expect("json");
         assert_eq!(grey["absorbed"], serde_json::json!([3.0]));
         assert_eq!(grey["faces"][5]["reflectance"], serde_json::json!([0.0]));
         assert_eq!(grey["faces"][4]["transmittance"], serde_json::json!([null]));
         assert_eq!(grey["faces"][5]["face"], "+z");
-        let rgb = serde_json::to_value(EnergyBalance::new(&t, [0.0; 3], [0.0; 3], [0.0; 3], [3.0, 1.0, 0.0], [0.0; 3], 3))
-            .expect("json");
+        let rgb =
+            serde_json::to_value(EnergyBalance::new(&t, [0.0; 3], [0.0; 3], [0.0; 3], [3.0, 1.0, 0.0], [0.0; 3], 3))
+                .expect("json");
         assert_eq!(rgb["absorbed"], serde_json::json!([3.0, 1.0, 0.0]));
         assert_eq!(rgb["faces"].as_array().map(Vec::len), Some(6));
     }

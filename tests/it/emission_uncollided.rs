@@ -194,7 +194,11 @@ fn the_plan_chooses_and_a_bad_value_is_refused() {
     sc.solver.max_orders = 1;
     let s = solve("uncollided-plan-fills", &sc, Cpu);
     assert!(!s.run.plan.emission_traced && s.run.plan.emission_field);
-    assert!(s.run.plan.reasons.iter().any(|r| r.contains("swept (auto)") && r.contains("fills")), "{:?}", s.run.plan.reasons);
+    assert!(
+        s.run.plan.reasons.iter().any(|r| r.contains("swept (auto)") && r.contains("fills")),
+        "{:?}",
+        s.run.plan.reasons
+    );
     let text = "[volume]\nprocedural = \"sphere\"\ndims = [16, 16, 16]\n[medium]\nsigma_t = 1.0\nalbedo = 0.5\n\
                 [solver]\nemission_uncollided = \"sometimes\"\n";
     let err = Scene::from_toml_str(text, std::path::Path::new("t.toml")).expect_err("refused");

@@ -15,7 +15,9 @@
 //! medium σ is the pair's mean, the optical depth of the centre-to-centre segment over its length
 //! (for c = 0 the voxel's own σ): exact in a uniform medium.
 //!
-//! **Far pairs**: the centre value `T/r²` with the cubes' averaging taken to second order, the
+//! **Far pairs** in a uniform medium ([`far_factor`], the tests' check of the table and of the
+//! conservation; the solver's far pairs sample the source voxel instead, `clusters`): the centre
+//! value `T/r²` with the cubes' averaging taken to second order, the
 //! exponential's along the segment exactly for a linear path length (`Π_i sinhc(σ ω_i/2)` per end,
 //! σ that end's own) and the geometric part by Taylor, `1 + (4/r² + (4σ_s + 4σ_v − 4σ̄)/r)/24`.
 //! Against the exact double mean in a uniform medium (6-D Gauss–Legendre): at |c| = 3 and σ·h ≤ 1
@@ -152,7 +154,8 @@ impl NearTable {
         // (2,0,0) at σ = 1 from 0.5 % (n = 24) to 1e-5.
         let coarse = cube_directions(DIRECTIONS_PER_FACE);
         let fine = cube_directions(2 * DIRECTIONS_PER_FACE);
-        let extrapolated = |c: [f64; 3], sigma: f64| (4.0 * near_kernel(c, sigma, &fine) - near_kernel(c, sigma, &coarse)) / 3.0;
+        let extrapolated =
+            |c: [f64; 3], sigma: f64| (4.0 * near_kernel(c, sigma, &fine) - near_kernel(c, sigma, &coarse)) / 3.0;
         let classes = n * n * n;
         let ln_k = (0..classes)
             .into_par_iter()
@@ -244,7 +247,9 @@ mod tests {
             let got = table.kernel(c, sigma);
             assert!((got / exact - 1.0).abs() < 5e-4, "{c:?} σ {sigma}: {got} vs {exact}");
         }
-        for (c, sigma, tol) in [([3.0, 0.0, 0.0], 0.2, 2e-3), ([3.0, 1.0, 0.0], 1.0, 4e-3), ([5.0, 0.0, 0.0], 3.0, 0.05)] {
+        for (c, sigma, tol) in
+            [([3.0, 0.0, 0.0], 0.2, 2e-3), ([3.0, 1.0, 0.0], 1.0, 4e-3), ([5.0, 0.0, 0.0], 3.0, 0.05)]
+        {
             let exact = double_mean(c, sigma);
             let r = (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]) as f64;
             let got = (-sigma * r.sqrt()).exp() / r * far_factor(c, sigma, sigma, sigma);
