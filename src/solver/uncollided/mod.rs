@@ -341,8 +341,18 @@ pub fn add_order0_with(
             emitted[ch] += four_pi * j[ch] * h3;
         }
         let sigma = std::array::from_fn(|ch| extinction[ch] * rho);
+        // On a face of the medium: a face neighbour (its image beyond a mirror) differs.
+        let edge = (0..3).any(|a| {
+            [-1i64, 1].iter().any(|&step| {
+                let mut c = v.map(|x| x as i64);
+                c[a] += step;
+                let inside = c[a] >= frame.lo[a] && c[a] < frame.hi[a];
+                let other = if inside { store.density_at(frame.source(c)) as f64 } else { 0.0 };
+                (other - rho).abs() > 0.1 * rho
+            })
+        });
         for cell in frame.images(v) {
-            emitters.push(Emitter { cell, j, sigma });
+            emitters.push(Emitter { cell, j, sigma, edge });
         }
     })?;
     let mut traced = Traced { emitted, emitters: emitters.len(), ..Traced::default() };
