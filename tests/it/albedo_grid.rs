@@ -190,6 +190,7 @@ fn emission_over_an_albedo_grid_uses_the_voxels_absorption() {
     // A grid of ones with the same emission: the uniform emission (through the other path).
     let (mut ones, _) = sphere_with_albedo("albedo-emission-ones", |_| 1.0);
     ones.medium.emission = sc.medium.emission;
+    ones.solver.emission_uncollided = sc.solver.emission_uncollided;
     let mut uniform = ones.clone();
     uniform.volume.albedo = None;
     for backend in [Cpu, Gpu] {
