@@ -48,6 +48,20 @@
 //! as emitters; a mirror on both faces of an axis, or a periodic axis (an infinite row of images),
 //! is not traced (the plan sweeps).
 //!
+//! **The plan's choice** (`solver.emission_uncollided`, [`choose`]): `"traced"`, `"swept"`, or
+//! `"auto"`, which traces when the emission is compact — at most [`AUTO_MAX_EMITTING_FRACTION`] (a
+//! quarter) of the medium's voxels emit, so there is a small emitter to streak and the trace's
+//! cost (emitters × voxels, less the clusters' savings) stays near a point light's — and its light
+//! leaves it: the emitters' source-weighted σt·h is at most [`AUTO_MAX_SIGMA_H`] (1; thicker
+//! emitters absorb or scatter their own light within a voxel, and the swept first scattering has
+//! no streaks to lose). A periodic axis or mirrors on both faces of an axis always sweep. The
+//! plan's reasons say which and why with the numbers, and `report.json`'s phases give the trace's
+//! time (`"emission trace"`).
+//!
+//! **The Monte-Carlo reference** samples an emission photon's voxel by its ρ·σa·e and its position
+//! uniformly within the voxel, and tallies voxel means by track length (`reference::fluence`): its
+//! near field is the exact voxel mean of a uniform voxel source, what [`kernel`] integrates.
+//!
 //! **Energy.** The emission puts out `P = Σ_s 4π·J_s·h³` (the books' `emitted`). The medium takes
 //! `Σ_v ρσt·φ_unc·h³` of it, counted from the f32 values written (absorbed through the fluence,
 //! scattered through order 0's new source), and the rest leaves without interacting: the books'
@@ -77,7 +91,7 @@ use glam::DVec3;
 use kernel::NearTable;
 use rayon::prelude::*;
 
-/// `auto` traces when at most this fraction of the occupied voxels emit.
+/// `auto` traces when at most this fraction of the medium's voxels (density > 0) emit.
 pub const AUTO_MAX_EMITTING_FRACTION: f64 = 0.25;
 /// `auto` traces when the emitters' source-weighted σt·h is at most this: their light leaves them.
 pub const AUTO_MAX_SIGMA_H: f64 = 1.0;
@@ -185,7 +199,7 @@ pub fn choose(store: &BrickStore, plan: &Plan, setting: EmissionUncollided) -> R
     let leaves = sigma_h <= AUTO_MAX_SIGMA_H;
     let traced = compact && leaves && emitting > 0;
     let why = format!(
-        "{emitting} of {occupied} voxels emit ({:.3} %, traced up to {} %), their source-weighted σt·h {sigma_h:.3} \
+        "{emitting} of the medium's {occupied} voxels emit ({:.3} %, traced up to {} %), their source-weighted σt·h {sigma_h:.3} \
          (traced up to {AUTO_MAX_SIGMA_H})",
         100.0 * fraction,
         100.0 * AUTO_MAX_EMITTING_FRACTION
@@ -210,7 +224,8 @@ pub fn choose(store: &BrickStore, plan: &Plan, setting: EmissionUncollided) -> R
     })
 }
 
-/// Emitting voxels, occupied voxels, and the emitters' source-weighted σt·h (channel mean).
+/// Emitting voxels, the medium's voxels (density > 0), and the emitters' source-weighted σt·h
+/// (channel mean).
 fn emission_extent(store: &BrickStore, plan: &Plan) -> Result<(u64, u64, f64), SolveError> {
     let mut emitting = 0u64;
     let mut occupied = 0u64;
@@ -220,7 +235,10 @@ fn emission_extent(store: &BrickStore, plan: &Plan) -> Result<(u64, u64, f64), S
     let st: f64 = (0..c).map(|ch| plan.coefficients(ch).0).sum::<f64>() / c as f64;
     each_emitter(store, plan, &mut |_, rho, j| {
         let s: f64 = j[..c].iter().sum();
-        occupied += 1;
+        // The medium's voxels (empty space inside an occupied brick is no medium).
+        if rho > 0.0 {
+            occupied += 1;
+        }
         if s > 0.0 {
             emitting += 1;
             weighted += s * rho * st * h;
