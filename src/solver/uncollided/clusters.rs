@@ -356,7 +356,12 @@ mod tests {
                 for y in 0..12i64 {
                     for x in 0..12i64 {
                         let j = 1.0 + ((x * 7 + y * 3 + z * 5) % 11) as f64;
-                        emitters.push(Emitter { cell: [x + 14, y + 14, z + 14], j: [j; 3], sigma: [sigma; 3], edge: false });
+                        emitters.push(Emitter {
+                            cell: [x + 14, y + 14, z + 14],
+                            j: [j; 3],
+                            sigma: [sigma; 3],
+                            edge: false,
+                        });
                     }
                 }
             }

@@ -132,6 +132,12 @@ pub struct NearTable {
     ln_k: Vec<[f64; SIGMA_NODES]>,
 }
 
+impl Default for NearTable {
+    fn default() -> Self {
+        NearTable::new()
+    }
+}
+
 /// The class of an offset with every |c_i| ≤ NEAR: its sorted magnitudes, as an index.
 fn class_of(c: [i64; 3]) -> usize {
     let mut m = c.map(|x| x.unsigned_abs() as usize);
@@ -251,7 +257,7 @@ mod tests {
             [([3.0, 0.0, 0.0], 0.2, 2e-3), ([3.0, 1.0, 0.0], 1.0, 4e-3), ([5.0, 0.0, 0.0], 3.0, 0.05)]
         {
             let exact = double_mean(c, sigma);
-            let r = (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]) as f64;
+            let r = c[0] * c[0] + c[1] * c[1] + c[2] * c[2];
             let got = (-sigma * r.sqrt()).exp() / r * far_factor(c, sigma, sigma, sigma);
             assert!((got / exact - 1.0).abs() < tol, "{c:?} σ {sigma}: {got} vs {exact}");
         }
