@@ -15,7 +15,7 @@
 //!
 //! Where the plan traces the emission's uncollided light instead (`solver.emission_uncollided`,
 //! [`super::uncollided`]), none of this is written: the trace reads the same per-voxel source
-//! ([`Factors`]) and hands the sweeps only its first scattering.
+//! (`Factors`) and hands the sweeps only its first scattering.
 //!
 //! With a per-voxel albedo (`volume.albedo_*`, [`crate::store::albedo`]) σa varies per voxel,
 //! `σa(v) = ρ·(σt − σs·a(v))`, so a uniform emission takes this path too (with e = 1): the kernels'
