@@ -30,17 +30,23 @@
 //!
 //! **Scaling.** The emitters form an octree of clusters ([`clusters`]). A target takes a cluster
 //! as one source when it lies at least [`clusters::KAPPA`] = 4 cluster radii R away, the
-//! cluster's optical radius σ_max·R is at most [`clusters::TAU`] = 0.5, and its children's optical
-//! depths to the target, less what their distances explain, differ by at most
-//! [`clusters::SPREAD`] = 0.05 (no child's segment grazes a face of the medium the others miss);
+//! cluster's optical radius σ_max·R is at most [`clusters::TAU`] = 0.5, no member lies on a face of
+//! the medium (a face neighbour's density differs by more than 10 %: a segment grazing that face
+//! bends the transmittance within the voxel, which only the voxel's own Gauss points see), and the
+//! transmittance does not bend across it (the children's mean optical depth to the target and the
+//! centroid's differ by at most [`clusters::SPREAD`] = 0.02);
 //! it then costs one segment per child (each child's transmittance and distance its own, the
 //! spread within the children to second order) instead of one per emitter. The error this allows
 //! is the third order of R/r within the children and the transmittance's bend below SPREAD:
 //! measured against every pair exact, a 12³ block of uneven emitters in a uniform medium
 //! (σt·h = 0.02 and 0.1) is within 0.14 % and 0.5 % at every target of a 40³ region
 //! (`clusters::tests::clusters_agree_with_exact_pairs`, 20–50× fewer segments), and Kobayashi's
-//! source (σt·h = 0.2, grazing segments at its corner) within 0.5 % at the detectors. A target
-//! costs a few hundred segments where the emission is near and a few per tree level beyond.
+//! source (σt·h = 0.2, grazing segments at its corner) within 0.2 % at the detectors
+//! (`clusters::tests::a_source_corner_whose_segments_graze_its_faces`). The cost: a compact
+//! emitter's faces are never clustered, so a target walks a few Gauss-point segments per face
+//! voxel of each near or compact emitter (Kobayashi problem 1's octant, 1000 emitters with their
+//! images, half of them on the source's faces: 22 min on two cores, `benches/RESULTS.md`); a large
+//! emission's interior is clustered.
 //!
 //! **Mirror faces** (the method of images): an emitter next to a mirror lights the volume also as
 //! its image beyond the mirror. The trace runs in the volume unfolded by its mirrors (a mirror on
