@@ -50,6 +50,7 @@ fn bench_scene() -> Scene {
             plan: PlanMode::Auto,
             spatial: None,
             forward_peak: ForwardPeak::default(),
+            emission_uncollided: Default::default(),
             diffusion_correction: DiffusionCorrection::default(),
             acceleration: Acceleration::default(),
             diffusion_cells: None,

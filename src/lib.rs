@@ -93,7 +93,7 @@
 //! | a shader interface (push constants, bindings, flags) | `solver/gpu/layout.rs`, `glsl/common.glsl`, the shared set's bindings (`SWEEP_BINDINGS`, `sweep_bindings`) in `solver/gpu/encoder.rs`; `tests/it/shader_interface.rs` fails until both sides agree; `tools/compile_shaders.sh` regenerates `spirv/` |
 //! | a device buffer or its size | `solver/gpu/sizes.rs` (the one place sizes are computed), then `resources.rs`; the planner follows |
 //! | scheduling of slices, overlap, copies | `solver/gpu/streamer.rs` (and `copier.rs`, `slice.rs`) |
-//! | what a per-voxel emission or temperature means | `scene/blackbody.rs` (temperature → colour), `store/emission.rs` (the field the solver, the renderer and the reference read), `solver/emission.rs` (the order-0 source and its power) |
+//! | what a per-voxel emission or temperature means | `scene/blackbody.rs` (temperature → colour), `store/emission.rs` (the field the solver, the renderer and the reference read), `solver/emission.rs` (the order-0 source and its power), `solver/uncollided/` (its uncollided light traced instead of swept) |
 //! | what a per-voxel albedo means | `store/albedo.rs` (the field), `solver/passes.rs` (the source scaled by it, absorption), `solver/emission.rs` (σa per voxel), `render/march.rs`, `reference/grid.rs` |
 //! | how an image reads the source (in space, in direction) | `render/march.rs` (trilinear between voxel centres), `quadrature/blend.rs` (weights between storage directions); `tests/it/render_blend.rs` |
 //! | what an image takes from the solve and adds exactly (the suns' single scattering) | [`solver::direct`] (the split and each sun's irradiance), `render/keep.rs` (`render-data/`), `render/march.rs`; `tests/it/single_scatter.rs` |
@@ -138,7 +138,9 @@
 //! environment map is boundary radiance averaged over each direction's cell, its sun-like peak
 //! taken out as one more beam ([`solver::environment`]). A point light's uncollided light is
 //! computed exactly from the point on the host (a DDA from the light to every voxel), and its
-//! first scattering joins order 0's new source ([`solver::point`]).
+//! first scattering joins order 0's new source ([`solver::point`]); an emission's is traced the
+//! same way from its emitting voxels, far ones clustered, when the plan finds it compact
+//! ([`solver::uncollided`]).
 //!
 //! ## The method by topic
 //!
@@ -156,6 +158,7 @@
 //! | the diffusion correction (numerical diffusion taken back out) | [`solver::antidiffusion`] |
 //! | Henyey–Greenstein scattering between direction cells; the forward peak (δ-M with the shape kept) | [`quadrature::phase`] |
 //! | point lights, environment maps, emission | [`solver::point`], [`solver::environment`], [`scene::environment`], [`solver::emission`] |
+//! | emission's uncollided light traced (a first-collision source), clusters of far emitters | [`solver::uncollided`] |
 //! | periodic and mirror faces | [`solver::periodic`], [`solver::mirror`], [`solver::unfold`] |
 //! | warm starts | [`solver::warm`] |
 //! | the energy books | [`solver::energy`] |

@@ -117,6 +117,7 @@ pub(crate) struct RawSolver {
     pub plan: Option<String>,
     pub spatial: Option<String>,
     pub forward_peak: Option<String>,
+    pub emission_uncollided: Option<String>,
     pub diffusion_correction: Option<String>,
     pub acceleration: Option<String>,
     pub diffusion_cells: Option<i64>,

@@ -386,6 +386,8 @@ pub struct SolverSettings {
     pub spatial: Option<SpatialScheme>,
     /// What to do with a strong forward peak of the phase function (`solver.forward_peak`).
     pub forward_peak: ForwardPeak,
+    /// How an emission's uncollided light reaches the volume (`solver.emission_uncollided`).
+    pub emission_uncollided: EmissionUncollided,
     /// Whether the lattice's numerical diffusion is taken back out of each order's scattered
     /// source (`solver.diffusion_correction`, see `solver::antidiffusion`).
     pub diffusion_correction: DiffusionCorrection,
@@ -474,6 +476,30 @@ impl DiffusionCorrection {
         match self {
             DiffusionCorrection::On => "on",
             DiffusionCorrection::Off => "off",
+        }
+    }
+}
+
+/// `solver.emission_uncollided`: how an emission's uncollided light reaches the volume (see
+/// `solver::uncollided`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum EmissionUncollided {
+    /// Traced when the emission is compact and its light leaves its voxels, else swept.
+    #[default]
+    Auto,
+    /// Traced from every emitting voxel to every voxel (a first-collision source).
+    Traced,
+    /// Swept along the propagation directions as an order-0 source.
+    Swept,
+}
+
+impl EmissionUncollided {
+    /// The scene file's spelling.
+    pub fn name(self) -> &'static str {
+        match self {
+            EmissionUncollided::Auto => "auto",
+            EmissionUncollided::Traced => "traced",
+            EmissionUncollided::Swept => "swept",
         }
     }
 }

@@ -6,9 +6,9 @@
 
 use super::raw::{ByteSize, Channels, RawBoundary, RawFaces, RawLight, RawMedium, RawScene, RawSolver, RawVolume};
 use super::{
-    Acceleration, Boundary, CheckpointCadence, DeviceResidency, DiffusionCorrection, EnvironmentLight, ForwardPeak,
-    Light, MapUp, Medium, PlanMode, Scene, SceneError, Shape, SolverSettings, SpatialScheme, StoragePrecision, Volume,
-    VolumeSource,
+    Acceleration, Boundary, CheckpointCadence, DeviceResidency, DiffusionCorrection, EmissionUncollided,
+    EnvironmentLight, ForwardPeak, Light, MapUp, Medium, PlanMode, Scene, SceneError, Shape, SolverSettings,
+    SpatialScheme, StoragePrecision, Volume, VolumeSource,
 };
 use albedo::AlbedoKeys;
 use emission::{BlackbodyKeys, EmissionKeys};
@@ -656,6 +656,7 @@ impl Validator<'_> {
                 plan: PlanMode::Auto,
                 spatial: None,
                 forward_peak: ForwardPeak::default(),
+                emission_uncollided: EmissionUncollided::default(),
                 diffusion_correction: DiffusionCorrection::default(),
                 acceleration: Acceleration::default(),
                 diffusion_cells: None,
@@ -753,6 +754,17 @@ impl Validator<'_> {
                 ))
             }
         };
+        let emission_uncollided = match s.emission_uncollided.as_deref() {
+            None | Some("auto") => EmissionUncollided::Auto,
+            Some("traced") => EmissionUncollided::Traced,
+            Some("swept") => EmissionUncollided::Swept,
+            Some(other) => {
+                return Err(self.err(
+                    "solver.emission_uncollided",
+                    format!("unknown treatment \"{other}\", expected one of \"auto\", \"traced\", \"swept\""),
+                ))
+            }
+        };
         let diffusion_correction = match s.diffusion_correction.as_deref() {
             None => DiffusionCorrection::default(),
             Some("on") => DiffusionCorrection::On,
@@ -831,6 +843,7 @@ impl Validator<'_> {
             plan,
             spatial,
             forward_peak,
+            emission_uncollided,
             diffusion_correction,
             acceleration,
             diffusion_cells,

@@ -13,6 +13,10 @@
 //! blackbody colour, see [`crate::store::emission`]); channel `ch` reads
 //! [`channel_block`]`(brick, ch)` either way.
 //!
+//! Where the plan traces the emission's uncollided light instead (`solver.emission_uncollided`,
+//! [`super::uncollided`]), none of this is written: the trace reads the same per-voxel source
+//! (`Factors`) and hands the sweeps only its first scattering.
+//!
 //! With a per-voxel albedo (`volume.albedo_*`, [`crate::store::albedo`]) σa varies per voxel,
 //! `σa(v) = ρ·(σt − σs·a(v))`, so a uniform emission takes this path too (with e = 1): the kernels'
 //! `FLAG_EMIT` only knows the medium's σa.
@@ -25,7 +29,7 @@ use crate::store::{BrickStore, Field, BRICK_VOXELS};
 
 /// (σt·Le, σs·Le) per channel: a voxel of density 1, emission factor 1 and albedo factor a has
 /// the order-0 source σt·Le − σs·Le·a = σa·Le (a = 1 without an albedo grid).
-fn scales(plan: &Plan) -> [(f64, f64); 3] {
+pub(crate) fn scales(plan: &Plan) -> [(f64, f64); 3] {
     std::array::from_fn(|ch| {
         if ch < plan.channels as usize {
             let (st, ss, _) = plan.coefficients(ch);
@@ -46,13 +50,13 @@ fn source_value(rho: f32, (st_le, ss_le): (f64, f64), a: f32, e: f32) -> f32 {
 
 /// The per-voxel fields the emission's source is formed from: the emission factor (when the
 /// scene has an emission grid) and the albedo factor (when it has an albedo grid).
-struct Factors {
+pub(crate) struct Factors {
     emission: Option<Field>,
     albedo: Option<Field>,
 }
 
 impl Factors {
-    fn open(store: &BrickStore, plan: &Plan) -> Result<Factors, SolveError> {
+    pub(crate) fn open(store: &BrickStore, plan: &Plan) -> Result<Factors, SolveError> {
         Ok(Factors {
             emission: if plan.emission_grid { Some(open_emission(store)?) } else { None },
             albedo: if plan.albedo_field { Some(open_albedo(store)?) } else { None },
@@ -60,7 +64,14 @@ impl Factors {
     }
 
     /// Calls `visit(local, source)` for every voxel of `brick` in channel `ch` (density `density`).
-    fn each(&self, brick: usize, density: &[f32], ch: usize, scale: (f64, f64), visit: &mut dyn FnMut(usize, f32)) {
+    pub(crate) fn each(
+        &self,
+        brick: usize,
+        density: &[f32],
+        ch: usize,
+        scale: (f64, f64),
+        visit: &mut dyn FnMut(usize, f32),
+    ) {
         let e = self.emission.as_ref().and_then(|f| f.brick(brick)).map(|b| channel_block(b, ch));
         let a = self.albedo.as_ref().and_then(|f| f.brick(brick));
         for (l, &rho) in density.iter().enumerate() {

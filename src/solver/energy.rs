@@ -6,8 +6,10 @@
 //! `σa·φ·h³`, rays leaving the volume take their power with them, and the source of the last order
 //! (computed but not propagated) holds `Σ_d Ω_d J^d·h³`. A point light gives the medium
 //! `Σ ρσt·E·h³` (its uncollided light's interactions, `solver::point`); what of it never
-//! interacts is in neither side. The discretisation conserves energy exactly, so
-//! `in + emitted + point lights = out + absorbed + unpropagated` to round-off. The per-face
+//! interacts is in neither side. A traced emission (`solver::uncollided`) counts all it puts out
+//! as emitted, and what of its uncollided light leaves without interacting as
+//! `uncollided_escaped`. The discretisation conserves energy exactly, so
+//! `in + emitted + point lights = out + uncollided escaped + absorbed + unpropagated` to round-off. The per-face
 //! tallies hold only what crosses the faces as rays: not the uncollided point light.
 //!
 //! The boundary power is also split by the six faces of the volume ([`VOLUME_FACES`]): a sweep's
@@ -101,6 +103,10 @@ pub struct EnergyBalance {
     /// The power point lights give the medium, `Σ ρσt·E·h³` (their uncollided light that
     /// interacts; what passes through or misses the volume is not counted anywhere).
     pub point_lights: [f64; 3],
+    /// Of `emitted`, what a traced emission's uncollided light carried out of the volume without
+    /// interacting (`solver::uncollided`; zero when the emission is swept, whose rays count in
+    /// `boundary_out`).
+    pub uncollided_escaped: [f64; 3],
     pub boundary_out: [f64; 3],
     pub absorbed: [f64; 3],
     /// `absorbed / (boundary_in + emitted + point_lights)` (0 where nothing came in).
@@ -123,6 +129,7 @@ struct EnergyJson {
     boundary_in: Vec<f64>,
     emitted: Vec<f64>,
     point_lights: Vec<f64>,
+    uncollided_escaped: Vec<f64>,
     boundary_out: Vec<f64>,
     absorbed: Vec<f64>,
     absorptance: Vec<f64>,
@@ -149,6 +156,7 @@ impl From<EnergyBalance> for EnergyJson {
             boundary_in: cut(e.boundary_in),
             emitted: cut(e.emitted),
             point_lights: cut(e.point_lights),
+            uncollided_escaped: cut(e.uncollided_escaped),
             boundary_out: cut(e.boundary_out),
             absorbed: cut(e.absorbed),
             absorptance: cut(e.absorptance),
@@ -174,6 +182,7 @@ impl EnergyBalance {
         tallies: &Tallies,
         emitted: [f64; 3],
         point_lights: [f64; 3],
+        uncollided_escaped: [f64; 3],
         absorbed: [f64; 3],
         unpropagated: [f64; 3],
         channels: usize,
@@ -182,7 +191,7 @@ impl EnergyBalance {
         let mut absorptance = [0.0; 3];
         for c in 0..channels {
             let source = tallies.boundary_in[c] + emitted[c] + point_lights[c];
-            let sink = tallies.boundary_out[c] + absorbed[c] + unpropagated[c];
+            let sink = tallies.boundary_out[c] + uncollided_escaped[c] + absorbed[c] + unpropagated[c];
             if source > 0.0 {
                 worst = worst.max((source - sink).abs() / source);
                 absorptance[c] = absorbed[c] / source;
@@ -194,6 +203,7 @@ impl EnergyBalance {
             boundary_in: tallies.boundary_in,
             emitted,
             point_lights,
+            uncollided_escaped,
             boundary_out: tallies.boundary_out,
             absorbed,
             absorptance,
@@ -226,7 +236,7 @@ mod tests {
         t.face_out[4] = [5.0, 0.0, 0.0];
         t.boundary_in = [10.0, 0.0, 0.0];
         t.boundary_out = [7.0, 0.0, 0.0];
-        let e = EnergyBalance::new(&t, [0.0; 3], [0.0; 3], [3.0, 0.0, 0.0], [0.0; 3], 1);
+        let e = EnergyBalance::new(&t, [0.0; 3], [0.0; 3], [0.0; 3], [3.0, 0.0, 0.0], [0.0; 3], 1);
         assert_eq!(e.faces[5].face, "+z");
         assert_eq!(e.faces[5].reflectance[0], Some(0.2));
         assert_eq!(e.faces[5].transmittance[0], Some(0.5));
@@ -241,14 +251,16 @@ mod tests {
         let mut t = Tallies::default();
         t.face_in[5] = [10.0, 0.0, 0.0];
         t.boundary_in = [10.0, 0.0, 0.0];
-        let grey = serde_json::to_value(EnergyBalance::new(&t, [0.0; 3], [0.0; 3], [3.0, 0.0, 0.0], [0.0; 3], 1))
-            .expect("json");
+        let grey =
+            serde_json::to_value(EnergyBalance::new(&t, [0.0; 3], [0.0; 3], [0.0; 3], [3.0, 0.0, 0.0], [0.0; 3], 1))
+                .expect("json");
         assert_eq!(grey["absorbed"], serde_json::json!([3.0]));
         assert_eq!(grey["faces"][5]["reflectance"], serde_json::json!([0.0]));
         assert_eq!(grey["faces"][4]["transmittance"], serde_json::json!([null]));
         assert_eq!(grey["faces"][5]["face"], "+z");
-        let rgb = serde_json::to_value(EnergyBalance::new(&t, [0.0; 3], [0.0; 3], [3.0, 1.0, 0.0], [0.0; 3], 3))
-            .expect("json");
+        let rgb =
+            serde_json::to_value(EnergyBalance::new(&t, [0.0; 3], [0.0; 3], [0.0; 3], [3.0, 1.0, 0.0], [0.0; 3], 3))
+                .expect("json");
         assert_eq!(rgb["absorbed"], serde_json::json!([3.0, 1.0, 0.0]));
         assert_eq!(rgb["faces"].as_array().map(Vec::len), Some(6));
     }

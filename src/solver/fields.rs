@@ -78,6 +78,12 @@ pub struct LoopState {
     /// its orders) closes its energy books the same way.
     #[serde(default)]
     pub point_light_power: [f64; 3],
+    /// The traced emission's power ([`super::uncollided`]): what it put out, and what of it left
+    /// without interacting; kept like `point_light_power`.
+    #[serde(default)]
+    pub uncollided_emitted: [f64; 3],
+    #[serde(default)]
+    pub uncollided_escaped: [f64; 3],
     /// Per face and channel, the power the last order's rays carried out (the tail's split over
     /// the faces, [`super::orders::TailEstimate::face_out`]).
     #[serde(default)]

@@ -45,6 +45,7 @@ pub mod remaining;
 pub mod segment;
 pub mod slow_mode;
 pub mod sweep;
+pub mod uncollided;
 pub mod unfold;
 pub mod warm;
 
@@ -334,7 +335,13 @@ pub fn solve_from(
     let mut phases = Vec::new();
     let t = Instant::now();
     let total = store.grid().brick_count();
-    let plan = Plan::new(scene, total, total - store.occupied_count());
+    let mut plan = Plan::new(scene, total, total - store.occupied_count());
+    let choice = uncollided::choose(store, &plan, scene.solver.emission_uncollided)?;
+    if choice.traced {
+        plan.trace_emission(choice.reason);
+    } else if !choice.reason.is_empty() {
+        plan.reasons.push(choice.reason);
+    }
     progress.decay_prior(&slow_mode::prior(&plan, store));
     let digest = checkpoint_digest(scene, &plan);
     if resume && backend == BackendKind::Cpu {
@@ -344,6 +351,7 @@ pub fn solve_from(
     // of its own (super::unfold), which writes no checkpoint; these fields take its folded totals.
     let doubled = backend == BackendKind::Gpu && !plan.mirrors.is_empty();
     let resumed = if resume { StoreFields::resume(store, &plan, &digest)? } else { None };
+    let mut trace_note = None;
     let (mut fields, start) = match resumed {
         Some((fields, state)) => {
             tracing::info!("resuming after {} completed order(s)", state.orders_done);
@@ -363,7 +371,7 @@ pub fn solve_from(
                 if backend == BackendKind::Cpu {
                     return Err(warm::WarmStartError::NeedsGpu.into());
                 }
-                if plan.emission_field {
+                if plan.emission_field || (plan.emission_traced && plan.emission_grid) {
                     return Err(warm::WarmStartError::WithEmissionGrid.into());
                 }
                 let power = warm::seed(store, &plan, &mut fields, dir)?;
@@ -375,8 +383,17 @@ pub fn solve_from(
             // accumulators (still zero), as a sun's beam sweep deposits them: only here, so a
             // resumed solve never adds them twice; their power travels in the loop state.
             let point_light_power = point::write_order0(store, &plan, &mut fields.fluence, &mut fields.source_next)?;
-            fields.seeded = point_light_power.iter().any(|&p| p != 0.0);
-            (fields, fields::LoopState { point_light_power, ..fields::LoopState::default() })
+            // The traced emission's uncollided light joins them, the same way (super::uncollided).
+            let traced = trace_emission(store, &plan, &mut fields, &mut phases)?;
+            trace_note = traced.note();
+            fields.seeded = point_light_power.iter().chain(&traced.interacting).any(|&p| p != 0.0);
+            let state = fields::LoopState {
+                point_light_power,
+                uncollided_emitted: traced.emitted,
+                uncollided_escaped: traced.escaped(),
+                ..fields::LoopState::default()
+            };
+            (fields, state)
         }
     };
     // Every field exists now: keep the store's pages resident if it fits the host memory budget.
@@ -400,7 +417,7 @@ pub fn solve_from(
                 // The same f32 order-0 source the GPU gains, and the power it emits.
                 twin.set_initial_source(&fields.source_prev, emission::emitted_power(store, &plan)?);
             }
-            if !plan.point_lights.is_empty() {
+            if !plan.point_lights.is_empty() || plan.emission_traced {
                 // The same f32 values the GPU's order 0 starts from.
                 twin.set_order0_accumulators(&fields.fluence, &fields.source_next);
             }
@@ -432,9 +449,35 @@ pub fn solve_from(
     };
     fields.fluence_total.flush()?;
     fields.source_total.flush()?;
-    let mut plan = plan;
+    plan.reasons.extend(trace_note);
     plan.reasons.extend(doubled_reason);
     Ok((SolveRun { plan, outcome, device, peak_device_bytes: peak, memory, phases, residency, exit_maps }, fields))
+}
+
+/// Traces the emission's uncollided light into order 0's accumulators when the plan says so
+/// ([`uncollided`]), with its time among the phases and what it did among the plan's reasons.
+fn trace_emission(
+    store: &BrickStore,
+    plan: &Plan,
+    fields: &mut StoreFields,
+    phases: &mut Vec<(String, f64)>,
+) -> Result<uncollided::Traced, SolveError> {
+    if !plan.emission_traced {
+        return Ok(uncollided::Traced::default());
+    }
+    let t = Instant::now();
+    let traced = uncollided::add_order0(store, plan, &mut fields.fluence, &mut fields.source_next)?;
+    let seconds = t.elapsed().as_secs_f64();
+    phases.push(("emission trace".to_string(), seconds));
+    tracing::info!(
+        "emission traced in {seconds:.2} s: {} emitters (mirror images included), {} clusters taken whole, {} \
+         exact near pairs, {} far pairs",
+        traced.emitters,
+        traced.work.clusters,
+        traced.work.near,
+        traced.work.far
+    );
+    Ok(traced)
 }
 
 /// What a GPU solve hands back besides the fields.

@@ -450,6 +450,7 @@ pub fn run_orders<B: Backend + ?Sized>(
         fields.emitted_and_absorbed(medium, plan)
     };
     let emitted = backend.emission_field_power()?.unwrap_or(emitted);
+    let emitted: [f64; 3] = std::array::from_fn(|c| emitted[c] + state.uncollided_emitted[c]);
     // A warm start's last source is a residual of either sign: its signed power, not the norm.
     // (What periodic sweeps carry over was counted as out when it left.)
     let last_source: [f64; 3] = std::array::from_fn(|c| state.last_new_power[c] - state.last_carried_power[c]);
@@ -458,6 +459,7 @@ pub fn run_orders<B: Backend + ?Sized>(
         &state.tallies(),
         emitted,
         state.point_light_power,
+        state.uncollided_escaped,
         absorbed,
         unpropagated,
         plan.channels as usize,

@@ -167,6 +167,9 @@ pub struct Plan {
     pub emission_field: bool,
     /// The store holds an emission factor field (`volume.emission_*` / `temperature_*`).
     pub emission_grid: bool,
+    /// The emission's uncollided light is traced from the emitting voxels before order 0
+    /// ([`super::uncollided`]); `emission` and `emission_field` are then off (nothing swept).
+    pub emission_traced: bool,
     /// The albedo varies per voxel (`volume.albedo_*`): each order's scattered source is multiplied
     /// by the store's albedo factor before it is committed, and absorption is counted with it (see
     /// `solver::passes`).
@@ -229,6 +232,9 @@ pub struct PlanSummary {
     /// The emission's source is written per voxel (an emission grid, or σa varying with an albedo
     /// grid).
     pub emission_per_voxel: bool,
+    /// How the emission's uncollided light reaches the volume: "traced", "swept" or "none" (no
+    /// emission); the reasons say why.
+    pub emission_uncollided: &'static str,
     /// The albedo varies per voxel (`volume.albedo_*`).
     pub albedo_per_voxel: bool,
     pub bricks_total: usize,
@@ -550,6 +556,7 @@ impl Plan {
             emission,
             emission_field,
             emission_grid,
+            emission_traced: false,
             albedo_field,
             max_orders: scene.solver.max_orders,
             tolerance: scene.solver.tolerance,
@@ -570,6 +577,18 @@ impl Plan {
             mirrors,
             reasons,
         }
+    }
+
+    /// The emission's uncollided light is traced ([`super::uncollided`]): nothing of it is swept
+    /// (the kernels' uniform emission off, no per-voxel order-0 source); `reason` goes to the report.
+    pub fn trace_emission(&mut self, reason: String) {
+        self.emission_traced = true;
+        self.emission = false;
+        self.emission_field = false;
+        for r in &mut self.reasons {
+            *r = r.replace("the first order's source is", "the emission's source is");
+        }
+        self.reasons.push(reason);
     }
 
     /// Whether beam `b` is swept in order `order`: in order 0, and again in every order when its
@@ -616,8 +635,16 @@ impl Plan {
             sky_directions_per_face: self.sky_directions_per_face(),
             suns: self.beams.len(),
             point_lights: self.point_lights.len(),
-            emission: self.emission || self.emission_field,
-            emission_per_voxel: self.emission_field,
+            emission: self.emission || self.emission_field || self.emission_traced,
+            emission_per_voxel: self.emission_field
+                || (self.emission_traced && (self.emission_grid || self.albedo_field)),
+            emission_uncollided: if self.emission_traced {
+                "traced"
+            } else if self.emission || self.emission_field {
+                "swept"
+            } else {
+                "none"
+            },
             albedo_per_voxel: self.albedo_field,
             bricks_total: self.bricks_total,
             bricks_empty: self.bricks_empty,

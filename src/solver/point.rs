@@ -84,21 +84,37 @@ pub struct PointLight {
 /// volume and its voxels walked with an exact 3-D DDA (Amanatides–Woo); the result is in voxel
 /// units (multiply by σt·h for the optical depth).
 pub fn optical_path(dims: [u32; 3], density: &impl Fn([u32; 3]) -> f32, a: DVec3, b: DVec3) -> f64 {
+    let cells = |c: [i64; 3]| density([c[0] as u32, c[1] as u32, c[2] as u32]);
+    optical_path_in([0; 3], dims.map(|n| n as i64), &cells, a, b)
+}
+
+/// [`optical_path`] through the box of cells `lo..hi` per axis (which may start below 0: the
+/// frame a volume unfolded by its mirror images lives in, [`super::uncollided`]); `density` takes
+/// the cell's index in that frame. With `lo` = 0 and `hi` = dims the same arithmetic, so the same
+/// bits, as [`optical_path`].
+pub(crate) fn optical_path_in(
+    lo: [i64; 3],
+    hi: [i64; 3],
+    density: &impl Fn([i64; 3]) -> f32,
+    a: DVec3,
+    b: DVec3,
+) -> f64 {
     let d = b - a;
     let len = d.length();
     if !(len > 0.0) {
         return 0.0;
     }
     let dir = d / len;
-    let size = DVec3::new(dims[0] as f64, dims[1] as f64, dims[2] as f64);
+    let low = DVec3::new(lo[0] as f64, lo[1] as f64, lo[2] as f64);
+    let size = DVec3::new(hi[0] as f64, hi[1] as f64, hi[2] as f64);
     let (mut t0, mut t1) = (0.0f64, len);
     for axis in 0..3 {
         if dir[axis] == 0.0 {
-            if a[axis] < 0.0 || a[axis] > size[axis] {
+            if a[axis] < low[axis] || a[axis] > size[axis] {
                 return 0.0;
             }
         } else {
-            let (ta, tb) = ((0.0 - a[axis]) / dir[axis], (size[axis] - a[axis]) / dir[axis]);
+            let (ta, tb) = ((low[axis] - a[axis]) / dir[axis], (size[axis] - a[axis]) / dir[axis]);
             t0 = t0.max(ta.min(tb));
             t1 = t1.min(ta.max(tb));
         }
@@ -117,7 +133,7 @@ pub fn optical_path(dims: [u32; 3], density: &impl Fn([u32; 3]) -> f32, a: DVec3
         if dir[axis] < 0.0 && c == start[axis] {
             c -= 1.0;
         }
-        cell[axis] = (c as i64).clamp(0, dims[axis] as i64 - 1);
+        cell[axis] = (c as i64).clamp(lo[axis], hi[axis] - 1);
         if dir[axis] > 0.0 {
             step[axis] = 1;
             t_max[axis] = (cell[axis] as f64 + 1.0 - a[axis]) / dir[axis];
@@ -140,7 +156,7 @@ pub fn optical_path(dims: [u32; 3], density: &impl Fn([u32; 3]) -> f32, a: DVec3
         };
         let t_next = t_max[axis].min(t1);
         if t_next > t {
-            let rho = density([cell[0] as u32, cell[1] as u32, cell[2] as u32]);
+            let rho = density(cell);
             sum += rho as f64 * (t_next - t);
             t = t_next;
         }
@@ -148,7 +164,7 @@ pub fn optical_path(dims: [u32; 3], density: &impl Fn([u32; 3]) -> f32, a: DVec3
             break;
         }
         cell[axis] += step[axis];
-        if cell[axis] < 0 || cell[axis] >= dims[axis] as i64 {
+        if cell[axis] < lo[axis] || cell[axis] >= hi[axis] {
             break;
         }
         t_max[axis] += t_delta[axis];
@@ -241,7 +257,7 @@ const ROW_TABLE_VALUES: usize = 1 << 23;
 /// (`Σ_d Ω_d·row_d = 1` holds for each), so the interpolation keeps the scattered power exact; it
 /// makes a point light's first scattering cost a few multiplications per voxel instead of a
 /// quadrature of the sphere.
-struct RowTable {
+pub(crate) struct RowTable {
     n: usize,
     s: usize,
     /// `[face][v][u][d]`, face = 2·axis + (direction positive).
@@ -249,7 +265,7 @@ struct RowTable {
 }
 
 impl RowTable {
-    fn new(exact: &BeamRows) -> RowTable {
+    pub(crate) fn new(exact: &BeamRows) -> RowTable {
         let s = exact.storage_len();
         let n = ((ROW_TABLE_VALUES / (6 * s)) as f64).sqrt().floor().clamp(5.0, 65.0) as usize;
         let nodes: Vec<(usize, usize, usize)> =
@@ -265,7 +281,7 @@ impl RowTable {
     }
 
     /// The interpolated row of a beam travelling along `travel` (unit length), into `out`.
-    fn row_into(&self, travel: DVec3, out: &mut [f64]) {
+    pub(crate) fn row_into(&self, travel: DVec3, out: &mut [f64]) {
         let (f, u, v) = face_coordinates(travel);
         let last = (self.n - 1) as f64;
         let (x, y) = ((u + 1.0) * 0.5 * last, (v + 1.0) * 0.5 * last);

@@ -131,7 +131,7 @@ fn doubled_store(
         }
         Ok(())
     })?;
-    if plan.emission_field {
+    if plan.emission_grid {
         let from = crate::store::emission::open_emission(store)?;
         copy_field(&from, &doubled, crate::store::emission::EMISSION_FIELD, fold)?;
     }
@@ -200,15 +200,24 @@ pub(super) fn solve_doubled(
     let doubled = doubled_store(store, plan, &fold, &dir.0)?;
     let scene2 = doubled_scene(scene, plan, &fold);
     let total = doubled.grid().brick_count();
-    let plan2 = Plan::new(&scene2, total, total - doubled.occupied_count());
+    let mut plan2 = Plan::new(&scene2, total, total - doubled.occupied_count());
     let mut fields2 = StoreFields::create(&doubled, &plan2)?;
-    if plan2.emission_field {
+    let mut start = super::fields::LoopState::default();
+    if plan.emission_traced {
+        // The images are emitters of the doubled volume itself: traced there, as the twin traces
+        // them from the volume unfolded by its mirrors (super::uncollided).
+        plan2.trace_emission("emission's uncollided light traced, as the volume's".into());
+        let traced = super::uncollided::add_order0(&doubled, &plan2, &mut fields2.fluence, &mut fields2.source_next)?;
+        fields2.seeded = traced.interacting.iter().any(|&p| p != 0.0);
+        start.uncollided_emitted = traced.emitted;
+        start.uncollided_escaped = traced.escaped();
+    } else if plan2.emission_field {
         emission::write_initial_source(&doubled, &plan2, &mut fields2.source_prev)?;
     }
     let setup = t.elapsed().as_secs_f64();
     // The doubled volume's faces are not the scene's (a mirror is a plane inside it): no maps.
     let options = super::gpu::GpuOptions { checkpoints: false, exit_maps: false, ..gpu_options };
-    let run = super::run_gpu(&plan2, &doubled, &mut fields2, Default::default(), vk_options, options, None, progress)?;
+    let run = super::run_gpu(&plan2, &doubled, &mut fields2, start, vk_options, options, None, progress)?;
     let t = std::time::Instant::now();
     fold_field(&fields2.fluence_total, &mut fields.fluence_total, store, &fold);
     fold_field(&fields2.source_total, &mut fields.source_total, store, &fold);
@@ -274,6 +283,7 @@ fn fold_outcome(mut outcome: OrderOutcome, channels: u32, fold: &Fold) -> OrderO
         &tallies,
         per_copy(e.emitted),
         per_copy(e.point_lights),
+        per_copy(e.uncollided_escaped),
         per_copy(e.absorbed),
         per_copy(e.unpropagated),
         channels as usize,

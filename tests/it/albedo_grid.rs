@@ -161,6 +161,8 @@ fn emission_over_an_albedo_grid_uses_the_voxels_absorption() {
     // voxel (σa(v)·Le) rather than added by the kernels.
     let (mut sc, _) = sphere_with_albedo("albedo-emission", two_regions);
     sc.medium.emission = [1.0, 0.5, 2.0];
+    // The swept source is what this holds (a traced emission reads the same σa(v)·Le).
+    sc.solver.emission_uncollided = lpm::scene::EmissionUncollided::Swept;
     let gpu = solve("albedo-emission-gpu", &sc, Gpu);
     let cpu = solve("albedo-emission-cpu", &sc, Cpu);
     assert!(gpu.run.plan.emission_field && !gpu.run.plan.emission && !gpu.run.plan.emission_grid);
@@ -188,6 +190,7 @@ fn emission_over_an_albedo_grid_uses_the_voxels_absorption() {
     // A grid of ones with the same emission: the uniform emission (through the other path).
     let (mut ones, _) = sphere_with_albedo("albedo-emission-ones", |_| 1.0);
     ones.medium.emission = sc.medium.emission;
+    ones.solver.emission_uncollided = sc.solver.emission_uncollided;
     let mut uniform = ones.clone();
     uniform.volume.albedo = None;
     for backend in [Cpu, Gpu] {

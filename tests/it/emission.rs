@@ -3,7 +3,7 @@
 //! Monte-Carlo reference, VDB grids read over the density's voxels, and bad input.
 use crate::common::*;
 use lpm::reference::{run_with_emission, ReferenceOptions};
-use lpm::scene::{EmissionGrid, Scene, Shape};
+use lpm::scene::{EmissionGrid, EmissionUncollided, Scene, Shape};
 use lpm::solver::BackendKind::{Cpu, Gpu};
 use std::path::PathBuf;
 
@@ -24,6 +24,9 @@ fn glowing_sphere(name: &str, tint: [f64; 3], e: impl Fn([u32; 3]) -> f32) -> (S
     let mut sc = scene(Shape::Sphere, dims, [0.8, 0.6, 0.4], [0.7, 0.6, 0.5], vec![sky(0.2)]);
     sc.medium.emission = tint;
     sc.volume.emission = Some(EmissionGrid::Raw { path: path.clone() });
+    // The swept per-voxel source (solver::emission) is what these tests hold; the traced one has
+    // its own (emission_uncollided.rs).
+    sc.solver.emission_uncollided = EmissionUncollided::Swept;
     sc.solver.directions_per_face = 3;
     sc.solver.max_orders = 6;
     sc.solver.tolerance = 1e-30;

@@ -18,6 +18,7 @@ mod cpu_physics;
 mod cpu_threads;
 mod diffusion_correction;
 mod emission;
+mod emission_uncollided;
 mod environment;
 mod exact_division;
 mod exitance;

@@ -36,6 +36,7 @@ fn scene(dims: [u32; 3], h: f64, sigma_t: f64, albedo: f64, g: f64, emission: f6
             plan: PlanMode::Auto,
             spatial: Some(SpatialScheme::Linear),
             forward_peak: ForwardPeak::Auto,
+            emission_uncollided: Default::default(),
             diffusion_correction: DiffusionCorrection::Off,
             acceleration: Acceleration::Auto,
             diffusion_cells: None,

@@ -186,7 +186,9 @@ fn hot_sphere(name: &str, tint: [f64; 3], t: impl Fn([u32; 3]) -> f32) -> Scene 
 
 #[test]
 fn gpu_matches_the_twin_and_energy_balances() {
-    let sc = hot_sphere("temperature-gpu-twin", [1.0; 3], core_temperature);
+    let mut sc = hot_sphere("temperature-gpu-twin", [1.0; 3], core_temperature);
+    // The swept source is what this holds (the traced one: emission_uncollided.rs).
+    sc.solver.emission_uncollided = lpm::scene::EmissionUncollided::Swept;
     let gpu = solve("temperature-gpu", &sc, Gpu);
     let cpu = solve("temperature-cpu", &sc, Cpu);
     // A grey medium under a grey sky, but the blackbody's colour needs three channels.
