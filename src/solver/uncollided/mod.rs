@@ -62,7 +62,8 @@
 //! emitters absorb or scatter their own light within a voxel, and the swept first scattering has
 //! no streaks to lose). A periodic axis or mirrors on both faces of an axis always sweep. The
 //! plan's reasons say which and why with the numbers, and `report.json`'s phases give the trace's
-//! time (`"emission trace"`).
+//! time (`"emission trace"`). `auto` also sweeps where the trace would cost more than
+//! [`AUTO_MAX_PAIRS`] emitter–voxel pairs (the fire scene's grid): `"traced"` forces it.
 //!
 //! **The Monte-Carlo reference** samples an emission photon's voxel by its ρ·σa·e and its position
 //! uniformly within the voxel, and tallies voxel means by track length (`reference::fluence`): its
@@ -98,6 +99,13 @@ use kernel::NearTable;
 use rayon::prelude::*;
 
 /// `auto` traces when at most this fraction of the medium's voxels (density > 0) emit.
+/// `auto` traces only while emitting voxels × medium voxels is at most this: the trace costs about
+/// that many ray walks (fewer where clusters form), 2.5·10⁷ pairs some minutes on two cores
+/// (Kobayashi problem 1 at 2 cm, 1.6·10⁷ pairs, took 22 min with its source's faces never
+/// clustered); beyond, the solve would wait far longer on the trace than on its orders (the fire
+/// scene, ~10⁹ pairs, did not finish in 20 min), so `auto` sweeps and says so.
+pub const AUTO_MAX_PAIRS: f64 = 2.5e7;
+
 pub const AUTO_MAX_EMITTING_FRACTION: f64 = 0.25;
 /// `auto` traces when the emitters' source-weighted σt·h is at most this: their light leaves them.
 pub const AUTO_MAX_SIGMA_H: f64 = 1.0;
@@ -203,7 +211,9 @@ pub fn choose(store: &BrickStore, plan: &Plan, setting: EmissionUncollided) -> R
     }
     let compact = fraction <= AUTO_MAX_EMITTING_FRACTION;
     let leaves = sigma_h <= AUTO_MAX_SIGMA_H;
-    let traced = compact && leaves && emitting > 0;
+    let pairs = emitting as f64 * occupied as f64;
+    let affordable = pairs <= AUTO_MAX_PAIRS;
+    let traced = compact && leaves && affordable && emitting > 0;
     let why = format!(
         "{emitting} of the medium's {occupied} voxels emit ({:.3} %, traced up to {} %), their source-weighted σt·h {sigma_h:.3} \
          (traced up to {AUTO_MAX_SIGMA_H})",
@@ -221,9 +231,14 @@ pub fn choose(store: &BrickStore, plan: &Plan, setting: EmissionUncollided) -> R
             format!(
                 "emission's uncollided light swept (auto): {why}: {}",
                 if !compact {
-                    "the emission fills the medium (no small emitter to streak; the trace would cost E × N)"
+                    "the emission fills the medium (no small emitter to streak; the trace would cost E × N)".to_string()
+                } else if !leaves {
+                    "the emitters are optically thick: their light is absorbed or scattered within a voxel".to_string()
                 } else {
-                    "the emitters are optically thick: their light is absorbed or scattered within a voxel"
+                    format!(
+                        "the trace would pair the emitters with the medium's voxels {pairs:.2e} times (auto traces up \
+                         to {AUTO_MAX_PAIRS:.1e}; solver.emission_uncollided = \"traced\" traces anyway)"
+                    )
                 }
             )
         },
