@@ -106,8 +106,17 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
         // The suns' single scattering: the phase function between each sun's light and the
         // light reaching the camera (along −dir) is the same all along the ray.
         let single = inputs.single.map(|s| {
-            let phases: Vec<PeakChains> =
-                s.beams.iter().map(|b| PeakChains::new(s.medium.g, b.travel.dot(-dir))).collect();
+            let phases: Vec<PeakChains> = s
+                .beams
+                .iter()
+                .map(|b| {
+                    if s.peak_chains {
+                        PeakChains::new(s.medium.g, b.travel.dot(-dir))
+                    } else {
+                        PeakChains::single(s.medium.g, b.travel.dot(-dir))
+                    }
+                })
+                .collect();
             (s, phases)
         });
         // Under δ-M the march attenuates the solved source with the scaled extinction; the exact
@@ -150,7 +159,7 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                     for (beam, chains) in s.beams.iter().zip(phases) {
                         let v = sample_channels(beam.irradiance, 0, inputs.channels, &corners, &weights);
                         if !s.peak_chains {
-                            let p = chains.single();
+                            let p = chains.single_phase();
                             for (ch, e) in e.iter_mut().enumerate() {
                                 *e += p * v[if inputs.channels == 1 { 0 } else { ch }];
                             }

@@ -67,13 +67,19 @@ impl PeakChains {
         PeakChains { phases }
     }
 
+    /// The single-scattering term alone (no table): for a render without δ-M, which asks only
+    /// for [`single_phase`](Self::single_phase).
+    pub fn single(g: f64, mu: f64) -> PeakChains {
+        PeakChains { phases: vec![henyey_greenstein(g, mu)] }
+    }
+
     /// The single-scattering phase HG(g; μ): the sum at τ = 0.
-    pub fn single(&self) -> f64 {
+    pub fn single_phase(&self) -> f64 {
         self.phases[0]
     }
 
     /// `Σₙ P(n; τ)·HG(g^{n+1}; μ)` for τ ≥ 0 (τ = ∞ gives 1/4π). τ = 0 returns
-    /// [`single`](Self::single) bit for bit.
+    /// [`single_phase`](Self::single_phase) bit for bit.
     pub fn phase(&self, tau: f64) -> f64 {
         poisson_mix(tau, self.phases.len(), |n| self.phases[n])
     }
@@ -184,7 +190,7 @@ mod tests {
     fn the_sum_is_the_single_scattering_without_peak_and_isotropic_deep_in() {
         let chains = PeakChains::new(0.8, 0.97);
         assert_eq!(chains.phase(0.0).to_bits(), henyey_greenstein(0.8, 0.97).to_bits());
-        assert_eq!(chains.single(), henyey_greenstein(0.8, 0.97));
+        assert_eq!(chains.single_phase(), henyey_greenstein(0.8, 0.97));
         let iso = 1.0 / (4.0 * PI);
         assert!((chains.phase(f64::INFINITY) - iso).abs() < 1e-15);
         assert!((chains.phase(2000.0) / iso - 1.0).abs() < 1e-5);
