@@ -12,7 +12,8 @@ import sys
 import zlib
 
 
-def read_png(path):
+def read_rgb(path):
+    """An 8-bit RGB or RGBA PNG as (width, height, rows of r, g, b bytes composited over black)."""
     data = open(path, "rb").read()
     assert data[:8] == b"\x89PNG\r\n\x1a\n", path
     pos, idat, header = 8, b"", None
@@ -43,23 +44,28 @@ def read_png(path):
                 p = a + b - c
                 pa, pb, pc = abs(p - a), abs(p - b), abs(p - c)
                 line[i] = (line[i] + (a if pa <= pb and pa <= pc else b if pb <= pc else c)) & 255
-        rows.append(line)
         prev = line
-    lum = []
-    for line in rows:
-        out = []
+        out = bytearray()
         for x in range(w):
             p = line[x * bpp:(x + 1) * bpp]
             alpha = p[3] / 255 if bpp == 4 else 1.0
-            out.append((0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]) * alpha)
-        lum.append(out)
+            out += bytes(round(v * alpha) for v in p[:3])
+        rows.append(out)
+    return w, h, rows
+
+
+def read_png(path):
+    """An 8-bit RGB or RGBA PNG's luminance (over black), as (width, height, rows of floats)."""
+    w, h, rows = read_rgb(path)
+    lum = [[0.2126 * r[3 * x] + 0.7152 * r[3 * x + 1] + 0.0722 * r[3 * x + 2] for x in range(w)] for r in rows]
     return w, h, lum
 
 
-def write_png(path, w, h, rows):
+def write_png(path, w, h, rows, colour=0):
+    """Rows of 8-bit grey (colour 0) or RGB (colour 2) values."""
     raw = b"".join(b"\x00" + bytes(r) for r in rows)
     chunk = lambda k, b: struct.pack(">I", len(b)) + k + b + struct.pack(">I", zlib.crc32(k + b) & 0xFFFFFFFF)
-    png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 0, 0, 0, 0))
+    png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, colour, 0, 0, 0))
     open(path, "wb").write(png + chunk(b"IDAT", zlib.compress(raw, 9)) + chunk(b"IEND", b""))
 
 
@@ -82,4 +88,5 @@ def main():
     print(f"stretched {low:.1f}..{high:.1f} to 0..255: {sys.argv[3]}")
 
 
-main()
+if __name__ == "__main__":
+    main()
