@@ -98,7 +98,6 @@ use glam::DVec3;
 use kernel::NearTable;
 use rayon::prelude::*;
 
-/// `auto` traces when at most this fraction of the medium's voxels (density > 0) emit.
 /// `auto` traces only while emitting voxels × medium voxels is at most this: the trace costs about
 /// that many ray walks (fewer where clusters form), 2.5·10⁷ pairs some minutes on two cores
 /// (Kobayashi problem 1 at 2 cm, 1.6·10⁷ pairs, took 22 min with its source's faces never
@@ -106,7 +105,9 @@ use rayon::prelude::*;
 /// scene, ~10⁹ pairs, did not finish in 20 min), so `auto` sweeps and says so.
 pub const AUTO_MAX_PAIRS: f64 = 2.5e7;
 
+/// `auto` traces when at most this fraction of the medium's voxels (density > 0) emit.
 pub const AUTO_MAX_EMITTING_FRACTION: f64 = 0.25;
+
 /// `auto` traces when the emitters' source-weighted σt·h is at most this: their light leaves them.
 pub const AUTO_MAX_SIGMA_H: f64 = 1.0;
 
