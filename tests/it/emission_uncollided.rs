@@ -65,6 +65,8 @@ fn one_emitting_voxel_in_an_absorber_is_the_exact_voxel_mean_on_both_backends() 
     assert!(gpu.run.plan.reasons.iter().any(|r| r.contains("traced (auto)")), "{:?}", gpu.run.plan.reasons);
     assert!(gpu.run.plan.reasons.iter().any(|r| r.starts_with("emission trace:")), "{:?}", gpu.run.plan.reasons);
     assert!(gpu.run.phases.iter().any(|(p, _)| p == "emission trace"), "{:?}", gpu.run.phases);
+    // A pure absorber scatters nothing: no word about the scattered light's streaks.
+    assert!(!gpu.run.plan.reasons.iter().any(|r| r.contains("still streaks")), "{:?}", gpu.run.plan.reasons);
     // J = ρσa·Le per unit volume and steradian; φ = J·h·G(voxel units), σ per voxel edge σt·h.
     let j = sigma * le;
     let (mut checked, mut worst) = (0, 0.0f64);
@@ -177,6 +179,12 @@ fn a_scattering_core_matches_the_twin_balances_and_repeats_bitwise() {
     let gpu = solve("uncollided-core-gpu", &sc, Gpu);
     let cpu = solve("uncollided-core-cpu", &sc, Cpu);
     assert!(gpu.run.plan.emission_traced && !gpu.run.plan.emission_field && gpu.run.plan.storage.len() > 1);
+    // It scatters, at k = 3: the plan says the scattered light still streaks, and what k helps.
+    assert!(
+        gpu.run.plan.reasons.iter().any(|r| r.contains("still streaks") && r.contains("directions_per_face = 12")),
+        "{:?}",
+        gpu.run.plan.reasons
+    );
     let err = relative_l2(&gpu.fluence_all(), &cpu.fluence_all());
     assert!(err <= 1e-4, "GPU vs twin {err}");
     assert!(gpu.run.outcome.energy.relative_imbalance < 1e-5, "{:?}", gpu.run.outcome.energy);

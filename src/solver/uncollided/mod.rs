@@ -62,7 +62,10 @@
 //! emitters absorb or scatter their own light within a voxel, and the swept first scattering has
 //! no streaks to lose). A periodic axis or mirrors on both faces of an axis always sweep. The
 //! plan's reasons say which and why with the numbers, and `report.json`'s phases give the trace's
-//! time (`"emission trace"`). `auto` also sweeps where the trace would cost more than
+//! time (`"emission trace"`). Where the medium scatters and k < [`SCATTERED_STREAK_FREE_K`] (12),
+//! the traced reason adds that the *scattered* light is still swept and streaks where it dominates,
+//! and which k helps (Kobayashi's case ii: every detector within 10 % only from k = 12); the plan
+//! does not raise k by itself. `auto` also sweeps where the trace would cost more than
 //! [`AUTO_MAX_PAIRS`] emitter–voxel pairs (the fire scene's grid): `"traced"` forces it.
 //!
 //! **The Monte-Carlo reference** samples an emission photon's voxel by its ρ·σa·e and its position
@@ -201,12 +204,13 @@ pub fn choose(store: &BrickStore, plan: &Plan, setting: EmissionUncollided) -> R
     }
     let (emitting, occupied, sigma_h) = emission_extent(store, plan)?;
     let fraction = emitting as f64 / occupied.max(1) as f64;
+    let hint = scattered_light_hint(plan);
     if setting == EmissionUncollided::Traced {
         return Ok(Choice {
             traced: true,
             reason: format!(
                 "emission's uncollided light traced from its {emitting} emitting voxels (solver.emission_uncollided \
-                 = \"traced\"): no ray effects around small emitters"
+                 = \"traced\"): no ray effects around small emitters{hint}"
             ),
         });
     }
@@ -226,7 +230,7 @@ pub fn choose(store: &BrickStore, plan: &Plan, setting: EmissionUncollided) -> R
         reason: if traced {
             format!(
                 "emission's uncollided light traced (auto): {why}: a compact emission whose light leaves it would \
-                 streak along the swept directions"
+                 streak along the swept directions{hint}"
             )
         } else {
             format!(
@@ -244,6 +248,28 @@ pub fn choose(store: &BrickStore, plan: &Plan, setting: EmissionUncollided) -> R
             )
         },
     })
+}
+
+/// The directions per face from which a traced compact emitter's *scattered* light no longer
+/// streaks at detector accuracy: Kobayashi's case ii, traced, reads rms ln(C/E) 0.085–0.115 at
+/// k = 5 and 0.030–0.031 at k = 12, every detector within 10 % (`benches/RESULTS.md`).
+pub const SCATTERED_STREAK_FREE_K: u32 = 12;
+
+/// What the plan adds to a traced emission's reason when the medium scatters and k is below
+/// [`SCATTERED_STREAK_FREE_K`]: the first-collision source leaves the scattered light to the
+/// sweeps, whose own ray effects remain (the plan does not raise k by itself: that costs
+/// (12/k)² the sweeps, and on a small ember moved the ember's own voxels the wrong way).
+fn scattered_light_hint(plan: &Plan) -> String {
+    let k = plan.propagation.k;
+    let scatters = plan.medium.albedo.iter().any(|&a| a > 0.0);
+    if !scatters || k >= SCATTERED_STREAK_FREE_K {
+        return String::new();
+    }
+    format!(
+        "; its scattered light is swept, and at k = {k} still streaks where it dominates (Kobayashi's case ii: \
+         within 10 % everywhere only from k = {SCATTERED_STREAK_FREE_K}): set solver.directions_per_face = \
+         {SCATTERED_STREAK_FREE_K} where that matters"
+    )
 }
 
 /// Emitting voxels, the medium's voxels (density > 0), and the emitters' source-weighted σt·h
