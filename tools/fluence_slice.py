@@ -8,7 +8,8 @@ image).
     python3 tools/fluence_slice.py Z OUT.png DIR [DIR ...] REFERENCE_DIR [--range 0.2] [--scale 4]
 
 Each DIR holds fluence.json and fluence.raw (f32, components fastest, then x, y, z); the slice
-shows the mean over the components."""
+shows the mean over the components. Voxels with no value (NaN: lpm's empty bricks, which it does
+not solve) and voxels where the reference is 0 are black."""
 import json
 import math
 import os
@@ -52,7 +53,7 @@ def main():
     nx, ny = slices[0][0], slices[0][1]
     if any((w, h) != (nx, ny) for w, h, _ in slices):
         sys.exit("the directories' volumes differ in size")
-    positive = [v for _, _, rows in slices for r in rows for v in r if v > 0]
+    positive = [v for _, _, rows in slices for r in rows for v in r if v > 0 and math.isfinite(v)]
     if not positive:
         sys.exit("no positive fluence in the slice")
     positive.sort()
@@ -61,11 +62,11 @@ def main():
     scale, gap, span = options["--scale"], 4, options["--range"]
 
     def grey(v):
-        g = 0 if v <= 0 else round(255 * min(1.0, max(0.0, (math.log(v) - low) / (high - low))))
+        g = 0 if not v > 0 else round(255 * min(1.0, max(0.0, (math.log(v) - low) / (high - low))))
         return (g, g, g)
 
     def error(v, r):
-        if r <= 0:
+        if not (r > 0 and math.isfinite(v)):
             return (0, 0, 0)
         t = min(1.0, abs(v / r - 1.0) / span)
         return (round(255 * t), 0, 0) if v > r else (0, 0, round(255 * t))
