@@ -78,6 +78,9 @@
 //! `uncollided_escaped`, `P` minus what the medium takes (so they close to round-off; that the
 //! taking is right is the kernel's conservation, `kernel::tests`, and the analytic emitter's test).
 //!
+//! A long trace logs its progress every ten seconds (bricks done, elapsed, a naive time left): it
+//! runs inside the plan's stage, whose progress says nothing meanwhile.
+//!
 //! Written once here for both backends, before order 0, into the fields order 0 accumulates
 //! (after the point lights': it adds to them). Brick by brick over the occupied bricks, in parallel
 //! (rayon), in groups of [`RELEASE_UNITS`] bricks whose pages are then handed back; the emitters
@@ -100,6 +103,12 @@ use clusters::{Clusters, Emitter, Work};
 use glam::DVec3;
 use kernel::NearTable;
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+/// How often a long trace logs its progress.
+const REPORT_EVERY: Duration = Duration::from_secs(10);
 
 /// `auto` traces only while emitting voxels × medium voxels is at most this: the trace costs about
 /// that many ray walks (fewer where clusters form), 2.5·10⁷ pairs some minutes on two cores
@@ -382,7 +391,7 @@ pub fn add_order0_with(
     source_next: &mut Field,
     exact: bool,
 ) -> Result<Traced, SolveError> {
-    let started = std::time::Instant::now();
+    let started = Instant::now();
     let Some(frame) = Unfolded::new(plan.dims, plan.reflective) else {
         return Ok(Traced::default());
     };
@@ -487,6 +496,24 @@ pub fn add_order0_with(
         (p, work)
     };
     let (fl_len, src_len) = (c * BRICK_VOXELS, comps * BRICK_VOXELS);
+    // Progress for a long trace (it runs inside the plan's stage, which reports nothing meanwhile):
+    // a line every REPORT_EVERY from whichever worker finishes a brick then, with a naive ETA.
+    let done = AtomicUsize::new(0);
+    let last_report = Mutex::new(started);
+    let tick = || {
+        let k = done.fetch_add(1, Ordering::Relaxed) + 1;
+        if let Ok(mut last) = last_report.try_lock() {
+            if last.elapsed() >= REPORT_EVERY && k < bricks.len() {
+                *last = Instant::now();
+                let elapsed = started.elapsed().as_secs_f64();
+                let left = elapsed * (bricks.len() - k) as f64 / k as f64;
+                tracing::info!(
+                    "emission trace: {k} of {} bricks in {elapsed:.0} s, about {left:.0} s left",
+                    bricks.len()
+                );
+            }
+        }
+    };
     for first in (0..bricks.len()).step_by(RELEASE_UNITS) {
         let last = (first + RELEASE_UNITS).min(bricks.len());
         let fl = &mut fluence.as_mut_slice()[first * fl_len..last * fl_len];
@@ -495,7 +522,11 @@ pub fn add_order0_with(
             .par_chunks_mut(fl_len)
             .zip(src.par_chunks_mut(src_len))
             .zip(&bricks[first..last])
-            .map(|((fl, src), &brick)| brick_pass(brick, fl, src))
+            .map(|((fl, src), &brick)| {
+                let result = brick_pass(brick, fl, src);
+                tick();
+                result
+            })
             .collect();
         // Summed in slot order: the same at any thread count.
         for (p, w) in results {
