@@ -110,10 +110,11 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                 .beams
                 .iter()
                 .map(|b| {
+                    let mu = b.travel.dot(-dir);
                     if s.peak_chains {
-                        PeakChains::new(s.medium.g, b.travel.dot(-dir))
+                        PeakChains::new(s.medium.g, mu)
                     } else {
-                        PeakChains::single(s.medium.g, b.travel.dot(-dir))
+                        PeakChains::single(s.medium.g, mu)
                     }
                 })
                 .collect();

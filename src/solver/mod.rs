@@ -20,6 +20,7 @@
 //!   first scattering, into order 0's fields (before order 0, and only in a fresh solve);
 //! - [`direct`] splits the suns' first scattering off the source an image is made from (the
 //!   renderer evaluates it exactly);
+//! - [`progress_lines`] logs long stretches of work (a GPU order, the emission's trace) now and then;
 //! - [`warm`] starts a solve from a guess (the previous frame's solution) and still converges to
 //!   the cold solve's answer.
 
@@ -41,6 +42,7 @@ pub mod passes;
 pub mod periodic;
 pub mod plan;
 pub mod point;
+pub mod progress_lines;
 pub mod remaining;
 pub mod segment;
 pub mod slow_mode;

@@ -121,6 +121,7 @@ use super::orders::Backend;
 use super::passes::{OrderFieldSet, StoreMedium};
 use super::periodic::{CarryOf, PeriodStep, PeriodicCarry, RayRadiance};
 use super::plan::{half_scale_exponent, Plan, Precision, SweepDirection};
+use super::progress_lines::StepProgress;
 use super::remaining::RemainingError;
 use super::sweep::{side_births, FaceSweep};
 use super::SolveError;
@@ -221,7 +222,7 @@ pub struct GpuBackend<'a> {
     /// The f16 previous source's scale exponent for the order being propagated (`None`: f32).
     half_exponent: Option<i32>,
     /// Passes done in the order being propagated (logged now and then).
-    progress: Option<progress::PassProgress>,
+    progress: Option<StepProgress>,
     /// What the rays of periodic-axis sweeps carried out last order ([`super::periodic`]).
     carry: PeriodicCarry,
     /// The exitance maps, summed pass by pass ([`face_maps`]); `None` when not made.
@@ -406,7 +407,7 @@ impl<'a> GpuBackend<'a> {
             };
             self.streamer.stream_pass(&mut io, &job)?;
             if let Some(p) = self.progress.as_mut() {
-                p.pass_done();
+                p.step_done();
             }
             let births = Births { boundary, entries: entries.as_deref() };
             let maps = self.exits.as_mut();
@@ -773,7 +774,7 @@ impl GpuBackend<'_> {
         let face_dirs: Vec<usize> = plan.faces.iter().chain(&plan.sky_faces[..sky_faces]).map(Vec::len).collect();
         let beams: Vec<usize> = (0..plan.beams.len()).filter(|&b| plan.beam_swept_in(b, order)).collect();
         let passes = progress::passes_per_order(&face_dirs, beams.len(), self.memory.directions_per_pass);
-        self.progress = Some(progress::PassProgress::new(order, passes));
+        self.progress = Some(StepProgress::new(format!("order {order}"), "passes", passes));
         let loads = match &mut self.mode {
             Mode::Resident(Resident { ends: Ends::OnDevice(end), buffers, .. }) if committed_on_device.is_some() => {
                 advance_on_device(self.streamer.submitter(), end, buffers, self.half_exponent)?;

@@ -78,8 +78,8 @@
 //! `uncollided_escaped`, `P` minus what the medium takes (so they close to round-off; that the
 //! taking is right is the kernel's conservation, `kernel::tests`, and the analytic emitter's test).
 //!
-//! A long trace logs its progress every ten seconds (bricks done, elapsed, a naive time left): it
-//! runs inside the plan's stage, whose progress says nothing meanwhile.
+//! A long trace logs its progress in bricks ([`super::progress_lines`]): it runs inside the plan's
+//! stage, whose progress says nothing meanwhile.
 //!
 //! Written once here for both backends, before order 0, into the fields order 0 accumulates
 //! (after the point lights': it adds to them). Brick by brick over the occupied bricks, in parallel
@@ -95,6 +95,7 @@ use super::emission::{scales, Factors};
 use super::passes::RELEASE_UNITS;
 use super::plan::Plan;
 use super::point::{optical_path_in, RowTable};
+use super::progress_lines::StepProgress;
 use super::SolveError;
 use crate::quadrature::phase::BeamRows;
 use crate::scene::EmissionUncollided;
@@ -103,12 +104,8 @@ use clusters::{Clusters, Emitter, Work};
 use glam::DVec3;
 use kernel::NearTable;
 use rayon::prelude::*;
-use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
-use std::time::{Duration, Instant};
-
-/// How often a long trace logs its progress.
-const REPORT_EVERY: Duration = Duration::from_secs(10);
+use std::time::Instant;
 
 /// `auto` traces only while emitting voxels × medium voxels is at most this: the trace costs about
 /// that many ray walks (fewer where clusters form), 2.5·10⁷ pairs some minutes on two cores
@@ -496,24 +493,8 @@ pub fn add_order0_with(
         (p, work)
     };
     let (fl_len, src_len) = (c * BRICK_VOXELS, comps * BRICK_VOXELS);
-    // Progress for a long trace (it runs inside the plan's stage, which reports nothing meanwhile):
-    // a line every REPORT_EVERY from whichever worker finishes a brick then, with a naive ETA.
-    let done = AtomicUsize::new(0);
-    let last_report = Mutex::new(started);
-    let tick = || {
-        let k = done.fetch_add(1, Ordering::Relaxed) + 1;
-        if let Ok(mut last) = last_report.try_lock() {
-            if last.elapsed() >= REPORT_EVERY && k < bricks.len() {
-                *last = Instant::now();
-                let elapsed = started.elapsed().as_secs_f64();
-                let left = elapsed * (bricks.len() - k) as f64 / k as f64;
-                tracing::info!(
-                    "emission trace: {k} of {} bricks in {elapsed:.0} s, about {left:.0} s left",
-                    bricks.len()
-                );
-            }
-        }
-    };
+    // It runs inside the plan's stage, which reports nothing meanwhile.
+    let progress = Mutex::new(StepProgress::new("emission trace", "bricks", bricks.len() as u32));
     for first in (0..bricks.len()).step_by(RELEASE_UNITS) {
         let last = (first + RELEASE_UNITS).min(bricks.len());
         let fl = &mut fluence.as_mut_slice()[first * fl_len..last * fl_len];
@@ -524,7 +505,9 @@ pub fn add_order0_with(
             .zip(&bricks[first..last])
             .map(|((fl, src), &brick)| {
                 let result = brick_pass(brick, fl, src);
-                tick();
+                if let Ok(mut p) = progress.lock() {
+                    p.step_done();
+                }
                 result
             })
             .collect();
