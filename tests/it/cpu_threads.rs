@@ -22,15 +22,16 @@ fn field_bits(s: &Solved) -> Vec<u32> {
 }
 
 /// Two clouds with a brick-wide vacuum gap between them (so whole planes are skipped), an RGB
-/// anisotropic medium with 2×2 storage directions, sun and sky.
+/// anisotropic medium with 2×2 storage directions, sun and sky: 3×2×2 bricks, the first blob in
+/// the first brick column (x < 16), the second in the third (x ≥ 32), the middle one empty.
 fn gapped_cloud(name: &str) -> Scene {
-    let dims = [52, 30, 34];
+    let dims = [48, 20, 20];
     let mut sc = raw_scene(name, dims, 0.9, 0.9, vec![sky(0.4), sun([0.3, -0.5, 1.0], [2.0; 3])], |v| {
         let blob = |c: [f64; 3], r: f64| {
             let d2: f64 = (0..3).map(|i| (v[i] as f64 + 0.5 - c[i]).powi(2)).sum();
             (1.0 - d2 / (r * r)).max(0.0) as f32
         };
-        blob([8.0, 15.0, 17.0], 8.0) + blob([42.0, 14.0, 16.0], 9.0)
+        blob([8.0, 10.0, 10.0], 8.0) + blob([40.0, 9.5, 10.5], 7.5)
     });
     sc.medium.sigma_t = [0.9, 0.7, 0.5];
     sc.medium.albedo = [0.95, 0.9, 0.8];

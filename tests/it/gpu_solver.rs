@@ -22,7 +22,7 @@ fn gpu_vs_cpu(name: &str, mut scene: Scene, orders: u32) -> f64 {
 fn gpu_matches_cpu_twin_on_rgb_cloud_with_sun_and_sky() {
     let mut scene = scene(
         Shape::Cloud,
-        [40, 36, 44],
+        [34, 26, 30],
         [0.9, 0.7, 0.5],
         [0.95, 0.9, 0.8],
         vec![sky(0.4), sun([0.3, 1.0, 0.2], [3.0, 2.8, 2.5])],

@@ -36,10 +36,11 @@ fn tolerance_holds_in_every_voxel_of_a_thick_high_albedo_box() {
     assert!(estimate.max <= 1e-3);
 }
 
-/// The GPU computes the same estimate from its f32 fields and stops at the same order.
+/// The GPU computes the same estimate from its f32 fields and stops at the same order. (Albedo
+/// 0.9: 55 orders before the stop, against 79 at 0.95.)
 #[test]
 fn gpu_and_twin_stop_at_the_same_order() {
-    let mut sc = scene(Shape::Sphere, [24, 20, 22], [1.0; 3], [0.95; 3], vec![sky(1.0)]);
+    let mut sc = scene(Shape::Sphere, [24, 20, 22], [1.0; 3], [0.9; 3], vec![sky(1.0)]);
     sc.solver.tolerance = 1e-3;
     let (g, c) = (solve("stop-gpu", &sc, Gpu), solve("stop-cpu", &sc, Cpu));
     let (rg, rc) = (g.run.outcome.remaining.expect("gpu"), c.run.outcome.remaining.expect("cpu"));
