@@ -13,7 +13,7 @@ fn with_precision(mut scene: Scene, p: StoragePrecision) -> Scene {
 }
 
 fn anisotropic_cloud() -> Scene {
-    let mut s = scene(Shape::Cloud, [32, 30, 34], [0.8; 3], [0.9; 3], vec![sky(0.3), sun([-0.5, 0.4, 1.0], [2.0; 3])]);
+    let mut s = scene(Shape::Cloud, [24, 22, 26], [0.8; 3], [0.9; 3], vec![sky(0.3), sun([-0.5, 0.4, 1.0], [2.0; 3])]);
     s.medium.g = 0.7;
     s.solver.directions_per_face = 3;
     s.solver.storage_directions_per_face = Some(2);
@@ -72,7 +72,7 @@ fn f16_on_the_gpu_matches_the_f16_twin_at_any_budget() {
 fn f16_rgb_cloud_with_sun_and_sky_matches_the_f16_twin() {
     let mut scene = scene(
         Shape::Cloud,
-        [40, 36, 44],
+        [28, 26, 30],
         [0.9, 0.7, 0.5],
         [0.95, 0.9, 0.8],
         vec![sky(0.4), sun([0.3, 1.0, 0.2], [3.0, 2.8, 2.5])],
@@ -92,7 +92,9 @@ fn f16_rgb_cloud_with_sun_and_sky_matches_the_f16_twin() {
 fn f16_and_f32_differ_by_less_than_the_tolerance_and_f16_saves_bytes() {
     let mut scene =
         scene(Shape::Cloud, [28, 26, 30], [1.2; 3], [0.9; 3], vec![sky(0.5), sun([0.2, -0.4, 1.0], [3.0; 3])]);
-    scene.solver.directions_per_face = 3;
+    // k = 2: the ~40 orders this cloud takes to reach the tolerance are what the test needs (f16
+    // rounding summed over them), not many directions per order.
+    scene.solver.directions_per_face = 2;
     scene.solver.tolerance = 1e-3;
     // `auto` at tolerance 1e-3 picks f16.
     let f16 = solve("prec-cloud-f16", &scene, Gpu);
