@@ -14,8 +14,9 @@ fn sphere_scene() -> Scene {
         scene(Shape::Sphere, [20, 18, 22], [0.9; 3], [0.95; 3], vec![sky(0.5), sun([0.3, -0.4, 0.8], [2.0; 3])]);
     sc.solver.directions_per_face = 3;
     sc.solver.max_orders = 400;
-    // Loose (the pass runs every order all the same): the suite's time goes to what differs.
-    sc.solver.tolerance = 1e-3;
+    // Loose (the pass runs every order all the same, and the books count the light not yet
+    // propagated): the suite's time goes to what differs.
+    sc.solver.tolerance = 1e-2;
     sc.solver.diffusion_correction = DiffusionCorrection::On;
     sc
 }
