@@ -288,7 +288,9 @@ impl Drop for Slurm {
 fn slurm_array_with_a_killed_and_requeued_task() {
     let dir = temp_dir("slurm");
     let slurm = Slurm::start(&dir.join("cluster"));
-    std::fs::write(dir.join("slow.toml"), killable_cloud_scene([32, 30, 34], 10)).unwrap();
+    // 2×2×2 bricks, ten orders checkpointed one by one: the task is killed after its first
+    // checkpoint, with nine orders to go.
+    std::fs::write(dir.join("slow.toml"), killable_cloud_scene([24, 22, 26], 10)).unwrap();
     let manifest = dir.join("sweep.toml");
     std::fs::write(
         &manifest,
