@@ -17,13 +17,8 @@ fn small_cloud() -> Scene {
 }
 
 fn cloud_of(dims: [u32; 3]) -> Scene {
-    let mut s = scene(
-        Shape::Cloud,
-        dims,
-        [0.9, 0.7, 0.5],
-        [0.9, 0.8, 0.7],
-        vec![sky(0.5), sun([0.4, -0.3, 1.0], [2.0; 3])],
-    );
+    let mut s =
+        scene(Shape::Cloud, dims, [0.9, 0.7, 0.5], [0.9, 0.8, 0.7], vec![sky(0.5), sun([0.4, -0.3, 1.0], [2.0; 3])]);
     s.medium.g = 0.5;
     s.solver.directions_per_face = 3;
     s.solver.storage_directions_per_face = Some(2);
