@@ -41,6 +41,7 @@ fn bench_scene() -> Scene {
             directions_per_face: env_u32("LPM_BENCH_K", 5),
             storage_directions_per_face: None,
             sky_directions_per_face: None,
+            scattered_directions_per_face: None,
             max_orders: 1,
             tolerance: 1e-4,
             device_memory_budget: None,

@@ -29,8 +29,9 @@ use std::path::Path;
 use std::time::Instant;
 
 /// Sets `solver.directions_per_face = k` in a scene's `[solver]` table and keeps the keys bounded
-/// by it valid: storage directions above k come down to k, and sky directions below k come up to
-/// k (the sky then travels on the k×k directions; dropping the key would let the plan choose).
+/// by it valid: storage directions above k come down to k, sky directions below k come up to k
+/// (the sky then travels on the k×k directions; dropping the key would let the plan choose), and
+/// scattered light's own directions that are no multiple of k go (the plan chooses).
 fn set_directions_per_face(solver: &mut toml::map::Map<String, toml::Value>, k: u32) {
     let k = i64::from(k);
     solver.insert("directions_per_face".into(), toml::Value::Integer(k));
@@ -39,6 +40,15 @@ fn set_directions_per_face(solver: &mut toml::map::Map<String, toml::Value>, k: 
     }
     if solver.get("sky_directions_per_face").and_then(toml::Value::as_integer).is_some_and(|n| n < k) {
         solver.insert("sky_directions_per_face".into(), toml::Value::Integer(k));
+    }
+    // The scattered light's own directions must be a multiple of k: one that is not any more
+    // goes, and the plan chooses for the new k.
+    if solver
+        .get("scattered_directions_per_face")
+        .and_then(toml::Value::as_integer)
+        .is_some_and(|n| n < k || n % k != 0)
+    {
+        solver.remove("scattered_directions_per_face");
     }
 }
 

@@ -108,6 +108,7 @@ pub(crate) struct RawSolver {
     pub directions_per_face: Option<i64>,
     pub storage_directions_per_face: Option<i64>,
     pub sky_directions_per_face: Option<i64>,
+    pub scattered_directions_per_face: Option<i64>,
     pub max_orders: Option<i64>,
     pub tolerance: Option<f64>,
     pub device_memory_budget: Option<ByteSize>,

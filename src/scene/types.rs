@@ -365,6 +365,12 @@ pub struct SolverSettings {
     /// itself: the sky travels with the other light. `None`: the plan chooses (4k, at most 32, for
     /// a pure absorber on the linear lattice, else k).
     pub sky_directions_per_face: Option<u32>,
+    /// k_1, a multiple of k: where the emission is traced and the medium scatters, orders 1 and 2
+    /// sweep the light the emission scatters first and second along k_1×k_1 directions per face of
+    /// their own (`solver.scattered_directions_per_face`; see `solver::plan`, "The scattered
+    /// light's own directions"); k itself: along the k×k. `None`: the plan chooses (the smallest
+    /// multiple of k from 12 on, when k < 12).
+    pub scattered_directions_per_face: Option<u32>,
     /// Cap on the number of scattering orders propagated (≥ 1).
     pub max_orders: u32,
     /// Stop when the newest order's scattered power is below this fraction of the total (in (0, 1)).

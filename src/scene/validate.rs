@@ -149,6 +149,15 @@ impl Validator<'_> {
                  order, which its own directions do not have)",
             ));
         }
+        if solver.scattered_directions_per_face.is_some_and(|n| n > solver.directions_per_face)
+            && (boundary.any_periodic() || boundary.reflective.iter().any(|axis| axis[0] && axis[1]))
+        {
+            return Err(self.err(
+                "solver.scattered_directions_per_face",
+                "is not supported with periodic faces or mirrors on both faces of an axis (they hand the rays \
+                 on to the next order, which sweeps the k×k directions)",
+            ));
+        }
         Ok(Scene { path: self.path.to_path_buf(), volume, medium, lights, solver, camera, boundary, display })
     }
 
@@ -647,6 +656,7 @@ impl Validator<'_> {
                 directions_per_face: DEFAULT_DIRECTIONS_PER_FACE,
                 storage_directions_per_face: None,
                 sky_directions_per_face: None,
+                scattered_directions_per_face: None,
                 max_orders: DEFAULT_MAX_ORDERS,
                 tolerance: DEFAULT_TOLERANCE,
                 device_memory_budget: None,
@@ -691,6 +701,19 @@ impl Validator<'_> {
                 ))
             }
             Some(n) => Some(self.int_range("solver.sky_directions_per_face", n, 1, MAX_DIRECTIONS_PER_FACE)?),
+        };
+        let scattered_k = match s.scattered_directions_per_face {
+            None => None,
+            Some(n) if n < i64::from(k) || n % i64::from(k) != 0 => {
+                return Err(self.err(
+                    "solver.scattered_directions_per_face",
+                    format!(
+                        "must be a multiple of solver.directions_per_face = {k} (each of its directions lies in \
+                         one of the k×k), got {n}"
+                    ),
+                ))
+            }
+            Some(n) => Some(self.int_range("solver.scattered_directions_per_face", n, 1, MAX_DIRECTIONS_PER_FACE)?),
         };
         let max_orders = match s.max_orders {
             None => DEFAULT_MAX_ORDERS,
@@ -834,6 +857,7 @@ impl Validator<'_> {
             directions_per_face: k,
             storage_directions_per_face: ks,
             sky_directions_per_face: sky_k,
+            scattered_directions_per_face: scattered_k,
             max_orders,
             tolerance,
             device_memory_budget,

@@ -255,6 +255,15 @@ impl Backend for CpuTwin<'_> {
             self.check_cancel()?;
             tallies.add(&self.sweep(dir, None, true, false, false));
         }
+        // The scattered light's own directions (plan docs): orders 1 and 2 along them instead of
+        // the k×k, with nothing carried (no periodic or mirror faces then).
+        if plan.sweeps_scattered_in(order) {
+            for dir in plan.scattered_faces.iter().flatten() {
+                self.check_cancel()?;
+                tallies.add(&self.sweep(dir, None, false, true, false));
+            }
+            return Ok(tallies);
+        }
         for (face, dirs) in plan.faces.iter().enumerate() {
             for (d, dir) in dirs.iter().enumerate() {
                 let of = Some(CarryOf::Face { face, dir: d });

@@ -50,7 +50,8 @@
 //! lights that are not their own mirror image (point lights, environment maps, a sun with a
 //! component across a mirror), periodic and reflective axes in one scene, the diffusion
 //! acceleration. The GPU backend, whose kernels have no hand-over, solves the doubled volume
-//! itself ([`super::unfold`]). The diffusion correction works across mirrors (a
+//! itself ([`super::unfold`]), and so does the twin where a traced emission's scattered light
+//! takes directions of its own (they have no hand-over either). The diffusion correction works across mirrors (a
 //! voxel's partner beyond a mirror is its image, [`super::antidiffusion`]).
 
 use super::plan::{Plan, SweepDirection};

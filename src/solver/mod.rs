@@ -10,7 +10,8 @@
 //!   the GPU's records folded by [`gpu::face_maps`]);
 //! - [`periodic`] closes periodic boundaries (wrapping lattices, carried rays between orders);
 //!   [`mirror`] closes reflective ones on the twin (hand-overs to the mirror-image directions),
-//!   [`unfold`] on the GPU (the volume doubled by its images, solved and folded back);
+//!   [`unfold`] on the GPU, and on the twin for a traced emission's scattered light's directions
+//!   (the volume doubled by its images, solved and folded back);
 //! - [`passes`] are the host passes between orders, written once over both backends' fields;
 //! - [`acceleration`] follows each order with a diffusion solve of the light still to come
 //!   (diffusion synthetic acceleration: orders nearly independent of the albedo);
@@ -290,11 +291,18 @@ pub fn scene_digest(scene: &Scene) -> String {
 }
 
 /// Identifies a solve for checkpoints: the scene ([`scene_digest`]) and what its plan chose for it
-/// (the phase function discretised, the spatial scheme, the sky's directions), so that a build
+/// (the phase function discretised, the spatial scheme, the sky's and the scattered light's own
+/// directions), so that a build
 /// whose choices differ (the same crate version between releases) refuses to continue another
 /// build's orders instead of mixing two.
 fn checkpoint_digest(scene: &Scene, plan: &Plan) -> String {
-    let chosen = format!("{:?}|{:?}|{}", plan.phase, plan.spatial, plan.sky_directions_per_face());
+    let chosen = format!(
+        "{:?}|{:?}|{}|{}",
+        plan.phase,
+        plan.spatial,
+        plan.sky_directions_per_face(),
+        plan.scattered_directions_per_face()
+    );
     format!("{}-{}", scene_digest(scene), fnv1a(&chosen))
 }
 
@@ -341,8 +349,11 @@ pub fn solve_from(
     let choice = uncollided::choose(store, &plan, scene.solver.emission_uncollided)?;
     if choice.traced {
         plan.trace_emission(choice.reason);
-    } else if !choice.reason.is_empty() {
-        plan.reasons.push(choice.reason);
+    } else {
+        plan.sweep_emission();
+        if !choice.reason.is_empty() {
+            plan.reasons.push(choice.reason);
+        }
     }
     progress.decay_prior(&slow_mode::prior(&plan, store));
     let digest = checkpoint_digest(scene, &plan);
@@ -351,7 +362,9 @@ pub fn solve_from(
     }
     // Mirror faces on the GPU: the volume doubled by its images is seeded and solved in a store
     // of its own (super::unfold), which writes no checkpoint; these fields take its folded totals.
-    let doubled = backend == BackendKind::Gpu && !plan.mirrors.is_empty();
+    // So are they on the CPU where a traced emission's scattered light takes directions of its
+    // own, which the twin's mirror hand-overs do not have (Plan::unfolds_for_scattered).
+    let doubled = !plan.mirrors.is_empty() && (backend == BackendKind::Gpu || plan.unfolds_for_scattered.is_some());
     let resumed = if resume { StoreFields::resume(store, &plan, &digest)? } else { None };
     let mut trace_note = None;
     let (mut fields, start) = match resumed {
@@ -362,10 +375,20 @@ pub fn solve_from(
         None if doubled => {
             if warm_start.is_some() {
                 tracing::warn!(
-                    "mirror faces on the GPU: the doubled volume is solved cold, the warm start's guess unused"
+                    "mirror faces unfolded: the doubled volume is solved cold, the warm start's guess unused"
                 );
             }
-            (StoreFields::create(store, &plan)?, fields::LoopState::default())
+            // The emission is traced here, in the volume (its images included): the doubled
+            // volume's order 0 is this one's, imaged (super::unfold).
+            let mut fields = StoreFields::create(store, &plan)?;
+            let traced = trace_emission(store, &plan, &mut fields, &mut phases)?;
+            trace_note = traced.note();
+            let state = fields::LoopState {
+                uncollided_emitted: traced.emitted,
+                uncollided_escaped: traced.escaped(),
+                ..fields::LoopState::default()
+            };
+            (fields, state)
         }
         None => {
             let mut fields = StoreFields::create(store, &plan)?;
@@ -408,43 +431,34 @@ pub fn solve_from(
     let mut doubled_reason = None;
     let mut exit_maps = None;
     let (outcome, device, peak) = match backend {
-        BackendKind::Cpu => {
-            let t = Instant::now();
-            let mut twin = cpu::CpuTwin::new(&plan, |v| store.density_at(v))?;
-            twin.set_cancel(gpu_options.cancel);
-            if plan.albedo_field {
-                twin.set_albedo(&crate::store::albedo::open_albedo(store)?);
-            }
-            if plan.emission_field {
-                // The same f32 order-0 source the GPU gains, and the power it emits.
-                twin.set_initial_source(&fields.source_prev, emission::emitted_power(store, &plan)?);
-            }
-            if !plan.point_lights.is_empty() || plan.emission_traced {
-                // The same f32 values the GPU's order 0 starts from.
-                twin.set_order0_accumulators(&fields.fluence, &fields.source_next);
-            }
-            phases.push(("setup".to_string(), t.elapsed().as_secs_f64()));
-            let t = Instant::now();
-            let outcome = orders::run_orders(&plan, &mut twin, start, progress)?;
-            phases.push(("orders".to_string(), t.elapsed().as_secs_f64()));
-            twin.write_into(store, &mut fields);
-            exit_maps = Some(twin.exit_maps().clone());
-            let device = format!("CPU twin (f64, {} threads)", rayon::current_num_threads());
-            (outcome, device, 0)
-        }
-        BackendKind::Gpu if doubled => {
-            let (run, reason) =
-                unfold::solve_doubled(scene, store, &plan, &mut fields, vk_options, gpu_options, &mut progress)?;
+        _ if doubled => {
+            let (run, reason) = unfold::solve_doubled(
+                scene,
+                store,
+                &plan,
+                &mut fields,
+                start,
+                backend,
+                vk_options,
+                gpu_options,
+                &mut progress,
+            )?;
             phases.extend(run.phases);
-            memory = Some(run.memory);
+            memory = run.memory;
             doubled_reason = Some(reason);
+            (run.outcome, run.device, run.peak)
+        }
+        BackendKind::Cpu => {
+            let run = run_cpu(&plan, store, &mut fields, start, gpu_options.cancel, &mut progress)?;
+            phases.extend(run.phases);
+            exit_maps = run.exit_maps;
             (run.outcome, run.device, run.peak)
         }
         BackendKind::Gpu => {
             let checkpoints = gpu_options.checkpoints.then(|| (digest.clone(), scene.solver.checkpoint));
             let run = run_gpu(&plan, store, &mut fields, start, vk_options, gpu_options, checkpoints, &mut progress)?;
             phases.extend(run.phases);
-            memory = Some(run.memory);
+            memory = run.memory;
             exit_maps = run.exit_maps;
             (run.outcome, run.device, run.peak)
         }
@@ -482,12 +496,13 @@ fn trace_emission(
     Ok(traced)
 }
 
-/// What a GPU solve hands back besides the fields.
-struct GpuRun {
+/// What a backend's solve hands back besides the fields.
+struct BackendRun {
     outcome: orders::OrderOutcome,
     device: String,
     peak: u64,
-    memory: gpu::budget::MemoryPlan,
+    /// The GPU's memory plan (none on the CPU).
+    memory: Option<gpu::budget::MemoryPlan>,
     phases: Vec<(String, f64)>,
     /// The exitance maps ([`gpu::face_maps`]), when made.
     exit_maps: Option<exitance::ExitMaps>,
@@ -506,7 +521,7 @@ fn run_gpu(
     gpu_options: gpu::GpuOptions,
     checkpoints: Option<(String, crate::scene::CheckpointCadence)>,
     progress: &mut dyn crate::progress::Observer,
-) -> Result<GpuRun, SolveError> {
+) -> Result<BackendRun, SolveError> {
     let mut phases = Vec::new();
     let t = Instant::now();
     let ctx = Context::new(vk_options)?;
@@ -537,7 +552,42 @@ fn run_gpu(
     if !messages.is_empty() {
         return Err(SolveError::Validation(messages));
     }
-    Ok(GpuRun { outcome, device, peak, memory, phases, exit_maps })
+    Ok(BackendRun { outcome, device, peak, memory: Some(memory), phases, exit_maps })
+}
+
+/// Runs the orders of `plan` on the CPU twin over `store`'s `fields` from `start` (which must be
+/// a fresh solve's: the twin keeps no checkpoints), and writes its totals into `fields`.
+fn run_cpu(
+    plan: &Plan,
+    store: &BrickStore,
+    fields: &mut StoreFields,
+    start: fields::LoopState,
+    cancel: Option<cancel::CancelFlag>,
+    progress: &mut dyn crate::progress::Observer,
+) -> Result<BackendRun, SolveError> {
+    let mut phases = Vec::new();
+    let t = Instant::now();
+    let mut twin = cpu::CpuTwin::new(plan, |v| store.density_at(v))?;
+    twin.set_cancel(cancel);
+    if plan.albedo_field {
+        twin.set_albedo(&crate::store::albedo::open_albedo(store)?);
+    }
+    if plan.emission_field {
+        // The same f32 order-0 source the GPU gains, and the power it emits.
+        twin.set_initial_source(&fields.source_prev, emission::emitted_power(store, plan)?);
+    }
+    if !plan.point_lights.is_empty() || plan.emission_traced {
+        // The same f32 values the GPU's order 0 starts from.
+        twin.set_order0_accumulators(&fields.fluence, &fields.source_next);
+    }
+    phases.push(("setup".to_string(), t.elapsed().as_secs_f64()));
+    let t = Instant::now();
+    let outcome = orders::run_orders(plan, &mut twin, start, crate::progress::Forward(progress))?;
+    phases.push(("orders".to_string(), t.elapsed().as_secs_f64()));
+    twin.write_into(store, fields);
+    let exit_maps = Some(twin.exit_maps().clone());
+    let device = format!("CPU twin (f64, {} threads)", rayon::current_num_threads());
+    Ok(BackendRun { outcome, device, peak: 0, memory: None, phases, exit_maps })
 }
 
 #[cfg(test)]

@@ -49,6 +49,26 @@
 //! peak stays a beam). Not with periodic or mirror faces (the sky's rays would have to be carried
 //! on to later orders).
 //!
+//! **The scattered light's own directions.** A traced emission ([`super::uncollided`]) reaches
+//! every voxel without ray effects, but what it first scatters is as compact as the emitter, and
+//! swept along the k×k from there it streaks again where it dominates (Kobayashi's case ii at k =
+//! 5: rms ln(C/E) 0.085–0.115, every detector within 10 % only from k = 12). So where the emission
+//! is traced and the medium scatters, orders 1 and 2 ([`SCATTERED_OWN_ORDERS`]: whose sources are
+//! the first and second scattering, with any other light's) are swept along k_1×k_1 directions per
+//! face of their own ([`Plan::scattered_faces`]) instead of the k×k:
+//! `solver.scattered_directions_per_face`, by default the smallest multiple of k from 12 on (15 at
+//! the default k = 5; a multiple so that every fine cell lies in one propagation cell and gains its
+//! storage direction's source), each with its solid angle as weight and the collect row of its
+//! exact direction, as the sky's. Each costs (k_1/k)² an order's sweeps (9× at k = 5); every later
+//! order is unchanged, its light spread enough for the k×k. Why two: Kobayashi's problem 3 case ii
+//! (published octant, k = 5) reads rms ln(C/E) 0.115 with the k×k, 0.044 with order 1 alone on its
+//! own directions (two detectors at C/E 1.11, at the duct's far end and deep in the shield, where
+//! twice-scattered light streams), 0.022 with orders 1 and 2, every detector within 5 %
+//! (benches/RESULTS.md). The fine directions have no periodic or mirror hand-over, so with mirror
+//! faces the solve unfolds them ([`super::unfold`], [`Plan::unfolds_for_scattered`]; the GPU always
+//! does), and a periodic axis or mirrors on both faces of an axis (where the trace itself sweeps)
+//! keep the k×k.
+//!
 //! Everything both backends need to sweep a face is derived here ([`SweepDirection`]) so that the
 //! CPU twin and the GPU driver consume identical tables.
 
@@ -56,6 +76,7 @@ use super::environment::environment_boundary;
 use super::periodic::{periodic_lattice, periodic_slope};
 use super::point::PointLight;
 use super::sweep::{lateral_slope, lattice, plane_path_length, FaceSweep};
+use super::uncollided::SCATTERED_STREAK_FREE_K;
 use crate::quadrature::phase::{self, Phase, Truncation};
 use crate::quadrature::{cube_face_of, PropagationSet, StorageSet, FACES};
 use crate::scene::{
@@ -156,6 +177,16 @@ pub struct Plan {
     /// radiance and no gained source; empty unless `solver.sky_directions_per_face` > k (the sky
     /// is then no part of [`Plan::faces`]' boundary radiance). See the module docs.
     pub sky_faces: Vec<Vec<SweepDirection>>,
+    /// Per face, the scattered light's own directions (k_1 > k, a multiple of k), swept in orders
+    /// 1 to [`SCATTERED_OWN_ORDERS`] instead of [`Plan::faces`] with the gained source and nothing
+    /// else; empty unless the emission is traced and the medium scatters ("The scattered light's
+    /// own directions" in the module docs).
+    pub scattered_faces: Vec<Vec<SweepDirection>>,
+    /// Some(k_1): mirror faces that the solve unfolds (the volume doubled by its images,
+    /// [`super::unfold`]) so that a traced emission's scattered light can take k_1×k_1 directions
+    /// per face of its own, which have no mirror hand-overs; the doubled volume's plan then has
+    /// them as [`Plan::scattered_faces`].
+    pub unfolds_for_scattered: Option<u32>,
     /// The point lights, positions in voxel units (see [`super::point`]).
     pub point_lights: Vec<PointLight>,
     pub medium: Medium,
@@ -225,6 +256,9 @@ pub struct PlanSummary {
     /// k_sky: the sky's own directions per face axis (`solver.sky_directions_per_face`); equal to
     /// `directions_per_face` when the sky travels with the other light.
     pub sky_directions_per_face: u32,
+    /// k_1: the scattered light's own directions per face axis, swept in orders 1 and 2
+    /// (`solver.scattered_directions_per_face`); equal to k when those sweep the k×k.
+    pub scattered_directions_per_face: u32,
     pub suns: usize,
     /// Point lights (their uncollided light computed on the host, see `solver::point`).
     pub point_lights: usize,
@@ -466,6 +500,27 @@ impl Plan {
                 Vec::new()
             }
         };
+        // The scattered light's own directions (module docs): made wherever the emission
+        // may be traced; kept only when it is ([`Plan::trace_emission`]).
+        let scattered_k = first_scatter_directions(scene, k, scatters);
+        let b = &scene.boundary;
+        let unfoldable = b.any_reflective() && !b.any_periodic() && !b.reflective.iter().any(|axis| axis[0] && axis[1]);
+        let unfolds_for_scattered = scattered_k.filter(|_| unfoldable);
+        let hands_on = b.any_periodic() || b.any_reflective();
+        let scattered_faces = match scattered_k.filter(|_| !hands_on) {
+            Some(n) => {
+                let fine = PropagationSet::new(n);
+                let rows = phase::BeamRows::new(&propagation, &storage, &phase);
+                per_face(&fine, |face, _, d| {
+                    let row = rows.row(d.omega).iter().map(|p| p * d.solid_angle).collect();
+                    // n is a multiple of k: the fine cell lies in one propagation cell, so in one
+                    // storage cell, whose source it gains.
+                    let owner = storage.owner[propagation.containing(d.omega)];
+                    swept(face, d.omega, d.solid_angle, [0.0; 3], owner, row)
+                })
+            }
+            None => Vec::new(),
+        };
         let extracted = environment.as_ref().and_then(|(_, b)| b.sun.as_ref()).map(|s| (s.direction, s.irradiance));
         let beams: Vec<SweepDirection> = scene
             .lights
@@ -551,6 +606,8 @@ impl Plan {
             faces,
             beams,
             sky_faces,
+            scattered_faces,
+            unfolds_for_scattered,
             point_lights,
             medium,
             emission,
@@ -589,6 +646,40 @@ impl Plan {
             *r = r.replace("the first order's source is", "the emission's source is");
         }
         self.reasons.push(reason);
+        if let Some(dirs) = self.scattered_faces.first().map(Vec::len) {
+            let (n, k) = (dirs.isqrt(), self.propagation.k);
+            self.reasons.push(format!(
+                "scattered light: orders 1 and 2 sweep along {n}×{n} directions per face of their own ({} sweeps \
+                 each, {:.1}× an order's {}), each with the collect row of its exact direction, so the light the \
+                 traced emission scatters first and second spreads without the ray effects of the {k}×{k}; later \
+                 orders along the {k}×{k}",
+                6 * dirs,
+                dirs as f64 / self.propagation.per_face() as f64,
+                self.propagation.len(),
+            ));
+        }
+    }
+
+    /// The emission is swept, not traced: its scattered light keeps the k×k directions (the
+    /// scattered light's own directions are for a traced emission's, module docs).
+    pub fn sweep_emission(&mut self) {
+        self.scattered_faces.clear();
+        self.unfolds_for_scattered = None;
+    }
+
+    /// k_1: the scattered light's own directions per face axis; k when orders 1 and 2 sweep the
+    /// k×k.
+    /// (With mirrors unfolded for them, the doubled volume's.)
+    pub fn scattered_directions_per_face(&self) -> u32 {
+        match self.scattered_faces.first() {
+            Some(f) => f.len().isqrt() as u32,
+            None => self.unfolds_for_scattered.unwrap_or(self.propagation.k),
+        }
+    }
+
+    /// Whether order `order` sweeps [`Plan::scattered_faces`] instead of [`Plan::faces`].
+    pub fn sweeps_scattered_in(&self, order: u32) -> bool {
+        (1..=SCATTERED_OWN_ORDERS).contains(&order) && !self.scattered_faces.is_empty()
     }
 
     /// Whether beam `b` is swept in order `order`: in order 0, and again in every order when its
@@ -633,6 +724,7 @@ impl Plan {
             storage_directions_per_face: self.storage.per_face,
             // k_sky² directions per face (a cube-face set), or none: k.
             sky_directions_per_face: self.sky_directions_per_face(),
+            scattered_directions_per_face: self.scattered_directions_per_face(),
             suns: self.beams.len(),
             point_lights: self.point_lights.len(),
             emission: self.emission || self.emission_field || self.emission_traced,
@@ -741,6 +833,19 @@ fn choose_spatial(scene: &Scene, scatters: bool) -> (SpatialScheme, &'static str
 fn auto_sky_directions(k: u32, spatial: SpatialScheme, scatters: bool) -> Option<u32> {
     (!scatters && spatial == SpatialScheme::Linear).then(|| (4 * k).min(AUTO_SKY_DIRECTIONS_MAX).max(k))
 }
+
+/// k_1, the scattered light's own directions per face axis (module docs), where a traced
+/// emission's scattered light would streak on the k×k: `solver.scattered_directions_per_face`,
+/// or by default the smallest multiple of k from [`SCATTERED_STREAK_FREE_K`] on; when it exceeds
+/// k and the medium emits and scatters. (Only where no face hands rays on to the next order:
+/// the plan makes the directions so, and unfolds mirrors for them.)
+fn first_scatter_directions(scene: &Scene, k: u32, scatters: bool) -> Option<u32> {
+    let n = scene.solver.scattered_directions_per_face.unwrap_or(SCATTERED_STREAK_FREE_K.div_ceil(k) * k);
+    (scene.medium.has_emission() && scatters && n > k).then_some(n)
+}
+
+/// The orders (from order 1) that sweep the scattered light's own directions (module docs).
+pub const SCATTERED_OWN_ORDERS: u32 = 2;
 
 /// The most sky directions per face axis the plan chooses by itself: beyond 32 the linear
 /// lattice's own error next to a face (~0.7 %) is what is left.
@@ -962,4 +1067,53 @@ fn choose_precision(scene: &Scene, full: bool, accelerated: bool, reasons: &mut 
         Precision::F32 => format!("the source the rays gain is stored in f32 ({why}); all fields are f32"),
     });
     precision
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The plan of a 16³ emitting sphere with `solver` lines and `boundary` lines added.
+    fn plan_of(albedo: f64, solver: &str, boundary: &str) -> Plan {
+        let text = format!(
+            "[volume]\nprocedural = \"sphere\"\ndims = [16, 16, 16]\n[medium]\nsigma_t = 1.0\nalbedo = {albedo}\n\
+             emission = 1.0\n[solver]\n{solver}\n[boundary]\n{boundary}\n"
+        );
+        let scene = Scene::from_toml_str(&text, std::path::Path::new("t.toml")).expect("scene");
+        Plan::new(&scene, 1, 0)
+    }
+
+    #[test]
+    fn the_scattered_light_takes_the_smallest_multiple_of_k_from_twelve() {
+        for (k, k1) in [(5, 15), (4, 12), (3, 12), (6, 12), (8, 16), (12, 12), (16, 16)] {
+            let plan = plan_of(0.5, &format!("directions_per_face = {k}"), "");
+            assert_eq!(plan.scattered_directions_per_face(), k1, "k = {k}");
+            let dirs: usize = plan.scattered_faces.iter().map(Vec::len).sum();
+            assert_eq!(dirs, if k1 > k { 6 * (k1 * k1) as usize } else { 0 }, "k = {k}");
+        }
+        // Fine cells lie in one propagation cell each, whose storage direction they gain.
+        let plan = plan_of(0.5, "directions_per_face = 5\nstorage_directions_per_face = 5", "");
+        for dir in plan.scattered_faces.iter().flatten() {
+            let owner = plan.storage.owner[plan.propagation.containing(dir.omega)];
+            assert_eq!(dir.gain_storage, owner);
+            assert_eq!(dir.boundary, [0.0; 3]);
+        }
+        // Asked for, kept on the k×k, or nothing to scatter: none.
+        let asked = plan_of(0.5, "directions_per_face = 5\nscattered_directions_per_face = 10", "");
+        assert_eq!(asked.scattered_directions_per_face(), 10);
+        assert!(plan_of(0.5, "directions_per_face = 5\nscattered_directions_per_face = 5", "")
+            .scattered_faces
+            .is_empty());
+        assert!(plan_of(0.0, "directions_per_face = 5", "").scattered_faces.is_empty());
+        // A mirror: no directions of its own here, the solve unfolds the mirror for them; a
+        // swept emission drops both.
+        let mut mirrored = plan_of(0.5, "directions_per_face = 5", "x = [\"reflective\", \"open\"]");
+        assert!(mirrored.scattered_faces.is_empty() && mirrored.unfolds_for_scattered == Some(15));
+        assert_eq!(mirrored.scattered_directions_per_face(), 15);
+        mirrored.sweep_emission();
+        assert_eq!(mirrored.unfolds_for_scattered, None);
+        assert_eq!(mirrored.scattered_directions_per_face(), 5);
+        let both = plan_of(0.5, "directions_per_face = 5", "x = \"reflective\"");
+        assert!(both.scattered_faces.is_empty() && both.unfolds_for_scattered.is_none());
+    }
 }

@@ -1,9 +1,11 @@
-//! Mirror faces on the GPU backend: the method of images, carried out.
+//! Mirror faces on the GPU backend, and on the CPU for a traced emission's scattered light: the
+//! method of images, carried out.
 //!
 //! A volume with mirror faces solves to the restriction of the volume doubled by its mirror image
 //! across each mirror ([`super::mirror`]). The CPU twin hands light over at the mirrors without
-//! storing the image; the GPU kernels have no hand-over, so the GPU backend builds the doubled
-//! volume itself: per axis with a mirror the volume and its image side by side (an axis with
+//! storing the image; the GPU kernels have no hand-over, and neither have the scattered
+//! light's own directions ([`super::plan`]: the CPU twin unfolds for them too), so the backend
+//! builds the doubled volume itself: per axis with a mirror the volume and its image side by side (an axis with
 //! mirrors on both faces repeats with period 2n: it is solved periodic), the density and any
 //! emission or albedo grid copied across, the faces that are not mirrors open as they were. It
 //! solves that with the ordinary kernels and copies the original's part of the fluence and the
@@ -26,6 +28,11 @@
 //! doubled volume, where nothing is tallied), where the twin counts what reaches a mirror as out
 //! and what comes back as in (net zero once converged).
 //!
+//! **A traced emission** is traced once, in the volume with its mirror images as emitters
+//! ([`super::uncollided`]): each copy of the volume in the doubled one holds the same uncollided
+//! light, so the doubled volume's order 0 is the volume's imaged (2^m times cheaper than tracing
+//! the doubled volume, and the same values on both backends), its books 2^m times the volume's.
+//!
 //! No checkpoints are written (they would be the doubled volume's), so `--resume` finds none and
 //! starts afresh, and a warm start's guess is not used (the solve is cold; a warning says so).
 //! The doubled store lives beside the scene's, in `unfolded/`, and is removed when the solve ends.
@@ -33,7 +40,7 @@
 use super::energy::{EnergyBalance, Tallies};
 use super::orders::OrderOutcome;
 use super::plan::Plan;
-use super::{emission, GpuRun, SolveError, StoreFields};
+use super::{emission, BackendRun, SolveError, StoreFields};
 use crate::scene::{Acceleration, Scene};
 use crate::store::{albedo, BrickGrid, BrickStore, Coverage, Field, StoreError, BRICK_EDGE};
 use std::path::PathBuf;
@@ -175,18 +182,23 @@ fn brick_voxel(origin: [u32; 3], i: usize) -> [u32; 3] {
     [origin[0] + (i % edge) as u32, origin[1] + (i / edge % edge) as u32, origin[2] + (i / (edge * edge)) as u32]
 }
 
-/// Solves `scene` (with mirror faces; `plan` its plan) on the GPU as the volume doubled by its
+/// Solves `scene` (with mirror faces; `plan` its plan) on `backend` as the volume doubled by its
 /// images, and writes the volume's part of the doubled volume's committed fluence and source
-/// into `fields`. Returns the run, its outcome folded back, and a reason for the plan's report.
+/// into `fields`. A traced emission's order 0 is the volume's (`fields`' order-0 accumulators and
+/// `traced`, its books, from the trace of the volume with its images), imaged. Returns the run, its
+/// outcome folded back, and a reason for the plan's report.
+#[allow(clippy::too_many_arguments)]
 pub(super) fn solve_doubled(
     scene: &Scene,
     store: &BrickStore,
     plan: &Plan,
     fields: &mut StoreFields,
+    traced: super::fields::LoopState,
+    backend: super::BackendKind,
     vk_options: crate::vk::ContextOptions,
     gpu_options: super::gpu::GpuOptions,
     progress: &mut dyn crate::progress::Observer,
-) -> Result<(GpuRun, String), SolveError> {
+) -> Result<(BackendRun, String), SolveError> {
     let t = std::time::Instant::now();
     let fold = Fold::new(plan.dims, plan.reflective);
     let dir = Scratch(store.dir().join("unfolded"));
@@ -204,34 +216,53 @@ pub(super) fn solve_doubled(
     let mut fields2 = StoreFields::create(&doubled, &plan2)?;
     let mut start = super::fields::LoopState::default();
     if plan.emission_traced {
-        // The images are emitters of the doubled volume itself: traced there, as the twin traces
-        // them from the volume unfolded by its mirrors (super::uncollided).
-        plan2.trace_emission("emission's uncollided light traced, as the volume's".into());
-        let traced = super::uncollided::add_order0(&doubled, &plan2, &mut fields2.fluence, &mut fields2.source_next)?;
-        fields2.seeded = traced.interacting.iter().any(|&p| p != 0.0);
-        start.uncollided_emitted = traced.emitted;
-        start.uncollided_escaped = traced.escaped();
+        // The volume's trace counted its images as emitters, so each copy of the volume in the
+        // doubled one holds the same uncollided light: imaged, not traced again (2^m times the
+        // cost), and every copy's books alike.
+        plan2.trace_emission("emission's uncollided light traced in the volume with its images, imaged".into());
+        fill_field(&mut fields2.fluence, &doubled, |u, c| fields.fluence.value(fold.source(u), c));
+        fill_field(&mut fields2.source_next, &doubled, |u, c| fields.source_next.value(fold.source(u), c));
+        fields2.seeded = traced.uncollided_emitted != traced.uncollided_escaped;
+        start.uncollided_emitted = traced.uncollided_emitted.map(|p| p * fold.copies());
+        start.uncollided_escaped = traced.uncollided_escaped.map(|p| p * fold.copies());
     } else if plan2.emission_field {
         emission::write_initial_source(&doubled, &plan2, &mut fields2.source_prev)?;
     }
     let setup = t.elapsed().as_secs_f64();
-    // The doubled volume's faces are not the scene's (a mirror is a plane inside it): no maps.
-    let options = super::gpu::GpuOptions { checkpoints: false, exit_maps: false, ..gpu_options };
-    let run = super::run_gpu(&plan2, &doubled, &mut fields2, start, vk_options, options, None, progress)?;
+    let run = match backend {
+        super::BackendKind::Cpu => {
+            let mut run = super::run_cpu(&plan2, &doubled, &mut fields2, start, gpu_options.cancel, progress)?;
+            // The doubled volume's faces are not the scene's (a mirror is a plane inside it).
+            run.exit_maps = None;
+            run
+        }
+        super::BackendKind::Gpu => {
+            // No maps: the doubled volume's faces are not the scene's.
+            let options = super::gpu::GpuOptions { checkpoints: false, exit_maps: false, ..gpu_options };
+            super::run_gpu(&plan2, &doubled, &mut fields2, start, vk_options, options, None, progress)?
+        }
+    };
     let t = std::time::Instant::now();
     fold_field(&fields2.fluence_total, &mut fields.fluence_total, store, &fold);
     fold_field(&fields2.source_total, &mut fields.source_total, store, &fold);
-    let mut run = GpuRun { outcome: fold_outcome(run.outcome, plan.channels, &fold), ..run };
+    let mut run = BackendRun { outcome: fold_outcome(run.outcome, plan.channels, &fold), ..run };
     run.phases.insert(0, ("doubling".to_string(), setup));
     run.phases.push(("folding".to_string(), t.elapsed().as_secs_f64()));
     let reason = format!(
-        "mirror faces on the GPU: solved as the volume doubled by its mirror images ({} × {} × {} voxels, {} copies \
+        "mirror faces {}: solved as the volume doubled by its mirror images ({} × {} × {} voxels, {} copies \
          of the volume: that many times the memory and time), the volume's part kept",
+        match backend {
+            super::BackendKind::Gpu => "on the GPU (its kernels have no hand-over)",
+            super::BackendKind::Cpu => "with the scattered light's own directions (they have no hand-over)",
+        },
         fold.dims()[0],
         fold.dims()[1],
         fold.dims()[2],
         fold.copies()
     );
+    // The doubled volume's own choices that the volume's plan could not make.
+    let scattered = plan2.reasons.iter().filter(|r| r.starts_with("scattered light: orders"));
+    let reason = std::iter::once(reason).chain(scattered.cloned()).collect::<Vec<_>>().join("; ");
     Ok((run, reason))
 }
 

@@ -23,6 +23,7 @@ pub fn scene(shape: Shape, dims: [u32; 3], sigma_t: [f64; 3], albedo: [f64; 3], 
             directions_per_face: 3,
             storage_directions_per_face: None,
             sky_directions_per_face: Some(0), // the sky on the k×k directions, whatever k a test sets
+            scattered_directions_per_face: None,
             max_orders: 200,
             tolerance: 1e-6,
             device_memory_budget: None,

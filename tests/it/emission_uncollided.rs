@@ -179,9 +179,11 @@ fn a_scattering_core_matches_the_twin_balances_and_repeats_bitwise() {
     let gpu = solve("uncollided-core-gpu", &sc, Gpu);
     let cpu = solve("uncollided-core-cpu", &sc, Cpu);
     assert!(gpu.run.plan.emission_traced && !gpu.run.plan.emission_field && gpu.run.plan.storage.len() > 1);
-    // It scatters, at k = 3: the plan says the scattered light still streaks, and what k helps.
+    // It scatters, at k = 3: orders 1 and 2 sweep the scattered light along 12×12 directions of
+    // their own (which the GPU and the twin agree on below).
+    assert_eq!(gpu.run.plan.scattered_directions_per_face(), 12, "{:?}", gpu.run.plan.reasons);
     assert!(
-        gpu.run.plan.reasons.iter().any(|r| r.contains("still streaks") && r.contains("directions_per_face = 12")),
+        gpu.run.plan.reasons.iter().any(|r| r.contains("scattered light: orders 1 and 2 sweep along 12×12")),
         "{:?}",
         gpu.run.plan.reasons
     );
@@ -197,7 +199,9 @@ fn a_scattering_core_matches_the_twin_balances_and_repeats_bitwise() {
 }
 
 /// An emitter beside a mirror lights the half volume as the whole volume's pair of emitters does
-/// (the method of images), on the twin (images traced) and on the GPU (the doubled volume).
+/// (the method of images): its uncollided light traced with its image, and with its scattering
+/// (orders 1 and 2 on directions of their own, for which both backends solve the doubled
+/// volume) the whole volume's answer.
 #[test]
 fn an_emitter_beside_a_mirror_is_traced_with_its_image() {
     let (half, whole) = ([10, 12, 14], [20, 12, 14]);
@@ -230,6 +234,26 @@ fn an_emitter_beside_a_mirror_is_traced_with_its_image() {
         }
         assert!(worst < 1e-5, "{backend:?}: worst relative difference {worst}");
     }
+    mirrored.solver.max_orders = 3;
+    full.solver.max_orders = 3;
+    let reference = solve("uncollided-mirror-whole-3", &full, Cpu);
+    let s = solve("uncollided-mirror-half-3", &mirrored, Cpu);
+    assert_eq!(s.run.plan.scattered_directions_per_face(), 12);
+    assert!(
+        s.run.plan.reasons.iter().any(|r| r.contains("scattered light's own directions")),
+        "{:?}",
+        s.run.plan.reasons
+    );
+    let mut worst = 0.0f64;
+    for z in 0..half[2] {
+        for y in 0..half[1] {
+            for x in 0..half[0] {
+                let (a, b) = (s.fluence([x, y, z], 0), reference.fluence([x + 10, y, z], 0));
+                worst = worst.max((a - b).abs() / b);
+            }
+        }
+    }
+    assert!(worst < 1e-5, "three orders: worst relative difference {worst}");
 }
 
 /// The plan: `auto` sweeps an emission that fills the medium, says why, and a bad value is refused
@@ -254,6 +278,14 @@ fn the_plan_chooses_and_a_bad_value_is_refused() {
                 [solver]\nemission_uncollided = \"sometimes\"\n";
     let err = Scene::from_toml_str(text, std::path::Path::new("t.toml")).expect_err("refused");
     assert!(err.to_string().contains("solver.emission_uncollided"), "{err}");
+    // The first-scattered light's directions must be a multiple of k.
+    let text = "[volume]\nprocedural = \"sphere\"\ndims = [16, 16, 16]\n[medium]\nsigma_t = 1.0\nalbedo = 0.5\n\
+                [solver]\ndirections_per_face = 5\nscattered_directions_per_face = 12\n";
+    let err = Scene::from_toml_str(text, std::path::Path::new("t.toml")).expect_err("refused");
+    assert!(
+        err.to_string().contains("solver.scattered_directions_per_face") && err.to_string().contains("got 12"),
+        "{err}"
+    );
 }
 
 /// A killed GPU solve with a traced emission resumes to the same bits: the trace is not repeated

@@ -27,6 +27,7 @@ fn scene(dims: [u32; 3], h: f64, sigma_t: f64, albedo: f64, g: f64, emission: f6
             directions_per_face: 4,
             storage_directions_per_face: None,
             sky_directions_per_face: Some(0), // the sky on the k×k directions, whatever k a test sets
+            scattered_directions_per_face: None,
             max_orders: 16,
             tolerance: 1e-3,
             device_memory_budget: None,

@@ -188,13 +188,15 @@ impl GpuOptions {
     }
 }
 
-/// Which sweep of an order: a face's directions, one sun beam, or a face's share of the sky's own
-/// directions (`Plan::sky_faces`, order 0 only).
+/// Which sweep of an order: a face's directions, one sun beam, a face's share of the sky's own
+/// directions (`Plan::sky_faces`, order 0 only) or of the scattered light's
+/// (`Plan::scattered_faces`, orders 1 and 2 only).
 #[derive(Clone, Copy)]
 enum SweepOf {
     Face(usize),
     Beam(usize),
     Sky(usize),
+    Scattered(usize),
 }
 
 pub struct GpuBackend<'a> {
@@ -356,6 +358,7 @@ impl<'a> GpuBackend<'a> {
             SweepOf::Face(i) => &plan.faces[i],
             SweepOf::Beam(i) => std::slice::from_ref(&plan.beams[i]),
             SweepOf::Sky(i) => &plan.sky_faces[i],
+            SweepOf::Scattered(i) => &plan.scattered_faces[i],
         };
         let sweep = FaceSweep::for_plan(dirs[0].face, plan);
         self.reorder_resident(sweep.geometry().axis == 0)?;
@@ -364,8 +367,8 @@ impl<'a> GpuBackend<'a> {
         let carry_of = |d: usize| match which {
             SweepOf::Face(face) => Some(CarryOf::Face { face, dir: d }),
             SweepOf::Beam(b) => Some(CarryOf::Beam(b)),
-            // The sky has its own directions only in scenes without periodic axes: nothing carried.
-            SweepOf::Sky(_) => None,
+            // Own directions only in scenes without periodic or mirror faces: nothing carried.
+            SweepOf::Sky(_) | SweepOf::Scattered(_) => None,
         };
         let mut tallies = Tallies::default();
         for first in (0..dirs.len()).step_by(pass) {
@@ -393,6 +396,7 @@ impl<'a> GpuBackend<'a> {
                 SweepOf::Face(i) => (&res.face_tables[i], &res.face_sets[i]),
                 SweepOf::Beam(i) => (&res.beam_tables[i], &res.beam_sets[i]),
                 SweepOf::Sky(i) => (&res.sky_tables[i], &res.sky_sets[i]),
+                SweepOf::Scattered(i) => (&res.scattered_tables[i], &res.scattered_sets[i]),
             };
             let mut io = Stream { plan, store: self.store, fields: &mut *self.fields, res };
             let job = Pass {
@@ -769,9 +773,12 @@ impl GpuBackend<'_> {
         // The scale of this order's f16 source, from its largest value (exact: a power of two).
         let max_abs = || committed_on_device.unwrap_or_else(|| self.fields.source_prev.max_abs());
         self.half_exponent = (plan.source_precision == Precision::F16).then(|| half_scale_exponent(max_abs()));
-        // The sky's own directions sweep in order 0 only, in passes as a face's do.
+        // The sky's own directions sweep in order 0 only, in passes as a face's do; the
+        // scattered light's in orders 1 and 2, instead of the faces' (plan docs).
         let sky_faces = if order == 0 { plan.sky_faces.len() } else { 0 };
-        let face_dirs: Vec<usize> = plan.faces.iter().chain(&plan.sky_faces[..sky_faces]).map(Vec::len).collect();
+        let scattered = plan.sweeps_scattered_in(order);
+        let faces = if scattered { &plan.scattered_faces } else { &plan.faces };
+        let face_dirs: Vec<usize> = faces.iter().chain(&plan.sky_faces[..sky_faces]).map(Vec::len).collect();
         let beams: Vec<usize> = (0..plan.beams.len()).filter(|&b| plan.beam_swept_in(b, order)).collect();
         let passes = progress::passes_per_order(&face_dirs, beams.len(), self.memory.directions_per_pass);
         self.progress = Some(StepProgress::new(format!("order {order}"), "passes", passes));
@@ -809,7 +816,8 @@ impl GpuBackend<'_> {
             }
         }
         for face in 0..plan.faces.len() {
-            tallies.add(&self.sweep(SweepOf::Face(face), flags)?);
+            let which = if scattered { SweepOf::Scattered(face) } else { SweepOf::Face(face) };
+            tallies.add(&self.sweep(which, flags)?);
         }
         // The fields come home (and the next order's load goes in) in brick order; so do the
         // device's passes between orders read them.

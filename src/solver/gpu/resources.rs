@@ -34,6 +34,7 @@ pub struct DeviceResources {
     pub face_sets: Vec<SweepSets>,
     pub beam_sets: Vec<SweepSets>,
     pub sky_sets: Vec<SweepSets>,
+    pub scattered_sets: Vec<SweepSets>,
     pub propagate: Owned<ComputePipeline>,
     pub collect: Owned<ComputePipeline>,
     /// The layout both pipelines share; declared after them, so freed after them.
@@ -44,6 +45,9 @@ pub struct DeviceResources {
     pub beam_tables: Vec<SweepTables>,
     /// Per face, the sky's own directions (`Plan::sky_faces`; empty unless it has them).
     pub sky_tables: Vec<SweepTables>,
+    /// Per face, the scattered light's own directions (`Plan::scattered_faces`; empty unless
+    /// it has them).
+    pub scattered_tables: Vec<SweepTables>,
 }
 
 fn host_buffer(
@@ -160,6 +164,11 @@ impl DeviceResources {
             .collect::<Result<Vec<_>, _>>()?;
         let sky_tables =
             plan.sky_faces.iter().map(|face| SweepTables::upload(ctx, sub, face)).collect::<Result<Vec<_>, _>>()?;
+        let scattered_tables = plan
+            .scattered_faces
+            .iter()
+            .map(|face| SweepTables::upload(ctx, sub, face))
+            .collect::<Result<Vec<_>, _>>()?;
         let sets = |tables: &[SweepTables], what: &str| -> Result<Vec<SweepSets>, SolveError> {
             let mut all = Vec::with_capacity(tables.len());
             for (i, t) in tables.iter().enumerate() {
@@ -188,10 +197,12 @@ impl DeviceResources {
         let face_sets = sets(&face_tables, "face")?;
         let beam_sets = sets(&beam_tables, "beam")?;
         let sky_sets = sets(&sky_tables, "sky")?;
+        let scattered_sets = sets(&scattered_tables, "scattered")?;
         Ok(DeviceResources {
             face_sets,
             beam_sets,
             sky_sets,
+            scattered_sets,
             propagate,
             collect,
             layout,
@@ -200,6 +211,7 @@ impl DeviceResources {
             face_tables,
             beam_tables,
             sky_tables,
+            scattered_tables,
         })
     }
 
@@ -220,7 +232,8 @@ impl DeviceResources {
             })
             .map(|b| b.size())
             .sum();
-        let tables = self.face_tables.iter().chain(&self.beam_tables).chain(&self.sky_tables);
+        let tables =
+            self.face_tables.iter().chain(&self.beam_tables).chain(&self.sky_tables).chain(&self.scattered_tables);
         let staging = tables.clone().map(|t| t.staging_bytes).max().unwrap_or(0);
         shared + slots + tables.map(SweepTables::device_bytes).sum::<u64>() + staging
     }

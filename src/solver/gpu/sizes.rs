@@ -394,13 +394,14 @@ impl TableSizes {
     }
 }
 
-/// Every sweep's tables: the faces' then the beams'.
+/// Every sweep's tables: the faces', the beams', the sky's and the scattered light's own.
 pub fn all_tables(plan: &Plan) -> Vec<TableSizes> {
     plan.faces
         .iter()
         .map(|f| TableSizes::new(f))
         .chain(plan.beams.iter().map(|b| TableSizes::new(std::slice::from_ref(b))))
         .chain(plan.sky_faces.iter().map(|f| TableSizes::new(f)))
+        .chain(plan.scattered_faces.iter().map(|f| TableSizes::new(f)))
         .collect()
 }
 

@@ -62,10 +62,12 @@
 //! emitters absorb or scatter their own light within a voxel, and the swept first scattering has
 //! no streaks to lose). A periodic axis or mirrors on both faces of an axis always sweep. The
 //! plan's reasons say which and why with the numbers, and `report.json`'s phases give the trace's
-//! time (`"emission trace"`). Where the medium scatters and k < [`SCATTERED_STREAK_FREE_K`] (12),
-//! the traced reason adds that the *scattered* light is still swept and streaks where it dominates,
-//! and which k helps (Kobayashi's case ii: every detector within 10 % only from k = 12); the plan
-//! does not raise k by itself. `auto` also sweeps where the trace would cost more than
+//! time (`"emission trace"`). Where the medium scatters, the light the trace hands to order 0's
+//! new source is itself compact, and swept along the k×k it streaks where it dominates (Kobayashi's
+//! case ii: every detector within 10 % only from k = [`SCATTERED_STREAK_FREE_K`] = 12): so orders
+//! 1 and 2 sweep it along directions of their own, at least 12 per face (`solver::plan`, "The
+//! scattered light's own directions"); with `solver.scattered_directions_per_face = k` the reason
+//! says it still streaks. `auto` also sweeps where the trace would cost more than
 //! [`AUTO_MAX_PAIRS`] emitter–voxel pairs (the fire scene's grid): `"traced"` forces it.
 //!
 //! **The Monte-Carlo reference** samples an emission photon's voxel by its ρ·σa·e and its position
@@ -258,23 +260,25 @@ pub fn choose(store: &BrickStore, plan: &Plan, setting: EmissionUncollided) -> R
 
 /// The directions per face from which a traced compact emitter's *scattered* light no longer
 /// streaks at detector accuracy: Kobayashi's case ii, traced, reads rms ln(C/E) 0.085–0.115 at
-/// k = 5 and 0.030–0.031 at k = 12, every detector within 10 % (`benches/RESULTS.md`).
+/// k = 5 and 0.030–0.031 at k = 12, every detector within 10 % (`benches/RESULTS.md`). The plan
+/// sweeps the first- and second-scattered light along at least this many per face of their own
+/// (`solver::plan`, "The scattered light's own directions").
 pub const SCATTERED_STREAK_FREE_K: u32 = 12;
 
-/// What the plan adds to a traced emission's reason when the medium scatters and k is below
-/// [`SCATTERED_STREAK_FREE_K`]: the first-collision source leaves the scattered light to the
-/// sweeps, whose own ray effects remain (the plan does not raise k by itself: that costs
-/// (12/k)² the sweeps, and on a small ember moved the ember's own voxels the wrong way).
+/// What the plan adds to a traced emission's reason when the medium scatters, k is below
+/// [`SCATTERED_STREAK_FREE_K`] and the first scattering was kept on the k×k
+/// (`solver.scattered_directions_per_face = k`): its ray effects remain where it dominates.
 fn scattered_light_hint(plan: &Plan) -> String {
     let k = plan.propagation.k;
     let scatters = plan.medium.albedo.iter().any(|&a| a > 0.0);
-    if !scatters || k >= SCATTERED_STREAK_FREE_K {
+    let own = !plan.scattered_faces.is_empty() || plan.unfolds_for_scattered.is_some();
+    if !scatters || k >= SCATTERED_STREAK_FREE_K || own {
         return String::new();
     }
     format!(
-        "; its scattered light is swept, and at k = {k} still streaks where it dominates (Kobayashi's case ii: \
-         within 10 % everywhere only from k = {SCATTERED_STREAK_FREE_K}): set solver.directions_per_face = \
-         {SCATTERED_STREAK_FREE_K} where that matters"
+        "; its first scattering is swept along the {k}×{k} and still streaks where it dominates (Kobayashi's case ii: \
+         within 10 % everywhere only from {SCATTERED_STREAK_FREE_K} directions per face): leave \
+         solver.scattered_directions_per_face to the plan where that matters"
     )
 }
 
