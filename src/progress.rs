@@ -25,7 +25,9 @@
 //!   leaves; unknown (`None`) before two orders, or while the series does not decay: then no time
 //!   is promised, and the fraction counts the cap.
 //! - **Time per order**: the mean of the last few orders' measured seconds, leaving order 0 out
-//!   once a later one has run (order 0 also sweeps the direct light's beams and may differ).
+//!   once a later one has run (order 0 also sweeps the direct light's beams and may differ), each
+//!   divided by its weight (an order that sweeps (k_1/k)² as many directions counts as that many
+//!   ordinary ones: a traced emission's orders 1 and 2, `solver::plan`).
 //! - **Export and render**: not measured before they run (both run on the CPU, whatever the
 //!   backend). The export costs a fixed part like the store build's ([`EXPORT_PER_STORE`] times
 //!   its seconds) and [`EXPORT_SECONDS_PER_VALUE`] per value written (voxels × components); the
@@ -97,6 +99,16 @@ pub struct OrderDone {
     /// estimate needs both to say when it will fall to the tolerance ([`orders_left`]).
     #[serde(default)]
     pub ratio: f64,
+    /// The order's sweeps over an ordinary order's: (k_1/k)² for the orders that sweep a traced
+    /// emission's scattered light along directions of their own (`solver::plan`), else 1. The
+    /// time per order is measured per ordinary order's worth of sweeps.
+    #[serde(default = "one")]
+    pub weight: f64,
+}
+
+/// An order's weight when not given: an ordinary order.
+fn one() -> f64 {
+    1.0
 }
 
 /// What the medium says about the order series' decay before any order runs
@@ -291,12 +303,13 @@ impl Estimator {
         &self.orders
     }
 
-    /// The time one more order is expected to take: the mean of the last few orders, order 0 left
-    /// out once a later order has run.
+    /// The time one more (ordinary) order is expected to take: the mean of the last few orders,
+    /// each per ordinary order's worth of sweeps ([`OrderDone::weight`]), order 0 left out once a
+    /// later order has run.
     pub fn seconds_per_order(&self) -> Option<f64> {
-        let timed = || self.orders.iter().zip(&self.walls);
-        let later: Vec<f64> = timed().filter(|(o, _)| o.order > 0).map(|(_, &w)| w).collect();
-        let pool: Vec<f64> = if later.is_empty() { timed().map(|(_, &w)| w).collect() } else { later };
+        let timed = || self.orders.iter().zip(&self.walls).map(|(o, &w)| (o, w / o.weight.max(1e-9)));
+        let later: Vec<f64> = timed().filter(|(o, _)| o.order > 0).map(|(_, w)| w).collect();
+        let pool: Vec<f64> = if later.is_empty() { timed().map(|(_, w)| w).collect() } else { later };
         let recent = &pool[pool.len().saturating_sub(TIMED_ORDERS)..];
         (!recent.is_empty()).then(|| recent.iter().sum::<f64>() / recent.len() as f64)
     }
@@ -502,6 +515,7 @@ mod tests {
                     power: 10.0 * rho.powi(k as i32),
                     seconds: 2.0,
                     ratio: 0.0,
+                    weight: 1.0,
                 }
             })
             .collect()
@@ -645,8 +659,15 @@ mod tests {
 
     fn first_two(r: &Recorded) -> [OrderDone; 2] {
         let ratio = r.power[1] / r.power[0];
-        let o =
-            |order, power, measure, ratio| OrderDone { order, residual: measure, measure, power, seconds: 1.0, ratio };
+        let o = |order, power, measure, ratio| OrderDone {
+            order,
+            residual: measure,
+            measure,
+            power,
+            seconds: 1.0,
+            ratio,
+            weight: 1.0,
+        };
         [o(0, r.power[0], 1.0, 0.0), o(1, r.power[1], r.measure, ratio)]
     }
 
@@ -693,6 +714,7 @@ mod tests {
                 power: power[k],
                 seconds: 0.3,
                 ratio: ratio[k],
+                weight: 1.0,
             })
             .collect();
         let prior = RECORDED[2].prior;
@@ -742,6 +764,21 @@ mod tests {
         assert_eq!(e.estimate(30.5).orders_left, Some(0));
         e.stage(Stage::Done, 32.0);
         assert_eq!((e.estimate(32.0).seconds_left, e.estimate(32.0).fraction), (Some(0.0), 1.0));
+    }
+
+    #[test]
+    fn an_order_of_more_sweeps_counts_as_that_many_ordinary_ones() {
+        let mut e = Estimator::new(settings());
+        e.stage(Stage::Order(0), 0.0);
+        // Order 0 5 s; orders 1 and 2 sweep 9× an ordinary order's directions (18 s each), order 3
+        // is ordinary (2 s): 2 s per order, not the plain mean's 12.7 s.
+        let mut orders = geometric(4, 0.5, 1.0);
+        orders[1].weight = 9.0;
+        orders[2].weight = 9.0;
+        for (o, t) in orders.iter().zip([5.0, 23.0, 41.0, 43.0]) {
+            e.order_done(o, t);
+        }
+        assert_eq!(e.seconds_per_order(), Some(2.0));
     }
 
     #[test]

@@ -431,7 +431,8 @@ pub fn run_orders<B: Backend + ?Sized>(
                 .fold(0.0, f64::max),
             _ => 0.0,
         };
-        progress.order_done(&OrderDone { order, residual, measure, power, seconds, ratio });
+        let weight = plan.order_weight(order);
+        progress.order_done(&OrderDone { order, residual, measure, power, seconds, ratio, weight });
         tracing::debug!(order, residual, remaining = remaining.map(|r| r.max), ratio, "order done");
     }
     // Resumed after its last order (killed in the export): no order ran here, so what the orders

@@ -682,6 +682,17 @@ impl Plan {
         (1..=SCATTERED_OWN_ORDERS).contains(&order) && !self.scattered_faces.is_empty()
     }
 
+    /// Order `order`'s sweeps over an ordinary order's: (k_1/k)² where it sweeps
+    /// [`Plan::scattered_faces`], else 1 (the progress estimate's [`crate::progress::OrderDone::weight`]).
+    pub fn order_weight(&self, order: u32) -> f64 {
+        if self.sweeps_scattered_in(order) {
+            let fine: usize = self.scattered_faces.iter().map(Vec::len).sum();
+            fine as f64 / self.propagation.len() as f64
+        } else {
+            1.0
+        }
+    }
+
     /// Whether beam `b` is swept in order `order`: in order 0, and again in every order when its
     /// sweep axis is periodic, to carry what it carried out ([`super::periodic`]).
     pub fn beam_swept_in(&self, b: usize, order: u32) -> bool {

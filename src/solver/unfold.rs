@@ -3,9 +3,9 @@
 //!
 //! A volume with mirror faces solves to the restriction of the volume doubled by its mirror image
 //! across each mirror ([`super::mirror`]). The CPU twin hands light over at the mirrors without
-//! storing the image; the GPU kernels have no hand-over, and neither have the scattered
-//! light's own directions ([`super::plan`]: the CPU twin unfolds for them too), so the backend
-//! builds the doubled volume itself: per axis with a mirror the volume and its image side by side (an axis with
+//! storing the image; the GPU kernels have no hand-over, and neither have the scattered light's
+//! own directions ([`super::plan`]: the CPU twin unfolds for them too), so the backend builds the
+//! doubled volume itself: per axis with a mirror the volume and its image side by side (an axis with
 //! mirrors on both faces repeats with period 2n: it is solved periodic), the density and any
 //! emission or albedo grid copied across, the faces that are not mirrors open as they were. It
 //! solves that with the ordinary kernels and copies the original's part of the fluence and the
