@@ -372,26 +372,16 @@ pub fn solve_from(
             tracing::info!("resuming after {} completed order(s)", state.orders_done);
             (fields, state)
         }
-        None if doubled => {
-            if warm_start.is_some() {
+        None => {
+            let mut fields = StoreFields::create(store, &plan)?;
+            // Unfolded, the doubled volume is seeded in a store of its own (super::unfold): here
+            // only the trace, in the volume with its images, whose order 0 that one images.
+            if doubled && warm_start.is_some() {
                 tracing::warn!(
                     "mirror faces unfolded: the doubled volume is solved cold, the warm start's guess unused"
                 );
             }
-            // The emission is traced here, in the volume (its images included): the doubled
-            // volume's order 0 is this one's, imaged (super::unfold).
-            let mut fields = StoreFields::create(store, &plan)?;
-            let traced = trace_emission(store, &plan, &mut fields, &mut phases)?;
-            trace_note = traced.note();
-            let state = fields::LoopState {
-                uncollided_emitted: traced.emitted,
-                uncollided_escaped: traced.escaped(),
-                ..fields::LoopState::default()
-            };
-            (fields, state)
-        }
-        None => {
-            let mut fields = StoreFields::create(store, &plan)?;
+            let warm_start = warm_start.filter(|_| !doubled);
             if let Some(dir) = warm_start {
                 if backend == BackendKind::Cpu {
                     return Err(warm::WarmStartError::NeedsGpu.into());
@@ -401,7 +391,7 @@ pub fn solve_from(
                 }
                 let power = warm::seed(store, &plan, &mut fields, dir)?;
                 tracing::info!("warm start from {} (its source's power {power:.4e})", dir.display());
-            } else if plan.emission_field {
+            } else if plan.emission_field && !doubled {
                 emission::write_initial_source(store, &plan, &mut fields.source_prev)?;
             }
             // The point lights' uncollided fluence and first scattering go into order 0's own

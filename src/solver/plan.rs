@@ -647,7 +647,7 @@ impl Plan {
         }
         self.reasons.push(reason);
         if let Some(dirs) = self.scattered_faces.first().map(Vec::len) {
-            let (n, k) = (dirs.isqrt(), self.propagation.k);
+            let (n, k) = (self.scattered_directions_per_face(), self.propagation.k);
             self.reasons.push(format!(
                 "scattered light: orders 1 and 2 sweep along {n}×{n} directions per face of their own ({} sweeps \
                  each, {:.1}× an order's {}), each with the collect row of its exact direction, so the light the \

@@ -271,8 +271,7 @@ pub const SCATTERED_STREAK_FREE_K: u32 = 12;
 fn scattered_light_hint(plan: &Plan) -> String {
     let k = plan.propagation.k;
     let scatters = plan.medium.albedo.iter().any(|&a| a > 0.0);
-    let own = !plan.scattered_faces.is_empty() || plan.unfolds_for_scattered.is_some();
-    if !scatters || k >= SCATTERED_STREAK_FREE_K || own {
+    if !scatters || k >= SCATTERED_STREAK_FREE_K || plan.scattered_directions_per_face() > k {
         return String::new();
     }
     format!(
