@@ -58,6 +58,7 @@ mod stop_rule;
 mod store_and_outputs;
 mod synthetic_acceleration;
 mod temperature;
+mod uncollided_gpu;
 mod vdb_input;
 mod vdb_nrrd;
 mod vdb_output;

@@ -529,6 +529,149 @@ pub const TALLY_SUMS: Kernel = Kernel {
     test_only: false,
 };
 
+// ---- the traced emission's uncollided light (crate::solver::uncollided::gpu) ----
+
+/// Push constants of `uncollided_trace.comp`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct UncollidedPush {
+    /// The unfolded frame: cells `lo .. hi` per axis.
+    pub lo: [i32; 3],
+    /// Invocations: [`crate::store::BRICK_VOXELS`] per target brick of the batch.
+    pub count: u32,
+    pub hi: [i32; 3],
+    pub groups_x: u32,
+    /// The volume's.
+    pub dims: [u32; 3],
+    pub channels: u32,
+    /// σt·h at density 1.
+    pub extinction: [f32; 3],
+    pub h: f32,
+    pub kappa: f32,
+    pub tau: f32,
+    pub spread: f32,
+    pub root: u32,
+    /// 1: every pair exact (tests).
+    pub exact: u32,
+    /// The batch's first target brick.
+    pub first: u32,
+    pub sigma_nodes: u32,
+    pub table_sigma_max: f32,
+    /// `(sigma_nodes − 1) / ln(table_sigma_max + 1)`.
+    pub node_scale: f32,
+    pub near_reach: i32,
+    /// A DDA's steps at most.
+    pub max_steps: u32,
+    pub round_index: u32,
+    /// Loop iterations per invocation and round; 0: no limit.
+    pub budget: u32,
+    /// Entries of each invocation's saved stack.
+    pub stack_stride: u32,
+}
+
+/// One node of the emitters' octree (`TraceNode`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct TraceNode {
+    pub centre: [f32; 3],
+    pub radius: f32,
+    pub j: [f32; 3],
+    pub weight: f32,
+    /// xx, yy, zz, xy, xz, yz.
+    pub cov: [f32; 6],
+    pub sigma_max: f32,
+    /// Bit 0: a member is on a face of the medium; bit 1: a leaf.
+    pub flags: u32,
+    /// A leaf: its emitter; else its first child in the children list.
+    pub first: u32,
+    pub count: u32,
+}
+
+/// One emitter (`TraceEmitter`): its cell in the unfolded frame, J and σt·h per channel.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct TraceEmitter {
+    pub cell: [i32; 3],
+    pub j: [f32; 3],
+    pub sigma: [f32; 3],
+}
+
+/// One target brick (`TraceTarget`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct TraceTarget {
+    pub origin: [u32; 3],
+    pub extent: [u32; 3],
+}
+
+/// What one voxel received (`TraceReceived`), and its walk's state between rounds.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct TraceReceived {
+    pub fluence: [f32; 3],
+    pub flux: [f32; 3],
+    pub clusters: u32,
+    pub near_pairs: u32,
+    pub far_pairs: u32,
+    /// Entries left on its stack: 0 when done.
+    pub depth: u32,
+}
+
+/// `uncollided_trace.comp`'s traversal stack (`STACK`): the host refuses a deeper tree.
+pub const UNCOLLIDED_STACK: u32 = 128;
+/// Loop iterations `uncollided_trace.comp` charges per node besides its segments (`NODE_COST`),
+/// and per segment besides its DDA steps (`SEGMENT_COST`).
+pub const UNCOLLIDED_NODE_COST: u32 = 128;
+pub const UNCOLLIDED_SEGMENT_COST: u32 = 8;
+
+pub const UNCOLLIDED_TRACE: Kernel = Kernel {
+    name: "uncollided_trace",
+    spirv: include_bytes!("../../../spirv/uncollided_trace.spv"),
+    push: members!(UncollidedPush {
+        lo,
+        count,
+        hi,
+        groups_x,
+        dims,
+        channels,
+        extinction,
+        h,
+        kappa,
+        tau,
+        spread,
+        root,
+        exact,
+        first,
+        sigma_nodes,
+        table_sigma_max,
+        node_scale,
+        near_reach,
+        max_steps,
+        round_index,
+        budget,
+        stack_stride
+    }),
+    bindings: &[
+        (0, "Nodes"),
+        (1, "Children"),
+        (2, "Emitters"),
+        (3, "NearLn"),
+        (4, "Density"),
+        (5, "Targets"),
+        (6, "Received"),
+        (7, "Stacks"),
+    ],
+    layout_bindings: 8,
+    structs: &[
+        ("TraceNode", members!(TraceNode { centre, radius, j, weight, cov, sigma_max, flags, first, count })),
+        ("TraceEmitter", members!(TraceEmitter { cell, j, sigma })),
+        ("TraceTarget", members!(TraceTarget { origin, extent })),
+        ("TraceReceived", members!(TraceReceived { fluence, flux, clusters, near_pairs, far_pairs, depth })),
+    ],
+    local_size: LINEAR,
+    test_only: false,
+};
+
 // ---- kernels only the tests run ----
 
 /// `fill.comp`'s push constants (the Vulkan layer's smoke test).
@@ -585,7 +728,7 @@ pub const DIVISION_TEST: Kernel = Kernel {
 };
 
 /// Every kernel in `glsl/`.
-pub const ALL: [&Kernel; 15] = [
+pub const ALL: [&Kernel; 16] = [
     &PROPAGATE,
     &COLLECT,
     &BLOCK_SUMS,
@@ -598,6 +741,7 @@ pub const ALL: [&Kernel; 15] = [
     &SHARPEN,
     &TRANSPOSE,
     &TALLY_SUMS,
+    &UNCOLLIDED_TRACE,
     &FILL,
     &SEGMENT_TEST,
     &DIVISION_TEST,

@@ -67,6 +67,33 @@ pub struct Clusters {
     root: Option<usize>,
 }
 
+/// The tree in flat form ([`Clusters::flat`]): every node in index order, the children of the
+/// inner nodes in one list, and the emitters.
+pub struct FlatTree<'a> {
+    pub root: usize,
+    pub nodes: Vec<FlatNode>,
+    pub children: Vec<usize>,
+    pub emitters: &'a [Emitter],
+}
+
+/// One node of a [`FlatTree`]: what [`Clusters::receive`] reads of it.
+#[derive(Clone, Debug)]
+pub struct FlatNode {
+    pub centroid: DVec3,
+    pub radius: f64,
+    pub j: [f64; 3],
+    pub weight: f64,
+    /// Covariance about the centroid: xx, yy, zz, xy, xz, yz.
+    pub cov: [f64; 6],
+    pub sigma_max: f64,
+    /// Some member is on a face of the medium.
+    pub edge: bool,
+    /// A leaf: its emitter's index.
+    pub leaf: Option<usize>,
+    /// An inner node: its children's indices in [`FlatTree::children`].
+    pub children: std::ops::Range<usize>,
+}
+
 /// What a target voxel receives: the fluence per channel (W/m²) and the flux vector (channel sum)
 /// for the direction of its first scattering.
 #[derive(Clone, Copy, Debug, Default)]
@@ -116,6 +143,38 @@ impl Clusters {
     /// Nodes of the tree (leaves included).
     pub fn nodes(&self) -> usize {
         self.nodes.len()
+    }
+
+    /// The tree as the device kernel reads it ([`super::gpu`]), `None` when it is empty.
+    pub fn flat(&self) -> Option<FlatTree<'_>> {
+        let root = self.root?;
+        let mut children = Vec::new();
+        let nodes = self
+            .nodes
+            .iter()
+            .map(|n| {
+                let (leaf, range) = match &n.kind {
+                    Kind::Leaf(i) => (Some(*i), 0..0),
+                    Kind::Inner(c) => {
+                        let first = children.len();
+                        children.extend_from_slice(c);
+                        (None, first..children.len())
+                    }
+                };
+                FlatNode {
+                    centroid: n.centroid,
+                    radius: n.radius,
+                    j: n.j,
+                    weight: n.weight,
+                    cov: n.cov,
+                    sigma_max: n.sigma_max,
+                    edge: n.edge,
+                    leaf,
+                    children: range,
+                }
+            })
+            .collect();
+        Some(FlatTree { root, nodes, children, emitters: &self.emitters })
     }
 
     /// The uncollided light at the target voxel `cell` (σt·h `sigma_v` per channel) from every

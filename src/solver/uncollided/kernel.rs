@@ -35,7 +35,7 @@ pub const DIRECTIONS_PER_FACE: usize = 16;
 /// scaled by e^{−(σ − SIGMA_MAX)·|c|} (beyond e^{−40} of the light one voxel on: nothing).
 pub const SIGMA_MAX: f64 = 40.0;
 /// Nodes of the near table over σ.
-const SIGMA_NODES: usize = 40;
+pub const SIGMA_NODES: usize = 40;
 
 /// Gauss–Legendre nodes and weights on [0, 1], 6 points.
 const GL6: [(f64, f64); 6] = [
@@ -172,6 +172,13 @@ impl NearTable {
             })
             .collect();
         NearTable { ln_k }
+    }
+
+    /// ln K by offset class (`(m₀·(NEAR+1) + m₁)·(NEAR+1) + m₂` of the sorted magnitudes; the
+    /// unsorted classes hold zeros) and σ node, as [`NearTable::kernel`] reads them (the device
+    /// kernel's table, `super::gpu`).
+    pub fn ln_values(&self) -> &[[f64; SIGMA_NODES]] {
+        &self.ln_k
     }
 
     /// `K(c, σ)` for an offset with every |c_i| ≤ NEAR and σ ≥ 0 per voxel edge.

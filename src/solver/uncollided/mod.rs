@@ -91,6 +91,7 @@
 //! the same at any thread count.
 
 pub mod clusters;
+pub mod gpu;
 pub mod kernel;
 
 use super::emission::{scales, Factors};
@@ -162,7 +163,7 @@ impl Unfolded {
     }
 
     /// Every image of the volume's cell `v` (itself first).
-    fn images(&self, v: [u32; 3]) -> Vec<[i64; 3]> {
+    pub fn images(&self, v: [u32; 3]) -> Vec<[i64; 3]> {
         let mut out = vec![v.map(|x| x as i64)];
         for a in 0..3 {
             let n = self.dims[a] as i64;
