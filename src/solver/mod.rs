@@ -399,7 +399,7 @@ pub fn solve_from(
             // resumed solve never adds them twice; their power travels in the loop state.
             let point_light_power = point::write_order0(store, &plan, &mut fields.fluence, &mut fields.source_next)?;
             // The traced emission's uncollided light joins them, the same way (super::uncollided).
-            let traced = trace_emission(store, &plan, &mut fields, &mut phases)?;
+            let traced = trace_emission(store, &plan, &mut fields, &mut phases, backend, &vk_options)?;
             trace_note = traced.note();
             fields.seeded = point_light_power.iter().chain(&traced.interacting).any(|&p| p != 0.0);
             let state = fields::LoopState {
@@ -461,23 +461,40 @@ pub fn solve_from(
 }
 
 /// Traces the emission's uncollided light into order 0's accumulators when the plan says so
-/// ([`uncollided`]), with its time among the phases and what it did among the plan's reasons.
+/// ([`uncollided`]), with its time among the phases and what it did among the plan's reasons: on
+/// the GPU backend by the device kernel ([`uncollided::gpu`], on a context of its own for the
+/// trace; the host's walk where the kernel declines), on the CPU backend by the host's walk.
 fn trace_emission(
     store: &BrickStore,
     plan: &Plan,
     fields: &mut StoreFields,
     phases: &mut Vec<(String, f64)>,
+    backend: BackendKind,
+    vk_options: &ContextOptions,
 ) -> Result<uncollided::Traced, SolveError> {
     if !plan.emission_traced {
         return Ok(uncollided::Traced::default());
     }
     let t = Instant::now();
-    let traced = uncollided::add_order0(store, plan, &mut fields.fluence, &mut fields.source_next)?;
+    let traced = if backend == BackendKind::Gpu {
+        let ctx = Context::new(vk_options.clone())?;
+        let traced =
+            uncollided::add_order0_on(store, plan, &mut fields.fluence, &mut fields.source_next, false, Some(&ctx))?;
+        // With validation on, any error it reported fails the solve, as the GPU run's do.
+        let messages = ctx.validation_messages();
+        if !messages.is_empty() {
+            return Err(SolveError::Validation(messages));
+        }
+        traced
+    } else {
+        uncollided::add_order0(store, plan, &mut fields.fluence, &mut fields.source_next)?
+    };
     let seconds = t.elapsed().as_secs_f64();
     phases.push(("emission trace".to_string(), seconds));
     tracing::info!(
-        "emission traced in {seconds:.2} s: {} emitters (mirror images included), {} clusters taken whole, {} \
+        "emission traced in {seconds:.2} s {}: {} emitters (mirror images included), {} clusters taken whole, {} \
          exact near pairs, {} far pairs",
+        traced.ran_on(),
         traced.emitters,
         traced.work.clusters,
         traced.work.near,

@@ -1,6 +1,6 @@
 //! The emission's uncollided light traced from the emitting voxels (`solver.emission_uncollided`,
 //! `solver::uncollided`): one emitting voxel in a uniform absorber against the exact voxel means,
-//! both backends, the books, bitwise repeats at any thread count, a mirror's images, resume, and
+//! both backends (the GPU's traced by the device kernel, `uncollided::gpu`), the books, bitwise repeats at any thread count, a mirror's images, resume, and
 //! the plan's choice.
 use crate::common::*;
 use lpm::scene::{EmissionGrid, EmissionUncollided, Scene, Shape, SpatialScheme};
@@ -64,6 +64,11 @@ fn one_emitting_voxel_in_an_absorber_is_the_exact_voxel_mean_on_both_backends() 
     assert!(gpu.run.plan.emission_traced, "{:?}", gpu.run.plan.reasons);
     assert!(gpu.run.plan.reasons.iter().any(|r| r.contains("traced (auto)")), "{:?}", gpu.run.plan.reasons);
     assert!(gpu.run.plan.reasons.iter().any(|r| r.starts_with("emission trace:")), "{:?}", gpu.run.plan.reasons);
+    // The GPU backend traces on the device (uncollided::gpu), the CPU backend on the host.
+    let ran =
+        |s: &Solved, on: &str| s.run.plan.reasons.iter().any(|r| r.starts_with("emission trace:") && r.contains(on));
+    assert!(ran(&gpu, "on the GPU ("), "{:?}", gpu.run.plan.reasons);
+    assert!(ran(&cpu, "on the host, "), "{:?}", cpu.run.plan.reasons);
     assert!(gpu.run.phases.iter().any(|(p, _)| p == "emission trace"), "{:?}", gpu.run.phases);
     // A pure absorber scatters nothing: no word about the scattered light's streaks.
     assert!(!gpu.run.plan.reasons.iter().any(|r| r.contains("still streaks")), "{:?}", gpu.run.plan.reasons);
@@ -90,7 +95,9 @@ fn one_emitting_voxel_in_an_absorber_is_the_exact_voxel_mean_on_both_backends() 
     }
     eprintln!("one emitting voxel, traced: worst relative error {worst:.2e} over {checked} voxels ≥ 3 voxels away");
     assert!(checked > 8000, "{checked}");
+    // The device's f32 trace against the host's f64 one (module docs of uncollided::gpu).
     let err = relative_l2(&gpu.fluence_all(), &cpu.fluence_all());
+    eprintln!("GPU (traced on the device) vs twin: relative L2 {err:.2e}");
     assert!(err <= 1e-6, "GPU vs twin {err}");
     // The books: what the voxel puts out (4π·J·h³) is emitted; what the medium does not take
     // leaves uncollided.
