@@ -233,6 +233,8 @@ pub struct DeviceTrace {
     received: usize,
     push: UncollidedPush,
     targets: usize,
+    /// The tree's nodes (a bound on the rounds of a batch).
+    nodes: usize,
     batch: usize,
     /// The device, in words.
     pub device: String,
@@ -438,7 +440,7 @@ impl DeviceTrace {
             ..UncollidedPush::default()
         };
         let device = format!("{} ({})", ctx.device_name(), ctx.driver_description());
-        Ok(Ok(DeviceTrace { objects, received, push, targets: targets.len(), batch, device }))
+        Ok(Ok(DeviceTrace { objects, received, push, targets: targets.len(), nodes: nodes.len(), batch, device }))
     }
 
     /// Target bricks per [`DeviceTrace::receive`] at most.
@@ -464,6 +466,11 @@ impl DeviceTrace {
             }
             if push.budget == 0 || values.iter().all(|v| v.depth == 0) {
                 break;
+            }
+            // Each round takes at least one node off every walk not done (the host sized the rounds
+            // so that a walk's first node fits), and a walk takes each node at most once.
+            if push.round_index as usize > self.nodes {
+                return Err(SolveError::Internal("the emission trace on the device took more rounds than nodes"));
             }
             push.round_index += 1;
         }
