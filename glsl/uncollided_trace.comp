@@ -36,6 +36,7 @@ struct TraceNode {
     float j[3];
     float weight;
     float cov[6];  // xx, yy, zz, xy, xz, yz
+    float sigma[3];  // the members' source-weighted σt·h per channel
     float sigma_max;
     uint flags;  // bit 0: a member is on a face of the medium; bit 1: a leaf
     uint first;  // a leaf: its emitter; else its first child in Children
@@ -369,9 +370,17 @@ void main() {
                     uint child = children[node.first + k];
                     float w = nodes[child].weight / node.weight;
                     vec3 dk = x - centre_of(child);
+                    float rk2 = dot(dk, dk);
+                    float rk = sqrt(rk2);
                     tau_mean += w * taus[k];
+                    // The child's members deeper or shallower in its own medium (`receive`).
+                    float cv[6] = nodes[child].cov;
+                    float spread_k = u.x * u.x * cv[0] + u.y * u.y * cv[1] + u.z * u.z * cv[2]
+                        + 2.0 * (u.x * u.y * cv[3] + u.x * u.z * cv[4] + u.y * u.z * cv[5]) + 1.0 / 12.0;
                     for (uint ch = 0u; ch < 3u; ch++) {
-                        t[ch] += nodes[child].j[ch] * exp(-pc.extinction[ch] * taus[k]) / dot(dk, dk);
+                        float s = nodes[child].sigma[ch];
+                        float deeper = 1.0 + spread_k * s * (0.5 * s + 2.0 / rk);
+                        t[ch] += nodes[child].j[ch] * exp(-pc.extinction[ch] * taus[k]) / rk2 * deeper;
                     }
                     for (uint m = 0u; m < 6u; m++) {
                         inner[m] += w * nodes[child].cov[m];

@@ -579,6 +579,8 @@ pub struct TraceNode {
     pub weight: f32,
     /// xx, yy, zz, xy, xz, yz.
     pub cov: [f32; 6],
+    /// The members' source-weighted σt·h per channel.
+    pub sigma: [f32; 3],
     pub sigma_max: f32,
     /// Bit 0: a member is on a face of the medium; bit 1: a leaf.
     pub flags: u32,
@@ -663,7 +665,7 @@ pub const UNCOLLIDED_TRACE: Kernel = Kernel {
     ],
     layout_bindings: 8,
     structs: &[
-        ("TraceNode", members!(TraceNode { centre, radius, j, weight, cov, sigma_max, flags, first, count })),
+        ("TraceNode", members!(TraceNode { centre, radius, j, weight, cov, sigma, sigma_max, flags, first, count })),
         ("TraceEmitter", members!(TraceEmitter { cell, j, sigma })),
         ("TraceTarget", members!(TraceTarget { origin, extent })),
         ("TraceReceived", members!(TraceReceived { fluence, flux, clusters, near_pairs, far_pairs, depth })),

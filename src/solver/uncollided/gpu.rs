@@ -6,7 +6,7 @@
 //! host's bookkeeping then takes those values as it takes the twin's ([`super::add_order0_on`]):
 //! one copy of it for both.
 //!
-//! **What goes up.** The tree flattened ([`Clusters::flat`]: 72 bytes a node, about two nodes an
+//! **What goes up.** The tree flattened ([`Clusters::flat`]: 84 bytes a node, about two nodes an
 //! emitter, 4 bytes a child, 36 bytes an emitter), the near table (27 × 40 f32), the volume's
 //! density as one dense f32 array over its dims (4 bytes a voxel: the DDA reads any cell of the
 //! unfolded frame), the occupied bricks' origins, and per batch of [`BATCH_BRICKS`] target bricks
@@ -295,6 +295,7 @@ impl DeviceTrace {
                 j: n.j.map(f),
                 weight: f(n.weight),
                 cov: n.cov.map(f),
+                sigma: n.sigma.map(f),
                 sigma_max: f(n.sigma_max),
                 flags: n.edge as u32 | (n.leaf.is_some() as u32) << 1,
                 first: n.leaf.unwrap_or(n.children.start) as u32,
