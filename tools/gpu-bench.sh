@@ -4,7 +4,7 @@
 #
 #   bash tools/gpu-bench.sh prepare   # here: binaries + Vulkan loader, glvnd, validation layer into .gl/
 #   bash tools/gpu-bench.sh tests     # there: the integration suite under validation (172 s on an H200)
-#   bash tools/gpu-bench.sh bench     # there: order benchmark, `lpm bench stream`, CPU backend (79 s on an H200)
+#   bash tools/gpu-bench.sh bench     # there: order benchmark, `lpm bench stream`, CPU backend, emission trace (79 s on an H200 before the trace step)
 #
 # On the device tool: carry .gl, and begin the command with
 #   for f in .gl/*.deb; do dpkg -x $f /; done; ldconfig;
@@ -278,6 +278,37 @@ print(f"| {sys.argv[2]}³ | CPU backend, {t} threads | {per:.2f} s per order | C
 EOF
         tail -n 1 "$out/table.md"
     done
+    row ""
+
+    # 4. The emission's uncollided light traced on the device (solver::uncollided::gpu): the cloud
+    #    at TRACE_SIZE³ thinned to σt·h ≈ 0.1, every voxel of it emitting, the trace forced (about as
+    #    many emitter-voxel pairs at 64³ as the fire scene's, which the host walks for about an hour
+    #    on two cores), one order; the trace's phase from report.json, and where the plan says it ran.
+    local tn="${TRACE_SIZE:-64}" tdir="$scratch/trace" tlog="$scratch/trace.log"
+    bash tools/bench_cloud_scene.sh "$tn" |
+        sed -e "s/^sigma_t = .*/sigma_t = $(python3 -c "print(0.1 * $tn / 64)")\nemission = 1.0/" \
+            -e 's/^directions_per_face = 4$/directions_per_face = 4\nmax_orders = 1\nemission_uncollided = "traced"/' \
+            >"$scratch/trace_$tn.toml"
+    echo "+ $lpm solve $scratch/trace_$tn.toml --out $tdir --no-image (emission traced, one order)"
+    row "| emission trace | size | emitters | clusters taken whole / exact near / far pairs | trace | where |"
+    row "|---|---|---|---|---|---|"
+    if ! timeout "$step" "$lpm" solve "$scratch/trace_$tn.toml" --out "$tdir" --no-image >/dev/null 2>"$tlog"; then
+        keep_tail "$tlog"
+        row "| emission trace | ${tn}³ | failed or timed out: see trace.log | | | |"
+    else
+        python3 - "$tdir/report.json" "$tn" >>"$out/table.md" <<'EOF'
+import json, re, sys
+r = json.load(open(sys.argv[1]))
+phases = {p["phase"]: p["seconds"] for p in r["seconds"]}
+note = next((x for x in r["plan"]["reasons"] if x.startswith("emission trace:")), "")
+m = re.search(r"(\d+) emitters.*?(\d+) clusters taken whole, (\d+) exact near pairs, (\d+) far pairs", note)
+where = re.search(r"(on the (GPU|host).*)$", note)
+e, c, n, f = m.groups() if m else ("?", "?", "?", "?")
+print(f"| emission trace | {sys.argv[2]}³ | {e} | {c} / {n} / {f} | {phases.get('emission trace', float('nan')):.2f} s | "
+      f"{where.group(1) if where else '?'} |")
+EOF
+        tail -n 1 "$out/table.md"
+    fi
     row ""
 }
 
