@@ -27,6 +27,32 @@ const POLL: Duration = Duration::from_millis(100);
 /// well under a second on small volumes, seconds on huge ones; a kill keeps the checkpoint too).
 const CANCEL_GRACE: Duration = Duration::from_secs(120);
 
+/// How long a job waits for its output directory's lock before its solve starts. A server killed
+/// with `kill -9` takes its solves with it (`PR_SET_PDEATHSIG`), but the kernel may take a moment
+/// to tear a dying solve down and free its lock, while the next server takes the job again at
+/// once: without the wait that job failed on "another lpm run is writing" (seen under load).
+const LOCK_WAIT: Duration = Duration::from_secs(60);
+
+/// Waits up to [`LOCK_WAIT`] until no process holds `out`'s lock (a dying solve of a killed
+/// server); past it, the solve starts anyway and reports the holder itself.
+fn wait_for_lock(id: i64, out: &Path) {
+    let started = std::time::Instant::now();
+    let mut said = false;
+    while started.elapsed() < LOCK_WAIT {
+        match crate::output::DirLock::acquire(out) {
+            Err(crate::output::OutputError::Locked { .. }) => {
+                if !said {
+                    tracing::info!("job {id}: waiting for the previous solve into its directory to exit");
+                    said = true;
+                }
+                std::thread::sleep(POLL);
+            }
+            // Free (the probe's lock is dropped here), or an error the solve will report.
+            _ => return,
+        }
+    }
+}
+
 /// The exit status of a solve stopped at a slice by SIGTERM (see `EXIT_CANCELLED` in main.rs).
 const EXIT_CANCELLED: i32 = 3;
 
@@ -86,6 +112,7 @@ fn start(shared: &Shared, job: &db::Claimed, device: Option<usize>) -> Result<Ch
     let dir = shared.job_dir(job.id);
     let out = dir.join("out");
     std::fs::create_dir_all(&out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
+    wait_for_lock(job.id, &out);
     let scene = dir.join("scene.toml");
     crate::output::write_atomic(&scene, |w| std::io::Write::write_all(w, job.scene.as_bytes()))
         .map_err(|e| e.to_string())?;
