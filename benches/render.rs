@@ -2,9 +2,12 @@
 //! the kept source, on the CPU's threads), for an anisotropic cloud (24 storage directions, where
 //! the source is blended between storage directions), the same cloud solved with δ-M (the render
 //! adds the forward peak's chains, `lpm::render::peak`: two irradiance fields and a chain sum per
-//! sample) and the same cloud isotropic (one storage direction). The solve is set up once (CPU twin, two orders: the render's cost does not depend
-//! on how converged the source is); each iteration renders one 256×256 image from the solve's view.
-//! Criterion's "elements/s" are pixels per second.
+//! sample) and the same cloud isotropic (one storage direction); and the δ-M cloud seen towards the
+//! sun (a 40° pinhole 62 voxels from its centre, `tools/forward_image_table.sh`'s backlit view),
+//! where every ray also sharpens the sun's forward lobes (`lpm::render::peak`, "The forward
+//! lobes": a blended source towards the sun and a sum over the lobes per sample). The solve is set
+//! up once (CPU twin, two orders: the render's cost does not depend on how converged the source
+//! is); each iteration renders one 256×256 image. Criterion's "elements/s" are pixels per second.
 //!
 //! Run: `cargo bench --bench render` (LPM_BENCH_DIMS=N changes the volume, LPM_BENCH_PIXELS=W the
 //! image's width and height).
@@ -47,12 +50,27 @@ fn render(c: &mut Criterion) {
     let mut group = c.benchmark_group(format!("render {side}x{side}"));
     group.sample_size(10);
     group.throughput(Throughput::Elements(u64::from(side) * u64::from(side)));
-    for (name, g, peak) in
-        [("anisotropic g=0.8", 0.8, "keep"), ("anisotropic g=0.8 delta-m", 0.8, "delta-m"), ("isotropic", 0.0, "keep")]
-    {
+    // The backlit view: the camera on the far side of the cloud from the sun, looking at it.
+    let n = f64::from(env_u32("LPM_BENCH_DIMS", 48));
+    let centre = glam::DVec3::splat(0.5 * n);
+    let towards_sun = glam::DVec3::new(-0.55, -0.35, 0.75).normalize();
+    let backlit = |camera: &lpm::scene::Camera| lpm::scene::Camera {
+        projection: lpm::scene::Projection::Pinhole { fov_y_degrees: 40.0 },
+        position: centre - towards_sun * (62.0 / 48.0 * n),
+        look_at: centre,
+        up: glam::DVec3::Z,
+        ..camera.clone()
+    };
+    for (name, g, peak, towards) in [
+        ("anisotropic g=0.8", 0.8, "keep", false),
+        ("anisotropic g=0.8 delta-m", 0.8, "delta-m", false),
+        ("anisotropic g=0.8 delta-m towards the sun", 0.8, "delta-m", true),
+        ("isotropic", 0.0, "keep", false),
+    ] {
         let out = solve(&dir, &name.replace([' ', '=', '-'], "_"), g, peak);
         let kept = open(&out).expect("render data");
         let camera = lpm::scene::Camera { width: side, height: side, ..kept.camera.clone() };
+        let camera = if towards { backlit(&camera) } else { camera };
         group.bench_function(name, |b| b.iter(|| kept.render(&camera, Background::Sky)));
     }
     group.finish();

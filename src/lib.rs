@@ -96,7 +96,7 @@
 //! | what a per-voxel emission or temperature means | `scene/blackbody.rs` (temperature → colour), `store/emission.rs` (the field the solver, the renderer and the reference read), `solver/emission.rs` (the order-0 source and its power), `solver/uncollided/` (its uncollided light traced instead of swept) |
 //! | what a per-voxel albedo means | `store/albedo.rs` (the field), `solver/passes.rs` (the source scaled by it, absorption), `solver/emission.rs` (σa per voxel), `render/march.rs`, `reference/grid.rs` |
 //! | how an image reads the source (in space, in direction) | `render/march.rs` (trilinear between voxel centres), `quadrature/blend.rs` (weights between storage directions); `tests/it/render_blend.rs` |
-//! | what an image takes from the solve and adds exactly (the suns' single scattering) | [`solver::direct`] (the split and each sun's irradiance), `render/keep.rs` (`render-data/`), `render/march.rs`; `tests/it/single_scatter.rs` |
+//! | what an image takes from the solve and adds exactly (the suns' single scattering) and sharpens (the chains, the forward lobes) | [`solver::direct`] (the split and each sun's irradiance), `render/keep.rs` (`render-data/`), `render/peak.rs`, `render/march.rs`; `tests/it/single_scatter.rs` |
 //! | what the progress bar and the server promise | [`progress`] (the estimator), [`solver::slow_mode`] (its prior from the medium); `tools/eta_table.sh` |
 //! | a host pass between orders | `solver/passes.rs` (once, for the store's fields and the twin's); checkpoints in `solver/fields.rs` |
 //! | a Vulkan object kind | [`vk`] (destroy functions take the object by value and are `unsafe fn`: the device must be done with it; the driver wraps it in `Owned`) |

@@ -30,6 +30,7 @@
 //! per light: one f32 per voxel of the occupied bricks and channel (`4·channels·4096` bytes per
 //! occupied brick), twice that under δ-M.
 
+use super::peak::ForwardLobes;
 use super::{render, Background, DirectBeam, Image, PointSource, RenderInputs, SingleScattering, VoxelFactors};
 use crate::output::{write_json_atomic, OutputError};
 use crate::quadrature::{PropagationSet, StorageBlend, StorageSet};
@@ -528,6 +529,17 @@ pub fn render_solved(
             .collect(),
         medium: Medium { sigma_t: s.medium.sigma_t, albedo: s.medium.albedo, g: s.medium.g, emission: [0.0; 3] },
         peak_chains: s.peak_chains,
+        // Only under δ-M: the lobes' amounts come from the scaled irradiance's peak depth.
+        lobes: if s.peak_chains {
+            s.travel
+                .iter()
+                .map(|t| {
+                    ForwardLobes::new(&propagation, &storage, &blend, s.medium.g, DVec3::from_array(*t).normalize())
+                })
+                .collect()
+        } else {
+            Vec::new()
+        },
     });
     render(&RenderInputs {
         store,

@@ -118,11 +118,26 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                     }
                 })
                 .collect();
-            (s, phases)
+            // Per sun, how far each forward lobe's sharp shape exceeds its bins towards the camera.
+            let excess: Vec<Vec<f64>> = s.lobes.iter().map(|l| l.excess(-dir, &blend)).collect();
+            (s, phases, excess)
         });
+        // δ-M's peak share f per channel, from the scaled extinction σt* = σt·(1 − a·f): the
+        // peak's depth τₚ = ln(E*/E) is f times the scattering depth τₛ.
+        let peak_share: [f64; 3] = match &single {
+            Some((s, _, _)) => std::array::from_fn(|ch| {
+                let (true_t, a) = (s.medium.sigma_t[ch], s.medium.albedo[ch]);
+                if true_t > 0.0 && a > 0.0 {
+                    (1.0 - m.sigma_t[ch] / true_t) / a
+                } else {
+                    0.0
+                }
+            }),
+            None => [0.0; 3],
+        };
         // Under δ-M the march attenuates the solved source with the scaled extinction; the exact
         // single scattering travels to the camera with the true one.
-        let apart = single.as_ref().is_some_and(|(s, _)| s.medium.sigma_t != m.sigma_t);
+        let apart = single.as_ref().is_some_and(|(s, _, _)| s.medium.sigma_t != m.sigma_t);
         let mut true_transmittance = [1.0f64; 3];
         let mut t = span.0;
         walk_voxels(origin, dir, span, grid.dims, h, |_, s| {
@@ -144,20 +159,26 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
             // The albedo factor a(v) (1 without an albedo grid), sampled like the density.
             let albedo = inputs.albedo.map_or(1.0, |a| sample(&|v| a.value(v, 0) as f64));
             // The source per stored channel (1 or 3), blended over the storage directions.
-            let source = blended_source(inputs, &blend, last, &corners);
+            let bricks = source_bricks(inputs, &corners);
+            let source = blended_source(inputs, &blend, last, &corners, &bricks);
             // σs·Σ_b p_b·E_b per channel with the true medium (zero without suns to scatter). The
             // product ρ·a·E is taken at the voxel centres and then interpolated, as the solved
             // source σs·E is: an isotropic medium's image is then the one its binned first order
             // gave (the phase is 1/4π either way), where interpolating ρ and E apart brightened
             // the lit limb of a cloud (E is the unattenuated irradiance in the empty voxels next
             // to it) by tens of per cent.
+            // Under δ-M, the suns' forward lobes sharpened (per channel; `super::peak`, "The
+            // forward lobes"): added to the solved source, whose bins hold them smeared.
+            let mut lobe_light = [0.0f64; 3];
             let scattered: [f64; 3] = match &single {
                 None => [0.0; 3],
-                Some((s, phases)) => {
+                Some((s, phases, excess)) => {
                     let a = inputs.albedo.map_or([1.0; 8], |a| corners.map(|(v, _)| a.value(v, 0) as f64));
                     let weights: [f64; 8] = std::array::from_fn(|k| corners[k].1 * rho[k] * a[k]);
                     let mut e = [0.0; 3];
-                    for (beam, chains) in s.beams.iter().zip(phases) {
+                    for (b, (beam, chains)) in s.beams.iter().zip(phases).enumerate() {
+                        // (No lobes without δ-M: `lobes` and `excess` are then empty.)
+                        let lobe = s.lobes.get(b).zip(excess.get(b).filter(|x| !x.is_empty()));
                         let v = sample_channels(beam.irradiance, 0, inputs.channels, &corners, &weights);
                         if !s.peak_chains {
                             let p = chains.single_phase();
@@ -170,6 +191,11 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                         // optical depth along the sun's path (∞ where E underflowed and E* did not).
                         let scaled =
                             sample_channels(beam.irradiance, inputs.channels, inputs.channels, &corners, &weights);
+                        // What the solved source holds towards the sun bounds the lobes.
+                        let towards_sun =
+                            lobe.map(|(l, _)| blended_source(inputs, &l.towards_sun, last, &corners, &bricks));
+                        // Per stored channel (a grey scene's one serves r, g and b).
+                        let mut lobe_k = [0.0; 3];
                         for (ch, e) in e.iter_mut().enumerate() {
                             let k = if inputs.channels == 1 { 0 } else { ch };
                             let (true_e, scaled_e) = (v[k], scaled[k].max(v[k]));
@@ -178,6 +204,15 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                             }
                             let tau = if true_e > 0.0 { (scaled_e / true_e).ln() } else { f64::INFINITY };
                             *e += chains.phase(tau) * scaled_e;
+                            if let (Some((lobe, excess)), Some(held), true, true, true) =
+                                (lobe, towards_sun, tau.is_finite(), peak_share[ch] > 0.0, ch == k)
+                            {
+                                let sigma_s = s.medium.sigma_t[ch] * s.medium.albedo[ch];
+                                let (added, binned) = lobe.light(excess, true_e, tau / peak_share[ch], tau);
+                                let bound = held[k] / sigma_s;
+                                lobe_k[k] = if binned > bound { added * bound / binned } else { added };
+                            }
+                            lobe_light[ch] += lobe_k[k];
                         }
                     }
                     // The point lights: their light reaches x travelling from the light to x.
@@ -206,13 +241,16 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                             *e += chain_phase(s.medium.g, mu, tau) * scaled_e;
                         }
                     }
+                    for (ch, l) in lobe_light.iter_mut().enumerate() {
+                        *l *= s.medium.sigma_t[ch] * s.medium.albedo[ch];
+                    }
                     std::array::from_fn(|ch| s.medium.sigma_t[ch] * s.medium.albedo[ch] * e[ch])
                 }
             };
             for ch in 0..3 {
                 let sigma_t = density * m.sigma_t[ch];
                 let sigma_a = sigma_t * (1.0 - m.albedo[ch] * albedo);
-                let j = source[if inputs.channels == 1 { 0 } else { ch }];
+                let j = source[if inputs.channels == 1 { 0 } else { ch }] + lobe_light[ch];
                 let mut q = j + sigma_a * m.emission[ch] * glow[ch];
                 if !apart {
                     q += scattered[ch];
@@ -220,7 +258,7 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                 let x = sigma_t * s;
                 radiance[ch] += transmittance[ch] * q * path_integral(sigma_t, s);
                 transmittance[ch] *= (-x).exp();
-                if let (true, Some((sc, _))) = (apart, &single) {
+                if let (true, Some((sc, _, _))) = (apart, &single) {
                     let sigma_true = density * sc.medium.sigma_t[ch];
                     radiance[ch] += true_transmittance[ch] * scattered[ch] * path_integral(sigma_true, s);
                     true_transmittance[ch] *= (-sigma_true * s).exp();
@@ -266,36 +304,50 @@ fn sample_channels(
     out
 }
 
-/// The source J per stored channel (entries past `inputs.channels` unused) at the trilinear
-/// `corners`, blended over `blend`'s storage directions (indices clamped to `last`). Each corner's
-/// brick is looked up once for every component the ray reads; the sums are the ones
-/// `Field::value` per component gave (same terms, same order), and the blend starts from its first
-/// part rather than from 0.0, so a single weight of 1 gives the stored value bit for bit: an
-/// isotropic image is what it was before blending.
-fn blended_source(inputs: &RenderInputs, blend: &Blend, last: u32, corners: &[([u32; 3], f64); 8]) -> [f64; 3] {
-    let channels = inputs.channels.min(3) as usize;
+/// Each trilinear corner's brick of the source field and the voxel's index in it (`None` outside
+/// the volume or in an unstored brick, which read as 0, as `Field::value` has them): located once
+/// per sample for every blend that reads it.
+type CornerBricks<'a> = [Option<(&'a [f32], usize)>; 8];
+
+fn source_bricks<'a>(inputs: &RenderInputs<'a>, corners: &[([u32; 3], f64); 8]) -> CornerBricks<'a> {
     let field = inputs.source;
     let grid = field.grid();
-    // values[k][e·3 + ch]: component (direction e, channel ch) at corner k.
-    let mut values = [[0.0f64; 9]; 8];
-    for (k, &(v, _)) in corners.iter().enumerate() {
-        // Outside the volume, unstored bricks and components past the field's read as 0, as
-        // `Field::value` has them.
-        let Some(data) = grid.contains(v).then(|| grid.locate(v)).and_then(|(b, l)| field.brick(b).map(|d| (d, l)))
-        else {
-            continue;
-        };
-        for (e, (d, _)) in blend.entries().enumerate() {
-            for ch in 0..channels {
-                let c = (d.min(last) * inputs.channels) as usize + ch;
-                values[k][e * 3 + ch] = data.0.get(c * BRICK_VOXELS + data.1).map_or(0.0, |&x| x as f64);
-            }
+    let mut bricks: CornerBricks = [None; 8];
+    for (slot, &(v, _)) in bricks.iter_mut().zip(corners) {
+        if grid.contains(v) {
+            let (b, l) = grid.locate(v);
+            *slot = field.brick(b).map(|d| (d, l));
         }
     }
+    bricks
+}
+
+/// The source J per stored channel (entries past `inputs.channels` unused) at the trilinear
+/// `corners` (their bricks `bricks`), blended over `blend`'s storage directions (indices clamped to
+/// `last`). The sums are the ones `Field::value` per component gave (same terms, same order), and
+/// the blend starts from its first part rather than from 0.0, so a single weight of 1 gives the
+/// stored value bit for bit: an isotropic image is what it was before blending.
+#[inline]
+fn blended_source(
+    inputs: &RenderInputs,
+    blend: &Blend,
+    last: u32,
+    corners: &[([u32; 3], f64); 8],
+    bricks: &CornerBricks,
+) -> [f64; 3] {
+    let channels = inputs.channels.min(3) as usize;
     let mut out = [0.0; 3];
     for (ch, slot) in out.iter_mut().enumerate().take(channels) {
-        let mut parts = blend.entries().enumerate().map(|(e, (_, w))| {
-            w * corners.iter().enumerate().map(|(k, &(_, cw))| cw * values[k][e * 3 + ch]).sum::<f64>()
+        let mut parts = blend.entries().map(|(d, w)| {
+            let c = (d.min(last) * inputs.channels) as usize + ch;
+            w * bricks
+                .iter()
+                .zip(corners)
+                .map(|(brick, &(_, cw))| {
+                    cw * brick
+                        .map_or(0.0, |(data, local)| data.get(c * BRICK_VOXELS + local).map_or(0.0, |&x| x as f64))
+                })
+                .sum::<f64>()
         });
         let first = parts.next().unwrap_or(0.0);
         *slot = parts.fold(first, |sum, part| sum + part);
