@@ -245,6 +245,10 @@ impl<O: Observer> Observer for Watch<'_, O> {
         tracing::debug!(accelerated = ?prior.accelerated, plain_ratio = ?prior.plain_ratio, "progress prior");
         self.inner.decay_prior(prior);
     }
+    fn order_weights(&mut self, weights: &[f64]) {
+        self.estimator.order_weights(weights);
+        self.inner.order_weights(weights);
+    }
     fn order_done(&mut self, done: &progress::OrderDone) {
         self.estimator.order_done(done, self.started.elapsed().as_secs_f64());
         self.residuals.push(done.residual);

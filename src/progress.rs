@@ -27,7 +27,9 @@
 //! - **Time per order**: the mean of the last few orders' measured seconds, leaving order 0 out
 //!   once a later one has run (order 0 also sweeps the direct light's beams and may differ), each
 //!   divided by its weight (an order that sweeps (k_1/k)² as many directions counts as that many
-//!   ordinary ones: a traced emission's orders 1 and 2, `solver::plan`).
+//!   ordinary ones: a traced emission's orders 1 and 2, `solver::plan`). The orders left are
+//!   counted by their weights too, which the plan tells before order 0
+//!   ([`Observer::order_weights`]): after order 1, order 2 still has its 9× the sweeps to run.
 //! - **Export and render**: not measured before they run (both run on the CPU, whatever the
 //!   backend). The export costs a fixed part like the store build's ([`EXPORT_PER_STORE`] times
 //!   its seconds) and [`EXPORT_SECONDS_PER_VALUE`] per value written (voxels × components); the
@@ -135,6 +137,9 @@ pub trait Observer {
     fn estimate(&mut self, _estimate: &Estimate) {}
     /// What the medium says about the series' decay, once the plan is made (before order 0).
     fn decay_prior(&mut self, _prior: &DecayPrior) {}
+    /// Each order's weight ([`OrderDone::weight`]) as the plan has it, once it is made (before
+    /// order 0): order n's is `weights[n]`, 1 past the end.
+    fn order_weights(&mut self, _weights: &[f64]) {}
 }
 
 impl<F: FnMut(u32, f64)> Observer for F {
@@ -158,6 +163,9 @@ impl Observer for Forward<'_> {
     }
     fn decay_prior(&mut self, prior: &DecayPrior) {
         self.0.decay_prior(prior)
+    }
+    fn order_weights(&mut self, weights: &[f64]) {
+        self.0.order_weights(weights)
     }
 }
 
@@ -253,6 +261,8 @@ pub struct Estimator {
     last_done: Option<f64>,
     /// What the medium says about the series' decay (nothing until told).
     prior: DecayPrior,
+    /// The plan's weight of each order, 1 past the end (all 1 until told).
+    weights: Vec<f64>,
 }
 
 impl Estimator {
@@ -268,7 +278,18 @@ impl Estimator {
             walls: Vec::new(),
             last_done: None,
             prior: DecayPrior::default(),
+            weights: Vec::new(),
         }
+    }
+
+    /// The plan's weight of each order ([`Observer::order_weights`]).
+    pub fn order_weights(&mut self, weights: &[f64]) {
+        self.weights = weights.to_vec();
+    }
+
+    /// Ordinary orders' worth of sweeps in the `count` orders from order `first` on.
+    fn weighted(&self, first: u32, count: u32) -> f64 {
+        (first..first.saturating_add(count)).map(|n| self.weights.get(n as usize).copied().unwrap_or(1.0)).sum()
     }
 
     /// What the medium says about the series' decay ([`Observer::decay_prior`]).
@@ -330,7 +351,6 @@ impl Estimator {
         let orders_done = self.orders.last().map_or(0, |o| o.order + 1);
         let run_orders = self.orders.len() as u32;
         let cap_left = self.settings.max_orders.saturating_sub(orders_done);
-        let in_stage = (t - self.stage_started).max(0.0);
         let after = self.after_orders_seconds();
         let orders_left = match self.stage {
             Stage::Store | Stage::Plan => None,
@@ -347,8 +367,14 @@ impl Estimator {
                 Some((after - spent).max(0.0))
             }
             Stage::Order(_) => match (orders_left, per_order) {
-                // The order under way counts as one of those left, less its time so far.
-                (Some(left), Some(per)) => Some((left as f64 * per - in_stage).max(0.0) + after),
+                // The order under way counts as one of those left, less its time so far (none
+                // right after an order is done, before the next one's stage starts); each by
+                // its weight.
+                (Some(left), Some(per)) => {
+                    let begun = self.last_done.map_or(self.stage_started, |d| d.max(self.stage_started));
+                    let in_order = (t - begun).max(0.0);
+                    Some((self.weighted(orders_done, left) * per - in_order).max(0.0) + after)
+                }
                 _ => None,
             },
             Stage::Store | Stage::Plan => None,
@@ -779,6 +805,35 @@ mod tests {
             e.order_done(o, t);
         }
         assert_eq!(e.seconds_per_order(), Some(2.0));
+    }
+
+    #[test]
+    fn the_orders_left_count_by_their_weights() {
+        // A traced emission's plan: orders 1 and 2 sweep 9× an ordinary order's directions.
+        let mut e = Estimator::new(Settings { export_values: 0.0, ..settings() });
+        e.order_weights(&[1.0, 9.0, 9.0]);
+        e.stage(Stage::Order(0), 0.0);
+        let mut orders = geometric(2, 0.5, 1.0);
+        orders[1].weight = 9.0;
+        // Order 0 2 s, order 1 18 s: 2 s per ordinary order.
+        for (o, t) in orders.iter().zip([2.0, 20.0]) {
+            e.order_done(o, t);
+        }
+        e.stage(Stage::Order(2), 20.0);
+        let left = e.estimate(20.0).orders_left.expect("known");
+        assert!(left >= 2, "{left}");
+        // Order 2's 9 ordinary orders' worth and the rest at 1 each.
+        let want = (9.0 + (left - 1) as f64) * 2.0;
+        let got = e.estimate(20.0).seconds_left.expect("known");
+        assert!((got - want).abs() < 1e-9, "{got} vs {want}");
+        // Without the plan's weights every order left counts as an ordinary one.
+        let mut plain = Estimator::new(Settings { export_values: 0.0, ..settings() });
+        plain.stage(Stage::Order(0), 0.0);
+        for (o, t) in orders.iter().zip([2.0, 20.0]) {
+            plain.order_done(o, t);
+        }
+        plain.stage(Stage::Order(2), 20.0);
+        assert!((plain.estimate(20.0).seconds_left.expect("known") - left as f64 * 2.0).abs() < 1e-9);
     }
 
     #[test]

@@ -356,6 +356,9 @@ pub fn solve_from(
         }
     }
     progress.decay_prior(&slow_mode::prior(&plan, store));
+    // The orders that sweep more than an ordinary order's directions (at most the first few).
+    let weights: Vec<f64> = (0..=plan::SCATTERED_OWN_ORDERS).map(|o| plan.order_weight(o)).collect();
+    progress.order_weights(&weights);
     let digest = checkpoint_digest(scene, &plan);
     if resume && backend == BackendKind::Cpu {
         return Err(SolveError::ResumeNeedsGpu);
