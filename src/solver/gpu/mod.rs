@@ -100,7 +100,7 @@ pub mod face_maps;
 pub mod kernels;
 pub mod layout;
 mod mode;
-mod owned;
+pub(crate) mod owned;
 pub mod profile;
 mod progress;
 pub mod resources;

@@ -12,7 +12,9 @@
 //! unfolded frame), the occupied bricks' origins, and per batch of [`BATCH_BRICKS`] target bricks
 //! the per-voxel results (40 bytes a voxel, host-visible) and, on a CPU implementation, each
 //! voxel's saved stack (4 bytes an entry). Every bound buffer must fit the device's
-//! `maxStorageBufferRange` (128 MiB on lavapipe: a volume of at most 2²⁵ voxels); the tree's
+//! `maxStorageBufferRange` (128 MiB on lavapipe: a volume of at most 2²⁵ voxels), and the dense
+//! density with its staging copy (8 bytes a voxel of host memory while they go up) half of the
+//! memory the system reports available; the tree's
 //! stack must fit the kernel's ([`UNCOLLIDED_STACK`] entries, sized on the host from the tree,
 //! [`stack_need`]), and the optical thickness of a voxel the range of f32's exponential.
 //! Otherwise [`DeviceTrace::for_store`] declines, saying why, and the trace runs on the host.
@@ -43,12 +45,11 @@ use crate::solver::gpu::kernels::{
     linear_groups, TraceEmitter, TraceNode, TraceReceived, TraceTarget, UncollidedPush, UNCOLLIDED_NODE_COST,
     UNCOLLIDED_SEGMENT_COST, UNCOLLIDED_STACK, UNCOLLIDED_TRACE,
 };
+use crate::solver::gpu::owned::Owned;
 use crate::solver::point::optical_path_in;
 use crate::solver::SolveError;
 use crate::store::{BrickStore, BRICK_EDGE, BRICK_VOXELS};
-use crate::vk::{
-    vk, Buffer, BufferRange, ComputePipeline, Context, DescriptorSet, MemoryLocation, Recorder, TimelineSemaphore,
-};
+use crate::vk::{vk, Buffer, ComputePipeline, Context, DescriptorSet, MemoryLocation, Recorder, TimelineSemaphore};
 use glam::DVec3;
 use std::sync::Arc;
 
@@ -156,32 +157,34 @@ pub fn stack_need(tree: &Clusters) -> usize {
     peak[flat.root].max(1)
 }
 
-/// The kernel's Vulkan objects, one owner: freed when dropped, after the last submission was
-/// waited for (destroying the timeline idles the queue first on lavapipe).
+/// The kernel's Vulkan objects, one owner: each [`Owned`] frees its object when dropped, and
+/// dropping this first waits for the last submission (fields drop after `drop` returns, in
+/// declaration order; destroying the timeline idles the queue first on lavapipe).
 struct Objects {
     ctx: Arc<Context>,
-    timeline: Option<TimelineSemaphore>,
+    timeline: Owned<TimelineSemaphore>,
     /// The last value submitted on it.
     value: u64,
-    set: Option<DescriptorSet>,
-    pipeline: Option<ComputePipeline>,
-    buffers: Vec<Buffer>,
+    /// Made by the kernel table (`Kernel::pipeline`, `Kernel::set`) once the inputs are up.
+    set: Option<Owned<DescriptorSet>>,
+    pipeline: Option<Owned<ComputePipeline>>,
+    /// In binding order ([`BINDINGS`]).
+    buffers: Vec<Owned<Buffer>>,
 }
 
 impl Objects {
     /// Submits `rec` and waits for it.
     fn submit_and_wait(&mut self, rec: Recorder) -> Result<(), SolveError> {
-        let timeline = self.timeline.as_ref().ok_or(SolveError::Internal("the emission trace has no timeline"))?;
         self.value += 1;
-        rec.submit(self.ctx.compute_queue(), &[], (timeline, self.value))?;
-        timeline.wait(&self.ctx, self.value, u64::MAX)?;
+        rec.submit(self.ctx.compute_queue(), &[], (&self.timeline, self.value))?;
+        self.timeline.wait(&self.ctx, self.value, u64::MAX)?;
         Ok(())
     }
 
     /// Records one round of the kernel with `push` over `groups` workgroups, submits it and waits.
     fn dispatch(&mut self, push: &UncollidedPush, groups: [u32; 3]) -> Result<(), SolveError> {
         let mut rec = Recorder::begin(&self.ctx, self.ctx.compute_queue().family(), "emission trace")?;
-        let (Some(pipeline), Some(set)) = (self.pipeline.as_ref(), self.set.as_ref()) else {
+        let (Some(pipeline), Some(set)) = (self.pipeline.as_deref(), self.set.as_deref()) else {
             return Err(SolveError::Internal("the emission trace has no pipeline"));
         };
         // The last round's (or batch's) writes before this round's reads and writes.
@@ -195,32 +198,17 @@ impl Objects {
     /// A device buffer of at least 4 bytes.
     fn buffer(&mut self, name: &str, bytes: u64, location: MemoryLocation) -> Result<usize, SolveError> {
         let usage = vk::BufferUsageFlags::STORAGE_BUFFER | vk::BufferUsageFlags::TRANSFER_DST;
-        self.buffers.push(self.ctx.create_buffer(name, bytes.max(4), usage, location)?);
+        self.buffers.push(Owned::new(&self.ctx, self.ctx.create_buffer(name, bytes.max(4), usage, location)?));
         Ok(self.buffers.len() - 1)
     }
 }
 
 impl Drop for Objects {
     fn drop(&mut self) {
-        if let Some(t) = &self.timeline {
-            if let Err(e) = t.wait(&self.ctx, self.value, u64::MAX) {
-                tracing::warn!("waiting for the emission trace's last submission failed: {e}");
-            }
-        }
-        // SAFETY: the last submission, the only work using them, has completed (waited above).
-        unsafe {
-            if let Some(set) = self.set.take() {
-                self.ctx.destroy_descriptor_set(set);
-            }
-            if let Some(p) = self.pipeline.take() {
-                self.ctx.destroy_pipeline(p);
-            }
-            for b in self.buffers.drain(..) {
-                self.ctx.destroy_buffer(b);
-            }
-            if let Some(t) = self.timeline.take() {
-                self.ctx.destroy_timeline(t);
-            }
+        // The only work using the objects is the last submission: wait for it before the fields
+        // free them.
+        if let Err(e) = self.timeline.wait(&self.ctx, self.value, u64::MAX) {
+            tracing::warn!("waiting for the emission trace's last submission failed: {e}");
         }
     }
 }
@@ -266,6 +254,16 @@ impl DeviceTrace {
             return Ok(Err(format!(
                 "the volume's density ({} bytes) is more than the device binds in one buffer ({limit} bytes)",
                 4 * voxels
+            )));
+        }
+        // The dense array and its staging copy live in host memory together while it goes up:
+        // more than half of what the system has free, and the host walks instead (it reads the
+        // store's bricks in place).
+        let host_bytes = 8 * voxels;
+        if let Some(available) = crate::store::resident::available_memory().filter(|&a| host_bytes > a / 2) {
+            return Ok(Err(format!(
+                "the volume's dense density and its staging copy ({host_bytes} bytes) are more than half the \
+                 memory available ({available} bytes)"
             )));
         }
         let density = dense_density(store);
@@ -358,13 +356,14 @@ impl DeviceTrace {
             return Ok(Err("the unfolded frame's cells are beyond 32-bit integers".into()));
         }
         let k = UNCOLLIDED_TRACE;
-        if k.bindings.iter().map(|&(_, name)| name).ne(BINDINGS) {
-            return Err(SolveError::Internal("the emission trace's buffers do not match its kernel's bindings"));
-        }
-
-        let mut objects =
-            Objects { ctx: Arc::clone(ctx), timeline: None, value: 0, set: None, pipeline: None, buffers: Vec::new() };
-        objects.timeline = Some(ctx.create_timeline("emission trace", 0)?);
+        let mut objects = Objects {
+            ctx: Arc::clone(ctx),
+            timeline: Owned::new(ctx, ctx.create_timeline("emission trace", 0)?),
+            value: 0,
+            set: None,
+            pipeline: None,
+            buffers: Vec::new(),
+        };
         let parts: [(&str, &[u8]); 6] = [
             ("trace nodes", bytemuck::cast_slice(&nodes)),
             ("trace children", bytemuck::cast_slice(&children)),
@@ -414,10 +413,11 @@ impl DeviceTrace {
         // SAFETY: the copy was waited for (or never submitted).
         unsafe { ctx.destroy_host_buffer(staging) };
         uploaded?;
-        let pipeline = ctx.create_compute_pipeline(k.name, k.spirv, k.layout_bindings, k.push.size as u32)?;
-        let pipeline = objects.pipeline.insert(pipeline);
-        let ranges: Vec<BufferRange> = objects.buffers.iter().map(BufferRange::from).collect();
-        objects.set = Some(ctx.create_descriptor_set("emission trace", pipeline, &ranges)?);
+        // The kernel table makes both, and refuses buffers named for other bindings than its own.
+        let pipeline = k.pipeline(ctx)?;
+        let named: Vec<(&str, &Buffer)> = BINDINGS.iter().copied().zip(objects.buffers.iter().map(|b| &**b)).collect();
+        let set = k.set(ctx, "emission trace", &pipeline, &named)?;
+        (objects.set, objects.pipeline) = (Some(set), Some(pipeline));
 
         let push = UncollidedPush {
             lo: frame.lo.map(|v| v as i32),

@@ -114,7 +114,8 @@
 //! batch of [`gpu::BATCH_BRICKS`] bricks, 5.2 MB of results (on a CPU implementation, whose
 //! shaders leave loops after 65535 iterations, also each walk's stack, saved between the rounds it
 //! runs in); every buffer must fit the device's `maxStorageBufferRange` (128 MiB on lavapipe: at
-//! most 2²⁵ voxels). Where one does not, where the tree is deeper than the kernel's stack, a
+//! most 2²⁵ voxels), and the dense density with its staging copy half the host memory available.
+//! Where one does not, where the tree is deeper than the kernel's stack, a
 //! voxel's σt·h is beyond 64 or (on lavapipe) the unfolded frame too long for a round, the kernel
 //! declines and the host walks: a log line and the report's note say so (`… on the host, N threads
 //! (the GPU kernel declined: why)`); else the note says `on the GPU (device)`.
