@@ -14,6 +14,9 @@
 //! becomes the peak's chain sum at τ = ln(E*_b/E_b) and multiplies the scaled irradiance E*_b
 //! ([`super::peak`]); its τ = 0 term is the single scattering above. Point lights are scattered
 //! alike, their light arriving at x along x − position (so the phase is evaluated per sample).
+//! Under δ-M the suns' forward lobes join the solved source where they exceed its storage cells'
+//! means towards the camera, bounded by what the source holds towards the sun (`super::peak`,
+//! "The forward lobes"): they travel with it, under the scaled extinction.
 
 use super::peak::{chain_phase, PeakChains};
 use super::RenderInputs;
@@ -161,15 +164,15 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
             // The source per stored channel (1 or 3), blended over the storage directions.
             let bricks = source_bricks(inputs, &corners);
             let source = blended_source(inputs, &blend, last, &corners, &bricks);
+            // Under δ-M, the suns' forward lobes sharpened (per channel; `super::peak`, "The
+            // forward lobes"): added to the solved source, whose bins hold them smeared.
+            let mut lobe_light = [0.0f64; 3];
             // σs·Σ_b p_b·E_b per channel with the true medium (zero without suns to scatter). The
             // product ρ·a·E is taken at the voxel centres and then interpolated, as the solved
             // source σs·E is: an isotropic medium's image is then the one its binned first order
             // gave (the phase is 1/4π either way), where interpolating ρ and E apart brightened
             // the lit limb of a cloud (E is the unattenuated irradiance in the empty voxels next
             // to it) by tens of per cent.
-            // Under δ-M, the suns' forward lobes sharpened (per channel; `super::peak`, "The
-            // forward lobes"): added to the solved source, whose bins hold them smeared.
-            let mut lobe_light = [0.0f64; 3];
             let scattered: [f64; 3] = match &single {
                 None => [0.0; 3],
                 Some((s, phases, excess)) => {
