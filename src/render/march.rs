@@ -197,8 +197,9 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                         // What the solved source holds towards the sun bounds the lobes.
                         let towards_sun =
                             lobe.map(|(l, _)| blended_source(inputs, &l.towards_sun, last, &corners, &bricks));
-                        // Per stored channel (a grey scene's one serves r, g and b).
-                        let mut lobe_k = [0.0; 3];
+                        // Per stored channel (a grey scene's one serves r, g and b): the chain
+                        // sum and the lobes once each.
+                        let (mut phase_k, mut lobe_k) = ([0.0; 3], [0.0; 3]);
                         for (ch, e) in e.iter_mut().enumerate() {
                             let k = if inputs.channels == 1 { 0 } else { ch };
                             let (true_e, scaled_e) = (v[k], scaled[k].max(v[k]));
@@ -206,7 +207,10 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                                 continue;
                             }
                             let tau = if true_e > 0.0 { (scaled_e / true_e).ln() } else { f64::INFINITY };
-                            *e += chains.phase(tau) * scaled_e;
+                            if ch == k {
+                                phase_k[k] = chains.phase(tau);
+                            }
+                            *e += phase_k[k] * scaled_e;
                             if let (Some((lobe, excess)), Some(held), true, true, true) =
                                 (lobe, towards_sun, tau.is_finite(), peak_share[ch] > 0.0, ch == k)
                             {
