@@ -211,6 +211,12 @@ float near_kernel(ivec3 c, float sigma) {
     return exp(l0 + 0.5 * t * (lp - lm) + 0.5 * t * t * (lp - 2.0 * l0 + lm));
 }
 
+// u·C·u, the spread along the unit vector u of a covariance C (xx, yy, zz, xy, xz, yz): `along`.
+float along(vec3 u, float c[6]) {
+    return u.x * u.x * c[0] + u.y * u.y * c[1] + u.z * u.z * c[2]
+        + 2.0 * (u.x * u.y * c[3] + u.x * u.z * c[4] + u.y * u.z * c[5]);
+}
+
 vec3 centre_of(uint n) {
     return vec3(nodes[n].centre[0], nodes[n].centre[1], nodes[n].centre[2]);
 }
@@ -374,9 +380,7 @@ void main() {
                     float rk = sqrt(rk2);
                     tau_mean += w * taus[k];
                     // The child's members deeper or shallower in its own medium (`receive`).
-                    float cv[6] = nodes[child].cov;
-                    float spread_k = u.x * u.x * cv[0] + u.y * u.y * cv[1] + u.z * u.z * cv[2]
-                        + 2.0 * (u.x * u.y * cv[3] + u.x * u.z * cv[4] + u.y * u.z * cv[5]) + 1.0 / 12.0;
+                    float spread_k = along(u, nodes[child].cov) + 1.0 / 12.0;
                     for (uint ch = 0u; ch < 3u; ch++) {
                         float s = nodes[child].sigma[ch];
                         float deeper = 1.0 + spread_k * s * (0.5 * s + 2.0 / rk);
@@ -386,10 +390,9 @@ void main() {
                         inner[m] += w * nodes[child].cov[m];
                     }
                 }
-                float along = u.x * u.x * inner[0] + u.y * u.y * inner[1] + u.z * u.z * inner[2]
-                    + 2.0 * (u.x * u.y * inner[3] + u.x * u.z * inner[4] + u.y * u.z * inner[5]) + 1.0 / 12.0;
+                float spread_along = along(u, inner) + 1.0 / 12.0;
                 float trace = inner[0] + inner[1] + inner[2] + 0.25;
-                float spread_factor = 1.0 + (4.0 * along - trace) / (r * r);
+                float spread_factor = 1.0 + (4.0 * spread_along - trace) / (r * r);
                 float total = 0.0;
                 for (uint ch = 0u; ch < 3u; ch++) {
                     if (ch < pc.channels) {
