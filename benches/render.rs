@@ -5,7 +5,7 @@
 //! sample) and the same cloud isotropic (one storage direction); and the δ-M cloud seen towards the
 //! sun (a 40° pinhole 62 voxels from its centre, `tools/forward_image_table.sh`'s backlit view),
 //! where every ray also sharpens the sun's forward lobes (`lpm::render::peak`, "The forward
-//! lobes": a blended source towards the sun and a sum over the lobes per sample). The solve is set
+//! lobes": a sum over the lobes per sample). The solve is set
 //! up once (CPU twin, two orders: the render's cost does not depend on how converged the source
 //! is); each iteration renders one 256×256 image. Criterion's "elements/s" are pixels per second.
 //!

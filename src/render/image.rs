@@ -82,8 +82,9 @@ pub struct SingleScattering<'a> {
     /// The fields hold the δ-M scaled irradiance too: the light the truncated peak kept in the
     /// beam is scattered towards the camera as well ([`super::peak`]).
     pub peak_chains: bool,
-    /// Per beam, its forward lobes as the storage cells bin them: the light it scatters twice or
-    /// more is moved from the bins to its sharp lobe ([`super::peak::ForwardLobes`]).
+    /// Per beam, its forward lobes and what the solve's storage cells hold of them: the light it
+    /// scatters twice or more, sharpened where the lobe exceeds the cells
+    /// ([`super::peak::ForwardLobes`]).
     pub lobes: Vec<super::peak::ForwardLobes>,
 }
 

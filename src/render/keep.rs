@@ -30,7 +30,7 @@
 //! per light: one f32 per voxel of the occupied bricks and channel (`4·channels·4096` bytes per
 //! occupied brick), twice that under δ-M.
 
-use super::peak::ForwardLobes;
+use super::peak::{peak_share, ForwardLobes};
 use super::{render, Background, DirectBeam, Image, PointSource, RenderInputs, SingleScattering, VoxelFactors};
 use crate::output::{write_json_atomic, OutputError};
 use crate::quadrature::{PropagationSet, StorageBlend, StorageSet};
@@ -534,7 +534,11 @@ pub fn render_solved(
             s.travel
                 .iter()
                 .map(|t| {
-                    ForwardLobes::new(&propagation, &storage, &blend, s.medium.g, DVec3::from_array(*t).normalize())
+                    // δ-M's peak share depends on g alone: any channel that scatters gives it.
+                    let f = (0..3)
+                        .map(|ch| peak_share(s.medium.sigma_t[ch], s.medium.albedo[ch], m.sigma_t[ch]))
+                        .fold(0.0, f64::max);
+                    ForwardLobes::new(&propagation, &storage, s.medium.g, m.g, f, DVec3::from_array(*t).normalize())
                 })
                 .collect()
         } else {

@@ -14,11 +14,11 @@
 //! becomes the peak's chain sum at τ = ln(E*_b/E_b) and multiplies the scaled irradiance E*_b
 //! ([`super::peak`]); its τ = 0 term is the single scattering above. Point lights are scattered
 //! alike, their light arriving at x along x − position (so the phase is evaluated per sample).
-//! Under δ-M the suns' forward lobes join the solved source where they exceed its storage cells'
-//! means towards the camera, bounded by what the source holds towards the sun (`super::peak`,
-//! "The forward lobes"): they travel with it, under the scaled extinction.
+//! Under δ-M the suns' forward lobes join the single scattering where they exceed what the solve's
+//! storage cells hold of them towards the camera (`super::peak`, "The forward lobes"), and travel
+//! with it under the true extinction.
 
-use super::peak::{chain_phase, PeakChains};
+use super::peak::{chain_phase, peak_share, PeakChains};
 use super::RenderInputs;
 use crate::quadrature::Blend;
 use crate::store::{Field, BRICK_VOXELS};
@@ -128,14 +128,9 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
         // δ-M's peak share f per channel, from the scaled extinction σt* = σt·(1 − a·f): the
         // peak's depth τₚ = ln(E*/E) is f times the scattering depth τₛ.
         let peak_share: [f64; 3] = match &single {
-            Some((s, _, _)) => std::array::from_fn(|ch| {
-                let (true_t, a) = (s.medium.sigma_t[ch], s.medium.albedo[ch]);
-                if true_t > 0.0 && a > 0.0 {
-                    (1.0 - m.sigma_t[ch] / true_t) / a
-                } else {
-                    0.0
-                }
-            }),
+            Some((s, _, _)) => {
+                std::array::from_fn(|ch| peak_share(s.medium.sigma_t[ch], s.medium.albedo[ch], m.sigma_t[ch]))
+            }
             None => [0.0; 3],
         };
         // Under δ-M the march attenuates the solved source with the scaled extinction; the exact
@@ -164,9 +159,6 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
             // The source per stored channel (1 or 3), blended over the storage directions.
             let bricks = source_bricks(inputs, &corners);
             let source = blended_source(inputs, &blend, last, &corners, &bricks);
-            // Under δ-M, the suns' forward lobes sharpened (per channel; `super::peak`, "The
-            // forward lobes"): added to the solved source, whose bins hold them smeared.
-            let mut lobe_light = [0.0f64; 3];
             // σs·Σ_b p_b·E_b per channel with the true medium (zero without suns to scatter). The
             // product ρ·a·E is taken at the voxel centres and then interpolated, as the solved
             // source σs·E is: an isotropic medium's image is then the one its binned first order
@@ -181,7 +173,7 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                     let mut e = [0.0; 3];
                     for (b, (beam, chains)) in s.beams.iter().zip(phases).enumerate() {
                         // (No lobes without δ-M: `lobes` and `excess` are then empty.)
-                        let lobe = s.lobes.get(b).zip(excess.get(b).filter(|x| !x.is_empty()));
+                        let lobe = excess.get(b).filter(|x| !x.is_empty());
                         let v = sample_channels(beam.irradiance, 0, inputs.channels, &corners, &weights);
                         if !s.peak_chains {
                             let p = chains.single_phase();
@@ -194,11 +186,10 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                         // optical depth along the sun's path (∞ where E underflowed and E* did not).
                         let scaled =
                             sample_channels(beam.irradiance, inputs.channels, inputs.channels, &corners, &weights);
-                        // What the solved source holds towards the sun bounds the lobes.
-                        let towards_sun =
-                            lobe.map(|(l, _)| blended_source(inputs, &l.towards_sun, last, &corners, &bricks));
                         // Per stored channel (a grey scene's one serves r, g and b): the chain
-                        // sum and the lobes once each.
+                        // sum and, under δ-M, the forward lobes' excess over the solve's bins
+                        // (`super::peak`, "The forward lobes") once each. Both travel to the
+                        // camera with the true extinction.
                         let (mut phase_k, mut lobe_k) = ([0.0; 3], [0.0; 3]);
                         for (ch, e) in e.iter_mut().enumerate() {
                             let k = if inputs.channels == 1 { 0 } else { ch };
@@ -209,17 +200,11 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                             let tau = if true_e > 0.0 { (scaled_e / true_e).ln() } else { f64::INFINITY };
                             if ch == k {
                                 phase_k[k] = chains.phase(tau);
+                                if let (Some(excess), true, true) = (lobe, tau.is_finite(), peak_share[ch] > 0.0) {
+                                    lobe_k[k] = s.lobes[b].light(excess, true_e, tau / peak_share[ch], tau);
+                                }
                             }
-                            *e += phase_k[k] * scaled_e;
-                            if let (Some((lobe, excess)), Some(held), true, true, true) =
-                                (lobe, towards_sun, tau.is_finite(), peak_share[ch] > 0.0, ch == k)
-                            {
-                                let sigma_s = s.medium.sigma_t[ch] * s.medium.albedo[ch];
-                                let (added, binned) = lobe.light(excess, true_e, tau / peak_share[ch], tau);
-                                let bound = held[k] / sigma_s;
-                                lobe_k[k] = if binned > bound { added * bound / binned } else { added };
-                            }
-                            lobe_light[ch] += lobe_k[k];
+                            *e += phase_k[k] * scaled_e + lobe_k[k];
                         }
                     }
                     // The point lights: their light reaches x travelling from the light to x.
@@ -248,16 +233,13 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                             *e += chain_phase(s.medium.g, mu, tau) * scaled_e;
                         }
                     }
-                    for (ch, l) in lobe_light.iter_mut().enumerate() {
-                        *l *= s.medium.sigma_t[ch] * s.medium.albedo[ch];
-                    }
                     std::array::from_fn(|ch| s.medium.sigma_t[ch] * s.medium.albedo[ch] * e[ch])
                 }
             };
             for ch in 0..3 {
                 let sigma_t = density * m.sigma_t[ch];
                 let sigma_a = sigma_t * (1.0 - m.albedo[ch] * albedo);
-                let j = source[if inputs.channels == 1 { 0 } else { ch }] + lobe_light[ch];
+                let j = source[if inputs.channels == 1 { 0 } else { ch }];
                 let mut q = j + sigma_a * m.emission[ch] * glow[ch];
                 if !apart {
                     q += scattered[ch];

@@ -15,8 +15,8 @@
 //! the silver lining of a cloud seen towards the sun, is far narrower than a storage cell and is
 //! truncated by δ-M in the solve. Under δ-M the light the truncated peak kept in the sun's beam
 //! is scattered towards the camera there too, by chains of peak scatterings, and the sun's light
-//! scattered more than once but still near its direction is sharpened from the storage cells'
-//! means into its forward lobes ([`peak`]). What the camera sees
+//! scattered more than once but still near its direction is sharpened from what the storage
+//! cells hold of it into its forward lobes ([`peak`]). What the camera sees
 //! beyond the volume is the sky's uniform radiance plus the environment map's pixel in the ray's
 //! direction.
 //!
