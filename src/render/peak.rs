@@ -71,7 +71,8 @@
 //! Lobes broader than HG(0.05) are left to the bins, which hold their shape. Against the
 //! Monte-Carlo reference (`tools/forward_image_table.sh`, benches/RESULTS.md) the backlit clouds
 //! come within 5–6 % (g = 0.8) and 8 % (g = 0.95), from 17 % and 29–39 % with the chains alone;
-//! side- and front-lit views are unchanged (no lobe exceeds what the cells hold there). Only under
+//! side- and front-lit views are unchanged to the digit (away from the sun only the broadest lobes
+//! exceed what the cells hold, by under 1 % of their value). Only under
 //! δ-M (the default for a forward-scattering medium): without it the render has no peak depth to
 //! take τₛ from, and `forward_peak = "keep"` renders as before.
 
