@@ -531,13 +531,13 @@ pub fn render_solved(
         peak_chains: s.peak_chains,
         // Only under δ-M: the lobes' amounts come from the scaled irradiance's peak depth.
         lobes: if s.peak_chains {
+            // δ-M's peak share depends on g alone: any channel that scatters gives it.
+            let f = (0..3)
+                .map(|ch| peak_share(s.medium.sigma_t[ch], s.medium.albedo[ch], m.sigma_t[ch]))
+                .fold(0.0, f64::max);
             s.travel
                 .iter()
                 .map(|t| {
-                    // δ-M's peak share depends on g alone: any channel that scatters gives it.
-                    let f = (0..3)
-                        .map(|ch| peak_share(s.medium.sigma_t[ch], s.medium.albedo[ch], m.sigma_t[ch]))
-                        .fold(0.0, f64::max);
                     ForwardLobes::new(&propagation, &storage, s.medium.g, m.g, f, DVec3::from_array(*t).normalize())
                 })
                 .collect()

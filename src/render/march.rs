@@ -18,7 +18,7 @@
 //! storage cells hold of them towards the camera (`super::peak`, "The forward lobes"), and travel
 //! with it under the true extinction.
 
-use super::peak::{chain_phase, peak_share, PeakChains};
+use super::peak::{chain_phase, PeakChains};
 use super::RenderInputs;
 use crate::quadrature::Blend;
 use crate::store::{Field, BRICK_VOXELS};
@@ -125,14 +125,6 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
             let excess: Vec<Vec<f64>> = s.lobes.iter().map(|l| l.excess(-dir, &blend)).collect();
             (s, phases, excess)
         });
-        // δ-M's peak share f per channel, from the scaled extinction σt* = σt·(1 − a·f): the
-        // peak's depth τₚ = ln(E*/E) is f times the scattering depth τₛ.
-        let peak_share: [f64; 3] = match &single {
-            Some((s, _, _)) => {
-                std::array::from_fn(|ch| peak_share(s.medium.sigma_t[ch], s.medium.albedo[ch], m.sigma_t[ch]))
-            }
-            None => [0.0; 3],
-        };
         // Under δ-M the march attenuates the solved source with the scaled extinction; the exact
         // single scattering travels to the camera with the true one.
         let apart = single.as_ref().is_some_and(|(s, _, _)| s.medium.sigma_t != m.sigma_t);
@@ -200,8 +192,10 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                             let tau = if true_e > 0.0 { (scaled_e / true_e).ln() } else { f64::INFINITY };
                             if ch == k {
                                 phase_k[k] = chains.phase(tau);
-                                if let (Some(excess), true, true) = (lobe, tau.is_finite(), peak_share[ch] > 0.0) {
-                                    lobe_k[k] = s.lobes[b].light(excess, true_e, tau / peak_share[ch], tau);
+                                // (Lobes exist only with a peak share f > 0: τₛ = τ/f.)
+                                if let (Some(excess), true) = (lobe, tau.is_finite()) {
+                                    let lobes = &s.lobes[b];
+                                    lobe_k[k] = lobes.light(excess, true_e, tau / lobes.peak_share(), tau);
                                 }
                             }
                             *e += phase_k[k] * scaled_e + lobe_k[k];

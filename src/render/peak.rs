@@ -146,6 +146,8 @@ pub struct ForwardLobes {
     /// Per lobe n, the share of its light that met m = 1..=n remainder scatterings (binomial in
     /// the remainder's share 1 − f, given at least one).
     remainder_mix: Vec<Vec<f64>>,
+    /// δ-M's peak share f: the scattering depth is the peak's depth over f.
+    peak_share: f64,
 }
 
 impl ForwardLobes {
@@ -162,7 +164,6 @@ impl ForwardLobes {
         travel: DVec3,
     ) -> Self {
         let (mut gs, mut solved_rows, mut remainder_mix) = (Vec::new(), Vec::new(), Vec::new());
-        let cell_means = |g: f64| BeamRows::new(prop, storage, &Phase::HenyeyGreenstein { g }).row(travel);
         if !storage.is_isotropic() && g > 0.0 && peak_share > 0.0 && peak_share < 1.0 {
             let mut gn = g * g;
             while gn >= BROAD_LOBE && gs.len() < MOST_TERMS {
@@ -171,7 +172,7 @@ impl ForwardLobes {
             }
             let mut gm = solved_g * solved_g;
             while gm >= BROAD_LOBE && solved_rows.len() < gs.len() {
-                solved_rows.push(cell_means(gm));
+                solved_rows.push(BeamRows::new(prop, storage, &Phase::HenyeyGreenstein { g: gm }).row(travel));
                 gm *= solved_g;
             }
             let f = peak_share;
@@ -187,7 +188,13 @@ impl ForwardLobes {
                 remainder_mix.push(mix);
             }
         }
-        ForwardLobes { travel, gs, solved_rows, remainder_mix }
+        ForwardLobes { travel, gs, solved_rows, remainder_mix, peak_share }
+    }
+
+    /// δ-M's peak share f the lobes were built for (the peak's depth τₚ is f times the
+    /// scattering depth τₛ).
+    pub fn peak_share(&self) -> f64 {
+        self.peak_share
     }
 
     /// Whether there is any lobe to sharpen.

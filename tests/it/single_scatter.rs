@@ -151,7 +151,8 @@ fn the_single_scattering_of_a_slab_under_a_sun_matches_the_closed_form_in_the_fo
     };
     // The forward lobes' excess over what the solve's cells hold towards the camera (the same
     // all along the ray), from the medium the solve ran with.
-    let (prop, storage) = (PropagationSet::new(4), StorageSet::per_face(&PropagationSet::new(4), 2));
+    let prop = PropagationSet::new(kept.data.directions_per_face);
+    let storage = StorageSet::per_face(&prop, kept.data.storage_per_face);
     let f = peak_share(sigma_t, albedo, scaled_t);
     let lobes = ForwardLobes::new(&prop, &storage, g, kept.data.medium.g, f, -DVec3::Z);
     let towards = -DVec3::new(theta.sin(), 0.0, mu);
