@@ -633,15 +633,35 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, observer: &mut impl Observ
     let split = if !job.no_render_data || !job.no_image {
         let split = solver::direct::split(&plan, &scene.medium, &store, &fields.source_total)?;
         match (&split, solver::direct::left_out_because(&plan)) {
-            (Some(s), _) => plan.reasons.push(format!(
-                "image: the single scattering of {} sun(s) and {} point light(s) is evaluated exactly along each \
-                 camera ray (true σs, HG g = {}, true extinction{}), their binned first scattering taken off the \
-                 image's source (not off the exported source)",
-                s.travel.len(),
-                s.points.len(),
-                scene.medium.g,
-                if s.peak_chains { "; the light δ-M kept in their beams by the forward peak's chains" } else { "" }
-            )),
+            (Some(s), _) => {
+                let irradiance = match s.irradiance {
+                    solver::direct::BeamIrradiance::NoBeams => String::new(),
+                    solver::direct::BeamIrradiance::Traced { seconds } => {
+                        format!("; the suns' irradiance traced per voxel along their exact direction ({seconds:.3} s)")
+                    }
+                    solver::direct::BeamIrradiance::Swept { steps } => format!(
+                        "; the suns' irradiance is order 0's sweep's (tracing it per voxel would take ~{steps} steps, \
+                         more than {})",
+                        solver::beam_trace::TRACE_LIMIT_STEPS
+                    ),
+                };
+                if let solver::direct::BeamIrradiance::Swept { .. } = s.irradiance {
+                    tracing::info!("image: the suns' irradiance is not traced per voxel{irradiance}");
+                }
+                plan.reasons.push(format!(
+                    "image: the single scattering of {} sun(s) and {} point light(s) is evaluated exactly along \
+                     each camera ray (true σs, HG g = {}, true extinction{}{irradiance}), their binned first \
+                     scattering taken off the image's source (not off the exported source)",
+                    s.travel.len(),
+                    s.points.len(),
+                    scene.medium.g,
+                    if s.peak_chains {
+                        "; the light δ-M kept in their beams by the forward peak's chains"
+                    } else {
+                        ""
+                    }
+                ))
+            }
             (None, Some(why)) if !plan.beams.is_empty() || !plan.point_lights.is_empty() => {
                 tracing::info!("image: the suns' single scattering is not split off: {why}");
                 plan.reasons.push(format!("image: the suns' single scattering is not split off: {why}"));

@@ -26,11 +26,14 @@
 //! emission's first scattering). The exported `source` is not touched: only the image's copy is.
 //!
 //! **What the renderer adds.** Per beam, the uncollided irradiance E_b(v) attenuated by the
-//! scene's **true** extinction (a second host sweep with the unscaled medium when the plan applies
-//! δ-M; the same sweep otherwise), kept in `render-data/` in bricks; along a camera ray the
+//! scene's **true** extinction, traced per voxel along the beam's exact direction
+//! ([`super::beam_trace`]: the sweep's staircase is too coarse at the edge of a cloud's shadow,
+//! which is its rim seen towards the sun; past the trace's step limit, a second host sweep with
+//! the unscaled medium, as before), kept in `render-data/` in bricks; along a camera ray the
 //! renderer adds `σs(x)·p_HG(g; ω_b·ω_camera)·E_b(x)` with the true σs and the scene's g,
 //! attenuated towards the camera by the true extinction ([`crate::render::march`]). Under δ-M the
-//! field also keeps the scaled irradiance E*_b the solve swept: the light E*_b − E_b that the
+//! field also keeps the scaled irradiance E*_b (the extinction the solve swept with, traced alike):
+//! the light E*_b − E_b that the
 //! truncated forward peak deflected and kept in the beam, whose first scattering was taken off
 //! with the rest, is scattered towards the camera by the renderer too, with the peak's chains
 //! ([`crate::render::peak`]); without it a camera looking towards the sun through a
@@ -49,6 +52,7 @@ use super::SolveError;
 use crate::scene::Medium;
 use crate::store::{BrickGrid, BrickStore, Coverage, Field, BRICK_EDGE, BRICK_VOXELS};
 use glam::DVec3;
+use std::time::Instant;
 
 /// Most bytes the host sweeps' dense arrays (density, irradiance) may take: beyond, the split is
 /// left out (the CPU twin's own limit is larger, but this runs beside a GPU solve's host fields).
@@ -80,6 +84,20 @@ pub struct DirectSplit {
     /// The plan applied δ-M: each field also holds the scaled irradiance, from which the renderer
     /// scatters the light the forward peak kept in the beam ([`crate::render::peak`]).
     pub peak_chains: bool,
+    /// How the beams' irradiance for the image was made.
+    pub irradiance: BeamIrradiance,
+}
+
+/// How [`split`] made the beams' irradiance the image scatters.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum BeamIrradiance {
+    /// No sun: only point lights (traced by [`super::point`] in any case).
+    NoBeams,
+    /// Traced per voxel along each beam ([`super::beam_trace`]), in this many seconds in all.
+    Traced { seconds: f64 },
+    /// Order 0's sweep's: tracing would have taken about this many DDA steps, more than
+    /// [`super::beam_trace::TRACE_LIMIT_STEPS`].
+    Swept { steps: u64 },
 }
 
 /// Why the split was left out, for the plan's reasons; `None` when it can be made.
@@ -95,7 +113,8 @@ pub fn left_out_because(plan: &Plan) -> Option<String> {
         );
     }
     let voxels: u64 = plan.dims.iter().map(|&d| u64::from(d)).product();
-    let bytes = voxels.saturating_mul(1 + u64::from(plan.channels)).saturating_mul(8);
+    // Density, one sweep's irradiance and the image's (true and scaled), f64 per voxel.
+    let bytes = voxels.saturating_mul(1 + 3 * u64::from(plan.channels)).saturating_mul(8);
     if bytes > HOST_LIMIT_BYTES {
         return Some(format!(
             "the host sweep of the beams would need {} MiB (more than {} MiB): the image's source keeps the \
@@ -135,6 +154,18 @@ pub fn split(
     let mut render_source = store.create_field(RENDER_SOURCE, comps as u32, Coverage::Occupied)?;
     render_source.copy_from(source_total)?;
     let mut fields = Vec::with_capacity(plan.beams.len());
+    // Whether the beams' irradiance for the image is traced exactly (`super::beam_trace`).
+    let steps = super::beam_trace::estimated_steps(plan.dims, &density).saturating_mul(plan.beams.len() as u64);
+    // The swept path's test hook (tests/it/single_scatter.rs): only in `test-hooks` builds.
+    #[cfg(feature = "test-hooks")]
+    let limit = std::env::var("LPM_TEST_TRACE_LIMIT_STEPS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(super::beam_trace::TRACE_LIMIT_STEPS);
+    #[cfg(not(feature = "test-hooks"))]
+    let limit = super::beam_trace::TRACE_LIMIT_STEPS;
+    let traced = steps <= limit;
+    let mut trace_seconds = 0.0;
     let mut irradiance = vec![0.0f64; voxels * c];
     // σs per channel at density 1, as the collect step multiplies it.
     let coefficients: Vec<f64> = (0..c).map(|ch| plan.coefficients(ch).1).collect();
@@ -167,28 +198,39 @@ pub fn split(
                 }
             });
         }
-        // The true-extinction irradiance the renderer scatters exactly; under δ-M the scaled one
-        // the solve swept is kept beside it (the peak's chains, `crate::render::peak`).
-        let scaled = match &true_plan {
-            Some(true_plan) => {
-                let swept = irradiance.clone();
-                sweep_beam(true_plan, beam, &density, &occupied, &mut irradiance);
-                Some(swept)
+        // The image's irradiance per voxel, `[voxel][component]`: the true extinction's per
+        // channel, which the renderer scatters exactly, then under δ-M the scaled one the solve
+        // swept (the peak's chains, `crate::render::peak`). Traced along the beam
+        // (`super::beam_trace`), or the sweep's where that would take too long.
+        let passes: Vec<&Plan> = true_plan.iter().chain([plan]).collect();
+        let components = passes.len() * c;
+        let mut image_irradiance = vec![0.0f64; voxels * components];
+        if traced {
+            let t = Instant::now();
+            let sigma: Vec<f64> =
+                passes.iter().flat_map(|p| (0..c).map(|ch| p.coefficients(ch).0 * p.voxel_size)).collect();
+            let boundary: Vec<f64> = passes.iter().flat_map(|_| beam.boundary[..c].iter().copied()).collect();
+            super::beam_trace::trace_beam(plan.dims, &density, beam.omega, &boundary, &sigma, &mut image_irradiance);
+            trace_seconds += t.elapsed().as_secs_f64();
+        } else {
+            // The plan's own last: `irradiance` holds its sweep already (taken off above).
+            for (pass, p) in passes.iter().enumerate().rev() {
+                if !std::ptr::eq(*p, plan) {
+                    sweep_beam(p, beam, &density, &occupied, &mut irradiance);
+                }
+                for (i, e) in irradiance.chunks(c).enumerate() {
+                    image_irradiance[i * components + pass * c..][..c].copy_from_slice(e);
+                }
             }
-            None => None,
-        };
-        let components = if scaled.is_some() { 2 * c } else { c };
+        }
         let mut field = store.create_field(&irradiance_field_name(b), components as u32, Coverage::Occupied)?;
         for brick in store.occupied_bricks().collect::<Vec<_>>() {
             let origin = grid.brick_origin(grid.brick_coords(brick));
             let Some(out) = field.brick_mut(brick) else { continue };
             for_each_local(&grid, brick, |local, l| {
                 let i = index([origin[0] + l[0], origin[1] + l[1], origin[2] + l[2]]);
-                for ch in 0..c {
-                    out[ch * BRICK_VOXELS + local] = irradiance[i * c + ch] as f32;
-                    if let Some(swept) = &scaled {
-                        out[(c + ch) * BRICK_VOXELS + local] = swept[i * c + ch] as f32;
-                    }
+                for k in 0..components {
+                    out[k * BRICK_VOXELS + local] = image_irradiance[i * components + k] as f32;
                 }
             });
         }
@@ -208,6 +250,13 @@ pub fn split(
         fields,
         medium: medium.clone(),
         peak_chains: true_plan.is_some(),
+        irradiance: if plan.beams.is_empty() {
+            BeamIrradiance::NoBeams
+        } else if traced {
+            BeamIrradiance::Traced { seconds: trace_seconds }
+        } else {
+            BeamIrradiance::Swept { steps }
+        },
     }))
 }
 

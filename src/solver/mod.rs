@@ -20,13 +20,14 @@
 //! - [`point`] computes point lights' uncollided light exactly on the host and writes it, with its
 //!   first scattering, into order 0's fields (before order 0, and only in a fresh solve);
 //! - [`direct`] splits the suns' first scattering off the source an image is made from (the
-//!   renderer evaluates it exactly);
+//!   renderer evaluates it exactly, from the suns' irradiance [`beam_trace`] traces per voxel);
 //! - [`progress_lines`] logs long stretches of work (a GPU order, the emission's trace) now and then;
 //! - [`warm`] starts a solve from a guess (the previous frame's solution) and still converges to
 //!   the cold solve's answer.
 
 pub mod acceleration;
 pub mod antidiffusion;
+pub mod beam_trace;
 pub mod cancel;
 pub mod cpu;
 mod cpu_sweep;
