@@ -10,7 +10,7 @@
 //! |---|---|
 //! | `bricks.json`, `density.bricks` | the brick store's table and density (see [`crate::store`]) |
 //! | `source.field` | the in-scattered source summed over orders, in brick form, less the suns' first scattering where the renderer evaluates it exactly (below) |
-//! | `direct_<b>.field` | sun b's uncollided irradiance per voxel, true extinction, then (δ-M solves) the scaled one the solve swept (one per sun, see [`SingleScatteringData`]) |
+//! | `direct_<b>.field` | sun b's uncollided irradiance per voxel, true extinction, then (δ-M solves) the scaled one, the solve's extinction (one per sun, see [`SingleScatteringData`]); traced along the sun ([`crate::solver::beam_trace`], 0 where the density is 0) or, past the trace's limit, the sweep's |
 //! | `environment.exr` | the scene's environment map, when it has one (the background) |
 //! | `render.json` | [`RenderData`]: everything else, written last |
 //!

@@ -32,12 +32,11 @@
 //! the unscaled medium, as before), kept in `render-data/` in bricks; along a camera ray the
 //! renderer adds `σs(x)·p_HG(g; ω_b·ω_camera)·E_b(x)` with the true σs and the scene's g,
 //! attenuated towards the camera by the true extinction ([`crate::render::march`]). Under δ-M the
-//! field also keeps the scaled irradiance E*_b (the extinction the solve swept with, traced alike):
-//! the light E*_b − E_b that the
-//! truncated forward peak deflected and kept in the beam, whose first scattering was taken off
-//! with the rest, is scattered towards the camera by the renderer too, with the peak's chains
-//! ([`crate::render::peak`]); without it a camera looking towards the sun through a
-//! forward-scattering cloud misses much of its light.
+//! field also keeps the scaled irradiance E*_b (the extinction the solve swept with, traced
+//! alike): the light E*_b − E_b that the truncated forward peak deflected and kept in the beam,
+//! whose first scattering was taken off with the rest, is scattered towards the camera by the
+//! renderer too, with the peak's chains ([`crate::render::peak`]); without it a camera looking
+//! towards the sun through a forward-scattering cloud misses much of its light.
 //!
 //! The split is left out (the image is made from the whole source total, as before) where the
 //! beams are swept with more than order 0's boundary light: periodic axes carry a beam's light
@@ -199,8 +198,8 @@ pub fn split(
             });
         }
         // The image's irradiance per voxel, `[voxel][component]`: the true extinction's per
-        // channel, which the renderer scatters exactly, then under δ-M the scaled one the solve
-        // swept (the peak's chains, `crate::render::peak`). Traced along the beam
+        // channel, which the renderer scatters exactly, then under δ-M the scaled extinction's
+        // (the peak's chains, `crate::render::peak`). Traced along the beam
         // (`super::beam_trace`), or the sweep's where that would take too long.
         let passes: Vec<&Plan> = true_plan.iter().chain([plan]).collect();
         let components = passes.len() * c;
