@@ -639,15 +639,16 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, observer: &mut impl Observ
                     solver::direct::BeamIrradiance::Traced { seconds } => {
                         format!("; the suns' irradiance traced per voxel along their exact direction ({seconds:.3} s)")
                     }
-                    solver::direct::BeamIrradiance::Swept { steps } => format!(
-                        "; the suns' irradiance is order 0's sweep's (tracing it per voxel would take ~{steps} steps, \
-                         more than {})",
-                        solver::beam_trace::TRACE_LIMIT_STEPS
-                    ),
+                    solver::direct::BeamIrradiance::Swept { steps } => {
+                        let why = format!(
+                            "; the suns' irradiance is order 0's sweep's (tracing it per voxel would take ~{steps} \
+                             steps, more than {})",
+                            solver::beam_trace::TRACE_LIMIT_STEPS
+                        );
+                        tracing::info!("image: the suns' irradiance is not traced per voxel{why}");
+                        why
+                    }
                 };
-                if let solver::direct::BeamIrradiance::Swept { .. } = s.irradiance {
-                    tracing::info!("image: the suns' irradiance is not traced per voxel{irradiance}");
-                }
                 plan.reasons.push(format!(
                     "image: the single scattering of {} sun(s) and {} point light(s) is evaluated exactly along \
                      each camera ray (true σs, HG g = {}, true extinction{}{irradiance}), their binned first \

@@ -34,6 +34,7 @@
 //! 0.41 s, beside 22 s for one order of its solve.
 
 use super::point::optical_path;
+use super::segment::e1;
 use glam::DVec3;
 use rayon::prelude::*;
 
@@ -74,9 +75,8 @@ pub fn trace_beam(dims: [u32; 3], density: &[f64], travel: DVec3, boundary: &[f6
         let to_centre = optical_path(dims, &rho_at, centre, centre - travel * beyond);
         let entry = (to_centre - 0.5 * rho * chord).max(0.0);
         for ((value, &b), &s) in values.iter_mut().zip(boundary).zip(sigma) {
-            let inside = s * rho * chord;
-            let average = if inside > 0.0 { -(-inside).exp_m1() / inside } else { 1.0 };
-            *value = b * (-s * entry).exp() * average;
+            // The chord's average of e^{−σ·ρ·u} over its length: the sweep's own segment average.
+            *value = b * (-s * entry).exp() * e1(s * rho * chord);
         }
     });
 }
