@@ -535,12 +535,8 @@ pub fn render_solved(
             let f = (0..3)
                 .map(|ch| peak_share(s.medium.sigma_t[ch], s.medium.albedo[ch], m.sigma_t[ch]))
                 .fold(0.0, f64::max);
-            s.travel
-                .iter()
-                .map(|t| {
-                    ForwardLobes::new(&propagation, &storage, s.medium.g, m.g, f, DVec3::from_array(*t).normalize())
-                })
-                .collect()
+            let travels: Vec<DVec3> = s.travel.iter().map(|t| DVec3::from_array(*t).normalize()).collect();
+            ForwardLobes::for_suns(&propagation, &storage, s.medium.g, m.g, f, &travels)
         } else {
             Vec::new()
         },

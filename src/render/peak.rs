@@ -52,10 +52,13 @@
 //!   remainder scatterings (the peak ones pass straight on), each with the remainder phase of mean
 //!   cosine g̃ (`render.json`'s medium g), and scatters towards the camera with it once more. Of
 //!   lobe n's light, the share that met m = 1..=n remainder scatterings is binomial in 1 − f
-//!   (given at least one), and the solve holds that share with the shape HG(g̃^{m+1}) binned:
-//!   `heldₙ = Σₘ βₙₘ·binned HG(g̃^{m+1})`. (The lobe's own cell mean, binned HG(g^{n+1}), is
-//!   sharper than what the solve holds: taken as the threshold, a slab towards the sun came out
-//!   5–14 % dark.)
+//!   (given at least one), and the solve holds that share with the shape its own m + 1
+//!   scatterings give it: `heldₙ = Σₘ βₙₘ·rowₘ`, rowₘ the beam's binned first scattering passed
+//!   m times more through the solve's collect matrix ([`SolvedScattering`]; each pass from cell to
+//!   cell widens it more than the continuous HG(g̃^{m+1}) binned once, and towards the sun it is
+//!   lower: with that as the threshold the lobes came out some 15 % short). (The lobe's own cell
+//!   mean, binned HG(g^{n+1}), is sharper still than what the solve holds: taken as the
+//!   threshold, a slab towards the sun came out 5–14 % dark.)
 //! - **The lobes travel to the camera with the true extinction**, as the single scattering does,
 //!   not with the solved source's scaled one. Under δ-M a peak scattering on the way leaves light
 //!   where it was, which is right for the smooth binned source but not for a sharp lobe: each peak
@@ -69,14 +72,15 @@
 //!   zero-sum reshaping) made a side-lit g = 0.8 cloud 1.6 % darker against the reference.
 //!
 //! Lobes broader than HG(0.05) are left to the bins, which hold their shape. Against the
-//! Monte-Carlo reference (`tools/forward_image_table.sh`, benches/RESULTS.md) the backlit clouds
-//! come within 5–6 % (g = 0.8) and 8 % (g = 0.95), from 17 % and 29–39 % with the chains alone;
+//! Monte-Carlo reference (`tools/forward_image_table.sh`, benches/RESULTS.md; with the suns'
+//! irradiance traced, [`crate::solver::beam_trace`]) the backlit clouds come within 3.1–4.4 %
+//! (g = 0.8) and 4.8–5.4 % (g = 0.95), from 17 % and 29–39 % with the chains alone;
 //! side- and front-lit views are unchanged to the digit (away from the sun only the broadest lobes
 //! exceed what the cells hold, by under 1 % of their value). Only under
 //! δ-M (the default for a forward-scattering medium): without it the render has no peak depth to
 //! take τₛ from, and `forward_peak = "keep"` renders as before.
 
-use crate::quadrature::phase::{henyey_greenstein, BeamRows, Phase};
+use crate::quadrature::phase::{collect_matrix, henyey_greenstein, BeamRows, Phase, Truncation};
 use crate::quadrature::{Blend, PropagationSet, StorageSet};
 use glam::DVec3;
 use std::f64::consts::PI;
@@ -140,8 +144,8 @@ pub struct ForwardLobes {
     /// HG parameter per lobe: g², g³, …
     gs: Vec<f64>,
     /// The solve's shape after m = 1, 2, … remainder scatterings and the remainder scattering
-    /// towards the camera, HG(g̃^{m+1}), as its mean over each storage cell (1/sr); past the last
-    /// row, isotropic.
+    /// towards the camera, as the solve's own cell-to-cell scattering makes it
+    /// ([`SolvedScattering`]), per storage cell (1/sr); past the last row, isotropic.
     solved_rows: Vec<Vec<f64>>,
     /// Per lobe n, the share of its light that met m = 1..=n remainder scatterings (binomial in
     /// the remainder's share 1 − f, given at least one).
@@ -163,17 +167,27 @@ impl ForwardLobes {
         peak_share: f64,
         travel: DVec3,
     ) -> Self {
-        let (mut gs, mut solved_rows, mut remainder_mix) = (Vec::new(), Vec::new(), Vec::new());
-        if !storage.is_isotropic() && g > 0.0 && peak_share > 0.0 && peak_share < 1.0 {
+        Self::for_suns(prop, storage, g, solved_g, peak_share, &[travel]).remove(0)
+    }
+
+    /// [`new`](Self::new) for every sun's direction of travel, with the solve's scattering
+    /// between its cells rebuilt once for all.
+    pub fn for_suns(
+        prop: &PropagationSet,
+        storage: &StorageSet,
+        g: f64,
+        solved_g: f64,
+        peak_share: f64,
+        travels: &[DVec3],
+    ) -> Vec<Self> {
+        let lobed = !storage.is_isotropic() && g > 0.0 && peak_share > 0.0 && peak_share < 1.0;
+        let mut gs = Vec::new();
+        let mut remainder_mix = Vec::new();
+        if lobed {
             let mut gn = g * g;
             while gn >= BROAD_LOBE && gs.len() < MOST_TERMS {
                 gs.push(gn);
                 gn *= g;
-            }
-            let mut gm = solved_g * solved_g;
-            while gm >= BROAD_LOBE && solved_rows.len() < gs.len() {
-                solved_rows.push(BeamRows::new(prop, storage, &Phase::HenyeyGreenstein { g: gm }).row(travel));
-                gm *= solved_g;
             }
             let f = peak_share;
             for n in 1..=gs.len() {
@@ -188,7 +202,25 @@ impl ForwardLobes {
                 remainder_mix.push(mix);
             }
         }
-        ForwardLobes { travel, gs, solved_rows, remainder_mix, peak_share }
+        // The solve's shapes HG(g̃^{m+1}) are kept while g̃^{m+1} is at least BROAD_LOBE, and
+        // for no more remainder counts than the lobes have.
+        let mut rows = 0;
+        let mut gm = solved_g * solved_g;
+        while lobed && gm >= BROAD_LOBE && rows < gs.len() {
+            rows += 1;
+            gm *= solved_g;
+        }
+        let solve = (rows > 0).then(|| SolvedScattering::new(prop, storage, g, solved_g));
+        travels
+            .iter()
+            .map(|&travel| ForwardLobes {
+                travel,
+                gs: gs.clone(),
+                solved_rows: solve.as_ref().map_or_else(Vec::new, |s| s.rows(prop, storage, travel, rows)),
+                remainder_mix: remainder_mix.clone(),
+                peak_share,
+            })
+            .collect()
     }
 
     /// δ-M's peak share f the lobes were built for (the peak's depth τₚ is f times the
@@ -238,6 +270,55 @@ impl ForwardLobes {
             added += (ws - wp).max(0.0) * x;
         }
         added
+    }
+}
+
+/// The solve's scattering between its direction cells, rebuilt from the render data: δ-M's
+/// truncation of the scene's g for the same direction sets ([`Truncation::for_sets`], which the
+/// solve's plan ran) and its collect matrix. A solve scatters light that has left the sun's beam
+/// from cell to cell: each propagation direction takes the source of the storage cell that owns
+/// it, and the collect matrix bins its scattering into the storage cells again. Each pass widens
+/// the light more than the continuous convolution would (HG(g̃) ⊛ HG(g̃) = HG(g̃²) binned once),
+/// so towards the sun the solve holds less of the forward-scattered light than binned HG(g̃^{m+1})
+/// says; taking that as the threshold left the lobes some 15 % short (backlit clouds 0.7–1.2 points
+/// further from Monte Carlo, benches/RESULTS.md).
+struct SolvedScattering {
+    phase: Phase,
+    /// `[propagation direction][storage direction]`, as [`collect_matrix`] builds it.
+    collect: Vec<f64>,
+}
+
+impl SolvedScattering {
+    /// The truncation the solve ran with when its remainder's g is `solved_g` (to 10⁻⁹; it is
+    /// rebuilt from the same inputs), else HG(g̃) itself (render data of a solve that truncated
+    /// otherwise: the same remainder cosine, the nearest shape the data says).
+    fn new(prop: &PropagationSet, storage: &StorageSet, g: f64, solved_g: f64) -> SolvedScattering {
+        let t = Truncation::for_sets(g, prop, storage);
+        let phase = if (t.remainder_g() - solved_g).abs() <= 1e-9 {
+            Phase::Truncated(t)
+        } else {
+            Phase::HenyeyGreenstein { g: solved_g }
+        };
+        SolvedScattering { phase, collect: collect_matrix(prop, storage, &phase) }
+    }
+
+    /// For a beam along `travel`: the storage rows after m = 1..=`count` scatterings out of the
+    /// beam's first one, each propagation direction taking its owner's source and the collect
+    /// matrix scattering it again (per steradian; each row's light sums to 1 over the sphere).
+    fn rows(&self, prop: &PropagationSet, storage: &StorageSet, travel: DVec3, count: usize) -> Vec<Vec<f64>> {
+        let s = storage.len();
+        let mut row = BeamRows::new(prop, storage, &self.phase).row(travel);
+        (0..count)
+            .map(|_| {
+                let mut next = vec![0.0; s];
+                for (owner, collect) in storage.owner.iter().zip(self.collect.chunks(s)) {
+                    let radiance = row[*owner as usize];
+                    next.iter_mut().zip(collect).for_each(|(n, m)| *n += radiance * m);
+                }
+                row = next;
+                row.clone()
+            })
+            .collect()
     }
 }
 
@@ -365,7 +446,9 @@ mod tests {
         let blend = StorageBlend::new(&storage);
         let travel = DVec3::new(-0.55, -0.35, 0.75).normalize();
         // g 0.8 as the default solve truncates it: g̃ 0.570, f 0.582.
-        let lobes = ForwardLobes::new(&prop, &storage, 0.8, 0.570, 0.582, travel);
+        let t = Truncation::for_sets(0.8, &prop, &storage);
+        assert!((t.remainder_g() - 0.570).abs() < 1e-3 && (t.fraction - 0.582).abs() < 1e-3, "{t:?}");
+        let lobes = ForwardLobes::new(&prop, &storage, 0.8, t.remainder_g(), t.fraction, travel);
         // HG(0.8²) … HG(0.8¹³): 0.8¹⁴ = 0.044 is broad enough for the bins.
         assert_eq!(lobes.gs.len(), 12);
         assert!((lobes.gs[0] - 0.64).abs() < 1e-12 && lobes.gs.iter().all(|&g| g >= BROAD_LOBE));
@@ -402,22 +485,46 @@ mod tests {
         assert!(ForwardLobes::new(&prop, &storage, 0.8, 0.8, 0.0, travel).is_empty());
     }
 
+    /// The solve's shapes are its own cell-to-cell scatterings: the truncation it ran with, found
+    /// again from g and the direction sets; the first row is the beam's binned scattering
+    /// collected once more. With fine cells that is the binned convolution HG(g̃²); with the
+    /// default cells it is wider, lower towards the sun than binned HG(g̃²) (what the threshold
+    /// took before, which left the lobes short).
     #[test]
-    fn without_a_peak_share_in_the_mix_the_solve_holds_each_lobe_with_its_remainder_shape() {
-        // f → 0: every scattering was a remainder one, so lobe n is held as HG(g̃^{n+1}); with
-        // g̃ = g that is the lobe's own cell mean.
+    fn the_solve_holds_its_own_cell_to_cell_scatterings() {
+        let travel = DVec3::new(0.2, -0.1, 1.0).normalize();
+        let sun_value = |k: u32, ks: u32, g: f64| {
+            let prop = PropagationSet::new(k);
+            let storage = StorageSet::per_face(&prop, ks);
+            let solve = SolvedScattering::new(&prop, &storage, g, g);
+            let rows = solve.rows(&prop, &storage, travel, 2);
+            for row in &rows {
+                let total: f64 = row.iter().zip(&storage.solid_angle).map(|(r, w)| r * w).sum();
+                assert!((total - 1.0).abs() < 1e-9, "{total}");
+            }
+            let weights = StorageBlend::new(&storage).weights(travel);
+            let binned = BeamRows::new(&prop, &storage, &Phase::HenyeyGreenstein { g: g * g }).row(travel);
+            (blended(&rows[0], &weights), blended(&binned, &weights))
+        };
+        // A g that no truncation leaves as its remainder: HG(g̃) itself, for the fine cells too.
+        let (fine, binned_fine) = sun_value(8, 8, 0.5);
+        assert!((fine / binned_fine - 1.0).abs() < 0.05, "fine cells: {fine} vs {binned_fine}");
+        let (coarse, binned_coarse) = sun_value(4, 2, 0.5);
+        eprintln!("towards the sun: fine cells {fine} vs {binned_fine}, default {coarse} vs {binned_coarse}");
+        assert!(coarse < 0.97 * binned_coarse, "default cells: {coarse} vs {binned_coarse}");
+        // The truncation a δ-M solve of g 0.8 ran with is found again from its remainder's g.
         let prop = PropagationSet::new(4);
         let storage = StorageSet::per_face(&prop, 2);
-        let blend = StorageBlend::new(&storage);
-        let lobes = ForwardLobes::new(&prop, &storage, 0.8, 0.8, 1e-12, DVec3::Z);
-        let towards = DVec3::new(0.1, 0.0, 1.0).normalize();
-        let weights = blend.weights(towards);
-        let excess = lobes.excess(towards, &weights);
-        for (n, x) in excess.iter().enumerate().take(4) {
-            let g = lobes.gs[n];
-            let row = BeamRows::new(&prop, &storage, &Phase::HenyeyGreenstein { g }).row(DVec3::Z);
-            let want = (henyey_greenstein(g, towards.z) - blended(&row, &weights)).max(0.0);
-            assert!((x - want).abs() < 1e-9 * want.max(1.0), "lobe {n}: {x} vs {want}");
+        let t = Truncation::for_sets(0.8, &prop, &storage);
+        let solve = SolvedScattering::new(&prop, &storage, 0.8, t.remainder_g());
+        assert_eq!(solve.phase, Phase::Truncated(t));
+        assert_eq!(solve.collect, collect_matrix(&prop, &storage, &Phase::Truncated(t)));
+        let first = solve.rows(&prop, &storage, travel, 1).remove(0);
+        let beam = BeamRows::new(&prop, &storage, &Phase::Truncated(t)).row(travel);
+        let s = storage.len();
+        for d in 0..s {
+            let want: f64 = (0..prop.len()).map(|j| beam[storage.owner[j] as usize] * solve.collect[j * s + d]).sum();
+            assert!((first[d] - want).abs() <= 1e-12 * want.max(1e-12), "cell {d}: {} vs {want}", first[d]);
         }
     }
 

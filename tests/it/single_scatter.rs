@@ -191,8 +191,9 @@ fn the_single_scattering_of_a_slab_under_a_sun_matches_the_closed_form_in_the_fo
 /// 0.49509); the small-angle sum over every order, ∫σs·E₀·e^{−σt·z}·Σₙ(σs·z)ⁿ/n!·HG(g^{n+1}; μ)·
 /// e^{−σt(Z−z)/μ} dz/μ, gives 0.4828. The image without the lobes (the chains and the binned
 /// orders ≥ 2) was 0.4097, 17 % short; with lobes bounded by the solved source towards the sun and
-/// carried under the scaled extinction (session 31) 0.4286, 13 % short; now (the solve's own
-/// shapes as the threshold, the true extinction) 0.4745, 4 % short.
+/// carried under the scaled extinction (session 31) 0.4286, 13 % short; with the remainder's
+/// binned shapes as the threshold and the true extinction 0.4745, 4 % short; now (the threshold
+/// the solve's own cell-to-cell scatterings) 0.4776, 3.5 % short.
 #[test]
 fn the_forward_lobes_brighten_a_slab_seen_towards_the_sun() {
     let dir = temp_dir("single-scatter-lobes");
@@ -209,8 +210,8 @@ fn the_forward_lobes_brighten_a_slab_seen_towards_the_sun() {
     let monte_carlo = 0.4950;
     eprintln!("thick slab, 15° off the sun: {got:.5} against Monte Carlo {monte_carlo}");
     assert!(
-        got > 0.465 && got < monte_carlo,
-        "{got}: the lobes add light (0.4097 without), within 6 % of the reference and not past it"
+        got > 0.472 && got < monte_carlo,
+        "{got}: the lobes add light (0.4097 without), within 5 % of the reference and not past it"
     );
 }
 
