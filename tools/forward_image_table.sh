@@ -4,19 +4,20 @@
 # and albedo 0.99 and 0.9, seen backlit (towards the sun), side-lit and front-lit (the sun behind
 # the camera) by a 40° pinhole camera, 128 × 128 pixels. Each view is solved with the default
 # settings and rendered by the solve, and compared with `lpm reference --image-spp` of the same
-# scene and camera (kept across runs when present); one markdown row per view: relative L2 and
+# scene and camera (kept across runs when present, one per SPP: `<view>_ref<SPP>`; at 4096 paths
+# per pixel about two minutes a view on two cores); one markdown row per view: relative L2 and
 # bias of the 4 × 4-pixel block means over the whole image and over the blocks the cloud covers
 # (`lpm compare`'s "blocks" and "medium" rows).
 #
 #   tools/forward_image_table.sh [OUT_DIR]      default out/forward-image
-#   LPM=target/release/lpm  BACKEND=cpu  SPP=1024 (the reference's paths per pixel)
+#   LPM=target/release/lpm  BACKEND=cpu  SPP=4096 (the reference's paths per pixel)
 #   GS="0.8 0.95"  ALBEDOS="0.99 0.9"  VIEWS="back side front"
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-out/forward-image}
 LPM=${LPM:-target/release/lpm}
 BACKEND=${BACKEND:-cpu}
-SPP=${SPP:-1024}
+SPP=${SPP:-4096}
 GS=${GS:-"0.8 0.95"}
 ALBEDOS=${ALBEDOS:-"0.99 0.9"}
 VIEWS=${VIEWS:-"back side front"}
@@ -76,11 +77,12 @@ echo "|---|---|---|---|---|---|---|"
 for g in $GS; do for a in $ALBEDOS; do for v in $VIEWS; do
     base="$OUT/g${g}_a${a}_$v"
     scene "$g" "$a" "$v" "$base.toml"
-    [ -f "${base}_ref/image.exr" ] ||
-        nice "$LPM" reference "$base.toml" --out "${base}_ref" --samples 16 --image-spp "$SPP" --seed 1 --log warn >/dev/null
+    ref="${base}_ref$SPP"
+    [ -f "$ref/image.exr" ] ||
+        nice "$LPM" reference "$base.toml" --out "$ref" --samples 16 --image-spp "$SPP" --seed 1 --log warn >/dev/null
     args=(solve "$base.toml" --out "${base}_lpm" --backend "$BACKEND" --log warn)
     nice "$LPM" "${args[@]}" >/dev/null
-    "$LPM" compare "${base}_lpm" "${base}_ref" --json "${base}_compare.json" >/dev/null
+    "$LPM" compare "${base}_lpm" "$ref" --json "${base}_compare.json" >/dev/null
     /usr/bin/python3 - "${base}_compare.json" "$g" "$a" "$v" <<'PY'
 import json, sys
 c = json.load(open(sys.argv[1]))['image']
