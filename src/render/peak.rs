@@ -54,7 +54,7 @@
 //!   lobe n's light, the share that met m = 1..=n remainder scatterings is binomial in 1 − f
 //!   (given at least one), and the solve holds that share with the shape its own m + 1
 //!   scatterings give it: `heldₙ = Σₘ βₙₘ·rowₘ`, rowₘ the beam's binned first scattering passed
-//!   m times more through the solve's collect matrix ([`SolvedScattering`]; each pass from cell to
+//!   m times more through the solve's collect matrix (`SolvedScattering`; each pass from cell to
 //!   cell widens it more than the continuous HG(g̃^{m+1}) binned once, and towards the sun it is
 //!   lower: with that as the threshold the lobes came out some 15 % short). (The lobe's own cell
 //!   mean, binned HG(g^{n+1}), is sharper still than what the solve holds: taken as the
