@@ -34,7 +34,7 @@
 //! reference the chains brought a backlit g = 0.8 cloud from 31 % to 17 % (4 × 4-pixel blocks over
 //! the cloud, relative L2) and g = 0.95 from 80 % to 29–39 %, still too dark: forward light
 //! scattered outside δ-M's peak but within a storage cell of the sun is the binned source's,
-//! smeared over a cell ~45° wide. Side- and front-lit views are within 1.2–5.3 %
+//! smeared over a cell ~45° wide. Side- and front-lit views are within 0.6–4.7 %
 //! (benches/RESULTS.md, "Render: the suns' single scattering exact", `tools/forward_image_table.sh`).
 //!
 //! **The forward lobes** ([`ForwardLobes`]). That smeared light is mostly the sun's, scattered
@@ -72,9 +72,11 @@
 //!   zero-sum reshaping) made a side-lit g = 0.8 cloud 1.6 % darker against the reference.
 //!
 //! Lobes broader than HG(0.05) are left to the bins, which hold their shape. Against the
-//! Monte-Carlo reference (`tools/forward_image_table.sh`, benches/RESULTS.md; with the suns'
-//! irradiance traced, [`crate::solver::beam_trace`]) the backlit clouds come within 3.1–4.4 %
-//! (g = 0.8) and 4.8–5.4 % (g = 0.95), from 17 % and 29–39 % with the chains alone;
+//! Monte-Carlo reference (`tools/forward_image_table.sh` at 4096 paths per pixel,
+//! benches/RESULTS.md; with the suns' irradiance traced, [`crate::solver::beam_trace`]) the
+//! backlit clouds come within 3.1–4.4 % (g = 0.8) and 4.4–4.9 % (g = 0.95), from 17 % and
+//! 29–39 % with the chains alone (the thin rim of a g = 0.95 cloud, not in those blocks, is
+//! some 5 % too bright);
 //! side- and front-lit views are unchanged to the digit (away from the sun only the broadest lobes
 //! exceed what the cells hold, by under 1 % of their value). Only under
 //! δ-M (the default for a forward-scattering medium): without it the render has no peak depth to
@@ -202,8 +204,8 @@ impl ForwardLobes {
                 remainder_mix.push(mix);
             }
         }
-        // The solve's shapes HG(g̃^{m+1}) are kept while g̃^{m+1} is at least BROAD_LOBE, and
-        // for no more remainder counts than the lobes have.
+        // A shape per remainder count m while g̃^{m+1} is at least BROAD_LOBE (past that the solve
+        // holds the light nearly isotropic), and no more than the lobes have.
         let mut rows = 0;
         let mut gm = solved_g * solved_g;
         while lobed && gm >= BROAD_LOBE && rows < gs.len() {
@@ -280,7 +282,7 @@ impl ForwardLobes {
 /// it, and the collect matrix bins its scattering into the storage cells again. Each pass widens
 /// the light more than the continuous convolution would (HG(g̃) ⊛ HG(g̃) = HG(g̃²) binned once),
 /// so towards the sun the solve holds less of the forward-scattered light than binned HG(g̃^{m+1})
-/// says; taking that as the threshold left the lobes some 15 % short (backlit clouds 0.7–1.2 points
+/// says; taking that as the threshold left the lobes some 15 % short (backlit clouds 0.5–1.2 points
 /// further from Monte Carlo, benches/RESULTS.md).
 struct SolvedScattering {
     phase: Phase,
