@@ -11,9 +11,8 @@
 //! (σt 0.8 per voxel) the swept and the traced irradiance differ by 23 % rms over the scattering
 //! voxels (weighted by ρ·E), and its four backlit views came out 5.2–8.1 % from Monte Carlo with
 //! the swept irradiance, 4.1–6.6 % with the traced one (against 1024-path references, the lobes of
-//! the time); side- and front-lit views, lit where the
-//! staircase averages out, are unchanged (benches/RESULTS.md, "Render: the suns' single
-//! scattering exact"). Tracing through the voxels' centres alone, or averaging 27 points per
+//! the time); side- and front-lit views, lit where the staircase averages out, are unchanged
+//! (benches/RESULTS.md, "Render: the suns' single scattering exact"). Tracing through the voxels' centres alone, or averaging 27 points per
 //! voxel, gave the same images within the reference's noise: the chord average is the cheap one.
 //!
 //! **What.** For every voxel that scatters (ρ > 0: the image weighs the irradiance by ρ, so the
