@@ -218,7 +218,7 @@ impl ForwardLobes {
             .map(|&travel| ForwardLobes {
                 travel,
                 gs: gs.clone(),
-                solved_rows: solve.as_ref().map_or_else(Vec::new, |s| s.rows(prop, storage, travel, rows)),
+                solved_rows: solve.as_ref().map_or_else(Vec::new, |s| s.rows(travel, rows)),
                 remainder_mix: remainder_mix.clone(),
                 peak_share,
             })
@@ -285,9 +285,16 @@ impl ForwardLobes {
 /// says; taking that as the threshold left the lobes some 15 % short (backlit clouds 0.5–1.2 points
 /// further from Monte Carlo, benches/RESULTS.md).
 struct SolvedScattering {
+    /// The phase function found (only the tests ask which).
+    #[cfg(test)]
     phase: Phase,
     /// `[propagation direction][storage direction]`, as [`collect_matrix`] builds it.
     collect: Vec<f64>,
+    /// The beam's first scattering into the storage cells, its fine quadrature built once for
+    /// every sun.
+    beam: BeamRows,
+    /// The storage cell owning each propagation direction.
+    owner: Vec<u32>,
 }
 
 impl SolvedScattering {
@@ -301,26 +308,32 @@ impl SolvedScattering {
         } else {
             Phase::HenyeyGreenstein { g: solved_g }
         };
-        SolvedScattering { phase, collect: collect_matrix(prop, storage, &phase) }
+        SolvedScattering {
+            #[cfg(test)]
+            phase,
+            collect: collect_matrix(prop, storage, &phase),
+            beam: BeamRows::new(prop, storage, &phase),
+            owner: storage.owner.clone(),
+        }
     }
 
     /// For a beam along `travel`: the storage rows after m = 1..=`count` scatterings out of the
     /// beam's first one, each propagation direction taking its owner's source and the collect
     /// matrix scattering it again (per steradian; each row's light sums to 1 over the sphere).
-    fn rows(&self, prop: &PropagationSet, storage: &StorageSet, travel: DVec3, count: usize) -> Vec<Vec<f64>> {
-        let s = storage.len();
-        let mut row = BeamRows::new(prop, storage, &self.phase).row(travel);
-        (0..count)
-            .map(|_| {
-                let mut next = vec![0.0; s];
-                for (owner, collect) in storage.owner.iter().zip(self.collect.chunks(s)) {
-                    let radiance = row[*owner as usize];
-                    next.iter_mut().zip(collect).for_each(|(n, m)| *n += radiance * m);
-                }
-                row = next;
-                row.clone()
-            })
-            .collect()
+    fn rows(&self, travel: DVec3, count: usize) -> Vec<Vec<f64>> {
+        let s = self.beam.storage_len();
+        let first = self.beam.row(travel);
+        let mut rows: Vec<Vec<f64>> = Vec::with_capacity(count);
+        for _ in 0..count {
+            let row = rows.last().unwrap_or(&first);
+            let mut next = vec![0.0; s];
+            for (owner, collect) in self.owner.iter().zip(self.collect.chunks(s)) {
+                let radiance = row[*owner as usize];
+                next.iter_mut().zip(collect).for_each(|(n, m)| *n += radiance * m);
+            }
+            rows.push(next);
+        }
+        rows
     }
 }
 
@@ -499,7 +512,7 @@ mod tests {
             let prop = PropagationSet::new(k);
             let storage = StorageSet::per_face(&prop, ks);
             let solve = SolvedScattering::new(&prop, &storage, g, g);
-            let rows = solve.rows(&prop, &storage, travel, 2);
+            let rows = solve.rows(travel, 2);
             for row in &rows {
                 let total: f64 = row.iter().zip(&storage.solid_angle).map(|(r, w)| r * w).sum();
                 assert!((total - 1.0).abs() < 1e-9, "{total}");
@@ -521,7 +534,7 @@ mod tests {
         let solve = SolvedScattering::new(&prop, &storage, 0.8, t.remainder_g());
         assert_eq!(solve.phase, Phase::Truncated(t));
         assert_eq!(solve.collect, collect_matrix(&prop, &storage, &Phase::Truncated(t)));
-        let first = solve.rows(&prop, &storage, travel, 1).remove(0);
+        let first = solve.rows(travel, 1).remove(0);
         let beam = BeamRows::new(&prop, &storage, &Phase::Truncated(t)).row(travel);
         let s = storage.len();
         for d in 0..s {

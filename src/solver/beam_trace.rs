@@ -12,8 +12,9 @@
 //! voxels (weighted by ρ·E), and its four backlit views came out 5.2–8.1 % from Monte Carlo with
 //! the swept irradiance, 4.1–6.6 % with the traced one (against 1024-path references, the lobes of
 //! the time); side- and front-lit views, lit where the staircase averages out, are unchanged
-//! (benches/RESULTS.md, "Render: the suns' single scattering exact"). Tracing through the voxels' centres alone, or averaging 27 points per
-//! voxel, gave the same images within the reference's noise: the chord average is the cheap one.
+//! (benches/RESULTS.md, "Render: the suns' single scattering exact"). Tracing through the voxels'
+//! centres alone, or averaging 27 points per voxel, gave the same images within the reference's
+//! noise: the chord average is the cheap one.
 //!
 //! **What.** For every voxel that scatters (ρ > 0: the image weighs the irradiance by ρ, so the
 //! others are left at 0), the chord through the voxel's centre along the beam: ∫ρ ds from the
