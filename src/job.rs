@@ -637,7 +637,10 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, observer: &mut impl Observ
                 let irradiance = match s.irradiance {
                     solver::direct::BeamIrradiance::NoBeams => String::new(),
                     solver::direct::BeamIrradiance::Traced { seconds } => {
-                        format!("; the suns' irradiance traced per voxel along their exact direction ({seconds:.3} s)")
+                        // Its time among the phases, not in the plan: two solves of one scene
+                        // give equal plans.
+                        phases.push(("beam trace".to_string(), seconds));
+                        "; the suns' irradiance traced per voxel along their exact direction".to_string()
                     }
                     solver::direct::BeamIrradiance::Swept { steps } => {
                         let why = format!(
