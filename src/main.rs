@@ -121,6 +121,11 @@ enum Command {
         /// Camera paths per pixel for image.exr/.png (0: no image). The default camera is 512 px wide.
         #[arg(long, default_value_t = 0)]
         image_spp: u32,
+        /// Count in the image only the light scattered this many times: N, N..M (inclusive) or
+        /// N.. (0: the sky and the medium's emission seen unscattered, 1: single scattering).
+        /// Images of 0..1 and 2.. with one seed add up to the whole image. Default: every order.
+        #[arg(long, value_name = "ORDERS")]
+        orders: Option<lpm::reference::Orders>,
         /// Worker threads (0: all cores).
         #[arg(long, default_value_t = 0)]
         threads: usize,
@@ -959,7 +964,7 @@ fn run(cli: Cli) -> Result<()> {
             let change = lpm::render::keep::ViewChange { width, height, eye, target, up, fov_y: fov };
             render_again(&dir, camera, change, background.into(), display.into(), image)
         }
-        Command::Reference { scene, out, samples, seed, image_spp, threads } => {
+        Command::Reference { scene, out, samples, seed, image_spp, orders, threads } => {
             let job = lpm::reference::job::ReferenceJob {
                 scene,
                 out: out.clone(),
@@ -967,6 +972,7 @@ fn run(cli: Cli) -> Result<()> {
                 seed,
                 threads,
                 image_samples_per_pixel: image_spp,
+                image_orders: orders.unwrap_or(lpm::reference::Orders::ALL),
             };
             let report = lpm::reference::job::run(&job)?;
             println!(

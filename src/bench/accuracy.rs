@@ -129,6 +129,7 @@ pub fn run(
         seed: 0xACC,
         threads: 0,
         image_samples_per_pixel: 0,
+        image_orders: crate::reference::Orders::ALL,
     })?;
     let loaded = crate::scene::Scene::load(scene).map_err(job::JobError::from)?;
     let density = crate::solver::density_volume(&loaded, &runs.join("density-scratch")).map_err(job::JobError::from)?;
@@ -191,6 +192,7 @@ pub fn run(
             seed: 1 + i as u64,
             threads: 0,
             image_samples_per_pixel: 0,
+            image_orders: crate::reference::Orders::ALL,
         })?;
         let seconds = t.elapsed().as_secs_f64();
         let c = compare_dirs(&dir, &reference_dir, &compare_options)?;

@@ -1,4 +1,5 @@
-//! Camera images by path tracing with delta tracking and next-event estimation.
+//! Camera images by path tracing with delta tracking and next-event estimation, optionally
+//! counting only the light scattered a chosen number of times ([`Orders`]).
 
 use super::fluence::{ChannelSetup, RR_WEIGHT};
 use super::grid::{box_interval, Grid};
@@ -7,6 +8,57 @@ use super::rng::Rng;
 use super::tracking::{exit_distance, free_flight, transmittance};
 use crate::scene::{Camera, Projection};
 use glam::DVec3;
+
+/// Which scattering orders an image counts: the light that reached the camera after `first` to
+/// `last` scatterings (inclusive). Order 0 is the light seen unscattered (the sky through the
+/// medium, the medium's own emission), order 1 the lights' single scattering; light emitted by
+/// the medium counts the scatterings after its emission. An
+/// image of orders 0..=1 and one of 2.. with the same seed add up to the whole image (to rounding):
+/// every estimate is made whatever the orders, only counted or not, so the random numbers are the
+/// same. What a part of an image made by another method is checked against (benches/RESULTS.md,
+/// "the rim taken apart by light and by order").
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct Orders {
+    pub first: u32,
+    /// `None`: no upper bound.
+    pub last: Option<u32>,
+}
+
+impl Orders {
+    /// Every order: the whole image.
+    pub const ALL: Orders = Orders { first: 0, last: None };
+
+    pub fn contains(&self, order: u32) -> bool {
+        order >= self.first && self.last.is_none_or(|last| order <= last)
+    }
+}
+
+impl std::str::FromStr for Orders {
+    type Err = String;
+
+    /// `N` (that order alone), `N..M` (N to M, inclusive) or `N..` (N and above).
+    fn from_str(text: &str) -> Result<Orders, String> {
+        let number = |t: &str| {
+            t.trim().parse::<u32>().map_err(|_| {
+                format!("scattering orders \"{text}\": \"{t}\" is not a whole number (write N, N..M or N..)")
+            })
+        };
+        let orders = match text.split_once("..") {
+            None => {
+                let n = number(text)?;
+                Orders { first: n, last: Some(n) }
+            }
+            Some((first, "")) => Orders { first: number(first)?, last: None },
+            Some((first, last)) => Orders { first: number(first)?, last: Some(number(last)?) },
+        };
+        match orders.last {
+            Some(last) if last < orders.first => {
+                Err(format!("scattering orders \"{text}\": the last order is below the first"))
+            }
+            _ => Ok(orders),
+        }
+    }
+}
 
 /// A camera reduced to what ray generation needs, in world units.
 #[derive(Clone, Debug)]
@@ -65,8 +117,9 @@ impl View {
     }
 }
 
-/// One radiance sample along the ray o + t·d (grid units) for one channel.
-pub fn radiance(grid: &Grid, s: &ChannelSetup, o: DVec3, d: DVec3, rng: &mut Rng) -> f64 {
+/// One radiance sample along the ray o + t·d (grid units) for one channel, of the light that
+/// scattered as many times as `orders` allows.
+pub fn radiance(grid: &Grid, s: &ChannelSetup, orders: Orders, o: DVec3, d: DVec3, rng: &mut Rng) -> f64 {
     let extent = grid.extent();
     let mut l = 0.0;
     let mut beta = 1.0f64;
@@ -74,10 +127,13 @@ pub fn radiance(grid: &Grid, s: &ChannelSetup, o: DVec3, d: DVec3, rng: &mut Rng
     let mut d = d;
     // Bring the camera ray to the box.
     match box_interval(o, d, extent) {
-        None => return s.sky_radiance(d),
+        None => return if orders.contains(0) { s.sky_radiance(d) } else { 0.0 },
         Some((t0, _)) => p = o + d * t0.max(0.0),
     }
     let mut scattered = false;
+    // Collisions so far: the lights' next-event estimates at collision k are light scattered k
+    // times, the emission collected there k − 1 times.
+    let mut collisions = 0u32;
     loop {
         let t_exit = exit_distance(grid, p, d);
         let hit = if t_exit > 0.0 { free_flight(grid, s.sigma, p, d, t_exit, rng) } else { None };
@@ -85,16 +141,18 @@ pub fn radiance(grid: &Grid, s: &ChannelSetup, o: DVec3, d: DVec3, rng: &mut Rng
             // Escaped. After a scattering event the sky was already counted by next-event
             // estimation (its direction sampled from the phase function), so only the primary ray
             // sees the sky here; the sun is a delta and never seen directly.
-            if !scattered {
+            if !scattered && orders.contains(0) {
                 l += beta * s.sky_radiance(d);
             }
             break;
         };
         p += d * t;
+        collisions += 1;
+        let counted = orders.contains(collisions);
         // Collision estimator: at a real collision (pdf σt·T) the source term σa·Le/σt = (1 − α)·Le.
         // With an albedo grid, α is the medium's albedo times the voxel's factor a(v).
         let albedo = s.albedo * grid.albedo_at(p);
-        if s.le > 0.0 {
+        if s.le > 0.0 && orders.contains(collisions - 1) {
             let v = [0, 1, 2].map(|a| (p[a].floor() as i64).clamp(0, grid.dims[a] as i64 - 1));
             l += beta * (1.0 - albedo) * s.le * grid.emission_factor(grid.voxel_index(v), s.ch);
         }
@@ -106,7 +164,7 @@ pub fn radiance(grid: &Grid, s: &ChannelSetup, o: DVec3, d: DVec3, rng: &mut Rng
         // scattering cosine is (−sun)·(−d) = sun·d.
         for &(sun, e) in &s.suns {
             let tr = transmittance(grid, s.sigma, p, sun, exit_distance(grid, p, sun), rng);
-            if tr > 0.0 {
+            if tr > 0.0 && counted {
                 l += beta * tr * e * hg_eval(s.g, sun.dot(d));
             }
         }
@@ -120,7 +178,7 @@ pub fn radiance(grid: &Grid, s: &ChannelSetup, o: DVec3, d: DVec3, rng: &mut Rng
             }
             let w = to / r;
             let tr = transmittance(grid, s.sigma, p, w, exit_distance(grid, p, w).min(r), rng);
-            if tr > 0.0 {
+            if tr > 0.0 && counted {
                 l += beta * tr * intensity / (r * r * s.h * s.h) * hg_eval(s.g, w.dot(d));
             }
         }
@@ -128,7 +186,9 @@ pub fn radiance(grid: &Grid, s: &ChannelSetup, o: DVec3, d: DVec3, rng: &mut Rng
         if s.has_sky() {
             let w = sample_hg(s.g, rng.uniform(), rng.uniform(), d);
             let tr = transmittance(grid, s.sigma, p, w, exit_distance(grid, p, w), rng);
-            l += beta * tr * s.sky_radiance(w);
+            if counted {
+                l += beta * tr * s.sky_radiance(w);
+            }
         }
         scattered = true;
         if beta < RR_WEIGHT {

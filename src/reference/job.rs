@@ -15,7 +15,7 @@
 //! complete; on failure the staging directory (and `out`, when this job created it) is removed, and
 //! files already in `out` keep their old content.
 
-use super::{ReferenceOptions, ReferenceResult};
+use super::{Orders, ReferenceOptions, ReferenceResult};
 use crate::output::{self, FieldMeta, OutputError};
 use crate::render::{self, Image};
 use crate::scene::{procedural, AlbedoGrid, EmissionGrid, Scene, SceneError, Shape, VolumeSource};
@@ -37,6 +37,8 @@ pub struct ReferenceJob {
     pub threads: usize,
     /// Camera samples per pixel; 0 = no image.
     pub image_samples_per_pixel: u32,
+    /// The scattering orders the image counts ([`Orders::ALL`]: the whole image).
+    pub image_orders: Orders,
 }
 
 #[derive(Debug, Error)]
@@ -51,6 +53,8 @@ pub enum ReferenceJobError {
     OutputDir { path: PathBuf, source: std::io::Error },
     #[error("the number of photons must be at least 1")]
     NoPhotons,
+    #[error("scattering orders were chosen for the image, but no image is made (give camera paths per pixel)")]
+    OrdersWithoutImage,
 }
 
 /// `report.json` of a reference job.
@@ -67,6 +71,9 @@ pub struct ReferenceReport {
     /// Independent batches behind the standard errors.
     pub batches: u32,
     pub image_samples_per_pixel: u32,
+    /// The scattering orders the image counts (`last` null: no upper bound); absent: all of them.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub image_orders: Option<Orders>,
     /// Wall-clock seconds of the whole job (sampling, transport, image, writing).
     pub seconds: f64,
     pub channels: u32,
@@ -98,6 +105,9 @@ pub fn run(job: &ReferenceJob) -> Result<ReferenceReport, ReferenceJobError> {
     let start = Instant::now();
     if job.photons == 0 {
         return Err(ReferenceJobError::NoPhotons);
+    }
+    if job.image_orders != Orders::ALL && job.image_samples_per_pixel == 0 {
+        return Err(ReferenceJobError::OrdersWithoutImage);
     }
     let scene = Scene::load(&job.scene)?;
     let created_out = !job.out.exists();
@@ -141,6 +151,7 @@ fn run_in(
         seed: job.seed,
         threads: job.threads,
         image_samples_per_pixel: job.image_samples_per_pixel,
+        image_orders: job.image_orders,
         ..ReferenceOptions::default()
     };
     // A per-voxel emission, read from the scene's files as the densities are (not from lpm's store).
@@ -194,6 +205,7 @@ fn run_in(
         seed: job.seed,
         batches: opts.batches.max(2),
         image_samples_per_pixel: job.image_samples_per_pixel,
+        image_orders: (job.image_orders != Orders::ALL).then_some(job.image_orders),
         seconds: start.elapsed().as_secs_f64(),
         channels: result.channels,
         mean_relative_std_error: mean_relative(&result.fluence, &result.std_error),

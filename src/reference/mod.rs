@@ -87,6 +87,7 @@ mod phase;
 mod rng;
 mod tracking;
 
+pub use image::Orders;
 pub use phase::sample_hg;
 
 use crate::scene::Scene;
@@ -116,11 +117,20 @@ pub struct ReferenceOptions {
     pub threads: usize,
     /// Camera samples per pixel; 0 = no image.
     pub image_samples_per_pixel: u32,
+    /// The scattering orders the image counts ([`Orders::ALL`]: the whole image).
+    pub image_orders: Orders,
 }
 
 impl Default for ReferenceOptions {
     fn default() -> Self {
-        ReferenceOptions { photons: 1_000_000, seed: 0, batches: 16, threads: 0, image_samples_per_pixel: 0 }
+        ReferenceOptions {
+            photons: 1_000_000,
+            seed: 0,
+            batches: 16,
+            threads: 0,
+            image_samples_per_pixel: 0,
+            image_orders: Orders::ALL,
+        }
     }
 }
 
@@ -350,7 +360,7 @@ pub fn run_with_fields(
                             let mut sum = 0.0;
                             for _ in 0..spp {
                                 let (o, d) = view.ray(x as f64 + rng.uniform(), y as f64 + rng.uniform());
-                                sum += radiance(&grid, setup, o / h, d, &mut rng);
+                                sum += radiance(&grid, setup, opts.image_orders, o / h, d, &mut rng);
                             }
                             let value = (sum / spp as f64) as f32;
                             if channels == 1 {

@@ -392,6 +392,7 @@ fn a_vdb_albedo_grid_is_read_voxel_for_voxel_and_solves_like_raw() {
             seed: 9,
             threads: 1,
             image_samples_per_pixel: 0,
+            image_orders: lpm::reference::Orders::ALL,
         };
         lpm::reference::job::run(&job).expect("reference job with an albedo grid");
         std::fs::read(dir.join(out).join("fluence.raw")).expect("reference fluence")

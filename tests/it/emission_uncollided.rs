@@ -138,6 +138,7 @@ fn the_reference_near_field_is_the_traced_voxel_mean() {
         batches: 32,
         threads: 0,
         image_samples_per_pixel: 0,
+        ..lpm::reference::ReferenceOptions::default()
     };
     let emitter = |v: [u32; 3]| if v == at { 1.0 } else { 0.0 };
     let mc = lpm::reference::run_with_emission(&sc, &|_| 1.0, Some(&emitter), 1, &opts);

@@ -81,7 +81,14 @@ fn slab_reflectance(tau: f64, photons: u64) -> (f64, f64, f64) {
     assert!(s.run.plan.delta_m().is_some());
     let faces = &s.run.outcome.energy.faces;
     let solved = faces[5].power_out[0] / faces[5].power_in[0];
-    let opts = ReferenceOptions { photons, seed: 5, batches: 16, threads: 0, image_samples_per_pixel: 0 };
+    let opts = ReferenceOptions {
+        photons,
+        seed: 5,
+        batches: 16,
+        threads: 0,
+        image_samples_per_pixel: 0,
+        ..ReferenceOptions::default()
+    };
     let mc = run(&sc, &|_| 1.0, 1, &opts);
     let (top, se) = mc.face_out[0][5];
     (solved, top / faces[5].power_in[0], se / faces[5].power_in[0])

@@ -208,7 +208,14 @@ fn albedo_0_99_centre_matches_the_monte_carlo_reference() {
     assert!(s.run.outcome.converged);
     assert_balance("albedo 0.99 converged", &s, 1e-5);
     let lpm = s.fluence(c, 0);
-    let opts = ReferenceOptions { photons: 600_000, seed: 11, batches: 16, threads: 0, image_samples_per_pixel: 0 };
+    let opts = ReferenceOptions {
+        photons: 600_000,
+        seed: 11,
+        batches: 16,
+        threads: 0,
+        image_samples_per_pixel: 0,
+        ..ReferenceOptions::default()
+    };
     let r = lpm::reference::run(&sc, &|_| 1.0, 1, &opts);
     let idx = |v: [u32; 3]| ((v[2] * n + v[1]) * n + v[0]) as usize;
     let (mc, se) = (r.fluence[idx(c)] as f64, r.std_error[idx(c)] as f64);

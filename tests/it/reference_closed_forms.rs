@@ -5,7 +5,7 @@
 #![allow(clippy::excessive_precision, clippy::manual_is_multiple_of)]
 
 use glam::DVec3;
-use lpm::reference::{run, sample_hg, ReferenceOptions, ReferenceResult};
+use lpm::reference::{run, sample_hg, Orders, ReferenceOptions, ReferenceResult};
 use lpm::scene::*;
 use std::f64::consts::PI;
 use std::path::PathBuf;
@@ -51,7 +51,7 @@ fn scene(dims: [u32; 3], h: f64, sigma_t: f64, albedo: f64, g: f64, emission: f6
 }
 
 fn opts(photons: u64, seed: u64, batches: u32) -> ReferenceOptions {
-    ReferenceOptions { photons, seed, batches, threads: 0, image_samples_per_pixel: 0 }
+    ReferenceOptions { photons, seed, batches, threads: 0, image_samples_per_pixel: 0, ..ReferenceOptions::default() }
 }
 
 fn sky(l: f64) -> Light {
@@ -387,7 +387,14 @@ fn blob(v: [u32; 3]) -> f32 {
 #[test]
 fn reproducible_across_thread_counts() {
     let s = mixed_scene();
-    let mut o = ReferenceOptions { photons: 6_000, seed: 9, batches: 5, threads: 1, image_samples_per_pixel: 2 };
+    let mut o = ReferenceOptions {
+        photons: 6_000,
+        seed: 9,
+        batches: 5,
+        threads: 1,
+        image_samples_per_pixel: 2,
+        ..ReferenceOptions::default()
+    };
     let a = run(&s, &blob, 3, &o);
     o.threads = 2;
     let b = run(&s, &blob, 3, &o);
@@ -418,7 +425,14 @@ fn cloud_blob_is_finite_and_non_negative() {
             (blob(v) as f64 * 0.3).max(1e-6) as f32 * if v[0] % 3 == 0 { 1e-5 } else { 1.0 }
         }
     };
-    let o = ReferenceOptions { photons: 20_000, seed: 5, batches: 4, threads: 2, image_samples_per_pixel: 4 };
+    let o = ReferenceOptions {
+        photons: 20_000,
+        seed: 5,
+        batches: 4,
+        threads: 2,
+        image_samples_per_pixel: 4,
+        ..ReferenceOptions::default()
+    };
     let r = run(&s, &density, 3, &o);
     assert_eq!(r.fluence.len(), 20 * 18 * 17 * 3);
     assert!(r.fluence.iter().all(|f| f.is_finite() && *f >= 0.0));
@@ -454,7 +468,14 @@ fn vacuum_sky() {
         width: 5,
         height: 4,
     });
-    let o = ReferenceOptions { photons: 200_000, seed: 1, batches: 64, threads: 0, image_samples_per_pixel: 3 };
+    let o = ReferenceOptions {
+        photons: 200_000,
+        seed: 1,
+        batches: 64,
+        threads: 0,
+        image_samples_per_pixel: 3,
+        ..ReferenceOptions::default()
+    };
     let r = run(&s, &|_| 0.0, 1, &o);
     let target = 4.0 * PI * 0.7;
     check_voxels("vacuum", &r, &(0..r.fluence.len()).collect::<Vec<_>>(), |_| target);
@@ -494,7 +515,14 @@ fn image_closed_forms() {
     for (albedo, g, le, lights, exact) in cases {
         let mut s = scene([8, 8, 8], 1.0, sigma, albedo, g, le, lights);
         s.camera = Some(ortho(16));
-        let o = ReferenceOptions { photons: 2, seed: 3, batches: 2, threads: 0, image_samples_per_pixel: 64 };
+        let o = ReferenceOptions {
+            photons: 2,
+            seed: 3,
+            batches: 2,
+            threads: 0,
+            image_samples_per_pixel: 64,
+            ..ReferenceOptions::default()
+        };
         let r = run(&s, &|_| 1.0, 1, &o);
         let img = r.image.expect("image");
         assert_eq!(img.rgb.len(), 16 * 16 * 3);
@@ -548,15 +576,75 @@ fn image_single_scattering_of_the_sun() {
         width: 16,
         height: 16,
     });
-    let o = ReferenceOptions { photons: 2, seed: 8, batches: 2, threads: 0, image_samples_per_pixel: 1024 };
+    let o = ReferenceOptions {
+        photons: 2,
+        seed: 8,
+        batches: 2,
+        threads: 0,
+        image_samples_per_pixel: 1024,
+        ..ReferenceOptions::default()
+    };
     let img = run(&s, &|_| 1.0, 1, &o).image.expect("image");
-    let v: Vec<f64> = img.rgb.chunks(3).map(|p| p[0] as f64).collect();
-    let n = v.len() as f64;
-    let m = v.iter().sum::<f64>() / n;
-    let se = (v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1.0) / n).sqrt();
+    let (m, se) = mean_and_error(&img.rgb);
     let p1 = (1.0 - g * g) / (4.0 * PI * (1.0 - g).powi(3));
     let l1 = albedo * sigma * e * p1 * (-sigma).exp();
     eprintln!("sun single scattering: image {m:.6} ± {se:.6}, L1 {l1:.6}");
     assert!(se < 0.02 * l1);
     assert!(m > l1 - 4.0 * se && m < 1.02 * l1 + 4.0 * se, "{m} vs single scattering {l1} (se {se})");
+    // Order 1 alone is L1 itself: no allowance for the higher orders.
+    let o1 = ReferenceOptions { image_orders: Orders { first: 1, last: Some(1) }, ..o };
+    let img = run(&s, &|_| 1.0, 1, &o1).image.expect("image");
+    let (m1, se1) = mean_and_error(&img.rgb);
+    eprintln!("sun single scattering, order 1 alone: {m1:.6} ± {se1:.6}, L1 {l1:.6}");
+    assert!((m1 - l1).abs() < 4.0 * se1 + 1e-9 && m1 < m, "{m1} vs single scattering {l1} (se {se1})");
+}
+
+/// The image's scattering orders (`lpm reference --orders`) split it without loss: with one seed,
+/// orders 0..=1 and 2.. add up to the whole image pixel for pixel (every estimate is made whatever
+/// the orders, so the random numbers are the same), here with the sky, a sun and an emitting
+/// medium; order 0 is the light seen unscattered: the sky through the medium and its emission.
+#[test]
+fn image_orders_add_up_to_the_whole_image() {
+    let sun = Light::Sun { direction: DVec3::new(0.3, -0.2, 0.93).normalize(), irradiance: [2.0; 3] };
+    let mut s = scene([8, 8, 8], 1.0, 0.3, 0.7, 0.6, 0.5, vec![sky(1.0), sun]);
+    s.camera = Some(Camera {
+        projection: Projection::Orthographic { height: 6.0 },
+        position: DVec3::new(4.0, 4.0, 20.0),
+        look_at: DVec3::new(4.0, 4.0, 0.0),
+        up: DVec3::Y,
+        width: 8,
+        height: 8,
+    });
+    let image = |orders: Orders| {
+        let o = ReferenceOptions {
+            photons: 2,
+            seed: 4,
+            batches: 2,
+            image_samples_per_pixel: 32,
+            image_orders: orders,
+            ..ReferenceOptions::default()
+        };
+        run(&s, &|_| 1.0, 1, &o).image.expect("image").rgb
+    };
+    let whole = image(Orders::ALL);
+    let low = image(Orders { first: 0, last: Some(1) });
+    let high = image(Orders { first: 2, last: None });
+    for ((w, l), h) in whole.iter().zip(&low).zip(&high) {
+        assert!((l + h - w).abs() <= 1e-5 * w.abs() + 1e-7, "{l} + {h} vs the whole image's {w}");
+        assert!(*l > 0.0 && *h > 0.0, "each part holds light: {l}, {h}");
+    }
+    let (m, se) = mean_and_error(&image(Orders { first: 0, last: Some(0) }));
+    // The sky through the column, and the column's own emission (1 − α)·Le·(1 − e^{−τ}).
+    let through = (-0.3f64 * 8.0).exp();
+    let direct = through + (1.0 - 0.7) * 0.5 * (1.0 - through);
+    eprintln!("order 0: {m:.5} ± {se:.5}, unscattered {direct:.5}");
+    assert!((m - direct).abs() < 4.0 * se, "order 0 is the light seen unscattered: {m} vs {direct} (se {se})");
+}
+
+/// The mean of an image's pixels (red) and its standard error.
+fn mean_and_error(rgb: &[f32]) -> (f64, f64) {
+    let v: Vec<f64> = rgb.chunks(3).map(|p| p[0] as f64).collect();
+    let n = v.len() as f64;
+    let m = v.iter().sum::<f64>() / n;
+    (m, (v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1.0) / n).sqrt())
 }

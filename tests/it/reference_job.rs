@@ -1,9 +1,10 @@
 //! `lpm::reference::job`: the reference run from a scene file to its output directory, then compared
 //! with a solve of the same scene.
-use crate::common::{temp_dir, validated, write_scene, write_scene_as};
+use crate::common::{lpm_command, temp_dir, validated, write_scene, write_scene_as};
 use lpm::compare::{compare_dirs, CompareOptions};
 use lpm::job::SolveJob;
 use lpm::reference::job::{run, ReferenceJob, ReferenceJobError};
+use lpm::reference::Orders;
 use lpm::solver::BackendKind;
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
@@ -33,7 +34,15 @@ height = 9
 "#;
 
 fn job(scene: PathBuf, out: PathBuf, photons: u64, spp: u32) -> ReferenceJob {
-    ReferenceJob { scene, out, photons, seed: 3, threads: 0, image_samples_per_pixel: spp }
+    ReferenceJob {
+        scene,
+        out,
+        photons,
+        seed: 3,
+        threads: 0,
+        image_samples_per_pixel: spp,
+        image_orders: lpm::reference::Orders::ALL,
+    }
 }
 
 fn json(path: &Path) -> serde_json::Value {
@@ -74,6 +83,7 @@ fn furnace_reference_writes_its_outputs_and_agrees_with_the_solver() {
     }
     let r = json(&reference.join("report.json"));
     assert_eq!(r["method"], "monte-carlo");
+    assert!(r.get("image_orders").is_none(), "every order: no image_orders in the report");
     assert_eq!(r["channels"], 1);
     assert_eq!(r["seed"], 3);
     assert_eq!(r["photons"].as_u64(), Some(report.photons));
@@ -166,6 +176,29 @@ fn a_bad_scene_is_an_error_and_leaves_nothing_behind() {
     let good = write_scene(&dir, FURNACE);
     assert!(matches!(run(&job(good.clone(), out.clone(), 0, 0)), Err(ReferenceJobError::NoPhotons)));
     assert!(!out.exists());
+    // So are scattering orders without an image to count them in.
+    let orders =
+        ReferenceJob { image_orders: Orders { first: 1, last: Some(1) }, ..job(good.clone(), out.clone(), 1_000, 0) };
+    assert!(matches!(run(&orders), Err(ReferenceJobError::OrdersWithoutImage)));
+    assert!(!out.exists());
+    // On the command line: orders that are not N, N..M or N.. are refused, naming what was written.
+    for (bad, says) in [("3..1", "below the first"), ("one", "\"one\" is not a whole number"), ("1..x", "\"x\"")] {
+        let o = lpm_command(&["reference", good.to_str().unwrap(), "--out", out.to_str().unwrap(), "--samples", "16"])
+            .args(["--image-spp", "1", "--orders", bad])
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && stderr.contains(says), "--orders {bad}: {stderr}");
+        assert!(!out.exists());
+    }
+    // The orders an image counts are in its report.
+    let counted = dir.join("counted");
+    let o = lpm_command(&["reference", good.to_str().unwrap(), "--out", counted.to_str().unwrap(), "--samples", "16"])
+        .args(["--image-spp", "1", "--orders", "2.."])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(json(&counted.join("report.json"))["image_orders"], serde_json::json!({"first": 2, "last": null}));
 
     // A failure with an existing output directory leaves its files untouched.
     std::fs::create_dir_all(&out).unwrap();

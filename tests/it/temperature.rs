@@ -289,6 +289,7 @@ fn the_hot_core_agrees_with_monte_carlo() {
         seed: 5,
         threads: 0,
         image_samples_per_pixel: 0,
+        image_orders: lpm::reference::Orders::ALL,
     };
     lpm::reference::job::run(&job).expect("reference job");
     let mc = read_f32(&dir.join("reference/fluence.raw"));
@@ -408,6 +409,7 @@ fn bad_temperature_input_is_refused_with_its_name() {
             seed: 1,
             threads: 1,
             image_samples_per_pixel: 0,
+            image_orders: lpm::reference::Orders::ALL,
         };
         let err = lpm::reference::job::run(&job).expect_err("refused").to_string();
         assert!(expect.iter().all(|e| err.contains(e)), "reference: {err}");
