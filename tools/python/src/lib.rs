@@ -582,7 +582,8 @@ fn render_again<'py>(
 
 /// `lpm reference SCENE --out OUT --samples N …` with the GIL released; returns `report.json`'s text.
 #[pyfunction]
-#[pyo3(signature = (scene, out, samples, seed=0, image_spp=0, threads=0))]
+#[pyo3(signature = (scene, out, samples, seed=0, image_spp=0, threads=0, orders=None))]
+#[allow(clippy::too_many_arguments)] // the CLI's options, one argument each
 fn reference(
     py: Python<'_>,
     scene: PathBuf,
@@ -591,8 +592,14 @@ fn reference(
     seed: u64,
     image_spp: u32,
     threads: usize,
+    orders: Option<&str>,
 ) -> PyResult<String> {
-    let job = ReferenceJob { scene, out, photons: samples, seed, threads, image_samples_per_pixel: image_spp };
+    let image_orders = match orders {
+        None => lpm::reference::Orders::ALL,
+        Some(text) => text.parse().map_err(PyValueError::new_err)?,
+    };
+    let job =
+        ReferenceJob { scene, out, photons: samples, seed, threads, image_samples_per_pixel: image_spp, image_orders };
     let report = py.detach(|| lpm::reference::job::run(&job)).map_err(|e| reference_failure(&e).into_pyerr(py))?;
     serde_json::to_string(&report)
         .map_err(|e| Failure::plain(Class::Base, format!("cannot serialise the report: {e}")).into_pyerr(py))

@@ -160,6 +160,17 @@ def test_reference_and_compare_are_the_cli_commands(tmp_path, lpm_cli):
     run_cli(lpm_cli, "reference", scene_file, "--out", tmp_path / "cli-ref", "--samples", 20000, "--seed", 7)
     assert (tmp_path / "ref/fluence.raw").read_bytes() == (tmp_path / "cli-ref/fluence.raw").read_bytes()
     assert ref.fluence_stderr.shape == ref.fluence.shape
+    # The image's scattering orders (--orders): the same image bits as the CLI's, named in the report;
+    # orders that are not N, N..M or N.. are a ValueError naming what was written.
+    counted = lpm.reference(scene_file, out=tmp_path / "ref1", samples=16, seed=7, image_spp=1, orders="1")
+    run_cli(
+        lpm_cli, "reference", scene_file, "--out", tmp_path / "cli-ref1", "--samples", 16, "--seed", 7,
+        "--image-spp", 1, "--orders", 1,
+    )
+    assert (tmp_path / "ref1/image.exr").read_bytes() == (tmp_path / "cli-ref1/image.exr").read_bytes()
+    assert counted.report["image_orders"] == {"first": 1, "last": 1}
+    with pytest.raises(ValueError, match="below the first"):
+        lpm.reference(scene_file, out=tmp_path / "ref2", samples=16, image_spp=1, orders="3..1")
 
     table = lpm.compare(solved, ref, max_rel_stderr=0.5, scene=scene_file, json_path=tmp_path / "py.json")
     run_cli(

@@ -147,16 +147,25 @@ def _solve(path, out, backend, device, device_memory_budget, threads, progress, 
     )
 
 
-def reference(scene, out, *, samples, seed=0, image_spp=0, threads=0):
+def reference(scene, out, *, samples, seed=0, image_spp=0, threads=0, orders=None):
     """The Monte-Carlo reference of ``scene`` into ``out`` (``lpm reference``): ``samples``
     photons per channel, ``seed`` (the same seed gives bitwise the same result), ``image_spp``
-    camera paths per pixel (0: no image), ``threads`` (0: all). Returns a
+    camera paths per pixel (0: no image), ``threads`` (0: all), ``orders`` the scattering orders
+    the image counts (``"1"``, ``"2..4"``, ``"2.."``; None: all). Returns a
     :class:`ReferenceResult` (``fluence``, ``fluence_stderr``, ``report``). The GIL is released;
     the reference cannot be stopped mid-way (neither can the CLI's): Ctrl-C is raised when it ends."""
     scene = as_scene(scene)
     out = Path(out)
     path = scene.stage(out / INPUT_DIR)
-    _lpm.reference(str(path), str(out), int(samples), seed=int(seed), image_spp=int(image_spp), threads=int(threads))
+    _lpm.reference(
+        str(path),
+        str(out),
+        int(samples),
+        seed=int(seed),
+        image_spp=int(image_spp),
+        threads=int(threads),
+        orders=None if orders is None else str(orders),
+    )
     return ReferenceResult(out)
 
 
