@@ -7,7 +7,9 @@
 //!   (component fastest, then x, y, z; 1 component when the medium and every light are grey, else r, g, b);
 //! - `fluence_stderr.raw/.json/.nhdr`: the standard error of each value of `fluence.raw`, same layout;
 //! - `image.exr` / `image.png` when image samples are asked for, framed by the scene's camera or
-//!   [`render::default_camera`] exactly like the image of `lpm solve`;
+//!   [`render::default_camera`] exactly like the image of `lpm solve`, the EXR's alpha the
+//!   medium's opacity along each pixel's centre ray as lpm's renderer has it (what
+//!   [`crate::compare`] takes the medium's blocks from);
 //! - `report.json` ([`ReferenceReport`]).
 //!
 //! Nothing is left half-written: the scene is validated before anything is created, every file is
@@ -396,7 +398,8 @@ fn write_outputs(
         outputs.extend(["raw", "json", "nhdr"].map(|ext| format!("{base}.{ext}")));
     }
     if let Some(img) = &result.image {
-        let image = Image { width: img.width, height: img.height, rgb: img.rgb.clone(), alpha: None };
+        let image =
+            Image { width: img.width, height: img.height, rgb: img.rgb.clone(), alpha: Some(img.alpha.clone()) };
         render::write_exr(&dir.join("image.exr"), &image)?;
         render::write_png(&dir.join("image.png"), &image, &scene.display)?;
         outputs.extend(["image.exr", "image.png"].map(String::from));

@@ -93,7 +93,7 @@ pub use phase::sample_hg;
 use crate::scene::Scene;
 use fluence::{emission_cdf, trace_batch, ChannelSetup};
 use grid::Grid;
-use image::{radiance, View};
+use image::{opacity, radiance, View};
 use rng::Rng;
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -140,6 +140,9 @@ pub struct RefImage {
     pub width: u32,
     pub height: u32,
     pub rgb: Vec<f32>,
+    /// Per pixel, how opaque the medium is along its centre ray (1 − its transmittance, averaged
+    /// over the channels, exactly): 0 where the ray meets no medium, as the renderer's alpha.
+    pub alpha: Vec<f32>,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -344,7 +347,10 @@ pub fn run_with_fields(
         let view = View::new(&camera);
         let (w, hgt) = (view.width as usize, view.height as usize);
         let spp = opts.image_samples_per_pixel;
-        let rows: Mutex<Vec<(usize, Vec<f32>)>> = Mutex::new(Vec::with_capacity(hgt));
+        // Per row: its index, colour and alpha (the medium's opacity along the pixel's centre ray).
+        type Row = (usize, Vec<f32>, Vec<f32>);
+        let rows: Mutex<Vec<Row>> = Mutex::new(Vec::with_capacity(hgt));
+        let sigmas: Vec<f64> = setups.iter().map(|s| s.sigma).collect();
         let next_row = AtomicUsize::new(0);
         std::thread::scope(|scope| {
             for _ in 0..threads.clamp(1, hgt) {
@@ -370,8 +376,14 @@ pub fn run_with_fields(
                             }
                         }
                     }
+                    let alpha: Vec<f32> = (0..w)
+                        .map(|x| {
+                            let (o, d) = view.ray(x as f64 + 0.5, y as f64 + 0.5);
+                            opacity(&grid, &sigmas, o / h, d) as f32
+                        })
+                        .collect();
                     if let Ok(mut r) = rows.lock() {
-                        r.push((y, row));
+                        r.push((y, row, alpha));
                     }
                 });
             }
@@ -381,8 +393,9 @@ pub fn run_with_fields(
             Err(p) => p.into_inner(),
         };
         rows.sort_by_key(|r| r.0);
+        let alpha = rows.iter().flat_map(|r| r.2.iter().copied()).collect();
         let rgb = rows.into_iter().flat_map(|r| r.1).collect();
-        RefImage { width: view.width, height: view.height, rgb }
+        RefImage { width: view.width, height: view.height, rgb, alpha }
     });
 
     ReferenceResult {

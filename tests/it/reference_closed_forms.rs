@@ -526,6 +526,9 @@ fn image_closed_forms() {
         let r = run(&s, &|_| 1.0, 1, &o);
         let img = r.image.expect("image");
         assert_eq!(img.rgb.len(), 16 * 16 * 3);
+        // Alpha, 1 − e^{−τ} through the whole column, is exact (no random numbers) whatever the light.
+        let opaque = 1.0 - (-tau).exp() as f32;
+        assert!(img.alpha.iter().all(|&a| (a - opaque).abs() < 1e-6), "alpha {:?} vs {opaque}", &img.alpha[..4]);
         let (m, se) = stats(&img.rgb);
         eprintln!("image albedo {albedo} le {le}: {m:.5} ± {se:.5}, exact {exact:.5}");
         assert!((m - exact).abs() < 4.0 * se + 1e-9, "{m} vs {exact} (se {se})");
@@ -639,6 +642,31 @@ fn image_orders_add_up_to_the_whole_image() {
     let direct = through + (1.0 - 0.7) * 0.5 * (1.0 - through);
     eprintln!("order 0: {m:.5} ± {se:.5}, unscattered {direct:.5}");
     assert!((m - direct).abs() < 4.0 * se, "order 0 is the light seen unscattered: {m} vs {direct} (se {se})");
+}
+
+/// A reference image's alpha is the medium's opacity along each pixel's centre ray, as lpm's
+/// renderer has it: 1 − e^{−τ} through an absorbing box seen orthographically, 0 beside it.
+#[test]
+fn image_alpha_is_the_opacity_of_each_pixels_column() {
+    let mut s = scene([8, 8, 8], 1.0, 0.1, 0.0, 0.0, 0.0, vec![sky(1.0)]);
+    s.camera = Some(Camera {
+        projection: Projection::Orthographic { height: 16.0 },
+        position: DVec3::new(4.0, 4.0, 20.0),
+        look_at: DVec3::new(4.0, 4.0, 0.0),
+        up: DVec3::Y,
+        width: 16,
+        height: 16,
+    });
+    let o =
+        ReferenceOptions { photons: 2, seed: 1, batches: 2, image_samples_per_pixel: 1, ..ReferenceOptions::default() };
+    let img = run(&s, &|_| 1.0, 1, &o).image.expect("image");
+    let opaque = 1.0 - (-0.8f64).exp() as f32;
+    for (p, &a) in img.alpha.iter().enumerate() {
+        // Pixel centres at −3.5, −2.5, …, 11.5: columns and rows 4..=11 look through the box.
+        let inside = |i: usize| (4..12).contains(&i);
+        let expected = if inside(p % 16) && inside(p / 16) { opaque } else { 0.0 };
+        assert!((a - expected).abs() < 1e-6, "pixel {p}: alpha {a}, expected {expected}");
+    }
 }
 
 /// The mean of an image's pixels (red) and its standard error.
