@@ -12,11 +12,11 @@ use glam::DVec3;
 /// Which scattering orders an image counts: the light that reached the camera after `first` to
 /// `last` scatterings (inclusive). Order 0 is the light seen unscattered (the sky through the
 /// medium, the medium's own emission), order 1 the lights' single scattering; light emitted by
-/// the medium counts the scatterings after its emission. An
-/// image of orders 0..=1 and one of 2.. with the same seed add up to the whole image (to rounding):
-/// every estimate is made whatever the orders, only counted or not, so the random numbers are the
-/// same. What a part of an image made by another method is checked against (benches/RESULTS.md,
-/// "the rim taken apart by light and by order").
+/// the medium counts the scatterings after its emission. Images of orders 0..=1 and 2.. with the
+/// same seed add up to the whole image (to rounding): every estimate is made whatever the orders,
+/// only counted or not, so the random numbers are the same. What a part of an image made by
+/// another method is checked against (benches/RESULTS.md, "the rim taken apart by light and by
+/// order").
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct Orders {
     pub first: u32,
