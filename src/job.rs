@@ -632,14 +632,16 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, observer: &mut impl Observ
     // exactly (solver::direct); the exported source above is the whole total.
     let split = if !job.no_render_data || !job.no_image {
         let split = solver::direct::split(&plan, &scene.medium, &store, &fields.source_total)?;
+        // The trace's time among the phases, not in the plan's reasons: two solves of one scene
+        // give equal plans.
+        if let Some(solver::direct::BeamIrradiance::Traced { seconds }) = split.as_ref().map(|s| s.irradiance) {
+            phases.push(("beam trace".to_string(), seconds));
+        }
         match (&split, solver::direct::left_out_because(&plan)) {
             (Some(s), _) => {
                 let irradiance = match s.irradiance {
                     solver::direct::BeamIrradiance::NoBeams => String::new(),
-                    solver::direct::BeamIrradiance::Traced { seconds } => {
-                        // Its time among the phases, not in the plan: two solves of one scene
-                        // give equal plans.
-                        phases.push(("beam trace".to_string(), seconds));
+                    solver::direct::BeamIrradiance::Traced { .. } => {
                         "; the suns' irradiance traced per voxel along their exact direction".to_string()
                     }
                     solver::direct::BeamIrradiance::Swept { steps } => {

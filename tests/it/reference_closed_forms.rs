@@ -460,14 +460,7 @@ fn cloud_blob_is_finite_and_non_negative() {
 #[test]
 fn vacuum_sky() {
     let mut s = scene([6, 5, 4], 2.0, 1.0, 0.5, 0.0, 0.0, vec![sky(0.7)]);
-    s.camera = Some(Camera {
-        projection: Projection::Orthographic { height: 30.0 },
-        position: DVec3::new(6.0, 5.0, 30.0),
-        look_at: DVec3::new(6.0, 5.0, 0.0),
-        up: DVec3::Y,
-        width: 5,
-        height: 4,
-    });
+    s.camera = Some(along_z(DVec3::new(6.0, 5.0, 30.0), 30.0, [5, 4]));
     let o = ReferenceOptions {
         photons: 200_000,
         seed: 1,
@@ -490,14 +483,7 @@ fn vacuum_sky() {
 /// (radiance furnace: exercises next-event estimation to the sky and multiple scattering).
 #[test]
 fn image_closed_forms() {
-    let ortho = |w: u32| Camera {
-        projection: Projection::Orthographic { height: 8.0 },
-        position: DVec3::new(4.0, 4.0, 20.0),
-        look_at: DVec3::new(4.0, 4.0, 0.0),
-        up: DVec3::Y,
-        width: w,
-        height: w,
-    };
+    let ortho = |w: u32| along_z(DVec3::new(4.0, 4.0, 20.0), 8.0, [w, w]);
     let stats = |rgb: &[f32]| {
         let v: Vec<f64> = rgb.chunks(3).map(|p| p[0] as f64).collect();
         let n = v.len() as f64;
@@ -571,14 +557,7 @@ fn image_single_scattering_of_the_sun() {
     let (sigma, albedo, g, e) = (0.05, 0.2, 0.5, 1.0);
     let mut s =
         scene([32, 32, 1], 1.0, sigma, albedo, g, 0.0, vec![Light::Sun { direction: DVec3::Z, irradiance: [e; 3] }]);
-    s.camera = Some(Camera {
-        projection: Projection::Orthographic { height: 8.0 },
-        position: DVec3::new(16.0, 16.0, -10.0),
-        look_at: DVec3::new(16.0, 16.0, 0.0),
-        up: DVec3::Y,
-        width: 16,
-        height: 16,
-    });
+    s.camera = Some(along_z(DVec3::new(16.0, 16.0, -10.0), 8.0, [16, 16]));
     let o = ReferenceOptions {
         photons: 2,
         seed: 8,
@@ -610,14 +589,7 @@ fn image_single_scattering_of_the_sun() {
 fn image_orders_add_up_to_the_whole_image() {
     let sun = Light::Sun { direction: DVec3::new(0.3, -0.2, 0.93).normalize(), irradiance: [2.0; 3] };
     let mut s = scene([8, 8, 8], 1.0, 0.3, 0.7, 0.6, 0.5, vec![sky(1.0), sun]);
-    s.camera = Some(Camera {
-        projection: Projection::Orthographic { height: 6.0 },
-        position: DVec3::new(4.0, 4.0, 20.0),
-        look_at: DVec3::new(4.0, 4.0, 0.0),
-        up: DVec3::Y,
-        width: 8,
-        height: 8,
-    });
+    s.camera = Some(along_z(DVec3::new(4.0, 4.0, 20.0), 6.0, [8, 8]));
     let image = |orders: Orders| {
         let o = ReferenceOptions {
             photons: 2,
@@ -649,14 +621,7 @@ fn image_orders_add_up_to_the_whole_image() {
 #[test]
 fn image_alpha_is_the_opacity_of_each_pixels_column() {
     let mut s = scene([8, 8, 8], 1.0, 0.1, 0.0, 0.0, 0.0, vec![sky(1.0)]);
-    s.camera = Some(Camera {
-        projection: Projection::Orthographic { height: 16.0 },
-        position: DVec3::new(4.0, 4.0, 20.0),
-        look_at: DVec3::new(4.0, 4.0, 0.0),
-        up: DVec3::Y,
-        width: 16,
-        height: 16,
-    });
+    s.camera = Some(along_z(DVec3::new(4.0, 4.0, 20.0), 16.0, [16, 16]));
     let o =
         ReferenceOptions { photons: 2, seed: 1, batches: 2, image_samples_per_pixel: 1, ..ReferenceOptions::default() };
     let img = run(&s, &|_| 1.0, 1, &o).image.expect("image");
@@ -666,6 +631,19 @@ fn image_alpha_is_the_opacity_of_each_pixels_column() {
         let inside = |i: usize| (4..12).contains(&i);
         let expected = if inside(p % 16) && inside(p / 16) { opaque } else { 0.0 };
         assert!((a - expected).abs() < 1e-6, "pixel {p}: alpha {a}, expected {expected}");
+    }
+}
+
+/// An orthographic camera at `position` looking along the z axis at the plane z = 0 (y up), its
+/// view `height` tall (world units), `pixels` wide and high.
+fn along_z(position: DVec3, height: f64, pixels: [u32; 2]) -> Camera {
+    Camera {
+        projection: Projection::Orthographic { height },
+        position,
+        look_at: DVec3::new(position.x, position.y, 0.0),
+        up: DVec3::Y,
+        width: pixels[0],
+        height: pixels[1],
     }
 }
 
