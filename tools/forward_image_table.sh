@@ -2,7 +2,9 @@
 # The image-accuracy table of benches/RESULTS.md ("Render: the suns' single scattering exact"):
 # a 48³ procedural cloud (σt 0.8, sun 3.0 plus sky 0.5) with Henyey–Greenstein g = 0.8 and 0.95
 # and albedo 0.99 and 0.9, seen backlit (towards the sun), side-lit and front-lit (the sun behind
-# the camera) by a 40° pinhole camera, 128 × 128 pixels. Each view is solved with the default
+# the camera) by a 40° pinhole camera, and exactly towards the sun by an orthographic one (the
+# view `toward`: every camera ray at 0° from the sun, where the forward peak is sharpest),
+# 128 × 128 pixels. Each view is solved with the default
 # settings and rendered by the solve, and compared with `lpm reference --image-spp` of the same
 # scene and camera (kept across runs when present, one per SPP: `<view>_ref<SPP>`; at 4096 paths
 # per pixel about two minutes a view on two cores); one markdown row per view: relative L2 and
@@ -11,7 +13,7 @@
 #
 #   tools/forward_image_table.sh [OUT_DIR]      default out/forward-image
 #   LPM=target/release/lpm  BACKEND=cpu  SPP=4096 (the reference's paths per pixel)
-#   GS="0.8 0.95"  ALBEDOS="0.99 0.9"  VIEWS="back side front"
+#   GS="0.8 0.95"  ALBEDOS="0.99 0.9"  VIEWS="back side front toward"
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-out/forward-image}
@@ -20,7 +22,7 @@ BACKEND=${BACKEND:-cpu}
 SPP=${SPP:-4096}
 GS=${GS:-"0.8 0.95"}
 ALBEDOS=${ALBEDOS:-"0.99 0.9"}
-VIEWS=${VIEWS:-"back side front"}
+VIEWS=${VIEWS:-"back side front toward"}
 if [ ! -x "$LPM" ]; then
     [ "$LPM" = target/release/lpm ] || { echo "no lpm binary at $LPM" >&2; exit 1; }
     cargo build --release
@@ -34,8 +36,11 @@ g, a, view, out = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4]
 d = [-0.55, -0.35, 0.75]  # towards the sun
 n = math.sqrt(sum(x * x for x in d)); d = [x / n for x in d]
 c, dist = [24.0, 24.0, 24.0], 62.0
-if view == 'back':    # the camera looks towards the sun through the cloud
+projection = 'projection = "pinhole"\nfov_y = 40'
+if view in ('back', 'toward'):  # the camera looks towards the sun through the cloud
     e = [c[i] - dist * d[i] for i in range(3)]
+    if view == 'toward':  # every ray parallel to the sun's; 45 voxels high, as the pinhole's frame at the cloud
+        projection = 'projection = "orthographic"\nview_height = 45'
 elif view == 'front':  # the sun behind the camera
     e = [c[i] + dist * d[i] for i in range(3)]
 elif view == 'side':   # at right angles to the sun, level
@@ -62,8 +67,7 @@ irradiance = 3.0
 directions_per_face = 4
 tolerance = 1e-3
 [camera]
-projection = "pinhole"
-fov_y = 40
+{projection}
 position = {e}
 look_at = {c}
 up = [0, 0, 1]
