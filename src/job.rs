@@ -587,8 +587,9 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, observer: &mut impl Observ
         }
     }
     // Where the light leaves, per boundary pixel of each face (either backend's maps; none from
-    // a resumed GPU solve, mirror faces on the GPU, or a budget too small for their records,
-    // `SolveRun::exit_maps`): faces/, a directory published with the set.
+    // mirror faces on the GPU, a budget too small for their records, or a solve resumed from a
+    // checkpoint that kept no maps, `SolveRun::exit_maps`): faces/, a directory published with
+    // the set.
     let mut published = Vec::new();
     if let Some(maps) = &exit_maps {
         let dir = stage.join(solver::exitance::FACES_DIR);

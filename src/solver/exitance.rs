@@ -56,8 +56,12 @@
 //! count: the rays of a row of slots record their side exits in that row's list, and the lists
 //! are added in row order after the sweep, then the far face's exits in slot order. The GPU
 //! backend's kernels record each side exit where it happens and the host places them, and the far
-//! face's, with the same `record_exit` ([`super::gpu::face_maps`]); it makes none for a resumed
-//! solve or mirror faces (solved as the doubled volume), so no `faces/` is written then.
+//! face's, with the same `record_exit` ([`super::gpu::face_maps`]); it makes none for mirror
+//! faces (solved as the doubled volume), so no `faces/` is written then. A checkpoint keeps the
+//! maps of the orders it holds (`exits_<orders>.f64`, [`ExitMaps::to_bytes`]), so a resumed solve
+//! adds on to them and writes the same maps as an uninterrupted one, bit for bit; only a resume
+//! from a checkpoint without maps (written under a budget too small for their records) writes
+//! none.
 
 use super::energy::VOLUME_FACES;
 use super::sweep::FaceSweep;
@@ -178,6 +182,31 @@ impl ExitMaps {
         Ok(())
     }
 
+    /// The maps as bytes for a checkpoint ([`super::fields`]): every face's pixels in order, each
+    /// pixel's three f64 little-endian (the exact sums, so a resumed solve adds on to the same
+    /// bits as an uninterrupted one).
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let mut bytes = Vec::with_capacity(self.maps.iter().map(|m| m.len() * 24).sum());
+        for pixel in self.maps.iter().flatten() {
+            pixel.iter().for_each(|v| bytes.extend_from_slice(&v.to_le_bytes()));
+        }
+        bytes
+    }
+
+    /// Reads [`ExitMaps::to_bytes`] back for a volume of `dims` with `channels` channels; `None`
+    /// when the bytes are not that size (another volume's maps, or a damaged file).
+    pub fn from_bytes(dims: [u32; 3], channels: usize, bytes: &[u8]) -> Option<Self> {
+        let mut maps = Self::new(dims, channels);
+        if bytes.len() != maps.maps.iter().map(|m| m.len() * 24).sum::<usize>() {
+            return None;
+        }
+        let f = |b: &[u8]| f64::from_le_bytes(b.try_into().unwrap_or([0; 8]));
+        for (pixel, b) in maps.maps.iter_mut().flatten().zip(bytes.chunks_exact(24)) {
+            *pixel = [f(&b[..8]), f(&b[8..16]), f(&b[16..])];
+        }
+        Some(maps)
+    }
+
     /// Adds `entries` in order, each radiance times `power` (the sweep's power per radiance).
     pub(super) fn add(&mut self, entries: &[ExitEntry], power: f64) {
         for e in entries {
@@ -295,6 +324,23 @@ mod tests {
         assert_eq!(pixel_taps(4, 0.25, 4, false), [(3, 0.75), (0, 0.0), (0, 0.125), (3, 0.125)]);
         assert_eq!(pixel_taps(2, 0.25, 4, false), [(1, 0.75), (0, 0.0), (2, 0.25), (0, 0.0)]);
         assert_eq!(pixel_taps(0, 0.25, 4, true), [(3, 0.75), (0, 0.0), (0, 0.25), (0, 0.0)]);
+    }
+
+    #[test]
+    fn maps_read_back_from_their_bytes_exactly_and_refuse_another_volume() {
+        let sweep = FaceSweep::new(4, [4, 3, 5]);
+        let mut out = Vec::new();
+        record_exit(&mut out, &sweep, 5, Exit::Far, [2, 1], [0.3, 0.7], 4, 1.0, [8.0, 1.0 / 3.0, 0.1]);
+        let mut maps = ExitMaps::new([4, 3, 5], 3);
+        maps.add(&out, 0.7);
+        let bytes = maps.to_bytes();
+        let back = ExitMaps::from_bytes([4, 3, 5], 3, &bytes).expect("the same volume");
+        for face in 0..6 {
+            assert_eq!(back.map(face), maps.map(face), "face {face}");
+        }
+        assert!(maps.total(5)[1] > 0.0);
+        assert!(ExitMaps::from_bytes([4, 3, 6], 3, &bytes).is_none(), "another volume's maps");
+        assert!(ExitMaps::from_bytes([4, 3, 5], 3, &bytes[..bytes.len() - 8]).is_none(), "a truncated file");
     }
 
     #[test]

@@ -28,6 +28,7 @@
 //! checkpoint of a solve is waited for at once.
 
 use super::energy::Tallies;
+use super::exitance::ExitMaps;
 use super::orders::OrderRecord;
 use super::passes::{Named, OrderFieldSet};
 use super::periodic::PeriodicCarry;
@@ -42,7 +43,8 @@ const CHECKPOINT: &str = "checkpoint.json";
 /// source file (`source_scratch`, the diffusion correction's output) rotates with the other two; 4:
 /// the boundary tallies are split by the faces of the volume; 5: an accelerated solve's last
 /// diffusion correction is saved beside it (`correction_<orders>.f64`); what periodic sweeps
-/// carry over is saved too (`carry_<orders>.f64`, optional: an older version-5 checkpoint has none).
+/// carry over is saved too (`carry_<orders>.f64`, optional: an older version-5 checkpoint has none),
+/// and so are the exitance maps (`exits_<orders>.f64`, optional in the same way).
 const CHECKPOINT_VERSION: u32 = 5;
 
 /// The solver's fields as files of f32 in the brick store.
@@ -117,6 +119,10 @@ struct Checkpoint {
     /// ([`super::periodic::PeriodicCarry::to_bytes`]); none when nothing is carried.
     #[serde(default)]
     carry: Option<String>,
+    /// The file holding the exitance maps of the orders done ([`ExitMaps::to_bytes`]); none when
+    /// the solve makes no maps.
+    #[serde(default)]
+    exits: Option<String>,
     state: LoopState,
 }
 
@@ -128,6 +134,11 @@ fn correction_file(orders: u32) -> String {
 /// The carried-ray-state file of the checkpoint after `orders` orders.
 fn carry_file(orders: u32) -> String {
     format!("carry_{orders}.f64")
+}
+
+/// The exitance maps' file of the checkpoint after `orders` orders.
+fn exits_file(orders: u32) -> String {
+    format!("exits_{orders}.f64")
 }
 
 impl OrderFieldSet<Field> {
@@ -153,6 +164,7 @@ impl OrderFieldSet<Field> {
             acceleration: None,
             resumed_correction: None,
             resumed_carry: None,
+            resumed_exits: None,
         })
     }
 
@@ -182,6 +194,14 @@ impl OrderFieldSet<Field> {
             Some(name) => {
                 let (path, bytes) = read(name)?;
                 Some(PeriodicCarry::from_bytes(plan, &bytes).ok_or(SolveError::CheckpointMismatch { path })?)
+            }
+        };
+        let resumed_exits = match &cp.exits {
+            None => None,
+            Some(name) => {
+                let (path, bytes) = read(name)?;
+                let maps = ExitMaps::from_bytes(plan.dims, plan.channels as usize, &bytes);
+                Some(maps.ok_or(SolveError::CheckpointMismatch { path })?)
             }
         };
         let resumed_correction = match &cp.correction {
@@ -214,6 +234,7 @@ impl OrderFieldSet<Field> {
             acceleration: None,
             resumed_correction,
             resumed_carry,
+            resumed_exits,
         };
         // A killed order's partial sums are cleared when the next order begins; the order fields
         // still hold the last completed order's (the tail estimate may need its fluence).
@@ -223,15 +244,16 @@ impl OrderFieldSet<Field> {
     /// Flushes the committed state and records it in `checkpoint.json` (atomically), waiting for
     /// both; until the next checkpoint, no order writes what this one names (see [`Named`]).
     pub fn write_checkpoint(&mut self, dir: &Path, digest: &str, state: &LoopState) -> Result<(), SolveError> {
-        self.start_checkpoint(dir, digest, state, None)?.finish()?;
+        self.start_checkpoint(dir, digest, state, None, None)?.finish()?;
         self.checkpoint_on_disk();
         Ok(())
     }
 
     /// Starts writing a checkpoint of the state in a background thread: the files of the fields
     /// it names are synced to disk, then the correction (when accelerated), what periodic sweeps
-    /// carry into the next order (`carry`, when anything) and `checkpoint.json` are written
-    /// (atomically). The caller goes on with the next order's sweeps, which write no
+    /// carry into the next order (`carry`, when anything), the exitance maps of the orders the
+    /// state holds (`exits`, [`ExitMaps::to_bytes`] taken when that order ended) and
+    /// `checkpoint.json` are written (atomically). The caller goes on with the next order's sweeps, which write no
     /// field this checkpoint or the one before it names ([`Named`]); before the next commit (the
     /// first pass that could write one of the older checkpoint's fields) it waits for
     /// [`PendingCheckpoint::finish`] and calls [`OrderFieldSet::checkpoint_on_disk`].
@@ -241,6 +263,7 @@ impl OrderFieldSet<Field> {
         digest: &str,
         state: &LoopState,
         carry: Option<&PeriodicCarry>,
+        exits: Option<Vec<u8>>,
     ) -> Result<PendingCheckpoint, SolveError> {
         let mut state = state.clone();
         state.warm_start = self.warm_started;
@@ -252,6 +275,7 @@ impl OrderFieldSet<Field> {
             (name, bytes)
         });
         let carry = carry.filter(|c| !c.is_empty()).map(|c| (carry_file(state.orders_done), c.to_bytes()));
+        let exits = exits.map(|bytes| (exits_file(state.orders_done), bytes));
         let cp = Checkpoint {
             version: CHECKPOINT_VERSION,
             digest: digest.to_string(),
@@ -264,6 +288,7 @@ impl OrderFieldSet<Field> {
             fluence_spare: self.fluence_spare.name().to_string(),
             correction: correction.as_ref().map(|(name, _)| name.clone()),
             carry: carry.as_ref().map(|(name, _)| name.clone()),
+            exits: exits.as_ref().map(|(name, _)| name.clone()),
             state,
         };
         // The named fields, and the order's fluence (a resumed tail estimate reads the last one).
@@ -296,7 +321,7 @@ impl OrderFieldSet<Field> {
                 let file = std::fs::File::open(path).map_err(StoreError::io(path, "open for sync"))?;
                 file.sync_data().map_err(StoreError::io(path, "sync"))?;
             }
-            for (name, bytes) in correction.iter().chain(&carry) {
+            for (name, bytes) in correction.iter().chain(&carry).chain(&exits) {
                 crate::output::write_atomic(&dir.join(name), |w| std::io::Write::write_all(w, bytes))
                     .map_err(SolveError::Checkpoint)?;
             }
@@ -311,6 +336,9 @@ impl OrderFieldSet<Field> {
             }
             if let Some((name, _)) = &carry {
                 remove_older(&dir, "carry_", name);
+            }
+            if let Some((name, _)) = &exits {
+                remove_older(&dir, "exits_", name);
             }
             tracing::debug!(orders, seconds = t.elapsed().as_secs_f64(), "checkpoint on disk");
             Ok(())
@@ -338,9 +366,9 @@ impl PendingCheckpoint {
     }
 }
 
-/// Removes the side files (`prefix….f64`: corrections, carried ray state) of earlier checkpoints,
-/// all but `keep`; a file that cannot be removed is only left behind, so failures are logged, not
-/// raised.
+/// Removes the side files (`prefix….f64`: corrections, carried ray state, exitance maps) of
+/// earlier checkpoints, all but `keep`; a file that cannot be removed is only left behind, so
+/// failures are logged, not raised.
 fn remove_older(dir: &Path, prefix: &str, keep: &str) {
     let Ok(entries) = std::fs::read_dir(dir) else { return };
     for entry in entries.flatten() {

@@ -140,9 +140,9 @@ pub struct SolveRun {
     /// Whether the store's pages stayed resident between passes ([`crate::store::resident`]).
     pub residency: Residency,
     /// The outgoing power per boundary pixel of each face ([`exitance`]; on the GPU
-    /// [`gpu::face_maps`]). `None` where the GPU makes none: a resumed solve (the maps of the
-    /// orders before the checkpoint are not kept), mirror faces (solved as the doubled volume,
-    /// whose faces are not the scene's), or a budget their records do not fit.
+    /// [`gpu::face_maps`]). `None` where the GPU makes none: mirror faces (solved as the doubled
+    /// volume, whose faces are not the scene's), a budget their records do not fit, or a solve
+    /// resumed from a checkpoint that kept no maps (a resumed solve adds on to its checkpoint's).
     pub exit_maps: Option<exitance::ExitMaps>,
 }
 
@@ -540,9 +540,9 @@ fn run_gpu(
     let mut gpu = gpu::GpuBackend::new(ctx.clone(), plan, store, fields, gpu_options)?;
     let memory = gpu.memory_plan();
     let resumable = checkpoints.is_some();
-    // A resumed solve sweeps only the orders after its checkpoint: maps of those alone would not
-    // add up to the books, so it makes none.
-    let resumed = start.orders_done > 0;
+    // A resumed solve sweeps only the orders after its checkpoint: it adds them to the maps its
+    // checkpoint kept, or makes none.
+    gpu.resumed_after(start.orders_done);
     if let Some((digest, cadence)) = checkpoints {
         gpu.enable_checkpoints(digest, cadence);
     }
@@ -554,7 +554,7 @@ fn run_gpu(
             e => e,
         })?;
     phases.push(("orders".to_string(), t.elapsed().as_secs_f64()));
-    let exit_maps = gpu.take_exit_maps().filter(|_| !resumed);
+    let exit_maps = gpu.take_exit_maps();
     drop(gpu);
     let peak = ctx.peak_allocated_bytes();
     // With validation on, any error it reported fails the solve: a clean run is part of the

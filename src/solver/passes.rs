@@ -295,6 +295,9 @@ pub struct OrderFieldSet<F> {
     pub(crate) resumed_correction: Option<(std::path::PathBuf, Vec<f64>)>,
     /// A resumed solve's carried ray state on periodic sweep axes, until the backend takes it.
     pub(crate) resumed_carry: Option<super::periodic::PeriodicCarry>,
+    /// A resumed solve's exitance maps of the orders its checkpoint holds, until the backend
+    /// takes them (none when the checkpoint kept none).
+    pub(crate) resumed_exits: Option<super::exitance::ExitMaps>,
 }
 
 /// Per role of [`OrderFieldSet`], whether the field in it is one the last checkpoint named (and
@@ -353,6 +356,7 @@ impl OrderFieldSet<MemField> {
             acceleration: None,
             resumed_correction: None,
             resumed_carry: None,
+            resumed_exits: None,
         }
     }
 }

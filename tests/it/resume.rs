@@ -23,10 +23,22 @@ fn lpm_ok(args: &[&str]) {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
 
-/// The exported fields of a resumed solve are byte for byte those of the uninterrupted one.
+/// The exported fields and exitance maps of a resumed solve are byte for byte those of the
+/// uninterrupted one (the checkpoint keeps the maps of the orders it holds).
 fn assert_same_fields(whole: &std::path::Path, cut: &std::path::Path, context: &str) {
     for f in ["fluence.raw", "source.raw"] {
         assert!(std::fs::read(whole.join(f)).unwrap() == std::fs::read(cut.join(f)).unwrap(), "{f} differs {context}");
+    }
+    let maps: Vec<_> = std::fs::read_dir(whole.join("faces"))
+        .expect("the uninterrupted solve's faces/")
+        .map(|e| e.unwrap().file_name())
+        .filter(|name| name.to_string_lossy().ends_with(".raw"))
+        .collect();
+    assert_eq!(maps.len(), 6, "one map per face");
+    for name in maps {
+        let (a, b) = (whole.join("faces").join(&name), cut.join("faces").join(&name));
+        let resumed = std::fs::read(&b).unwrap_or_else(|e| panic!("{}: {e} {context}", b.display()));
+        assert!(std::fs::read(&a).unwrap() == resumed, "faces/{} differs {context}", name.to_string_lossy());
     }
 }
 
@@ -60,9 +72,6 @@ fn killed_solve_resumes_to_the_same_bits() {
     assert_eq!(report["orders"], 5);
     assert_eq!(report["history"].as_array().unwrap().len(), 5);
     assert!(!cut.join(".lpm-work").exists(), "the work store is removed after success");
-    // The exitance maps of the orders before the checkpoint are not kept: a resumed solve writes
-    // none (maps of the later orders alone would not add up to the books).
-    assert!(whole.join("faces").is_dir() && !cut.join("faces").exists(), "faces/ only from the whole solve");
 }
 
 #[test]
@@ -127,9 +136,7 @@ fn sigterm_stops_at_a_slice_keeps_the_checkpoint_and_resumes_to_the_same_bits() 
 
     let o = lpm(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image", "--resume"], None);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    for f in ["fluence.raw", "source.raw"] {
-        assert!(std::fs::read(whole.join(f)).unwrap() == std::fs::read(cut.join(f)).unwrap(), "{f} differs");
-    }
+    assert_same_fields(&whole, &cut, "after resume");
 }
 
 /// Checkpoints every other order (`solver.checkpoint_every_orders = 2`): a solve killed after an
@@ -173,6 +180,47 @@ fn killed_between_checkpoints_resumes_to_the_same_bits() {
     assert!(skipped, "no kill landed after an order without a checkpoint: move the abort points");
 }
 
+/// A solve cancelled (as SIGTERM does; the test hook raises the flag at a chosen slice) in an order
+/// after one the cadence did not checkpoint checkpoints that order's state as it stops, with the
+/// exitance maps as they were when it ended (the cancelled order had added some of its own): the
+/// resumed solve's fields and maps are the uninterrupted one's, bit for bit.
+#[test]
+fn cancelled_after_an_order_without_a_checkpoint_keeps_that_order_maps_and_all() {
+    if !cfg!(feature = "test-hooks") {
+        panic!("this test needs lpm's test hooks: run it with `cargo test --features test-hooks`");
+    }
+    let dir = temp_dir("resume-cancel-pending");
+    let scene = dir.join("scene.toml");
+    // Streamed: a device-resident solve committed the order on the device, whose state a cancel
+    // cannot bring home, so it keeps the checkpoint before.
+    let text = killable_cloud_scene([34, 30, 38], 6).replace(
+        "checkpoint_every_orders = 1\n",
+        "checkpoint_every_orders = 2\ncheckpoint_every_seconds = 1e9\ndevice_residency = \"streamed\"\n",
+    );
+    std::fs::write(&scene, text).unwrap();
+    let s = scene.to_str().unwrap();
+    let (whole, cut) = (dir.join("whole"), dir.join("cut"));
+    lpm_ok(&["solve", s, "--out", whole.to_str().unwrap(), "--no-image"]);
+
+    // A slice of the fourth order (order 0 computes slices 1–15 here, every later order 12): the
+    // third completed without a checkpoint (due after two and four).
+    let o = crate::common::lpm_command(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image"])
+        .env("LPM_TEST_CANCEL_AT_SLICE", "46")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(3), "{stderr}");
+    assert!(stderr.contains("the solve was cancelled; its last checkpoint is kept"), "{stderr}");
+    let checkpoint: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(cut.join(".lpm-work/checkpoint.json")).expect("checkpoint"))
+            .unwrap();
+    assert_eq!(checkpoint["state"]["orders_done"], 3, "the cancel checkpoints the order the cadence skipped");
+    assert_eq!(checkpoint["exits"], "exits_3.f64");
+
+    lpm_ok(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image", "--resume"]);
+    assert_same_fields(&whole, &cut, "after resume");
+}
+
 /// Checkpoints are written in the background while the next order's sweeps run: a solve killed
 /// while one is still being written (the test hook holds it back just before `checkpoint.json`)
 /// resumes from the one before it, whose fields that order's sweeps left alone, to the same bits.
@@ -207,15 +255,14 @@ fn killed_while_a_checkpoint_is_written_resumes_from_the_one_before() {
     let completed = json(cut.join("progress.json"))["order"].as_u64().unwrap() + 1;
     assert_eq!(completed, done + 1, "the checkpoint of the last completed order should have been in flight");
     assert_eq!(checkpoint["correction"], format!("correction_{done}.f64"));
+    assert_eq!(checkpoint["exits"], format!("exits_{done}.f64"), "the exitance maps kept beside it");
     assert!(
         cut.join(format!(".lpm-work/correction_{completed}.f64")).exists(),
         "the in-flight checkpoint's correction file should be there"
     );
     let o = lpm(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image", "--resume"], None);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    for f in ["fluence.raw", "source.raw"] {
-        assert!(std::fs::read(whole.join(f)).unwrap() == std::fs::read(cut.join(f)).unwrap(), "{f} differs");
-    }
+    assert_same_fields(&whole, &cut, "after resuming from the checkpoint before the one in flight");
     assert!(!cut.join(".lpm-work").exists(), "the work store is removed after success");
 }
 

@@ -216,8 +216,10 @@ pub struct GpuBackend<'a> {
     /// The scene digest checkpoints are written under and their cadence (the order loop
     /// schedules them); `None`: no checkpoints.
     checkpoints: Option<(String, CheckpointCadence)>,
-    /// The state after the last completed order when the cadence skipped its checkpoint.
-    pending: Option<LoopState>,
+    /// The state after the last completed order when the cadence skipped its checkpoint, with
+    /// the exitance maps as they were then (a cancel checkpoints it after the next order has
+    /// added some of its exits to the maps).
+    pending: Option<(LoopState, Option<Vec<u8>>)>,
     /// The checkpoint being written in the background while the next order's sweeps run.
     writing: Option<PendingCheckpoint>,
     memory: MemoryPlan,
@@ -229,6 +231,8 @@ pub struct GpuBackend<'a> {
     carry: PeriodicCarry,
     /// The exitance maps, summed pass by pass ([`face_maps`]); `None` when not made.
     exits: Option<ExitMaps>,
+    /// Whether the maps came from a resumed solve's checkpoint ([`Self::resumed_after`]).
+    exits_resumed: bool,
 }
 
 impl<'a> GpuBackend<'a> {
@@ -263,15 +267,21 @@ impl<'a> GpuBackend<'a> {
         if options.exit_maps && !memory.exit_maps {
             tracing::warn!("the exitance maps' records do not fit the device memory budget: no faces/ maps");
         }
-        // The kill test's hook (tests/it/resume.rs): compiled only into builds with the
+        // The kill tests' hooks (tests/it/resume.rs): compiled only into builds with the
         // `test-hooks` cargo feature (tools/test.sh turns it on), never into a plain or release
-        // build. The one environment variable read outside the CLI: plumbing a test hook through
-        // the job API would make it part of that API.
+        // build. Environment variables, not options: plumbing a test hook through the job API
+        // would make it part of that API.
         #[cfg(feature = "test-hooks")]
-        let abort_at_slice = std::env::var("LPM_TEST_ABORT_AT_SLICE").ok().and_then(|v| v.parse().ok());
+        let hook = {
+            let slice = |name: &str| std::env::var(name).ok().and_then(|v| v.parse().ok());
+            streamer::SliceHook {
+                abort_at: slice("LPM_TEST_ABORT_AT_SLICE"),
+                cancel_at: slice("LPM_TEST_CANCEL_AT_SLICE"),
+            }
+        };
         #[cfg(not(feature = "test-hooks"))]
-        let abort_at_slice = None;
-        let mut streamer = SliceStreamer::new(&ctx, plan, memory, options.profile, abort_at_slice, options.cancel)?;
+        let hook = streamer::SliceHook::default();
+        let mut streamer = SliceStreamer::new(&ctx, plan, memory, options.profile, hook, options.cancel)?;
         let mode = Mode::new(&ctx, plan, &memory, store)?;
         let resources = DeviceResources::new(&ctx, plan, &memory, streamer.submitter(), mode.resident_buffers())?;
         tracing::info!(
@@ -290,8 +300,13 @@ impl<'a> GpuBackend<'a> {
             "GPU backend ready"
         );
         let medium = StoreMedium::new(store, plan)?;
-        // A resumed solve goes on with what its checkpoint's periodic sweeps carried over.
+        // A resumed solve goes on with what its checkpoint's periodic sweeps carried over, and
+        // adds on to the exitance maps of the orders its checkpoint holds.
         let carry = fields.resumed_carry.take().unwrap_or_else(|| PeriodicCarry::new(plan));
+        let resumed_exits = fields.resumed_exits.take();
+        let exits_resumed = resumed_exits.is_some();
+        let exits =
+            memory.exit_maps.then(|| resumed_exits.unwrap_or_else(|| ExitMaps::new(plan.dims, plan.channels as usize)));
         Ok(GpuBackend {
             streamer,
             resources,
@@ -308,7 +323,8 @@ impl<'a> GpuBackend<'a> {
             half_exponent: None,
             progress: None,
             carry,
-            exits: memory.exit_maps.then(|| ExitMaps::new(plan.dims, plan.channels as usize)),
+            exits,
+            exits_resumed,
         })
     }
 
@@ -343,6 +359,15 @@ impl<'a> GpuBackend<'a> {
     /// map is tens of MB).
     pub fn take_exit_maps(&mut self) -> Option<ExitMaps> {
         self.exits.take()
+    }
+
+    /// Tells the backend the solve resumes after `orders_done` orders: unless its checkpoint kept
+    /// the maps of those orders, it makes none (maps of the later orders alone would not add up
+    /// to the books), and its checkpoints keep none.
+    pub fn resumed_after(&mut self, orders_done: u32) {
+        if orders_done > 0 && !self.exits_resumed {
+            self.exits = None;
+        }
     }
 
     /// The Vulkan context the backend runs on.
@@ -635,8 +660,8 @@ impl<'a> Backend for GpuBackend<'a> {
                     self.mode.device_end().map(|e| e.state),
                     Some(DeviceState::Committed { home: false, .. })
                 );
-                if let Some(state) = self.pending.take().filter(|_| self.carry.is_empty() && on_host) {
-                    self.write_checkpoint(&state, false)?;
+                if let Some((state, exits)) = self.pending.take().filter(|_| self.carry.is_empty() && on_host) {
+                    self.write_checkpoint(&state, exits, false)?;
                 }
                 Err(e)
             }
@@ -708,11 +733,13 @@ impl<'a> Backend for GpuBackend<'a> {
         if self.checkpoints.is_none() {
             return Ok(());
         }
+        // The maps as they are now, after this order: the next one adds to them at once.
+        let exits = self.exits.as_ref().map(ExitMaps::to_bytes);
         if due {
             // Written while the next order's sweeps run; the last one before the solve ends.
-            self.write_checkpoint(state, !last)
+            self.write_checkpoint(state, exits, !last)
         } else {
-            self.pending = Some(state.clone());
+            self.pending = Some((state.clone(), exits));
             Ok(())
         }
     }
@@ -733,10 +760,15 @@ impl Drop for GpuBackend<'_> {
 impl GpuBackend<'_> {
     /// Writes `state` as the checkpoint now (when checkpoints are on): in the `background`
     /// ([`OrderFieldSet::start_checkpoint`]), or waiting until it is on disk.
-    fn write_checkpoint(&mut self, state: &LoopState, background: bool) -> Result<(), SolveError> {
+    fn write_checkpoint(
+        &mut self,
+        state: &LoopState,
+        exits: Option<Vec<u8>>,
+        background: bool,
+    ) -> Result<(), SolveError> {
         self.settle_checkpoint()?;
         let Some((digest, _)) = &self.checkpoints else { return Ok(()) };
-        let writing = self.fields.start_checkpoint(self.store.dir(), digest, state, Some(&self.carry))?;
+        let writing = self.fields.start_checkpoint(self.store.dir(), digest, state, Some(&self.carry), exits)?;
         self.writing = Some(writing);
         if !background {
             self.settle_checkpoint()?;

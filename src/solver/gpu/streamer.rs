@@ -95,8 +95,8 @@ pub struct SliceStreamer {
     resident_ready: u64,
     slots: Vec<SlotState>,
     copier: Copier,
-    /// Test hook: abort the process when this many slices have been computed (simulates a kill).
-    abort_at_slice: Option<u64>,
+    /// Test hooks on the slice count: a kill, or a cancel.
+    hook: SliceHook,
     /// Slices computed so far (what the kill test's hook counts).
     slices: u64,
     /// Looked at before each slice: raised, the pass returns `SolveError::Cancelled`.
@@ -106,13 +106,22 @@ pub struct SliceStreamer {
     pregathered: Option<(usize, SliceLayout)>,
 }
 
+/// The kill tests' hooks on the count of slices computed (tests/it/resume.rs; set only in builds
+/// with the `test-hooks` feature): abort the process there, as a kill would, or raise the solve's
+/// cancel flag there, as SIGTERM would (the next slice then stops the pass).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct SliceHook {
+    pub abort_at: Option<u64>,
+    pub cancel_at: Option<u64>,
+}
+
 impl SliceStreamer {
     pub fn new(
         ctx: &Arc<Context>,
         plan: &Plan,
         memory: MemoryPlan,
         profile: bool,
-        abort_at_slice: Option<u64>,
+        hook: SliceHook,
         cancel: Option<CancelFlag>,
     ) -> Result<Self, SolveError> {
         // Three intervals per sub-slice; a pass never has more slices than the longest axis has
@@ -127,7 +136,7 @@ impl SliceStreamer {
             resident_ready: 0,
             slots: (0..memory.slices_in_flight).map(|_| SlotState::default()).collect(),
             copier: Copier::new(std::thread::available_parallelism().map_or(2, |n| n.get()).min(8)),
-            abort_at_slice,
+            hook,
             slices: 0,
             cancel,
             pregathered: None,
@@ -154,9 +163,13 @@ impl SliceStreamer {
     fn next_slice_value(&mut self) -> u64 {
         self.sub.value += 1;
         self.slices += 1;
-        if self.abort_at_slice == Some(self.slices) {
+        if self.hook.abort_at == Some(self.slices) {
             tracing::error!("LPM_TEST_ABORT_AT_SLICE={}: aborting as a kill would", self.slices);
             std::process::abort();
+        }
+        if let (true, Some(cancel)) = (self.hook.cancel_at == Some(self.slices), self.cancel) {
+            tracing::warn!("LPM_TEST_CANCEL_AT_SLICE={}: cancelling as SIGTERM would", self.slices);
+            cancel.raise();
         }
         self.sub.value
     }
