@@ -122,12 +122,7 @@ fn sigterm_stops_at_a_slice_keeps_the_checkpoint_and_resumes_to_the_same_bits() 
     // SAFETY: kill(2) on our own child, not yet reaped.
     assert_eq!(unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) }, 0);
     let o = child.wait_with_output().unwrap();
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(3), "{stderr}");
-    assert!(stderr.contains("the solve was cancelled; its last checkpoint is kept"), "{stderr}");
-    let checkpoint: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(cut.join(".lpm-work/checkpoint.json")).expect("checkpoint"))
-            .unwrap();
+    let checkpoint = cancelled_with_a_checkpoint(&o, &cut);
     let done = checkpoint["state"]["orders_done"].as_u64().unwrap();
     assert!((2..6).contains(&done), "stopped after {done} orders");
     for f in ["fluence.raw", "source.raw", "report.json"] {
@@ -139,6 +134,30 @@ fn sigterm_stops_at_a_slice_keeps_the_checkpoint_and_resumes_to_the_same_bits() 
     assert_same_fields(&whole, &cut, "after resume");
 }
 
+/// Asserts that `o` is a cancelled solve's (exit status 3, saying its checkpoint is kept) and
+/// returns the checkpoint it kept in `cut`'s work store.
+fn cancelled_with_a_checkpoint(o: &std::process::Output, cut: &std::path::Path) -> serde_json::Value {
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(3), "{stderr}");
+    assert!(stderr.contains("the solve was cancelled; its last checkpoint is kept"), "{stderr}");
+    serde_json::from_str(&std::fs::read_to_string(cut.join(".lpm-work/checkpoint.json")).expect("checkpoint")).unwrap()
+}
+
+/// The six-order cloud checkpointed every other order (`solver.checkpoint_every_orders = 2`) and
+/// streamed (`solver.device_residency`), as `dir/scene.toml`, and its uninterrupted solve in
+/// `dir/whole`.
+fn every_other_order_streamed(dir: &std::path::Path) -> (std::path::PathBuf, std::path::PathBuf) {
+    let scene = dir.join("scene.toml");
+    let text = killable_cloud_scene([34, 30, 38], 6).replace(
+        "checkpoint_every_orders = 1\n",
+        "checkpoint_every_orders = 2\ncheckpoint_every_seconds = 1e9\ndevice_residency = \"streamed\"\n",
+    );
+    std::fs::write(&scene, text).unwrap();
+    let whole = dir.join("whole");
+    lpm_ok(&["solve", scene.to_str().unwrap(), "--out", whole.to_str().unwrap(), "--no-image"]);
+    (scene, whole)
+}
+
 /// Checkpoints every other order (`solver.checkpoint_every_orders = 2`): a solve killed after an
 /// order that was not checkpointed resumes from the checkpoint before it, whose fields the
 /// uncheckpointed orders left alone (the diffusion correction writes a source field no checkpoint
@@ -148,15 +167,8 @@ fn sigterm_stops_at_a_slice_keeps_the_checkpoint_and_resumes_to_the_same_bits() 
 #[test]
 fn killed_between_checkpoints_resumes_to_the_same_bits() {
     let dir = temp_dir("resume-cadence");
-    let scene = dir.join("scene.toml");
-    let text = killable_cloud_scene([34, 30, 38], 6).replace(
-        "checkpoint_every_orders = 1\n",
-        "checkpoint_every_orders = 2\ncheckpoint_every_seconds = 1e9\ndevice_residency = \"streamed\"\n",
-    );
-    std::fs::write(&scene, text).unwrap();
+    let (scene, whole) = every_other_order_streamed(&dir);
     let s = scene.to_str().unwrap();
-    let whole = dir.join("whole");
-    lpm_ok(&["solve", s, "--out", whole.to_str().unwrap(), "--no-image"]);
 
     let mut skipped = false;
     // Slices of orders 3 and 5 (order 0 computes slices 1–15 here, every later order 12): both
@@ -190,17 +202,11 @@ fn cancelled_after_an_order_without_a_checkpoint_keeps_that_order_maps_and_all()
         panic!("this test needs lpm's test hooks: run it with `cargo test --features test-hooks`");
     }
     let dir = temp_dir("resume-cancel-pending");
-    let scene = dir.join("scene.toml");
     // Streamed: a device-resident solve committed the order on the device, whose state a cancel
     // cannot bring home, so it keeps the checkpoint before.
-    let text = killable_cloud_scene([34, 30, 38], 6).replace(
-        "checkpoint_every_orders = 1\n",
-        "checkpoint_every_orders = 2\ncheckpoint_every_seconds = 1e9\ndevice_residency = \"streamed\"\n",
-    );
-    std::fs::write(&scene, text).unwrap();
+    let (scene, whole) = every_other_order_streamed(&dir);
     let s = scene.to_str().unwrap();
-    let (whole, cut) = (dir.join("whole"), dir.join("cut"));
-    lpm_ok(&["solve", s, "--out", whole.to_str().unwrap(), "--no-image"]);
+    let cut = dir.join("cut");
 
     // A slice of the fourth order (order 0 computes slices 1–15 here, every later order 12): the
     // third completed without a checkpoint (due after two and four).
@@ -208,12 +214,7 @@ fn cancelled_after_an_order_without_a_checkpoint_keeps_that_order_maps_and_all()
         .env("LPM_TEST_CANCEL_AT_SLICE", "46")
         .output()
         .unwrap();
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(3), "{stderr}");
-    assert!(stderr.contains("the solve was cancelled; its last checkpoint is kept"), "{stderr}");
-    let checkpoint: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(cut.join(".lpm-work/checkpoint.json")).expect("checkpoint"))
-            .unwrap();
+    let checkpoint = cancelled_with_a_checkpoint(&o, &cut);
     assert_eq!(checkpoint["state"]["orders_done"], 3, "the cancel checkpoints the order the cadence skipped");
     assert_eq!(checkpoint["exits"], "exits_3.f64");
 
