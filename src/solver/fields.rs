@@ -253,10 +253,10 @@ impl OrderFieldSet<Field> {
     /// it names are synced to disk, then the correction (when accelerated), what periodic sweeps
     /// carry into the next order (`carry`, when anything), the exitance maps of the orders the
     /// state holds (`exits`, [`ExitMaps::to_bytes`] taken when that order ended) and
-    /// `checkpoint.json` are written (atomically). The caller goes on with the next order's sweeps, which write no
-    /// field this checkpoint or the one before it names ([`Named`]); before the next commit (the
-    /// first pass that could write one of the older checkpoint's fields) it waits for
-    /// [`PendingCheckpoint::finish`] and calls [`OrderFieldSet::checkpoint_on_disk`].
+    /// `checkpoint.json` are written (atomically). The caller goes on with the next order's
+    /// sweeps, which write no field this checkpoint or the one before it names ([`Named`]); before
+    /// the next commit (the first pass that could write one of the older checkpoint's fields) it
+    /// waits for [`PendingCheckpoint::finish`] and calls [`OrderFieldSet::checkpoint_on_disk`].
     pub fn start_checkpoint(
         &mut self,
         dir: &Path,
