@@ -183,12 +183,14 @@ impl ExitMaps {
     }
 
     /// The maps as bytes for a checkpoint ([`super::fields`]): every face's pixels in order, each
-    /// pixel's three f64 little-endian (the exact sums, so a resumed solve adds on to the same
-    /// bits as an uninterrupted one).
+    /// pixel's [`ExitMaps::channels`] values as f64 little-endian (the exact sums, so a resumed
+    /// solve adds on to the same bits as an uninterrupted one; only the channels solved, so a grey
+    /// solve's copy is a third of the maps).
     pub fn to_bytes(&self) -> Vec<u8> {
-        let mut bytes = Vec::with_capacity(self.maps.iter().map(|m| m.len() * 24).sum());
+        let c = self.channels;
+        let mut bytes = Vec::with_capacity(self.maps.iter().map(|m| m.len() * c * 8).sum());
         for pixel in self.maps.iter().flatten() {
-            pixel.iter().for_each(|v| bytes.extend_from_slice(&v.to_le_bytes()));
+            pixel[..c].iter().for_each(|v| bytes.extend_from_slice(&v.to_le_bytes()));
         }
         bytes
     }
@@ -197,12 +199,14 @@ impl ExitMaps {
     /// when the bytes are not that size (another volume's maps, or a damaged file).
     pub fn from_bytes(dims: [u32; 3], channels: usize, bytes: &[u8]) -> Option<Self> {
         let mut maps = Self::new(dims, channels);
-        if bytes.len() != maps.maps.iter().map(|m| m.len() * 24).sum::<usize>() {
+        let stride = channels * 8;
+        if channels == 0 || channels > 3 || bytes.len() != maps.maps.iter().map(|m| m.len() * stride).sum::<usize>() {
             return None;
         }
-        let f = |b: &[u8]| f64::from_le_bytes(b.try_into().unwrap_or([0; 8]));
-        for (pixel, b) in maps.maps.iter_mut().flatten().zip(bytes.chunks_exact(24)) {
-            *pixel = [f(&b[..8]), f(&b[8..16]), f(&b[16..])];
+        for (pixel, b) in maps.maps.iter_mut().flatten().zip(bytes.chunks_exact(stride)) {
+            for (v, x) in pixel.iter_mut().zip(b.chunks_exact(8)) {
+                *v = f64::from_le_bytes(x.try_into().unwrap_or([0; 8]));
+            }
         }
         Some(maps)
     }
@@ -341,6 +345,14 @@ mod tests {
         assert!(maps.total(5)[1] > 0.0);
         assert!(ExitMaps::from_bytes([4, 3, 6], 3, &bytes).is_none(), "another volume's maps");
         assert!(ExitMaps::from_bytes([4, 3, 5], 3, &bytes[..bytes.len() - 8]).is_none(), "a truncated file");
+        // A grey solve's maps keep their one channel only.
+        let mut grey = ExitMaps::new([4, 3, 5], 1);
+        grey.add(&out, 0.7);
+        let bytes = grey.to_bytes();
+        assert_eq!(bytes.len(), 8 * (2 * 3 * 5 + 2 * 4 * 5 + 2 * 4 * 3));
+        let back = ExitMaps::from_bytes([4, 3, 5], 1, &bytes).expect("the same volume");
+        assert_eq!(back.map(5), grey.map(5));
+        assert!(ExitMaps::from_bytes([4, 3, 5], 3, &bytes).is_none(), "another channel count");
     }
 
     #[test]
