@@ -529,10 +529,13 @@ fn run_gpu(
     fields: &mut StoreFields,
     start: fields::LoopState,
     vk_options: ContextOptions,
-    gpu_options: gpu::GpuOptions,
+    mut gpu_options: gpu::GpuOptions,
     checkpoints: Option<(String, crate::scene::CheckpointCadence)>,
     progress: &mut dyn crate::progress::Observer,
 ) -> Result<BackendRun, SolveError> {
+    // A resumed solve sweeps only the orders after its checkpoint: it adds them to the maps its
+    // checkpoint kept, or makes none (maps of the later orders alone would not add up to the books).
+    gpu_options.exit_maps &= start.orders_done == 0 || fields.resumed_exits.is_some();
     let mut phases = Vec::new();
     let t = Instant::now();
     let ctx = Context::new(vk_options)?;
@@ -540,9 +543,6 @@ fn run_gpu(
     let mut gpu = gpu::GpuBackend::new(ctx.clone(), plan, store, fields, gpu_options)?;
     let memory = gpu.memory_plan();
     let resumable = checkpoints.is_some();
-    // A resumed solve sweeps only the orders after its checkpoint: it adds them to the maps its
-    // checkpoint kept, or makes none.
-    gpu.resumed_after(start.orders_done);
     if let Some((digest, cadence)) = checkpoints {
         gpu.enable_checkpoints(digest, cadence);
     }

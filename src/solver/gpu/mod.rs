@@ -231,8 +231,6 @@ pub struct GpuBackend<'a> {
     carry: PeriodicCarry,
     /// The exitance maps, summed pass by pass ([`face_maps`]); `None` when not made.
     exits: Option<ExitMaps>,
-    /// Whether the maps came from a resumed solve's checkpoint ([`Self::resumed_after`]).
-    exits_resumed: bool,
 }
 
 impl<'a> GpuBackend<'a> {
@@ -304,7 +302,6 @@ impl<'a> GpuBackend<'a> {
         // adds on to the exitance maps of the orders its checkpoint holds.
         let carry = fields.resumed_carry.take().unwrap_or_else(|| PeriodicCarry::new(plan));
         let resumed_exits = fields.resumed_exits.take();
-        let exits_resumed = resumed_exits.is_some();
         let exits =
             memory.exit_maps.then(|| resumed_exits.unwrap_or_else(|| ExitMaps::new(plan.dims, plan.channels as usize)));
         Ok(GpuBackend {
@@ -324,7 +321,6 @@ impl<'a> GpuBackend<'a> {
             progress: None,
             carry,
             exits,
-            exits_resumed,
         })
     }
 
@@ -359,15 +355,6 @@ impl<'a> GpuBackend<'a> {
     /// map is tens of MB).
     pub fn take_exit_maps(&mut self) -> Option<ExitMaps> {
         self.exits.take()
-    }
-
-    /// Tells the backend the solve resumes after `orders_done` orders: unless its checkpoint kept
-    /// the maps of those orders, it makes none (maps of the later orders alone would not add up
-    /// to the books), and its checkpoints keep none.
-    pub fn resumed_after(&mut self, orders_done: u32) {
-        if orders_done > 0 && !self.exits_resumed {
-            self.exits = None;
-        }
     }
 
     /// The Vulkan context the backend runs on.
