@@ -643,7 +643,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, observer: &mut impl Observ
                 let irradiance = match s.irradiance {
                     solver::direct::BeamIrradiance::NoBeams => String::new(),
                     solver::direct::BeamIrradiance::Traced { .. } => {
-                        "; the suns' irradiance traced per voxel along their exact direction".to_string()
+                        "; the suns' irradiance traced to each voxel's centre along their exact direction".to_string()
                     }
                     solver::direct::BeamIrradiance::Swept { steps } => {
                         let why = format!(
@@ -686,6 +686,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, observer: &mut impl Observ
                 travel: s.travel.iter().map(|t| t.to_array()).collect(),
                 peak_chains: s.peak_chains,
                 points: s.points.iter().map(|p| p.to_array()).collect(),
+                irradiance_at_centres: matches!(s.irradiance, crate::solver::direct::BeamIrradiance::Traced { .. }),
             });
             (&s.render_source, &s.fields)
         }

@@ -59,6 +59,10 @@ pub struct DirectBeam<'a> {
     /// `channels` components), followed by the δ-M scaled one when
     /// [`SingleScattering::peak_chains`].
     pub irradiance: &'a Field,
+    /// `irradiance` holds the values at the voxels' centres (every voxel of an occupied brick),
+    /// interpolated in optical depth; otherwise averages over each voxel, 0 where ρ = 0,
+    /// interpolated as ρ·E (render data of format 3, or the sweep's irradiance).
+    pub at_centres: bool,
 }
 
 /// One point light as the renderer scatters it exactly (see [`SingleScattering`]).

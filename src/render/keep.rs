@@ -10,7 +10,7 @@
 //! |---|---|
 //! | `bricks.json`, `density.bricks` | the brick store's table and density (see [`crate::store`]) |
 //! | `source.field` | the in-scattered source summed over orders, in brick form, less the suns' first scattering where the renderer evaluates it exactly (below) |
-//! | `direct_<b>.field` | sun b's uncollided irradiance per voxel, true extinction, then (δ-M solves) the scaled one, the solve's extinction (one per sun, see [`SingleScatteringData`]); traced along the sun ([`crate::solver::beam_trace`], 0 where the density is 0) or, past the trace's limit, the sweep's |
+//! | `direct_<b>.field` | sun b's uncollided irradiance per voxel, true extinction, then (δ-M solves) the scaled one, the solve's extinction (one per sun, see [`SingleScatteringData`]); traced to each voxel's centre along the sun, every voxel of an occupied brick ([`crate::solver::beam_trace`]) or, past the trace's limit, the sweep's voxel averages (0 where the density is 0) |
 //! | `environment.exr` | the scene's environment map, when it has one (the background) |
 //! | `render.json` | [`RenderData`]: everything else, written last |
 //!
@@ -51,9 +51,11 @@ const SOURCE_FIELD: &str = "source";
 /// scattering where `single_scattering` is given (format 1's held it; it cannot be rendered by this
 /// lpm without counting it twice or losing it). 3: under δ-M the suns' fields also hold the
 /// scaled irradiance, and the point lights' first scattering is off the source too, their
-/// irradiance kept after the suns' (`single_scattering.peak_chains`, `.points`); format 2 is
-/// still read (neither).
-const FORMAT: u32 = 3;
+/// irradiance kept after the suns' (`single_scattering.peak_chains`, `.points`). 4: the suns'
+/// traced irradiance is kept at the voxels' centres and interpolated in optical depth
+/// (`single_scattering.irradiance_at_centres`). Formats 2 and 3 are still read (rendered as
+/// their lpm rendered them).
+const FORMAT: u32 = 4;
 
 /// `render-data/render.json`. Vectors and the camera are in the volume's frame (its corner at 0),
 /// `origin` places it in the world.
@@ -115,6 +117,13 @@ pub struct SingleScatteringData {
     /// `direct_<b>.field` with b counting on after the suns' (format 3).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub points: Vec<[f64; 3]>,
+    /// The suns' fields hold the irradiance at each voxel's centre, traced through the density
+    /// the renderer sees, for every voxel of an occupied brick, and the renderer interpolates
+    /// its logarithm ([`crate::solver::beam_trace`], format 4); absent (false): chord averages
+    /// (format 3) or the sweep's segment averages (past the trace's limit), 0 where the density
+    /// is 0, interpolated as ρ·E.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub irradiance_at_centres: bool,
 }
 
 /// The name, without `.field`, of sun b's irradiance in `render-data/`.
@@ -393,7 +402,7 @@ pub fn open(out: &Path) -> Result<Kept, OutputError> {
              ({FORMAT}) adds exactly at render time from the suns' irradiance (not kept in format 1); solve again"
         )));
     }
-    if data.format != FORMAT && data.format != 2 {
+    if !(2..=FORMAT).contains(&data.format) {
         return Err(invalid(format!("format {} is not the one this lpm reads ({FORMAT}); solve again", data.format)));
     }
     let k = data.directions_per_face;
@@ -519,7 +528,11 @@ pub fn render_solved(
             .travel
             .iter()
             .zip(factors.direct)
-            .map(|(t, field)| DirectBeam { travel: DVec3::from_array(*t).normalize(), irradiance: field })
+            .map(|(t, field)| DirectBeam {
+                travel: DVec3::from_array(*t).normalize(),
+                irradiance: field,
+                at_centres: s.irradiance_at_centres,
+            })
             .collect(),
         points: s
             .points

@@ -7,8 +7,11 @@
 //! jump (a straight seam across a pinhole image, bands on a face lit from the side).
 //!
 //! The suns' single scattering, when given ([`super::SingleScattering`]), is added per segment as
-//! `σs·Σ_b p_HG(g; ω_b·ω)·E_b` with the scene's true σs and g, ρ·a·E_b interpolated between voxel
-//! centres as the source is, and attenuated towards the camera by the true extinction: under δ-M
+//! `σs·Σ_b p_HG(g; ω_b·ω)·E_b` with the scene's true σs and g, E_b interpolated between voxel
+//! centres in optical depth (kept at the centres, `crate::solver::beam_trace`; render data of
+//! format 3 and the sweep's voxel averages: ρ·a·E_b interpolated as the source is) and integrated
+//! over each segment with its growth towards the sun, and attenuated towards the camera by the
+//! true extinction: under δ-M
 //! the march keeps a second transmittance for it (the solved source travels with the scaled σt,
 //! as before); without δ-M it joins the source under the one transmittance. Under δ-M the phase
 //! becomes the peak's chain sum at τ = ln(E*_b/E_b) and multiplies the scaled irradiance E*_b
@@ -131,6 +134,7 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
         let mut true_transmittance = [1.0f64; 3];
         let mut t = span.0;
         walk_voxels(origin, dir, span, grid.dims, h, |_, s| {
+            let segment = s;
             // Density and source are sampled trilinearly (between voxel centres, clamped at the
             // volume's edge) at the segment's midpoint, then held constant along the segment so
             // the segment integral stays exact: smooth images, exact for uniform media.
@@ -151,12 +155,10 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
             // The source per stored channel (1 or 3), blended over the storage directions.
             let bricks = source_bricks(inputs, &corners);
             let source = blended_source(inputs, &blend, last, &corners, &bricks);
-            // σs·Σ_b p_b·E_b per channel with the true medium (zero without suns to scatter). The
-            // product ρ·a·E is taken at the voxel centres and then interpolated, as the solved
-            // source σs·E is: an isotropic medium's image is then the one its binned first order
-            // gave (the phase is 1/4π either way), where interpolating ρ and E apart brightened
-            // the lit limb of a cloud (E is the unattenuated irradiance in the empty voxels next
-            // to it) by tens of per cent.
+            // σs·Σ_b p_b·E_b per channel with the true medium (zero without suns to scatter): the
+            // interpolated ρ·a times E_b interpolated in optical depth ([`beam_irradiance`]; for
+            // render data without the centres' irradiance, ρ·a·E taken at the voxel centres and
+            // interpolated, as the solved source σs·E is).
             let scattered: [f64; 3] = match &single {
                 None => [0.0; 3],
                 Some((s, phases, excess)) => {
@@ -166,18 +168,33 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                     for (b, (beam, chains)) in s.beams.iter().zip(phases).enumerate() {
                         // (No lobes without δ-M: `lobes` and `excess` are then empty.)
                         let lobe = excess.get(b).filter(|x| !x.is_empty());
-                        let v = sample_channels(beam.irradiance, 0, inputs.channels, &corners, &weights);
+                        let v = beam_irradiance(beam, 0, inputs.channels, &corners, &weights);
+                        // Along the segment the sun's light grows towards the sun as e^{κ·u}
+                        // (κ = σt·ρ·μ, μ the cosine between the sun's light and the camera's) while
+                        // what it scatters is dimmed towards the camera as e^{−σt·u}; the march
+                        // multiplies the midpoint's value by the dimming's integral alone, which
+                        // overstates the product by sinh(κs/2)/(κs/2) (2.7 % a voxel at σt·ρ = 0.8
+                        // looking exactly towards the sun). With the irradiance at the centres
+                        // (the render data that has it), the segment's own integral is taken.
+                        let grow: [f64; 3] = std::array::from_fn(|ch| {
+                            let sigma = density * s.medium.sigma_t[ch];
+                            let kappa = sigma * beam.travel.dot(-dir);
+                            if !beam.at_centres || !(sigma > 0.0 && segment > 0.0) {
+                                return 1.0;
+                            }
+                            path_integral(sigma - kappa, segment) * (-0.5 * kappa * segment).exp()
+                                / path_integral(sigma, segment)
+                        });
                         if !s.peak_chains {
                             let p = chains.single_phase();
                             for (ch, e) in e.iter_mut().enumerate() {
-                                *e += p * v[if inputs.channels == 1 { 0 } else { ch }];
+                                *e += grow[ch] * p * v[if inputs.channels == 1 { 0 } else { ch }];
                             }
                             continue;
                         }
                         // E*: the scaled irradiance after the true one; τ = ln(E*/E) the peak's
                         // optical depth along the sun's path (∞ where E underflowed and E* did not).
-                        let scaled =
-                            sample_channels(beam.irradiance, inputs.channels, inputs.channels, &corners, &weights);
+                        let scaled = beam_irradiance(beam, inputs.channels, inputs.channels, &corners, &weights);
                         // Per stored channel (a grey scene's one serves r, g and b): the chain
                         // sum and, under δ-M, the forward lobes' excess over the solve's bins
                         // (`super::peak`, "The forward lobes") once each. Both travel to the
@@ -198,7 +215,7 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                                     lobe_k[k] = lobes.light(excess, true_e, tau / lobes.peak_share(), tau);
                                 }
                             }
-                            *e += phase_k[k] * scaled_e + lobe_k[k];
+                            *e += phase_k[k] * scaled_e + lobe_k[k] + (grow[ch] - 1.0) * chains.single_phase() * true_e;
                         }
                     }
                     // The point lights: their light reaches x travelling from the light to x.
@@ -287,6 +304,57 @@ fn sample_channels(
     out
 }
 
+/// A sun's irradiance at a sample times what multiplies it there: `weights` (per trilinear corner,
+/// its weight times ρ·a). Kept at the voxels' centres ([`DirectBeam::at_centres`]), the irradiance
+/// is interpolated in optical depth (its logarithm, trilinearly over the corners the field
+/// stores) and multiplies the interpolated ρ·a, the sum of `weights`: exact along the sun's line
+/// in a uniform medium, where E falls by e^{−σ·ρ} a voxel and a linear interpolation overstates
+/// it between the centres (`crate::solver::beam_trace`). A corner whose light underflowed to 0
+/// makes it 0. Otherwise (voxel averages, 0 where ρ = 0) the product ρ·a·E is interpolated.
+fn beam_irradiance(
+    beam: &super::DirectBeam,
+    first: u32,
+    channels: u32,
+    corners: &[([u32; 3], f64); 8],
+    weights: &[f64; 8],
+) -> [f64; 3] {
+    if !beam.at_centres {
+        return sample_channels(beam.irradiance, first, channels, corners, weights);
+    }
+    let field = beam.irradiance;
+    let grid = field.grid();
+    let (mut log, mut total, mut dark) = ([0.0f64; 3], 0.0, [false; 3]);
+    for &(v, w) in corners {
+        if w == 0.0 {
+            continue;
+        }
+        let Some((data, local)) =
+            grid.contains(v).then(|| grid.locate(v)).and_then(|(b, l)| field.brick(b).map(|d| (d, l)))
+        else {
+            continue;
+        };
+        total += w;
+        for (ch, l) in log.iter_mut().enumerate().take(channels.min(3) as usize) {
+            let e = data.get((first as usize + ch) * BRICK_VOXELS + local).map_or(0.0, |&x| x as f64);
+            if e > 0.0 {
+                *l += w * e.ln();
+            } else {
+                dark[ch] = true;
+            }
+        }
+    }
+    let mass: f64 = weights.iter().sum();
+    let mut out = [0.0; 3];
+    if total > 0.0 && mass > 0.0 {
+        for ch in 0..channels.min(3) as usize {
+            if !dark[ch] {
+                out[ch] = mass * (log[ch] / total).exp();
+            }
+        }
+    }
+    out
+}
+
 /// Each trilinear corner's brick of the source field and the voxel's index in it (`None` outside
 /// the volume or in an unstored brick, which read as 0, as `Field::value` has them): located once
 /// per sample for every blend that reads it.
@@ -340,7 +408,7 @@ fn blended_source(
 
 /// The eight voxels around `p` (in voxel units) with their trilinear weights; voxel centres sit at
 /// i + ½, and indices are clamped to the volume, so a value is held constant past the outer centres.
-fn trilinear(p: DVec3, dims: [u32; 3]) -> [([u32; 3], f64); 8] {
+pub(crate) fn trilinear(p: DVec3, dims: [u32; 3]) -> [([u32; 3], f64); 8] {
     let mut lo = [0u32; 3];
     let mut hi = [0u32; 3];
     let mut w = [0.0f64; 3];

@@ -26,10 +26,13 @@
 //! emission's first scattering). The exported `source` is not touched: only the image's copy is.
 //!
 //! **What the renderer adds.** Per beam, the uncollided irradiance E_b(v) attenuated by the
-//! scene's **true** extinction, traced per voxel along the beam's exact direction
+//! scene's **true** extinction, traced to each voxel's centre along the beam's exact direction
+//! through the density the renderer sees, for every voxel of an occupied brick
 //! ([`super::beam_trace`]: the sweep's staircase is too coarse at the edge of a cloud's shadow,
-//! which is its rim seen towards the sun; past the trace's step limit, a second host sweep with
-//! the unscaled medium, as before), kept in `render-data/` in bricks; along a camera ray the
+//! which is its rim seen towards the sun, and the renderer interpolates the centres' optical
+//! depth, where a voxel average interpolated linearly overstates the light between the centres;
+//! past the trace's step limit, a second host sweep with the unscaled medium, as before), kept in
+//! `render-data/` in bricks; along a camera ray the
 //! renderer adds `σs(x)·p_HG(g; ω_b·ω_camera)·E_b(x)` with the true σs and the scene's g,
 //! attenuated towards the camera by the true extinction ([`crate::render::march`]). Under δ-M the
 //! field also keeps the scaled irradiance E*_b (the extinction the solve swept with, traced
@@ -154,7 +157,16 @@ pub fn split(
     render_source.copy_from(source_total)?;
     let mut fields = Vec::with_capacity(plan.beams.len());
     // Whether the beams' irradiance for the image is traced exactly (`super::beam_trace`).
-    let steps = super::beam_trace::estimated_steps(plan.dims, &density).saturating_mul(plan.beams.len() as u64);
+    // Every voxel of an occupied brick is traced (the field keeps those bricks; the renderer
+    // interpolates between the centres, empty ones included).
+    let mut stored = vec![false; grid.brick_count()];
+    store.occupied_bricks().for_each(|b| stored[b] = true);
+    let traced_voxels: u64 = (0..grid.brick_count())
+        .filter(|&b| stored[b])
+        .map(|b| grid.brick_extent(grid.brick_coords(b)).iter().map(|&e| u64::from(e)).product::<u64>())
+        .sum();
+    let in_stored = |v: [u32; 3]| stored[grid.locate(v).0];
+    let steps = super::beam_trace::estimated_steps(plan.dims, traced_voxels).saturating_mul(plan.beams.len() as u64);
     // The swept path's test hook (tests/it/single_scatter.rs): only in `test-hooks` builds.
     #[cfg(feature = "test-hooks")]
     let limit = std::env::var("LPM_TEST_TRACE_LIMIT_STEPS")
@@ -209,7 +221,15 @@ pub fn split(
             let sigma: Vec<f64> =
                 passes.iter().flat_map(|p| (0..c).map(|ch| p.coefficients(ch).0 * p.voxel_size)).collect();
             let boundary: Vec<f64> = passes.iter().flat_map(|_| beam.boundary[..c].iter().copied()).collect();
-            super::beam_trace::trace_beam(plan.dims, &density, beam.omega, &boundary, &sigma, &mut image_irradiance);
+            super::beam_trace::trace_beam(
+                plan.dims,
+                &density,
+                &in_stored,
+                beam.omega,
+                &boundary,
+                &sigma,
+                &mut image_irradiance,
+            );
             trace_seconds += t.elapsed().as_secs_f64();
         } else {
             // The plan's own last: `irradiance` holds its sweep already (taken off above).

@@ -20,7 +20,8 @@
 //! - [`point`] computes point lights' uncollided light exactly on the host and writes it, with its
 //!   first scattering, into order 0's fields (before order 0, and only in a fresh solve);
 //! - [`direct`] splits the suns' first scattering off the source an image is made from (the
-//!   renderer evaluates it exactly, from the suns' irradiance [`beam_trace`] traces per voxel);
+//!   renderer evaluates it exactly, from the suns' irradiance [`beam_trace`] traces to each voxel's
+//!   centre);
 //! - [`progress_lines`] logs long stretches of work (a GPU order, the emission's trace) now and then;
 //! - [`warm`] starts a solve from a guess (the previous frame's solution) and still converges to
 //!   the cold solve's answer.

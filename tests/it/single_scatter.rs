@@ -259,15 +259,57 @@ fn the_image_source_holds_every_order_but_the_suns_first_scattering() {
     assert!(worst <= 1e-6 * scale, "the image source differs from the second order by {worst} (scale {scale})");
 }
 
-/// An isotropic cloud under a sun and a sky: the exact single scattering is the binned one (one
-/// storage direction, the phase 1/4π either way; ρ·E interpolated between voxel centres as the
-/// source σs·E is), so the image is the one the whole source made, to f32 round-off (the first
-/// order is no longer rounded to f32 in the source, and its sum is taken in another order): within
-/// 10⁻⁵ in all and pixel by pixel. The sun shines along an axis, where the sweep's rays follow the
-/// voxel columns and the image's traced irradiance (`lpm::solver::beam_trace`) is the swept one
-/// to round-off; at a slope the traced one is the truer (benches/RESULTS.md).
+/// Exactly towards the sun (issue 38's own geometry), where the camera ray runs along the sun's
+/// line and every sample's light has crossed the medium the ray crosses too: a uniform slab
+/// (64 × 16 × 8, σt = 0.8: e^{−0.8} per voxel, albedo 0.9, g = 0.8, no δ-M) under a sun 30° off
+/// its normal, seen along the sun's light by an orthographic camera. The centre ray crosses the
+/// slab along the whole chord Z/μ, so its single scattering is
+///
+/// `L₁ = σs·p(1)·E₀·(Z/μ)·e^{−σt·Z/μ}`
+///
+/// (the sun's depth and the camera's add up to the chord everywhere). The irradiance kept at the
+/// voxels' centres and interpolated in optical depth (`lpm::solver::beam_trace`) gives it within
+/// 0.5 %; the same centres interpolated linearly (as ρ·E) overstate it between the centres, where
+/// E falls by e^{−0.8·ρ} a voxel: several per cent too bright.
 #[test]
-fn an_isotropic_image_stays_what_it_was() {
+fn the_single_scattering_seen_exactly_towards_the_sun_matches_the_closed_form() {
+    let dir = temp_dir("single-scatter-toward");
+    let (sigma_t, albedo, g, z_max): (f64, f64, f64, f64) = (0.8, 0.9, 0.8, 8.0);
+    let tilt = 30f64.to_radians();
+    let towards_sun = DVec3::new(tilt.sin(), 0.0, tilt.cos());
+    let text = format!(
+        "[volume]\nprocedural = \"box\"\ndims = [64, 16, 8]\nvoxel_size = 1.0\n\
+         [medium]\nsigma_t = {sigma_t}\nalbedo = {albedo}\ng = {g}\n\
+         [[lights]]\nkind = \"sun\"\ndirection = [{}, 0.0, {}]\nirradiance = 1.0\n\
+         [solver]\ndirections_per_face = 2\nmax_orders = 1\nforward_peak = \"keep\"\n",
+        towards_sun.x, towards_sun.z
+    );
+    let out = solve(&dir, "toward", &text, BackendKind::Cpu);
+    let mut kept = open(&out).expect("render data");
+    assert!(kept.data.single_scattering.as_ref().is_some_and(|s| s.irradiance_at_centres && !s.peak_chains));
+    let camera = ortho(DVec3::new(32.0, 8.0, 4.0), towards_sun);
+    let hg = (1.0 - g * g) / (4.0 * PI * (1.0 - g).powi(3));
+    let chord = z_max / tilt.cos();
+    let want = sigma_t * albedo * hg * chord * (-sigma_t * chord).exp();
+    let got = single_only(&kept, &camera).pixel(1, 1)[0] as f64;
+    if let Some(s) = kept.data.single_scattering.as_mut() {
+        s.irradiance_at_centres = false;
+    }
+    let linear = single_only(&kept, &camera).pixel(1, 1)[0] as f64;
+    eprintln!("towards the sun: {got:.6e} (linear in E: {linear:.6e}) against {want:.6e}");
+    assert!((got / want - 1.0).abs() < 5e-3, "{got} vs {want}");
+    assert!(linear / want - 1.0 > 0.02, "the linear interpolation's excess: {linear} vs {want}");
+}
+
+/// An isotropic cloud under a sun and a sky: its image is the whole source's (the binned first
+/// order; one storage direction, the phase 1/4π either way) but for the first order's
+/// interpolation between the voxel centres, which now follows the light's exponential fall
+/// (`lpm::solver::beam_trace`) and gives the sphere's fringe, where the density ramps down between
+/// the last centres inside and the empty ones outside, the light of the empty centres: the image
+/// holds 2.0 % more light, all of it at the sphere's rim. Nothing is counted twice or lost (that
+/// would be 30 % or more: the first order is most of this image).
+#[test]
+fn an_isotropic_image_changes_only_by_the_first_orders_interpolation() {
     let dir = temp_dir("single-scatter-iso");
     let text = "[volume]\nprocedural = \"sphere\"\ndims = [24, 24, 24]\nvoxel_size = 1.0\n\
                 [medium]\nsigma_t = 0.4\nalbedo = 0.9\ng = 0.0\n\
@@ -281,17 +323,10 @@ fn an_isotropic_image_stays_what_it_was() {
     let old = binned_image(&out, &kept, &kept.camera, Background::Transparent);
     let (sum_new, sum_old): (f64, f64) =
         (new.rgb.iter().map(|&v| v as f64).sum(), old.rgb.iter().map(|&v| v as f64).sum());
-    let peak = old.rgb.iter().fold(0f32, |m, &v| m.max(v)) as f64;
-    let worst = new
-        .rgb
-        .iter()
-        .zip(&old.rgb)
-        .filter(|(_, &o)| o as f64 > 1e-3 * peak)
-        .map(|(&n, &o)| (n as f64 / o as f64 - 1.0).abs())
-        .fold(0.0, f64::max);
-    eprintln!("isotropic: image sum {sum_new:.8e} vs {sum_old:.8e} before, worst pixel {worst:.3e}");
-    assert!((sum_new / sum_old - 1.0).abs() < 1e-5, "{sum_new} vs {sum_old}");
-    assert!(worst < 1e-5, "worst pixel off by {worst}");
+    let single: f64 = single_only(&kept, &kept.camera).rgb.iter().map(|&v| v as f64).sum();
+    eprintln!("isotropic: image sum {sum_new:.8e} vs {sum_old:.8e} before; single scattering {single:.6e}");
+    assert!(single > 0.2 * sum_old, "the first order is a quarter of the image: {single} of {sum_old}");
+    assert!((sum_new / sum_old - 1.0).abs() < 0.03, "{sum_new} vs {sum_old}");
 }
 
 /// `lpm render OUT` of a solve with a sun and δ-M scaling from the solve's view writes bitwise the
@@ -321,7 +356,7 @@ fn lpm_render_of_a_split_solve_is_the_solves_image_and_old_render_data_is_refuse
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert_eq!(std::fs::read(&again).expect("again"), std::fs::read(out.join("image.exr")).expect("solve's image"));
 
-    std::fs::write(out.join("render-data/render.json"), json.replace("\"format\": 3", "\"format\": 1"))
+    std::fs::write(out.join("render-data/render.json"), json.replace("\"format\": 4", "\"format\": 1"))
         .expect("rewrite");
     let o = lpm(&["render", out_s, "--image", again.to_str().expect("utf-8")]);
     let err = String::from_utf8_lossy(&o.stderr);
@@ -367,7 +402,7 @@ fn the_suns_irradiance_for_the_image_is_traced_and_the_report_says_how() {
     };
     let (traced, traced_report) = solve("traced", None);
     let (swept, swept_report) = solve("swept", Some("0"));
-    assert!(traced_report.contains("irradiance traced per voxel"), "{traced_report}");
+    assert!(traced_report.contains("irradiance traced to each voxel's centre"), "{traced_report}");
     assert!(swept_report.contains("irradiance is order 0's sweep's"), "{swept_report}");
     for file in ["fluence.raw", "source.raw"] {
         assert_eq!(
@@ -378,6 +413,10 @@ fn the_suns_irradiance_for_the_image_is_traced_and_the_report_says_how() {
     }
     let field = |out: &Path| std::fs::read(out.join("render-data/direct_0.field")).expect("direct_0.field");
     assert_ne!(field(&traced), field(&swept), "the traced irradiance is the swept one");
+    // The renderer interpolates the traced centres in optical depth, the sweep's averages as ρ·E.
+    let data = |out: &Path| std::fs::read_to_string(out.join("render-data/render.json")).expect("render.json");
+    assert!(data(&traced).contains("\"irradiance_at_centres\": true"), "{}", data(&traced));
+    assert!(!data(&swept).contains("irradiance_at_centres"), "{}", data(&swept));
     assert_ne!(
         std::fs::read(traced.join("image.exr")).expect("image"),
         std::fs::read(swept.join("image.exr")).expect("image")
