@@ -76,8 +76,9 @@ pub const FACES_DIR: &str = "faces";
 pub struct ExitMaps {
     dims: [u32; 3],
     channels: usize,
-    /// Per face: pixel `u + n_u·v`, channels (only the first `channels` meaningful).
-    maps: [Vec<[f64; 3]>; 6],
+    /// Per face: pixel `u + n_u·v`, then channel (`channels` values a pixel: a grey solve's
+    /// maps are a third of a colour one's).
+    maps: [Vec<f64>; 6],
 }
 
 /// One exit placed on a face: the voxel whose boundary face it crosses (its coordinate along the
@@ -101,7 +102,7 @@ impl ExitMaps {
     pub fn new(dims: [u32; 3], channels: usize) -> Self {
         let maps = std::array::from_fn(|f| {
             let [u, v] = Self::axes(f);
-            vec![[0.0; 3]; dims[u] as usize * dims[v] as usize]
+            vec![0.0; dims[u] as usize * dims[v] as usize * channels]
         });
         ExitMaps { dims, channels, maps }
     }
@@ -131,16 +132,27 @@ impl ExitMaps {
         VOLUME_FACES[face]
     }
 
-    /// Face `face`'s map: per pixel `u + n_u·v`, the outgoing power per channel (the first
-    /// [`ExitMaps::channels`] entries).
-    pub fn map(&self, face: usize) -> &[[f64; 3]] {
+    /// Face `face`'s map: per pixel `u + n_u·v`, the outgoing power of each of the
+    /// [`ExitMaps::channels`] channels (`map[pixel·channels + ch]`).
+    pub fn map(&self, face: usize) -> &[f64] {
         &self.maps[face]
     }
 
-    /// The sum of face `face`'s map, per channel, in pixel order.
+    /// The outgoing power of pixel `pixel` of face `face`, per channel (0 past the channels solved).
+    pub fn pixel(&self, face: usize, pixel: usize) -> [f64; 3] {
+        let c = self.channels;
+        std::array::from_fn(|ch| if ch < c { self.maps[face][pixel * c + ch] } else { 0.0 })
+    }
+
+    /// Face `face`'s pixels in order, each's power per channel (0 past the channels solved).
+    pub fn pixels(&self, face: usize) -> impl Iterator<Item = [f64; 3]> + '_ {
+        (0..self.maps[face].len() / self.channels.max(1)).map(move |p| self.pixel(face, p))
+    }
+
+    /// The sum of face `face`'s map, per channel (0 past the channels solved), in pixel order.
     pub fn total(&self, face: usize) -> [f64; 3] {
         let mut sum = [0.0; 3];
-        for p in &self.maps[face] {
+        for p in self.maps[face].chunks_exact(self.channels.max(1)) {
             for (s, v) in sum.iter_mut().zip(p) {
                 *s += v;
             }
@@ -167,7 +179,7 @@ impl ExitMaps {
                 axes: Self::axes(face),
                 size: self.size(face),
                 channels,
-                values: self.maps[face].iter().flat_map(|p| p[..channels.len()].iter().map(|&v| v as f32)).collect(),
+                values: self.maps[face].iter().map(|&v| v as f32).collect(),
             };
             // A face of zero pixels cannot occur: the volume's dims are at least 1.
             write_face_map(
@@ -184,13 +196,11 @@ impl ExitMaps {
 
     /// The maps as bytes for a checkpoint ([`super::fields`]): every face's pixels in order, each
     /// pixel's [`ExitMaps::channels`] values as f64 little-endian (the exact sums, so a resumed
-    /// solve adds on to the same bits as an uninterrupted one; only the channels solved, so a grey
-    /// solve's copy is a third of the maps).
+    /// solve adds on to the same bits as an uninterrupted one): the maps' own layout.
     pub fn to_bytes(&self) -> Vec<u8> {
-        let c = self.channels;
-        let mut bytes = Vec::with_capacity(self.maps.iter().map(|m| m.len() * c * 8).sum());
-        for pixel in self.maps.iter().flatten() {
-            pixel[..c].iter().for_each(|v| bytes.extend_from_slice(&v.to_le_bytes()));
+        let mut bytes = Vec::with_capacity(self.maps.iter().map(|m| m.len() * 8).sum());
+        for v in self.maps.iter().flatten() {
+            bytes.extend_from_slice(&v.to_le_bytes());
         }
         bytes
     }
@@ -198,15 +208,15 @@ impl ExitMaps {
     /// Reads [`ExitMaps::to_bytes`] back for a volume of `dims` with `channels` channels; `None`
     /// when the bytes are not that size (another volume's maps, or a damaged file).
     pub fn from_bytes(dims: [u32; 3], channels: usize, bytes: &[u8]) -> Option<Self> {
-        let mut maps = Self::new(dims, channels);
-        let stride = channels * 8;
-        if channels == 0 || channels > 3 || bytes.len() != maps.maps.iter().map(|m| m.len() * stride).sum::<usize>() {
+        if channels == 0 || channels > 3 {
             return None;
         }
-        for (pixel, b) in maps.maps.iter_mut().flatten().zip(bytes.chunks_exact(stride)) {
-            for (v, x) in pixel.iter_mut().zip(b.chunks_exact(8)) {
-                *v = f64::from_le_bytes(x.try_into().unwrap_or([0; 8]));
-            }
+        let mut maps = Self::new(dims, channels);
+        if bytes.len() != maps.maps.iter().map(|m| m.len() * 8).sum::<usize>() {
+            return None;
+        }
+        for (v, x) in maps.maps.iter_mut().flatten().zip(bytes.chunks_exact(8)) {
+            *v = f64::from_le_bytes(x.try_into().unwrap_or([0; 8]));
         }
         Some(maps)
     }
@@ -217,9 +227,9 @@ impl ExitMaps {
             let face = e.face as usize;
             let [u, v] = Self::axes(face);
             let pixel = e.voxel[u] as usize + self.dims[u] as usize * e.voxel[v] as usize;
-            let cell = &mut self.maps[face][pixel];
-            for ch in 0..self.channels {
-                cell[ch] += e.radiance[ch] * power;
+            let c = self.channels;
+            for (ch, cell) in self.maps[face][pixel * c..][..c].iter_mut().enumerate() {
+                *cell += e.radiance[ch] * power;
             }
         }
     }
@@ -365,8 +375,8 @@ mod tests {
         maps.add(&out, 0.5);
         assert_eq!(maps.size(5), [4, 3]);
         // Column 2 of x lies between voxels 1 and 2 (weights ½, ½); column 1 of y at weight 0: voxel 0.
-        assert_eq!(maps.map(5)[1][0], 2.0);
-        assert_eq!(maps.map(5)[2][0], 2.0);
+        assert_eq!(maps.pixel(5, 1)[0], 2.0);
+        assert_eq!(maps.pixel(5, 2)[0], 2.0);
         assert_eq!(maps.total(5)[0], 4.0);
         // A side exit through +x at plane 3 (z = 3 on a +z sweep), y column 3 of 3: half on
         // voxel 2, half on the vacuum column, which borders both rims (y = 0 and y = 2).
@@ -376,8 +386,8 @@ mod tests {
         maps.add(&out, 1.0);
         // The +x map is over (y, z): 3 × 5; pixels (y = 2, z = 3) and (y = 0, z = 3).
         assert_eq!(maps.size(1), [3, 5]);
-        assert_eq!(maps.map(1)[2 + 3 * 3][0], 0.75);
-        assert_eq!(maps.map(1)[3 * 3][0], 0.25);
+        assert_eq!(maps.pixel(1, 2 + 3 * 3)[0], 0.75);
+        assert_eq!(maps.pixel(1, 3 * 3)[0], 0.25);
         assert_eq!(maps.total(1)[0], 1.0);
     }
 }

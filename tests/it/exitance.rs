@@ -30,7 +30,7 @@ fn maps_add_up_within(s: &Solved, what: &str, tolerance: f64) -> ExitMaps {
                 "{what}: face {} channel {ch}: map sums to {sum}, the books say {books}",
                 ExitMaps::name(face)
             );
-            assert!(maps.map(face).iter().all(|p| p[ch] >= 0.0), "{what}: no negative power");
+            assert!(maps.pixels(face).all(|p| p[ch] >= 0.0), "{what}: no negative power");
         }
     }
     maps
@@ -59,14 +59,14 @@ fn each_map_adds_up_to_its_faces_power_out_and_is_the_same_at_any_thread_count()
     let maps = maps_add_up_to_the_books(&one, "RGB cloud");
     // Light leaves through every face, and the map is not one value spread evenly.
     for face in 0..6 {
-        let m = maps.map(face);
+        let m: Vec<[f64; 3]> = maps.pixels(face).collect();
         assert_eq!(m.len() as u32, maps.size(face).iter().product::<u32>());
         let (lo, hi) = m.iter().fold((f64::MAX, 0f64), |(lo, hi), p| (lo.min(p[0]), hi.max(p[0])));
         assert!(hi > 0.0 && hi > 1.01 * lo, "face {}: {lo}..{hi}", ExitMaps::name(face));
     }
     let bits = |s: &Solved| {
         let maps = s.run.exit_maps.as_ref().expect("maps");
-        (0..6).flat_map(|f| maps.map(f).iter().flatten().map(|v| v.to_bits()).collect::<Vec<_>>()).collect::<Vec<_>>()
+        (0..6).flat_map(|f| maps.map(f).iter().map(|v| v.to_bits()).collect::<Vec<_>>()).collect::<Vec<_>>()
     };
     assert_eq!(bits(&one), bits(&three), "the same bits on 1 and 3 threads");
 }
@@ -102,16 +102,17 @@ fn a_symmetric_scene_gives_symmetric_maps() {
     sc.solver.max_orders = 5;
     let s = solve("exitance-symmetric", &sc, Cpu);
     let maps = maps_add_up_to_the_books(&s, "ball");
-    let reference = maps.map(0);
+    let reference: Vec<[f64; 3]> = maps.pixels(0).collect();
     let largest = reference.iter().fold(0f64, |m, p| m.max(p[0]));
     let at = |m: &[[f64; 3]], u: u32, v: u32| m[(u + n * v) as usize][0];
     let mut worst = 0f64;
     for face in 0..6 {
-        let m = maps.map(face);
+        let m: Vec<[f64; 3]> = maps.pixels(face).collect();
+        let m = &m[..];
         for v in 0..n {
             for u in 0..n {
                 let value = at(m, u, v);
-                for other in [at(reference, u, v), at(m, n - 1 - u, v), at(m, u, n - 1 - v)] {
+                for other in [at(&reference, u, v), at(m, n - 1 - u, v), at(m, u, n - 1 - v)] {
                     worst = worst.max((value - other).abs() / largest);
                 }
             }
@@ -163,7 +164,7 @@ const GPU_BOOKS: f64 = 1e-6;
 /// Every pixel's bits of every map, for bitwise comparisons.
 fn map_bits(s: &Solved) -> Vec<u64> {
     let maps = s.run.exit_maps.as_ref().expect("maps");
-    (0..6).flat_map(|f| maps.map(f).iter().flatten().map(|v| v.to_bits()).collect::<Vec<_>>()).collect()
+    (0..6).flat_map(|f| maps.map(f).iter().map(|v| v.to_bits()).collect::<Vec<_>>()).collect()
 }
 
 /// Solves `scene` for its fixed orders on both backends; the GPU's maps add up to its books and
@@ -180,7 +181,7 @@ fn gpu_maps_match_the_twin(name: &str, scene: &Scene) -> Solved {
     let c = maps_add_up_to_the_books(&cpu, name);
     for face in 0..6 {
         for ch in 0..gpu.run.plan.channels as usize {
-            let (a, b): (Vec<f64>, Vec<f64>) = g.map(face).iter().zip(c.map(face)).map(|(x, y)| (x[ch], y[ch])).unzip();
+            let (a, b): (Vec<f64>, Vec<f64>) = g.pixels(face).zip(c.pixels(face)).map(|(x, y)| (x[ch], y[ch])).unzip();
             let largest = b.iter().fold(0f64, |m, &v| m.max(v));
             let worst = a.iter().zip(&b).fold(0f64, |m, (x, y)| m.max((x - y).abs()));
             let l2 = if largest > 0.0 { relative_l2(&a, &b) } else { 0.0 };

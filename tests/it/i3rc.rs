@@ -102,7 +102,7 @@ fn per_column_r_and_t(s: &Solved, r: f64, t: f64) {
     let sun = s.run.outcome.energy.faces[5].power_in[0];
     // Each column receives sun / 32 (the top face is lit alike everywhere, periodic sides).
     let column =
-        |face: usize, x: u32| (0..ny).map(|y| maps.map(face)[(x + nx * y) as usize][0]).sum::<f64>() * 32.0 / sun;
+        |face: usize, x: u32| (0..ny).map(|y| maps.pixel(face, (x + nx * y) as usize)[0]).sum::<f64>() * 32.0 / sun;
     let (rs, ts): (Vec<f64>, Vec<f64>) = (0..nx).map(|x| (column(5, x), column(4, x))).unzip();
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
     assert!((mean(&rs) - r).abs() < 1e-9 && (mean(&ts) - t).abs() < 1e-9, "the columns add up to R and T");
