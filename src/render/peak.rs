@@ -73,10 +73,11 @@
 //!
 //! Lobes broader than HG(0.05) are left to the bins, which hold their shape. Against the
 //! Monte-Carlo reference (`tools/forward_image_table.sh` at 4096 paths per pixel,
-//! benches/RESULTS.md; with the suns' irradiance at the voxels' centres, [`crate::solver::beam_trace`])
-//! the backlit clouds' blocks come within 3.2–4.7 % (g = 0.8) and 4.6–5.4 % (g = 0.95), and
-//! seen exactly towards the sun 3.7–4.6 %, from 17 % and 29–39 % with the chains alone (the
-//! thin rim of a g = 0.95 cloud, not in those blocks, is some 6 % too bright: where the camera ray grazes the cloud's edge, so does the straight line
+//! benches/RESULTS.md; with the suns' irradiance at the voxels' centres,
+//! [`crate::solver::beam_trace`]) the backlit clouds' blocks come within 3.2–4.7 % (g = 0.8) and
+//! 4.6–5.4 % (g = 0.95), and seen exactly towards the sun 3.7–4.6 %, from 17 % and 29–39 % with
+//! the chains alone (the thin rim of a g = 0.95 cloud, not in those blocks, is some 6 % too
+//! bright: where the camera ray grazes the cloud's edge, so does the straight line
 //! from the sun the chains and lobes count their depth along, while light deflected on the way
 //! soon leaves the thin fringe; its orders 2, 3, … come out ≈ 1.2ⁿ times the reference's there.
 //! Monte Carlo on the δ-M scaled medium puts 11–13 % too much light into that fringe as well:
