@@ -153,7 +153,7 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
             // The albedo factor a(v) (1 without an albedo grid), sampled like the density.
             let albedo = inputs.albedo.map_or(1.0, |a| sample(&|v| a.value(v, 0) as f64));
             // The source per stored channel (1 or 3), blended over the storage directions.
-            let bricks = source_bricks(inputs, &corners);
+            let bricks = corner_bricks(inputs.source, &corners);
             let source = blended_source(inputs, &blend, last, &corners, &bricks);
             // σs·Σ_b p_b·E_b per channel with the true medium (zero without suns to scatter): the
             // interpolated ρ·a times E_b interpolated in optical depth ([`beam_irradiance`]; for
@@ -168,7 +168,9 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                     for (b, (beam, chains)) in s.beams.iter().zip(phases).enumerate() {
                         // (No lobes without δ-M: `lobes` and `excess` are then empty.)
                         let lobe = excess.get(b).filter(|x| !x.is_empty());
-                        let v = beam_irradiance(beam, 0, inputs.channels, &corners, &weights);
+                        // Its field's bricks at the corners, located once for E and E*.
+                        let at = corner_bricks(beam.irradiance, &corners);
+                        let v = beam_irradiance(beam, &at, 0, inputs.channels, &corners, &weights);
                         // Along the segment the sun's light grows towards the sun as e^{κ·u}
                         // (κ = σt·ρ·μ, μ the cosine between the sun's light and the camera's) while
                         // what it scatters is dimmed towards the camera as e^{−σt·u}; the march
@@ -194,7 +196,7 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                         }
                         // E*: the scaled irradiance after the true one; τ = ln(E*/E) the peak's
                         // optical depth along the sun's path (∞ where E underflowed and E* did not).
-                        let scaled = beam_irradiance(beam, inputs.channels, inputs.channels, &corners, &weights);
+                        let scaled = beam_irradiance(beam, &at, inputs.channels, inputs.channels, &corners, &weights);
                         // Per stored channel (a grey scene's one serves r, g and b): the chain
                         // sum and, under δ-M, the forward lobes' excess over the solve's bins
                         // (`super::peak`, "The forward lobes") once each. Both travel to the
@@ -222,9 +224,10 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                     for point in &s.points {
                         let from = mid / h - point.position;
                         let mu = if from.length_squared() > 0.0 { from.normalize().dot(-dir) } else { 0.0 };
-                        let v = sample_channels(point.irradiance, 0, inputs.channels, &corners, &weights);
+                        let at = corner_bricks(point.irradiance, &corners);
+                        let v = sample_channels(&at, 0, inputs.channels, &weights);
                         let scaled = if s.peak_chains {
-                            sample_channels(point.irradiance, inputs.channels, inputs.channels, &corners, &weights)
+                            sample_channels(&at, inputs.channels, inputs.channels, &weights)
                         } else {
                             v
                         };
@@ -279,24 +282,14 @@ fn path_integral(sigma_t: f64, s: f64) -> f64 {
     }
 }
 
-/// `field`'s `channels` components (1 or 3) from component `first` on, summed over the trilinear
-/// `corners` with `weights` (one per corner: the trilinear weight times whatever multiplies the
-/// field there); outside the volume and in unstored bricks it reads 0, as `Field::value` has it.
-fn sample_channels(
-    field: &Field,
-    first: u32,
-    channels: u32,
-    corners: &[([u32; 3], f64); 8],
-    weights: &[f64; 8],
-) -> [f64; 3] {
-    let grid = field.grid();
+/// A field's `channels` components (1 or 3) from component `first` on, at the trilinear corners
+/// located in `bricks` ([`corner_bricks`]), summed with `weights` (one per corner: the trilinear
+/// weight times whatever multiplies the field there); outside the volume and in unstored bricks it
+/// reads 0, as `Field::value` has it.
+fn sample_channels(bricks: &CornerBricks, first: u32, channels: u32, weights: &[f64; 8]) -> [f64; 3] {
     let mut out = [0.0; 3];
-    for (&(v, _), &w) in corners.iter().zip(weights) {
-        let Some((data, local)) =
-            grid.contains(v).then(|| grid.locate(v)).and_then(|(b, l)| field.brick(b).map(|d| (d, l)))
-        else {
-            continue;
-        };
+    for (brick, &w) in bricks.iter().zip(weights) {
+        let Some((data, local)) = *brick else { continue };
         for (ch, o) in out.iter_mut().enumerate().take(channels.min(3) as usize) {
             *o += w * data.get((first as usize + ch) * BRICK_VOXELS + local).map_or(0.0, |&x| x as f64);
         }
@@ -313,26 +306,21 @@ fn sample_channels(
 /// makes it 0. Otherwise (voxel averages, 0 where ρ = 0) the product ρ·a·E is interpolated.
 fn beam_irradiance(
     beam: &super::DirectBeam,
+    bricks: &CornerBricks,
     first: u32,
     channels: u32,
     corners: &[([u32; 3], f64); 8],
     weights: &[f64; 8],
 ) -> [f64; 3] {
     if !beam.at_centres {
-        return sample_channels(beam.irradiance, first, channels, corners, weights);
+        return sample_channels(bricks, first, channels, weights);
     }
-    let field = beam.irradiance;
-    let grid = field.grid();
     let (mut log, mut total, mut dark) = ([0.0f64; 3], 0.0, [false; 3]);
-    for &(v, w) in corners {
+    for (&(_, w), brick) in corners.iter().zip(bricks) {
         if w == 0.0 {
             continue;
         }
-        let Some((data, local)) =
-            grid.contains(v).then(|| grid.locate(v)).and_then(|(b, l)| field.brick(b).map(|d| (d, l)))
-        else {
-            continue;
-        };
+        let Some((data, local)) = *brick else { continue };
         total += w;
         for (ch, l) in log.iter_mut().enumerate().take(channels.min(3) as usize) {
             let e = data.get((first as usize + ch) * BRICK_VOXELS + local).map_or(0.0, |&x| x as f64);
@@ -355,13 +343,13 @@ fn beam_irradiance(
     out
 }
 
-/// Each trilinear corner's brick of the source field and the voxel's index in it (`None` outside
-/// the volume or in an unstored brick, which read as 0, as `Field::value` has them): located once
-/// per sample for every blend that reads it.
+/// Each trilinear corner's brick of a field and the voxel's index in it (`None` outside the volume
+/// or in an unstored brick, which read as 0, as `Field::value` has them): located once per sample
+/// and field for everything that reads it there (every blend of the source; a light's true and
+/// scaled irradiance).
 type CornerBricks<'a> = [Option<(&'a [f32], usize)>; 8];
 
-fn source_bricks<'a>(inputs: &RenderInputs<'a>, corners: &[([u32; 3], f64); 8]) -> CornerBricks<'a> {
-    let field = inputs.source;
+fn corner_bricks<'a>(field: &'a Field, corners: &[([u32; 3], f64); 8]) -> CornerBricks<'a> {
     let grid = field.grid();
     let mut bricks: CornerBricks = [None; 8];
     for (slot, &(v, _)) in bricks.iter_mut().zip(corners) {

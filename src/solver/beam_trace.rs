@@ -61,7 +61,7 @@ pub fn estimated_steps(dims: [u32; 3], traced: u64) -> u64 {
 /// ∫ρ ds (voxel units) from `from` to the boundary of a `dims` volume along `towards` (unit),
 /// through the density the renderer sees: `density` (ρ per voxel, x fastest) interpolated
 /// trilinearly between the voxel centres, taken at the midpoint of each voxel crossing.
-pub fn path_to_boundary(dims: [u32; 3], density: &[f64], from: DVec3, towards: DVec3) -> f64 {
+fn path_to_boundary(dims: [u32; 3], density: &[f64], from: DVec3, towards: DVec3) -> f64 {
     let [nx, ny, _] = dims.map(|d| d as usize);
     let size = DVec3::new(dims[0] as f64, dims[1] as f64, dims[2] as f64);
     let Some(span) = intersect_box(from, towards, size) else { return 0.0 };

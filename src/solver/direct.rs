@@ -159,12 +159,11 @@ pub fn split(
     // Whether the beams' irradiance for the image is traced exactly (`super::beam_trace`).
     // Every voxel of an occupied brick is traced (the field keeps those bricks; the renderer
     // interpolates between the centres, empty ones included).
-    let mut stored = vec![false; grid.brick_count()];
-    store.occupied_bricks().for_each(|b| stored[b] = true);
-    let traced_voxels: u64 = (0..grid.brick_count())
-        .filter(|&b| stored[b])
-        .map(|b| grid.brick_extent(grid.brick_coords(b)).iter().map(|&e| u64::from(e)).product::<u64>())
-        .sum();
+    let (mut stored, mut traced_voxels) = (vec![false; grid.brick_count()], 0u64);
+    for b in store.occupied_bricks() {
+        stored[b] = true;
+        traced_voxels += grid.brick_extent(grid.brick_coords(b)).iter().map(|&e| u64::from(e)).product::<u64>();
+    }
     let in_stored = |v: [u32; 3]| stored[grid.locate(v).0];
     let steps = super::beam_trace::estimated_steps(plan.dims, traced_voxels).saturating_mul(plan.beams.len() as u64);
     // The swept path's test hook (tests/it/single_scatter.rs): only in `test-hooks` builds.
