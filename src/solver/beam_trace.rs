@@ -81,7 +81,7 @@ fn path_to_boundary(dims: [u32; 3], density: &[f64], from: DVec3, towards: DVec3
 
 /// Per voxel of a `dims` volume (x fastest, `density` ρ per voxel as the twin holds it) for which
 /// `traced` holds, the irradiance at its centre of a beam travelling along `travel` (unit, voxel
-/// frame), one value per component k: `boundary[k]·e^{−sigma[k]·∫ρ}` ([`path_to_boundary`]
+/// frame), one value per component k: `boundary[k]·e^{−sigma[k]·∫ρ}` (`path_to_boundary`
 /// towards the sun), `sigma[k]` the extinction per unit density and voxel length (σt·h). Written
 /// to `out[voxel·K + k]`, K = `sigma.len()`; 0 where `traced` does not hold.
 pub fn trace_beam(
