@@ -159,13 +159,19 @@ pub fn split(
     // Whether the beams' irradiance for the image is traced exactly (`super::beam_trace`).
     // Every voxel of an occupied brick is traced (the field keeps those bricks; the renderer
     // interpolates between the centres, empty ones included).
-    let (mut stored, mut traced_voxels) = (vec![false; grid.brick_count()], 0u64);
+    let (mut stored, mut traced_bricks) = (vec![false; grid.brick_count()], Vec::new());
     for b in store.occupied_bricks() {
         stored[b] = true;
-        traced_voxels += grid.brick_extent(grid.brick_coords(b)).iter().map(|&e| u64::from(e)).product::<u64>();
+        let coords = grid.brick_coords(b);
+        traced_bricks.push((grid.brick_origin(coords), grid.brick_extent(coords)));
     }
     let in_stored = |v: [u32; 3]| stored[grid.locate(v).0];
-    let steps = super::beam_trace::estimated_steps(plan.dims, traced_voxels).saturating_mul(plan.beams.len() as u64);
+    let live = super::beam_trace::LiveCells::new(plan.dims, &density);
+    let steps = plan
+        .beams
+        .iter()
+        .map(|beam| super::beam_trace::estimated_steps(&live, &traced_bricks, beam.omega))
+        .fold(0u64, u64::saturating_add);
     // The swept path's test hook (tests/it/single_scatter.rs): only in `test-hooks` builds.
     #[cfg(feature = "test-hooks")]
     let limit = std::env::var("LPM_TEST_TRACE_LIMIT_STEPS")
@@ -221,8 +227,8 @@ pub fn split(
                 passes.iter().flat_map(|p| (0..c).map(|ch| p.coefficients(ch).0 * p.voxel_size)).collect();
             let boundary: Vec<f64> = passes.iter().flat_map(|_| beam.boundary[..c].iter().copied()).collect();
             super::beam_trace::trace_beam(
-                plan.dims,
                 &density,
+                &live,
                 &in_stored,
                 beam.omega,
                 &boundary,
