@@ -14,6 +14,9 @@
 #   tools/forward_image_table.sh [OUT_DIR]      default out/forward-image
 #   LPM=target/release/lpm  BACKEND=cpu  SPP=4096 (the reference's paths per pixel)
 #   GS="0.8 0.95"  ALBEDOS="0.99 0.9"  VIEWS="back side front toward"
+#   NOISE=1: also a second reference per view (seed 2, same SPP; as long again) and two more
+#   columns, the references' own noise: the second against the first, measured as lpm is (the
+#   difference of two independent references: about √2 times either one's own noise).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-out/forward-image}
@@ -23,6 +26,7 @@ SPP=${SPP:-4096}
 GS=${GS:-"0.8 0.95"}
 ALBEDOS=${ALBEDOS:-"0.99 0.9"}
 VIEWS=${VIEWS:-"back side front toward"}
+NOISE=${NOISE:-0}
 if [ ! -x "$LPM" ]; then
     [ "$LPM" = target/release/lpm ] || { echo "no lpm binary at $LPM" >&2; exit 1; }
     cargo build --release
@@ -76,8 +80,13 @@ height = 128
 ''')
 PY
 }
-echo "| g | albedo | view | blocks: rel. L2 | blocks: bias | cloud blocks: rel. L2 | cloud blocks: bias |"
-echo "|---|---|---|---|---|---|---|"
+if [ "$NOISE" = 1 ]; then
+    echo "| g | albedo | view | blocks: rel. L2 | blocks: bias | cloud blocks: rel. L2 | cloud blocks: bias | reference noise: blocks | reference noise: cloud blocks |"
+    echo "|---|---|---|---|---|---|---|---|---|"
+else
+    echo "| g | albedo | view | blocks: rel. L2 | blocks: bias | cloud blocks: rel. L2 | cloud blocks: bias |"
+    echo "|---|---|---|---|---|---|---|"
+fi
 for g in $GS; do for a in $ALBEDOS; do for v in $VIEWS; do
     base="$OUT/g${g}_a${a}_$v"
     scene "$g" "$a" "$v" "$base.toml"
@@ -87,12 +96,24 @@ for g in $GS; do for a in $ALBEDOS; do for v in $VIEWS; do
     args=(solve "$base.toml" --out "${base}_lpm" --backend "$BACKEND" --log warn)
     nice "$LPM" "${args[@]}" >/dev/null
     "$LPM" compare "${base}_lpm" "$ref" --json "${base}_compare.json" >/dev/null
-    /usr/bin/python3 - "${base}_compare.json" "$g" "$a" "$v" <<'PY'
+    noise=""
+    if [ "$NOISE" = 1 ]; then
+        ref2="${ref}_seed2"
+        [ -f "$ref2/image.exr" ] ||
+            nice "$LPM" reference "$base.toml" --out "$ref2" --samples 16 --image-spp "$SPP" --seed 2 --log warn >/dev/null
+        "$LPM" compare "$ref2" "$ref" --json "${base}_noise.json" >/dev/null
+        noise="${base}_noise.json"
+    fi
+    /usr/bin/python3 - "${base}_compare.json" "$g" "$a" "$v" "$noise" <<'PY'
 import json, sys
 c = json.load(open(sys.argv[1]))['image']
 pct = lambda x: f"{100 * x:+.1f} %" if x is not None else "n/a"
 l2 = lambda x: f"{100 * x:.1f} %" if x is not None else "n/a"
 b, m = c['blocks'], c['medium_blocks']
-print(f"| {sys.argv[2]} | {sys.argv[3]} | {sys.argv[4]} | {l2(b['relative_l2'])} | {pct(b['mean_bias'])} | {l2(m['relative_l2'])} | {pct(m['mean_bias'])} |")
+row = f"| {sys.argv[2]} | {sys.argv[3]} | {sys.argv[4]} | {l2(b['relative_l2'])} | {pct(b['mean_bias'])} | {l2(m['relative_l2'])} | {pct(m['mean_bias'])} |"
+if sys.argv[5]:
+    n = json.load(open(sys.argv[5]))['image']
+    row += f" {l2(n['blocks']['relative_l2'])} | {l2(n['medium_blocks']['relative_l2'])} |"
+print(row)
 PY
 done; done; done
