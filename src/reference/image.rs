@@ -152,6 +152,12 @@ pub fn radiance(grid: &Grid, s: &ChannelSetup, orders: Orders, o: DVec3, d: DVec
     // times, the emission collected there k − 1 times.
     let mut collisions = 0u32;
     loop {
+        // The point lights' light scattered into this ray anywhere along it, by equiangular
+        // sampling (`point_in_scattering`): scattered once more than the path so far.
+        let points = point_in_scattering(grid, s, p, d, rng);
+        if orders.contains(collisions + 1) {
+            l += beta * points;
+        }
         let t_exit = exit_distance(grid, p, d);
         let hit = if t_exit > 0.0 { free_flight(grid, s.sigma, p, d, t_exit, rng) } else { None };
         let Some(t) = hit else {
@@ -185,20 +191,6 @@ pub fn radiance(grid: &Grid, s: &ChannelSetup, orders: Orders, o: DVec3, d: DVec
                 l += beta * tr * e * hg_eval(s.g, sun.dot(d));
             }
         }
-        // Next-event estimation to each point light at q: light travelling along −w (w toward
-        // the light) scatters into −d (cosine w·d), its irradiance I·T/r² (r in world units).
-        for &(q, intensity) in &s.points {
-            let to = q - p;
-            let r = to.length();
-            if !(r > 0.0) {
-                continue;
-            }
-            let w = to / r;
-            let tr = transmittance(grid, s.sigma, p, w, exit_distance(grid, p, w).min(r), rng);
-            if tr > 0.0 && counted {
-                l += beta * tr * intensity / (r * r * s.h * s.h) * hg_eval(s.g, w.dot(d));
-            }
-        }
         // Next-event estimation to the sky along a phase-sampled direction (phase / pdf = 1).
         if s.has_sky() {
             let w = sample_hg(s.g, rng.uniform(), rng.uniform(), d);
@@ -216,6 +208,45 @@ pub fn radiance(grid: &Grid, s: &ChannelSetup, orders: Orders, o: DVec3, d: DVec
             }
         }
         d = sample_hg(s.g, rng.uniform(), rng.uniform(), d);
+    }
+    l
+}
+
+/// The point lights' light scattered into the ray from `p` (on the box, or inside it) along `d`
+/// towards its origin, for one channel: `∫ T(p → x)·σs(x)·HG(w·d)·I·T(x → q)/|x − q|² dt` over the
+/// ray through the box, one sample per light by equiangular sampling (Kulla & Fajardo 2012): the
+/// distance t with a density ∝ 1/|x − q|², so the light's 1/r² cancels. It stands for next-event
+/// estimation at the ray's delta-tracked collision, which has the same mean but an infinite
+/// variance in a medium around a point light (∫ (1/r²)² r² dr diverges at the light): paths that
+/// collide close to it give rare, enormous samples, fireflies no number of paths averages away.
+/// The transmittances are the tracking estimators' (unbiased); σs is the voxel's at x.
+fn point_in_scattering(grid: &Grid, s: &ChannelSetup, p: DVec3, d: DVec3, rng: &mut Rng) -> f64 {
+    let length = exit_distance(grid, p, d);
+    let mut l = 0.0;
+    for &(q, intensity) in &s.points {
+        // The light's foot on the ray (Δ along it) and its distance D from it.
+        let delta = (q - p).dot(d);
+        let foot = (q - p - d * delta).length().max(1e-9);
+        let (a, b) = ((-delta / foot).atan(), ((length - delta) / foot).atan());
+        if !(length > 0.0 && b > a) {
+            continue;
+        }
+        let u = rng.uniform();
+        let t = delta + foot * (a + u * (b - a)).tan();
+        let x = p + d * t.clamp(0.0, length);
+        // pdf(t) = D / ((b − a)·r²): the estimate's 1/r² and the pdf's cancel.
+        let to = q - x;
+        let r2 = to.length_squared();
+        let r = r2.sqrt();
+        let v = [0, 1, 2].map(|k| (x[k].floor() as i64).clamp(0, grid.dims[k] as i64 - 1));
+        let sigma_s = s.sigma * grid.density[grid.voxel_index(v)] as f64 * s.albedo * grid.albedo_at(x);
+        if !(sigma_s > 0.0 && r > 0.0) {
+            continue;
+        }
+        let w = to / r;
+        let t_in = transmittance(grid, s.sigma, p, d, t, rng);
+        let t_out = transmittance(grid, s.sigma, x, w, exit_distance(grid, x, w).min(r), rng);
+        l += t_in * sigma_s * hg_eval(s.g, w.dot(d)) * intensity / (s.h * s.h) * t_out * (b - a) / foot;
     }
     l
 }

@@ -65,10 +65,15 @@
 //! Camera rays (pinhole with vertical field of view, or orthographic; `up` is the world up, top row
 //! first, ray through a jittered point of the pixel) are delta tracked; at each real collision the
 //! collision estimator adds (1 − α)·Le (= σa·Le/σt, the emission), the throughput is multiplied by α
-//! and next-event estimation adds each sun (transmittance × phase × E), each point light
-//! (transmittance to the point × phase × I/r²) and the sky (one direction
+//! and next-event estimation adds each sun (transmittance × phase × E) and the sky (one direction
 //! sampled from the phase function: transmittance × the sky's and the map's radiance from there,
-//! since phase/pdf = 1). Transmittances
+//! since phase/pdf = 1). The point lights' light is added per ray rather than per collision: along
+//! each ray of the path (the camera's, and each one after a scattering), one point per light by
+//! equiangular sampling (its density ∝ 1/r² from the light, so I/r² cancels: transmittance in ×
+//! σs × phase × transmittance to the point × I, over the pdf), which estimates the same in-scattered
+//! light as next-event estimation at the ray's collision without its infinite variance near the
+//! light (two 256-path references of `tools/scenes/lantern_in_fog.toml` differed by 27 % over
+//! their 4 × 4-pixel blocks that way, by 12 % now). Transmittances
 //! are estimated by residual ratio tracking (the brick minimum integrated exactly; exact optical depth
 //! in regular-tracked bricks). The path then continues in an
 //! HG-sampled direction with Russian roulette. Only a primary ray that escapes adds the sky (after a
