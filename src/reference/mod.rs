@@ -72,7 +72,7 @@
 //! equiangular sampling (its density ∝ 1/r² from the light, so I/r² cancels: transmittance in ×
 //! σs × phase × transmittance to the point × I, over the pdf), which estimates the same in-scattered
 //! light as next-event estimation at the ray's collision without its infinite variance near the
-//! light (two 256-path references of `tools/scenes/lantern_in_fog.toml` differed by 27 % over
+//! light (two 256-path references of `tools/scenes/lantern_in_fog.toml` differed by 25 % over
 //! their 4 × 4-pixel blocks that way, by 12 % now). Transmittances
 //! are estimated by residual ratio tracking (the brick minimum integrated exactly; exact optical depth
 //! in regular-tracked bricks). The path then continues in an
