@@ -60,23 +60,11 @@ pub const TRACE_LIMIT_STEPS: u64 = 1_000_000_000;
 /// walk from its centre, as far as the trace walks (to the boundary, or past the live cells' box),
 /// every crossing counted as one step whether it reads the density or not.
 pub fn estimated_steps(live: &LiveCells, bricks: &[([u32; 3], [u32; 3])], travel: DVec3) -> u64 {
-    let size = DVec3::new(live.dims[0] as f64, live.dims[1] as f64, live.dims[2] as f64);
     bricks
         .iter()
         .map(|&(first, extent)| {
             let centre = DVec3::from_array(std::array::from_fn(|a| f64::from(first[a]) + 0.5 * f64::from(extent[a])));
-            let towards = -travel;
-            let mut steps = 0u64;
-            if let Some(span) = intersect_box(centre, towards, size) {
-                let past = live.leaves_at(centre, towards) + 1e-6;
-                let mut t = span.0;
-                walk_voxels(centre, towards, span, live.dims, 1.0, |v, s| {
-                    let start = t;
-                    t += s;
-                    steps += 1;
-                    live.is_live(v) || start <= past
-                });
-            }
+            let steps = live.walk(centre, -travel, |_, _, _| {});
             extent.iter().map(|&e| u64::from(e)).product::<u64>().saturating_mul(steps)
         })
         .fold(0u64, u64::saturating_add)
@@ -151,33 +139,46 @@ impl LiveCells {
             None => f64::NEG_INFINITY,
         }
     }
+
+    /// Walks the voxels from `from` along `towards` (unit) to the volume's boundary, or until a
+    /// dead crossing starts past the live cells' box (nothing live lies further on), calling
+    /// `live_crossing(voxel, start, length)` for each crossing of a live cell, in order; returns the
+    /// crossings walked. The one walk of the trace ([`path_to_boundary`]) and of its estimate.
+    fn walk(&self, from: DVec3, towards: DVec3, mut live_crossing: impl FnMut([u32; 3], f64, f64)) -> u64 {
+        let size = DVec3::new(self.dims[0] as f64, self.dims[1] as f64, self.dims[2] as f64);
+        let Some(span) = intersect_box(from, towards, size) else { return 0 };
+        // A margin far above the round-off of the box's exit, far below a voxel.
+        let past = self.leaves_at(from, towards) + 1e-6;
+        let (mut t, mut steps) = (span.0, 0u64);
+        walk_voxels(from, towards, span, self.dims, 1.0, |v, s| {
+            let start = t;
+            t += s;
+            steps += 1;
+            if !self.is_live(v) {
+                return start <= past;
+            }
+            live_crossing(v, start, s);
+            true
+        });
+        steps
+    }
 }
 
-/// ∫ρ ds (voxel units) from `from` to the boundary of a `dims` volume along `towards` (unit),
-/// through the density the renderer sees: `density` (ρ per voxel, x fastest) interpolated
-/// trilinearly between the voxel centres, taken at the midpoint of each voxel crossing.
-fn path_to_boundary(dims: [u32; 3], density: &[f64], live: &LiveCells, from: DVec3, towards: DVec3) -> f64 {
-    debug_assert_eq!(dims, live.dims);
+/// ∫ρ ds (voxel units) from `from` to the boundary of the volume `live` was made for, along
+/// `towards` (unit), through the density the renderer sees: `density` (ρ per voxel, x fastest)
+/// interpolated trilinearly between the voxel centres, taken at the midpoint of each voxel
+/// crossing (the dead cells' crossings, where it is exactly 0, skipped: [`LiveCells`]).
+fn path_to_boundary(density: &[f64], live: &LiveCells, from: DVec3, towards: DVec3) -> f64 {
+    let dims = live.dims;
     let [nx, ny, _] = dims.map(|d| d as usize);
-    let size = DVec3::new(dims[0] as f64, dims[1] as f64, dims[2] as f64);
-    let Some(span) = intersect_box(from, towards, size) else { return 0.0 };
-    // A margin far above the round-off of the box's exit, far below a voxel.
-    let past = live.leaves_at(from, towards) + 1e-6;
-    let (mut t, mut sum) = (span.0, 0.0);
-    walk_voxels(from, towards, span, dims, 1.0, |v, s| {
-        let start = t;
-        t += s;
-        if !live.is_live(v) {
-            // Nothing to add here, and nothing further on once past the live box.
-            return start <= past;
-        }
+    let mut sum = 0.0;
+    live.walk(from, towards, |_, start, s| {
         let mid = from + towards * (start + 0.5 * s);
         let rho: f64 = trilinear(mid, dims)
             .iter()
             .map(|&(v, w)| w * density[v[0] as usize + nx * (v[1] as usize + ny * v[2] as usize)])
             .sum();
         sum += s * rho;
-        true
     });
     sum
 }
@@ -209,7 +210,7 @@ pub fn trace_beam(
             return;
         }
         let centre = DVec3::new(v[0] as f64 + 0.5, v[1] as f64 + 0.5, v[2] as f64 + 0.5);
-        let path = path_to_boundary(dims, density, live, centre, -travel);
+        let path = path_to_boundary(density, live, centre, -travel);
         for ((value, &b), &s) in values.iter_mut().zip(boundary).zip(sigma) {
             *value = b * (-s * path).exp();
         }
@@ -293,8 +294,8 @@ mod tests {
             for i in 0..nx * ny * nz {
                 let v = [i % nx, (i / nx) % ny, i / (nx * ny)];
                 let from = DVec3::new(v[0] as f64 + 0.5, v[1] as f64 + 0.5, v[2] as f64 + 0.5);
-                let want = path_to_boundary(dims, &density, &everywhere, from, towards);
-                let got = path_to_boundary(dims, &density, &live, from, towards);
+                let want = path_to_boundary(&density, &everywhere, from, towards);
+                let got = path_to_boundary(&density, &live, from, towards);
                 assert_eq!(got.to_bits(), want.to_bits(), "voxel {v:?} towards {towards}");
                 non_zero += usize::from(want > 0.0);
             }
