@@ -90,6 +90,9 @@ pub struct SingleScattering<'a> {
     /// scatters twice or more, sharpened where the lobe exceeds the cells
     /// ([`super::peak::ForwardLobes`]).
     pub lobes: Vec<super::peak::ForwardLobes>,
+    /// Per beam, its forward light on a cone of directions ([`super::cone`]), which replaces its
+    /// chains and lobes where there is one.
+    pub cones: Vec<Option<super::cone::ForwardCone>>,
 }
 
 /// Everything a render reads.

@@ -523,8 +523,8 @@ pub fn render_solved(
         data.single_scattering.as_ref().map_or(0, |s| s.travel.len() + s.points.len()),
         factors.direct.len()
     );
-    let single = data.single_scattering.as_ref().map(|s| SingleScattering {
-        beams: s
+    let single = data.single_scattering.as_ref().map(|s| {
+        let beams: Vec<DirectBeam> = s
             .travel
             .iter()
             .zip(factors.direct)
@@ -533,26 +533,35 @@ pub fn render_solved(
                 irradiance: field,
                 at_centres: s.irradiance_at_centres,
             })
-            .collect(),
-        points: s
+            .collect();
+        let true_medium =
+            Medium { sigma_t: s.medium.sigma_t, albedo: s.medium.albedo, g: s.medium.g, emission: [0.0; 3] };
+        // δ-M's peak share depends on g alone: any channel that scatters gives it.
+        let f =
+            (0..3).map(|ch| peak_share(s.medium.sigma_t[ch], s.medium.albedo[ch], m.sigma_t[ch])).fold(0.0, f64::max);
+        // The cone's correction is an experiment, off unless asked for (`super::cone`).
+        let cones = if s.peak_chains && std::env::var("LPM_FORWARD_CONE").is_ok_and(|v| v == "1") {
+            beams
+                .iter()
+                .map(|b| super::cone::sun_cone(store, factors.albedo, b, &true_medium, f, data.channels))
+                .collect()
+        } else {
+            beams.iter().map(|_| None).collect()
+        };
+        // Only under δ-M: the lobes' amounts come from the scaled irradiance's peak depth.
+        let lobes = if s.peak_chains {
+            let travels: Vec<DVec3> = beams.iter().map(|b| b.travel).collect();
+            ForwardLobes::for_suns(&propagation, &storage, s.medium.g, m.g, f, &travels)
+        } else {
+            Vec::new()
+        };
+        let points = s
             .points
             .iter()
             .zip(factors.direct.iter().skip(s.travel.len()))
             .map(|(p, field)| PointSource { position: DVec3::from_array(*p), irradiance: field })
-            .collect(),
-        medium: Medium { sigma_t: s.medium.sigma_t, albedo: s.medium.albedo, g: s.medium.g, emission: [0.0; 3] },
-        peak_chains: s.peak_chains,
-        // Only under δ-M: the lobes' amounts come from the scaled irradiance's peak depth.
-        lobes: if s.peak_chains {
-            // δ-M's peak share depends on g alone: any channel that scatters gives it.
-            let f = (0..3)
-                .map(|ch| peak_share(s.medium.sigma_t[ch], s.medium.albedo[ch], m.sigma_t[ch]))
-                .fold(0.0, f64::max);
-            let travels: Vec<DVec3> = s.travel.iter().map(|t| DVec3::from_array(*t).normalize()).collect();
-            ForwardLobes::for_suns(&propagation, &storage, s.medium.g, m.g, f, &travels)
-        } else {
-            Vec::new()
-        },
+            .collect();
+        SingleScattering { beams, points, medium: true_medium, peak_chains: s.peak_chains, lobes, cones }
     });
     render(&RenderInputs {
         store,

@@ -126,11 +126,13 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                 .collect();
             // Per sun, how far each forward lobe's sharp shape exceeds its bins towards the camera.
             let excess: Vec<Vec<f64>> = s.lobes.iter().map(|l| l.excess(-dir, &blend)).collect();
-            (s, phases, excess)
+            // Per sun with a cone, the cells' phase towards the camera (`super::cone`).
+            let cones: Vec<_> = s.cones.iter().map(|c| c.as_ref().map(|c| (c, c.weights(-dir)))).collect();
+            (s, phases, excess, cones)
         });
         // Under δ-M the march attenuates the solved source with the scaled extinction; the exact
         // single scattering travels to the camera with the true one.
-        let apart = single.as_ref().is_some_and(|(s, _, _)| s.medium.sigma_t != m.sigma_t);
+        let apart = single.as_ref().is_some_and(|(s, ..)| s.medium.sigma_t != m.sigma_t);
         let mut true_transmittance = [1.0f64; 3];
         let mut t = span.0;
         walk_voxels(origin, dir, span, grid.dims, h, |_, s| {
@@ -161,7 +163,7 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
             // interpolated, as the solved source σs·E is).
             let scattered: [f64; 3] = match &single {
                 None => [0.0; 3],
-                Some((s, phases, excess)) => {
+                Some((s, phases, excess, cones)) => {
                     let a = inputs.albedo.map_or([1.0; 8], |a| corners.map(|(v, _)| a.value(v, 0) as f64));
                     let weights: [f64; 8] = std::array::from_fn(|k| corners[k].1 * rho[k] * a[k]);
                     let mut e = [0.0; 3];
@@ -187,6 +189,17 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                             path_integral(sigma - kappa, segment) * (-0.5 * kappa * segment).exp()
                                 / path_integral(sigma, segment)
                         });
+                        // With a cone: the chains and lobes below, corrected by how far the cone's
+                        // light with the real geometry differs from the same cone's along the
+                        // straight line (`super::cone`).
+                        let lateral = match cones.get(b) {
+                            Some(Some((cone, towards))) => {
+                                let scaled =
+                                    beam_irradiance(beam, &at, inputs.channels, inputs.channels, &corners, &weights);
+                                cone.lateral(mid / h, towards, v[0], scaled[0].max(v[0]))
+                            }
+                            _ => 0.0,
+                        };
                         if !s.peak_chains {
                             let p = chains.single_phase();
                             for (ch, e) in e.iter_mut().enumerate() {
@@ -217,7 +230,13 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                                     lobe_k[k] = lobes.light(excess, true_e, tau / lobes.peak_share(), tau);
                                 }
                             }
-                            *e += phase_k[k] * scaled_e + lobe_k[k] + (grow[ch] - 1.0) * chains.single_phase() * true_e;
+                            // The cone carries channel 0's light; a grey medium keeps a sun's
+                            // colour, E_k/E_0, everywhere.
+                            let colour = if v[0] > 0.0 { v[k] / v[0] } else { 1.0 };
+                            *e += phase_k[k] * scaled_e
+                                + lobe_k[k]
+                                + (grow[ch] - 1.0) * chains.single_phase() * true_e
+                                + lateral * colour;
                         }
                     }
                     // The point lights: their light reaches x travelling from the light to x.
@@ -261,7 +280,7 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                 let x = sigma_t * s;
                 radiance[ch] += transmittance[ch] * q * path_integral(sigma_t, s);
                 transmittance[ch] *= (-x).exp();
-                if let (true, Some((sc, _, _))) = (apart, &single) {
+                if let (true, Some((sc, ..))) = (apart, &single) {
                     let sigma_true = density * sc.medium.sigma_t[ch];
                     radiance[ch] += true_transmittance[ch] * scattered[ch] * path_integral(sigma_true, s);
                     true_transmittance[ch] *= (-sigma_true * s).exp();
@@ -304,7 +323,7 @@ fn sample_channels(bricks: &CornerBricks, first: u32, channels: u32, weights: &[
 /// in a uniform medium, where E falls by e^{−σ·ρ} a voxel and a linear interpolation overstates
 /// it between the centres (`crate::solver::beam_trace`). A corner whose light underflowed to 0
 /// makes it 0. Otherwise (voxel averages, 0 where ρ = 0) the product ρ·a·E is interpolated.
-fn beam_irradiance(
+pub(super) fn beam_irradiance(
     beam: &super::DirectBeam,
     bricks: &CornerBricks,
     first: u32,
@@ -347,9 +366,9 @@ fn beam_irradiance(
 /// or in an unstored brick, which read as 0, as `Field::value` has them): located once per sample
 /// and field for everything that reads it there (every blend of the source; a light's true and
 /// scaled irradiance).
-type CornerBricks<'a> = [Option<(&'a [f32], usize)>; 8];
+pub(super) type CornerBricks<'a> = [Option<(&'a [f32], usize)>; 8];
 
-fn corner_bricks<'a>(field: &'a Field, corners: &[([u32; 3], f64); 8]) -> CornerBricks<'a> {
+pub(super) fn corner_bricks<'a>(field: &'a Field, corners: &[([u32; 3], f64); 8]) -> CornerBricks<'a> {
     let grid = field.grid();
     let mut bricks: CornerBricks = [None; 8];
     for (slot, &(v, _)) in bricks.iter_mut().zip(corners) {

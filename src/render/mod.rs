@@ -16,7 +16,9 @@
 //! truncated by δ-M in the solve. Under δ-M the light the truncated peak kept in the sun's beam
 //! is scattered towards the camera there too, by chains of peak scatterings, and the sun's light
 //! scattered more than once but still near its direction is sharpened from what the storage
-//! cells hold of it into its forward lobes ([`peak`]). What the camera sees
+//! cells hold of it into its forward lobes ([`peak`]); an experiment, off by default, corrects
+//! them for the light's sideways spread with a transport on a cone of directions about the sun
+//! ([`cone`]). What the camera sees
 //! beyond the volume is the sky's uniform radiance plus the environment map's pixel in the ray's
 //! direction.
 //!
@@ -27,6 +29,7 @@
 //! [`write_png_rgba`] does the same with straight alpha for a transparent background.
 
 mod camera;
+pub mod cone;
 mod image;
 pub mod keep;
 pub mod march;
