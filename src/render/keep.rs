@@ -539,8 +539,8 @@ pub fn render_solved(
         // δ-M's peak share depends on g alone: any channel that scatters gives it.
         let f =
             (0..3).map(|ch| peak_share(s.medium.sigma_t[ch], s.medium.albedo[ch], m.sigma_t[ch])).fold(0.0, f64::max);
-        // The cone's correction is an experiment, off unless asked for (`super::cone`).
-        let cones = if s.peak_chains && std::env::var("LPM_FORWARD_CONE").is_ok_and(|v| v == "1") {
+        // Under δ-M: the sideways spread of the light the peak keeps in each sun's beam.
+        let cones = if s.peak_chains {
             beams
                 .iter()
                 .map(|b| super::cone::sun_cone(store, factors.albedo, b, &true_medium, f, data.channels))

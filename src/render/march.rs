@@ -196,7 +196,7 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                             Some(Some((cone, towards))) => {
                                 let scaled =
                                     beam_irradiance(beam, &at, inputs.channels, inputs.channels, &corners, &weights);
-                                cone.lateral(mid / h, towards, v[0], scaled[0].max(v[0]))
+                                cone.lateral(mid / h, towards, scaled[0].max(v[0]))
                             }
                             _ => 0.0,
                         };

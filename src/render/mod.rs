@@ -16,9 +16,8 @@
 //! truncated by δ-M in the solve. Under δ-M the light the truncated peak kept in the sun's beam
 //! is scattered towards the camera there too, by chains of peak scatterings, and the sun's light
 //! scattered more than once but still near its direction is sharpened from what the storage
-//! cells hold of it into its forward lobes ([`peak`]); an experiment, off by default, corrects
-//! them for the light's sideways spread with a transport on a cone of directions about the sun
-//! ([`cone`]). What the camera sees
+//! cells hold of it into its forward lobes ([`peak`]), both corrected for the light's sideways
+//! spread by a transport on a cone of directions about each sun ([`cone`]). What the camera sees
 //! beyond the volume is the sky's uniform radiance plus the environment map's pixel in the ray's
 //! direction.
 //!

@@ -71,6 +71,10 @@
 //!   left as they are elsewhere. Taking each lobe's bin off where the sharp lobe is below it (a
 //!   zero-sum reshaping) made a side-lit g = 0.8 cloud 1.6 % darker against the reference.
 //!
+//! **Sideways.** Both count their light along the sun's straight line; [`super::cone`] adds how
+//! far the light of a cone of directions about the sun, transported with the real geometry,
+//! differs from the same held on that line (a thin rim loses it sideways, a core gains it).
+//!
 //! Lobes broader than HG(0.05) are left to the bins, which hold their shape. Against the
 //! Monte-Carlo reference (`tools/forward_image_table.sh` at 4096 paths per pixel,
 //! benches/RESULTS.md; with the suns' irradiance at the voxels' centres,
