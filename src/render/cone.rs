@@ -57,9 +57,10 @@ use crate::store::{BrickStore, Field};
 use glam::DVec3;
 use rayon::prelude::*;
 
-/// Most aligned-grid values (points × (cells + 1)) a cone may hold: 1.2·10⁸ f32, 480 MB.
-/// Past it the grid spacing grows; past [`COARSEST`] there is no cone (the chains and lobes serve).
-const MOST_VALUES: f64 = 1.2e8;
+/// Most aligned-grid values (points × (cells + 1)) one march may hold: 6·10⁷ f32, 240 MB (the
+/// two marches of a cone 480 MB while it is built). Past it the grid spacing grows; past
+/// [`COARSEST`] there is no cone (the chains and lobes serve).
+const MOST_VALUES: f64 = 6e7;
 
 /// The finest grid spacing, in voxels: the sun's light falls by e^{−σt·h} between points, and
 /// half a voxel keeps what the linear interpolation of the source between them overstates at
@@ -170,8 +171,10 @@ impl ForwardCone {
             light: Vec::new(),
         };
         // The real geometry less the straight line, both by the same march (module docs).
-        let mut light = cone.march(medium, false);
-        let straight = cone.march(medium, true);
+        let sampled = cone.sample(medium);
+        let coupling = cone.coupling();
+        let mut light = cone.march(&sampled, &coupling, false);
+        let straight = cone.march(&sampled, &coupling, true);
         light.iter_mut().zip(&straight).for_each(|(a, b)| *a -= b);
         cone.light = light;
         Some(cone)
@@ -181,24 +184,29 @@ impl ForwardCone {
         self.origin + (self.axes[0] * a as f64 + self.axes[1] * b as f64 + self.axes[2] * c as f64) * self.h
     }
 
-    /// Every cell's light (over E*) at every grid point: the march of the module docs, each cell's
-    /// light along its own direction or, `straight`, held on the sun's line.
-    fn march(&self, medium: &(dyn Fn(DVec3) -> MediumSample + Sync), straight: bool) -> Vec<f32> {
+    /// The medium on the grid, slice by slice: σt·h, σs·h (per grid step), σs·E·h and E*.
+    fn sample(&self, medium: &(dyn Fn(DVec3) -> MediumSample + Sync)) -> Vec<(f32, f32, f32, f32)> {
         let [n0, n1, n2] = self.n;
-        let k = self.cells.len();
         let slice = n0 * n1;
-        // The medium on the grid, slice by slice: σt·h, σs·h (per grid step), σs·E per step, E*.
-        let samples: Vec<(f32, f32, f32, f32)> = (0..slice * n2)
+        (0..slice * n2)
             .into_par_iter()
             .map(|i| {
                 let m = medium(self.point(i % n0, (i / n0) % n1, i / slice));
                 let s = (m.sigma_s * self.h) as f32;
                 ((m.sigma_t * self.h) as f32, s, (m.sigma_s * self.h * m.irradiance) as f32, m.scaled_irradiance as f32)
             })
-            .collect();
+            .collect()
+    }
+
+    /// Every cell's light (over E*) at every grid point: the march of the module docs through the
+    /// `samples` of [`sample`](Self::sample) with the cells' `coupling`, each cell's light along
+    /// its own direction or, `straight`, held on the sun's line.
+    fn march(&self, samples: &[(f32, f32, f32, f32)], coupling: &[f64], straight: bool) -> Vec<f32> {
+        let [n0, n1, n2] = self.n;
+        let k = self.cells.len();
+        let slice = n0 * n1;
         let travel = self.axes[2];
         let sun_share: Vec<f64> = self.cells.iter().map(|c| cell_phase(self.g, c, travel)).collect();
-        let coupling = self.coupling();
         let mut rays: Vec<Rays> =
             self.cells.iter().map(|c| Rays::new(if straight { (0.0, 0.0) } else { c.tangent }, self.n)).collect();
         let mut light = vec![0f32; slice * n2 * (k + 1)];
@@ -586,7 +594,8 @@ mod tests {
     fn real_over_line(cone: &ForwardCone, medium: &(dyn Fn(DVec3) -> MediumSample + Sync), p: DVec3) -> f64 {
         let weights = cone.weights(DVec3::Z);
         let read = |light: Vec<f32>| ForwardCone { light, ..cone.clone() }.light(p, &weights);
-        read(cone.march(medium, false)) / read(cone.march(medium, true))
+        let (sampled, coupling) = (cone.sample(medium), cone.coupling());
+        read(cone.march(&sampled, &coupling, false)) / read(cone.march(&sampled, &coupling, true))
     }
 
     #[test]
