@@ -90,8 +90,9 @@ pub struct SingleScattering<'a> {
     /// scatters twice or more, sharpened where the lobe exceeds the cells
     /// ([`super::peak::ForwardLobes`]).
     pub lobes: Vec<super::peak::ForwardLobes>,
-    /// Per beam, its forward light on a cone of directions ([`super::cone`]), which replaces its
-    /// chains and lobes where there is one.
+    /// Per beam under δ-M, its forward light on a cone of directions ([`super::cone`]): how far
+    /// the real geometry moves the chains' and lobes' light sideways, added to them (`None`: no
+    /// cone for this sun, the chains and lobes alone).
     pub cones: Vec<Option<super::cone::ForwardCone>>,
 }
 

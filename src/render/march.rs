@@ -19,7 +19,8 @@
 //! alike, their light arriving at x along x − position (so the phase is evaluated per sample).
 //! Under δ-M the suns' forward lobes join the single scattering where they exceed what the solve's
 //! storage cells hold of them towards the camera (`super::peak`, "The forward lobes"), and travel
-//! with it under the true extinction.
+//! with it under the true extinction; each sun's cone (`super::cone`) adds how far the light's
+//! sideways spread moves the chains' and lobes' light (a thin rim loses some, a core gains).
 
 use super::peak::{chain_phase, PeakChains};
 use super::RenderInputs;
@@ -190,8 +191,8 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                                 / path_integral(sigma, segment)
                         });
                         // With a cone: the chains and lobes below, corrected by how far the cone's
-                        // light with the real geometry differs from the same cone's along the
-                        // straight line (`super::cone`).
+                        // light with the real geometry differs from the same held on the sun's
+                        // line (`super::cone`).
                         let lateral = match cones.get(b) {
                             Some(Some((cone, towards))) => {
                                 let scaled =
