@@ -207,6 +207,7 @@ impl ForwardCone {
         let slice = n0 * n1;
         let travel = self.axes[2];
         let sun_share: Vec<f64> = self.cells.iter().map(|c| cell_phase(self.g, c, travel)).collect();
+        let solid_angle: Vec<f64> = self.cells.iter().map(|c| c.samples.iter().map(|s| s.1).sum()).collect();
         let mut rays: Vec<Rays> =
             self.cells.iter().map(|c| Rays::new(if straight { (0.0, 0.0) } else { c.tangent }, self.n)).collect();
         let mut light = vec![0f32; slice * n2 * (k + 1)];
@@ -243,7 +244,7 @@ impl ForwardCone {
                 let mut flux = 0.0;
                 for (j, cell) in corrected.iter().enumerate() {
                     out[j] = (cell[p] as f64 / scale) as f32;
-                    flux += cell[p] as f64 * self.cells[j].samples.iter().map(|s| s.1).sum::<f64>();
+                    flux += cell[p] as f64 * solid_angle[j];
                 }
                 out[k] = (flux / scale) as f32;
             }

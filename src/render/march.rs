@@ -190,17 +190,6 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                             path_integral(sigma - kappa, segment) * (-0.5 * kappa * segment).exp()
                                 / path_integral(sigma, segment)
                         });
-                        // With a cone: the chains and lobes below, corrected by how far the cone's
-                        // light with the real geometry differs from the same held on the sun's
-                        // line (`super::cone`).
-                        let lateral = match cones.get(b) {
-                            Some(Some((cone, towards))) => {
-                                let scaled =
-                                    beam_irradiance(beam, &at, inputs.channels, inputs.channels, &corners, &weights);
-                                cone.lateral(mid / h, towards, scaled[0].max(v[0]))
-                            }
-                            _ => 0.0,
-                        };
                         if !s.peak_chains {
                             let p = chains.single_phase();
                             for (ch, e) in e.iter_mut().enumerate() {
@@ -211,6 +200,13 @@ pub fn march_ray(inputs: &RenderInputs, origin: DVec3, dir: DVec3) -> ([f64; 3],
                         // E*: the scaled irradiance after the true one; τ = ln(E*/E) the peak's
                         // optical depth along the sun's path (∞ where E underflowed and E* did not).
                         let scaled = beam_irradiance(beam, &at, inputs.channels, inputs.channels, &corners, &weights);
+                        // With a cone: the chains and lobes below, corrected by how far the cone's
+                        // light with the real geometry differs from the same held on the sun's
+                        // line (`super::cone`).
+                        let lateral = match cones.get(b) {
+                            Some(Some((cone, towards))) => cone.lateral(mid / h, towards, scaled[0].max(v[0])),
+                            _ => 0.0,
+                        };
                         // Per stored channel (a grey scene's one serves r, g and b): the chain
                         // sum and, under δ-M, the forward lobes' excess over the solve's bins
                         // (`super::peak`, "The forward lobes") once each. Both travel to the
