@@ -50,7 +50,8 @@ void main() {
             uint rho = density[unit * 4096u + v];
             // ρ > 0 (denormals too, NaN not) from the bits.
             if (rho == 0u || rho > 0x7f800000u) continue;
-            double t = f64_of_f32_bits(total[base + v]);
+            // By its magnitude (src/solver/remaining.rs: a warm start's total can be negative).
+            double t = abs(f64_of_f32_bits(total[base + v]));
             if (!(t > 0.0) || isinf(t)) continue;
             if (pc.mode == 0u) {
                 brightest = max(brightest, t);

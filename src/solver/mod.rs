@@ -406,7 +406,11 @@ pub fn solve_from(
             // The traced emission's uncollided light joins them, the same way (super::uncollided).
             let traced = trace_emission(store, &plan, &mut fields, &mut phases, backend, &vk_options)?;
             trace_note = traced.note();
-            fields.seeded = point_light_power.iter().chain(&traced.interacting).any(|&p| p != 0.0);
+            // The host wrote order 0's accumulators whenever there are point lights or a traced
+            // emission (the twin takes them on the same condition, `run_cpu`), whatever power
+            // that light gives the medium: in a vacuum (σt = 0) it gives none, yet its
+            // uncollided fluence I/r² is order 0's (issue 57: the GPU's resident order 0 cleared it).
+            fields.seeded = !plan.point_lights.is_empty() || plan.emission_traced;
             let state = fields::LoopState {
                 point_light_power,
                 uncollided_emitted: traced.emitted,

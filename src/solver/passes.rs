@@ -673,6 +673,7 @@ impl<F: FieldPlanes> OrderFieldSet<F> {
                 .map(|unit| {
                     let mut b = 0.0f64;
                     walk(unit, &mut |_, t, _| {
+                        let t = t.abs();
                         if remaining::counts(t) {
                             b = b.max(t);
                         }

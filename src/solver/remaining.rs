@@ -18,8 +18,12 @@
 //! ρ is measured from the scattered power of the last orders, per channel; while it is still
 //! creeping up (see [`super::orders::TailEstimate`]) the far end of its drift is used, so the
 //! estimate errs on the side of more orders. A ratio at or above 1 (light still building up) means
-//! not converged. Only voxels holding medium count, and of those only the ones whose fluence is a
-//! normal f32 number at least [`DARK`] of the brightest (the others are physically dark: e^{−big}).
+//! not converged. Only voxels holding medium count, and of those only the ones whose fluence's
+//! magnitude |Φ| is a normal f32 number at least [`DARK`] of the brightest (the others are
+//! physically dark: e^{−big}). A cold solve's Φ is never negative; a warm start's can be while its
+//! guess is still far from the answer, and such a voxel is measured by |Φ|, never left out (left
+//! out, a guess of −1e6 everywhere measured no voxel at all and stopped "converged" after two
+//! orders, issue 57).
 
 use serde::Serialize;
 
@@ -35,7 +39,8 @@ pub struct RemainingError {
     pub l2: f64,
 }
 
-/// Whether a committed fluence counts at all (and toward the brightest, which sets the dark floor).
+/// Whether a committed fluence's magnitude `total` (|Φ|: see the module docs) counts at all, and
+/// toward the brightest, which sets the dark floor.
 #[inline]
 pub fn counts(total: f64) -> bool {
     total > 0.0 && total.is_finite()
@@ -62,9 +67,11 @@ pub struct UnitTally {
 
 impl UnitTally {
     /// Counts one medium voxel with committed fluence `total` (an f32 value) and newest-order
-    /// fluence `newest`, for tail factor `factor` (= ρ/(1 − ρ), or ∞), above the dark `floor`.
+    /// fluence `newest`, for tail factor `factor` (= ρ/(1 − ρ), or ∞), above the dark `floor`;
+    /// `total` is taken by its magnitude (see the module docs).
     #[inline]
     pub fn add(&mut self, total: f64, newest: f64, factor: f64, floor: f64) {
+        let total = total.abs();
         if !counts(total) || total < floor {
             return;
         }
@@ -118,7 +125,7 @@ mod tests {
     use super::*;
 
     fn walk(voxels: &[(f64, f64)], factor: f64) -> UnitTally {
-        let brightest = voxels.iter().map(|v| v.0).filter(|&t| counts(t)).fold(0.0, f64::max);
+        let brightest = voxels.iter().map(|v| v.0.abs()).filter(|&t| counts(t)).fold(0.0, f64::max);
         let mut t = UnitTally::default();
         for &(total, newest) in voxels {
             t.add(total, newest, factor, dark_floor(brightest));
@@ -143,8 +150,11 @@ mod tests {
         let voxels = [(1e-20, 1e-20), (1.0, 0.01)];
         assert!((finish([walk(&voxels, 1.0)]).max - 0.01 / 1.01).abs() < 1e-6);
         assert_eq!(finish([walk(&[(0.5, 0.01)], tail_factor(1.0))]).max, f64::INFINITY);
-        // Neither zero, negative nor infinite fluence counts.
-        assert_eq!(finish([walk(&[(0.0, 1.0), (-1.0, 1.0), (f64::INFINITY, 1.0)], 1.0)]).max, 0.0);
+        // Neither zero, NaN nor infinite fluence counts.
+        assert_eq!(finish([walk(&[(0.0, 1.0), (f64::NAN, 1.0), (f64::INFINITY, 1.0)], 1.0)]).max, 0.0);
+        // A negative total (a warm start's guess still far below the answer) counts by its
+        // magnitude: with nothing else counted it is the brightest, and far from converged.
+        assert!((finish([walk(&[(-1.0, 1.0)], 1.0)]).max - 0.5).abs() < 1e-6);
     }
 
     #[test]

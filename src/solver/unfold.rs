@@ -129,15 +129,22 @@ fn doubled_store(
     dir: &std::path::Path,
 ) -> Result<BrickStore, StoreError> {
     let grid = BrickGrid::new(fold.dims());
-    let doubled = BrickStore::create_with(dir, grid.dims, store.voxel_size(), |b, out| {
-        for (i, value) in out.iter_mut().enumerate() {
-            let u = brick_voxel(grid.brick_origin(b), i);
-            if grid.contains(u) {
-                *value = store.density_at(fold.source(u));
+    let kept = folded_bricks(store, fold, &grid);
+    let doubled = BrickStore::create_keeping(
+        dir,
+        grid.dims,
+        store.voxel_size(),
+        |b| kept[b],
+        |b, out| {
+            for (i, value) in out.iter_mut().enumerate() {
+                let u = brick_voxel(grid.brick_origin(b), i);
+                if grid.contains(u) {
+                    *value = store.density_at(fold.source(u));
+                }
             }
-        }
-        Ok(())
-    })?;
+            Ok(())
+        },
+    )?;
     if plan.emission_grid {
         let from = crate::store::emission::open_emission(store)?;
         copy_field(&from, &doubled, crate::store::emission::EMISSION_FIELD, fold)?;
@@ -147,6 +154,32 @@ fn doubled_store(
         copy_field(&from, &doubled, albedo::ALBEDO_FIELD, fold)?;
     }
     Ok(doubled)
+}
+
+/// Per brick of the doubled volume (`doubled`, its grid): whether [`fold_field`] reads it back,
+/// i.e. whether it holds `place(v)` for a voxel v of one of `store`'s occupied bricks. With a
+/// mirror on the low face only of an axis whose length is not a multiple of 16, the volume lies
+/// shifted by n in the doubled one and its bricks straddle the doubled volume's: a doubled brick
+/// whose voxels all image vacuum would be empty (never solved) while it holds vacuum voxels of an
+/// occupied brick of the volume, which then read zero fluence on the GPU (issue 57).
+fn folded_bricks(store: &BrickStore, fold: &Fold, doubled: &BrickGrid) -> Vec<bool> {
+    let grid = *store.grid();
+    let mut kept = vec![false; doubled.brick_count()];
+    for brick in store.occupied_bricks() {
+        let b = grid.brick_coords(brick);
+        let (origin, extent) = (grid.brick_origin(b), grid.brick_extent(b));
+        // `place` is a translation per axis: the brick's box maps to a box.
+        let lo = fold.place(origin).map(|c| c / BRICK_EDGE);
+        let hi = fold.place([0, 1, 2].map(|a| origin[a] + extent[a] - 1)).map(|c| c / BRICK_EDGE);
+        for z in lo[2]..=hi[2] {
+            for y in lo[1]..=hi[1] {
+                for x in lo[0]..=hi[0] {
+                    kept[doubled.brick_index([x, y, z])] = true;
+                }
+            }
+        }
+    }
+    kept
 }
 
 /// Writes `name` into the doubled store: every voxel of its occupied bricks takes the value of the
@@ -222,7 +255,8 @@ pub(super) fn solve_doubled(
         plan2.trace_emission("emission's uncollided light traced in the volume with its images, imaged".into());
         fill_field(&mut fields2.fluence, &doubled, |u, c| fields.fluence.value(fold.source(u), c));
         fill_field(&mut fields2.source_next, &doubled, |u, c| fields.source_next.value(fold.source(u), c));
-        fields2.seeded = traced.uncollided_emitted != traced.uncollided_escaped;
+        // Written on the host whatever power it gives the medium (as in `solver::solve_from`).
+        fields2.seeded = true;
         start.uncollided_emitted = traced.uncollided_emitted.map(|p| p * fold.copies());
         start.uncollided_escaped = traced.uncollided_escaped.map(|p| p * fold.copies());
     } else if plan2.emission_field {

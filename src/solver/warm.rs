@@ -47,6 +47,10 @@ use super::SolveError;
 use crate::store::{BrickStore, BRICK_EDGE, BRICK_VOXELS};
 use std::path::{Path, PathBuf};
 
+/// How far below zero, relative to the guess's largest value, a warm start's source may read and
+/// still be taken (as 0): the rounding of f16 residual orders, never a real negative source.
+pub const NEGATIVE_ROUNDING: f32 = 1e-3;
+
 /// Why a warm start cannot be used.
 #[derive(Debug, thiserror::Error)]
 pub enum WarmStartError {
@@ -94,6 +98,9 @@ pub fn seed(store: &BrickStore, plan: &Plan, fields: &mut StoreFields, dir: &Pat
     let guess = &mut fields.source_prev;
     let grid = *store.grid();
     let mut max_abs = 0.0f32;
+    // The most negative value and where: an in-scattered source is ≥ 0, and a guess below zero
+    // would be refused (see below the loop).
+    let mut worst: Option<(f32, [usize; 3], usize)> = None;
     for brick in store.occupied_bricks() {
         let origin = grid.brick_origin(grid.brick_coords(brick)).map(|o| o as usize);
         let density = store.density_brick(brick);
@@ -106,14 +113,34 @@ pub fn seed(store: &BrickStore, plan: &Plan, fields: &mut StoreFields, dir: &Pat
             for k in 0..c {
                 let v = if inside && has_medium { value(((z * ny + y) * nx + x) * c + k) } else { 0.0 };
                 if !v.is_finite() {
-                    return Err(unusable(format!("its source is not finite at voxel ({x}, {y}, {z})")));
+                    return Err(unusable(format!(
+                        "{}: `source` is not finite ({v}) at voxel ({x}, {y}, {z}), component {k}",
+                        raw_path.display()
+                    )));
                 }
+                if v < 0.0 && worst.is_none_or(|w| v < w.0) {
+                    worst = Some((v, [x, y, z], k));
+                }
+                let v = v.max(0.0);
                 out[k * BRICK_VOXELS + local] = v;
                 max_abs = max_abs.max(v.abs());
             }
         }
     }
     store.release_all_density();
+    // A finished solve's source is ≥ 0 up to the rounding of a warm-started f16 chain (its
+    // residual orders carry either sign): values below zero by at most NEGATIVE_ROUNDING of the
+    // largest are that rounding and taken as 0; anything more is not a solution of this kind and
+    // is refused (issue 57: a guess of −1e6 everywhere was accepted and reported converged).
+    if let Some((v, [x, y, z], k)) = worst {
+        if -v > NEGATIVE_ROUNDING * max_abs {
+            return Err(unusable(format!(
+                "{}: `source` is negative ({v:e}) at voxel ({x}, {y}, {z}), component {k}: a warm start's \
+                 guess is an in-scattered source, finite and ≥ 0 (the source.raw of a finished solve of this scene)",
+                raw_path.display()
+            )));
+        }
+    }
     if plan.source_precision == Precision::F16 {
         // Exactly what order 0 will read (see the module docs). Rounding may carry the largest
         // value over a power of two, and order 0 then picks a scale half as large: round again at

@@ -39,6 +39,20 @@ impl BrickStore {
         voxel_size: f64,
         fill: impl Fn([u32; 3], &mut [f32]) -> Result<(), StoreError> + Sync,
     ) -> Result<BrickStore, StoreError> {
+        Self::create_keeping(dir, dims, voxel_size, |_| false, fill)
+    }
+
+    /// [`BrickStore::create_with`], where every brick whose index `keep` accepts is recorded as
+    /// occupied even when all its voxels are zero: it is stored and solved, so its vacuum voxels
+    /// get their light. (The doubled volume of `solver::unfold` keeps so the bricks it folds back
+    /// into occupied bricks of the volume: an empty brick there would read as zero fluence.)
+    pub fn create_keeping(
+        dir: &Path,
+        dims: [u32; 3],
+        voxel_size: f64,
+        keep: impl Fn(usize) -> bool,
+        fill: impl Fn([u32; 3], &mut [f32]) -> Result<(), StoreError> + Sync,
+    ) -> Result<BrickStore, StoreError> {
         if dims.contains(&0) {
             return Err(StoreError::BadDims { dims, reason: "every dimension must be at least 1" });
         }
@@ -63,7 +77,8 @@ impl BrickStore {
         let mut occupancy = Vec::with_capacity(grid.brick_count());
         write_atomic_io(&density_path, |w| {
             let r = fill_all(&grid, &density_path, &fill, &mut |out: &[f32]| {
-                let occupied = out.iter().any(|&v| v != 0.0);
+                // The sink sees the bricks in index order (fill_all).
+                let occupied = keep(occupancy.len()) || out.iter().any(|&v| v != 0.0);
                 occupancy.push(occupied);
                 if occupied {
                     w.write_all(bytemuck::cast_slice(out))?;

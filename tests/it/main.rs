@@ -9,6 +9,7 @@ mod common;
 
 mod acceleration;
 mod albedo_grid;
+mod backends_agree;
 mod bench_refine;
 mod boundary_faces;
 mod budget;

@@ -358,3 +358,27 @@ fn a_warm_start_converges_to_the_cold_answer() {
     let imbalance = warm["energy"]["relative_imbalance"].as_f64().expect("imbalance");
     assert!(imbalance < 1e-4, "warm start energy imbalance {imbalance:.3e} ({})", warm["energy"]);
 }
+
+/// In a vacuum (σt = 0) a point light gives the medium no power, yet its uncollided fluence I/r²
+/// is order 0's (issue 57: the GPU's resident order 0 cleared it and returned zeros everywhere).
+/// Every voxel is over 5 voxels from the light, where the solver takes the voxel's centre value.
+#[test]
+fn a_point_light_in_vacuum_gives_the_inverse_square_fluence_on_both_backends() {
+    let (dims, intensity, p) = ([8, 8, 8], 5.0, DVec3::new(4.0, 4.0, -5.0));
+    let sc = scene(Shape::Box, dims, [0.0; 3], [0.9; 3], vec![point(p.to_array(), [intensity; 3])]);
+    let gpu = solve("point-vacuum-gpu", &sc, Gpu);
+    let cpu = solve("point-vacuum-cpu", &sc, Cpu);
+    for z in 0..dims[2] {
+        for y in 0..dims[1] {
+            for x in 0..dims[0] {
+                let r = (DVec3::new(x as f64, y as f64, z as f64) + 0.5 - p).length();
+                let expected = intensity / (r * r);
+                for (backend, s) in [("gpu", &gpu), ("cpu", &cpu)] {
+                    let got = s.fluence([x, y, z], 0);
+                    assert!((got - expected).abs() < 1e-5 * expected, "{backend} {:?}: {got} vs {expected}", [x, y, z]);
+                }
+            }
+        }
+    }
+    assert!(relative_l2(&gpu.fluence_all(), &cpu.fluence_all()) <= 1e-6);
+}

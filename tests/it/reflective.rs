@@ -209,6 +209,26 @@ fn the_gpu_solves_mirror_faces_on_the_doubled_volume_as_the_twin_does() {
     }
 }
 
+/// A mirror on the low face of an axis whose length is not a multiple of 16 (issue 57: the GPU's
+/// fluence was exactly 0 on planes z = 0–7 under a sphere in a 20 × 20 × 40 box): the volume lies
+/// shifted by n in the doubled one, so its bricks straddle the doubled volume's. Here the doubled
+/// brick z = 16..31 images only vacuum (z = 0..11) yet holds the volume's planes 0..11, which lie
+/// in an occupied brick (medium from z = 12): the GPU must light them as the twin does. One brick
+/// across, two deep (three in the doubled volume): the smallest volume with a straddling brick.
+#[test]
+fn the_gpu_lights_the_vacuum_beside_a_low_mirror_where_the_bricks_straddle() {
+    let (half, mirror) = ([4, 4, 20], [[false; 2], [false; 2], [true, false]]);
+    let density = |v: [u32; 3]| if v[2] >= 12 { lumpy(v) } else { 0.0 };
+    let mut s = mirrored_scene("mirror-gpu-straddle-scene", half, 4, mirror, density);
+    s.solver.tolerance = 1e-6;
+    let (g, c) = (solve("mirror-gpu-straddle", &s, Gpu), solve("mirror-twin-straddle", &s, Cpu));
+    let (fg, fc) = (g.fluence_all(), c.fluence_all());
+    let dark = fg.iter().zip(&fc).filter(|(a, b)| **a == 0.0 && **b > 0.0).count();
+    assert_eq!(dark, 0, "{dark} voxels dark on the GPU that the twin lights");
+    let err = relative_l2(&fg, &fc);
+    assert!(err < 1e-4, "GPU vs twin {err}");
+}
+
 /// An albedo grid is copied across the mirrors as the density is.
 #[test]
 fn the_gpu_doubles_an_albedo_grid_with_the_volume() {

@@ -199,3 +199,42 @@ fn a_far_guess_still_converges_to_the_cold_answer() {
     let e = lpm::job::run(&job, |_, _| {}).unwrap_err();
     assert!(e.to_string().contains("warm start needs the GPU backend"), "{e}");
 }
+
+/// A guess that is no solution (issue 57: every value of a finished solve's `source.raw` set to
+/// −1e6 was accepted, stopped after 2 orders and reported converged with a fluence of −2.3e7) is
+/// refused before any solving, naming the file and the field; and the stop rule measures a
+/// negative total by its magnitude, so a solve can only say converged when its measure is below
+/// the tolerance.
+#[test]
+fn a_negative_guess_is_refused_naming_the_file() {
+    let dir = temp_dir("warm-start-negative");
+    std::fs::write(dir.join("cloud_1.raw"), cloud(10, 4.5)).unwrap();
+    let text = base_scene(0.5)
+        .replace("cloud_{frame}.raw", "cloud_1.raw")
+        .replace(&format!("[{N}, {N}, {N}]"), "[10, 10, 10]");
+    let scene = dir.join("scene.toml");
+    std::fs::write(&scene, text).unwrap();
+    let solve = |out: &str, warm: Option<&Path>| {
+        let job = lpm::job::SolveJob {
+            vk: crate::common::validated(),
+            no_image: true,
+            fresh: true,
+            no_render_data: true,
+            warm_start: warm.map(Path::to_path_buf),
+            ..lpm::job::SolveJob::new(scene.clone(), dir.join(out))
+        };
+        lpm::job::run(&job, |_, _| {})
+    };
+    let cold = solve("cold", None).expect("cold solve");
+    assert!(cold.converged);
+    let remaining = cold.remaining_error.expect("remaining error").max;
+    assert!(remaining <= TOLERANCE, "converged with a remaining error {remaining:e} over the tolerance");
+    let raw = dir.join("cold/source.raw");
+    let negative: Vec<u8> =
+        floats(&raw).iter().flat_map(|&v| if v.is_finite() { -1e6f32 } else { v }.to_le_bytes()).collect();
+    std::fs::write(&raw, negative).unwrap();
+    let e = solve("warm", Some(&dir.join("cold"))).expect_err("a negative guess was accepted");
+    let text = e.to_string();
+    assert!(text.contains("source.raw") && text.contains("`source` is negative"), "{text}");
+    assert!(!dir.join("warm/fluence.raw").exists(), "a refused warm start wrote a fluence");
+}

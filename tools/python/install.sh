@@ -7,11 +7,13 @@
 # The virtual environment is made from Debian's python3 with --system-site-packages so that
 # Debian's python3-openvdb (`import pyopenvdb`, used by the VDB example and tests) is seen in it;
 # NumPy stays below 2 there because that pyopenvdb is built against NumPy 1. The build is maturin's
-# release build (`maturin develop --release`); the first one compiles the lpm library as a
-# dependency (8-12 minutes on 2 cores), later ones only what changed. Its target folder is
-# LPM_PYTHON_TARGET, by default ~/.cache/lpm/python-target: outside the checkout, so that a fresh
-# clone on the same machine (CI's, or a second worktree) rebuilds only what differs instead of
-# everything, as cargo's own registry cache spares it the downloads.
+# (`maturin develop`) in the Cargo profile LPM_PYTHON_PROFILE, by default `release`; the first one
+# compiles the lpm library as a dependency (8-12 minutes on 2 cores), later ones only what changed.
+# Its target folder is LPM_PYTHON_TARGET, by default ~/.cache/lpm/python-target: outside the
+# checkout, so that a fresh clone on the same machine rebuilds only what differs instead of
+# everything, as cargo's own registry cache spares it the downloads. tools/test.sh builds it in
+# the test build's own folder and profile instead (LPM_PYTHON_TARGET=target, LPM_PYTHON_PROFILE=dev;
+# this crate's dev profile is the main crate's): the dependencies both share are compiled once.
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 cd "$here"
@@ -35,5 +37,5 @@ fi
 target="${LPM_PYTHON_TARGET:-${XDG_CACHE_HOME:-$HOME/.cache}/lpm/python-target}"
 mkdir -p "$target"
 VIRTUAL_ENV="$here/.venv" PATH="$here/.venv/bin:$PATH" CARGO_TARGET_DIR="$target" \
-    .venv/bin/maturin develop --release --quiet
+    .venv/bin/maturin develop --profile "${LPM_PYTHON_PROFILE:-release}" --quiet
 .venv/bin/python -c 'import lpm; print("lpm python module installed in", __import__("sys").prefix)'
