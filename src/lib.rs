@@ -23,6 +23,7 @@
 //! | module | what it owns |
 //! |---|---|
 //! | [`input`] | opening every file a user names: regular files only, size caps for small inputs, and a solve's confinement to the server's data root, checked on the open file |
+//! | [`threads`] | how many worker threads a user may ask for (`--threads`): up to a few per core, a clear error beyond |
 //! | [`progress`] | the stages of a solve as its layers report them, and the one estimator of the fraction done and the seconds left (CLI, `progress.json`, the job server) |
 //! | [`scene`] | the TOML job description, validated into typed values and typed errors; the physics every layer shares from it (procedural densities, the blackbody colour of a temperature) |
 //! | [`store`] | the 16³ brick store: memory-mapped field files, empty-brick table, importers (raw, OpenVDB `.vdb`, NanoVDB `.nvdb`, NRRD), the per-voxel emission field (grey, or r, g, b from a temperature grid) and albedo factor field |
@@ -183,4 +184,5 @@ pub mod serve;
 pub mod solver;
 pub mod store;
 pub mod sweep;
+pub mod threads;
 pub mod vk;

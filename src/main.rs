@@ -808,7 +808,7 @@ fn run(cli: Cli) -> Result<()> {
             }
             // The CPU backend sweeps on rayon's global pool (0 threads: one per core).
             rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
+                .num_threads(lpm::threads::checked(threads)?)
                 .build_global()
                 .context("could not start the CPU backend's threads")?;
             let vk = vk_options(device, validation);
@@ -970,7 +970,7 @@ fn run(cli: Cli) -> Result<()> {
                 out: out.clone(),
                 photons: samples,
                 seed,
-                threads,
+                threads: lpm::threads::checked(threads)?,
                 image_samples_per_pixel: image_spp,
                 image_orders: orders.unwrap_or(lpm::reference::Orders::ALL),
             };

@@ -50,9 +50,10 @@ lint() {
 }
 # `test-hooks` compiles in the kill test's hook (LPM_TEST_ABORT_AT_SLICE, tests/it/resume.rs),
 # which no plain or release build has. The binary the tests run (CARGO_BIN_EXE_lpm) and pytest's
-# LPM_CLI are this build's target/debug/lpm.
+# LPM_CLI are this build's target/debug/lpm (a separate `cargo build --bin lpm` would compile the
+# library again: the tests' dev-dependencies unify other features of shared dependencies).
 build() {
-    cargo test --features test-hooks --no-run && cargo build --features test-hooks --bin lpm
+    cargo test --features test-hooks --no-run
 }
 unit() {
     cargo nextest run --config-file tools/nextest.toml --profile unit --features test-hooks --lib "$@" &&

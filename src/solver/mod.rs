@@ -173,6 +173,7 @@ pub fn build_store_until(
         SolveError::Store(crate::store::StoreError::Cancelled) => SolveError::Cancelled { resumable: false },
         e => e,
     })?;
+    check_extinction(scene, &store)?;
     if let Some(grid) = &scene.volume.emission {
         crate::store::emission::import_emission(&store, grid, &scene.volume.source, &scene.medium)?;
     }
@@ -180,6 +181,41 @@ pub fn build_store_until(
         crate::store::albedo::import_albedo(&store, grid, &scene.volume.source)?;
     }
     Ok(store)
+}
+
+/// Refuses a density whose extinction, density × `medium.sigma_t`, passes the limit of every
+/// light value (`scene::validate::MAX_LIGHT`): the fields formed from it would not stay finite in
+/// f32 (issue 57: 3.4e38 × 1e12 passed the CPU backend and diverged on the GPU). One pass over the
+/// occupied bricks, which the store build has just written.
+fn check_extinction(scene: &Scene, store: &BrickStore) -> Result<(), SolveError> {
+    use crate::scene::validate::MAX_LIGHT;
+    let sigma = scene.medium.sigma_t.iter().fold(0f64, |m, &v| m.max(v));
+    let grid = *store.grid();
+    for brick in store.occupied_bricks() {
+        let Some(density) = store.density_brick(brick) else { continue };
+        if let Some(l) = density.iter().position(|&d| !(d as f64 * sigma <= MAX_LIGHT)) {
+            let origin = grid.brick_origin(grid.brick_coords(brick));
+            let path = match &scene.volume.source {
+                VolumeSource::Raw { path } | VolumeSource::Vdb { path, .. } | VolumeSource::Nrrd { path } => {
+                    path.clone()
+                }
+                VolumeSource::Procedural { .. } => scene.path.clone(),
+            };
+            let value = density[l];
+            return Err(crate::store::StoreError::TooLarge {
+                path,
+                what: "density",
+                voxel: [origin[0] + (l % 16) as u32, origin[1] + (l / 16 % 16) as u32, origin[2] + (l / 256) as u32],
+                value,
+                factor_key: "medium.sigma_t",
+                factor: sigma,
+                product: value as f64 * sigma,
+            }
+            .into());
+        }
+    }
+    store.release_all_density();
+    Ok(())
 }
 
 /// The density bricks of the scene's volume; `check` is asked before each brick whether to go on,

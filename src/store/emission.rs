@@ -85,7 +85,27 @@ pub fn import_emission(
         })?;
         let Some(dst) = field.brick_mut(brick) else { continue };
         match &blackbody {
-            None => dst.copy_from_slice(&values),
+            None => {
+                // The radiance a factor gives, f · medium.emission, stays within the limit every
+                // light value keeps (issue 57: 1e30 was accepted, 3.4e38 diverged late).
+                if let Some(l) = values.iter().position(|&f| !(f as f64 * max_emission <= MAX_LIGHT)) {
+                    let origin = store.grid().brick_origin(coords);
+                    return Err(StoreError::TooLarge {
+                        path,
+                        what: "emission",
+                        voxel: [
+                            origin[0] + (l % 16) as u32,
+                            origin[1] + (l / 16 % 16) as u32,
+                            origin[2] + (l / 256) as u32,
+                        ],
+                        value: values[l],
+                        factor_key: "medium.emission",
+                        factor: max_emission,
+                        product: values[l] as f64 * max_emission,
+                    });
+                }
+                dst.copy_from_slice(&values)
+            }
             Some(map) => {
                 let origin = store.grid().brick_origin(coords);
                 for (l, &t) in values.iter().enumerate() {

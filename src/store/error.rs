@@ -25,6 +25,21 @@ pub enum StoreError {
         path.display(), voxel[0], voxel[1], voxel[2], short_f32(*value))]
     BadEmission { path: PathBuf, voxel: [u32; 3], value: f32 },
 
+    /// A value that passes the limit every light value keeps ([`crate::scene::validate::MAX_LIGHT`],
+    /// so that every field the solver forms stays finite in f32) once the scene's factor scales it:
+    /// an emission factor × `medium.emission`, or a density × `medium.sigma_t`.
+    #[error("{}: voxel ({}, {}, {}) has {what} {}; × {factor_key} ({}) that is {}, more than the limit of 1e12",
+        path.display(), voxel[0], voxel[1], voxel[2], short_f32(*value), short_f32(*factor as f32), short_f32(*product as f32))]
+    TooLarge {
+        path: PathBuf,
+        what: &'static str,
+        voxel: [u32; 3],
+        value: f32,
+        factor_key: &'static str,
+        factor: f64,
+        product: f64,
+    },
+
     #[error("{}: voxel ({}, {}, {}) has albedo factor {} ({field}); albedo factors must be finite and in [0, 1]",
         path.display(), voxel[0], voxel[1], voxel[2], short_f32(*value))]
     BadAlbedo { path: PathBuf, field: String, voxel: [u32; 3], value: f32 },

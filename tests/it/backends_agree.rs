@@ -89,6 +89,16 @@ prop_compose! {
     }
 }
 
+/// The fluence of one scene, voxel by voxel, as [`both`] solves it.
+struct Solves {
+    /// The GPU backend's.
+    gpu: Vec<f64>,
+    /// Its exact twin's, where the twin defines it.
+    twin: Vec<Option<f64>>,
+    /// The CPU backend's own solve of the scene.
+    own: Vec<f64>,
+}
+
 /// Solves `text` on both backends; `None` when the validator refuses it (a typed error: nothing to
 /// compare). Returns the GPU's fluence and the twin's, voxel by voxel.
 ///
@@ -104,12 +114,12 @@ prop_compose! {
 /// every voxel of the volume's occupied bricks as the GPU must: the dark check's witness. The
 /// unfolded twin leaves the vacuum of its empty bricks at zero, so its values are compared only
 /// where its brick and the volume's are occupied (`None` elsewhere).
-fn both(text: &str) -> Option<(Vec<f64>, Vec<Option<f64>>, Vec<f64>)> {
+fn both(text: &str) -> Option<Solves> {
     let scene = Scene::from_toml_str(text, Path::new("agree.toml")).ok()?;
     let g = solve("agree-gpu", &scene, Gpu);
     let own = solve("agree-cpu", &scene, Cpu).fluence_all();
     if !scene.boundary.any_reflective() {
-        return Some((g.fluence_all(), own.iter().map(|&v| Some(v)).collect(), own));
+        return Some(Solves { gpu: g.fluence_all(), twin: own.iter().map(|&v| Some(v)).collect(), own });
     }
     let fold = Fold::new(scene.volume.dims, scene.boundary.reflective);
     let path = temp_dir("agree-unfolded").join("density.raw");
@@ -134,14 +144,14 @@ fn both(text: &str) -> Option<(Vec<f64>, Vec<Option<f64>>, Vec<f64>)> {
             }
         }
     }
-    Some((g.fluence_all(), twin, own))
+    Some(Solves { gpu: g.fluence_all(), twin, own })
 }
 
 /// The comparison itself: no voxel dark on one backend and lit on the other (what both defects
 /// above showed), finite non-negative fields, and the GPU within 1e-4 relative L2 of its exact
 /// twin (the backends' f32 rounding is ~1e-7).
 fn check(text: &str) -> Result<(), TestCaseError> {
-    let Some((g, twin, own)) = both(text) else { return Ok(()) };
+    let Some(Solves { gpu: g, twin, own }) = both(text) else { return Ok(()) };
     let dark = g.iter().zip(&own).filter(|(a, b)| (**a == 0.0) != (**b == 0.0)).count();
     prop_assert_eq!(dark, 0, "voxels lit on one backend only for\n{}", text);
     prop_assert!(

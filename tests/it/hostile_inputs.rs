@@ -201,6 +201,57 @@ fn a_file_size_limit_is_a_clear_error_not_a_silent_sigxfsz() {
     assert!(!out.join(".lpm-work").exists(), "the staging is removed");
 }
 
+/// `--threads 100000` kept starting threads for ever (1,169 threads and 3 GB after 15 s, issue 57);
+/// a count past a few per core is refused at once, naming the limit, and nothing is written.
+#[test]
+fn an_absurd_thread_count_is_refused_at_once_with_the_limit() {
+    let dir = temp_dir("hostile-threads");
+    let scene = write_scene(&dir, SMALL);
+    let out = dir.join("out");
+    for tool in [
+        vec!["solve", s(&scene), "--out", s(&out), "--backend", "cpu"],
+        vec!["reference", s(&scene), "--out", s(&out), "--samples", "1000"],
+    ] {
+        let mut args = tool.clone();
+        args.extend(["--threads", "100000"]);
+        let o = run_within(&args, Duration::from_secs(30));
+        refused(&o, "--threads 100000", "at most");
+        assert!(!out.exists(), "nothing is written");
+    }
+}
+
+/// Values that pass the limit of every light value once the scene scales them (issue 57: an
+/// emission of 1e30 was accepted and 3.4e38 diverged late; a density of 3.4e38 × σt 1e12 passed the
+/// CPU backend and diverged on the GPU): refused before solving, naming the file, the voxel and
+/// the key, and nothing is written.
+#[test]
+fn emission_and_extinction_past_the_light_limit_are_refused_naming_the_voxel() {
+    let dir = temp_dir("hostile-too-large");
+    let n = 4u32;
+    let field = |name: &str, at: f32| {
+        let bytes: Vec<u8> = (0..n * n * n).flat_map(|i| if i == 5 { at } else { 0.5f32 }.to_le_bytes()).collect();
+        std::fs::write(dir.join(name), bytes).unwrap();
+    };
+    field("density.raw", 1.0);
+    field("emission.raw", 1e30);
+    field("dense.raw", 3.4e38);
+    let base = "[medium]\nsigma_t = 1e12\nalbedo = 0.5\nemission = 1.0\n[[lights]]\nkind = \"sky\"\nradiance = 1.0\n\
+                [solver]\ndirections_per_face = 2\nmax_orders = 2\n";
+    for (volume, what) in [
+        (
+            "raw = \"density.raw\"\nemission_raw = \"emission.raw\"",
+            "emission.raw: voxel (1, 1, 0) has emission 1e30; × medium.emission",
+        ),
+        ("raw = \"dense.raw\"", "dense.raw: voxel (1, 1, 0) has density 3.4e38; × medium.sigma_t"),
+    ] {
+        let scene = write_scene(&dir, &format!("[volume]\n{volume}\ndims = [{n}, {n}, {n}]\n{base}"));
+        let out = dir.join("out");
+        let o = run_within(&["solve", s(&scene), "--out", s(&out), "--backend", "cpu"], Duration::from_secs(60));
+        refused(&o, what, "more than the limit of 1e12");
+        assert!(!out.join("fluence.raw").exists(), "nothing is written");
+    }
+}
+
 #[test]
 fn a_sweep_of_too_many_tasks_is_refused_before_anything_is_listed() {
     let dir = temp_dir("hostile-sweep");

@@ -341,10 +341,17 @@ fn vdb_precision(name: &str) -> PyResult<VdbPrecision> {
 /// The threads of one solve (0: one per core): a pool of its own, so that solves in several
 /// Python threads each get theirs and the CLI's `--threads` is a per-call argument here.
 fn thread_pool(py: Python<'_>, threads: usize) -> PyResult<rayon::ThreadPool> {
+    let threads = checked_threads(threads)?;
     rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
         .map_err(|e| Failure::plain(Class::Base, format!("could not start the solver's threads: {e}")).into_pyerr(py))
+}
+
+/// `threads` if this machine takes it (`lpm::threads`: a few per core), else a ValueError naming
+/// the limit.
+fn checked_threads(threads: usize) -> PyResult<usize> {
+    lpm::threads::checked(threads).map_err(|e| PyValueError::new_err(e.to_string().replace("--threads ", "threads=")))
 }
 
 /// An order done, with the job's estimate right after it (`lpm::progress::Estimator`: the one the
@@ -598,8 +605,15 @@ fn reference(
         None => lpm::reference::Orders::ALL,
         Some(text) => text.parse().map_err(PyValueError::new_err)?,
     };
-    let job =
-        ReferenceJob { scene, out, photons: samples, seed, threads, image_samples_per_pixel: image_spp, image_orders };
+    let job = ReferenceJob {
+        scene,
+        out,
+        photons: samples,
+        seed,
+        threads: checked_threads(threads)?,
+        image_samples_per_pixel: image_spp,
+        image_orders,
+    };
     let report = py.detach(|| lpm::reference::job::run(&job)).map_err(|e| reference_failure(&e).into_pyerr(py))?;
     serde_json::to_string(&report)
         .map_err(|e| Failure::plain(Class::Base, format!("cannot serialise the report: {e}")).into_pyerr(py))

@@ -127,3 +127,11 @@ def test_a_progress_that_cannot_be_called_is_refused_before_solving(tmp_path):
     with pytest.raises(TypeError, match="progress must be callable"):
         lpm.solve(scene_dict(blob()), out=tmp_path / "o", backend="cpu", progress="not callable")
     assert not (tmp_path / "o").exists()
+
+
+def test_an_absurd_thread_count_is_a_value_error_naming_the_limit(tmp_path):
+    """threads=100000 kept starting threads for ever in the CLI (issue 57): refused at once."""
+    with pytest.raises(ValueError) as e:
+        lpm.solve(scene_dict(blob()), out=tmp_path / "o", backend="cpu", threads=100000)
+    assert "threads=100000" in str(e.value) and "at most" in str(e.value)
+    assert not (tmp_path / "o").exists()
