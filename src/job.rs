@@ -40,6 +40,9 @@ pub enum JobError {
     Budget { origin: String, inner: SolveError },
     #[error(transparent)]
     Output(#[from] OutputError),
+    /// The image asked for cannot fit the memory left: refused before solving.
+    #[error(transparent)]
+    Image(#[from] render::memory::ImageTooLarge),
     #[error("cannot create output directory {}: {source}", path.display())]
     OutputDir { path: PathBuf, source: std::io::Error },
     #[error("{}: holds the checkpoint of an unfinished solve ({}); {RESUME_HINT}", out.display(), work_dir(out).display())]
@@ -311,6 +314,8 @@ pub fn run(job: &SolveJob, observer: impl Observer) -> Result<Report, JobError> 
     } else {
         let camera =
             scene.camera.clone().unwrap_or_else(|| render::default_camera(scene.volume.dims, scene.volume.voxel_size));
+        // Up front: an image that cannot fit is refused before the solve, not after it.
+        render::memory::check_image_fits(camera.width, camera.height)?;
         let longest = scene.volume.dims.iter().copied().max().unwrap_or(0);
         f64::from(camera.width) * f64::from(camera.height) * f64::from(longest)
     };
@@ -455,7 +460,11 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, observer: &mut impl Observ
     let t = Instant::now();
     let reopen = job.resume && work.join("checkpoint.json").exists();
     let store = if reopen {
-        crate::store::BrickStore::open(work).map_err(SolveError::from)?
+        let store = crate::store::BrickStore::open(work).map_err(SolveError::from)?;
+        // A job killed in its render left the image's fields in the store (solver::direct): no
+        // part of its checkpoint, made again after this solve, and not the store's bytes.
+        solver::direct::remove_fields(&store);
+        store
     } else {
         if job.resume {
             tracing::info!("nothing to resume in {}: starting from the beginning", work.display());
@@ -533,6 +542,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, observer: &mut impl Observ
             cancel,
         )
         .map_err(cancelled)?;
+        test_hook_at_stage("export");
         outputs.extend(["fluence.raw", "fluence.json", "fluence.nhdr"].map(String::from));
         let source_names: Vec<String> = if plan.storage.is_isotropic() {
             channel_names.clone()
@@ -675,6 +685,7 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, observer: &mut impl Observ
             }
             (None, _) => {}
         }
+        test_hook_at_stage("render");
         split
     } else {
         None
@@ -766,6 +777,27 @@ fn run_in(job: &SolveJob, scene: &Scene, work: &Path, observer: &mut impl Observ
     staging.commit(&published)?;
     observer.stage(progress::Stage::Done);
     Ok(report)
+}
+
+/// The kill tests' hooks (tests/it/resume.rs), compiled only into `test-hooks` builds: once the
+/// export has written its first field (`stage` = "export") or the render its fields in the store
+/// ("render"), `LPM_TEST_ABORT_AT_STAGE` = that stage aborts the process as `kill -9` would, and
+/// `LPM_TEST_CANCEL_AT_STAGE` raises the process's cancel flag as SIGTERM would.
+fn test_hook_at_stage(stage: &str) {
+    #[cfg(feature = "test-hooks")]
+    {
+        let at = |name: &str| std::env::var(name).is_ok_and(|s| s == stage);
+        if at("LPM_TEST_ABORT_AT_STAGE") {
+            tracing::error!("LPM_TEST_ABORT_AT_STAGE={stage}: aborting as a kill would");
+            std::process::abort();
+        }
+        if at("LPM_TEST_CANCEL_AT_STAGE") {
+            tracing::warn!("LPM_TEST_CANCEL_AT_STAGE={stage}: cancelling as SIGTERM would");
+            solver::cancel::CancelFlag::process().raise();
+        }
+    }
+    #[cfg(not(feature = "test-hooks"))]
+    let _ = stage;
 }
 
 /// Where the exported VDB grids lie: on the input VDB's own index grid (its voxel (0, 0, 0) is the

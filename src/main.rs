@@ -1252,6 +1252,7 @@ fn render_again(
     let kept = lpm::render::keep::open(dir)?;
     let display = lpm::render::keep::view_display(&kept, camera.as_deref(), &display)?;
     let camera = lpm::render::keep::view_camera(&kept, camera.as_deref(), &change)?;
+    lpm::render::memory::check_image_fits(camera.width, camera.height)?;
     let img = kept.render(&camera, background);
     lpm::render::write_images(exr.as_deref(), png.as_deref(), &img, background, &display)?;
     let written: Vec<String> = [exr, png].into_iter().flatten().map(|p| p.display().to_string()).collect();

@@ -32,6 +32,7 @@ pub mod cone;
 mod image;
 pub mod keep;
 pub mod march;
+pub mod memory;
 pub mod peak;
 pub mod tone;
 mod write;

@@ -35,6 +35,8 @@ pub enum ApiError {
     MethodNotAllowed { method: String, path: String },
     #[error("{0}")]
     Conflict(String),
+    #[error("{0}")]
+    LengthRequired(String),
     #[error("the request body is larger than the limit of {0} bytes")]
     TooLarge(u64),
     #[error("{0}")]
@@ -53,6 +55,7 @@ impl ApiError {
             ApiError::NotFound(_) => 404,
             ApiError::MethodNotAllowed { .. } => 405,
             ApiError::Conflict(_) => 409,
+            ApiError::LengthRequired(_) => 411,
             ApiError::TooLarge(_) => 413,
             ApiError::UnsupportedMediaType(_) => 415,
             ApiError::QueueFull(_) => 503,
@@ -195,6 +198,9 @@ fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
     a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
 }
 
+/// The whole body, at most `limit` bytes. A body that ends before its `Content-Length` is refused:
+/// tiny_http's reader just ends early when the client closes, which must not read as a complete
+/// (shorter) body.
 pub(super) fn read_body(request: &mut Request, limit: u64) -> Result<Vec<u8>, ApiError> {
     if request.body_length().is_some_and(|n| n as u64 > limit) {
         return Err(ApiError::TooLarge(limit));
@@ -208,7 +214,18 @@ pub(super) fn read_body(request: &mut Request, limit: u64) -> Result<Vec<u8>, Ap
     if body.len() as u64 > limit {
         return Err(ApiError::TooLarge(limit));
     }
+    if let Some(expected) = request.body_length() {
+        if body.len() != expected {
+            return Err(cut_short(body.len() as u64, expected as u64));
+        }
+    }
     Ok(body)
+}
+
+fn cut_short(received: u64, expected: u64) -> ApiError {
+    ApiError::BadRequest(format!(
+        "the request body ended after {received} of the {expected} bytes its Content-Length announced"
+    ))
 }
 
 fn content_type(request: &Request) -> String {
@@ -386,18 +403,62 @@ fn output(shared: &Shared, id: i64, name: &str) -> Result<Reply, ApiError> {
     Ok(Reply { status: 200, headers: vec![header("Content-Type", kind)], body: Body::File(file) })
 }
 
-/// Stores a volume file as `DATA/volumes/NAME` (atomically) for scenes to name in `volume.raw`.
+/// Stores a volume file as `DATA/volumes/NAME` for scenes to name in `volume.raw`.
+///
+/// The body is streamed (never held in memory) into a temporary file beside `NAME`
+/// ([`crate::output::write_atomic`]), which replaces `NAME` only once all of the `Content-Length`
+/// has arrived: a body cut short (the client closed or half-closed early) is a 400 and `NAME` keeps
+/// its old content. A chunked upload is refused (411): tiny_http's chunked decoder reads a body cut
+/// off inside a chunk as its end, so its completeness could not be told.
 fn upload(shared: &Shared, request: &mut Request, name: &str) -> Result<Reply, ApiError> {
     if !confine::plain_name(name) {
         return Err(ApiError::BadRequest(format!(
             "volume name {name:?}: use letters, digits, '.', '_' and '-' only, not starting with '.'"
         )));
     }
-    let body = read_body(request, shared.opts.max_upload_bytes)?;
+    let limit = shared.opts.max_upload_bytes;
+    // tiny_http gives no length for a chunked body (nor for none at all).
+    let Some(expected) = request.body_length().map(|n| n as u64) else {
+        return Err(ApiError::LengthRequired(
+            "send the volume with a Content-Length (a chunked upload cannot be told complete)".into(),
+        ));
+    };
+    if expected > limit {
+        return Err(ApiError::TooLarge(limit));
+    }
     let dir = shared.data.join("volumes");
     std::fs::create_dir_all(&dir).map_err(|e| ApiError::Internal(format!("cannot create {}: {e}", dir.display())))?;
     let path = dir.join(name);
-    crate::output::write_atomic(&path, |w| std::io::Write::write_all(w, &body))
-        .map_err(|e| ApiError::Internal(e.to_string()))?;
-    Ok(Reply::json(201, &serde_json::json!({ "path": format!("volumes/{name}"), "bytes": body.len() })))
+    // A failure of the body (not of the disk) is the client's: 400.
+    let mut body_error: Option<ApiError> = None;
+    let mut received = 0u64;
+    let written = crate::output::write_atomic(&path, |w| {
+        let mut reader = request.as_reader().take(expected);
+        let mut buf = vec![0u8; 1 << 16];
+        loop {
+            let n = match reader.read(&mut buf) {
+                Ok(0) => break,
+                Ok(n) => n,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                Err(e) => {
+                    body_error = Some(ApiError::BadRequest(format!(
+                        "cannot read the request body after {received} of its {expected} bytes: {e}"
+                    )));
+                    return Err(e);
+                }
+            };
+            std::io::Write::write_all(w, &buf[..n])?;
+            received += n as u64;
+        }
+        if received != expected {
+            body_error = Some(cut_short(received, expected));
+            return Err(std::io::Error::new(std::io::ErrorKind::UnexpectedEof, "the body was cut short"));
+        }
+        Ok(())
+    });
+    if let Some(e) = body_error {
+        return Err(e);
+    }
+    written.map_err(|e| ApiError::Internal(e.to_string()))?;
+    Ok(Reply::json(201, &serde_json::json!({ "path": format!("volumes/{name}"), "bytes": received })))
 }

@@ -8,7 +8,8 @@
 //! tiny_http buffers a streamed body until it has a whole chunk of several KiB, which would hold
 //! events back; so this handler takes the connection (`Request::into_writer`) and writes the
 //! response itself: the head, then each event as one HTTP chunk, flushed at once, then the last
-//! (empty) chunk. The connection stays usable for the client's next request.
+//! (empty) chunk. The gate adds `Connection: close` to the head and closes the connection after
+//! the last chunk, as after every answer ([`super::gate`]).
 
 use super::api::{self, ApiError};
 use super::Shared;

@@ -4,6 +4,7 @@
 //!
 //! | file | what it owns |
 //! |---|---|
+//! | [`gate`] | the listening socket: each request head read within limits before tiny_http sees it |
 //! | [`api`] | the `/v1` routes, request parsing, handlers, errors → status codes |
 //! | [`db`] + `schema.sql` | the durable queue in SQLite (WAL, `synchronous = FULL`) |
 //! | [`worker`] | runs each job as a child `lpm solve` process, watches progress, cancels |
@@ -16,8 +17,9 @@
 //! Why tiny_http and ureq rather than an async stack: a job server's requests are few and small
 //! (a scene, a status, a file streamed back) while its work is in child processes, so a thread per
 //! request costs nothing that matters, and the two crates build in seconds where hyper/tokio/axum
-//! take minutes on a small build machine. SQLite (rusqlite) is the queue because it gives a durable,
-//! transactional store in one file with no server to run.
+//! take minutes on a small build machine. tiny_http reads a request head without any bound, so
+//! clients reach it only through [`gate`], one request per connection. SQLite (rusqlite) is the
+//! queue because it gives a durable, transactional store in one file with no server to run.
 //!
 //! # The queue's state machine
 //!
@@ -45,13 +47,15 @@
 //! directory per job: the solve's outputs, `progress.json`, and its checkpoint in `out/.lpm-work`
 //! until it ends; `inputs/` holds the volume files sent with a multipart submission),
 //! `DATA/volumes/` (volumes uploaded with `PUT`), `DATA/uploads/` (multipart uploads while they
-//! arrive). Scenes may name volumes only under `DATA`.
+//! arrive), `DATA/.lpm-gate-XXXX/http.sock` (the gate's socket to tiny_http, in a directory only
+//! the server's user can enter). Scenes may name volumes only under `DATA`.
 
 pub mod api;
 pub mod client;
 pub mod confine;
 pub mod db;
 pub mod events;
+pub mod gate;
 pub mod multipart;
 mod prepare;
 mod routes;
@@ -260,8 +264,12 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
             "{requeued} job(s) left running by the previous server: queued again, they resume from their checkpoints"
         );
     }
-    let server = tiny_http::Server::http(opts.listen)
+    // Clients connect to the gate, which passes each checked request on to tiny_http.
+    let listener = std::net::TcpListener::bind(opts.listen)
         .map_err(|e| ServeError::Listen { listen: opts.listen, reason: e.to_string() })?;
+    let bound = listener.local_addr().unwrap_or(opts.listen);
+    let (backend, server) =
+        gate::Backend::start(&data).map_err(|reason| ServeError::Listen { listen: opts.listen, reason })?;
     let shared = Arc::new(Shared {
         db,
         data,
@@ -277,8 +285,13 @@ pub fn serve(opts: ServeOptions) -> Result<(), ServeError> {
             std::thread::spawn(move || worker::run(shared, device));
         }
     }
+    let largest_body = opts.max_body_bytes.max(opts.max_upload_bytes);
+    let backend = Arc::new(backend);
+    {
+        let backend = Arc::clone(&backend);
+        std::thread::spawn(move || gate::accept(listener, backend, largest_body));
+    }
     // Printed on stdout, for scripts and tests that wait for the server to be up.
-    let bound = server.server_addr().to_ip().unwrap_or(opts.listen);
     println!("lpm serve: listening on http://{bound} with data in {}", shared.data.display());
     for request in server.incoming_requests() {
         let shared = Arc::clone(&shared);

@@ -68,6 +68,23 @@ pub fn irradiance_field_name(b: usize) -> String {
     format!("direct_{b}")
 }
 
+/// Removes what [`split`] writes into the store (the image's source, each light's irradiance, the
+/// point lights' scratch fields) where a killed job left it: a resumed job makes it again after
+/// its solve, and until then it is no part of the store (`report.json`'s `store_bytes` counts the
+/// store's fields). A file that cannot be removed is only left behind (and logged).
+pub fn remove_fields(store: &BrickStore) {
+    let Ok(entries) = std::fs::read_dir(store.dir()) else { return };
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let Some(stem) = name.to_str().and_then(|n| n.strip_suffix(".field")) else { continue };
+        if stem == RENDER_SOURCE || stem.starts_with("direct_") {
+            if let Err(e) = std::fs::remove_file(entry.path()) {
+                tracing::warn!("could not remove {} (a killed render's): {e}", entry.path().display());
+            }
+        }
+    }
+}
+
 /// The direct light split off the image's source.
 pub struct DirectSplit {
     /// The source total less the beams' first scattering (occupied bricks, the plan's components).

@@ -33,6 +33,7 @@ use super::orders::OrderRecord;
 use super::passes::{Named, OrderFieldSet};
 use super::periodic::PeriodicCarry;
 use super::plan::Plan;
+use super::remaining::RemainingError;
 use super::SolveError;
 use crate::store::{BrickStore, Coverage, Field, StoreError};
 use serde::{Deserialize, Serialize};
@@ -44,7 +45,8 @@ const CHECKPOINT: &str = "checkpoint.json";
 /// the boundary tallies are split by the faces of the volume; 5: an accelerated solve's last
 /// diffusion correction is saved beside it (`correction_<orders>.f64`); what periodic sweeps
 /// carry over is saved too (`carry_<orders>.f64`, optional: an older version-5 checkpoint has none),
-/// and so are the exitance maps (`exits_<orders>.f64`, optional in the same way).
+/// and so are the exitance maps (`exits_<orders>.f64`, optional in the same way) and the last
+/// order's remaining error (`state.last_remaining`, optional too: see `run_orders`).
 const CHECKPOINT_VERSION: u32 = 5;
 
 /// The solver's fields as files of f32 in the brick store.
@@ -90,6 +92,14 @@ pub struct LoopState {
     /// the faces, [`super::orders::TailEstimate::face_out`]).
     #[serde(default)]
     pub last_face_out: [[f64; 3]; 6],
+    /// The stop rule's remaining error after the last order (max and l2), as the order loop
+    /// measured it ([`super::orders::run_orders`]; `None` while no ratio was known). A solve
+    /// resumed after its last order (killed in the export or the render) reports this one rather
+    /// than measuring again: the measure depends on the loop state it was taken in (the tail
+    /// factors read the history before the order's record joined it). Absent from the
+    /// checkpoints of earlier versions (see `run_orders`).
+    #[serde(default)]
+    pub last_remaining: Option<RemainingError>,
 }
 
 impl LoopState {

@@ -440,7 +440,8 @@ pub fn solve_from(
             // resumed solve never adds them twice; their power travels in the loop state.
             let point_light_power = point::write_order0(store, &plan, &mut fields.fluence, &mut fields.source_next)?;
             // The traced emission's uncollided light joins them, the same way (super::uncollided).
-            let traced = trace_emission(store, &plan, &mut fields, &mut phases, backend, &vk_options)?;
+            let traced =
+                trace_emission(store, &plan, &mut fields, &mut phases, backend, &vk_options, gpu_options.cancel)?;
             trace_note = traced.note();
             // The host wrote order 0's accumulators whenever there are point lights or a traced
             // emission (the twin takes them on the same condition, `run_cpu`), whatever power
@@ -516,6 +517,7 @@ fn trace_emission(
     phases: &mut Vec<(String, f64)>,
     backend: BackendKind,
     vk_options: &ContextOptions,
+    cancel: Option<cancel::CancelFlag>,
 ) -> Result<uncollided::Traced, SolveError> {
     if !plan.emission_traced {
         return Ok(uncollided::Traced::default());
@@ -523,8 +525,15 @@ fn trace_emission(
     let t = Instant::now();
     let traced = if backend == BackendKind::Gpu {
         let ctx = Context::new(vk_options.clone())?;
-        let traced =
-            uncollided::add_order0_on(store, plan, &mut fields.fluence, &mut fields.source_next, false, Some(&ctx))?;
+        let traced = uncollided::add_order0_on(
+            store,
+            plan,
+            &mut fields.fluence,
+            &mut fields.source_next,
+            false,
+            Some(&ctx),
+            cancel,
+        )?;
         // With validation on, any error it reported fails the solve, as the GPU run's do.
         let messages = ctx.validation_messages();
         if !messages.is_empty() {
@@ -532,7 +541,7 @@ fn trace_emission(
         }
         traced
     } else {
-        uncollided::add_order0(store, plan, &mut fields.fluence, &mut fields.source_next)?
+        uncollided::add_order0_on(store, plan, &mut fields.fluence, &mut fields.source_next, false, None, cancel)?
     };
     let seconds = t.elapsed().as_secs_f64();
     phases.push(("emission trace".to_string(), seconds));

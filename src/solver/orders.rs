@@ -397,6 +397,9 @@ pub fn run_orders<B: Backend + ?Sized>(
         state.orders_done += 1;
         let residual = reported_residual(plan, &state);
         remaining = remaining_of(backend, &state)?;
+        // Kept with the state (and so in its checkpoint): what a solve resumed after this order
+        // reports, measured once (see the end of the loop).
+        state.last_remaining = remaining;
         let (power, seconds) = (new.iter().sum(), t.elapsed().as_secs_f64());
         state.history.push(OrderRecord {
             order,
@@ -435,15 +438,27 @@ pub fn run_orders<B: Backend + ?Sized>(
         progress.order_done(&OrderDone { order, residual, measure, power, seconds, ratio, weight });
         tracing::debug!(order, residual, remaining = remaining.map(|r| r.max), ratio, "order done");
     }
-    // Resumed after its last order (killed in the export): no order ran here, so what the orders
-    // set up as they went is set up from the checkpoint, for the report to be the uninterrupted
-    // solve's: the acceleration grid with its last correction (built at an order's commit, and
-    // part of the energy balance), and the last order's remaining error, measured again on the
-    // fields the checkpoint names.
+    // Resumed after its last order (killed in the export or the render): no order ran here, so
+    // what the orders set up as they went is set up from the checkpoint, for the report to be the
+    // uninterrupted solve's: the acceleration grid with its last correction (built at an order's
+    // commit, and part of the energy balance), and the last order's remaining error as the loop
+    // measured it, which the checkpoint keeps. Measured again in the checkpointed state it would
+    // differ: the loop measured before the order's record joined the history, whose last ratios
+    // the tail factors' drift reads (issue 57: 6.2e-4 for 5.0e-5). A checkpoint of an earlier
+    // version keeps none: measured then in the state the loop measured in (the history less its
+    // last record), which gives the same bits.
     if state.orders_done > 0 && state.orders_done == start_orders {
         let (fields, medium) = backend.fields();
         fields.acceleration_due(plan, medium)?;
-        remaining = remaining_of(backend, &state)?;
+        remaining = match (state.history.last().and_then(|r| r.remaining_max), state.last_remaining) {
+            (None, _) => None,
+            (Some(_), Some(kept)) => Some(kept),
+            (Some(_), None) => {
+                let mut measured_in = state.clone();
+                measured_in.history.pop();
+                remaining_of(backend, &measured_in)?
+            }
+        };
     }
     // The balance covers the propagated orders; the tail is reported on its own.
     let (emitted, absorbed) = {

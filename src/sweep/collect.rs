@@ -1,6 +1,10 @@
 //! `lpm sweep MANIFEST --collect`: one table of every task's frame and parameters against what its
 //! solve found, gathered from the task directories: `DIR/results.csv` and `DIR/results.json`.
 //!
+//! Each row's frame and parameters are those the task was solved with (its `task.json`, written with
+//! its `scene.toml`), not the manifest's as it reads now: a task run before the manifest changed
+//! keeps its own labels. A task not started yet has the manifest's.
+//!
 //! Per task: its state (as `--status` says it), the orders run, whether they converged, the solve's
 //! seconds (the sum of its phases), and per channel from `report.json`'s energy balance:
 //! - `R` and `T`: the reflectance and transmittance of the **lit face**, the face the most power
@@ -13,8 +17,8 @@
 //! grey is the same in every channel), else `R`. Tasks not done have empty cells. The JSON holds the
 //! same rows with per-channel arrays of the task's own length.
 
-use super::task::state;
-use super::{task_dir, Sweep, SweepError};
+use super::task::{started, state, Record};
+use super::{task_dir, toml_to_json, Sweep, SweepError, Task};
 use serde::Serialize;
 use std::fmt::Write;
 use std::path::PathBuf;
@@ -44,6 +48,34 @@ pub struct Row {
     pub absorptance: Option<Vec<f64>>,
 }
 
+/// The frame and parameter values of the task's row: for a task that has started, those it was
+/// solved with — its record (`task.json`, written with its scene), else (a directory written
+/// before there were records) the values its own `scene.toml` has at the manifest's keys — never
+/// re-derived from the manifest, which may have changed since; for a task not started, the
+/// manifest's, which it will be solved with.
+fn labels(sweep: &Sweep, task: &Task) -> (Option<i64>, serde_json::Map<String, serde_json::Value>) {
+    let dir = task_dir(&sweep.dir, task.index);
+    let manifest = || task.parameters.iter().map(|(k, v)| (k.clone(), toml_to_json(v))).collect();
+    if !started(&dir) {
+        return (task.frame, manifest());
+    }
+    if let Some(record) = Record::read(&dir).filter(|r| r.task == task.index) {
+        return (record.frame, record.parameters);
+    }
+    let scene =
+        std::fs::read_to_string(dir.join("scene.toml")).ok().and_then(|t| toml::from_str::<toml::Table>(&t).ok());
+    match scene {
+        Some(scene) => (
+            task.frame,
+            task.parameters
+                .iter()
+                .filter_map(|(k, _)| Some((k.clone(), toml_to_json(super::get_key(&scene, k)?))))
+                .collect(),
+        ),
+        None => (task.frame, manifest()),
+    }
+}
+
 /// Reads every task's directory into a row.
 pub fn rows(sweep: &Sweep) -> Vec<Row> {
     sweep
@@ -51,10 +83,10 @@ pub fn rows(sweep: &Sweep) -> Vec<Row> {
         .iter()
         .map(|task| {
             let (state, error) = state(sweep, task.index);
-            let parameters = task.parameters.iter().map(|(k, v)| (k.clone(), toml_to_json(v))).collect();
+            let (frame, parameters) = labels(sweep, task);
             let mut row = Row {
                 task: task.index,
-                frame: task.frame,
+                frame,
                 parameters,
                 status: state.name().to_string(),
                 error,
@@ -106,20 +138,6 @@ fn fill(row: &mut Row, report: &serde_json::Value) {
     }
 }
 
-fn toml_to_json(v: &toml::Value) -> serde_json::Value {
-    match v {
-        toml::Value::String(s) => s.clone().into(),
-        toml::Value::Integer(i) => (*i).into(),
-        toml::Value::Float(f) => serde_json::Number::from_f64(*f).map_or(serde_json::Value::Null, Into::into),
-        toml::Value::Boolean(b) => (*b).into(),
-        toml::Value::Datetime(d) => d.to_string().into(),
-        toml::Value::Array(a) => a.iter().map(toml_to_json).collect::<Vec<_>>().into(),
-        toml::Value::Table(t) => {
-            t.iter().map(|(k, v)| (k.clone(), toml_to_json(v))).collect::<serde_json::Map<_, _>>().into()
-        }
-    }
-}
-
 /// A CSV cell: quoted when it holds a comma, a quote or a line break.
 fn cell(text: &str) -> String {
     if text.contains([',', '"', '\n', '\r']) {
@@ -131,8 +149,16 @@ fn cell(text: &str) -> String {
 
 /// The rows as CSV (see the module docs for the columns).
 pub fn csv(sweep: &Sweep, rows: &[Row]) -> String {
-    let keys: Vec<&str> =
+    // The manifest's keys, then any other a task was solved with (the manifest changed since).
+    let mut keys: Vec<&str> =
         sweep.tasks.first().map_or(Vec::new(), |t| t.parameters.iter().map(|(k, _)| k.as_str()).collect());
+    for row in rows {
+        for k in row.parameters.keys() {
+            if !keys.contains(&k.as_str()) {
+                keys.push(k);
+            }
+        }
+    }
     let has_frames = rows.iter().any(|r| r.frame.is_some());
     let rgb = rows.iter().any(|r| r.absorptance.as_ref().is_some_and(|a| a.len() == 3));
     let per_channel = |name: &str| -> Vec<String> {

@@ -30,10 +30,15 @@
 //!
 //! Tasks are numbered from 0, frames outermost, then parameters in the order written (the last one
 //! varies fastest). Task N lives in `DIR/task-NNNN/`: `scene.toml` (the base scene with the frame
-//! and parameters substituted, validated like any scene), `out/` (the solve's outputs and its
-//! checkpoint while it runs), `status.json` (running / done / failed) and `attempts.log` (one line
-//! per start, saying whether it resumed). See [`task`] for running one, [`slurm`] for the script and
+//! and parameters substituted, validated like any scene), `task.json` (that frame and those
+//! parameter values, which `--collect` labels the task's results with), `out/` (the solve's
+//! outputs and its checkpoint while it runs), `status.json` (running / done / failed) and
+//! `attempts.log` (one line per start, saying whether it resumed). See [`task`] for running one, [`slurm`] for the script and
 //! [`collect`] for gathering every task's results into one table.
+//!
+//! `lpm sweep` over an existing `DIR` checks every task before it writes anything: a task already
+//! started (it has `out/`, `status.json` or `attempts.log`) whose scene would change refuses the
+//! whole sweep, nothing written; tasks not started are rewritten to the manifest as it reads now.
 //!
 //! `frames.warm_start = "previous"` starts each frame's solve from the solution of the previous
 //! frame with the same parameters (its exported `source.raw`, see [`crate::solver::warm`]): the
@@ -61,8 +66,12 @@ pub enum SweepError {
     BaseScene(SceneError),
     #[error("there is no task {task}: the manifest has {count} (0 to {})", .count.saturating_sub(1))]
     NoTask { task: usize, count: usize },
-    #[error("task {task}: its scene changed since it was run; remove {} to run it again", .dir.display())]
-    Changed { task: usize, dir: PathBuf },
+    #[error(
+        "task {task}{}: its scene changed since it was run; remove {} to run it again (nothing was written)",
+        and_more(.more),
+        .dir.display()
+    )]
+    Changed { task: usize, dir: PathBuf, more: usize },
     #[error("task {task} is already being solved by another process (lock {})", .lock.display())]
     Busy { task: usize, lock: PathBuf },
     #[error("{}: {source}", .path.display())]
@@ -75,6 +84,15 @@ pub enum SweepError {
     Job(#[from] crate::job::JobError),
     #[error("{0}")]
     Slurm(String),
+}
+
+/// " (and N more)" after the first task refused, when more are.
+fn and_more(more: &usize) -> String {
+    if *more > 0 {
+        format!(" (and {more} more)")
+    } else {
+        String::new()
+    }
 }
 
 /// The most tasks one sweep may have (a Slurm array is far smaller; the manifest expands into one
@@ -245,10 +263,27 @@ impl Sweep {
         self.tasks.get(index).ok_or(SweepError::NoTask { task: index, count: self.tasks.len() })
     }
 
-    /// Writes every task's directory and scene, and `DIR/tasks.json` (the list of tasks).
+    /// Writes every task's directory, scene and record, and `DIR/tasks.json` (the list of tasks).
+    /// Every task is checked against its directory first: when the scene of a task already started
+    /// changed, the sweep is refused with nothing written (a task's scene is the one its results
+    /// are of, and never rewritten under them).
     pub fn write(&self) -> Result<(), SweepError> {
+        let mut prepared = Vec::with_capacity(self.tasks.len());
+        let mut changed: Option<(usize, PathBuf)> = None;
+        let mut more = 0;
         for task in &self.tasks {
-            task::prepare(self, task)?;
+            match task::check(self, task) {
+                Ok(p) => prepared.push(p),
+                Err(SweepError::Changed { .. }) if changed.is_some() => more += 1,
+                Err(SweepError::Changed { task, dir, .. }) => changed = Some((task, dir)),
+                Err(e) => return Err(e),
+            }
+        }
+        if let Some((task, dir)) = changed {
+            return Err(SweepError::Changed { task, dir, more });
+        }
+        for p in prepared {
+            p.write()?;
         }
         let list: Vec<_> = self
             .tasks
@@ -267,8 +302,19 @@ impl Sweep {
     }
 }
 
-fn toml_to_json(v: &toml::Value) -> serde_json::Value {
-    serde_json::to_value(v).unwrap_or(serde_json::Value::Null)
+/// A TOML value as JSON (a datetime as its text; a float JSON cannot hold as null).
+pub(crate) fn toml_to_json(v: &toml::Value) -> serde_json::Value {
+    match v {
+        toml::Value::String(s) => s.clone().into(),
+        toml::Value::Integer(i) => (*i).into(),
+        toml::Value::Float(f) => serde_json::Number::from_f64(*f).map_or(serde_json::Value::Null, Into::into),
+        toml::Value::Boolean(b) => (*b).into(),
+        toml::Value::Datetime(d) => d.to_string().into(),
+        toml::Value::Array(a) => a.iter().map(toml_to_json).collect::<Vec<_>>().into(),
+        toml::Value::Table(t) => {
+            t.iter().map(|(k, v)| (k.clone(), toml_to_json(v))).collect::<serde_json::Map<_, _>>().into()
+        }
+    }
 }
 
 /// `DIR/task-NNNN`.
@@ -372,6 +418,28 @@ pub fn set_key(table: &mut toml::Table, key: &str, value: toml::Value) -> Result
     Ok(())
 }
 
+/// The value at dotted `key` (as [`set_key`] names it), if the table has one.
+pub fn get_key<'a>(table: &'a toml::Table, key: &str) -> Option<&'a toml::Value> {
+    let mut current: Option<&toml::Value> = None;
+    for segment in key.split('.') {
+        let (name, index) = match segment.split_once('[') {
+            Some((name, idx)) => (name, Some(idx.strip_suffix(']')?.parse::<usize>().ok()?)),
+            None => (segment, None),
+        };
+        let parent = match current {
+            None => table,
+            Some(toml::Value::Table(t)) => t,
+            Some(_) => return None,
+        };
+        let value = parent.get(name)?;
+        current = Some(match index {
+            None => value,
+            Some(i) => value.as_array()?.get(i)?,
+        });
+    }
+    current
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -396,6 +464,12 @@ mod tests {
         assert_eq!(t["lights"][0]["radiance"].as_float(), Some(2.0));
         assert!(set_key(&mut t, "lights[3].radiance", 2.0.into()).is_err());
         assert!(set_key(&mut t, "medium.albedo.x", 2.0.into()).is_err());
+        assert_eq!(get_key(&t, "medium.albedo").and_then(toml::Value::as_float), Some(0.9));
+        assert_eq!(get_key(&t, "lights[0].radiance").and_then(toml::Value::as_float), Some(2.0));
+        assert_eq!(get_key(&t, "solver.directions_per_face").and_then(toml::Value::as_integer), Some(2));
+        for missing in ["lights[3].radiance", "medium.albedo.x", "medium.g", "nothing", "lights[x]"] {
+            assert!(get_key(&t, missing).is_none(), "{missing}");
+        }
     }
 
     #[test]

@@ -25,17 +25,93 @@ pub struct TaskStatus {
     pub warm_start: Option<String>,
 }
 
-/// Creates the task's directory and writes its scene (unless it is already there, the same).
-pub fn prepare(sweep: &Sweep, task: &Task) -> Result<PathBuf, SweepError> {
-    let dir = task_dir(&sweep.dir, task.index);
-    std::fs::create_dir_all(&dir).map_err(|source| SweepError::Io { path: dir.clone(), source })?;
-    let scene = dir.join("scene.toml");
-    match std::fs::read_to_string(&scene) {
-        Ok(old) if old == task.scene => {}
-        Ok(_) if dir.join("out").exists() => return Err(SweepError::Changed { task: task.index, dir }),
-        _ => crate::output::write_atomic(&scene, |w| w.write_all(task.scene.as_bytes()))?,
+/// `task-NNNN/task.json`: the frame and parameter values the task's scene was expanded with,
+/// written with the scene. `--collect` labels a task's results with it (not with the manifest as
+/// it reads now, which may have changed since the task ran).
+#[derive(Debug, PartialEq, Serialize, Deserialize)]
+pub struct Record {
+    pub task: usize,
+    pub frame: Option<i64>,
+    /// Dotted scene key → the value the task's scene has.
+    pub parameters: serde_json::Map<String, serde_json::Value>,
+}
+
+pub const RECORD: &str = "task.json";
+
+impl Record {
+    pub fn of(task: &Task) -> Record {
+        Record {
+            task: task.index,
+            frame: task.frame,
+            parameters: task.parameters.iter().map(|(k, v)| (k.clone(), super::toml_to_json(v))).collect(),
+        }
     }
-    Ok(dir)
+
+    /// The record in task directory `dir`, if it has one that reads.
+    pub fn read(dir: &Path) -> Option<Record> {
+        serde_json::from_slice(&std::fs::read(dir.join(RECORD)).ok()?).ok()
+    }
+}
+
+/// Whether the task in `dir` was ever started (`lpm solve --task` writes `attempts.log` and
+/// `status.json` before it solves into `out/`): its scene is then the one its results are of.
+pub fn started(dir: &Path) -> bool {
+    ["out", "status.json", "attempts.log"].iter().any(|f| dir.join(f).symlink_metadata().is_ok())
+}
+
+/// What [`Prepared::write`] will write for one task, decided (every check made) before anything
+/// is written.
+#[derive(Debug)]
+pub struct Prepared<'a> {
+    task: &'a Task,
+    dir: PathBuf,
+    write_scene: bool,
+    /// The record's bytes, when it is missing or differs.
+    record: Option<Vec<u8>>,
+}
+
+/// Checks the task's directory against `task` and says what is to be written, writing nothing:
+/// the scene where it is missing or differs, refused ([`SweepError::Changed`]) when it differs
+/// from that of a task already started.
+pub fn check<'a>(sweep: &Sweep, task: &'a Task) -> Result<Prepared<'a>, SweepError> {
+    let dir = task_dir(&sweep.dir, task.index);
+    let scene = dir.join("scene.toml");
+    let same = match std::fs::read(&scene) {
+        Ok(old) => old == task.scene.as_bytes(),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => false,
+        Err(source) => return Err(SweepError::Io { path: scene, source }),
+    };
+    if !same && started(&dir) {
+        return Err(SweepError::Changed { task: task.index, dir, more: 0 });
+    }
+    let mut record = serde_json::to_vec_pretty(&Record::of(task))
+        .map_err(|e| SweepError::Io { path: dir.join(RECORD), source: e.into() })?;
+    record.push(b'\n');
+    let record_same = std::fs::read(dir.join(RECORD)).is_ok_and(|old| old == record);
+    let record = (!record_same).then_some(record);
+    Ok(Prepared { task, dir, write_scene: !same, record })
+}
+
+impl Prepared<'_> {
+    /// Creates the task's directory and writes what [`check`] found missing or different, each
+    /// file atomically; returns the directory.
+    pub fn write(self) -> Result<PathBuf, SweepError> {
+        let dir = self.dir;
+        std::fs::create_dir_all(&dir).map_err(|source| SweepError::Io { path: dir.clone(), source })?;
+        if let Some(record) = &self.record {
+            crate::output::write_atomic(&dir.join(RECORD), |w| w.write_all(record))?;
+        }
+        if self.write_scene {
+            crate::output::write_atomic(&dir.join("scene.toml"), |w| w.write_all(self.task.scene.as_bytes()))?;
+        }
+        Ok(dir)
+    }
+}
+
+/// Creates the task's directory and writes its scene and record (unless they are already there,
+/// the same); refused, writing nothing, when the scene of a started task changed.
+pub fn prepare(sweep: &Sweep, task: &Task) -> Result<PathBuf, SweepError> {
+    check(sweep, task)?.write()
 }
 
 /// An exclusive advisory lock, released when dropped (or when the process dies).

@@ -298,3 +298,77 @@ fn a_killed_periodic_solve_resumes_to_the_same_bits() {
     lpm_ok(&["solve", s, "--out", cut.to_str().unwrap(), "--no-image", "--resume"]);
     assert_same_fields(&whole, &cut, "after resume");
 }
+
+/// The report's fields that two runs of one solve share, as JSON text (equal text: equal bits,
+/// as serde_json writes each f64 in the shortest form that reads back to it): all but the
+/// timings, the peaks and the host memory budget (half of what the system has free then), which
+/// any two runs may differ in.
+fn same_in_any_run(report: &std::path::Path) -> Vec<(String, String)> {
+    let mut r: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(report).unwrap()).unwrap();
+    r["host_memory"].as_object_mut().unwrap().retain(|k, _| k == "store_bytes");
+    let mut kept: Vec<(String, String)> = r
+        .as_object()
+        .unwrap()
+        .iter()
+        .filter(|(k, _)| !["seconds", "peak_device_bytes", "peak_resident_bytes", "history"].contains(&k.as_str()))
+        .map(|(k, v)| (k.clone(), v.to_string()))
+        .collect();
+    for (i, order) in r["history"].as_array().unwrap().iter().enumerate() {
+        let mut order = order.clone();
+        order.as_object_mut().unwrap().remove("seconds");
+        kept.push((format!("history[{i}]"), order.to_string()));
+    }
+    kept
+}
+
+/// Issue 57, item 4: a solve killed after its last order, in the export or in the render (as
+/// `kill -9` or SIGTERM would), resumes to the uninterrupted report, bit for bit: its
+/// `remaining_error` is the one the order loop measured (the checkpoint keeps it; measured again
+/// it differed), and its `store_bytes` the store's (not the killed render's fields left in it).
+#[test]
+fn killed_in_the_export_or_the_render_resumes_to_the_same_report() {
+    if !cfg!(feature = "test-hooks") {
+        panic!("this kill test needs lpm's test hooks: run it with `cargo test --features test-hooks`");
+    }
+    let dir = temp_dir("resume-after-last-order");
+    let scene = dir.join("scene.toml");
+    // Six orders, so that the stop rule's tail factors use the ratio's drift (from the fourth
+    // order on), whose shrink ratio reads the history; a checkpoint after every order.
+    let text = killable_cloud_scene([34, 30, 38], 6)
+        .replace("checkpoint_every_orders = 1\n", "checkpoint_every_seconds = 0\n")
+        + "[camera]\nwidth = 48\nheight = 32\n";
+    std::fs::write(&scene, text).unwrap();
+    let s = scene.to_str().unwrap();
+    let whole = dir.join("whole");
+    lpm_ok(&["solve", s, "--out", whole.to_str().unwrap()]);
+    let expected = same_in_any_run(&whole.join("report.json"));
+    for (stage, hook) in [
+        ("export", "LPM_TEST_ABORT_AT_STAGE"),
+        ("export", "LPM_TEST_CANCEL_AT_STAGE"),
+        ("render", "LPM_TEST_ABORT_AT_STAGE"),
+        ("render", "LPM_TEST_CANCEL_AT_STAGE"),
+    ] {
+        let cut = dir.join(format!("cut-{stage}-{hook}"));
+        let o = crate::common::lpm_command(&["solve", s, "--out", cut.to_str().unwrap()])
+            .env(hook, stage)
+            .output()
+            .unwrap();
+        let context = format!("after {hook}={stage}");
+        assert!(!o.status.success(), "the solve should have been stopped {context}");
+        let work = cut.join(".lpm-work");
+        let checkpoint: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(work.join("checkpoint.json")).expect("checkpoint")).unwrap();
+        assert_eq!(checkpoint["state"]["orders_done"], 6, "{context}");
+        if stage == "render" {
+            assert!(work.join("render_source.field").exists(), "the render's fields should be in the store {context}");
+        }
+        assert!(!cut.join("report.json").exists(), "report.json written {context}");
+        lpm_ok(&["solve", s, "--out", cut.to_str().unwrap(), "--resume"]);
+        assert_same_fields(&whole, &cut, &context);
+        let resumed = same_in_any_run(&cut.join("report.json"));
+        for ((key, want), (_, got)) in expected.iter().zip(&resumed) {
+            assert_eq!(want, got, "report.json's {key} differs {context}");
+        }
+        assert_eq!(expected.len(), resumed.len(), "{context}");
+    }
+}

@@ -744,3 +744,128 @@ fn a_nrrd_header_replaced_after_submission_cannot_reach_outside_the_data_root() 
     let (s, _) = call(agent().get(&format!("{url}/v1/jobs/{b}/outputs/fluence.raw")).call());
     assert_ne!(s, 200, "the outside file's fluence can be fetched");
 }
+
+/// Issue 57, item 7: a `PUT` whose body ends before its `Content-Length` (the client sent part of
+/// it and half-closed) is refused and leaves the stored volume byte for byte as it was, with no
+/// temporary beside it; a chunked upload (whose end tiny_http cannot vouch for) is refused with 411;
+/// a complete upload still replaces the file.
+#[test]
+fn a_truncated_upload_leaves_the_stored_volume_whole() {
+    use std::io::{Read, Write};
+    let dir = temp_dir("serve-truncated-put");
+    let data = dir.join("data");
+    let server = Server::start(&data, &[]);
+    let url = server.url.clone();
+    let put = |body: &[u8]| call(agent().put(&format!("{url}/v1/volumes/good.raw")).send_bytes(body)).0;
+    let good: Vec<u8> = (0..16384u32).map(|i| (i % 251) as u8).collect();
+    assert_eq!(put(&good), 201);
+    let stored = data.join("volumes/good.raw");
+    assert_eq!(std::fs::read(&stored).unwrap(), good);
+
+    let addr = url.trim_start_matches("http://");
+    let mut tcp = std::net::TcpStream::connect(addr).unwrap();
+    tcp.set_read_timeout(Some(Duration::from_secs(60))).unwrap();
+    write!(
+        tcp,
+        "PUT /v1/volumes/good.raw HTTP/1.1\r\nHost: {addr}\r\nContent-Type: application/octet-stream\r\n\
+         Content-Length: 16384\r\n\r\n"
+    )
+    .unwrap();
+    tcp.write_all(&[7u8; 5000]).unwrap();
+    tcp.shutdown(std::net::Shutdown::Write).unwrap();
+    let mut answer = Vec::new();
+    // An error here (a reset) is the connection dropped: a refusal too.
+    let _ = tcp.read_to_end(&mut answer);
+    let answer = String::from_utf8_lossy(&answer);
+    let status: Option<u16> = answer.strip_prefix("HTTP/1.1 ").and_then(|r| r.get(..3)).and_then(|c| c.parse().ok());
+    assert!(!matches!(status, Some(200..=299)), "a truncated upload was accepted: {answer}");
+    assert_eq!(std::fs::read(&stored).unwrap(), good, "the stored volume was replaced by a truncated one");
+    let names: Vec<String> = std::fs::read_dir(data.join("volumes"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(names, ["good.raw"], "a temporary was left beside the volume");
+
+    // ureq sends a body of unknown length chunked.
+    let (s, r) = call(agent().put(&format!("{url}/v1/volumes/good.raw")).send(std::io::Cursor::new(vec![1u8; 20000])));
+    assert_eq!(s, 411, "{}", r.into_string().unwrap_or_default());
+    assert_eq!(std::fs::read(&stored).unwrap(), good);
+
+    let newer = vec![9u8; 20000];
+    assert_eq!(put(&newer), 201);
+    assert_eq!(std::fs::read(&stored).unwrap(), newer);
+}
+
+/// The server's resident memory in KiB (`VmRSS` of /proc/PID/status).
+fn resident_kib(pid: u32) -> u64 {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
+    let line = status.lines().find(|l| l.starts_with("VmRSS:")).expect("VmRSS in /proc/PID/status");
+    line.split_whitespace().nth(1).unwrap().parse().unwrap()
+}
+
+/// Issue 57, item 6: a request header line without end, sent before any token is checked (to
+/// `/v1/health`), is cut off with 431 (or the connection closed) while the server's memory stays
+/// put; a head too large in all gets a 431 the client can read; the server answers afterwards, one
+/// request per connection.
+#[test]
+fn an_endless_request_header_is_refused_without_growing_the_server() {
+    use std::io::{Read, Write};
+    let dir = temp_dir("serve-endless-header");
+    let token_file = dir.join("token");
+    std::fs::write(&token_file, "s3cret-token\n").unwrap();
+    let server = Server::start(&dir.join("data"), &["--token-file", token_file.to_str().unwrap()]);
+    let url = server.url.clone();
+    let addr = url.trim_start_matches("http://").to_string();
+    assert_eq!(call(agent().get(&format!("{url}/v1/health")).call()).0, 200);
+    let before = resident_kib(server.child.id());
+
+    let mut tcp = std::net::TcpStream::connect(&addr).unwrap();
+    tcp.set_write_timeout(Some(Duration::from_secs(10))).unwrap();
+    tcp.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
+    tcp.write_all(b"GET /v1/health HTTP/1.1\r\nHost: x\r\nX-Endless: ").unwrap();
+    let chunk = vec![b'a'; 64 * 1024];
+    let mut sent = 0usize;
+    // 64 MiB, unless the server stops taking them (a reset, or the socket's buffers stay full).
+    while sent < 64 << 20 {
+        match tcp.write(&chunk) {
+            Ok(0) | Err(_) => break,
+            Ok(n) => sent += n,
+        }
+    }
+    let mut answer = Vec::new();
+    let _ = tcp.read_to_end(&mut answer);
+    let answer = String::from_utf8_lossy(&answer);
+    assert!(answer.is_empty() || answer.starts_with("HTTP/1.1 431"), "after {sent} bytes of one header line: {answer}");
+    let after = resident_kib(server.child.id());
+    assert!(
+        after < before + 16 * 1024,
+        "the server grew from {before} KiB to {after} KiB on {sent} bytes of one header"
+    );
+    drop(tcp);
+
+    // A finite head over the limit: the client reads the 431 itself.
+    let mut tcp = std::net::TcpStream::connect(&addr).unwrap();
+    tcp.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
+    let mut head = b"GET /v1/jobs HTTP/1.1\r\nHost: x\r\n".to_vec();
+    for i in 0..100 {
+        head.extend_from_slice(format!("X-Filler-{i}: {}\r\n", "b".repeat(1000)).as_bytes());
+    }
+    head.extend_from_slice(b"\r\n");
+    tcp.write_all(&head).unwrap();
+    let mut answer = String::new();
+    tcp.read_to_string(&mut answer).unwrap();
+    assert!(answer.starts_with("HTTP/1.1 431"), "{answer}");
+    assert!(answer.contains("\"error\""), "{answer}");
+
+    // The server still answers, and closes each connection after its one answer.
+    assert_eq!(call(agent().get(&format!("{url}/v1/health")).call()).0, 200);
+    let mut tcp = std::net::TcpStream::connect(&addr).unwrap();
+    tcp.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
+    tcp.write_all(b"GET /v1/health HTTP/1.1\r\nHost: x\r\nConnection: keep-alive\r\n\r\n").unwrap();
+    let mut answer = String::new();
+    tcp.read_to_string(&mut answer).expect("the connection ends after the answer");
+    assert!(answer.starts_with("HTTP/1.1 200"), "{answer}");
+    assert!(answer.to_ascii_lowercase().contains("\r\nconnection: close\r\n"), "{answer}");
+    // The token is still asked for.
+    assert_eq!(call(agent().get(&format!("{url}/v1/jobs")).call()).0, 401);
+}

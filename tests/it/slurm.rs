@@ -158,6 +158,86 @@ fn sweep_expands_reruns_and_locks() {
     assert!(json[2]["absorptance"][0].as_f64() > json[1]["absorptance"][0].as_f64());
 }
 
+/// A manifest changed under a solved task: `lpm sweep` is refused before it writes anything (every
+/// task's scene and record, and tasks.json, byte-identical after), and `--collect` labels the solved
+/// task with the albedo it was solved at, not the manifest's new one (issue 57 item 13: task 0's
+/// scene was rewritten before task 1 refused, and task 1, solved at 0.9, was collected as 0.3).
+#[test]
+fn a_changed_sweep_writes_nothing_and_collect_keeps_each_tasks_own_labels() {
+    let dir = temp_dir("sweep-changed");
+    let bytes: Vec<u8> = (0..16 * 16 * 16).flat_map(|_| 1.0f32.to_le_bytes()).collect();
+    std::fs::write(dir.join("density.raw"), bytes).unwrap();
+    std::fs::write(dir.join("base.toml"), BASE.replace("density_{frame:02}.raw", "density.raw")).unwrap();
+    let manifest = dir.join("m.toml");
+    let write_manifest = |albedos: &str| {
+        std::fs::write(
+            &manifest,
+            format!("scene = \"base.toml\"\n[parameters]\n\"medium.albedo\" = [{albedos}]\n[solve]\nno_image = true\n"),
+        )
+        .unwrap()
+    };
+    write_manifest("0.5, 0.9");
+    let m = manifest.to_str().unwrap();
+    let out = ok(&run(&mut lpm_command(&["sweep", m])));
+    assert!(out.contains("2 tasks"), "{out}");
+    let tasks_dir = dir.join("m.tasks");
+    ok(&run(&mut lpm_command(&["solve", m, "--task", "1"])));
+    // tasks.json and every task's scene and record.
+    let files = || -> Vec<(String, Vec<u8>)> {
+        let mut files = vec![("tasks.json".to_string(), std::fs::read(tasks_dir.join("tasks.json")).unwrap())];
+        for t in 0..2 {
+            for name in ["scene.toml", "task.json"] {
+                let path = format!("task-000{t}/{name}");
+                files.push((path.clone(), std::fs::read(tasks_dir.join(&path)).unwrap()));
+            }
+        }
+        files
+    };
+    let before = files();
+
+    // Both albedos changed: task 1 is solved, so the sweep is refused, and task 0 (not started,
+    // checked first) is not rewritten either.
+    write_manifest("0.2, 0.3");
+    let o = run(&mut lpm_command(&["sweep", m]));
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("task 1: its scene changed") && stderr.contains("nothing was written"), "{stderr}");
+    for ((name, old), (_, new)) in before.iter().zip(files()) {
+        assert!(*old == new, "{name} was rewritten by a refused sweep");
+    }
+
+    // --collect under the changed manifest: task 1 keeps the albedo it was solved at (from its
+    // record, and from its scene.toml where it has none); task 0, not started, has the manifest's.
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(tasks_dir.join("task-0001/out/report.json")).unwrap()).unwrap();
+    for without_record in [false, true] {
+        if without_record {
+            std::fs::remove_file(tasks_dir.join("task-0001/task.json")).unwrap();
+        }
+        let said = ok(&run(&mut lpm_command(&["sweep", m, "--collect"])));
+        assert!(said.contains("2 tasks (1 done)"), "{said}");
+        let csv = std::fs::read_to_string(tasks_dir.join("results.csv")).unwrap();
+        let lines: Vec<&str> = csv.lines().collect();
+        assert!(lines[1].starts_with("0,0.2,pending,"), "{csv}");
+        assert!(lines[2].starts_with("1,0.9,done,"), "{csv}");
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(tasks_dir.join("results.json")).unwrap()).unwrap();
+        assert_eq!(json[1]["parameters"]["medium.albedo"].as_f64(), Some(0.9), "{}", json[1]);
+        assert_eq!(json[1]["absorptance"], report["energy"]["absorptance"]);
+    }
+
+    // Only the task not started changed: the sweep goes ahead and rewrites it (and its record).
+    write_manifest("0.2, 0.9");
+    ok(&run(&mut lpm_command(&["sweep", m])));
+    let scene0 = std::fs::read_to_string(tasks_dir.join("task-0000/scene.toml")).unwrap();
+    assert!(scene0.contains("albedo = 0.2"), "{scene0}");
+    let record0: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(tasks_dir.join("task-0000/task.json")).unwrap()).unwrap();
+    assert_eq!(record0["parameters"]["medium.albedo"].as_f64(), Some(0.2), "{record0}");
+    let scene1 = &before.iter().find(|(n, _)| n == "task-0001/scene.toml").unwrap().1;
+    assert!(std::fs::read(tasks_dir.join("task-0001/scene.toml")).unwrap() == *scene1, "task 1's scene rewritten");
+}
+
 /// A port p with p + 1 free too (slurmctld's and slurmd's), as the kernel hands out free ports:
 /// a fixed or pid-derived choice can collide with a port some other process holds.
 fn free_port_pair() -> u16 {

@@ -124,6 +124,7 @@ pub mod clusters;
 pub mod gpu;
 pub mod kernel;
 
+use super::cancel::CancelFlag;
 use super::emission::{scales, Factors};
 use super::passes::RELEASE_UNITS;
 use super::plan::Plan;
@@ -446,12 +447,15 @@ pub fn add_order0_with(
     source_next: &mut Field,
     exact: bool,
 ) -> Result<Traced, SolveError> {
-    add_order0_on(store, plan, fluence, source_next, exact, None)
+    add_order0_on(store, plan, fluence, source_next, exact, None, None)
 }
 
 /// [`add_order0_with`], the voxels' light computed by the device kernel on `device` where given
 /// ([`gpu`]; the host walks the tree where the kernel declines, and the report says why), else
-/// by the host's walk; the bookkeeping is the same.
+/// by the host's walk; the bookkeeping is the same. Once `cancel` is raised the trace stops
+/// within a voxel's walk (the host looks before each voxel, the device before each batch) and
+/// returns [`SolveError::Cancelled`]: a trace of a large fire takes minutes (issue 57: a SIGTERM
+/// waited 30 s to 10 minutes for it).
 pub fn add_order0_on(
     store: &BrickStore,
     plan: &Plan,
@@ -459,7 +463,9 @@ pub fn add_order0_on(
     source_next: &mut Field,
     exact: bool,
     device: Option<&Arc<Context>>,
+    cancel: Option<CancelFlag>,
 ) -> Result<Traced, SolveError> {
+    let stopped = || super::cancel::raised(cancel);
     let started = Instant::now();
     let Some(frame) = Unfolded::new(plan.dims, plan.reflective) else {
         return Ok(Traced::default());
@@ -544,6 +550,11 @@ pub fn add_order0_on(
         for lz in 0..extent[2] as usize {
             for ly in 0..extent[1] as usize {
                 for lx in 0..extent[0] as usize {
+                    // One voxel's walk over the emitters' tree takes up to a tenth of a second in a
+                    // large fire: looked at every voxel (an atomic load, nothing beside the walk).
+                    if stopped() {
+                        return (p, work);
+                    }
                     let local = lx + BRICK_EDGE as usize * (ly + BRICK_EDGE as usize * lz);
                     let cell = [
                         (origin[0] as usize + lx) as i64,
@@ -595,6 +606,9 @@ pub fn add_order0_on(
         // The host walks the group at once, the device computes it in batches of its own.
         let step = device.as_ref().map_or(last - first, |d| d.batch());
         for start in (first..last).step_by(step) {
+            if stopped() {
+                return Err(SolveError::Cancelled { resumable: false });
+            }
             let end = (start + step).min(last);
             let given = match device.as_mut() {
                 Some(d) => {
@@ -614,6 +628,10 @@ pub fn add_order0_on(
                 .zip(&bricks[start..end])
                 .enumerate()
                 .map(|(i, ((fl, src), &brick))| {
+                    // Cancelled: the rest of the group is skipped, and the trace returns below.
+                    if stopped() {
+                        return ([0.0; 3], Work::default());
+                    }
                     let given = given.as_ref().map(|v| &v[i * BRICK_VOXELS..(i + 1) * BRICK_VOXELS]);
                     let result = brick_pass(brick, fl, src, given);
                     if let Ok(mut p) = progress.lock() {
@@ -622,6 +640,9 @@ pub fn add_order0_on(
                     result
                 })
                 .collect();
+            if stopped() {
+                return Err(SolveError::Cancelled { resumable: false });
+            }
             // Summed in slot order: the same at any thread count.
             for (p, w) in results {
                 for ch in 0..c {

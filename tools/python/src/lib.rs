@@ -572,6 +572,8 @@ fn render_again<'py>(
             let display =
                 render::keep::view_display(&kept, camera.as_deref(), &display).map_err(|e| scene_failure(&e))?;
             let camera = render::keep::view_camera(&kept, camera.as_deref(), &change).map_err(|e| scene_failure(&e))?;
+            render::memory::check_image_fits(camera.width, camera.height)
+                .map_err(|e| Failure::plain(Class::Base, e.to_string()))?;
             let img = kept.render(&camera, background);
             render::write_images(exr.as_deref(), png.as_deref(), &img, background, &display)
                 .map_err(|e| output_failure(&e))?;
