@@ -76,6 +76,19 @@ fn max_relative_difference(a: &Path, b: &Path) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// A validated solve of `scene` into `out` writing the fields and the report only, warm-started
+/// from `warm` when given.
+fn fields_only(scene: &Path, out: &Path, warm: Option<&Path>) -> lpm::job::SolveJob {
+    lpm::job::SolveJob {
+        vk: crate::common::validated(),
+        no_image: true,
+        fresh: true,
+        no_render_data: true,
+        warm_start: warm.map(Path::to_path_buf),
+        ..lpm::job::SolveJob::new(scene.to_path_buf(), out.to_path_buf())
+    }
+}
+
 #[test]
 fn a_warm_started_frame_converges_to_the_cold_answer_in_fewer_orders() {
     let dir = temp_dir("warm-start");
@@ -164,15 +177,7 @@ fn a_far_guess_still_converges_to_the_cold_answer() {
     };
     let (bright, normal) = (scene(1.5, 9.0), scene(0.5, 3.0));
     let solve = |scene: &Path, out: &str, warm: Option<&Path>| {
-        let job = lpm::job::SolveJob {
-            vk: crate::common::validated(),
-            no_image: true,
-            fresh: true,
-            no_render_data: true,
-            warm_start: warm.map(Path::to_path_buf),
-            ..lpm::job::SolveJob::new(scene.to_path_buf(), dir.join(out))
-        };
-        lpm::job::run(&job, |_, _| {}).expect("solve")
+        lpm::job::run(&fields_only(scene, &dir.join(out), warm), |_, _| {}).expect("solve")
     };
     solve(&bright, "bright", None);
     let cold = solve(&normal, "cold", None);
@@ -214,17 +219,7 @@ fn a_negative_guess_is_refused_naming_the_file() {
         .replace(&format!("[{N}, {N}, {N}]"), "[10, 10, 10]");
     let scene = dir.join("scene.toml");
     std::fs::write(&scene, text).unwrap();
-    let solve = |out: &str, warm: Option<&Path>| {
-        let job = lpm::job::SolveJob {
-            vk: crate::common::validated(),
-            no_image: true,
-            fresh: true,
-            no_render_data: true,
-            warm_start: warm.map(Path::to_path_buf),
-            ..lpm::job::SolveJob::new(scene.clone(), dir.join(out))
-        };
-        lpm::job::run(&job, |_, _| {})
-    };
+    let solve = |out: &str, warm: Option<&Path>| lpm::job::run(&fields_only(&scene, &dir.join(out), warm), |_, _| {});
     let cold = solve("cold", None).expect("cold solve");
     assert!(cold.converged);
     let remaining = cold.remaining_error.expect("remaining error").max;
