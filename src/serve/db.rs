@@ -112,6 +112,13 @@ impl Db {
     pub fn open(path: &Path) -> rusqlite::Result<Db> {
         let conn = Connection::open(path)?;
         conn.busy_timeout(std::time::Duration::from_secs(10))?;
+        // Exclusive locking before WAL mode: SQLite then keeps the WAL index in the heap and never
+        // maps a `lpm.sqlite-shm` file. A mapped shm that cannot grow (made immutable, or on a full
+        // or odd file system) killed the server with SIGBUS and every job with it (issue 57); an
+        // I/O error on the database or its WAL is a failed request instead. The server is the
+        // queue's only user (one connection, behind the mutex below), so nothing is shut out;
+        // a second server on the same data root finds the database locked.
+        conn.pragma_update(None, "locking_mode", "EXCLUSIVE")?;
         conn.pragma_update(None, "journal_mode", "WAL")?;
         conn.pragma_update(None, "synchronous", "FULL")?;
         let version: i64 = conn.pragma_query_value(None, "user_version", |r| r.get(0))?;

@@ -173,6 +173,10 @@ fn api_end_to_end_with_real_clients() {
     assert_eq!(s, 404, "{}", r.into_string().unwrap());
     let (s, _) = call(agent().get(&format!("{url}/v1/jobs/{id}/outputs/..%2Flpm.sqlite")).call());
     assert_eq!(s, 404);
+    // The queue keeps its WAL index in memory (exclusive locking): no shm file is mapped, whose
+    // failure to grow (made immutable) killed the server with SIGBUS (issue 57).
+    assert!(dir.join("data/lpm.sqlite-wal").exists(), "the queue is in WAL mode");
+    assert!(!dir.join("data/lpm.sqlite-shm").exists(), "the queue maps a shared-memory file");
 
     // The CLI clients: submit --wait, status, fetch.
     let scene = dir.join("tiny.toml");
