@@ -205,7 +205,7 @@ fn check_extinction(scene: &Scene, store: &BrickStore) -> Result<(), SolveError>
             return Err(crate::store::StoreError::TooLarge {
                 path,
                 what: "density",
-                voxel: [origin[0] + (l % 16) as u32, origin[1] + (l / 16 % 16) as u32, origin[2] + (l / 256) as u32],
+                voxel: crate::store::brick_voxel(origin, l),
                 value,
                 factor_key: "medium.sigma_t",
                 factor: sigma,

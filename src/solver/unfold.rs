@@ -42,7 +42,7 @@ use super::orders::OrderOutcome;
 use super::plan::Plan;
 use super::{emission, BackendRun, SolveError, StoreFields};
 use crate::scene::{Acceleration, Scene};
-use crate::store::{albedo, BrickGrid, BrickStore, Coverage, Field, StoreError, BRICK_EDGE};
+use crate::store::{albedo, brick_voxel, BrickGrid, BrickStore, Coverage, Field, StoreError, BRICK_EDGE};
 use std::path::PathBuf;
 
 /// Where the volume and its images lie in the doubled volume.
@@ -207,12 +207,6 @@ fn fill_field(field: &mut Field, store: &BrickStore, value: impl Fn([u32; 3], u3
             }
         }
     }
-}
-
-/// The volume coordinates of voxel `i` (x fastest) of the brick at `origin`.
-fn brick_voxel(origin: [u32; 3], i: usize) -> [u32; 3] {
-    let edge = BRICK_EDGE as usize;
-    [origin[0] + (i % edge) as u32, origin[1] + (i / edge % edge) as u32, origin[2] + (i / (edge * edge)) as u32]
 }
 
 /// Solves `scene` (with mirror faces; `plan` its plan) on `backend` as the volume doubled by its

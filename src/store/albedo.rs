@@ -9,7 +9,7 @@
 //! [0, 1] is an error naming the file, the source of the values and the voxel.
 
 use super::import::voxel_grid_importer;
-use super::{BrickStore, Coverage, Field, StoreError, BRICK_VOXELS};
+use super::{brick_voxel, BrickStore, Coverage, Field, StoreError, BRICK_VOXELS};
 use crate::scene::{AlbedoGrid, VolumeSource};
 
 /// Name of the albedo field in the store.
@@ -38,9 +38,7 @@ pub fn import_albedo(store: &BrickStore, grid: &AlbedoGrid, source: &VolumeSourc
         fill(coords, &mut values).map_err(|e| e.into_albedo(&label))?;
         let origin = store.grid().brick_origin(coords);
         for (l, &a) in values.iter().enumerate() {
-            // Local index l = x + 16·(y + 16·z) (see store::grid::local_index).
-            let voxel = [origin[0] + (l % 16) as u32, origin[1] + (l / 16 % 16) as u32, origin[2] + (l / 256) as u32];
-            check_albedo(a, voxel, &path, &label)?;
+            check_albedo(a, brick_voxel(origin, l), &path, &label)?;
         }
         let Some(dst) = field.brick_mut(brick) else { continue };
         dst.copy_from_slice(&values);

@@ -15,7 +15,7 @@
 //! emission value or a temperature, naming the file and the voxel.
 
 use super::import::voxel_grid_importer;
-use super::{BrickStore, Coverage, Field, StoreError, BRICK_VOXELS};
+use super::{brick_voxel, BrickStore, Coverage, Field, StoreError, BRICK_VOXELS};
 use crate::scene::blackbody::BlackbodyMap;
 use crate::scene::validate::MAX_LIGHT;
 use crate::scene::{EmissionGrid, Medium, VolumeSource};
@@ -93,11 +93,7 @@ pub fn import_emission(
                     return Err(StoreError::TooLarge {
                         path,
                         what: "emission",
-                        voxel: [
-                            origin[0] + (l % 16) as u32,
-                            origin[1] + (l / 16 % 16) as u32,
-                            origin[2] + (l / 256) as u32,
-                        ],
+                        voxel: brick_voxel(origin, l),
                         value: values[l],
                         factor_key: "medium.emission",
                         factor: max_emission,
@@ -109,10 +105,7 @@ pub fn import_emission(
             Some(map) => {
                 let origin = store.grid().brick_origin(coords);
                 for (l, &t) in values.iter().enumerate() {
-                    // Local index l = x + 16·(y + 16·z) (see store::grid::local_index).
-                    let voxel =
-                        [origin[0] + (l % 16) as u32, origin[1] + (l / 16 % 16) as u32, origin[2] + (l / 256) as u32];
-                    let f = temperature_factors(map, max_emission, t, voxel, &path)?;
+                    let f = temperature_factors(map, max_emission, t, brick_voxel(origin, l), &path)?;
                     for (c, v) in f.into_iter().enumerate() {
                         dst[c * BRICK_VOXELS + l] = v;
                     }

@@ -74,6 +74,17 @@ pub fn local_index(l: [usize; 3]) -> usize {
     l[0] + 16 * (l[1] + 16 * l[2])
 }
 
+/// The volume coordinates of voxel `local` (x fastest, [`local_index`]'s order) of the brick whose
+/// low corner is `origin`.
+pub fn brick_voxel(origin: [u32; 3], local: usize) -> [u32; 3] {
+    let edge = BRICK_EDGE as usize;
+    [
+        origin[0] + (local % edge) as u32,
+        origin[1] + (local / edge % edge) as u32,
+        origin[2] + (local / (edge * edge)) as u32,
+    ]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -42,7 +42,7 @@ pub use atomic::{is_temp_name, remove_stale_temps};
 pub use brick_store::BrickStore;
 pub use error::StoreError;
 pub use field::{Coverage, Field};
-pub use grid::{local_index, BrickGrid, BRICK_EDGE, BRICK_VOXELS};
+pub use grid::{brick_voxel, local_index, BrickGrid, BRICK_EDGE, BRICK_VOXELS};
 pub use import::{raw_density, RawDensity};
 pub use space::free_bytes;
 
